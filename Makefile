@@ -1,0 +1,74 @@
+# eskin: two commands set everything up on a fresh machine.
+#   make demo   the whole pipeline on the built-in simulated campaign
+#   make test   every test (ctest for the C++ core, pytest for the package)
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+JOBS ?= $(shell nproc)
+APT_PACKAGES := libeigen3-dev libgtest-dev build-essential
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+CMAKE := $(VENV)/bin/cmake
+BUILD_CPP := build/cpp
+BUILD_DEV := build/dev
+
+.PHONY: all deps venv install cpp ctest pytest test demo dev devtest bench clean
+
+all: install cpp
+
+# Debian packages (Eigen, GoogleTest, a compiler); installed only when missing.
+deps: build/.deps-ok
+build/.deps-ok:
+	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:$$missing"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
+	fi
+	@mkdir -p build && touch $@
+
+# A virtual environment with the build tools and the package's own dependencies.
+venv: $(VENV)/.deps-ok
+$(VENV)/.deps-ok: pyproject.toml
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q scikit-build-core pybind11 cmake ninja
+	$(PIP) install -q $$($(PY) -c "import tomllib;d=tomllib.load(open('pyproject.toml','rb'))['project'];print(' '.join(repr(x) for x in d['dependencies']+d['optional-dependencies']['test']))" | tr -d "'")
+	@touch $@
+
+# The package itself, editable: Python sources from python/, the compiled core built by scikit-build-core.
+install: deps venv
+	$(PIP) install -q --no-build-isolation --no-deps -e .
+
+# The C++ core on its own, with its GoogleTest suite and the command-line tools.
+cpp: deps venv
+	$(CMAKE) -S . -B $(BUILD_CPP) -G Ninja -DCMAKE_BUILD_TYPE=Release -DESKIN_BUILD_TESTS=ON -DESKIN_BUILD_PYTHON=OFF >/dev/null
+	$(CMAKE) --build $(BUILD_CPP) -j $(JOBS)
+
+ctest: cpp
+	cd $(BUILD_CPP) && "$(CURDIR)/$(VENV)/bin/ctest" --output-on-failure -j $(JOBS)
+
+pytest: install
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
+
+test: ctest pytest
+
+demo: install cpp
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m eskin demo --out demo_out
+
+bench: install cpp
+	for b in benchmarks/bench_*.py; do echo "== $$b"; ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) $$b || exit 1; done
+
+# Fast inner loop for developers: one CMake build with tests, tools and the module put in place
+# next to python/eskin (no pip involved). Run the Python tests with `make devtest`.
+dev: deps venv
+	$(CMAKE) -S . -B $(BUILD_DEV) -G Ninja -DCMAKE_BUILD_TYPE=Release -DESKIN_BUILD_TESTS=ON \
+	  -DESKIN_BUILD_PYTHON=ON -DESKIN_PYTHON_INPLACE=ON -DPython_EXECUTABLE=$(abspath $(PY)) \
+	  -Dpybind11_DIR=$$($(PY) -m pybind11 --cmakedir) >/dev/null
+	$(CMAKE) --build $(BUILD_DEV) -j $(JOBS)
+
+devtest: dev
+	cd $(BUILD_DEV) && ctest --output-on-failure -j $(JOBS)
+	PYTHONPATH=python ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) -m pytest -q tests/python
+
+clean:
+	rm -rf build python/eskin/_core*.so

@@ -1,0 +1,1 @@
+#include "eskin/version.hpp"

@@ -1,0 +1,3 @@
+from eskin.cli import main
+
+main()
