@@ -1021,6 +1021,7 @@ def _protocol(
                 f"error_{cfg.subsample}": main["error"],
                 f"error_{other}": d["error"],
                 f"selected_{other}": d["selected"],
+                "seconds": d["seconds"],
             }
         )
 
