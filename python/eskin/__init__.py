@@ -22,6 +22,11 @@ _EXPORTS: dict[str, str] = {
     "tensor_kernel": "kernel",
     "mode_distances": "kernel",
     "resolve_alphas": "kernel",
+    "pattern_bases": "kernel",
+    "PatternBases": "kernel",
+    "bases_mode_distances": "kernel",
+    "bases_tensor_kernel": "kernel",
+    "kernel_from_distances": "kernel",
     # preprocessing (issue 3)
     "preprocess": "preprocess",
     "WindowConfig": "preprocess",
