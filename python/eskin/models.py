@@ -428,6 +428,11 @@ class TouchModel:
             "subsample": self.subsample,
             "sample_rate_hz": float(self.sample_rate_hz),
             "grid_shape": [int(v) for v in self.grid_shape],
+            "window_config": (
+                self.window_config.to_dict()
+                if hasattr(self.window_config, "to_dict")
+                else self.window_config
+            ),
         }
 
     # -- preprocessing and decisions ------------------------------------------------------
@@ -654,6 +659,10 @@ def train_model(
     groups = parts[idx] if parts is not None else None
 
     rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
+    if window == "energy" and window_config is None:
+        from eskin.preprocess import WindowConfig
+
+        window_config = WindowConfig()  # the defaults, written into the model explicitly
     prep = preprocess_campaign(
         rec, idx, [(int(D), subsample)], window=window, config=window_config, sample_rate_hz=rate
     )
