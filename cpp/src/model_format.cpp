@@ -182,7 +182,9 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   const std::string& w = r.what();
   const std::uint32_t rows = r.u32("rows"), cols = r.u32("cols"), D = r.u32("D");
   const std::uint32_t window = r.u32("window_mode"), sub = r.u32("subsample");
+  const std::uint32_t short_policy = r.u32("short_policy");
   const std::uint32_t n_fields = r.u32("n_window_fields");
+  r.zero_u32("reserved");
   const double rate = r.f64("sample_rate_hz");
   if (rows < 1 || rows > kMaxGrid || cols < 1 || cols > kMaxGrid)
     fail(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
@@ -190,32 +192,49 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   if (D < 2 || D > kMaxD)
     fail(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
   if (window > 1)
-    fail(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 none, 1 energy)");
+    fail(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 energy, 1 none)");
   if (sub > 1)
     fail(ModelError::kValue, w + ": subsample=" + std::to_string(sub) + " (0 algorithm2, 1 even)");
+  if (short_policy > 1)
+    fail(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
+                                 " (0 interpolate, 1 error)");
   if (!(std::isfinite(rate) && rate > 0))
     fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be finite and > 0");
-  if (n_fields > kMaxFields)
-    fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + " > 256");
+  const auto& names = window_config_field_names();
+  if (n_fields != kWindowConfigSize)
+    fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
+                                 std::to_string(kWindowConfigSize) + " (the WindowConfig fields)");
+  std::array<double, kWindowConfigSize> values{};
+  std::array<bool, kWindowConfigSize> seen{};
+  for (std::uint32_t i = 0; i < n_fields; ++i) {
+    const std::string name = r.name("window field name");
+    const double value = r.f64("window field value");
+    std::size_t k = 0;
+    while (k < kWindowConfigSize && name != names[k]) ++k;
+    if (k == kWindowConfigSize)
+      fail(ModelError::kValue, w + ": unknown window field '" + name + "'");
+    if (seen[k]) fail(ModelError::kValue, w + ": window field '" + name + "' repeated");
+    if (!std::isfinite(value))
+      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+                                   " is not finite");
+    seen[k] = true;
+    values[k] = value;
+  }
+  r.expect_end();
+  const WindowConfig cfg = window_config_from_array(values.data(), values.size());
+  try {
+    (void)resolve_window_config(cfg, rate);  // the detector's own validation
+  } catch (const std::exception& e) {
+    fail(ModelError::kValue, w + ": " + e.what());
+  }
   m.rows_ = static_cast<int>(rows);
   m.cols_ = static_cast<int>(cols);
   m.D_ = static_cast<int>(D);
   m.window_mode_ = static_cast<WindowMode>(window);
-  m.subsample_ = static_cast<Subsample>(sub);
+  m.subsample_ = static_cast<SubsampleMethod>(sub);
+  m.short_policy_ = static_cast<ShortPolicy>(short_policy);
   m.sample_rate_hz_ = rate;
-  m.window_fields_.clear();
-  for (std::uint32_t i = 0; i < n_fields; ++i) {
-    WindowField f;
-    f.name = r.name("window field name");
-    f.value = r.f64("window field value");
-    if (!std::isfinite(f.value))
-      fail(ModelError::kValue, w + ": window field '" + f.name + "' = " + fmt_double(f.value) +
-                                   " is not finite");
-    for (const auto& g : m.window_fields_)
-      if (g.name == f.name) fail(ModelError::kValue, w + ": window field '" + f.name + "' repeated");
-    m.window_fields_.push_back(std::move(f));
-  }
-  r.expect_end();
+  m.window_config_ = cfg;
 }
 
 void ModelParser::parse_clas(Reader& r, Model& m) {

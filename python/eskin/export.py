@@ -42,7 +42,8 @@ FORMAT_VERSION = 1
 HEADER_BYTES = 32
 FLAG_FLOAT64 = 1
 NAME_BYTES = 32
-_WINDOW_MODES = {"none": 0, "energy": 1}
+_WINDOW_MODES = {"energy": 0, "none": 1}
+_SHORT = {"interpolate": 0, "error": 1}
 _SUBSAMPLE = {"algorithm2": 0, "even": 1}
 _RULES = {"binary": 0, "one_vs_all": 1}
 
@@ -82,8 +83,9 @@ class ModelSpec:
     grid_shape: tuple[int, int]
     window: str = "energy"  # "energy" | "none"
     subsample: str = "algorithm2"  # "algorithm2" | "even"
+    short: str = "interpolate"  # windows shorter than D: "interpolate" | "error"
     sample_rate_hz: float = 3000.0
-    window_config: dict[str, float] = field(default_factory=dict)
+    window_config: Any = None  # eskin.WindowConfig (or its fields as a mapping); None = default
     meta: dict[str, Any] = field(default_factory=dict)
 
 
@@ -110,6 +112,8 @@ def _validate_spec(spec: ModelSpec) -> None:
         raise ModelFormatError(f"window={spec.window!r}: expected 'energy' or 'none'")
     if spec.subsample not in _SUBSAMPLE:
         raise ModelFormatError(f"subsample={spec.subsample!r}: expected 'algorithm2' or 'even'")
+    if spec.short not in _SHORT:
+        raise ModelFormatError(f"short={spec.short!r}: expected 'interpolate' or 'error'")
     if not (np.isfinite(spec.sample_rate_hz) and spec.sample_rate_hz > 0):
         raise ModelFormatError(f"sample_rate_hz={spec.sample_rate_hz!r}: must be finite and > 0")
     nc = len(spec.class_names)
@@ -163,6 +167,17 @@ def _validate_spec(spec: ModelSpec) -> None:
                 )
             if not (np.isfinite(m.sigmas[z]) and m.sigmas[z] > 0):
                 raise ModelFormatError(f"machine {k}: sigma[{z}]={m.sigmas[z]} must be > 0")
+
+
+def _window_fields(cfg: Any) -> dict[str, float]:
+    """The detector settings as name -> float (an eskin.WindowConfig or a plain mapping)."""
+    if cfg is None:
+        from eskin.preprocess import WindowConfig
+
+        cfg = WindowConfig()
+    if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):
+        return dict(zip(cfg.field_names(), (float(v) for v in cfg.to_array())))
+    return {str(k): float(v) for k, v in dict(cfg).items()}
 
 
 # ----------------------------------------------------------------------------- bases
@@ -230,16 +245,18 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
     ranks, bases = bases_fn(np.stack(unique), alpha_store)
 
     prep = struct.pack(
-        "<IIIIII d",
+        "<IIIIIIII d",
         rows,
         cols,
         D,
         _WINDOW_MODES[spec.window],
         _SUBSAMPLE[spec.subsample],
-        len(spec.window_config),
+        _SHORT[spec.short],
+        len(_window_fields(spec.window_config)),
+        0,
         float(spec.sample_rate_hz),
     )
-    for name, value in spec.window_config.items():
+    for name, value in _window_fields(spec.window_config).items():
         v = float(value)
         if not np.isfinite(v):
             raise ModelFormatError(f"window_config[{name!r}]={value!r} is not finite")

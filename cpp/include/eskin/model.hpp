@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include "eskin/preprocess.hpp"
+#include "eskin/tensor_kernel.hpp"
 
 namespace eskin {
 
@@ -51,14 +53,6 @@ inline constexpr int kModes = 3;               ///< (rows, cols, D) tensors
 std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc = 0) noexcept;
 }  // namespace model_format
 
-enum class WindowMode : std::uint32_t { kNone = 0, kEnergy = 1 };
-enum class Subsample : std::uint32_t { kAlgorithm2 = 0, kEven = 1 };
-
-/// One named window-detector parameter as stored in the file (eskin::WindowConfig field).
-struct WindowField {
-  std::string name;
-  double value = 0.0;
-};
 enum class DecisionRule : std::uint32_t { kBinary = 0, kOneVsAll = 1 };
 
 /// One binary machine f(x) = sum_t coef[t] K(sv[t], x) + intercept, with
@@ -86,9 +80,10 @@ class Model {
   int cols() const noexcept { return cols_; }
   int D() const noexcept { return D_; }
   WindowMode window_mode() const noexcept { return window_mode_; }
-  Subsample subsample() const noexcept { return subsample_; }
+  SubsampleMethod subsample() const noexcept { return subsample_; }
+  ShortPolicy short_policy() const noexcept { return short_policy_; }
   double sample_rate_hz() const noexcept { return sample_rate_hz_; }
-  const std::vector<WindowField>& window_fields() const noexcept { return window_fields_; }
+  const WindowConfig& window_config() const noexcept { return window_config_; }
 
   // classes and machines
   DecisionRule rule() const noexcept { return rule_; }
@@ -112,9 +107,10 @@ class Model {
  private:
   int rows_ = 0, cols_ = 0, D_ = 0;
   WindowMode window_mode_ = WindowMode::kEnergy;
-  Subsample subsample_ = Subsample::kAlgorithm2;
+  SubsampleMethod subsample_ = SubsampleMethod::kAlgorithm2;
+  ShortPolicy short_policy_ = ShortPolicy::kInterpolate;
   double sample_rate_hz_ = 0.0;
-  std::vector<WindowField> window_fields_;
+  WindowConfig window_config_{};
   DecisionRule rule_ = DecisionRule::kBinary;
   std::vector<std::string> class_names_;
   std::vector<ModelMachine> machines_;
@@ -130,59 +126,96 @@ class Model {
   friend class ModelParser;
 };
 
-/// Status of a per-decision call (no exceptions on that path).
-enum class Status : int {
+/// Result of a per-decision call (no exceptions on that path).
+enum class ClassifyStatus : int {
   kOk = 0,
-  kBadShape = 1,     ///< the window's rows/cols do not match the model
-  kTooShort = 2,     ///< fewer samples than the model needs
-  kNoTouch = 3,      ///< the energy detector found no touch in the window
-  kNotFinite = 4,    ///< NaN or Inf in the input
-  kTooLong = 5,      ///< more samples than the classifier was sized for
+  kDecision = 1,     ///< StreamClassifier: a touch ended and was classified (see decision())
+  kBadShape = -1,    ///< the window's rows/cols/length do not fit the model or the classifier
+  kNoTouch = -2,     ///< the energy detector found no touch and the model's fallback is "error"
+  kNotFinite = -3,   ///< NaN or Inf in the input
+  kTooShort = -4,    ///< the window is shorter than D and the model's short policy is "error"
+  kKernel = -5,      ///< the basis computation failed (eigen-solver did not converge)
+  kNullPointer = -6,
 };
-const char* status_name(Status s) noexcept;
+const char* to_string(ClassifyStatus s) noexcept;
 
-/// One decision.
+/// One decision. `values` points into the classifier that produced it (valid until its next call).
 struct Decision {
-  int label = -1;            ///< class index (into Model::class_names), -1 if no decision
-  bool dont_know = false;    ///< one-vs-all: no machine, or more than one, claims the pattern
-  int n_machines = 0;        ///< number of valid entries in `values`
-  const double* values = nullptr;  ///< per-machine decision values (owned by the classifier)
-  std::int64_t window_start = 0;   ///< detected window [start, stop) in samples of the input
+  int label = -1;                  ///< class index into Model::class_names(), -1 if no decision
+  bool dont_know = false;          ///< one-vs-all: no machine, or more than one, claims the pattern
+  int n_machines = 0;              ///< entries in `values`
+  const double* values = nullptr;  ///< per-machine decision values f_k(x)
+  std::int64_t window_start = 0;   ///< window used, [start, stop) in samples of the input/stream
   std::int64_t window_stop = 0;
+  bool window_found = true;        ///< false when the detector found no touch (fallback window)
 };
 
-/// Runs a Model on raw windows. Owns every buffer it needs (sized at construction for windows up
-/// to `max_samples` samples); classify() performs no heap allocation and throws nothing.
-/// Not thread-safe: use one Classifier per thread (the Model can be shared).
+/// Runs a Model on raw windows. Owns every buffer it needs (allocated at construction); the
+/// classify calls perform no heap allocation and throw nothing. Not thread-safe: one Classifier
+/// per thread (a Model can be shared; it must outlive its classifiers).
 class Classifier {
  public:
-  explicit Classifier(const Model& model, std::int64_t max_samples = 21000);
+  explicit Classifier(const Model& model);
   ~Classifier();
   Classifier(Classifier&&) noexcept;
   Classifier& operator=(Classifier&&) = delete;
   Classifier(const Classifier&) = delete;
   Classifier& operator=(const Classifier&) = delete;
 
-  /// A raw recording or window, C order (rows, cols, T): sample t of taxel (r, c) at
-  /// (r * cols + c) * T + t. Applies the model's preprocessing (energy window if configured,
-  /// then subsampling to D) and the machines.
-  Status classify(const std::int16_t* x, int rows, int cols, std::int64_t T, Decision* out) noexcept;
-  Status classify(const float* x, int rows, int cols, std::int64_t T, Decision* out) noexcept;
-  Status classify(const double* x, int rows, int cols, std::int64_t T, Decision* out) noexcept;
+  /// A raw recording (or window) in C order (rows, cols, T): sample t of taxel (r, c) at
+  /// (r * cols + c) * T + t; only its first `length` samples are used (length <= T; pass T).
+  /// Applies the model's preprocessing (energy window or whole recording, then subsampling
+  /// to D) and its machines, as eskin.preprocess + the Python model would.
+  ClassifyStatus classify(const std::int16_t* x, int rows, int cols, std::int64_t T,
+                          std::int64_t length, Decision* out) noexcept;
+  ClassifyStatus classify(const float* x, int rows, int cols, std::int64_t T, std::int64_t length,
+                          Decision* out) noexcept;
+  ClassifyStatus classify(const double* x, int rows, int cols, std::int64_t T, std::int64_t length,
+                          Decision* out) noexcept;
   /// An already preprocessed tensor (rows, cols, D), C order: only the machines run.
-  Status classify_tensor(const double* tensor, Decision* out) noexcept;
+  ClassifyStatus classify_tensor(const double* tensor, Decision* out) noexcept;
 
   const Model& model() const noexcept { return *model_; }
-  std::int64_t max_samples() const noexcept { return max_samples_; }
 
   struct Impl;
 
  private:
   template <typename T>
-  Status classify_raw(const T* x, int rows, int cols, std::int64_t n, Decision* out) noexcept;
+  ClassifyStatus classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
+                              std::int64_t length, Decision* out) noexcept;
   const Model* model_;
-  std::int64_t max_samples_;
   std::unique_ptr<Impl> impl_;
+};
+
+/// The controller's path: fed one multi-taxel sample at a time (rows*cols values, taxel
+/// (r, c) at r * cols + c), it detects each touch with the model's window detector and
+/// classifies it when it ends. No heap allocation after construction, no exceptions.
+class StreamClassifier {
+ public:
+  explicit StreamClassifier(const Model& model);
+
+  /// One sample. Returns kOk (nothing to report), kDecision (a touch just ended and was
+  /// classified: read decision()), or an error status (the sample, or the touch, is dropped).
+  ClassifyStatus push(const std::int16_t* sample) noexcept;
+  ClassifyStatus push(const float* sample) noexcept;
+  ClassifyStatus push(const double* sample) noexcept;
+  /// End of the stream: a touch in progress ends now. kDecision or kOk.
+  ClassifyStatus flush() noexcept;
+  /// Forget the stream (keeps the buffers).
+  void reset() noexcept;
+
+  const Decision& decision() const noexcept { return decision_; }
+  std::int64_t samples_seen() const noexcept { return detector_.samples_seen(); }
+  bool in_touch() const noexcept { return detector_.in_touch(); }
+  const TouchDetector& detector() const noexcept { return detector_; }
+
+ private:
+  ClassifyStatus after_push(Status st) noexcept;
+  const Model* model_;
+  Classifier classifier_;
+  TouchDetector detector_;
+  std::vector<double> tensor_;
+  Decision decision_{};
 };
 
 }  // namespace eskin
