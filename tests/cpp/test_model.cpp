@@ -1,8 +1,12 @@
 // The .eskin loader (every bad-file case gives its error, fuzzed files never crash or hang).
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
+#include <new>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -10,6 +14,41 @@
 #include <vector>
 
 #include "eskin/model.hpp"
+
+// ---- allocation counting: this test executable replaces the global operator new.
+namespace {
+std::atomic<bool> g_counting{false};
+std::atomic<long> g_allocations{0};
+void* counted_alloc(std::size_t n) {
+  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* counted_alloc_aligned(std::size_t n, std::size_t al) {
+  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
+  const std::size_t sz = (n + al - 1) / al * al;
+  if (void* p = std::aligned_alloc(al, sz ? sz : al)) return p;
+  throw std::bad_alloc();
+}
+}  // namespace
+void* operator new(std::size_t n) { return counted_alloc(n); }
+void* operator new[](std::size_t n) { return counted_alloc(n); }
+void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
+  try { return counted_alloc(n); } catch (...) { return nullptr; }
+}
+void* operator new[](std::size_t n, const std::nothrow_t&) noexcept {
+  try { return counted_alloc(n); } catch (...) { return nullptr; }
+}
+void* operator new(std::size_t n, std::align_val_t al) { return counted_alloc_aligned(n, static_cast<std::size_t>(al)); }
+void* operator new[](std::size_t n, std::align_val_t al) { return counted_alloc_aligned(n, static_cast<std::size_t>(al)); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
 
 namespace {
 
@@ -241,4 +280,111 @@ TEST(ModelFuzz, TruncatedAndBitFlippedFiles) {
   }
   EXPECT_GT(rejected, 1000);
   RecordProperty("loaded", loaded);
+}
+
+// ---- classification
+
+namespace {
+
+// A 4x4 recording (taxel-major, C order (rows, cols, T)): noise, then a vibrating touch.
+std::vector<std::int16_t> synthetic_recording(std::int64_t T, std::int64_t on, std::int64_t off,
+                                              unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 15.0);
+  std::vector<std::int16_t> x(static_cast<std::size_t>(16 * T));
+  for (int k = 0; k < 16; ++k) {
+    const double f = 40.0 + 13.0 * k, amp = 800.0 + 90.0 * ((k * 7) % 16);
+    for (std::int64_t t = 0; t < T; ++t) {
+      double v = noise(rng);
+      if (t >= on && t < off) v += amp * std::sin(2 * 3.14159265358979 * f * t / 3000.0);
+      x[static_cast<std::size_t>(k * T + t)] = static_cast<std::int16_t>(std::lround(v));
+    }
+  }
+  return x;
+}
+
+}  // namespace
+
+TEST(ModelClassify, RawWindowGivesALabelAndOneValuePerMachine) {
+  const Bytes b = fixture("float32");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const auto x = synthetic_recording(9000, 3000, 6000, 1);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify(x.data(), 4, 4, 9000, 9000, &d), eskin::ClassifyStatus::kOk);
+  EXPECT_GE(d.label, 0);
+  EXPECT_LT(d.label, 3);
+  EXPECT_EQ(d.n_machines, 3);
+  for (int k = 0; k < 3; ++k) EXPECT_TRUE(std::isfinite(d.values[k]));
+  EXPECT_TRUE(d.window_found);
+  EXPECT_NEAR(static_cast<double>(d.window_start), 3000.0, 300.0);
+  EXPECT_NEAR(static_cast<double>(d.window_stop), 6000.0, 900.0);
+  // the paper's rule
+  int claims = 0;
+  for (int k = 0; k < 3; ++k) claims += d.values[k] > 0;
+  EXPECT_EQ(d.dont_know, claims != 1);
+  EXPECT_EQ(clf.classify(x.data(), 4, 5, 9000, 9000, &d), eskin::ClassifyStatus::kBadShape);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 9000, 0, &d), eskin::ClassifyStatus::kBadShape);
+  std::vector<float> bad(x.begin(), x.end());
+  bad[100] = NAN;
+  EXPECT_EQ(clf.classify(bad.data(), 4, 4, 9000, 9000, &d), eskin::ClassifyStatus::kNotFinite);
+}
+
+// The streaming classifier makes the same decision as the batch classifier on the same touch,
+// and allocates nothing once constructed (counted through the replaced operator new).
+TEST(ModelStream, AllocationCounterSeesAllocations) {
+  g_allocations = 0;
+  g_counting = true;
+  std::vector<double>* v = new std::vector<double>(10);
+  g_counting = false;
+  delete v;
+  EXPECT_EQ(g_allocations.load(), 2);  // the vector object and its buffer
+}
+
+TEST(ModelStream, SameDecisionAsBatchAndNoAllocation) {
+  for (const char* dtype : {"float32", "float64"}) {
+    const Bytes b = fixture(dtype);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    eskin::StreamClassifier sc(m);
+    const std::int64_t T = 12000;
+    const auto x = synthetic_recording(T, 4000, 7000, 2);
+    eskin::Decision batch;
+    ASSERT_EQ(clf.classify(x.data(), 4, 4, T, T, &batch), eskin::ClassifyStatus::kOk);
+    const std::vector<double> batch_values(batch.values, batch.values + batch.n_machines);
+
+    std::int16_t sample[16];
+    int decisions = 0;
+    eskin::Decision got;
+    std::vector<double> got_values(3);
+    g_allocations = 0;
+    g_counting = true;
+    for (int rep = 0; rep < 2; ++rep) {  // the same recording twice, back to back
+      for (std::int64_t t = 0; t < T; ++t) {
+        for (int k = 0; k < 16; ++k) sample[k] = x[static_cast<std::size_t>(k * T + t)];
+        const eskin::ClassifyStatus s = sc.push(sample);
+        if (s == eskin::ClassifyStatus::kDecision) {
+          ++decisions;
+          got = sc.decision();
+          for (int k = 0; k < 3; ++k) got_values[static_cast<std::size_t>(k)] = got.values[k];
+          if (rep == 0) {
+            EXPECT_EQ(got.window_start, batch.window_start);
+            EXPECT_EQ(got.window_stop, batch.window_stop);
+          }
+        }
+      }
+    }
+    g_counting = false;
+    EXPECT_EQ(g_allocations.load(), 0) << dtype;
+    EXPECT_EQ(decisions, 2) << dtype;
+    EXPECT_EQ(got.label, batch.label);
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(got_values[static_cast<std::size_t>(k)], batch_values[static_cast<std::size_t>(k)], 1e-12);
+
+    // the batch classifier does not allocate per decision either
+    g_allocations = 0;
+    g_counting = true;
+    for (int rep = 0; rep < 3; ++rep) clf.classify(x.data(), 4, 4, T, T, &batch);
+    g_counting = false;
+    EXPECT_EQ(g_allocations.load(), 0) << dtype;
+  }
 }
