@@ -25,6 +25,8 @@ from typing import Any, Sequence, Union
 import numpy as np
 
 __all__ = [
+    "CompiledDecisions",
+    "pattern_bases",
     "MAGIC",
     "FORMAT_VERSION",
     "MachineSpec",
@@ -298,3 +300,391 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
     )
     body = header + b"".join(sections)
     return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+
+
+# ----------------------------------------------------------------------------- from a TouchModel
+
+
+def _machine_spec(est: Any, positive: int, negative: int, where: str) -> MachineSpec:
+    for attr in ("support_vectors_", "dual_coef_", "intercept_", "alphas_", "sigmas_"):
+        if not hasattr(est, attr):
+            raise ModelFormatError(f"{where}: the estimator has no fitted attribute {attr!r}")
+    sv = np.asarray(est.support_vectors_, dtype=np.float64)
+    coef = np.asarray(est.dual_coef_, dtype=np.float64).reshape(-1)
+    if sv.shape[0] == 0:
+        raise ModelFormatError(f"{where}: the machine has no support vectors; nothing to export")
+    return MachineSpec(
+        positive=positive,
+        negative=negative,
+        intercept=float(est.intercept_),
+        alphas=tuple(int(a) for a in est.alphas_),
+        sigmas=tuple(float(s) for s in est.sigmas_),
+        support_vectors=sv,
+        dual_coef=coef,
+    )
+
+
+def spec_from_model(model: Any) -> ModelSpec:
+    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel`.
+
+    A binary model's machine has ``classes_`` = [0, 1] (f > 0 means ``classes[1]``); a model
+    of three or more classes holds a OneVsAllTouchClassifier whose machine k claims class k.
+    """
+    if isinstance(model, ModelSpec):
+        return model
+    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
+        if not hasattr(model, attr):
+            raise ModelFormatError(
+                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
+                f"(missing {attr!r})"
+            )
+    est = model.estimator
+    classes = [str(c) for c in model.classes]
+    if hasattr(est, "estimators_"):
+        if len(est.estimators_) != len(classes):
+            raise ModelFormatError(
+                f"one-vs-all estimator has {len(est.estimators_)} machines for {len(classes)} classes"
+            )
+        ids = [int(c) for c in np.asarray(est.classes_)]
+        if ids != list(range(len(classes))):
+            raise ModelFormatError(f"one-vs-all classes_ {ids} must be 0..{len(classes) - 1}")
+        machines = [
+            _machine_spec(m, k, -1, f"machine {k} ({classes[k]} vs rest)")
+            for k, m in enumerate(est.estimators_)
+        ]
+        rule = "one_vs_all"
+    else:
+        cls = [int(c) for c in np.asarray(getattr(est, "classes_", [0, 1]))]
+        if len(classes) != 2 or sorted(cls) != [0, 1]:
+            raise ModelFormatError(
+                f"binary estimator classes_ {cls} must be [0, 1] for the classes {classes}"
+            )
+        machines = [_machine_spec(est, cls[1], cls[0], "binary machine")]
+        rule = "binary"
+    import eskin
+
+    meta = {
+        "eskin_version": eskin.__version__,
+        "classes": classes,
+        "machine": getattr(model, "machine", None),
+        "selection": getattr(model, "selection", None),
+    }
+    return ModelSpec(
+        class_names=classes,
+        rule=rule,
+        machines=machines,
+        D=int(model.D),
+        grid_shape=tuple(int(v) for v in model.grid_shape),
+        window=str(model.window),
+        subsample=str(model.subsample),
+        short=str(getattr(model, "short", "interpolate")),
+        sample_rate_hz=float(model.sample_rate_hz),
+        window_config=getattr(model, "window_config", None),
+        meta=meta,
+    )
+
+
+def export_model(model: Any, path: PathLike, dtype: str = "float32") -> Path:
+    """Write a trained model (a TouchModel or a :class:`ModelSpec`) as a ``.eskin`` file.
+
+    ``dtype`` is the precision of the stored bases and coefficients: "float32" (default, half
+    the size) or "float64". The written file is read back by the C++ loader before returning,
+    so a file that this function returns is one the controller can load. Returns the path.
+    """
+    data = model_to_bytes(spec_from_model(model), dtype)
+    CompiledModel(data)  # the C++ validator must accept what we write
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    return path
+
+
+# ----------------------------------------------------------------------------- C header
+
+
+def _c_ident(name: str) -> str:
+    ident = "".join(c if c.isalnum() or c == "_" else "_" for c in name)
+    if not ident or ident[0].isdigit():
+        ident = "m_" + ident
+    return ident
+
+
+def write_c_header(model_or_file: Any, path: PathLike, *, name: str = "eskin_model",
+                   dtype: str = "float32") -> Path:
+    """Write a model as a C/C++ header for firmware without a file system.
+
+    ``model_or_file``: a TouchModel / :class:`ModelSpec` (exported with ``dtype``) or the path
+    of a ``.eskin`` file. The header holds the very bytes of the ``.eskin`` file as
+    ``static const unsigned char <name>_data[]`` (and ``<name>_size``), plus macros describing
+    it; the controller loads it with ``eskin::Model::from_bytes(<name>_data, <name>_size)``.
+    """
+    if isinstance(model_or_file, (str, Path)):
+        src = Path(model_or_file)
+        if not src.is_file():
+            raise FileNotFoundError(f"model file {src} does not exist")
+        data = src.read_bytes()
+    elif isinstance(model_or_file, (bytes, bytearray)):
+        data = bytes(model_or_file)
+    else:
+        data = model_to_bytes(spec_from_model(model_or_file), dtype)
+    cm = CompiledModel(data)  # validates
+    ident = _c_ident(name)
+    guard = ident.upper() + "_H"
+    lines = [
+        f"/* {ident}: an eskin model (.eskin format version {FORMAT_VERSION}, docs/model-format.md)",
+        f" * classes: {', '.join(cm.class_names)} ({cm.rule})",
+        f" * grid {cm.grid_shape[0]}x{cm.grid_shape[1]}, D = {cm.D}, window {cm.window}, "
+        f"subsample {cm.subsample}, {cm.sample_rate_hz:g} Hz",
+        f" * {cm.n_support} support vectors, {'float64' if cm.is_float64 else 'float32'}, "
+        f"{len(data)} bytes, CRC-32 0x{zlib.crc32(data[:-4]) & 0xFFFFFFFF:08x}",
+        " * Load with eskin::Model::from_bytes(" + ident + "_data, " + ident + "_size).",
+        " * Generated by eskin.export.write_c_header; do not edit. */",
+        f"#ifndef {guard}",
+        f"#define {guard}",
+        "",
+        "#include <stddef.h>",
+        "",
+        f"#define {ident.upper()}_N_CLASSES {len(cm.class_names)}",
+        f"#define {ident.upper()}_ROWS {cm.grid_shape[0]}",
+        f"#define {ident.upper()}_COLS {cm.grid_shape[1]}",
+        f"#define {ident.upper()}_D {cm.D}",
+        f"#define {ident.upper()}_N_SUPPORT {cm.n_support}",
+        "",
+        f"static const char* const {ident}_class_names[{len(cm.class_names)}] = {{"
+        + ", ".join(json.dumps(c) for c in cm.class_names)
+        + "};",
+        f"static const size_t {ident}_size = {len(data)};",
+        f"static const unsigned char {ident}_data[{len(data)}] = {{",
+    ]
+    for i in range(0, len(data), 16):
+        chunk = data[i : i + 16]
+        lines.append("  " + ", ".join(f"0x{b:02x}" for b in chunk) + ",")
+    lines += ["};", "", f"#endif /* {guard} */", ""]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines))
+    return path
+
+
+# ----------------------------------------------------------------------------- compiled model
+
+
+@dataclass(frozen=True)
+class CompiledDecisions:
+    """Decisions of the C++ classifier on a batch of recordings.
+
+    ``labels``: class names; ``label_indices``: indices into the model's classes;
+    ``decision_values``: (n, n_machines) (one machine for a binary model, > 0 meaning the second
+    class); ``dont_know``: one-vs-all flags; ``windows``: (n, 2) the [start, stop) touch window
+    used, in samples; ``window_found``: False where the detector found no touch (the whole
+    recording was used).
+    """
+
+    labels: np.ndarray
+    label_indices: np.ndarray
+    decision_values: np.ndarray
+    dont_know: np.ndarray
+    windows: np.ndarray
+    window_found: np.ndarray
+
+
+_STATUS = {
+    -1: "its shape does not fit the model",
+    -2: "no touch was detected (the model's detector has fallback = error)",
+    -3: "it holds NaN or Inf values",
+    -4: "its window is shorter than D (the model's short policy is error)",
+    -5: "the basis computation failed",
+    -6: "null data",
+}
+
+
+class CompiledModel:
+    """A ``.eskin`` model loaded into the C++ core: classify raw recordings as the controller does.
+
+    ``CompiledModel(path_or_bytes)``; or :meth:`from_model` to compile a trained TouchModel in
+    memory. Raises :class:`ModelFormatError` (a ValueError) naming the problem for a file that is
+    not a valid model.
+    """
+
+    def __init__(self, source: Union[PathLike, bytes, bytearray]) -> None:
+        from eskin import _core
+
+        try:
+            if isinstance(source, (bytes, bytearray)):
+                self._model = _core.Model.from_bytes(bytes(source))
+                self.path: Path | None = None
+            else:
+                self.path = Path(source)
+                if not self.path.is_file():
+                    raise FileNotFoundError(f"model file {self.path} does not exist")
+                self._model = _core.Model.load(str(self.path))
+        except _core.ModelFormatError as exc:
+            raise ModelFormatError(str(exc)) from None
+        self._clf = _core.Classifier(self._model)
+
+    @classmethod
+    def from_model(cls, model: Any, dtype: str = "float32") -> "CompiledModel":
+        """Compile a TouchModel (or :class:`ModelSpec`) without writing a file."""
+        return cls(model_to_bytes(spec_from_model(model), dtype))
+
+    # -- description
+    class_names = property(lambda self: list(self._model.class_names))
+    classes = class_names
+    rule = property(lambda self: self._model.rule)
+    D = property(lambda self: int(self._model.D))
+    grid_shape = property(lambda self: (int(self._model.rows), int(self._model.cols)))
+    window = property(lambda self: self._model.window)
+    subsample = property(lambda self: self._model.subsample)
+    sample_rate_hz = property(lambda self: float(self._model.sample_rate_hz))
+    window_config = property(lambda self: dict(self._model.window_config))
+    n_support = property(lambda self: int(self._model.n_support))
+    alpha_store = property(lambda self: tuple(self._model.alpha_store))
+    is_float64 = property(lambda self: bool(self._model.is_float64))
+    file_bytes = property(lambda self: int(self._model.file_bytes))
+    machines = property(lambda self: list(self._model.machines))
+
+    def __repr__(self) -> str:
+        return (
+            f"CompiledModel(classes={self.class_names}, rule={self.rule!r}, D={self.D}, "
+            f"n_support={self.n_support}, {'float64' if self.is_float64 else 'float32'})"
+        )
+
+    # -- decisions
+    def _signals(self, signals: Any) -> np.ndarray:
+        x = np.asarray(signals)
+        if x.ndim == 3:
+            x = x[None]
+        if x.ndim != 4 or x.shape[1:3] != self.grid_shape:
+            raise ValueError(
+                f"signals: expected shape (n, {self.grid_shape[0]}, {self.grid_shape[1]}, T) or "
+                f"({self.grid_shape[0]}, {self.grid_shape[1]}, T), got {np.shape(signals)}"
+            )
+        if x.dtype not in (np.int16, np.float32, np.float64):
+            x = x.astype(np.float64)
+        return np.ascontiguousarray(x)
+
+    def classify(self, signals: Any, lengths: Any = None) -> CompiledDecisions:
+        """Classify raw recordings (n, rows, cols, T) (or one (rows, cols, T)), int16 or float,
+        with the model's own preprocessing (touch window, subsampling to D) in C++.
+        ``lengths``: valid samples of each recording (default T)."""
+        x = self._signals(signals)
+        lab, val, dk, status, win, found = self._clf.classify(
+            x, None if lengths is None else np.asarray(lengths, dtype=np.int64)
+        )
+        return self._decisions(lab, val, dk, status, win, found)
+
+    def classify_tensors(self, X: Any) -> CompiledDecisions:
+        """Classify already preprocessed patterns (n, rows, cols, D) (the machines only)."""
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim == 3:
+            X = X[None]
+        lab, val, dk, status = self._clf.classify_tensors(np.ascontiguousarray(X))
+        n = len(lab)
+        return self._decisions(
+            lab, val, dk, status, np.zeros((n, 2), np.int64), np.ones(n, bool)
+        )
+
+    def _decisions(self, lab, val, dk, status, win, found) -> CompiledDecisions:
+        bad = np.flatnonzero(np.asarray(status) != 0)
+        if bad.size:
+            i = int(bad[0])
+            why = _STATUS.get(int(status[i]), f"status {int(status[i])}")
+            raise ValueError(
+                f"recording {i} cannot be classified: {why} ({bad.size} recording(s) failed)"
+            )
+        lab = np.asarray(lab, dtype=np.int64)
+        names = np.asarray(self.class_names, dtype=object)[lab]
+        return CompiledDecisions(names, lab, np.asarray(val), np.asarray(dk, bool),
+                                 np.asarray(win), np.asarray(found, bool))
+
+    def decision_function(self, signals: Any, lengths: Any = None) -> np.ndarray:
+        """Decision values of raw recordings: (n,) for a binary model, (n, n_classes) otherwise."""
+        v = self.classify(signals, lengths).decision_values
+        return v[:, 0] if self.rule == "binary" else v
+
+    def predict(self, signals: Any, lengths: Any = None) -> np.ndarray:
+        """Class names of raw recordings."""
+        return self.classify(signals, lengths).labels
+
+    def stream(self, samples: Any, *, flush: bool = True) -> list[dict[str, Any]]:
+        """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
+        (rows, cols, T)), one sample at a time as the controller would. Returns the events:
+        dicts with ``sample`` (samples seen when it happened), ``status_name`` and, for
+        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``."""
+        from eskin import _core
+
+        x = np.asarray(samples, dtype=np.float64)
+        if x.ndim == 3:
+            x = x.reshape(-1, x.shape[-1]).T
+        sc = _core.StreamClassifier(self._model)
+        events = sc.feed(np.ascontiguousarray(x), flush)
+        for e in events:
+            if "label" in e:
+                e["label"] = self.class_names[e["label"]]
+        return events
+
+
+# ----------------------------------------------------------------------------- model files
+
+
+class _CompiledMachines:
+    """An estimator-like view of a CompiledModel, so that a ``.eskin`` file loads back as a
+    TouchModel (Python preprocessing, C++ machines)."""
+
+    def __init__(self, compiled: CompiledModel) -> None:
+        self.compiled = compiled
+        self.classes_ = np.arange(len(compiled.class_names))
+        self._dont_know = np.zeros(0, bool)
+
+    def decision_function(self, X: np.ndarray) -> np.ndarray:
+        v = self.compiled.classify_tensors(X).decision_values
+        return v[:, 0] if self.compiled.rule == "binary" else v
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        d = self.compiled.classify_tensors(X)
+        self._dont_know = d.dont_know
+        return d.label_indices
+
+    @property
+    def dont_know_(self) -> np.ndarray:
+        return self._dont_know
+
+
+def _save_eskin(model: Any, path: Path) -> None:
+    export_model(model, path)
+
+
+def _load_eskin(path: Path) -> Any:
+    from eskin.models import TouchModel
+
+    cm = CompiledModel(path)
+    try:
+        from eskin.preprocess import WindowConfig
+
+        cfg = WindowConfig.from_array(np.array(list(cm.window_config.values())))
+    except Exception:  # noqa: BLE001 - keep the mapping if the dataclass cannot take it
+        cfg = cm.window_config
+    return TouchModel(
+        classes=cm.class_names,
+        estimator=_CompiledMachines(cm),
+        machine="compiled",
+        selection="compiled",
+        D=cm.D,
+        window=cm.window,
+        subsample=cm.subsample,
+        sample_rate_hz=cm.sample_rate_hz,
+        grid_shape=cm.grid_shape,
+        window_config=cfg,
+        training={"source": str(path), "format": "eskin-model"},
+    )
+
+
+def _register() -> None:
+    try:
+        from eskin.models import register_model_format
+    except ImportError:  # the learning stack is not there: export works without it
+        return
+    register_model_format(".eskin", _save_eskin, _load_eskin)
+
+
+_register()
