@@ -24,7 +24,7 @@ void tile_generic(const double* a, const double* b, std::size_t k, double* c) no
       for (int s = 0; s < 8; ++s) cr[s] += x * br[s];
     }
   }
-  for (int i = 0; i < 64; ++i) c[i] = acc[i];
+  for (int i = 0; i < 64; ++i) c[i] = acc[i] * acc[i];
 }
 
 #ifdef ESKIN_HAVE_X86_DISPATCH
@@ -74,6 +74,10 @@ __attribute__((target("avx2,fma"))) void tile_avx2(const double* a, const double
     const std::size_t k1 = k0 + kc < k ? k0 + kc : k;
     rows4_avx2(a, b, k0, k1, c);
     rows4_avx2(a + 4, b, k0, k1, c + 32);
+  }
+  for (int i = 0; i < 64; i += 4) {
+    const __m256d v = _mm256_loadu_pd(c + i);
+    _mm256_storeu_pd(c + i, _mm256_mul_pd(v, v));
   }
 }
 

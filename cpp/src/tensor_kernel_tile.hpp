@@ -10,7 +10,8 @@ namespace eskin {
 
 constexpr std::size_t kTileWidth = 8;
 
-/// C[r * 8 + s] = sum_k A[k * 8 + r] * B[k * 8 + s]  (A, B: K x 8 row-major panels).
+/// C[r * 8 + s] = (sum_k A[k * 8 + r] * B[k * 8 + s])^2  (A, B: K x 8 row-major panels): the
+/// squared entries of the 8 x 8 block A^T B.
 using TileFn = void (*)(const double* a, const double* b, std::size_t k, double* c);
 
 /// Portable version (any CPU).
