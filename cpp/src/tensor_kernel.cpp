@@ -198,8 +198,9 @@ bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
           h = c * p;
           r = hyp(p, e[ii]);
           e[ii + 1] = s * r;
-          s = e[ii] / r;
-          c = p / r;
+          const double inv_r = 1.0 / r;
+          s = e[ii] * inv_r;
+          c = p * inv_r;
           p = c * d[ii] - s * g;
           d[ii + 1] = h + s * (c * g + s * d[ii]);
           double* w0 = v + ii * n;
@@ -636,14 +637,31 @@ namespace {
 // Bases of one mode repacked for the tile kernel: patterns are put in groups of `ppg` whole
 // patterns (ppg = floor(8 / alpha), at least 1); a group's ppg*alpha basis vectors fill
 // `panels` panels of 8 vectors each (zero padded); a panel is K x 8 row-major (K = N_z).
+// Scratch memory kept by the calling thread between calls, so that repeated Gram computations
+// do not pay the page faults of fresh large allocations; released after a call that needed more
+// than kKeepScratch doubles.
+constexpr std::size_t kKeepScratch = std::size_t(1) << 22;  // 32 MiB
+struct Scratch {
+  std::vector<double> buf;
+  double* get(std::size_t n) {
+    if (buf.size() < n) buf.resize(n);
+    return buf.data();
+  }
+  void trim() {
+    if (buf.size() > kKeepScratch) std::vector<double>().swap(buf);
+  }
+};
+thread_local Scratch g_pack_scratch, g_dist_scratch;
+
 struct ModePack {
   std::size_t count = 0, alpha = 0, k = 0, ppg = 0, panels = 0, groups = 0;
-  std::vector<double> data;
+  double* data = nullptr;  // groups * panels * k * 8 doubles (in scratch memory)
   // local pattern index (within its group) of each of the panels * 8 vectors of a group, or -1
   // for padding; one map for full groups, one for the last (possibly partial) group
   std::vector<int> map_full, map_last;
+  std::size_t size() const { return groups * panels * k * kTileWidth; }
   const double* panel(std::size_t g, std::size_t p) const {
-    return data.data() + (g * panels + p) * k * kTileWidth;
+    return data + (g * panels + p) * k * kTileWidth;
   }
   std::size_t group_count(std::size_t g) const { return std::min(ppg, count - g * ppg); }
   const int* map(std::size_t g) const {
@@ -651,7 +669,7 @@ struct ModePack {
   }
 };
 
-ModePack pack_mode(const PatternBases& pb, std::size_t z, int n_threads) {
+ModePack plan_mode(const PatternBases& pb, std::size_t z) {
   ModePack mp;
   const BasisLayout& L = pb.layout;
   mp.count = pb.count;
@@ -660,7 +678,6 @@ ModePack pack_mode(const PatternBases& pb, std::size_t z, int n_threads) {
   mp.ppg = std::max<std::size_t>(1, kTileWidth / mp.alpha);
   mp.panels = (mp.ppg * mp.alpha + kTileWidth - 1) / kTileWidth;
   mp.groups = (pb.count + mp.ppg - 1) / mp.ppg;
-  mp.data.assign(mp.groups * mp.panels * mp.k * kTileWidth, 0.0);
   const std::size_t width = mp.panels * kTileWidth;
   mp.map_full.assign(width, -1);
   mp.map_last.assign(width, -1);
@@ -669,20 +686,29 @@ ModePack pack_mode(const PatternBases& pb, std::size_t z, int n_threads) {
     if (lv < mp.ppg * mp.alpha) mp.map_full[lv] = int(lv / mp.alpha);
     if (lv < last_count * mp.alpha) mp.map_last[lv] = int(lv / mp.alpha);
   }
-  const std::size_t off = L.offset(z), bs = L.bases_size();
-  parallel_for(mp.groups, n_threads, [&](std::size_t g, std::size_t) {
-    for (std::size_t lp = 0; lp < mp.group_count(g); ++lp) {
-      const double* src = pb.bases.data() + (g * mp.ppg + lp) * bs + off;
-      for (std::size_t c = 0; c < mp.alpha; ++c) {
-        const std::size_t lv = lp * mp.alpha + c;
-        double* dst = mp.data.data() + (g * mp.panels + lv / kTileWidth) * mp.k * kTileWidth +
-                      lv % kTileWidth;
-        const double* col = src + c * mp.k;
-        for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = col[kk];
-      }
-    }
-  });
   return mp;
+}
+
+// Fill groups [g0, g1) of mp.data (already pointing at mp.size() doubles) from the bases of mode z.
+void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
+                 std::size_t g1) {
+  const BasisLayout& L = pb.layout;
+  const std::size_t width = mp.panels * kTileWidth;
+  const std::size_t off = L.offset(z), bs = L.bases_size();
+  for (std::size_t g = g0; g < g1; ++g) {
+    const std::size_t used = mp.group_count(g) * mp.alpha;
+    for (std::size_t lv = 0; lv < width; ++lv) {
+      double* dst = mp.data + (g * mp.panels + lv / kTileWidth) * mp.k * kTileWidth +
+                    lv % kTileWidth;
+      if (lv >= used) {  // padding vector: zeros
+        for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = 0.0;
+        continue;
+      }
+      const double* col = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
+                          (lv % mp.alpha) * mp.k;
+      for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = col[kk];
+    }
+  }
 }
 
 }  // namespace
@@ -696,11 +722,40 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
   if (n == 0 || m == 0) return;
   const int nt = resolve_threads(n_threads);
   std::vector<ModePack> pa(nz), pbk(self ? 0 : nz);
+  std::size_t total = 0;
   for (std::size_t z = 0; z < nz; ++z) {
-    pa[z] = pack_mode(a, z, nt);
-    if (!self) pbk[z] = pack_mode(B, z, nt);
+    pa[z] = plan_mode(a, z);
+    total += pa[z].size();
+    if (!self) {
+      pbk[z] = plan_mode(B, z);
+      total += pbk[z].size();
+    }
   }
+  double* mem = g_pack_scratch.get(total);
+  struct PackItem {
+    const PatternBases* src;
+    std::size_t z;
+    ModePack* mp;
+    std::size_t g0, g1;
+  };
+  std::vector<PackItem> pack_items;
+  auto plan_items = [&](const PatternBases* src, std::size_t z, ModePack* mp) {
+    mp->data = mem;
+    mem += mp->size();
+    const std::size_t step = std::max<std::size_t>(1, 64 / mp->panels);
+    for (std::size_t g = 0; g < mp->groups; g += step)
+      pack_items.push_back({src, z, mp, g, std::min(mp->groups, g + step)});
+  };
+  for (std::size_t z = 0; z < nz; ++z) {
+    plan_items(&a, z, &pa[z]);
+    if (!self) plan_items(&B, z, &pbk[z]);
+  }
+  parallel_for(pack_items.size(), nt, [&](std::size_t i, std::size_t) {
+    const PackItem& it = pack_items[i];
+    pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
+  });
   const TileFn tile = select_tile_kernel();
+  const TileSumFn tile_sum = select_tile_sum_kernel();
   // work items: (mode, row group), biggest first
   struct Item {
     std::size_t z, g;
@@ -733,6 +788,14 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
       std::fill(acc, acc + ppg * ppg, 0.0);
       const int* rmap_g = PA.map(gi);
       const int* cmap_g = PB.map(gj);
+      if (ppg == 1) {
+        // one pattern per group: every tile belongs to the pair (padding vectors are zero)
+        double sum = 0.0;
+        for (std::size_t pi = 0; pi < PA.panels; ++pi)
+          for (std::size_t pj = 0; pj < PB.panels; ++pj)
+            sum += tile_sum(PA.panel(gi, pi), PB.panel(gj, pj), PA.k);
+        acc[0] = sum;
+      } else
       for (std::size_t pi = 0; pi < PA.panels; ++pi) {
         const int* rmap = rmap_g + pi * kTileWidth;
         if (rmap[0] < 0) break;
@@ -778,6 +841,7 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
       }
     }
   });
+  g_pack_scratch.trim();
 }
 
 void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vector<double>& sigmas,
@@ -795,8 +859,8 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
   }
   const std::size_t n = a.count, m = b ? b->count : a.count;
   if (n == 0 || m == 0) return;
-  std::vector<double> dist(nz * n * m);
-  mode_distances(a, b, dist.data(), n_threads);
+  double* dist = g_dist_scratch.get(nz * n * m);
+  mode_distances(a, b, dist, n_threads);
   const int nt = resolve_threads(n_threads);
   const std::size_t total = n * m, chunk = 4096;
   parallel_for((total + chunk - 1) / chunk, nt, [&](std::size_t c, std::size_t) {
@@ -807,6 +871,7 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
       out[i] = std::exp(-e);
     }
   });
+  g_dist_scratch.trim();
 }
 
 }  // namespace eskin
