@@ -517,32 +517,33 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
     }
     // re-orthonormalise (modified Gram-Schmidt, two passes): V = A^T U S^-1 loses
     // orthogonality in proportion to s_1 / s_k.
-    for (int pass = 0; pass < 2; ++pass)
+    // A second pass runs only when the first one corrected more than 1e-8 (twice is enough).
+    bool again = true;
+    for (int pass = 0; pass < 2 && again; ++pass) {
+      again = false;
       for (std::size_t c = 0; c < k; ++c) {
         double* v = out + c * n;
         for (std::size_t p = 0; p < c; ++p) {
           const double* w = out + p * n;
           const double dt = dot(v, w, n);
+          if (std::fabs(dt) > 1e-8) again = true;
           for (std::size_t j = 0; j < n; ++j) v[j] -= dt * w[j];
         }
         const double nrm = std::sqrt(dot(v, v, n));
         if (!(nrm > 0.0)) return KernelStatus::no_convergence;
         const double inv = 1.0 / nrm;
         for (std::size_t j = 0; j < n; ++j) v[j] *= inv;
+        if (std::fabs(nrm - 1.0) > 1e-8) again = true;
       }
+    }
   }
   // sign: largest-magnitude entry (first on ties) positive
   for (std::size_t c = 0; c < k; ++c) {
     double* v = out + c * n;
+    double top = 0.0;
+    for (std::size_t j = 0; j < n; ++j) top = std::max(top, std::fabs(v[j]));
     std::size_t best = 0;
-    double top = -1.0;
-    for (std::size_t j = 0; j < n; ++j) {
-      const double av = std::fabs(v[j]);
-      if (av > top) {
-        top = av;
-        best = j;
-      }
-    }
+    while (best + 1 < n && std::fabs(v[best]) != top) ++best;
     if (v[best] < 0)
       for (std::size_t j = 0; j < n; ++j) v[j] = -v[j];
   }
