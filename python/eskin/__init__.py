@@ -63,6 +63,9 @@ _EXPORTS: dict[str, str] = {
     "FrameDecoder": "protocol",
     "encode_frame": "protocol",
     "LinkListener": "link",
+    "SerialPort": "serial_port",
+    "write_replay_file": "replay",
+    "read_replay_file": "replay",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
