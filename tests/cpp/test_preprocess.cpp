@@ -274,6 +274,7 @@ TEST(Detector, FindsBurstsWithKnownOnsetAndOffset) {
   }
   // select = energy picks the longer (more energetic) burst; first picks the first; span both
   WindowConfig c;
+  c.select = 0;
   const TouchWindow w0 = eskin::detect_window(x.data(), kTaxels, T, T, kRate, c);
   EXPECT_TRUE(same(w0, ws[0]));
   c.select = 1;

@@ -425,3 +425,45 @@ def test_eskin_preprocess_is_both_the_function_and_the_module():
     x = recording(3000, [(1000, 2000, 150.0)], 9)
     np.testing.assert_array_equal(eskin.preprocess(x, 10), preprocess(x, 10))
     np.testing.assert_array_equal(module(x, 10, window="none"), preprocess(x, 10, window="none"))
+
+
+# --------------------------------------------------------------------------- simulator truth
+
+
+def test_windows_against_the_simulators_true_contact_interval(tmp_path, capsys):
+    """Detected windows vs /recordings/contact_interval on a small simulated campaign.
+
+    The true interval runs from the first to the last instant of contact; parts of a gesture
+    that give no electrode signal (a slow press, a stretch off the electrodes, the end of a
+    release) are invisible to any detector, so the error has a floor set by the physics. The
+    bounds below leave a margin over what the defaults give on 240 simulated recordings (see
+    docs/preprocessing.md).
+    """
+    from eskin.campaign import load_campaign
+    from eskin.simulator import simulate
+
+    path = simulate(tmp_path / "c.h5", participants=4, seed=7)
+    with load_campaign(path) as c:
+        rate = c.sample_rate_hz
+        t = detect_touches(c.signals, c.lengths, rate)
+        truth = np.asarray(c.contact_interval, dtype=np.int64)
+    ms = 1000.0 / rate
+    err_start = (t.start - truth[:, 0]) * ms
+    err_stop = (t.stop - truth[:, 1]) * ms
+    err_onset = (t.onset - truth[:, 0]) * ms
+    err_offset = (t.offset - truth[:, 1]) * ms
+    inter = np.clip(np.minimum(t.stop, truth[:, 1]) - np.maximum(t.start, truth[:, 0]), 0, None)
+    iou = inter / (np.maximum(t.stop, truth[:, 1]) - np.minimum(t.start, truth[:, 0]))
+    with capsys.disabled():
+        print(f"\nwindow vs true contact interval, {len(truth)} simulated recordings (ms):")
+        for name, e in [("start-onset", err_start), ("stop-offset", err_stop),
+                        ("detected onset", err_onset), ("detected offset", err_offset)]:
+            p = np.percentile(np.abs(e), [50, 90, 100])
+            print(f"  {name:16s} |err| median {p[0]:6.0f}  p90 {p[1]:6.0f}  max {p[2]:6.0f}"
+                  f"   signed median {np.median(e):6.0f}")
+        print(f"  IoU median {np.median(iou):.2f}, 10th percentile {np.percentile(iou, 10):.2f}")
+    assert t.found.all()
+    assert np.median(np.abs(err_start)) < 150 and np.median(np.abs(err_stop)) < 250
+    assert np.percentile(np.abs(err_start), 90) < 600
+    assert np.percentile(np.abs(err_stop), 90) < 600
+    assert np.median(iou) > 0.7
