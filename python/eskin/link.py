@@ -798,7 +798,21 @@ class LinkListener:
         return float(getattr(cfg, "max_window_s", 7.0) or 7.0)
 
     def _on_data(self, frames: list[DataFrame], received: float) -> list[LinkEvent]:
+        """DATA frames -> DataBlocks; contiguous frames reach the classifier as one block."""
         out: list[LinkEvent] = []
+        run: list[tuple[DataFrame, int]] = []
+
+        def flush_run() -> None:
+            if not run:
+                return
+            first = run[0][0].first_sample
+            block = (run[0][0].samples if len(run) == 1
+                     else np.concatenate([f.samples for f, _ in run]))
+            self._feed(first, block, np.zeros(block.shape[0], bool), out, received)
+            out.extend(DataBlock(f.first_sample, f.samples, f.timestamp_us, f.overrun, lost)
+                       for f, lost in run)
+            run.clear()
+
         for f in frames:
             if f.overrun:
                 self._counts["overrun_frames"] += 1
@@ -807,14 +821,16 @@ class LinkListener:
                 self._setup_stream(grid)
             elif grid != self._grid:
                 continue  # a frame for another grid cannot be part of this stream: ignore it
+            expected = run[-1][0].end_sample if run else self._next
             lost = 0
-            if self._next is not None and f.first_sample != self._next:
-                if f.first_sample < self._next:
+            if expected is not None and f.first_sample != expected:
+                flush_run()
+                if f.first_sample < expected:
                     self._index_resets += 1
                 lost = self._bridge(f.first_sample, out)
                 self._lost_samples += lost
-            self._feed(f.first_sample, f.samples, np.zeros(f.n_samples, bool), out, received)
-            out.append(DataBlock(f.first_sample, f.samples, f.timestamp_us, f.overrun, lost))
+            run.append((f, lost))
+        flush_run()
         return out
 
     def _bridge(self, first: int, out: list[LinkEvent]) -> int:

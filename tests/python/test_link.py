@@ -438,3 +438,135 @@ def test_listen_reports_a_missing_port_clearly(tmp_path):
 
     res = CliRunner().invoke(app, ["listen", str(tmp_path / "nope"), "--duration", "1"])
     assert res.exit_code == 2 and "nope" in res.output and "Traceback" not in res.output
+
+
+# --------------------------------------------------------------------------- with eskin-fw-sim
+
+
+def synthetic_touch(kind: int, seed: int, n: int = 3000) -> np.ndarray:
+    """A 1 s recording (4, 4, n): quiet noise and one touch whose place, frequency and
+    duration depend on ``kind`` (0, 1, 2)."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, 4, size=(4, 4, n))
+    on = 900 + 37 * (seed % 5)
+    dur = (450, 700, 300)[kind] + 20 * (seed % 3)
+    t = np.arange(dur) / 3000.0
+    env = np.sin(np.pi * np.arange(dur) / dur) ** 2
+    freq = (25.0, 60.0, 120.0)[kind]
+    amp = 600 + 40 * (seed % 4)
+    rows = (slice(0, 2), slice(1, 4), slice(2, 4))[kind]
+    x[rows, :, on:on + dur] += amp * env * np.sin(2 * np.pi * freq * t)
+    return np.rint(x).astype(np.int16)
+
+
+@pytest.fixture(scope="module")
+def fw_sim_path():
+    from eskin._paths import find_executable
+
+    return find_executable("eskin-fw-sim")
+
+
+@pytest.fixture(scope="module")
+def small_model(tmp_path_factory):
+    """A real compiled 3-class model (support patterns = preprocessed synthetic touches) and a
+    replay file of 9 other synthetic touches."""
+    from eskin.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+    from eskin.preprocess import preprocess
+
+    d = tmp_path_factory.mktemp("model")
+    D = 20
+    train = [synthetic_touch(k, 100 + i) for i in range(3) for k in range(3)]
+    y = np.array([k for _ in range(3) for k in range(3)])
+    X = preprocess(np.stack(train), D)
+    X /= np.linalg.norm(X.reshape(len(X), -1), axis=1)[:, None, None, None]
+    machines = [MachineSpec(k, -1, -0.2, (2, 2, 3), (1.0, 1.0, 1.0), X,
+                            np.where(y == k, 1.0, -0.5)) for k in range(3)]
+    spec = ModelSpec(["brush", "finger", "washer"], "one_vs_all", machines, D, (4, 4))
+    path = d / "small.eskin"
+    path.write_bytes(model_to_bytes(spec, "float32"))
+    test = [synthetic_touch(k, i) for i in range(3) for k in range(3)]
+    rf = write_replay_arrays(d / "test.eskr", test, labels=[k for _ in range(3) for k in range(3)],
+                             class_names=spec.class_names, gap_s=0.4, seed=5)
+    return CompiledModel(path), path, rf, test
+
+
+def run_fw_sim(exe, *args):
+    import subprocess
+
+    proc = subprocess.Popen([str(exe), *map(str, args), "--quiet"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline().split()
+    assert first and first[0] == "PTY", (first, proc.stderr.read())
+    return proc, first[1]
+
+
+def finish(proc) -> dict:
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    return json.loads([x for x in out.splitlines() if x.startswith("STATS ")][-1][6:])
+
+
+def test_live_decisions_equal_offline_decisions(fw_sim_path, small_model, tmp_path):
+    from eskin.demo import assign_decisions
+
+    cm, path, rf, test = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
+                                "--wait-start")
+    try:
+        with LinkListener(pty_path, model=cm, replay=rf, record=tmp_path / "live.h5",
+                          stats_interval=None) as link:
+            assert link.classifier.kind == "compiled"
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    s = events[-1].stats
+    assert s.lost_samples == 0 and s.rejected == 0 and s.controller_dropped_samples == 0
+    assert s.samples == rf.n_samples == stats["samples_sent"]
+    dec = [e for e in events if isinstance(e, Decision)]
+    ctrl = [d for d in dec if d.source == "controller"]
+    host = [d for d in dec if d.source == "host"]
+    assert len(ctrl) == len(host) == stats["decisions_sent"] >= len(test)
+    # the host runs the controller's classifier on the samples it received: same decisions
+    for c, h in zip(ctrl, host):
+        assert (c.onset_sample, c.offset_sample, c.label, c.dont_know) == (
+            h.onset_sample, h.offset_sample, h.label, h.dont_know)
+        np.testing.assert_allclose(c.values, h.values, rtol=0, atol=1e-9)
+    # and the same as offline: the stream classifier over the replay file, and per recording
+    offline = [e for e in cm.stream(np.asarray(rf.samples).reshape(rf.n_samples, -1))
+               if "label" in e]
+    assert [(c.onset_sample, c.offset_sample, c.label) for c in ctrl] == [
+        (e["window"][0], e["window"][1], e["label"]) for e in offline]
+    batch = cm.classify(np.stack(test))
+    for src in (ctrl, host):
+        lab, val, dk, extra = assign_decisions(src, rf.segments, 3)
+        assert list(lab) == list(batch.label_indices)
+        np.testing.assert_allclose(val, batch.decision_values, atol=1e-5)
+    # the recording of the stream reads back equal to the source
+    camp = load_campaign(tmp_path / "live.h5")
+    assert len(camp) == len(test)
+    for k, r in enumerate(test):
+        assert np.array_equal(camp.recording(k), r)
+
+
+def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 0, "--wait-start",
+                                "--flip-rate", "1e-4", "--drop-rate", "1e-4", "--burst", "0.01",
+                                "--truncate-rate", "0.01", "--seed", 3)
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(events)
+    src = np.asarray(rf.samples)
+    for i, x in got.items():  # no corrupted frame was ever accepted
+        assert np.array_equal(x, src[i]), f"sample {i} corrupted"
+    s = events[-1].stats
+    assert stats["faults_injected"] > 10
+    # every loss is counted: holes inside the stream, plus what never came at its end
+    tail = rf.n_samples - (max(got) + 1)
+    assert s.samples + s.lost_samples + tail + min(got) == rf.n_samples
+    assert s.rejected > 0
+    # each fault costs at most two frames
+    assert s.lost_samples <= 2 * SPF * stats["faults_injected"]
