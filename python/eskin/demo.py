@@ -168,11 +168,15 @@ def run_demo(
 ) -> DemoResult:
     """Run the demo in folder ``out`` (created; its files are replaced). See the module doc."""
     from eskin.campaign import load_campaign
-    from eskin.export import CompiledModel, export_model
     from eskin.link import Decision, LinkListener, Recorded
-    from eskin.models import save_model, train_model
     from eskin.replay import write_replay_file
     from eskin.simulator import simulate
+
+    try:
+        from eskin.export import CompiledModel, export_model
+        from eskin.models import save_model, train_model
+    except ImportError as exc:
+        raise DemoError(f"a part of the pipeline is missing from this installation ({exc})") from None
 
     say = log or (lambda m: None)
     if participants < 2 or not 1 <= test_participants < participants:
