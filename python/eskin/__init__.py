@@ -22,6 +22,11 @@ _EXPORTS: dict[str, str] = {
     "tensor_kernel": "kernel",
     "mode_distances": "kernel",
     "resolve_alphas": "kernel",
+    "pattern_bases": "kernel",
+    "PatternBases": "kernel",
+    "bases_mode_distances": "kernel",
+    "bases_tensor_kernel": "kernel",
+    "kernel_from_distances": "kernel",
     # preprocessing (issue 3)
     "preprocess": "preprocess",
     "WindowConfig": "preprocess",
@@ -58,6 +63,9 @@ _EXPORTS: dict[str, str] = {
     "FrameDecoder": "protocol",
     "encode_frame": "protocol",
     "LinkListener": "link",
+    "SerialPort": "serial_port",
+    "write_replay_file": "replay",
+    "read_replay_file": "replay",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
@@ -67,7 +75,10 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'eskin' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"eskin.{module}"), name)
+    submodule = importlib.import_module(f"eskin.{module}")
+    # a name that is also its submodule's name (eskin.preprocess) resolves to the submodule,
+    # which is then callable, so that `import eskin.preprocess as m` keeps working
+    value = submodule if name == module else getattr(submodule, name)
     globals()[name] = value
     return value
 

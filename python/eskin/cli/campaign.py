@@ -1,9 +1,196 @@
-"""CLI commands: simulate, info, plot, import-csv, import-tdms (issue 3)."""
+"""CLI commands: simulate, info, plot, import-csv, import-tdms (issue 3).
+
+They parse arguments, call the package and print; errors for users exit with code 2 and a
+one-line message naming the file, field or value.
+"""
 
 from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Optional
 
 import typer
 
 
+@contextlib.contextmanager
+def _user_errors() -> Iterator[None]:
+    """Turn the errors a user can cause into a clear message and exit code 2."""
+    try:
+        yield
+    except (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError,
+            PermissionError, KeyError, IndexError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        typer.echo(f"error: {msg}", err=True)
+        raise typer.Exit(2) from None
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
+
+    @app.command("simulate")
+    def simulate_cmd(
+        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write (.h5)"),
+        participants: int = typer.Option(70, help="number of simulated participants"),
+        seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
+        difficulty: Optional[float] = typer.Option(
+            None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
+        jobs: int = typer.Option(1, "--jobs", "-j", help="worker processes"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
+    ) -> None:
+        """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
+        import time
+
+        from eskin.simulator import simulate
+
+        with _user_errors():
+            t0 = time.perf_counter()
+            step = max(1, participants * 12 // 20)
+
+            def progress(done: int, total: int) -> None:
+                if not quiet and (done % step == 0 or done == total):
+                    typer.echo(f"  {done}/{total} recordings", err=True)
+
+            simulate(output, participants=participants, seed=seed, difficulty=difficulty,
+                     n_jobs=jobs, overwrite=force, progress=progress)
+            typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
+                       f"in {time.perf_counter() - t0:.1f} s")
+
+    @app.command("info")
+    def info_cmd(
+        file: Path = typer.Argument(..., help="campaign file"),
+        check: bool = typer.Option(False, "--check", help="also read every recording's data"),
+    ) -> None:
+        """Summarise a campaign file: grid, rate, counts, lengths, source."""
+        from eskin.campaign import load_campaign
+
+        with _user_errors():
+            with load_campaign(file, check_data=check) as c:
+                _print_info(c)
+
+    @app.command("plot")
+    def plot_cmd(
+        file: Path = typer.Argument(..., help="campaign file"),
+        index: int = typer.Option(0, "--index", "-i", help="recording index"),
+        output: Path = typer.Option(..., "-o", "--output", help="image to write (.png, .svg)"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    ) -> None:
+        """Plot one recording: the taxel traces, the detected touch window, an energy heat map."""
+        from eskin.campaign import load_campaign
+        from eskin.plotting import plot_recording
+
+        with _user_errors():
+            if output.exists() and not force:
+                raise FileExistsError(f"{output}: file exists (use --force to replace it)")
+            with load_campaign(file) as c:
+                plot_recording(c, index, output)
+            typer.echo(f"wrote {output}")
+
+    @app.command("import-csv")
+    def import_csv_cmd(
+        folder: Path = typer.Argument(..., help="folder with one CSV per recording"),
+        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
+        manifest: Optional[Path] = typer.Option(
+            None, help="manifest CSV (default: FOLDER/manifest.csv)"),
+        rows: Optional[int] = typer.Option(None, help="taxel rows (or a manifest column)"),
+        cols: Optional[int] = typer.Option(None, help="taxel columns (or a manifest column)"),
+        rate: Optional[float] = typer.Option(
+            None, "--rate", help="sample rate in Hz (or a manifest column)"),
+        volts_per_count: Optional[float] = typer.Option(
+            None, help="volts per ADC count; values in the CSV are volts if given, else counts"),
+        modalities: Optional[str] = typer.Option(
+            None, help="comma-separated class names in class-id order (default: sorted labels)"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    ) -> None:
+        """Import a folder of CSV recordings (one column per taxel) into a campaign file."""
+        from eskin.campaign import load_campaign
+        from eskin.importers import import_csv_folder
+
+        with _user_errors():
+            import_csv_folder(
+                folder, output, manifest=manifest,
+                grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+                sample_rate_hz=rate, volts_per_count=volts_per_count,
+                modalities=modalities.split(",") if modalities else None, overwrite=force)
+            with load_campaign(output) as c:
+                typer.echo(f"wrote {output}: {len(c)} recordings")
+
+    @app.command("import-tdms")
+    def import_tdms_cmd(
+        files: list[Path] = typer.Argument(..., help="LabVIEW .tdms files"),
+        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
+        rows: Optional[int] = typer.Option(None, help="taxel rows (default: from properties, 4)"),
+        cols: Optional[int] = typer.Option(None, help="taxel columns (default: from properties, 4)"),
+        rate: Optional[float] = typer.Option(
+            None, "--rate", help="sample rate in Hz (default: wf_increment property)"),
+        volts_per_count: Optional[float] = typer.Option(
+            None, help="volts per count for float (volt) channels (default 10/32768)"),
+        modalities: Optional[str] = typer.Option(
+            None, help="comma-separated class names in class-id order (default: sorted labels)"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    ) -> None:
+        """Import LabVIEW TDMS recordings (one group per recording) into a campaign file."""
+        from eskin.campaign import load_campaign
+        from eskin.importers import import_tdms
+
+        with _user_errors():
+            import_tdms(
+                files, output,
+                grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+                sample_rate_hz=rate, volts_per_count=volts_per_count,
+                modalities=modalities.split(",") if modalities else None, overwrite=force)
+            with load_campaign(output) as c:
+                typer.echo(f"wrote {output}: {len(c)} recordings")
+
+
+def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
+    from rich.console import Console
+    from rich.table import Table
+
+    s = c.summary()
+    console = Console(soft_wrap=True)
+    rows, cols = s["grid"]
+    src = s["source"]
+    src_text = "SIMULATED (eskin simulator)" if src == "simulated" else src
+    console.print(f"[bold]{s['path']}[/bold]")
+    console.print(f"  source            {src_text}")
+    console.print(f"  recordings        {s['recordings']}")
+    console.print(f"  grid              {rows} x {cols} taxels")
+    console.print(f"  sample rate       {s['sample_rate_hz']:g} Hz")
+    console.print(f"  padded length T   {s['samples_per_recording']} samples "
+                  f"({s['duration_s']:.3g} s)")
+    console.print(f"  volts per count   {s['volts_per_count']:.6g} V")
+    console.print(f"  valid lengths     min {s['length_min']}, median {s['length_median']:g}, "
+                  f"max {s['length_max']} samples")
+    console.print(f"  participants      {s['participants']}")
+    console.print(f"  contact interval  {'yes (ground truth)' if s['has_contact_interval'] else 'no'}")
+    if "difficulty" in c.attrs:
+        console.print(f"  difficulty        {c.attrs['difficulty']:g} "
+                      f"(seed {c.attrs.get('simulator_seed', '?')})")
+
+    table = Table(title="recordings per modality, run and direction")
+    table.add_column("modality (id)")
+    runs = sorted(s["per_run"])
+    dirs = sorted({int(d) for d in c.direction})
+    from eskin.campaign import DIRECTION_NAMES
+
+    import numpy as np
+
+    for r in runs:
+        for d in dirs:
+            table.add_column(f"run {r} {DIRECTION_NAMES.get(d, str(d))[:1]}", justify="right")
+    table.add_column("total", justify="right")
+    for k, name in enumerate(c.modalities):
+        cells = []
+        for r in runs:
+            for d in dirs:
+                cells.append(str(int(np.sum((c.modality == k) & (c.run == r) & (c.direction == d)))))
+        table.add_row(f"{name} ({k})", *cells, str(s["per_modality"][name]))
+    console.print(table)
+    pp = s["per_participant"]
+    counts = sorted(set(pp.values()))
+    console.print(f"  recordings per participant: "
+                  + ", ".join(f"{sum(1 for v in pp.values() if v == n)} participants x {n}"
+                              for n in counts))

@@ -1,0 +1,927 @@
+"""The eskin campaign file: recordings of a touch-sensing campaign in one HDF5 file.
+
+The format is described in ``docs/dataset-format.md``. In short::
+
+    /                       attrs: format="eskin-campaign", format_version=1, sample_rate_hz,
+                                   volts_per_count, modalities (names; index = class id), source
+    /recordings/signals     int16 (n, rows, cols, T), one recording per chunk, compressed
+    /recordings/length      int32 (n,)   valid samples of each recording (the rest is padding)
+    /recordings/modality    uint8 (n,)   class id, an index into the modalities attribute
+    /recordings/participant int32 (n,)
+    /recordings/direction   uint8 (n,)   0 horizontal, 1 vertical, 255 unknown
+    /recordings/run         uint8 (n,)   1 = first (practice) run, 2 = second run, ...
+    /recordings/contact_interval  int32 (n, 2)   optional: true [onset, offset) in samples
+
+:func:`load_campaign` validates every field and raises :class:`CampaignFormatError` (a
+``ValueError``) naming the file, the field and the problem. :class:`CampaignWriter` appends one
+recording at a time, so that a campaign never has to fit in memory; it writes to a temporary file
+next to the target and renames it only when complete, and it never replaces an existing file
+unless ``overwrite=True``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "eskin-campaign"
+FORMAT_VERSION = 1
+SOURCES = ("simulated", "recorded")
+
+DIRECTION_HORIZONTAL = 0
+DIRECTION_VERTICAL = 1
+DIRECTION_UNKNOWN = 255
+DIRECTION_NAMES = {DIRECTION_HORIZONTAL: "horizontal", DIRECTION_VERTICAL: "vertical",
+                   DIRECTION_UNKNOWN: "unknown"}
+
+RUN_PRACTICE = 1
+RUN_SECOND = 2
+
+_REQUIRED_ATTRS = ("format", "format_version", "sample_rate_hz", "volts_per_count", "modalities",
+                   "source")
+# name -> (dtype, trailing shape after n)
+_LABEL_FIELDS: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
+    "length": (np.dtype(np.int32), ()),
+    "modality": (np.dtype(np.uint8), ()),
+    "participant": (np.dtype(np.int32), ()),
+    "direction": (np.dtype(np.uint8), ()),
+    "run": (np.dtype(np.uint8), ()),
+}
+_OPTIONAL_FIELDS: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
+    "contact_interval": (np.dtype(np.int32), (2,)),
+}
+
+
+class CampaignFormatError(ValueError):
+    """A campaign file (or in-memory campaign) breaks the format.
+
+    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message.
+    """
+
+    def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):
+        self.path = str(path) if path is not None else "<memory>"
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{self.path}: {field}: {problem}")
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _decode(value: Any) -> Any:
+    """HDF5 attribute value -> plain Python (str, float, int, list)."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.ndarray):
+        if value.ndim == 0:
+            return _decode(value[()])
+        return [_decode(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _check_labels(
+    where: str | None, n: int, arrays: Mapping[str, Any], *, strict_dtype: bool
+) -> dict[str, np.ndarray]:
+    """Validate the per-recording label arrays; return them as numpy arrays."""
+    out: dict[str, np.ndarray] = {}
+    for name, (dtype, tail) in {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}.items():
+        field = f"/recordings/{name}"
+        if name not in arrays or arrays[name] is None:
+            if name in _OPTIONAL_FIELDS:
+                continue
+            raise CampaignFormatError(where, field, "missing (a required field)")
+        raw = arrays[name]
+        arr = np.asarray(raw)
+        if strict_dtype and arr.dtype != dtype:
+            raise CampaignFormatError(
+                where, field, f"wrong dtype {arr.dtype} (expected {dtype.name})")
+        if arr.shape != (n, *tail):
+            raise CampaignFormatError(
+                where, field, f"wrong shape {arr.shape} (expected {(n, *tail)}: one entry per "
+                f"recording, {n} recordings in /recordings/signals)")
+        if not strict_dtype:
+            if arr.dtype.kind not in "iu" and not (arr.size == 0):
+                raise CampaignFormatError(where, field, f"must be integers, got dtype {arr.dtype}")
+            info = np.iinfo(dtype)
+            if arr.size and (arr.min() < info.min or arr.max() > info.max):
+                raise CampaignFormatError(
+                    where, field, f"values out of the {dtype.name} range "
+                    f"[{info.min}, {info.max}]: min {arr.min()}, max {arr.max()}")
+            arr = arr.astype(dtype)
+        out[name] = np.ascontiguousarray(arr)
+    return out
+
+
+def _check_contents(
+    where: str | None, labels: Mapping[str, np.ndarray], n_modalities: int, n_samples: int
+) -> None:
+    """Cross-field checks on already typed label arrays."""
+    length = labels["length"]
+    if length.size:
+        bad = np.flatnonzero((length < 0) | (length > n_samples))
+        if bad.size:
+            i = int(bad[0])
+            raise CampaignFormatError(
+                where, "/recordings/length",
+                f"recording {i} has length {int(length[i])}, outside [0, T={n_samples}] "
+                f"({bad.size} bad entries)")
+    modality = labels["modality"]
+    if modality.size:
+        bad = np.flatnonzero(modality >= n_modalities)
+        if bad.size:
+            i = int(bad[0])
+            raise CampaignFormatError(
+                where, "/recordings/modality",
+                f"recording {i} has modality id {int(modality[i])}, out of range: the "
+                f"modalities attribute names {n_modalities} classes ({bad.size} bad entries)")
+    direction = labels["direction"]
+    if direction.size:
+        bad = np.flatnonzero(~np.isin(direction, list(DIRECTION_NAMES)))
+        if bad.size:
+            i = int(bad[0])
+            raise CampaignFormatError(
+                where, "/recordings/direction",
+                f"recording {i} has direction {int(direction[i])} (allowed: 0 horizontal, "
+                f"1 vertical, 255 unknown)")
+    ci = labels.get("contact_interval")
+    if ci is not None and ci.size:
+        bad = np.flatnonzero((ci[:, 0] < 0) | (ci[:, 1] < ci[:, 0]) | (ci[:, 1] > length))
+        if bad.size:
+            i = int(bad[0])
+            raise CampaignFormatError(
+                where, "/recordings/contact_interval",
+                f"recording {i} has interval [{int(ci[i, 0])}, {int(ci[i, 1])}), not within "
+                f"[0, length={int(length[i])}] with onset <= offset")
+
+
+def _check_attrs(where: str | None, attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """Validate the root attributes; return them decoded."""
+    dec = {k: _decode(v) for k, v in attrs.items()}
+    if "format" not in dec:
+        raise CampaignFormatError(
+            where, "attribute 'format'",
+            f"missing: not an eskin campaign (an HDF5 file without format={FORMAT!r})")
+    if dec["format"] != FORMAT:
+        raise CampaignFormatError(
+            where, "attribute 'format'",
+            f"is {dec['format']!r}, not {FORMAT!r}: not an eskin campaign")
+    for name in _REQUIRED_ATTRS:
+        if name not in dec:
+            raise CampaignFormatError(where, f"attribute {name!r}", "missing (required)")
+    version = dec["format_version"]
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise CampaignFormatError(
+            where, "attribute 'format_version'", f"must be an integer, got {version!r}")
+    if version != FORMAT_VERSION:
+        raise CampaignFormatError(
+            where, "attribute 'format_version'",
+            f"version {version} is not supported (this eskin reads version {FORMAT_VERSION})")
+    for name in ("sample_rate_hz", "volts_per_count"):
+        v = dec[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise CampaignFormatError(
+                where, f"attribute {name!r}", f"must be a positive finite number, got {v!r}")
+        dec[name] = float(v)
+    mods = dec["modalities"]
+    if isinstance(mods, str):
+        mods = [mods]
+    if (not isinstance(mods, list) or not mods
+            or not all(isinstance(m, str) and m for m in mods)):
+        raise CampaignFormatError(
+            where, "attribute 'modalities'",
+            f"must be a non-empty list of non-empty names, got {mods!r}")
+    if len(set(mods)) != len(mods):
+        raise CampaignFormatError(where, "attribute 'modalities'", f"has duplicate names {mods!r}")
+    if len(mods) > 255:
+        raise CampaignFormatError(where, "attribute 'modalities'", "more than 255 names")
+    dec["modalities"] = mods
+    if dec["source"] not in SOURCES:
+        raise CampaignFormatError(
+            where, "attribute 'source'", f"must be one of {SOURCES}, got {dec['source']!r}")
+    return dec
+
+
+# --------------------------------------------------------------------------- signals views
+
+
+class CampaignSignals:
+    """A lazy, array-like view of ``/recordings/signals`` (possibly a subset of it).
+
+    Indexing reads only what it needs from the file: ``signals[i]`` is one recording as an
+    int16 (rows, cols, T) array, ``signals[a:b]`` or ``signals[[i, j]]`` several, and
+    ``np.asarray(signals)`` everything. ``shape``, ``dtype``, ``ndim`` and ``len`` behave as for a
+    numpy array.
+    """
+
+    def __init__(self, dataset: Any, index: np.ndarray | None = None, path: str | None = None):
+        self._ds = dataset
+        self._index = index
+        self._path = path
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        n = self._ds.shape[0] if self._index is None else len(self._index)
+        return (n, *self._ds.shape[1:])
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype(self._ds.dtype)
+
+    @property
+    def ndim(self) -> int:
+        return 4
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def _read(self, rows: np.ndarray) -> np.ndarray:
+        """Read file rows (any order, repeats allowed) as an ndarray."""
+        out = np.empty((len(rows), *self._ds.shape[1:]), dtype=self.dtype)
+        if len(rows) == 0:
+            return out
+        uniq, inverse = np.unique(rows, return_inverse=True)
+        try:
+            if len(uniq) == 1:
+                block = self._ds[int(uniq[0])][None]
+            elif np.all(np.diff(uniq) == 1):
+                block = self._ds[int(uniq[0]):int(uniq[-1]) + 1]
+            else:
+                block = np.stack([self._ds[int(r)] for r in uniq])
+        except (OSError, RuntimeError, KeyError) as exc:
+            raise CampaignFormatError(
+                self._path, "/recordings/signals", f"cannot read recording data ({exc})") from exc
+        out[...] = block[inverse]
+        return out
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        n = len(self)
+        rest: tuple[Any, ...] = ()
+        if isinstance(key, tuple):
+            key, rest = key[0], key[1:]
+        if isinstance(key, (int, np.integer)):
+            i = int(key)
+            if not -n <= i < n:
+                raise IndexError(f"recording index {i} out of range for {n} recordings")
+            i %= n
+            rows = np.array([i if self._index is None else self._index[i]])
+            data = self._read(rows)[0]
+        else:
+            sel = np.arange(n)[key]
+            rows = sel if self._index is None else self._index[sel]
+            data = self._read(np.asarray(rows, dtype=np.int64))
+        return data[rest] if rest else data
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        data = self[:]
+        return data if dtype is None else data.astype(dtype)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return f"CampaignSignals(shape={self.shape}, dtype={self.dtype.name}, lazy)"
+
+
+# --------------------------------------------------------------------------- Campaign
+
+
+class Campaign:
+    """A campaign: signals plus per-recording labels and the acquisition settings.
+
+    Built by :func:`load_campaign` (signals stay in the file, read on demand) or directly from
+    arrays (validated the same way). Attributes: ``signals`` (int16, (n, rows, cols, T),
+    lazy or ndarray), ``lengths``, ``modality``, ``participant``, ``direction``, ``run``,
+    ``contact_interval`` (or None), ``modalities``, ``sample_rate_hz``, ``volts_per_count``,
+    ``source``, ``attrs`` (every root attribute, decoded), ``path`` (or None).
+    """
+
+    def __init__(
+        self,
+        signals: Any,
+        lengths: Any,
+        modality: Any,
+        participant: Any,
+        direction: Any,
+        run: Any,
+        *,
+        modalities: Sequence[str],
+        sample_rate_hz: float,
+        volts_per_count: float,
+        source: str,
+        contact_interval: Any = None,
+        attrs: Mapping[str, Any] | None = None,
+        extras: Mapping[str, Any] | None = None,
+        path: str | os.PathLike[str] | None = None,
+        _file: Any = None,
+        _validated: bool = False,
+    ):
+        self.path = str(path) if path is not None else None
+        self._file = _file
+        if _validated:
+            self.signals = signals
+            self.lengths, self.modality, self.participant = lengths, modality, participant
+            self.direction, self.run, self.contact_interval = direction, run, contact_interval
+            self.modalities = list(modalities)
+            self.sample_rate_hz, self.volts_per_count = float(sample_rate_hz), float(volts_per_count)
+            self.source = source
+            self.attrs = dict(attrs or {})
+            self.extras = {k: np.asarray(v) for k, v in dict(extras or {}).items()}
+            return
+        where = self.path
+        base = {"format": FORMAT, "format_version": FORMAT_VERSION,
+                "sample_rate_hz": sample_rate_hz, "volts_per_count": volts_per_count,
+                "modalities": list(modalities), "source": source}
+        dec = _check_attrs(where, {**dict(attrs or {}), **base})
+        if not isinstance(signals, CampaignSignals):
+            signals = np.asarray(signals)
+        if signals.ndim != 4:
+            raise CampaignFormatError(
+                where, "/recordings/signals",
+                f"wrong shape {signals.shape}: expected 4 axes (n, rows, cols, T)")
+        if signals.dtype != np.int16:
+            raise CampaignFormatError(
+                where, "/recordings/signals", f"wrong dtype {signals.dtype} (expected int16)")
+        n, _, _, t = signals.shape
+        labels = _check_labels(where, n, {
+            "length": lengths, "modality": modality, "participant": participant,
+            "direction": direction, "run": run, "contact_interval": contact_interval,
+        }, strict_dtype=False)
+        _check_contents(where, labels, len(dec["modalities"]), t)
+        extras = {k: np.asarray(v) for k, v in dict(extras or {}).items()}
+        for k, v in extras.items():
+            if v.ndim < 1 or v.shape[0] != n:
+                raise CampaignFormatError(
+                    where, f"/recordings/extra/{k}",
+                    f"wrong shape {v.shape} (expected one entry per recording, n={n})")
+        self.__init__(  # type: ignore[misc]
+            signals, labels["length"], labels["modality"], labels["participant"],
+            labels["direction"], labels["run"], contact_interval=labels.get("contact_interval"),
+            modalities=dec["modalities"], sample_rate_hz=dec["sample_rate_hz"],
+            volts_per_count=dec["volts_per_count"], source=dec["source"], attrs=dec,
+            extras=extras, path=path, _file=_file, _validated=True)
+
+    # -- shape helpers
+    def __len__(self) -> int:
+        return int(self.signals.shape[0])
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the taxel grid."""
+        return (int(self.signals.shape[1]), int(self.signals.shape[2]))
+
+    @property
+    def n_samples(self) -> int:
+        """T, the padded length of every recording (samples)."""
+        return int(self.signals.shape[3])
+
+    @property
+    def modality_names(self) -> list[str]:
+        """The modality name of each recording."""
+        return [self.modalities[int(m)] for m in self.modality]
+
+    # -- access
+    def recording(self, i: int) -> np.ndarray:
+        """Recording ``i`` as int16 (rows, cols, length): its valid samples only."""
+        n = len(self)
+        if not -n <= int(i) < n:
+            raise IndexError(f"recording index {i} out of range for {n} recordings")
+        i = int(i) % n
+        return np.asarray(self.signals[i])[..., : int(self.lengths[i])]
+
+    def signals_float(self, i: int) -> np.ndarray:
+        """Recording ``i`` in volts, float64 (rows, cols, length)."""
+        return self.recording(i).astype(np.float64) * self.volts_per_count
+
+    def subset(self, indices: Any) -> Campaign:
+        """A campaign of the chosen recordings (integer indices, or a boolean mask of length n).
+
+        A file-backed campaign stays lazy: only the index is kept, no signal is read.
+        """
+        idx = np.asarray(indices)
+        if idx.dtype == bool:
+            if idx.shape != (len(self),):
+                raise ValueError(
+                    f"boolean mask has shape {idx.shape}, expected ({len(self)},)")
+            idx = np.flatnonzero(idx)
+        idx = idx.astype(np.int64, copy=False).reshape(-1)
+        if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
+            raise IndexError(f"subset indices out of range for {len(self)} recordings")
+        idx = idx % max(len(self), 1)
+        if isinstance(self.signals, CampaignSignals):
+            base = self.signals._index
+            signals: Any = CampaignSignals(
+                self.signals._ds, idx if base is None else base[idx], self.signals._path)
+        else:
+            signals = self.signals[idx]
+        ci = None if self.contact_interval is None else self.contact_interval[idx]
+        return Campaign(
+            signals, self.lengths[idx], self.modality[idx], self.participant[idx],
+            self.direction[idx], self.run[idx], contact_interval=ci, modalities=self.modalities,
+            sample_rate_hz=self.sample_rate_hz, volts_per_count=self.volts_per_count,
+            source=self.source, attrs=self.attrs,
+            extras={k: v[idx] for k, v in self.extras.items()}, path=self.path,
+            _file=self._file, _validated=True)
+
+    def select(self, *, modality: Any = None, participant: Any = None, direction: Any = None,
+               run: Any = None) -> Campaign:
+        """The recordings matching every given criterion (a value or a list of values;
+        modality accepts names or ids)."""
+        mask = np.ones(len(self), dtype=bool)
+
+        def _vals(v: Any) -> list[Any]:
+            return list(v) if isinstance(v, (list, tuple, set, np.ndarray)) else [v]
+
+        if modality is not None:
+            ids = [self.modalities.index(m) if isinstance(m, str) else int(m)
+                   for m in _vals(modality)]
+            mask &= np.isin(self.modality, ids)
+        if participant is not None:
+            mask &= np.isin(self.participant, _vals(participant))
+        if direction is not None:
+            mask &= np.isin(self.direction, _vals(direction))
+        if run is not None:
+            mask &= np.isin(self.run, _vals(run))
+        return self.subset(mask)
+
+    def load(self) -> Campaign:
+        """The same campaign with every signal read into memory (an ndarray)."""
+        if not isinstance(self.signals, CampaignSignals):
+            return self
+        out = self.subset(np.arange(len(self)))
+        out.signals = np.asarray(self.signals)
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """Counts and settings, as plain Python values (what ``eskin info`` prints)."""
+        def _counts(values: np.ndarray, names: Any = None) -> dict[Any, int]:
+            u, c = np.unique(values, return_counts=True)
+            return {(names(int(k)) if names else int(k)): int(v) for k, v in zip(u, c)}
+
+        lengths = self.lengths
+        return {
+            "path": self.path,
+            "recordings": len(self),
+            "grid": self.grid_shape,
+            "samples_per_recording": self.n_samples,
+            "sample_rate_hz": self.sample_rate_hz,
+            "duration_s": self.n_samples / self.sample_rate_hz,
+            "volts_per_count": self.volts_per_count,
+            "source": self.source,
+            "modalities": list(self.modalities),
+            "per_modality": {m: int(np.sum(self.modality == k))
+                             for k, m in enumerate(self.modalities)},
+            "participants": int(np.unique(self.participant).size),
+            "per_participant": _counts(self.participant),
+            "per_run": _counts(self.run),
+            "per_direction": _counts(self.direction, lambda d: DIRECTION_NAMES.get(d, str(d))),
+            "length_min": int(lengths.min()) if lengths.size else 0,
+            "length_median": float(np.median(lengths)) if lengths.size else 0.0,
+            "length_max": int(lengths.max()) if lengths.size else 0,
+            "has_contact_interval": self.contact_interval is not None,
+        }
+
+    # -- file lifetime
+    def close(self) -> None:
+        """Close the underlying file (a lazy campaign can no longer read signals)."""
+        if self._file is not None:
+            try:
+                self._file.close()
+            except Exception:  # noqa: BLE001 - closing twice or after an error
+                pass
+            self._file = None
+
+    def __enter__(self) -> Campaign:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        rows, cols = self.grid_shape
+        return (f"Campaign({len(self)} recordings, grid {rows}x{cols}, T={self.n_samples}, "
+                f"{self.sample_rate_hz:g} Hz, modalities={self.modalities}, "
+                f"source={self.source!r})")
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
+                  check_data: bool = False) -> Campaign:
+    """Open and validate a campaign file.
+
+    Signals stay in the file and are read on demand (``campaign.signals`` is a lazy
+    :class:`CampaignSignals`); ``in_memory=True`` reads them all and closes the file.
+    ``check_data=True`` also reads every recording once, to catch damaged data chunks.
+    Raises :class:`CampaignFormatError` for any problem with the file's content,
+    ``FileNotFoundError`` if it does not exist.
+    """
+    import h5py
+
+    path = Path(path)
+    where = str(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{where}: no such campaign file")
+    if path.is_dir():
+        raise CampaignFormatError(where, "<file>", "is a directory, not a campaign file")
+    try:
+        is_hdf5 = h5py.is_hdf5(where)
+    except OSError as exc:
+        raise CampaignFormatError(where, "<file>", f"cannot be read ({exc})") from exc
+    if not is_hdf5:
+        raise CampaignFormatError(where, "<file>", "not an HDF5 file (no HDF5 signature)")
+    try:
+        f = h5py.File(where, "r")
+    except OSError as exc:
+        msg = str(exc)
+        if "truncated" in msg:
+            raise CampaignFormatError(
+                where, "<file>", f"truncated HDF5 file (incomplete copy or interrupted "
+                f"write): {msg}") from exc
+        raise CampaignFormatError(where, "<file>", f"damaged HDF5 file: {msg}") from exc
+    try:
+        campaign = _load_open(f, where)
+        if check_data:
+            for i in range(len(campaign)):
+                campaign.signals[i]
+        if in_memory:
+            loaded = campaign.load()
+            f.close()
+            loaded._file = None
+            return loaded
+        return campaign
+    except CampaignFormatError:
+        f.close()
+        raise
+    except (OSError, RuntimeError, KeyError, TypeError) as exc:
+        f.close()
+        raise CampaignFormatError(where, "<file>", f"damaged HDF5 file: {exc}") from exc
+
+
+def _load_open(f: Any, where: str) -> Campaign:
+    import h5py
+
+    try:
+        raw_attrs = dict(f.attrs.items())
+    except (OSError, RuntimeError) as exc:
+        raise CampaignFormatError(where, "root attributes", f"cannot be read ({exc})") from exc
+    attrs = _check_attrs(where, raw_attrs)
+    if "recordings" not in f:
+        raise CampaignFormatError(where, "/recordings", "missing (a required group)")
+    grp = f["recordings"]
+    if not isinstance(grp, h5py.Group):
+        raise CampaignFormatError(where, "/recordings", "must be a group, found a dataset")
+    if "signals" not in grp:
+        raise CampaignFormatError(where, "/recordings/signals", "missing (a required field)")
+    sig = grp["signals"]
+    if not isinstance(sig, h5py.Dataset):
+        raise CampaignFormatError(where, "/recordings/signals", "must be a dataset")
+    if sig.dtype != np.int16:
+        raise CampaignFormatError(
+            where, "/recordings/signals", f"wrong dtype {sig.dtype} (expected int16)")
+    if sig.ndim != 4:
+        raise CampaignFormatError(
+            where, "/recordings/signals",
+            f"wrong shape {sig.shape}: expected 4 axes (n, rows, cols, T)")
+    n, rows, cols, t = sig.shape
+    if n > 0 and (rows < 1 or cols < 1):
+        raise CampaignFormatError(
+            where, "/recordings/signals", f"empty taxel grid {rows}x{cols}")
+    arrays: dict[str, Any] = {}
+    for name in (*_LABEL_FIELDS, *_OPTIONAL_FIELDS):
+        if name in grp:
+            ds = grp[name]
+            if not isinstance(ds, h5py.Dataset):
+                raise CampaignFormatError(where, f"/recordings/{name}", "must be a dataset")
+            expected = {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}[name][0]
+            if ds.dtype != expected:
+                raise CampaignFormatError(
+                    where, f"/recordings/{name}",
+                    f"wrong dtype {ds.dtype} (expected {expected.name})")
+            arrays[name] = ds[()]
+    labels = _check_labels(where, n, arrays, strict_dtype=True)
+    _check_contents(where, labels, len(attrs["modalities"]), t)
+    extras: dict[str, np.ndarray] = {}
+    if "extra" in grp and isinstance(grp["extra"], h5py.Group):
+        for k, ds in grp["extra"].items():
+            if not isinstance(ds, h5py.Dataset):
+                continue
+            v = ds[()]
+            if not isinstance(v, np.ndarray) or v.ndim < 1 or v.shape[0] != n:
+                raise CampaignFormatError(
+                    where, f"/recordings/extra/{k}",
+                    f"wrong shape {getattr(v, 'shape', ())} (expected one entry per recording, "
+                    f"n={n})")
+            extras[k] = v
+    return Campaign(
+        CampaignSignals(sig, None, where), labels["length"], labels["modality"],
+        labels["participant"], labels["direction"], labels["run"],
+        contact_interval=labels.get("contact_interval"), modalities=attrs["modalities"],
+        sample_rate_hz=attrs["sample_rate_hz"], volts_per_count=attrs["volts_per_count"],
+        source=attrs["source"], attrs=attrs, extras=extras, path=where, _file=f,
+        _validated=True)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _attr_value(value: Any) -> Any:
+    """Python value -> something h5py stores as an attribute (dicts go to JSON)."""
+    if isinstance(value, Mapping):
+        return json.dumps(value, sort_keys=True)
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+        import h5py
+
+        return np.array(value, dtype=h5py.string_dtype())
+    return value
+
+
+class CampaignWriter:
+    """Write a campaign one recording at a time (never the whole campaign in memory).
+
+    ::
+
+        with CampaignWriter("c.h5", grid_shape=(4, 4), n_samples=21000, sample_rate_hz=3000,
+                            volts_per_count=10 / 32768, modalities=["brush", "finger", "washer"],
+                            source="recorded") as w:
+            w.append(signals_i, modality=1, participant=7, direction=0, run=2)
+
+    Data goes to a temporary file next to ``path`` which replaces ``path`` only when the writer
+    closes without error; an existing ``path`` is replaced only with ``overwrite=True``.
+    ``signals`` of one recording: integer (rows, cols, length) with length <= n_samples, padded
+    with zeros. ``contact_interval=True`` adds the optional ground-truth field (then every append
+    must give one). Extra root attributes go in ``attrs`` (dicts are stored as JSON text).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        grid_shape: tuple[int, int] = (4, 4),
+        n_samples: int,
+        sample_rate_hz: float,
+        volts_per_count: float,
+        modalities: Sequence[str],
+        source: str,
+        attrs: Mapping[str, Any] | None = None,
+        contact_interval: bool = False,
+        overwrite: bool = False,
+        compression: str | None = "gzip",
+        compression_opts: int | None = 1,
+        extra_fields: Mapping[str, Any] | None = None,
+    ):
+        import h5py
+
+        self.path = Path(path)
+        rows, cols = (int(v) for v in grid_shape)
+        if rows < 1 or cols < 1:
+            raise ValueError(f"grid_shape must be positive, got {tuple(grid_shape)}")
+        if int(n_samples) < 1:
+            raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        dec = _check_attrs(str(self.path), {
+            **{k: v for k, v in dict(attrs or {}).items()},
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "sample_rate_hz": sample_rate_hz, "volts_per_count": volts_per_count,
+            "modalities": list(modalities), "source": source})
+        if self.path.exists() and not overwrite:
+            raise FileExistsError(
+                f"{self.path}: file exists; refusing to overwrite recorded data "
+                f"(pass overwrite=True, or --force on the command line)")
+        if self.path.is_dir():
+            raise IsADirectoryError(f"{self.path}: is a directory")
+        if not self.path.parent.exists():
+            raise FileNotFoundError(f"{self.path.parent}: output folder does not exist")
+        self.grid_shape = (rows, cols)
+        self.n_samples = int(n_samples)
+        self.modalities = dec["modalities"]
+        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
+        self._f = h5py.File(self._tmp, "w")
+        try:
+            for k, v in dict(attrs or {}).items():
+                self._f.attrs[k] = _attr_value(v)
+            self._f.attrs["format"] = FORMAT
+            self._f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+            self._f.attrs["sample_rate_hz"] = float(dec["sample_rate_hz"])
+            self._f.attrs["volts_per_count"] = float(dec["volts_per_count"])
+            self._f.attrs["modalities"] = _attr_value(list(dec["modalities"]))
+            self._f.attrs["source"] = dec["source"]
+            grp = self._f.create_group("recordings")
+            self._signals = grp.create_dataset(
+                "signals", shape=(0, rows, cols, self.n_samples),
+                maxshape=(None, rows, cols, self.n_samples), dtype=np.int16,
+                chunks=(1, rows, cols, self.n_samples), compression=compression,
+                compression_opts=compression_opts if compression == "gzip" else None,
+                shuffle=compression is not None)
+        except BaseException:
+            self._abort()
+            raise
+        self._labels: dict[str, list[Any]] = {k: [] for k in _LABEL_FIELDS}
+        self._with_ci = bool(contact_interval)
+        self._ci: list[tuple[int, int]] = []
+        self._extra_types = {str(k): np.dtype(v) for k, v in dict(extra_fields or {}).items()}
+        self._extra: dict[str, list[Any]] = {k: [] for k in self._extra_types}
+        self._n = 0
+        self._closed = False
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, signals: Any, *, modality: int | str, participant: int, direction: int,
+               run: int, length: int | None = None,
+               contact_interval: tuple[int, int] | None = None,
+               extra: Mapping[str, Any] | None = None) -> int:
+        """Append one recording; return its index."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        x = np.asarray(signals)
+        rows, cols = self.grid_shape
+        if x.ndim != 3 or x.shape[:2] != (rows, cols):
+            raise ValueError(
+                f"recording {self._n}: signals must have shape ({rows}, {cols}, length), "
+                f"got {x.shape}")
+        if x.shape[2] > self.n_samples:
+            raise ValueError(
+                f"recording {self._n}: {x.shape[2]} samples, more than the campaign's "
+                f"T={self.n_samples}")
+        if x.dtype != np.int16:
+            if x.dtype.kind not in "iu":
+                raise ValueError(
+                    f"recording {self._n}: signals must be int16 ADC counts, got dtype {x.dtype}")
+            if x.size and (x.min() < -32768 or x.max() > 32767):
+                raise ValueError(f"recording {self._n}: values outside the int16 range")
+            x = x.astype(np.int16)
+        n_valid = x.shape[2] if length is None else int(length)
+        if not 0 <= n_valid <= x.shape[2]:
+            raise ValueError(
+                f"recording {self._n}: length {n_valid} outside [0, {x.shape[2]}]")
+        if isinstance(modality, str):
+            if modality not in self.modalities:
+                raise ValueError(
+                    f"recording {self._n}: unknown modality {modality!r} "
+                    f"(campaign modalities: {self.modalities})")
+            modality = self.modalities.index(modality)
+        if not 0 <= int(modality) < len(self.modalities):
+            raise ValueError(f"recording {self._n}: modality id {modality} out of range")
+        if int(direction) not in DIRECTION_NAMES:
+            raise ValueError(
+                f"recording {self._n}: direction {direction} (0 horizontal, 1 vertical, "
+                f"255 unknown)")
+        if not 0 <= int(run) <= 255:
+            raise ValueError(f"recording {self._n}: run {run} outside [0, 255]")
+        extra = dict(extra or {})
+        if set(extra) != set(self._extra_types):
+            raise ValueError(
+                f"recording {self._n}: extra fields {sorted(extra)} do not match the declared "
+                f"extra_fields {sorted(self._extra_types)}")
+        if self._with_ci:
+            if contact_interval is None:
+                raise ValueError(f"recording {self._n}: contact_interval required")
+            on, off = (int(v) for v in contact_interval)
+            if not 0 <= on <= off <= n_valid:
+                raise ValueError(
+                    f"recording {self._n}: contact interval [{on}, {off}) not within "
+                    f"[0, {n_valid}]")
+            self._ci.append((on, off))
+        for k, v in extra.items():
+            self._extra[k].append(v)
+        buf = np.zeros((rows, cols, self.n_samples), dtype=np.int16)
+        buf[:, :, : x.shape[2]] = x
+        buf[:, :, n_valid:] = 0
+        self._signals.resize(self._n + 1, axis=0)
+        self._signals[self._n] = buf
+        for k, v in (("length", n_valid), ("modality", int(modality)),
+                     ("participant", int(participant)), ("direction", int(direction)),
+                     ("run", int(run))):
+            self._labels[k].append(v)
+        self._n += 1
+        return self._n - 1
+
+    def close(self) -> None:
+        """Write the label arrays and move the finished file into place."""
+        if self._closed:
+            return
+        try:
+            grp = self._f["recordings"]
+            for name, (dtype, _) in _LABEL_FIELDS.items():
+                grp.create_dataset(name, data=np.asarray(self._labels[name], dtype=dtype)
+                                   .reshape(self._n))
+            if self._with_ci:
+                grp.create_dataset("contact_interval",
+                                   data=np.asarray(self._ci, dtype=np.int32).reshape(self._n, 2))
+            if self._extra_types:
+                eg = grp.create_group("extra")
+                for k, dt in self._extra_types.items():
+                    eg.create_dataset(k, data=np.asarray(self._extra[k], dtype=dt))
+            self._f.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self._abort()
+            raise
+        self._closed = True
+
+    def _abort(self) -> None:
+        try:
+            self._f.close()
+        except Exception:  # noqa: BLE001
+            pass
+        try:
+            self._tmp.unlink()
+        except FileNotFoundError:
+            pass
+        self._closed = True
+
+    def abort(self) -> None:
+        """Discard everything written so far (the target file is left untouched)."""
+        self._abort()
+
+    def __enter__(self) -> CampaignWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self._abort()
+
+
+def write_campaign(
+    path: str | os.PathLike[str],
+    signals: Any,
+    *,
+    modality: Any,
+    participant: Any,
+    direction: Any,
+    run: Any,
+    modalities: Sequence[str],
+    sample_rate_hz: float,
+    volts_per_count: float,
+    source: str,
+    lengths: Any = None,
+    contact_interval: Any = None,
+    attrs: Mapping[str, Any] | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write a whole campaign at once; ``signals`` is int16 (n, rows, cols, T) or any
+    sequence of (rows, cols, length_i) recordings. Returns the path.
+
+    A :class:`Campaign` can be written back with :func:`save_campaign`.
+    """
+    if isinstance(signals, (np.ndarray, CampaignSignals)):
+        n = signals.shape[0]
+        if signals.ndim != 4:
+            raise ValueError(f"signals must be (n, rows, cols, T), got shape {signals.shape}")
+        grid = tuple(signals.shape[1:3])
+        t = int(signals.shape[3])
+        recs: Iterable[Any] = (signals[i] for i in range(n))
+    else:
+        recs_list = [np.asarray(r) for r in signals]
+        n = len(recs_list)
+        if n == 0:
+            raise ValueError("no recordings given (use a (0, rows, cols, T) array)")
+        grid = tuple(recs_list[0].shape[:2])
+        t = max(r.shape[-1] for r in recs_list)
+        recs = recs_list
+    labels = {k: np.asarray(v).reshape(-1) for k, v in (
+        ("modality", modality), ("participant", participant), ("direction", direction),
+        ("run", run))}
+    for k, v in labels.items():
+        if v.shape != (n,):
+            raise ValueError(f"{k} must have one entry per recording ({n}), got shape {v.shape}")
+    lens = None if lengths is None else np.asarray(lengths).reshape(-1)
+    if lens is not None and lens.shape != (n,):
+        raise ValueError(f"lengths must have one entry per recording ({n}), got {lens.shape}")
+    ci = None if contact_interval is None else np.asarray(contact_interval)
+    if ci is not None and ci.shape != (n, 2):
+        raise ValueError(f"contact_interval must have shape ({n}, 2), got {ci.shape}")
+    with CampaignWriter(path, grid_shape=grid, n_samples=max(t, 1), sample_rate_hz=sample_rate_hz,
+                        volts_per_count=volts_per_count, modalities=modalities, source=source,
+                        attrs=attrs, contact_interval=ci is not None,
+                        overwrite=overwrite) as w:
+        for i, rec in enumerate(recs):
+            w.append(rec, modality=int(labels["modality"][i]),
+                     participant=int(labels["participant"][i]),
+                     direction=int(labels["direction"][i]), run=int(labels["run"][i]),
+                     length=None if lens is None else int(lens[i]),
+                     contact_interval=None if ci is None else tuple(ci[i]))
+    return Path(path)
+
+
+def save_campaign(campaign: Campaign, path: str | os.PathLike[str], *,
+                  overwrite: bool = False) -> Path:
+    """Write a :class:`Campaign` (for example a subset of another one) to a new file."""
+    extra = {k: v for k, v in campaign.attrs.items() if k not in _REQUIRED_ATTRS}
+    return write_campaign(
+        path, campaign.signals, modality=campaign.modality, participant=campaign.participant,
+        direction=campaign.direction, run=campaign.run, modalities=campaign.modalities,
+        sample_rate_hz=campaign.sample_rate_hz, volts_per_count=campaign.volts_per_count,
+        source=campaign.source, lengths=campaign.lengths,
+        contact_interval=campaign.contact_interval, attrs=extra, overwrite=overwrite)

@@ -1,0 +1,116 @@
+"""Pictures of campaign recordings (matplotlib, Agg backend: no display needed)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _detect_window(rec: np.ndarray, length: int, rate: float) -> tuple[tuple[int, int], str]:
+    """The touch window of one recording, from eskin.preprocess.detect_windows."""
+    try:
+        from eskin.preprocess import detect_windows
+    except ImportError:  # the C++ preprocessing is not built: a plain energy threshold
+        return _crude_window(rec[..., :length], rate), "energy window (eskin.preprocess missing)"
+
+    win = detect_windows(rec[None].astype(np.int16), lengths=np.array([length]),
+                         sample_rate_hz=rate)
+    return (int(win[0, 0]), int(win[0, 1])), "detected window (eskin.preprocess)"
+
+
+def _crude_window(rec: np.ndarray, rate: float) -> tuple[int, int]:
+    """Samples whose 20 ms energy summed over taxels exceeds 8x its median, padded by 50 ms."""
+    x = rec.reshape(-1, rec.shape[-1]).astype(np.float64)
+    x -= np.median(x, axis=1, keepdims=True)
+    e = (x**2).sum(axis=0)
+    w = max(1, int(0.02 * rate))
+    e = np.convolve(e, np.ones(w) / w, mode="same")
+    above = np.flatnonzero(e > 8.0 * (np.median(e) + 1e-12))
+    if above.size == 0:
+        return 0, 0
+    pad = int(0.05 * rate)
+    return max(0, int(above[0]) - pad), min(rec.shape[-1], int(above[-1]) + 1 + pad)
+
+
+def plot_recording(campaign: Any, index: int, path: str | os.PathLike[str], *,
+                   n_maps: int = 8) -> Path:
+    """Draw recording ``index``: every taxel's trace (volts, offset per taxel), the detected
+    touch window (shaded), the true contact interval when the file has one (dashed), and a
+    strip of heat maps of the taxels' short-time energy across the window."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(campaign)
+    if not -n <= index < n:
+        raise IndexError(f"recording index {index} out of range: the campaign has {n} recordings")
+    index %= n
+    rec = campaign.recording(index)
+    rows, cols, length = rec.shape
+    rate = campaign.sample_rate_hz
+    volts = rec.astype(np.float64) * campaign.volts_per_count
+    t = np.arange(length) / rate
+    (w0, w1), wlabel = _detect_window(np.asarray(campaign.signals[index]), length, rate)
+    if w1 <= w0:  # nothing detected: show the energy of the whole recording
+        e0, e1 = 0, max(length, 1)
+    else:
+        e0, e1 = w0, w1
+
+    fig = plt.figure(figsize=(10, 7.2), dpi=80)
+    gs = fig.add_gridspec(2, n_maps, height_ratios=[3.2, 1.0], hspace=0.35, wspace=0.08)
+    ax = fig.add_subplot(gs[0, :])
+    flat = volts.reshape(rows * cols, length)
+    spread = np.percentile(np.abs(flat), 99.5) if flat.size else 1.0
+    step = 2.2 * max(spread, 1e-6)
+    cmap = plt.get_cmap("tab10")
+    for k in range(rows * cols):
+        ax.plot(t, flat[k] - k * step, lw=0.5, color=cmap((k // cols) % 10))
+    ax.set_yticks([-k * step for k in range(rows * cols)])
+    ax.set_yticklabels([f"{k // cols},{k % cols}" for k in range(rows * cols)], fontsize=7)
+    ax.set_ylabel("taxel (row,col); traces offset")
+    ax.set_xlabel("time (s)")
+    ax.set_xlim(0, max(length, 1) / rate)
+    if w1 > w0:
+        ax.axvspan(w0 / rate, w1 / rate, color="gold", alpha=0.25, label=wlabel)
+    ci = campaign.contact_interval
+    if ci is not None:
+        a, b = ci[index]
+        ax.axvline(a / rate, color="k", ls="--", lw=0.8, label="true contact interval")
+        ax.axvline(b / rate, color="k", ls="--", lw=0.8)
+    mod = campaign.modalities[int(campaign.modality[index])]
+    from eskin.campaign import DIRECTION_NAMES
+
+    direction = DIRECTION_NAMES.get(int(campaign.direction[index]), "?")
+    src = "SIMULATED" if campaign.source == "simulated" else campaign.source
+    ax.set_title(f"recording {index}: {mod}, participant {int(campaign.participant[index])}, "
+                 f"{direction}, run {int(campaign.run[index])}  [{src} data, "
+                 f"{rows}x{cols} taxels, {rate:g} Hz, scale {step:.3g} V/taxel]", fontsize=9)
+    ax.legend(loc="upper right", fontsize=7)
+
+    # energy heat maps over the window
+    edges = np.linspace(e0, e1, n_maps + 1).astype(int)
+    centred = volts - np.median(volts[..., : max(e0, 1)] if e0 > 0 else volts, axis=-1,
+                                keepdims=True)
+    energies = np.stack([
+        np.mean(centred[..., a:max(b, a + 1)] ** 2, axis=-1) for a, b in zip(edges[:-1], edges[1:])
+    ])
+    vmax = float(energies.max()) if energies.size and energies.max() > 0 else 1.0
+    for k in range(n_maps):
+        axm = fig.add_subplot(gs[1, k])
+        im = axm.imshow(energies[k], vmin=0.0, vmax=vmax, cmap="magma",
+                        interpolation="nearest")
+        axm.set_xticks([])
+        axm.set_yticks([])
+        axm.set_title(f"{edges[k] / rate:.2f} s", fontsize=7)
+    cax = fig.add_axes((0.92, 0.1, 0.012, 0.17))
+    fig.colorbar(im, cax=cax).ax.tick_params(labelsize=6)
+    fig.text(0.5, 0.29, "short-time energy (V$^2$) of each taxel across the window",
+             ha="center", fontsize=8)
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out

@@ -1,0 +1,320 @@
+"""The campaign file format: round trips, hand-written files, and every bad-file case."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import eskin
+from eskin.campaign import (
+    FORMAT,
+    Campaign,
+    CampaignFormatError,
+    CampaignWriter,
+    load_campaign,
+    save_campaign,
+    write_campaign,
+)
+
+MODS = ["brush", "finger", "washer"]
+
+
+def _arrays(n=6, grid=(4, 4), t=500, seed=0):
+    rng = np.random.default_rng(seed)
+    sig = rng.integers(-3000, 3000, (n, *grid, t)).astype(np.int16)
+    lengths = rng.integers(t // 2, t + 1, n).astype(np.int32)
+    sig *= (np.arange(t)[None, None, None, :] < lengths[:, None, None, None]).astype(np.int16)
+    labels = dict(
+        modality=np.arange(n) % 3,
+        participant=np.repeat(np.arange(1, n // 2 + 2), 2)[:n],
+        direction=np.arange(n) % 2,
+        run=np.ones(n, int) + (np.arange(n) >= n // 2),
+    )
+    return sig, lengths, labels
+
+
+def _write(path, **kw):
+    sig, lengths, labels = _arrays()
+    args = dict(modalities=MODS, sample_rate_hz=3000.0, volts_per_count=5 / 32768,
+                source="simulated", lengths=lengths,
+                contact_interval=np.stack([lengths // 4, lengths // 2], 1))
+    args.update(labels)
+    args.update(kw)
+    write_campaign(path, sig, **args)
+    return sig, lengths, labels
+
+
+def test_round_trip_keeps_every_field(tmp_path):
+    p = tmp_path / "c.h5"
+    sig, lengths, labels = _write(p, attrs={"note": "hello", "params": {"a": 1}})
+    with load_campaign(p) as c:
+        assert len(c) == 6 and c.grid_shape == (4, 4) and c.n_samples == 500
+        assert c.signals.shape == sig.shape and c.signals.dtype == np.int16
+        np.testing.assert_array_equal(np.asarray(c.signals), sig)
+        np.testing.assert_array_equal(c.lengths, lengths)
+        for k, v in labels.items():
+            np.testing.assert_array_equal(getattr(c, k), v)
+            assert getattr(c, k).dtype == {"modality": np.uint8, "participant": np.int32,
+                                           "direction": np.uint8, "run": np.uint8}[k]
+        assert c.modalities == MODS and c.source == "simulated"
+        assert c.sample_rate_hz == 3000.0 and c.volts_per_count == 5 / 32768
+        assert c.attrs["note"] == "hello" and c.attrs["params"] == '{"a": 1}'
+        np.testing.assert_array_equal(c.contact_interval[:, 1], lengths // 2)
+        rec = c.recording(2)
+        assert rec.shape == (4, 4, lengths[2]) and rec.dtype == np.int16
+        np.testing.assert_array_equal(rec, sig[2, ..., : lengths[2]])
+        np.testing.assert_allclose(c.signals_float(2), rec * (5 / 32768))
+    with h5py.File(p) as f:
+        ds = f["recordings/signals"]
+        assert ds.chunks == (1, 4, 4, 500) and ds.compression == "gzip"
+        assert f.attrs["format"] == FORMAT and int(f.attrs["format_version"]) == 1
+
+
+def test_subset_select_and_save(tmp_path):
+    p = tmp_path / "c.h5"
+    sig, lengths, labels = _write(p)
+    with load_campaign(p) as c:
+        sub = c.subset([4, 1, 1])
+        assert len(sub) == 3
+        np.testing.assert_array_equal(np.asarray(sub.signals), sig[[4, 1, 1]])
+        np.testing.assert_array_equal(sub.lengths, lengths[[4, 1, 1]])
+        fingers = c.select(modality="finger", run=[1, 2])
+        assert list(fingers.modality) == [1, 1]
+        mask = c.subset(c.run == 2)
+        assert set(mask.run.tolist()) == {2}
+        np.testing.assert_array_equal(mask.subset([0]).signals[0], sig[c.run == 2][0])
+        save_campaign(sub, tmp_path / "sub.h5")
+        mem = c.load()
+        assert isinstance(mem.signals, np.ndarray)
+    with load_campaign(tmp_path / "sub.h5", in_memory=True) as s2:
+        np.testing.assert_array_equal(s2.signals, sig[[4, 1, 1]])
+        assert s2.contact_interval.shape == (3, 2)
+
+
+def test_streaming_writer_pads_and_checks(tmp_path):
+    p = tmp_path / "w.h5"
+    with CampaignWriter(p, grid_shape=(2, 3), n_samples=100, sample_rate_hz=1000.0,
+                        volts_per_count=1e-3, modalities=["a", "b"], source="recorded") as w:
+        w.append(np.ones((2, 3, 60), np.int16), modality="b", participant=5, direction=255,
+                 run=1)
+        w.append(np.full((2, 3, 100), -7, np.int32), modality=0, participant=6, direction=0,
+                 run=2, length=80)
+        with pytest.raises(ValueError, match="shape"):
+            w.append(np.ones((3, 2, 10), np.int16), modality=0, participant=1, direction=0,
+                     run=1)
+        with pytest.raises(ValueError, match="unknown modality"):
+            w.append(np.ones((2, 3, 10), np.int16), modality="c", participant=1, direction=0,
+                     run=1)
+        with pytest.raises(ValueError, match="int16 ADC counts"):
+            w.append(np.ones((2, 3, 10)), modality=0, participant=1, direction=0, run=1)
+        assert not p.exists()  # the file appears only when complete
+    c = load_campaign(p, in_memory=True)
+    assert c.lengths.tolist() == [60, 80]
+    assert c.recording(0).shape == (2, 3, 60) and c.recording(1).shape == (2, 3, 80)
+    assert np.all(np.asarray(c.signals)[0, ..., 60:] == 0)
+    assert np.all(np.asarray(c.signals)[1, ..., 80:] == 0)
+    assert c.direction.tolist() == [255, 0] and c.modality.tolist() == [1, 0]
+
+
+def test_never_overwrites_unless_asked(tmp_path):
+    p = tmp_path / "c.h5"
+    sig, _, _ = _write(p)
+    before = p.read_bytes()
+    with pytest.raises(FileExistsError, match="refusing to overwrite"):
+        _write(p)
+    assert p.read_bytes() == before
+    _write(p, overwrite=True)
+    assert load_campaign(p, in_memory=True).signals.shape == sig.shape
+
+
+def test_failed_write_leaves_existing_file_intact(tmp_path):
+    p = tmp_path / "c.h5"
+    _write(p)
+    before = p.read_bytes()
+    with pytest.raises(RuntimeError):
+        with CampaignWriter(p, n_samples=10, sample_rate_hz=1.0, volts_per_count=1.0,
+                            modalities=["x"], source="recorded", overwrite=True) as w:
+            w.append(np.zeros((4, 4, 10), np.int16), modality=0, participant=0, direction=0,
+                     run=0)
+            raise RuntimeError("power cut")
+    assert p.read_bytes() == before
+    assert [q.name for q in tmp_path.iterdir()] == ["c.h5"]
+
+
+def test_hand_written_odd_grid_loads(tmp_path):
+    """A file made with h5py alone, following docs/dataset-format.md: 3x5 taxels at 1000 Hz."""
+    p = tmp_path / "hand.h5"
+    rng = np.random.default_rng(3)
+    sig = rng.integers(-100, 100, (4, 3, 5, 250)).astype(np.int16)
+    with h5py.File(p, "w") as f:
+        f.attrs["format"] = "eskin-campaign"
+        f.attrs["format_version"] = 1
+        f.attrs["sample_rate_hz"] = 1000.0
+        f.attrs["volts_per_count"] = 0.5e-3
+        f.attrs["modalities"] = ["tap", "slide"]
+        f.attrs["source"] = "recorded"
+        g = f.create_group("recordings")
+        g.create_dataset("signals", data=sig, chunks=(1, 3, 5, 250), compression="gzip")
+        g["length"] = np.array([250, 200, 10, 0], np.int32)
+        g["modality"] = np.array([0, 1, 1, 0], np.uint8)
+        g["participant"] = np.array([1, 1, 2, 2], np.int32)
+        g["direction"] = np.array([0, 1, 255, 0], np.uint8)
+        g["run"] = np.array([1, 1, 1, 2], np.uint8)
+    with load_campaign(p) as c:
+        assert c.grid_shape == (3, 5) and c.sample_rate_hz == 1000.0
+        assert c.modalities == ["tap", "slide"] and c.contact_interval is None
+        assert c.recording(1).shape == (3, 5, 200) and c.recording(3).shape == (3, 5, 0)
+        np.testing.assert_array_equal(c.recording(0), sig[0])
+    # fixed-length byte strings (as MATLAB or h5py users may write them) load too
+    with h5py.File(p, "a") as f:
+        f.attrs["modalities"] = np.array([b"tap", b"slide"])
+        f.attrs["source"] = np.bytes_("recorded")
+    assert load_campaign(p, in_memory=True).modalities == ["tap", "slide"]
+
+
+def test_in_memory_campaign_validates():
+    sig, lengths, labels = _arrays()
+    c = Campaign(sig, lengths, modalities=MODS, sample_rate_hz=3000, volts_per_count=1.0,
+                 source="recorded", **labels)
+    assert len(c) == 6 and c.path is None
+    with pytest.raises(CampaignFormatError, match="<memory>: /recordings/modality"):
+        Campaign(sig, lengths, modalities=["a"], sample_rate_hz=3000, volts_per_count=1.0,
+                 source="recorded", **labels)
+
+
+# ---------------------------------------------------------------- bad files
+
+
+def _good(tmp_path) -> Path:
+    p = tmp_path / "good.h5"
+    _write(p)
+    return p
+
+
+def _edit(tmp_path, fn) -> Path:
+    p = _good(tmp_path)
+    with h5py.File(p, "a") as f:
+        fn(f)
+    return p
+
+
+def _replace(name, data):
+    def fn(f):
+        del f[f"recordings/{name}"]
+        f[f"recordings/{name}"] = data
+
+    return fn
+
+
+BAD_CASES = {
+    "missing signals": (lambda f: f.__delitem__("recordings/signals"),
+                        "/recordings/signals", "missing"),
+    "missing length": (lambda f: f.__delitem__("recordings/length"),
+                       "/recordings/length", "missing"),
+    "missing run": (lambda f: f.__delitem__("recordings/run"), "/recordings/run", "missing"),
+    "missing group": (lambda f: f.__delitem__("recordings"), "/recordings", "missing"),
+    "missing rate": (lambda f: f.attrs.__delitem__("sample_rate_hz"),
+                     "attribute 'sample_rate_hz'", "missing"),
+    "missing modalities": (lambda f: f.attrs.__delitem__("modalities"),
+                           "attribute 'modalities'", "missing"),
+    "bad version": (lambda f: f.attrs.__setitem__("format_version", 7),
+                    "attribute 'format_version'", "not supported"),
+    "bad source": (lambda f: f.attrs.__setitem__("source", "guessed"),
+                   "attribute 'source'", "must be one of"),
+    "negative rate": (lambda f: f.attrs.__setitem__("sample_rate_hz", -3.0),
+                      "attribute 'sample_rate_hz'", "positive"),
+    "float signals": (_replace("signals", np.zeros((6, 4, 4, 500), np.float32)),
+                      "/recordings/signals", "wrong dtype float32"),
+    "3-axis signals": (_replace("signals", np.zeros((6, 16, 500), np.int16)),
+                       "/recordings/signals", "wrong shape"),
+    "int64 length": (_replace("length", np.full(6, 10, np.int64)),
+                     "/recordings/length", "wrong dtype int64"),
+    "int32 modality": (_replace("modality", np.zeros(6, np.int32)),
+                       "/recordings/modality", "wrong dtype"),
+    "short participant": (_replace("participant", np.zeros(5, np.int32)),
+                          "/recordings/participant", "wrong shape"),
+    "length > T": (_replace("length", np.full(6, 501, np.int32)),
+                   "/recordings/length", "outside"),
+    "modality out of range": (_replace("modality", np.full(6, 3, np.uint8)),
+                              "/recordings/modality", "out of range"),
+    "bad direction": (_replace("direction", np.full(6, 2, np.uint8)),
+                      "/recordings/direction", "direction 2"),
+    "bad interval": (_replace("contact_interval", np.tile(np.array([[5, 2]], np.int32), (6, 1))),
+                     "/recordings/contact_interval", "onset <= offset"),
+    "foreign format": (lambda f: f.attrs.__setitem__("format", "matlab-thing"),
+                       "attribute 'format'", "not an eskin campaign"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_file_gives_clear_error(tmp_path, case):
+    fn, field, problem = BAD_CASES[case]
+    p = _edit(tmp_path, fn)
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(p)
+    err = info.value
+    assert isinstance(err, ValueError)
+    assert str(p) in str(err) and field in str(err) and problem in str(err), str(err)
+    assert err.field == field
+
+
+def test_foreign_hdf5(tmp_path):
+    p = tmp_path / "other.h5"
+    with h5py.File(p, "w") as f:
+        f["data"] = np.arange(10)
+    with pytest.raises(CampaignFormatError, match="not an eskin campaign"):
+        load_campaign(p)
+
+
+def test_not_hdf5(tmp_path):
+    p = tmp_path / "notes.h5"
+    p.write_text("participant,modality\n1,brush\n")
+    with pytest.raises(CampaignFormatError, match=r"notes\.h5: <file>: not an HDF5 file"):
+        load_campaign(p)
+    empty = tmp_path / "empty.h5"
+    empty.write_bytes(b"")
+    with pytest.raises(CampaignFormatError, match="not an HDF5 file"):
+        load_campaign(empty)
+
+
+@pytest.mark.parametrize("keep", [0.3, 0.7, 0.97])
+def test_truncated_hdf5(tmp_path, keep):
+    good = _good(tmp_path)
+    p = tmp_path / "cut.h5"
+    data = good.read_bytes()
+    p.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(CampaignFormatError, match=r"cut\.h5: <file>: (truncated|not an HDF5)"):
+        load_campaign(p, check_data=True)
+
+
+def test_corrupted_chunk_is_reported_not_crashed(tmp_path):
+    good = _good(tmp_path)
+    with h5py.File(good) as f:
+        offset = f["recordings/signals"].id.get_chunk_info(2).byte_offset
+    p = tmp_path / "bad_chunk.h5"
+    shutil.copy(good, p)
+    with open(p, "r+b") as fh:
+        fh.seek(offset + 10)
+        fh.write(b"\xff" * 64)
+    c = load_campaign(p)  # labels are fine; the damage shows when reading data
+    with pytest.raises(CampaignFormatError, match="/recordings/signals"):
+        c.recording(2)
+    c.close()
+    with pytest.raises(CampaignFormatError, match="/recordings/signals"):
+        load_campaign(p, check_data=True)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such campaign file"):
+        load_campaign(tmp_path / "nope.h5")
+    with pytest.raises(CampaignFormatError, match="directory"):
+        load_campaign(tmp_path)
+
+
+def test_public_names():
+    assert eskin.load_campaign is load_campaign
+    assert issubclass(eskin.CampaignFormatError, ValueError)

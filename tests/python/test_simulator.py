@@ -1,0 +1,100 @@
+"""The campaign simulator: format, determinism, physics sanity, separability of the modalities."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import h5py
+import numpy as np
+import pytest
+
+from eskin.campaign import load_campaign
+from eskin.simulator import MODALITIES, SimulatorConfig, simulate
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    p = tmp_path_factory.mktemp("sim") / "small.h5"
+    simulate(p, participants=2, seed=5)
+    return p
+
+
+def test_simulated_file_is_a_valid_campaign(small):
+    with load_campaign(small, check_data=True) as c:
+        assert len(c) == 2 * 3 * 2 * 2
+        assert c.signals.shape == (24, 4, 4, 21000) and c.signals.dtype == np.int16
+        assert c.sample_rate_hz == 3000.0 and c.source == "simulated"
+        assert c.modalities == list(MODALITIES) == ["brush", "finger", "washer"]
+        assert sorted(set(c.participant.tolist())) == [1, 2]
+        assert sorted(set(c.run.tolist())) == [1, 2]
+        assert np.all(c.lengths == 21000)
+        # the paper's order: participant, run, modality, horizontal then vertical
+        assert c.direction[:4].tolist() == [0, 1, 0, 1]
+        assert c.modality[:6].tolist() == [0, 0, 1, 1, 2, 2]
+        on, off = c.contact_interval.T
+        assert np.all(on > 0) and np.all(off > on) and np.all(off < 21000)
+        cfg = SimulatorConfig.from_json(c.attrs["simulator_config"])
+        assert cfg == SimulatorConfig()
+        assert "SIMULATED" in c.attrs["description"]
+        assert set(c.extras) >= {"speed_mm_s", "force_n", "variant"}
+
+
+def test_same_seed_same_content(small, tmp_path):
+    again = tmp_path / "again.h5"
+    simulate(again, participants=2, seed=5, n_jobs=2)
+    with h5py.File(small) as a, h5py.File(again) as b:
+        for name in a["recordings"]:
+            if isinstance(a["recordings"][name], h5py.Dataset):
+                np.testing.assert_array_equal(a["recordings"][name][()], b["recordings"][name][()])
+        assert dict(a.attrs) .keys() == dict(b.attrs).keys()
+        assert a.attrs["simulator_config"] == b.attrs["simulator_config"]
+    other = tmp_path / "other.h5"
+    simulate(other, participants=1, seed=6)
+    with h5py.File(small) as a, h5py.File(other) as b:
+        assert not np.array_equal(a["recordings/signals"][0], b["recordings/signals"][0])
+
+
+def test_signal_is_in_the_contact_interval(small):
+    """Energy inside the true contact interval dominates the energy before the touch."""
+    with load_campaign(small) as c:
+        ratios = []
+        for i in range(len(c)):
+            x = c.signals_float(i).reshape(16, -1)
+            x = x - np.median(x, axis=1, keepdims=True)
+            on, off = c.contact_interval[i]
+            inside = np.mean(x[:, on:off] ** 2)
+            before = np.mean(x[:, : max(on - 300, 10)] ** 2)
+            ratios.append(inside / before)
+        assert np.median(ratios) > 20
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="difficulty"):
+        SimulatorConfig(difficulty=-1)
+    with pytest.raises(ValueError, match="bpf_lowpass_hz"):
+        SimulatorConfig(bpf_lowpass_hz=5000.0)
+    with pytest.raises(ValueError, match="participants"):
+        simulate("/nonexistent/x.h5", participants=0)
+
+
+def test_refuses_to_overwrite(small):
+    with pytest.raises(FileExistsError):
+        simulate(small, participants=1)
+
+
+def test_difficulty_zero_is_clean(tmp_path):
+    p = tmp_path / "clean.h5"
+    simulate(p, participants=1, seed=1, difficulty=0.0)
+    with load_campaign(p) as c:
+        assert c.attrs["difficulty"] == 0.0
+        assert np.all(c.extras["variant"] == 0)  # no atypical gestures
+        assert np.all(c.extras["dead_taxel"] == -1)
+
+
+def test_odd_grid_and_rate(tmp_path):
+    cfg = dataclasses.replace(SimulatorConfig(), rows=3, cols=5, sample_rate_hz=2000.0,
+                              duration_s=5.0, bpf_lowpass_hz=900.0, pitch_mm=10.0)
+    p = tmp_path / "odd.h5"
+    simulate(p, participants=1, config=cfg, runs=(2,))
+    with load_campaign(p) as c:
+        assert c.signals.shape == (6, 3, 5, 10000) and c.sample_rate_hz == 2000.0
