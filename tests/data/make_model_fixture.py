@@ -16,10 +16,10 @@ from eskin.export import MachineSpec, ModelSpec, model_to_bytes
 
 # eskin::WindowConfig defaults (the fixture must not depend on the Python preprocessing module)
 DEFAULT_WINDOW = dict(
-    frame_s=0.010, dc_cutoff_hz=1.0, combine=0.0, noise_window_s=1.0, noise_quantile=0.25,
-    warmup_s=0.1, min_noise_energy=0.0, on_factor=4.0, off_factor=2.0, hold_s=0.15,
-    min_duration_s=0.05, pad_before_s=0.05, pad_after_s=0.05, max_window_s=7.0, select=0.0,
-    fallback=0.0,
+    frame_s=0.010, dc_cutoff_hz=5.0, combine=0.0, noise_window_s=1.0, noise_quantile=0.5,
+    warmup_s=0.1, min_noise_energy=0.0, on_factor=4.0, off_factor=2.0, release_fraction=1e-3,
+    lookback_s=0.3, hold_s=0.15, min_duration_s=0.05, pad_before_s=0.05, pad_after_s=0.05,
+    max_window_s=7.0, select=2.0, span_fraction=0.05, fallback=0.0,
 )
 
 
