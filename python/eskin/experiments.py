@@ -572,7 +572,7 @@ def baseline_task(
     feature standing in for the alpha axis), selected by cross-validation with the same scheme
     and number of participant-grouped random splits as the tensor machines' CV selection.
     """
-    from sklearn.svm import SVC
+    from eskin.estimators import svm_train
 
     t0, c0 = time.perf_counter(), time.process_time()
     grid = _baseline_grid(cfg)
@@ -580,41 +580,35 @@ def baseline_task(
     folds = cv_splits(gtr, ytr, int(cvo["n_splits"]), float(cvo["test_size"]), seed)
     Atr = Xtr.reshape(len(Xtr), -1)
     Ava = Xva.reshape(len(Xva), -1)
-    best: tuple[float, int, dict[str, Any]] | None = None
-    rows = []
-    order = 0
-    for how in grid["normalise"]:
-        fold_data = []
-        for tr, te in folds:
+    y_pm = np.where(ytr == 1, 1.0, -1.0)
+    norms, gscales, Cs = grid["normalise"], grid["gamma_scale"], grid["C"]
+    errors = np.zeros((len(norms), len(gscales), len(Cs), len(folds)))
+    for i, how in enumerate(norms):
+        for f, (tr, te) in enumerate(folds):
             a, b = _normalise(Atr[tr], Atr[te], how)
-            dtr = _sqdist(a, a)
-            med = float(np.median(dtr[np.triu_indices(len(a), 1)])) if len(a) > 1 else 1.0
-            fold_data.append((tr, te, dtr, _sqdist(b, a), max(med, 1e-300)))
-        for gs in grid["gamma_scale"]:
-            for C in grid["C"]:
-                errs = []
-                for tr, te, dtr, dte, med in fold_data:
-                    ytr_f = ytr[tr]
-                    if len(np.unique(ytr_f)) < 2:
-                        errs.append(float(np.mean(ytr[te] != ytr_f[0])))
-                        continue
-                    g = gs / med
-                    svc = SVC(C=C, kernel="precomputed").fit(np.exp(-g * dtr), ytr_f)
-                    errs.append(float(np.mean(svc.predict(np.exp(-g * dte)) != ytr[te])))
-                e = float(np.mean(errs))
-                params = {"C": C, "gamma_scale": gs, "normalise": how}
-                rows.append({**params, "cv_error": e})
-                if best is None or e < best[0] - 1e-12:
-                    best = (e, order, params)
-                order += 1
-    assert best is not None
-    p = best[2]
+            dtr, dte = _sqdist(a, a), _sqdist(b, a)
+            med = max(float(np.median(dtr[np.triu_indices(len(a), 1)])), 1e-300)
+            for j, gs in enumerate(gscales):
+                K, Kte = np.exp(-(gs / med) * dtr), np.exp(-(gs / med) * dte)
+                for k, C in enumerate(Cs):
+                    beta, b0, _ = svm_train(K, y_pm[tr], C)
+                    errors[i, j, k, f] = np.mean((Kte @ beta + b0 > 0) != (ytr[te] == 1))
+    mean = errors.mean(axis=3)
+    # lowest CV error; ties go to the simpler machine: smaller C, then wider kernel
+    cand = [
+        (mean[i, j, k], Cs[k], gscales[j], i, j, k)
+        for i in range(len(norms))
+        for j in range(len(gscales))
+        for k in range(len(Cs))
+    ]
+    e_best, _, _, i, j, k = min(cand)
+    p = {"C": Cs[k], "gamma_scale": gscales[j], "normalise": norms[i]}
     a, b = _normalise(Atr, Ava, p["normalise"])
     dtr = _sqdist(a, a)
     med = max(float(np.median(dtr[np.triu_indices(len(a), 1)])), 1e-300)
     g = p["gamma_scale"] / med
-    svc = SVC(C=p["C"], kernel="precomputed").fit(np.exp(-g * dtr), ytr)
-    pred = svc.predict(np.exp(-g * _sqdist(b, a))).astype(int)
+    beta, b0, support = svm_train(np.exp(-g * dtr), y_pm, p["C"])
+    pred = (np.exp(-g * _sqdist(b, a)) @ beta + b0 > 0).astype(int)
     err = float(np.mean(pred != yva))
     return {
         **key,
@@ -623,8 +617,9 @@ def baseline_task(
         "n_val": int(len(yva)),
         "error": err,
         "error_pct": 100.0 * err,
-        "selected": {**p, "gamma": g, "lambda": 1.0 / p["C"], "cv_error": best[0]},
-        "n_configurations": len(rows),
+        "selected": {**p, "gamma": g, "lambda": 1.0 / p["C"], "cv_error": float(e_best)},
+        "n_configurations": len(cand),
+        "n_support": int(len(support)),
         "confusion": _confusion(yva, pred, 2),
         "seconds": time.perf_counter() - t0,
         "cpu_seconds": time.process_time() - c0,
