@@ -3,6 +3,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <cstring>
 #include <limits>
 #include <tuple>
@@ -240,7 +241,35 @@ void bind_model(py::module_& m) {
             }
             return py::make_tuple(labels, values, dont_know, status);
           },
-          py::arg("tensors"));
+          py::arg("tensors"))
+      .def(
+          "time_classify",
+          [](Classifier& c, py::array_t<std::int16_t, py::array::c_style | py::array::forcecast> a,
+             int repeats) {
+            // Wall time of each classify() call (raw window -> label), in nanoseconds, measured
+            // in C++ around the call alone: for benchmarks/bench_inference.py.
+            const Model& mm = c.model();
+            if (a.ndim() != 4 || a.shape(1) != mm.rows() || a.shape(2) != mm.cols())
+              throw std::invalid_argument("signals: expected shape (n, rows, cols, T)");
+            const py::ssize_t n = a.shape(0), T = a.shape(3);
+            const std::size_t per = static_cast<std::size_t>(mm.rows() * mm.cols() * T);
+            py::array_t<double> ns(n * repeats);
+            auto out = ns.mutable_unchecked<1>();
+            const std::int16_t* d = a.data();
+            {
+              py::gil_scoped_release release;
+              for (int r = 0; r < repeats; ++r)
+                for (py::ssize_t i = 0; i < n; ++i) {
+                  Decision dec;
+                  const auto t0 = std::chrono::steady_clock::now();
+                  c.classify(d + static_cast<std::size_t>(i) * per, mm.rows(), mm.cols(), T, T, &dec);
+                  const auto t1 = std::chrono::steady_clock::now();
+                  out(r * n + i) = std::chrono::duration<double, std::nano>(t1 - t0).count();
+                }
+            }
+            return ns;
+          },
+          py::arg("signals"), py::arg("repeats") = 1);
 
   py::class_<StreamClassifier>(m, "StreamClassifier",
                                "The controller's path: one multi-taxel sample at a time.")
@@ -292,6 +321,8 @@ void bind_model(py::module_& m) {
       .def_property_readonly("in_touch", &StreamClassifier::in_touch);
 
   m.attr("MODEL_FORMAT_VERSION") = model_format::kVersion;
+  m.def("model_overlap_kernel", &overlap_kernel_name,
+        "The overlap micro-kernel of the model classifier on this CPU.");
 }
 
 }  // namespace eskin::bindings

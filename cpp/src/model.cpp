@@ -10,6 +10,10 @@
 
 namespace eskin {
 
+namespace {
+constexpr std::size_t kMaxTouches = 4096;  // touches remembered in one recording (batch path)
+}  // namespace
+
 const char* to_string(ClassifyStatus s) noexcept {
   switch (s) {
     case ClassifyStatus::kOk: return "ok";
@@ -20,9 +24,12 @@ const char* to_string(ClassifyStatus s) noexcept {
     case ClassifyStatus::kTooShort: return "too_short";
     case ClassifyStatus::kKernel: return "kernel_failure";
     case ClassifyStatus::kNullPointer: return "null_pointer";
+    case ClassifyStatus::kOverflow: return "too_many_touches";
   }
   return "unknown";
 }
+
+const char* overlap_kernel_name() noexcept { return detail::overlap_kernel_name(); }
 
 // Machines are grouped by their alpha triple: the per-mode distances of a support vector depend
 // only on it, so they are computed once per (group, support vector) and shared by the machines.
@@ -61,6 +68,7 @@ struct Classifier::Impl {
       g.svs.erase(std::unique(g.svs.begin(), g.svs.end()), g.svs.end());
     }
     dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
+    touches.reserve(kMaxTouches);
   }
 
   BasisLayout layout;
@@ -74,6 +82,7 @@ struct Classifier::Impl {
   std::vector<std::size_t> machine_group;
   std::vector<double> dist;  // (group, sv, mode) squared mode distances
   std::vector<double> values;
+  std::vector<TouchWindow> touches;  // capacity kMaxTouches, reserved at construction
   detail::OverlapF32 ov32;
   detail::OverlapF64 ov64;
 };
@@ -153,26 +162,33 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
 }
 
 namespace {
-// The batch window choice of eskin::detect_window (WindowConfig.select), without allocation.
-struct WindowChoice {
-  int select;
-  std::int64_t max_window;
+
+// The window choice of eskin::detect_window (WindowConfig.select: 0 most energetic, 1 first,
+// 2 span from the first to the last touch holding span_fraction of the peak energy), on a
+// buffer allocated with the classifier: no allocation per decision.
+TouchWindow choose_window(const DetectorParams& p, const std::vector<TouchWindow>& touches) noexcept {
+  if (p.select == 1) return touches.front();
+  const TouchWindow* best = &touches.front();
+  for (const TouchWindow& w : touches)
+    if (w.energy > best->energy) best = &w;
+  if (p.select == 0) return *best;
+  const double min_energy = p.span_fraction * best->energy;
+  TouchWindow out{};
   bool any = false;
-  TouchWindow best{};
-  void add(const TouchWindow& w) noexcept {
+  for (const TouchWindow& w : touches) {
+    if (w.energy < min_energy) continue;
     if (!any) {
-      best = w;
+      out = w;
       any = true;
-    } else if (select == 0) {
-      if (w.energy > best.energy) best = w;
-    } else if (select == 2) {
-      best.stop = std::min(w.stop, best.start + max_window);
-      best.offset = std::min(w.offset, best.stop);
-      best.energy += w.energy;
-      best.truncated = best.truncated || w.truncated || w.stop > best.stop;
+      continue;
     }
+    out.energy += w.energy;
+    out.truncated = out.truncated || w.truncated || w.stop > out.start + p.max_window;
+    out.stop = std::min(w.stop, out.start + p.max_window);
+    out.offset = std::min(w.offset, out.stop);
   }
-};
+  return out;
+}
 }  // namespace
 
 template <typename T>
@@ -191,15 +207,30 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
   if (m.window_mode() == WindowMode::kEnergy) {
     TouchDetector& det = s.detector;
     det.reset();
-    WindowChoice choice{det.params().select, det.params().max_window};
+    auto& touches = s.touches;
+    touches.clear();
+    const DetectorParams& p = det.params();
+    auto add = [&](const TouchWindow& tw) {
+      if (p.select == 1 && !touches.empty()) return true;
+      if (p.select == 0 && !touches.empty()) {  // only the most energetic (first on ties)
+        if (tw.energy > touches.front().energy) touches.front() = tw;
+        return true;
+      }
+      if (touches.size() == touches.capacity()) return false;
+      touches.push_back(tw);  // within the reserved capacity: no allocation
+      return true;
+    };
     for (std::int64_t t = 0; t < length; ++t) {
       const Status st = det.push_strided(x + t, T_total);
-      if (st == Status::kWindow) choice.add(det.last_window());
-      else if (st == Status::kNonFiniteSample) return ClassifyStatus::kNotFinite;
+      if (st == Status::kWindow) {
+        if (!add(det.last_window())) return ClassifyStatus::kOverflow;
+      } else if (st == Status::kNonFiniteSample) {
+        return ClassifyStatus::kNotFinite;
+      }
     }
-    if (det.flush() == Status::kWindow) choice.add(det.last_window());
-    if (choice.any) {
-      w = choice.best;
+    if (det.flush() == Status::kWindow && !add(det.last_window())) return ClassifyStatus::kOverflow;
+    if (!touches.empty()) {
+      w = choose_window(p, touches);
     } else {
       if (det.params().fallback == 1) return ClassifyStatus::kNoTouch;
       w.found = false;

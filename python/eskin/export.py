@@ -495,6 +495,7 @@ _STATUS = {
     -4: "its window is shorter than D (the model's short policy is error)",
     -5: "the basis computation failed",
     -6: "null data",
+    -7: "it holds more than 4096 separate touches",
 }
 
 
