@@ -7,13 +7,15 @@ alpha = Q/2: model selection is not what is measured here). Reported per D:
 
 * model bytes (float32 .eskin file) against the bytes of its bases in float32, support vectors
   kept (unique, after deduplication across the three machines);
-* per-decision latency, raw window (4 x 4 x 21000 int16) -> label, median over many windows:
-  the C++ classifier (timed in C++ around each call), against two baselines measured in the same
-  run: a numpy implementation of the same decision from the same stored bases (preprocessing
-  through eskin.preprocess, bases by numpy SVD, distances by one batched matmul per mode), and
-  the Python model itself (TouchModel: eskin.preprocess + estimator.decision_function);
-* instructions per decision with valgrind --tool=callgrind (deterministic): eskin-classify on
-  11 windows minus eskin-classify on 1 window, divided by 10 (model loading cancels out).
+* per-decision latency, median over many windows, raw samples -> label: (a) at the end of a
+  touch, the StreamClassifier push that completes it (subsample the window's raw samples to D,
+  bases, machines), (b) a whole 7-s recording (4 x 4 x 21000 int16) through Classifier.classify
+  (energy detector over every sample, then the decision); C++ timed in C++ around each call,
+  against baselines measured in the same run: a numpy implementation of the same decision from
+  the same stored bases (bases by numpy SVD, one batched matmul per mode), and the Python model
+  (eskin.subsample / eskin.preprocess + TouchModel.decision_function);
+* instructions per decision with valgrind --tool=callgrind (deterministic), counted inside
+  Classifier::classify_tensor (a) and Classifier::classify (b) only.
 
 Run:  ESKIN_BIN_DIR=build/dev python benchmarks/bench_inference.py [--campaign sim.h5]
 The data are simulated (eskin.simulate).
@@ -79,14 +81,13 @@ def train(campaign, D: int, train_idx: np.ndarray) -> TouchModel:
 
 
 class NumpyBaseline:
-    """The same decision in numpy, from the same stored bases (read back from the C++ model)."""
+    """The same decision in numpy, from the same stored bases (those the C++ model holds)."""
 
     def __init__(self, cm: CompiledModel, model: TouchModel) -> None:
-        self.D = cm.D
-        self.rate = cm.sample_rate_hz
-        self.machines = cm.machines
         from eskin.export import pattern_bases, spec_from_model
 
+        self.D = cm.D
+        self.machines = cm.machines
         spec = spec_from_model(model)
         table: dict[bytes, int] = {}
         unique = []
@@ -96,33 +97,39 @@ class NumpyBaseline:
                     table[x.tobytes()] = len(unique)
                     unique.append(x)
         self.alphas = cm.alpha_store
-        self.ranks, self.bases = pattern_bases(np.stack(unique), self.alphas)
-        self.bases = [np.asarray(b, np.float32) for b in self.bases]
+        ranks, bases = pattern_bases(np.stack(unique), self.alphas)
+        self.ranks = np.asarray(ranks, np.float64)
+        self.bases = [np.asarray(b, np.float32) for b in bases]  # (n_sv, alpha, N)
 
     def bases_of(self, X: np.ndarray):
         out, ranks = [], []
         for z in range(3):
             A = np.moveaxis(X, z, 0).reshape(X.shape[z], -1)
             _, s, vt = np.linalg.svd(A, full_matrices=False)
-            r = int(np.sum(s**2 > max(1e-12, 16 * max(A.shape) * 2.0**-52) * s[0] ** 2)) if s[0] > 0 else 0
+            tau = max(1e-12, 16 * max(A.shape) * 2.0**-52)
+            r = int(np.sum(s**2 > tau * s[0] ** 2)) if s[0] > 0 else 0
             V = vt[: self.alphas[z]].astype(np.float32)
             V[r:] = 0
             out.append(V)
             ranks.append(min(r, self.alphas[z]))
         return out, ranks
 
-    def decide(self, rec: np.ndarray) -> int:
-        X = eskin.preprocess(rec[None], self.D, sample_rate_hz=self.rate)[0]
+    def decide_tensor(self, X: np.ndarray) -> int:
         V, r = self.bases_of(X)
         d = np.zeros(len(self.ranks))
         for z in range(3):
-            G = self.bases[z] @ V[z].T  # (n_sv, alpha, alpha)
+            G = self.bases[z] @ V[z].T  # (n_sv, alpha, alpha): one batched matmul per mode
             ov = np.einsum("ikl,ikl->i", G, G, dtype=np.float64)
             d += np.maximum(0.0, self.ranks[:, z] + r[z] - 2 * ov) / (2 * SIGMA**2)
         K = np.exp(-d)
-        f = np.array([m["intercept"] + K[m["sv_index"]] @ np.asarray(m["coef"]) for m in self.machines])
+        f = np.array([m["intercept"] + K[m["sv_index"]] @ np.asarray(m["coef"])
+                      for m in self.machines])
         claims = f > 0
         return int(np.argmax(claims) if claims.sum() == 1 else np.argmax(f))
+
+    def decide_window(self, w: np.ndarray) -> int:
+        """Raw touch window (rows, cols, S) -> label, as at the end of a touch."""
+        return self.decide_tensor(eskin.subsample(w, self.D))
 
 
 def median_us(fn, windows, repeats: int) -> float:
@@ -135,30 +142,31 @@ def median_us(fn, windows, repeats: int) -> float:
     return float(np.median(times)) / 1e3
 
 
-def callgrind_instructions(exe: str, model_path: Path, windows: np.ndarray, tmp: Path) -> float | None:
+def callgrind_instructions(exe: str, model_path: Path, windows: np.ndarray, tmp: Path,
+                           function: str) -> float | None:
+    """Instructions per call of `function` (callgrind --toggle-collect), eskin-classify on
+    10 recordings."""
     valgrind = shutil.which("valgrind")
     if valgrind is None:
         return None
-    counts = []
-    for n in (1, 11):
-        npy = tmp / f"cg_{n}.npy"
-        np.save(npy, windows[:n])
-        res = subprocess.run(
-            [valgrind, "--tool=callgrind", "--callgrind-out-file=/dev/null", exe, str(model_path),
-             str(npy)], capture_output=True, text=True)
-        m = re.search(r"Collected\s*:\s*(\d+)", res.stderr)
-        if res.returncode != 0 or m is None:
-            print(res.stderr[-2000:])
-            return None
-        counts.append(int(m.group(1)))
-    return (counts[1] - counts[0]) / 10
+    npy = tmp / "cg.npy"
+    np.save(npy, windows[:10])
+    res = subprocess.run(
+        [valgrind, "--tool=callgrind", "--callgrind-out-file=/dev/null",
+         f"--toggle-collect={function}", exe, str(model_path), str(npy)],
+        capture_output=True, text=True)
+    m = re.search(r"Collected\s*:\s*(\d+)", res.stderr)
+    if res.returncode != 0 or m is None:
+        print(res.stderr[-2000:])
+        return None
+    return int(m.group(1)) / min(10, len(windows))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--campaign", type=Path, default=None, help="reuse/keep the simulated campaign")
     ap.add_argument("--Ds", default="20,50,100")
-    ap.add_argument("--repeats", type=int, default=20, help="passes over the test windows (C++)")
+    ap.add_argument("--repeats", type=int, default=5, help="passes over the test windows (C++)")
     args = ap.parse_args()
     from eskin._paths import find_executable
 
@@ -183,31 +191,68 @@ def main() -> None:
             cm = CompiledModel(path)
             N = [4 * D, 4 * D, 16]
             bases32 = cm.n_support * sum(n * a for n, a in zip(N, cm.alpha_store)) * 4
-            ns = cm._clf.time_classify(windows, args.repeats)
-            cpp_us = float(np.median(ns)) / 1e3
-            base = NumpyBaseline(cm, model)
-            agree = np.mean([base.decide(w) == lab for w, lab in
-                             zip(windows, cm.classify(windows).label_indices)])
-            numpy_us = median_us(base.decide, windows, 2)
-            py_us = median_us(lambda w: model.decision_function(
-                eskin.preprocess(w[None], D, sample_rate_hz=campaign.sample_rate_hz)), windows[:10], 1)
-            instr = callgrind_instructions(exe, path, windows, tmp)
             terms = sum(len(m["sv_index"]) for m in cm.machines)
-            rows.append((D, cm.file_bytes, bases32, cm.n_support, terms, cm.alpha_store, cpp_us,
-                         numpy_us, py_us, instr, agree))
+            base = NumpyBaseline(cm, model)
+            # end of touch: the stream classifier's push that decides (window -> label)
+            touch_ns, touch_windows, agree = [], [], []
+            for rep in range(args.repeats):
+                for w in windows:
+                    for e in cm.stream(w, timed=True):
+                        if e["status_name"] == "decision":
+                            touch_ns.append(e["push_ns"])
+                            if rep == 0:
+                                s0, s1 = e["window"]
+                                touch_windows.append(np.ascontiguousarray(w[:, :, s0:s1]))
+                                agree.append(base.decide_window(touch_windows[-1])
+                                             == cm.class_names.index(e["label"]))
+            touch_us = float(np.median(touch_ns)) / 1e3
+            numpy_touch_us = median_us(base.decide_window, touch_windows, 2)
+            py_touch_us = median_us(
+                lambda w: model.decision_function(eskin.subsample(w[None], D)), touch_windows, 1)
+            # a whole 7-s recording -> label (the detector runs over all 21000 samples)
+            rec_us = float(np.median(cm._clf.time_classify(windows, 3))) / 1e3
+            py_rec_us = median_us(lambda w: model.decision_function(eskin.preprocess(
+                w[None], D, sample_rate_hz=campaign.sample_rate_hz)), windows[:10], 1)
+            instr_touch = callgrind_instructions(exe, path, windows, tmp,
+                                                 "eskin::Classifier::classify_tensor*")
+            instr_rec = callgrind_instructions(exe, path, windows, tmp,
+                                               "eskin::Classifier::classify(*")
+            rows.append(dict(D=D, bytes=cm.file_bytes, bases32=bases32, nsv=cm.n_support,
+                             terms=terms, alpha=cm.alpha_store, touch=touch_us,
+                             np_touch=numpy_touch_us, py_touch=py_touch_us, rec=rec_us,
+                             py_rec=py_rec_us, i_touch=instr_touch, i_rec=instr_rec,
+                             agree=float(np.mean(agree)), n=len(touch_ns)))
         print()
-        print("| D | model bytes | bases f32 bytes | file/bases | SVs kept (terms) | alpha_store | "
-              "C++ us/decision | numpy us | ratio | Python model us | ratio | instructions/decision |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-        for (D, fb, b32, nsv, terms, ast, cpp, npy, py, instr, agree) in rows:
-            print(f"| {D} | {fb} | {b32} | {fb / b32:.3f} | {nsv} ({terms}) | {ast} | {cpp:.1f} | "
-                  f"{npy:.0f} | {npy / cpp:.1f}x | {py:.0f} | {py / cpp:.0f}x | "
-                  f"{'n/a' if instr is None else f'{instr / 1e6:.2f} M'} |")
+        print("Footprint (float32 .eskin file):")
+        print("| D | model bytes | bases in float32 | file / bases | SVs kept (machine terms) "
+              "| alpha_store |")
+        print("|---|---|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['D']} | {r['bytes']} | {r['bases32']} | {r['bytes'] / r['bases32']:.3f} | "
+                  f"{r['nsv']} ({r['terms']}) | {r['alpha']} |")
         print()
-        print("numpy baseline agrees with C++ on "
-              + ", ".join(f"D={r[0]}: {100 * r[-1]:.0f} %" for r in rows) + " of the windows")
-        print("latency: median over windows; C++ timed in C++ around each classify() call; "
-              "instructions: callgrind (same micro-kernel as timed)")
+        print("Latency per decision, median (C++ timed in C++; baselines in the same run):")
+        print("| D | end of touch -> label, C++ us | numpy us | ratio | Python model us | ratio "
+              "| instructions | 7-s recording -> label, C++ us | Python model us | ratio "
+              "| instructions |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            def ins(v):
+                return "n/a" if v is None else f"{v / 1e6:.2f} M"
+            print(f"| {r['D']} | {r['touch']:.1f} | {r['np_touch']:.0f} | "
+                  f"{r['np_touch'] / r['touch']:.0f}x | {r['py_touch']:.0f} | "
+                  f"{r['py_touch'] / r['touch']:.0f}x | {ins(r['i_touch'])} | {r['rec']:.0f} | "
+                  f"{r['py_rec']:.0f} | {r['py_rec'] / r['rec']:.1f}x | {ins(r['i_rec'])} |")
+        print()
+        print("end of touch: the StreamClassifier push that completes a touch (subsampling of the "
+              f"window, bases, machines), {rows[0]['n']} decisions per D; numpy: the same decision "
+              "from the same stored bases (eskin.subsample + numpy SVD + batched matmul); "
+              "Python model: eskin.subsample + TouchModel.decision_function. 7-s recording: "
+              "Classifier.classify on the raw int16 recording (energy detector over all samples, "
+              "then the decision) vs eskin.preprocess + TouchModel.decision_function. "
+              "Instructions: callgrind on eskin-classify, per call of classify_tensor / classify.")
+        print("numpy baseline labels equal to C++: "
+              + ", ".join(f"D={r['D']}: {100 * r['agree']:.0f} %" for r in rows))
 
 
 if __name__ == "__main__":

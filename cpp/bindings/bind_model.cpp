@@ -277,12 +277,13 @@ void bind_model(py::module_& m) {
       .def(
           "feed",
           [](StreamClassifier& sc, py::array_t<double, py::array::c_style | py::array::forcecast> a,
-             bool flush) {
+             bool flush, bool timed) {
             // a: (n_samples, n_taxels) sample-major
             if (a.ndim() != 2 || a.shape(1) != sc.detector().n_taxels())
               throw std::invalid_argument("samples: expected shape (n, " +
                                           std::to_string(sc.detector().n_taxels()) + ")");
-            std::vector<std::tuple<std::int64_t, int, ClassifyStatus, Decision, std::vector<double>>> events;
+            std::vector<std::tuple<std::int64_t, int, ClassifyStatus, Decision, std::vector<double>, double>> events;
+            double push_ns = 0.0;
             const double* p = a.data();
             const py::ssize_t n = a.shape(0), nt = a.shape(1);
             {
@@ -292,9 +293,18 @@ void bind_model(py::module_& m) {
                 const Decision& d = sc.decision();
                 std::vector<double> v;
                 if (s == ClassifyStatus::kDecision) v.assign(d.values, d.values + d.n_machines);
-                events.emplace_back(sc.samples_seen(), static_cast<int>(s), s, d, std::move(v));
+                events.emplace_back(sc.samples_seen(), static_cast<int>(s), s, d, std::move(v), push_ns);
               };
-              for (py::ssize_t i = 0; i < n; ++i) record(sc.push(p + i * nt));
+              for (py::ssize_t i = 0; i < n; ++i) {
+                if (!timed) {
+                  record(sc.push(p + i * nt));
+                  continue;
+                }
+                const auto t0 = std::chrono::steady_clock::now();
+                const ClassifyStatus s = sc.push(p + i * nt);
+                push_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count();
+                record(s);
+              }
               if (flush) record(sc.flush());
             }
             py::list out;
@@ -303,6 +313,7 @@ void bind_model(py::module_& m) {
               d["sample"] = std::get<0>(e);
               d["status"] = std::get<1>(e);
               d["status_name"] = to_string(std::get<2>(e));
+              if (timed) d["push_ns"] = std::get<5>(e);
               const Decision& dec = std::get<3>(e);
               if (std::get<2>(e) == ClassifyStatus::kDecision) {
                 d["label"] = dec.label;
@@ -314,8 +325,9 @@ void bind_model(py::module_& m) {
             }
             return out;
           },
-          py::arg("samples"), py::arg("flush") = false,
-          "Push samples (n, n_taxels); returns the events (decisions and errors) as dicts.")
+          py::arg("samples"), py::arg("flush") = false, py::arg("timed") = false,
+          "Push samples (n, n_taxels); returns the events (decisions and errors) as dicts "
+          "(timed: with the wall time of the push that produced each event, push_ns).")
       .def("reset", &StreamClassifier::reset)
       .def_property_readonly("samples_seen", &StreamClassifier::samples_seen)
       .def_property_readonly("in_touch", &StreamClassifier::in_touch);
