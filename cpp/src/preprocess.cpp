@@ -483,58 +483,81 @@ template Status TouchDetector::step<int16_t>(const int16_t*, int64_t) noexcept;
 template Status TouchDetector::step<float>(const float*, int64_t) noexcept;
 template Status TouchDetector::step<double>(const double*, int64_t) noexcept;
 
+// ---------------------------------------------------------------- window selection
+
+int64_t WindowSelector::capacity_for(const DetectorParams& p, int64_t length) noexcept {
+  // reported touches: each next onset is at or after the previous stop, so onsets are at least
+  // min_duration apart; each next trigger comes after the previous end decision, so offsets
+  // are at least hold (and one frame) apart
+  const int64_t period =
+      std::max({p.frame_len, p.min_duration, p.hold_frames * p.frame_len});
+  return std::max<int64_t>(1, length / std::max<int64_t>(1, period) + 2);
+}
+
+WindowSelector::WindowSelector(const DetectorParams& p, int64_t capacity)
+    : select_(p.select), span_fraction_(p.span_fraction), max_window_(p.max_window) {
+  if (capacity < 1) capacity = capacity_for(p, 4 * p.max_window);
+  buf_.assign(static_cast<std::size_t>(select_ == 2 ? capacity : 1), TouchWindow{});
+}
+
+void WindowSelector::add(const TouchWindow& w) noexcept {
+  if (select_ == 1) {  // first
+    if (n_ == 0) buf_[0] = w, n_ = 1;
+    return;
+  }
+  if (select_ == 0) {  // most energetic (the earliest on ties)
+    if (n_ == 0 || w.energy > buf_[0].energy) buf_[0] = w;
+    n_ = 1;
+    return;
+  }
+  const auto cap = static_cast<int64_t>(buf_.size());
+  if (n_ == cap) {  // full: drop the least energetic touch (never reached within capacity_for)
+    int64_t lo = 0;
+    for (int64_t i = 1; i < n_; ++i) {
+      if (buf_[i].energy < buf_[lo].energy) lo = i;
+    }
+    if (w.energy <= buf_[lo].energy) return;
+    for (int64_t i = lo; i + 1 < n_; ++i) buf_[i] = buf_[i + 1];
+    --n_;
+  }
+  buf_[n_++] = w;
+}
+
+TouchWindow WindowSelector::result() const noexcept {
+  if (select_ != 2 || n_ == 0) return buf_[0];
+  double peak = buf_[0].energy;
+  for (int64_t i = 1; i < n_; ++i) peak = std::max(peak, buf_[i].energy);
+  // span: from the first to the last touch holding at least span_fraction of the peak energy
+  const double min_energy = span_fraction_ * peak;
+  TouchWindow out{};
+  bool any = false;
+  for (int64_t i = 0; i < n_; ++i) {
+    const TouchWindow& w = buf_[i];
+    if (w.energy < min_energy) continue;
+    if (!any) {
+      out = w;
+      any = true;
+      continue;
+    }
+    out.energy += w.energy;
+    out.truncated = out.truncated || w.truncated || w.stop > out.start + max_window_;
+    out.stop = std::min(w.stop, out.start + max_window_);
+    out.offset = std::min(w.offset, out.stop);
+  }
+  return out;
+}
+
 // ---------------------------------------------------------------- batch
 
 namespace {
 
 // Chooses one window among the touches of a recording (cfg.select).
-// Chooses one window among the touches of a recording (cfg.select). The touches are kept in a
-// buffer owned by the worker (batch path only; the streaming path never uses this).
-struct Selector {
-  const DetectorParams& p;
-  std::vector<TouchWindow>& touches;
-
-  void add(const TouchWindow& w) {
-    if (p.select == 1 && !touches.empty()) return;  // first: nothing else needed
-    touches.push_back(w);
-  }
-
-  bool empty() const { return touches.empty(); }
-
-  TouchWindow result() const {
-    if (p.select == 1) return touches.front();
-    const TouchWindow* best = &touches.front();
-    for (const TouchWindow& w : touches) {
-      if (w.energy > best->energy) best = &w;
-    }
-    if (p.select == 0) return *best;
-    // span: from the first to the last touch holding at least span_fraction of the peak energy
-    const double min_energy = p.span_fraction * best->energy;
-    TouchWindow out{};
-    bool any = false;
-    for (const TouchWindow& w : touches) {
-      if (w.energy < min_energy) continue;
-      if (!any) {
-        out = w;
-        any = true;
-        continue;
-      }
-      out.energy += w.energy;
-      out.truncated = out.truncated || w.truncated || w.stop > out.start + p.max_window;
-      out.stop = std::min(w.stop, out.start + p.max_window);
-      out.offset = std::min(w.offset, out.stop);
-    }
-    return out;
-  }
-};
-
 template <class T>
-TouchWindow detect_one(TouchDetector& det, std::vector<TouchWindow>& touches, const T* rec,
-                       int64_t T_total, int64_t length, int64_t index) {
+TouchWindow detect_one(TouchDetector& det, WindowSelector& sel, const T* rec, int64_t T_total,
+                       int64_t length, int64_t index) {
   det.reset();
-  touches.clear();
+  sel.reset();
   const DetectorParams& p = det.params();
-  Selector sel{p, touches};
   for (int64_t t = 0; t < length; ++t) {
     const Status st = det.push_strided(rec + t, T_total);
     if (st == Status::kWindow) {
@@ -566,7 +589,7 @@ TouchWindow detect_one(TouchDetector& det, std::vector<TouchWindow>& touches, co
 
 struct Worker {
   TouchDetector det;
-  std::vector<TouchWindow> touches;
+  WindowSelector sel;
 };
 
 void check_batch(int64_t n, int64_t n_taxels, int64_t T_total, const int64_t* lengths) {
@@ -640,8 +663,8 @@ TouchWindow detect_window(const T* recording, int64_t n_taxels, int64_t T_total,
                                 std::to_string(T_total) + "]");
   }
   TouchDetector det(n_taxels, sample_rate_hz, cfg, false);
-  std::vector<TouchWindow> touches;
-  return detect_one(det, touches, recording, T_total, length, -1);
+  WindowSelector sel(det.params(), WindowSelector::capacity_for(det.params(), length));
+  return detect_one(det, sel, recording, T_total, length, -1);
 }
 
 template <class T>
@@ -652,10 +675,13 @@ std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxe
   TouchDetector proto(n_taxels, sample_rate_hz, cfg, false);  // validates cfg once
   std::vector<TouchWindow> out(static_cast<std::size_t>(n));
   parallel_for(
-      n, n_threads, [&]() { return Worker{proto, {}}; },
+      n, n_threads, [&]() {
+        return Worker{proto, WindowSelector(proto.params(),
+                                            WindowSelector::capacity_for(proto.params(), T_total))};
+      },
       [&](Worker& wk, int64_t i) {
         const int64_t len = lengths ? lengths[i] : T_total;
-        out[i] = detect_one(wk.det, wk.touches, data + i * n_taxels * T_total, T_total, len, i);
+        out[i] = detect_one(wk.det, wk.sel, data + i * n_taxels * T_total, T_total, len, i);
       });
   return out;
 }
@@ -673,13 +699,16 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
   // validates the configuration and the rate even when it is not used
   TouchDetector proto(n_taxels, opt.sample_rate_hz, opt.config, false);
   parallel_for(
-      n, opt.n_threads, [&]() { return Worker{proto, {}}; },
+      n, opt.n_threads, [&]() {
+        return Worker{proto, WindowSelector(proto.params(),
+                                            WindowSelector::capacity_for(proto.params(), T_total))};
+      },
       [&](Worker& wk, int64_t i) {
         const T* rec = data + i * n_taxels * T_total;
         const int64_t len = lengths ? lengths[i] : T_total;
         TouchWindow w;
         if (energy) {
-          w = detect_one(wk.det, wk.touches, rec, T_total, len, i);
+          w = detect_one(wk.det, wk.sel, rec, T_total, len, i);
         } else if (opt.window == WindowMode::kGiven) {
           w.start = w.onset = given[2 * i];
           w.stop = w.offset = given[2 * i + 1];

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 import eskin
 from eskin import _core
+from eskin import _preprocess_numpy as _ref
 from eskin.preprocess import (
     TouchDetector,
     WindowConfig,
@@ -300,6 +301,27 @@ def test_streaming_equals_batch(select):
             np.testing.assert_array_equal(chosen.tensor, preprocess(x, 50, config=cfg))
 
 
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        WindowConfig(),
+        WindowConfig(select="energy", combine="max", dc_cutoff_hz=0.0),
+        WindowConfig(select="first", max_window_s=1.0, lookback_s=0.0, release_fraction=0.0),
+    ],
+)
+def test_numpy_reference_finds_the_same_windows(cfg):
+    rng = np.random.default_rng(21)
+    for seed in range(4):
+        bursts = [(int(a), int(a + rng.integers(300, 6000)), float(rng.uniform(40, 300)))
+                  for a in sorted(rng.integers(200, 15000, 2))]
+        x = recording(21000, bursts, seed)
+        length = 21000 - 1000 * seed
+        out, w = _ref.preprocess(x, 50, RATE, cfg, length=length)
+        got, gw = preprocess(x, 50, lengths=length, config=cfg, return_windows=True)
+        np.testing.assert_array_equal(w, gw)
+        np.testing.assert_array_equal(out, got)
+
+
 def test_streaming_one_sample_at_a_time_and_reset():
     x = recording(9000, [(3000, 6000, 150.0)], 12)
     det = TouchDetector(16, RATE)
@@ -463,6 +485,13 @@ def test_windows_against_the_simulators_true_contact_interval(tmp_path, capsys):
                   f"   signed median {np.median(e):6.0f}")
         print(f"  IoU median {np.median(iou):.2f}, 10th percentile {np.percentile(iou, 10):.2f}")
     assert t.found.all()
+    # an independent numpy implementation of the same detector finds the same windows
+    with load_campaign(path) as c:
+        ref_windows = [
+            _ref.preprocess(c.recording(i), 20, rate, length=int(c.lengths[i]))[1]
+            for i in range(0, len(c), 3)
+        ]
+    np.testing.assert_array_equal(np.array(ref_windows), t.windows[::3])
     assert np.median(np.abs(err_start)) < 150 and np.median(np.abs(err_stop)) < 250
     assert np.percentile(np.abs(err_start), 90) < 600
     assert np.percentile(np.abs(err_stop), 90) < 600

@@ -225,6 +225,30 @@ class TouchDetector {
 
 // ---- batch (whole recordings)
 
+// Picks the one window of a recording among its touches (WindowConfig.select, span_fraction),
+// fed the touches in stream order. Allocates at construction only; add() never allocates.
+// Exact while at most capacity() touches are added (capacity_for gives a bound that holds for
+// any recording of a given length); beyond that, span drops the least energetic touch.
+class WindowSelector {
+ public:
+  explicit WindowSelector(const DetectorParams& p, int64_t capacity = 0);
+  // The most touches a recording of `length` samples can produce with these parameters.
+  static int64_t capacity_for(const DetectorParams& p, int64_t length) noexcept;
+  void reset() noexcept { n_ = 0; }
+  void add(const TouchWindow& w) noexcept;
+  bool empty() const noexcept { return n_ == 0; }
+  int64_t capacity() const noexcept { return static_cast<int64_t>(buf_.size()); }
+  // The chosen window (found = true); precondition: !empty().
+  TouchWindow result() const noexcept;
+
+ private:
+  int select_;
+  double span_fraction_;
+  int64_t max_window_;
+  std::vector<TouchWindow> buf_;
+  int64_t n_ = 0;
+};
+
 // The touch window of one taxel-major recording (n_taxels x T, taxel stride T): runs a
 // TouchDetector over its first `length` samples and picks one touch with cfg.select; when none
 // is found, cfg.fallback decides (whole recording with found=false, or std::runtime_error).
