@@ -10,8 +10,12 @@ namespace eskin {
 
 constexpr std::size_t kTileWidth = 8;
 
-/// C[r * 8 + s] = sum_k A[k * 8 + r] * B[k * 8 + s]  (A, B: K x 8 row-major panels).
+/// C[r * 8 + s] = (sum_k A[k * 8 + r] * B[k * 8 + s])^2  (A, B: K x 8 row-major panels): the
+/// squared entries of the 8 x 8 block A^T B.
 using TileFn = void (*)(const double* a, const double* b, std::size_t k, double* c);
+
+/// Sum of the 64 squared entries of A^T B (the whole tile belongs to one pattern pair).
+using TileSumFn = double (*)(const double* a, const double* b, std::size_t k);
 
 /// Portable version (any CPU).
 void tile_generic(const double* a, const double* b, std::size_t k, double* c) noexcept;
@@ -19,6 +23,7 @@ void tile_generic(const double* a, const double* b, std::size_t k, double* c) no
 /// Best version for this CPU: AVX2+FMA when the CPU has them (x86, GCC/Clang), else generic.
 /// The environment variable ESKIN_KERNEL_ISA=generic forces the portable version.
 TileFn select_tile_kernel() noexcept;
+TileSumFn select_tile_sum_kernel() noexcept;
 
 /// Name of the variant select_tile_kernel() returns ("avx2-fma" or "generic").
 const char* tile_kernel_name() noexcept;

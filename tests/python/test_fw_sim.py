@@ -16,6 +16,8 @@ from eskin._paths import find_executable
 from eskin.protocol import (
     CommandFrame,
     DataFrame,
+    DecisionFrame,
+    Flags,
     FrameDecoder,
     FrameType,
     InfoFrame,
@@ -288,6 +290,36 @@ def test_commands_ping_stop_start_and_link(sim, replay, tmp_path):
     assert dec.stats.rejected == 0
 
 
+def test_loop_repeats_the_replay_with_increasing_indices(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "0", "--wait-start", "--loop")
+    frames: list = []
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        while sum(f.n_samples for f in frames if isinstance(f, DataFrame)) < 2 * rf.n_samples + 100:
+            frames += dec.feed(port.read(65536, timeout=1.0))
+    s.close()
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    looped = [f for f in data if f.flags & Flags.LOOP]
+    assert looped and looped[0].first_sample >= rf.n_samples
+    for f in data:  # sample i of the stream is sample i mod n of the replay
+        idx = np.arange(f.first_sample, f.end_sample) % rf.n_samples
+        np.testing.assert_array_equal(f.samples, np.asarray(rf.samples)[idx])
+    assert dec.stats.lost_samples == 0 and dec.stats.sample_index_resets == 0
+
+
+def test_hold_keeps_the_port_open_after_the_replay(sim, replay):
+    s = sim(replay, "--speed", "0", "--wait-start", "--hold", "0.5", "--status-ms", "50")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    s.stats()
+    finished = [f for f in frames if isinstance(f, StatusFrame) and f.state == StreamState.FINISHED]
+    assert len(finished) >= 3  # periodic STATUS while holding
+
+
 def test_bad_input_is_a_clear_error(fw_sim, tmp_path):
     bad = tmp_path / "bad.eskr"
     bad.write_bytes(b"not a replay file at all")
@@ -310,3 +342,47 @@ def test_npy_input(sim, tmp_path):
     s.stats()
     got = np.concatenate([f.samples for f in frames if isinstance(f, DataFrame)])
     np.testing.assert_array_equal(got.reshape(-1, 16), arr)
+
+
+def small_model(path: Path) -> Path:
+    """A 3-class one-vs-all model (random support tensors, real bases) in a .eskin file."""
+    from eskin.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(0)
+    pool = rng.standard_normal((9, 4, 4, 8))
+    machines = [
+        MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0),
+                    pool[np.sort(rng.choice(9, 5, replace=False))], rng.standard_normal(5))
+        for k in range(3)
+    ]
+    spec = ModelSpec(class_names=["brush", "finger", "washer"], rule="one_vs_all",
+                     machines=machines, D=8, grid_shape=(4, 4))
+    path.write_bytes(model_to_bytes(spec, "float64"))
+    return path
+
+
+def test_on_board_decisions_equal_offline_decisions(sim, replay, tmp_path):
+    from eskin.export import CompiledModel
+
+    rf = read_replay_file(replay)
+    model = small_model(tmp_path / "m.eskin")
+    offline = [e for e in CompiledModel(model).stream(np.asarray(rf.samples).reshape(rf.n_samples, -1))
+               if e["status_name"] == "decision"]
+    assert len(offline) == 3  # one per loud recording
+    s = sim(replay, "--speed", "0", "--wait-start", "--model", model)
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    info = next(f for f in frames if isinstance(f, InfoFrame))
+    assert info.has_model and info.class_names == ("brush", "finger", "washer")
+    live = [f for f in frames if isinstance(f, DecisionFrame)]
+    assert len(live) == len(offline) == stats["decisions_sent"]
+    for d, e in zip(live, offline):
+        assert info.class_names[d.label] == e["label"]
+        assert d.dont_know == e["dont_know"]
+        assert (d.onset_sample, d.offset_sample) == tuple(e["window"])
+        assert d.decided_sample == e["sample"] - 1
+        np.testing.assert_allclose(d.values, e["values"], rtol=0, atol=1e-12)
+    assert check_samples(frames, rf.samples) == rf.n_samples

@@ -113,7 +113,7 @@ class BasisWorkspace {
  private:
   KernelStatus compute_mode(std::size_t z, double* out, int* rank) noexcept;
   BasisLayout layout_;
-  std::vector<double> unfold_, gram_, d_, e_, sv_, tmp_;
+  std::vector<double> scaled_, unfold_, gram_, d_, e_, sv_, tmp_;
   std::vector<std::size_t> sv_off_;
 };
 
