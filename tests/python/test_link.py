@@ -186,8 +186,12 @@ def test_stream_events_commands_and_stats(pty):
                + c.decision(100, 400, 1, (-0.5, 0.7, -0.2)) + c.status(StreamState.FINISHED, 7))
     cmds: list = []
     with LinkListener(path, stats_interval=None) as link:
-        feed_when_open(state, payload, cmds).join(10)
+        assert link.activity() is None  # nothing received yet
+        feeder = feed_when_open(state, payload, cmds)
         events = list(link.events(until_eof=True, eof_grace_s=0.05))
+        act = link.activity()
+        feeder.join(10)
+    assert act.shape == (4, 4) and np.all(act > 100)  # the random stream is "active" everywhere
     # the host asked for the stream and the controller's description
     assert [f.command for f in cmds][:1] == [FrameType.START]
     assert FrameType.INFO_REQUEST in [f.command for f in cmds] or len(cmds) == 1
@@ -569,3 +573,23 @@ def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_mode
     assert s.rejected > 0
     # each fault costs at most two frames
     assert s.lost_samples <= 2 * SPF * stats["faults_injected"]
+
+
+def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 4, "--wait-start")
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            first = list(link.events(duration=0.5))
+            link.reconnect()  # the controller keeps streaming (and drops) while nobody listens
+            rest = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(first + rest)
+    src = np.asarray(rf.samples)
+    assert all(np.array_equal(x, src[i]) for i, x in got.items())
+    s = rest[-1].stats
+    assert s.reconnects == 1 and s.rejected == 0 and min(got) == 0
+    # every sample the controller produced was received or counted as lost
+    assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
+    assert s.lost_samples == stats["dropped_samples"] == s.controller_dropped_samples

@@ -281,8 +281,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
         return Panel(Group(header, grid, decisions_table(list(recent), rate)),
                      title="eskin listen")
 
+    # drawn from this loop, at most 5 times a second, so that rendering never competes with
+    # reading the port (no refresh thread)
     t_draw = 0.0
-    with Live(view(), refresh_per_second=8, transient=False) as live:
+    with Live(view(), auto_refresh=False, transient=False) as live:
         for ev in events:
             if isinstance(ev, InfoEvent):
                 rate = ev.info.sample_rate_hz
@@ -297,10 +299,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
             elif isinstance(ev, Stats):
                 last_stats = ev.stats
             now = time.monotonic()
-            if now - t_draw > 0.1:
+            if now - t_draw > 0.2:
                 t_draw = now
-                live.update(view())
-        live.update(view())
+                live.update(view(), refresh=True)
+        live.update(view(), refresh=True)
     return last_stats
 
 
