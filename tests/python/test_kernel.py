@@ -140,6 +140,13 @@ def test_many_patterns_cross_tiles_and_threads():
                                    rtol=0, atol=1e-10)
         # X-vs-X equals X-vs-Y with Y = X
         np.testing.assert_allclose(single, mode_distances(X, X, alpha=alpha), rtol=0, atol=1e-12)
+        # the fused kernel equals exp of the distances, in both layouts, for any thread count
+        sig = (0.7, 1.3, 2.0)
+        for nt in (1, 2):
+            np.testing.assert_allclose(tensor_kernel(X, sigma=sig, alpha=alpha, n_threads=nt),
+                                       kernel_from_distances(single, sig), rtol=1e-14, atol=0)
+            np.testing.assert_allclose(tensor_kernel(X, Y, sigma=sig, alpha=alpha, n_threads=nt),
+                                       kernel_from_distances(got, sig), rtol=1e-14, atol=0)
 
 
 def test_generic_and_vector_micro_kernels_agree(monkeypatch):
