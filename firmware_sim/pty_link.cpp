@@ -149,10 +149,10 @@ std::size_t PtyLink::apply_faults(const std::uint8_t* in, std::size_t n, std::ui
   return o;
 }
 
-bool PtyLink::send(protocol::Frame& frame) {
+bool PtyLink::send(protocol::Frame& frame, std::size_t reserve) {
   frame.seq = seq_;
   const std::size_t n = encoder_.encode(frame, scratch_.data(), scratch_.size());
-  if (n == 0 || !fits(n)) return false;
+  if (n == 0 || !fits(n + reserve)) return false;
   seq_ = static_cast<std::uint16_t>(seq_ + 1);
   if (!faults_.any()) return push_bytes(scratch_.data(), n);
   const std::size_t m = apply_faults(scratch_.data(), n, faulted_.data());

@@ -17,6 +17,7 @@ from eskin.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
+    Flags,
     FrameDecoder,
     FrameType,
     InfoFrame,
@@ -287,6 +288,36 @@ def test_commands_ping_stop_start_and_link(sim, replay, tmp_path):
     check_samples(frames, rf.samples)
     assert dec.stats.lost_samples == 0  # STOP pauses the replay; indices continue
     assert dec.stats.rejected == 0
+
+
+def test_loop_repeats_the_replay_with_increasing_indices(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "0", "--wait-start", "--loop")
+    frames: list = []
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        while sum(f.n_samples for f in frames if isinstance(f, DataFrame)) < 2 * rf.n_samples + 100:
+            frames += dec.feed(port.read(65536, timeout=1.0))
+    s.close()
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    looped = [f for f in data if f.flags & Flags.LOOP]
+    assert looped and looped[0].first_sample >= rf.n_samples
+    for f in data:  # sample i of the stream is sample i mod n of the replay
+        idx = np.arange(f.first_sample, f.end_sample) % rf.n_samples
+        np.testing.assert_array_equal(f.samples, np.asarray(rf.samples)[idx])
+    assert dec.stats.lost_samples == 0 and dec.stats.sample_index_resets == 0
+
+
+def test_hold_keeps_the_port_open_after_the_replay(sim, replay):
+    s = sim(replay, "--speed", "0", "--wait-start", "--hold", "0.5", "--status-ms", "50")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    s.stats()
+    finished = [f for f in frames if isinstance(f, StatusFrame) and f.state == StreamState.FINISHED]
+    assert len(finished) >= 3  # periodic STATUS while holding
 
 
 def test_bad_input_is_a_clear_error(fw_sim, tmp_path):

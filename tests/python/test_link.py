@@ -28,7 +28,6 @@ from eskin.link import (
 )
 from eskin.protocol import (
     DELIMITER,
-    CommandFrame,
     DataFrame,
     DecisionFrame,
     Flags,
@@ -370,7 +369,7 @@ def test_small_holes_are_bridged_for_the_detector_and_reported(pty):
     assert len(camp) == 1 and camp.modalities == ["unknown"]
     r = camp.recording(0)
     start = int(camp.extras["stream_start"][0])
-    assert start == rec[0].start and start < 4500 < 5400 < rec[0].stop
+    assert start == rec[0].start and start < 4500 and 5400 < rec[0].stop
     src = np.moveaxis(stream[rec[0].start:rec[0].stop], 0, -1)
     keep = np.ones(r.shape[-1], bool)
     keep[4700 - start:4750 - start] = False
@@ -538,7 +537,7 @@ def test_live_decisions_equal_offline_decisions(fw_sim_path, small_model, tmp_pa
         (e["window"][0], e["window"][1], e["label"]) for e in offline]
     batch = cm.classify(np.stack(test))
     for src in (ctrl, host):
-        lab, val, dk, extra = assign_decisions(src, rf.segments, 3)
+        lab, val, _, _ = assign_decisions(src, rf.segments, 3)
         assert list(lab) == list(batch.label_indices)
         np.testing.assert_allclose(val, batch.decision_values, atol=1e-5)
     # the recording of the stream reads back equal to the source
