@@ -210,7 +210,7 @@ bool cpu_has_avx2_fma() noexcept {
 
 namespace {
 // Highest instruction set allowed by ESKIN_KERNEL_ISA: 0 generic, 1 avx2, 2 avx512 (default).
-int isa_cap() noexcept {
+[[maybe_unused]] int isa_cap() noexcept {
   const char* env = std::getenv("ESKIN_KERNEL_ISA");
   if (env == nullptr) return 2;
   if (std::strcmp(env, "generic") == 0) return 0;

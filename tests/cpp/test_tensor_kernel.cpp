@@ -16,6 +16,11 @@
 
 // ---- allocation counter: count malloc calls made while `g_count_mallocs` is set (glibc only;
 // not under sanitizers, which intercept malloc themselves).
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer)
+#define ESKIN_NO_MALLOC_HOOK 1
+#endif
+#endif
 #if defined(__GLIBC__) && !defined(__SANITIZE_ADDRESS__) && !defined(ESKIN_NO_MALLOC_HOOK)
 #define ESKIN_COUNT_MALLOC 1
 extern "C" void* __libc_malloc(std::size_t);
