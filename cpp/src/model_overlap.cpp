@@ -54,6 +54,27 @@ double overlap_f64_generic(const double* b, const double* x, std::size_t n,
   return s;
 }
 
+double dot_f32_generic(const float* a, const float* b, std::size_t n) noexcept {
+  float acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    for (std::size_t j = 0; j < 8; ++j) acc[j] += a[i + j] * b[i + j];
+  double dot = 0.0;
+  for (std::size_t j = 0; j < 8; ++j) dot += static_cast<double>(acc[j]);
+  for (; i < n; ++i) dot += static_cast<double>(a[i]) * static_cast<double>(b[i]);
+  return dot;
+}
+
+double dot_f64_generic(const double* a, const double* b, std::size_t n) noexcept {
+  double acc[4] = {0, 0, 0, 0};
+  std::size_t i = 0;
+  for (; i + 4 <= n; i += 4)
+    for (std::size_t j = 0; j < 4; ++j) acc[j] += a[i + j] * b[i + j];
+  double dot = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+  for (; i < n; ++i) dot += a[i] * b[i];
+  return dot;
+}
+
 #ifdef ESKIN_MODEL_X86_DISPATCH
 __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   // lanes summed in double, as in the generic version
@@ -122,6 +143,31 @@ __attribute__((target("avx2,fma"))) double overlap_f64_avx2(const double* b, con
   return s;
 }
 
+__attribute__((target("avx2,fma"))) double dot_f32_avx2(const float* a, const float* b,
+                                                        std::size_t n) noexcept {
+  __m256 a0 = _mm256_setzero_ps();
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) a0 = _mm256_fmadd_ps(_mm256_loadu_ps(a + i), _mm256_loadu_ps(b + i), a0);
+  double dot = hsum8(a0);
+  for (; i < n; ++i) dot += static_cast<double>(a[i]) * static_cast<double>(b[i]);
+  return dot;
+}
+
+__attribute__((target("avx2,fma"))) double dot_f64_avx2(const double* a, const double* b,
+                                                        std::size_t n) noexcept {
+  __m256d a0 = _mm256_setzero_pd(), a1 = _mm256_setzero_pd();
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    a0 = _mm256_fmadd_pd(_mm256_loadu_pd(a + i), _mm256_loadu_pd(b + i), a0);
+    a1 = _mm256_fmadd_pd(_mm256_loadu_pd(a + i + 4), _mm256_loadu_pd(b + i + 4), a1);
+  }
+  a0 = _mm256_add_pd(a0, a1);
+  const __m128d t = _mm_add_pd(_mm256_castpd256_pd128(a0), _mm256_extractf128_pd(a0, 1));
+  double dot = _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
+  for (; i < n; ++i) dot += a[i] * b[i];
+  return dot;
+}
+
 bool cpu_has_avx2_fma() noexcept {
   __builtin_cpu_init();
   return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
@@ -154,6 +200,20 @@ OverlapF64 select_overlap_f64() noexcept {
   if (use_simd()) return &overlap_f64_avx2;
 #endif
   return &overlap_f64_generic;
+}
+
+DotF32 select_dot_f32() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &dot_f32_avx2;
+#endif
+  return &dot_f32_generic;
+}
+
+DotF64 select_dot_f64() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &dot_f64_avx2;
+#endif
+  return &dot_f64_generic;
 }
 
 const char* overlap_kernel_name() noexcept { return use_simd() ? "avx2-fma" : "generic"; }

@@ -495,6 +495,7 @@ _STATUS = {
     -4: "its window is shorter than D (the model's short policy is error)",
     -5: "the basis computation failed",
     -6: "null data",
+    -7: "it holds more than 4096 separate touches",
 }
 
 
@@ -606,18 +607,20 @@ class CompiledModel:
         """Class names of raw recordings."""
         return self.classify(signals, lengths).labels
 
-    def stream(self, samples: Any, *, flush: bool = True) -> list[dict[str, Any]]:
+    def stream(self, samples: Any, *, flush: bool = True, timed: bool = False) -> list[dict[str, Any]]:
         """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
         (rows, cols, T)), one sample at a time as the controller would. Returns the events:
         dicts with ``sample`` (samples seen when it happened), ``status_name`` and, for
-        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``."""
+        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``; with
+        ``timed``, ``push_ns``: the wall time of the push that made the event (the latency from
+        the touch's last sample to its label)."""
         from eskin import _core
 
         x = np.asarray(samples, dtype=np.float64)
         if x.ndim == 3:
             x = x.reshape(-1, x.shape[-1]).T
         sc = _core.StreamClassifier(self._model)
-        events = sc.feed(np.ascontiguousarray(x), flush)
+        events = sc.feed(np.ascontiguousarray(x), flush, timed)
         for e in events:
             if "label" in e:
                 e["label"] = self.class_names[e["label"]]

@@ -232,6 +232,36 @@ def test_even_subsampling_and_no_window(campaign):
     np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
 
 
+def _two_touches(n, seed):
+    """Recordings with two or three separate touches of different energies (4x4, int16)."""
+    rng = np.random.default_rng(seed)
+    T = 15000
+    x = rng.normal(0, 12, size=(n, 4, 4, T))
+    t = np.arange(T)
+    for i in range(n):
+        for start, amp in zip(sorted(rng.choice(np.arange(1000, 13000, 2500), 3, replace=False)),
+                              rng.uniform(30, 900, size=3)):
+            L = int(rng.integers(600, 2000))
+            burst = amp * np.sin(2 * np.pi * rng.uniform(30, 300) * t[:L] / 3000.0)
+            x[i, :, :, start : start + L] += burst * rng.uniform(0.3, 1.0, size=(4, 4, 1))
+    return np.clip(x, -32768, 32767).astype(np.int16)
+
+
+@pytest.mark.parametrize("select", ["energy", "first", "span"])
+def test_window_choice_with_several_touches_matches_detect_windows(campaign, select):
+    cfg = eskin.WindowConfig(select=select)
+    spec = _random_spec(campaign, 20, 3)
+    spec.window_config = cfg
+    sig = _two_touches(8, seed=5)
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    got = cm.classify(sig)
+    ref = np.asarray(eskin.detect_windows(sig, config=cfg)).reshape(-1, 2)
+    np.testing.assert_array_equal(got.windows, ref)
+    X = eskin.preprocess(sig, 20, config=cfg)
+    F, _ = _python_decisions(spec, X)
+    np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+
+
 def test_stream_classifier_decides_like_the_batch_classifier(campaign):
     cm = CompiledModel(model_to_bytes(_random_spec(campaign, 50, 3), "float64"))
     sig, lengths = _signals(campaign)

@@ -136,8 +136,13 @@ enum class ClassifyStatus : int {
   kTooShort = -4,    ///< the window is shorter than D and the model's short policy is "error"
   kKernel = -5,      ///< the basis computation failed (eigen-solver did not converge)
   kNullPointer = -6,
+  kOverflow = -7,    ///< more than 4096 separate touches in one recording (batch path)
 };
 const char* to_string(ClassifyStatus s) noexcept;
+
+/// Name of the subspace-overlap micro-kernel the classifiers use on this CPU ("avx2-fma" or
+/// "generic"; ESKIN_KERNEL_ISA=generic forces the portable one).
+const char* overlap_kernel_name() noexcept;
 
 /// One decision. `values` points into the classifier that produced it (valid until its next call).
 struct Decision {
