@@ -600,9 +600,7 @@ class LinkListener:
         return self.open()
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None and self._writer is not None:
-            # keep what was recorded: a Ctrl-C should not lose the campaign
-            pass
+        # the recording is finished even after an error or Ctrl-C: what was received is kept
         self.close()
 
     def reconnect(self) -> Connection:
@@ -647,14 +645,14 @@ class LinkListener:
     # -- taxel activity --------------------------------------------------------------------
     def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
-        taxel's deviation from its median over the held history (ADC counts); None before data."""
+        taxel's deviation from its mean over the last second (ADC counts); None before data."""
         h = self._history
         if h is None or h.end == h.begin:
             return None
         rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        ref, _ = h.get(h.begin, h.end)
+        ref, _ = h.get(h.end - int(rate), h.end)
         recent, _ = h.get(h.end - max(1, int(window_s * rate)), h.end)
-        base = np.median(ref.astype(np.float64), axis=0)
+        base = ref.mean(axis=0)
         dev = recent.astype(np.float64) - base
         return np.sqrt(np.mean(dev * dev, axis=0))
 

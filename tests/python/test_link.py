@@ -186,8 +186,12 @@ def test_stream_events_commands_and_stats(pty):
                + c.decision(100, 400, 1, (-0.5, 0.7, -0.2)) + c.status(StreamState.FINISHED, 7))
     cmds: list = []
     with LinkListener(path, stats_interval=None) as link:
-        feed_when_open(state, payload, cmds).join(10)
+        assert link.activity() is None  # nothing received yet
+        feeder = feed_when_open(state, payload, cmds)
         events = list(link.events(until_eof=True, eof_grace_s=0.05))
+        act = link.activity()
+        feeder.join(10)
+    assert act.shape == (4, 4) and np.all(act > 100)  # the random stream is "active" everywhere
     # the host asked for the stream and the controller's description
     assert [f.command for f in cmds][:1] == [FrameType.START]
     assert FrameType.INFO_REQUEST in [f.command for f in cmds] or len(cmds) == 1
@@ -569,3 +573,48 @@ def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_mode
     assert s.rejected > 0
     # each fault costs at most two frames
     assert s.lost_samples <= 2 * SPF * stats["faults_injected"]
+
+
+def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 4, "--wait-start")
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            first = list(link.events(duration=0.5))
+            link.reconnect()  # the controller keeps streaming (and drops) while nobody listens
+            rest = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(first + rest)
+    src = np.asarray(rf.samples)
+    assert all(np.array_equal(x, src[i]) for i, x in got.items())
+    s = rest[-1].stats
+    assert s.reconnects == 1 and s.rejected == 0 and min(got) == 0
+    # every sample the controller produced was received or counted as lost
+    assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
+    assert s.lost_samples == stats["dropped_samples"] == s.controller_dropped_samples
+
+
+def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_model):
+    """The host's Python path (TouchDetector + a TouchModel's machines) on the live stream."""
+    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
+    from eskin.models import load_model
+
+    cm, path, rf, _ = small_model
+    model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
+                                "--wait-start")
+    try:
+        with LinkListener(pty_path, model=model, backend="python", stats_interval=None) as link:
+            assert link.classifier.kind == "python"
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        finish(proc)
+    dec = [e for e in events if isinstance(e, Decision)]
+    ctrl = [d for d in dec if d.source == "controller"]
+    host = [d for d in dec if d.source == "host"]
+    assert len(ctrl) == len(host) > 0
+    for c, h in zip(ctrl, host):
+        assert (c.onset_sample, c.offset_sample, c.label) == (h.onset_sample, h.offset_sample,
+                                                              h.label)
+        np.testing.assert_allclose(c.values, h.values, atol=1e-6)

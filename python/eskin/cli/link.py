@@ -193,6 +193,7 @@ def register(app: typer.Typer) -> None:
             rate = 3000.0
             recent: deque = deque(maxlen=12)
             last_stats = None
+            last_info = None
             events = listener.events(duration=duration, until_eof=until_eof)
             if live_mode:
                 last_stats = _run_live(listener, events, recent, out)
@@ -201,6 +202,10 @@ def register(app: typer.Typer) -> None:
                     if isinstance(ev, InfoEvent):
                         rate = ev.info.sample_rate_hz
                         names = ", ".join(ev.info.class_names) or "-"
+                        key = (ev.info.rows, ev.info.cols, rate, names, ev.info.speed)
+                        if key == last_info:
+                            continue  # sent again at every (re)start: print it once
+                        last_info = key
                         typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
                                    f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
                     elif isinstance(ev, Decision):
@@ -281,8 +286,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
         return Panel(Group(header, grid, decisions_table(list(recent), rate)),
                      title="eskin listen")
 
+    # drawn from this loop, at most 5 times a second, so that rendering never competes with
+    # reading the port (no refresh thread)
     t_draw = 0.0
-    with Live(view(), refresh_per_second=8, transient=False) as live:
+    with Live(view(), auto_refresh=False, transient=False) as live:
         for ev in events:
             if isinstance(ev, InfoEvent):
                 rate = ev.info.sample_rate_hz
@@ -297,10 +304,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
             elif isinstance(ev, Stats):
                 last_stats = ev.stats
             now = time.monotonic()
-            if now - t_draw > 0.1:
+            if now - t_draw > 0.2:
                 t_draw = now
-                live.update(view())
-        live.update(view())
+                live.update(view(), refresh=True)
+        live.update(view(), refresh=True)
     return last_stats
 
 
