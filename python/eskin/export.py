@@ -35,6 +35,7 @@ __all__ = [
     "CompiledModel",
     "export_model",
     "model_to_bytes",
+    "spec_from_estimator",
     "spec_from_model",
     "write_c_header",
 ]
@@ -324,22 +325,27 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
     )
 
 
-def spec_from_model(model: Any) -> ModelSpec:
-    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel`.
+def spec_from_estimator(
+    estimator: Any,
+    class_names: Sequence[str],
+    *,
+    D: int,
+    grid_shape: tuple[int, int],
+    window: str = "energy",
+    subsample: str = "algorithm2",
+    short: str = "interpolate",
+    sample_rate_hz: float = 3000.0,
+    window_config: Any = None,
+    meta: dict[str, Any] | None = None,
+) -> ModelSpec:
+    """The :class:`ModelSpec` of a fitted estimator and the preprocessing it was trained with.
 
-    A binary model's machine has ``classes_`` = [0, 1] (f > 0 means ``classes[1]``); a model
-    of three or more classes holds a OneVsAllTouchClassifier whose machine k claims class k.
+    ``estimator``: a fitted binary machine (TensorSVC / TensorRLS: ``classes_`` = [0, 1] index
+    ``class_names``, f > 0 means ``classes_[1]``) or a fitted OneVsAllTouchClassifier whose
+    ``classes_`` are 0..k-1 (machine k claims class k).
     """
-    if isinstance(model, ModelSpec):
-        return model
-    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
-        if not hasattr(model, attr):
-            raise ModelFormatError(
-                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
-                f"(missing {attr!r})"
-            )
-    est = model.estimator
-    classes = [str(c) for c in model.classes]
+    est = estimator
+    classes = [str(c) for c in class_names]
     if hasattr(est, "estimators_"):
         if len(est.estimators_) != len(classes):
             raise ModelFormatError(
@@ -363,24 +369,44 @@ def spec_from_model(model: Any) -> ModelSpec:
         rule = "binary"
     import eskin
 
-    meta = {
-        "eskin_version": eskin.__version__,
-        "classes": classes,
-        "machine": getattr(model, "machine", None),
-        "selection": getattr(model, "selection", None),
-    }
     return ModelSpec(
         class_names=classes,
         rule=rule,
         machines=machines,
-        D=int(model.D),
-        grid_shape=tuple(int(v) for v in model.grid_shape),
-        window=str(model.window),
-        subsample=str(model.subsample),
+        D=int(D),
+        grid_shape=(int(grid_shape[0]), int(grid_shape[1])),
+        window=str(window),
+        subsample=str(subsample),
+        short=str(short),
+        sample_rate_hz=float(sample_rate_hz),
+        window_config=window_config,
+        meta={"eskin_version": eskin.__version__, "classes": classes, **dict(meta or {})},
+    )
+
+
+def spec_from_model(model: Any) -> ModelSpec:
+    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel` (a binary machine
+    for two classes, a OneVsAllTouchClassifier for more; see :func:`spec_from_estimator`)."""
+    if isinstance(model, ModelSpec):
+        return model
+    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
+        if not hasattr(model, attr):
+            raise ModelFormatError(
+                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
+                f"(missing {attr!r})"
+            )
+    return spec_from_estimator(
+        model.estimator,
+        model.classes,
+        D=model.D,
+        grid_shape=model.grid_shape,
+        window=model.window,
+        subsample=model.subsample,
         short=str(getattr(model, "short", "interpolate")),
-        sample_rate_hz=float(model.sample_rate_hz),
+        sample_rate_hz=float(getattr(model, "sample_rate_hz", 3000.0)),
         window_config=getattr(model, "window_config", None),
-        meta=meta,
+        meta={"machine": getattr(model, "machine", None),
+              "selection": getattr(model, "selection", None)},
     )
 
 

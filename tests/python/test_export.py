@@ -223,6 +223,53 @@ def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
     np.testing.assert_array_equal(got.windows, np.asarray(windows).reshape(-1, 2))
 
 
+def _fit(campaign, D, machine, n_classes, alpha):
+    """A real machine trained on the first 3 participants (simulated data)."""
+    from eskin.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+
+    X = _patterns(campaign, D)
+    y = np.asarray(campaign.modality).astype(np.int64)
+    part = np.asarray(campaign.participant)
+    train = np.isin(part, np.unique(part)[:3])
+    if n_classes == 2:
+        train &= y < 2
+    base = (TensorSVC(C=10.0, sigma=0.5, alpha=alpha) if machine == "svm"
+            else TensorRLS(lam=0.1, sigma=0.5, alpha=alpha))
+    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
+    est.fit(X[train], y[train])
+    return est, X
+
+
+@pytest.mark.parametrize("D", [20, 50])
+@pytest.mark.parametrize("machine", ["svm", "rls"])
+@pytest.mark.parametrize("n_classes", [2, 3])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_parity_with_trained_estimators(campaign, D, machine, n_classes, dtype):
+    """Trained TensorSVC / TensorRLS / OneVsAllTouchClassifier: C++ on the raw recordings of
+    the whole campaign (held-out participant included) against Python on eskin.preprocess."""
+    from eskin.export import spec_from_estimator
+
+    alpha = "half" if machine == "svm" else "full"
+    est, X = _fit(campaign, D, machine, n_classes, alpha)
+    names = list(campaign.modalities[:n_classes])
+    spec = spec_from_estimator(est, names, D=D, grid_shape=(4, 4),
+                               sample_rate_hz=campaign.sample_rate_hz)
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    got = cm.classify(*_signals(campaign))
+    F = np.asarray(est.decision_function(X), float).reshape(len(X), -1)
+    if n_classes == 2:
+        labels, dont_know = (F[:, 0] > 0).astype(int), np.zeros(len(X), bool)
+    else:
+        labels, dont_know = est.predict(X), est.dont_know_
+    np.testing.assert_array_equal(got.label_indices, labels)
+    np.testing.assert_array_equal(got.dont_know, dont_know)
+    if dtype == "float64":
+        np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+    else:
+        _, scale = _python_decisions(spec, X)
+        assert np.all(np.abs(got.decision_values - F) <= 1e-4 * scale)
+
+
 def test_even_subsampling_and_no_window(campaign):
     spec = _random_spec(campaign, 50, 3, subsample="even")
     spec.window = "none"
