@@ -33,6 +33,7 @@ __all__ = [
     "ModelSpec",
     "ModelFormatError",
     "CompiledModel",
+    "compiled_engine",
     "export_model",
     "model_to_bytes",
     "spec_from_estimator",
@@ -633,6 +634,45 @@ class CompiledModel:
         """Class names of raw recordings."""
         return self.classify(signals, lengths).labels
 
+    def predict_recordings(self, data: Any, indices: Any = None, *,
+                           chunk: int = 32) -> list[dict[str, Any]]:
+        """Per-recording decisions on a campaign (or raw signals (n, rows, cols, T)), in the
+        format of :meth:`eskin.models.TouchModel.predict_recordings`: dicts with ``index``,
+        ``label``, ``decision_values``, ``dont_know``, ``window`` and, for a campaign with
+        modality labels, ``true_label``. Recordings are read ``chunk`` at a time."""
+        is_campaign = hasattr(data, "recording")
+        n_total = len(data) if is_campaign else int(np.shape(data)[0])
+        idx = np.arange(n_total) if indices is None else np.asarray(indices, np.int64)
+        lengths = np.asarray(data.lengths) if is_campaign else None
+        names = [str(m) for m in (getattr(data, "modalities", None) or [])]
+        modality = np.asarray(getattr(data, "modality", np.full(n_total, -1)))
+        out: list[dict[str, Any]] = []
+        for c0 in range(0, len(idx), chunk):
+            sel = idx[c0 : c0 + chunk]
+            if is_campaign:
+                recs = [np.asarray(data.recording(int(i))) for i in sel]
+                lens = np.array([min(r.shape[-1], int(lengths[i])) for r, i in zip(recs, sel)])
+                block = np.zeros((len(recs), *recs[0].shape[:2], int(lens.max())), recs[0].dtype)
+                for j, r in enumerate(recs):
+                    block[j, :, :, : lens[j]] = r[..., : lens[j]]
+            else:
+                block = np.asarray(data)[sel]
+                lens = None
+            d = self.classify(block, lens)
+            for j, i in enumerate(sel):
+                item: dict[str, Any] = {
+                    "index": int(i),
+                    "label": str(d.labels[j]),
+                    "decision_values": [float(v) for v in d.decision_values[j]],
+                    "dont_know": bool(d.dont_know[j]),
+                    "window": [int(d.windows[j, 0]), int(d.windows[j, 1])],
+                }
+                m = int(modality[i]) if i < len(modality) else -1
+                if names and 0 <= m < len(names):
+                    item["true_label"] = names[m]
+                out.append(item)
+        return out
+
     def stream(self, samples: Any, *, flush: bool = True, timed: bool = False) -> list[dict[str, Any]]:
         """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
         (rows, cols, T)), one sample at a time as the controller would. Returns the events:
@@ -677,6 +717,16 @@ class _CompiledMachines:
     @property
     def dont_know_(self) -> np.ndarray:
         return self._dont_know
+
+
+def compiled_engine(model: Any) -> CompiledModel:
+    """The C++ classifier of a model: the one a ``.eskin`` file was loaded into, or the
+    TouchModel compiled in memory in float64 (so that its labels equal the Python model's).
+    Used by ``eskin predict --engine cpp``."""
+    est = getattr(model, "estimator", None)
+    if isinstance(est, _CompiledMachines):
+        return est.compiled
+    return CompiledModel.from_model(model, dtype="float64")
 
 
 def _save_eskin(model: Any, path: Path) -> None:

@@ -507,3 +507,40 @@ def test_meta_section_is_json(campaign):
     n = struct.unpack_from("<I", data, pos + 4)[0]
     meta = json.loads(data[pos + 8 : pos + 8 + n])
     assert meta["format"] == "eskin-model" and meta["dtype"] == "float32"
+
+
+# ----------------------------------------------------------------------------- end to end
+
+
+def _eskin(*args, check=True):
+    res = subprocess.run([sys.executable, "-m", "eskin", *map(str, args)], capture_output=True,
+                         text=True)
+    if check:
+        assert res.returncode == 0, res.stderr
+    return res
+
+
+def test_train_export_classify_matches_python_labels(campaign, tmp_path):
+    """`eskin train` -> `eskin export` (float32) -> `eskin-classify` on a held-out simulated
+    campaign gives exactly the labels of the Python model (`eskin predict`), and so does
+    `eskin predict --engine cpp`."""
+    pytest.importorskip("eskin.models")
+    exe = _eskin_classify()
+    train = tmp_path / "train.h5"
+    eskin.simulate(train, participants=3, seed=21, runs=(2,))
+    model = tmp_path / "model.joblib"
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20")
+    _eskin("export", model, "-o", tmp_path / "model.eskin")
+    held = tmp_path / "held.h5"
+    shutil.copy(campaign.path, held)
+    _eskin("predict", model, held, "--json", tmp_path / "py.json")
+    python_labels = [p["label"] for p in json.loads((tmp_path / "py.json").read_text())]
+    npy = tmp_path / "held.npy"
+    np.save(npy, np.asarray(campaign.signals))
+    res = subprocess.run([exe, str(tmp_path / "model.eskin"), str(npy)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert [r["label"] for r in _parse(res.stdout)[1]] == python_labels
+    _eskin("predict", model, held, "--engine", "cpp", "--json", tmp_path / "cpp.json")
+    cpp = json.loads((tmp_path / "cpp.json").read_text())
+    assert [p["label"] for p in cpp] == python_labels
