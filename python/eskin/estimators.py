@@ -332,25 +332,36 @@ def _kkm_single_moves(K, diag, labels, n_clusters, max_moves):
 
     Moving x from cluster A (size a > 1) to B (size b) changes the inertia by exactly
     ``b/(b+1) d(x, m_B) - a/(a-1) d(x, m_A)`` (the centroids move too); the best improving move
-    is applied until none is left. Lloyd stops at points where no such move is checked.
+    is applied until none is left. Lloyd stops at points where no such move is checked. The
+    cluster sums are updated in O(n) per move.
     """
     n = K.shape[0]
     rows = np.arange(n)
+    labels = labels.copy()
+    Z = np.zeros((n, n_clusters))
+    Z[rows, labels] = 1.0
+    KZ = K @ Z  # sum_{j in c} K_ij
+    S = np.einsum("ic,ic->c", Z, KZ)  # sum_{j,l in c} K_jl
+    sizes = Z.sum(axis=0)
     for _ in range(int(max_moves)):
-        dist = _kkm_distances(K, diag, labels, n_clusters)
-        sizes = np.bincount(labels, minlength=n_clusters).astype(float)
-        own = dist[rows, labels]
-        a = sizes[labels]
         with np.errstate(divide="ignore", invalid="ignore"):
+            dist = diag[:, None] - 2.0 * KZ / sizes + S / (sizes * sizes)
+            own = dist[rows, labels]
+            a = sizes[labels]
             leave = np.where(a > 1, a / (a - 1.0) * own, -np.inf)  # a singleton stays
-        gain_in = sizes / (sizes + 1.0) * np.where(np.isfinite(dist), dist, 0.0)
-        gain_in[sizes[None, :].repeat(n, 0) == 0] = 0.0
-        delta = gain_in - leave[:, None]
+            enter = np.where(sizes > 0, sizes / (sizes + 1.0) * dist, diag[:, None] * 0.0)
+        delta = enter - leave[:, None]
         delta[rows, labels] = np.inf
         i, c = np.unravel_index(int(np.argmin(delta)), delta.shape)
         if not delta[i, c] < -1e-12 * max(1.0, float(np.abs(own).sum())):
             break
-        labels = labels.copy()
+        src = labels[i]
+        S[src] += -2.0 * KZ[i, src] + K[i, i]
+        S[c] += 2.0 * KZ[i, c] + K[i, i]
+        KZ[:, src] -= K[:, i]
+        KZ[:, c] += K[:, i]
+        sizes[src] -= 1.0
+        sizes[c] += 1.0
         labels[i] = c
     return labels
 

@@ -59,7 +59,7 @@ import math
 import os
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Union
 
@@ -369,7 +369,7 @@ def load_host_classifier(model: Any, backend: str = "auto") -> HostClassifier:
     try:
         from eskin.export import CompiledModel
     except ImportError:
-        CompiledModel = None  # type: ignore[assignment,misc]  # noqa: N806
+        CompiledModel = None  # type: ignore[assignment,misc]
     if isinstance(model, (str, os.PathLike)):
         path = Path(model)
         if not path.is_file():
@@ -421,7 +421,8 @@ class _History:
         if first != self.end:  # a reset: start over at this index
             self.begin = self.end = first
         if n >= self.capacity:
-            block, lost, first = block[-self.capacity:], lost[-self.capacity:], first + n - self.capacity
+            first += n - self.capacity
+            block, lost = block[-self.capacity:], lost[-self.capacity:]
             n = self.capacity
             self.begin = self.end = first
         pos = (first + np.arange(n)) % self.capacity
@@ -487,7 +488,8 @@ class LinkListener:
         if record_policy is None:
             record_policy = "segment" if replay is not None else "touch"
         if record_policy not in RECORD_POLICIES:
-            raise ValueError(f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
+            raise ValueError(
+                f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
         if record_policy == "segment" and replay is None:
             raise ValueError("record_policy='segment' needs the replay file (replay=...)")
         for name, v in (("context_s", context_s), ("max_fill_s", max_fill_s),
@@ -645,14 +647,14 @@ class LinkListener:
     # -- taxel activity --------------------------------------------------------------------
     def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
-        taxel's deviation from its median over the held history (ADC counts); None before data."""
+        taxel's deviation from its mean over the last second (ADC counts); None before data."""
         h = self._history
         if h is None or h.end == h.begin:
             return None
         rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        ref, _ = h.get(h.begin, h.end)
+        ref, _ = h.get(h.end - int(rate), h.end)
         recent, _ = h.get(h.end - max(1, int(window_s * rate)), h.end)
-        base = np.median(ref.astype(np.float64), axis=0)
+        base = ref.mean(axis=0)
         dev = recent.astype(np.float64) - base
         return np.sqrt(np.mean(dev * dev, axis=0))
 
@@ -773,7 +775,8 @@ class LinkListener:
         need = self.history_s
         if self.record_path is not None:
             if self.record_policy == "segment":
-                longest = int(self.replay.segments["length"].max()) if len(self.replay.segments) else 0
+                segs = self.replay.segments
+                longest = int(segs["length"].max()) if len(segs) else 0
                 need = max(need, longest / rate + 1.0)
             else:
                 need = max(need, self._max_touch_s() + 2 * self.context_s + 1.0)
@@ -783,7 +786,8 @@ class LinkListener:
                 f"the controller streams a {grid[0]}x{grid[1]} grid; the host model expects "
                 f"{self.classifier.grid[0]}x{self.classifier.grid[1]}"
             )
-        if self.record_path is not None and self.record_policy == "touch" and self.classifier is None:
+        if (self.record_path is not None and self.record_policy == "touch"
+                and self.classifier is None):
             self._det = HostClassifier(grid, rate)
 
     def _max_touch_s(self) -> float:

@@ -28,7 +28,6 @@ from eskin.link import (
 )
 from eskin.protocol import (
     DELIMITER,
-    CommandFrame,
     DataFrame,
     DecisionFrame,
     Flags,
@@ -187,8 +186,12 @@ def test_stream_events_commands_and_stats(pty):
                + c.decision(100, 400, 1, (-0.5, 0.7, -0.2)) + c.status(StreamState.FINISHED, 7))
     cmds: list = []
     with LinkListener(path, stats_interval=None) as link:
-        feed_when_open(state, payload, cmds).join(10)
+        assert link.activity() is None  # nothing received yet
+        feeder = feed_when_open(state, payload, cmds)
         events = list(link.events(until_eof=True, eof_grace_s=0.05))
+        act = link.activity()
+        feeder.join(10)
+    assert act.shape == (4, 4) and np.all(act > 100)  # the random stream is "active" everywhere
     # the host asked for the stream and the controller's description
     assert [f.command for f in cmds][:1] == [FrameType.START]
     assert FrameType.INFO_REQUEST in [f.command for f in cmds] or len(cmds) == 1
@@ -370,7 +373,7 @@ def test_small_holes_are_bridged_for_the_detector_and_reported(pty):
     assert len(camp) == 1 and camp.modalities == ["unknown"]
     r = camp.recording(0)
     start = int(camp.extras["stream_start"][0])
-    assert start == rec[0].start and start < 4500 < 5400 < rec[0].stop
+    assert start == rec[0].start and start < 4500 and 5400 < rec[0].stop
     src = np.moveaxis(stream[rec[0].start:rec[0].stop], 0, -1)
     keep = np.ones(r.shape[-1], bool)
     keep[4700 - start:4750 - start] = False
@@ -538,7 +541,7 @@ def test_live_decisions_equal_offline_decisions(fw_sim_path, small_model, tmp_pa
         (e["window"][0], e["window"][1], e["label"]) for e in offline]
     batch = cm.classify(np.stack(test))
     for src in (ctrl, host):
-        lab, val, dk, extra = assign_decisions(src, rf.segments, 3)
+        lab, val, _, _ = assign_decisions(src, rf.segments, 3)
         assert list(lab) == list(batch.label_indices)
         np.testing.assert_allclose(val, batch.decision_values, atol=1e-5)
     # the recording of the stream reads back equal to the source
@@ -570,3 +573,23 @@ def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_mode
     assert s.rejected > 0
     # each fault costs at most two frames
     assert s.lost_samples <= 2 * SPF * stats["faults_injected"]
+
+
+def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 4, "--wait-start")
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            first = list(link.events(duration=0.5))
+            link.reconnect()  # the controller keeps streaming (and drops) while nobody listens
+            rest = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(first + rest)
+    src = np.asarray(rf.samples)
+    assert all(np.array_equal(x, src[i]) for i, x in got.items())
+    s = rest[-1].stats
+    assert s.reconnects == 1 and s.rejected == 0 and min(got) == 0
+    # every sample the controller produced was received or counted as lost
+    assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
+    assert s.lost_samples == stats["dropped_samples"] == s.controller_dropped_samples

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import sys
 import time
 from collections import deque
@@ -233,6 +234,9 @@ def register(app: typer.Typer) -> None:
         speed: float = typer.Option(5.0, help="replay speed (x real time)"),
         seed: int = typer.Option(0, help="random seed"),
         jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
+        quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
+        recordings: Optional[int] = typer.Option(
+            None, "--recordings", help="stream only this many held-out recordings"),
     ) -> None:
         """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
         from rich.console import Console
@@ -244,7 +248,8 @@ def register(app: typer.Typer) -> None:
             try:
                 result = run_demo(out, participants=participants,
                                   test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, log=lambda m: console.print(m))
+                                  n_jobs=jobs, quick=quick, max_recordings=recordings,
+                                  log=lambda m: console.print(m))
             except DemoError as exc:
                 console.print(f"[bold red]demo failed:[/] {exc}")
                 raise typer.Exit(1) from None
@@ -276,8 +281,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
         return Panel(Group(header, grid, decisions_table(list(recent), rate)),
                      title="eskin listen")
 
+    # drawn from this loop, at most 5 times a second, so that rendering never competes with
+    # reading the port (no refresh thread)
     t_draw = 0.0
-    with Live(view(), refresh_per_second=8, transient=False) as live:
+    with Live(view(), auto_refresh=False, transient=False) as live:
         for ev in events:
             if isinstance(ev, InfoEvent):
                 rate = ev.info.sample_rate_hz
@@ -292,10 +299,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
             elif isinstance(ev, Stats):
                 last_stats = ev.stats
             now = time.monotonic()
-            if now - t_draw > 0.1:
+            if now - t_draw > 0.2:
                 t_draw = now
-                live.update(view())
-        live.update(view())
+                live.update(view(), refresh=True)
+        live.update(view(), refresh=True)
     return last_stats
 
 
@@ -316,11 +323,14 @@ def _print_demo(console: Any, result: Any) -> None:
     names = list(result.class_names)
     console.print(Columns([matrix(f"{k} ({result.error_rates[k]:.1%} error)", cm, names)
                            for k, cm in result.confusion.items()]))
-    t = Table(title="per-recording agreement")
-    for c in ("decisions", "recordings", "equal labels", "max |value diff|"):
+    t = Table(title="agreement (touch by touch, then per recording)")
+    for c in ("decisions", "touches", "same window + label", "recordings", "equal labels",
+              "max |value diff|"):
         t.add_column(c)
     for k, row in result.agreement.items():
-        t.add_row(k, str(row["n"]), str(row["equal"]), f"{row['max_value_diff']:.2e}")
+        diff = row["max_value_diff"]
+        t.add_row(k, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
+                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.2e}")
     console.print(t)
     console.print(stats_table(result.stats, title="link statistics (live run)"))
     for line in result.summary:
