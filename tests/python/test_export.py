@@ -463,42 +463,32 @@ def test_cli_export_writes_model_and_header(campaign, tmp_path):
     pytest.importorskip("eskin.models")
     from eskin.models import TouchModel, save_model
 
-    spec = _random_spec(campaign, 20, 2)
-    src = save_model(_touch_model_from_spec(spec, TouchModel), tmp_path / "model.joblib")
+    est, _ = _fit(campaign, 20, "svm", 2, "half")
+    model = TouchModel(
+        classes=list(campaign.modalities[:2]), estimator=est, machine="svm", selection="fixed",
+        D=20, window="energy", subsample="algorithm2", sample_rate_hz=campaign.sample_rate_hz,
+        grid_shape=(4, 4),
+    )
+    src = save_model(model, tmp_path / "model.joblib")
     out = tmp_path / "model.eskin"
     header = tmp_path / "model.h"
-    res = subprocess.run(
-        [sys.executable, "-m", "eskin", "export", str(src), "-o", str(out), "--float64",
-         "--c-header", str(header)],
-        capture_output=True, text=True,
-    )
-    assert res.returncode == 0, res.stderr
-    assert CompiledModel(out).is_float64
+    res = _eskin("export", src, "-o", out, "--float64", "--c-header", header)
+    assert "support vectors" in res.stdout
+    cm = CompiledModel(out)
+    assert cm.is_float64 and cm.class_names == list(campaign.modalities[:2])
     assert "eskin_model_data" in header.read_text()
-    res = subprocess.run([sys.executable, "-m", "eskin", "export", str(out), "-o", str(tmp_path / "x")],
-                         capture_output=True, text=True)
+    X = _patterns(campaign, 20)
+    np.testing.assert_allclose(cm.classify(*_signals(campaign)).decision_values[:, 0],
+                               est.decision_function(X), rtol=0, atol=1e-9)
+    # a .eskin file loads back as a TouchModel (Python preprocessing, C++ machines)
+    from eskin.models import load_model
+
+    back = load_model(out)
+    np.testing.assert_allclose(back.decision_function(X), est.decision_function(X), atol=1e-9)
+    res = _eskin("export", out, "-o", tmp_path / "again.eskin", check=False)
+    assert res.returncode == 2 and "already an exported" in res.stderr
+    res = _eskin("export", header, "-o", tmp_path / "x.eskin", check=False)
     assert res.returncode == 2 and "error:" in res.stderr and "Traceback" not in res.stderr
-
-
-class _SpecMachine:
-    """A fitted-binary-machine stand-in built from a MachineSpec (attributes per COMMON.md)."""
-
-    def __init__(self, m):
-        self.support_vectors_ = m.support_vectors
-        self.dual_coef_ = m.dual_coef
-        self.intercept_ = m.intercept
-        self.alphas_ = tuple(m.alphas)
-        self.sigmas_ = tuple(m.sigmas)
-        self.classes_ = np.array([m.negative, m.positive])
-
-
-def _touch_model_from_spec(spec, TouchModel):
-    return TouchModel(
-        classes=list(spec.class_names), estimator=_SpecMachine(spec.machines[0]), machine="svm",
-        selection="md", D=spec.D, window=spec.window, subsample=spec.subsample,
-        sample_rate_hz=spec.sample_rate_hz, grid_shape=tuple(spec.grid_shape),
-        window_config=spec.window_config,
-    )
 
 
 def test_meta_section_is_json(campaign):
@@ -529,7 +519,7 @@ def test_train_export_classify_matches_python_labels(campaign, tmp_path):
     train = tmp_path / "train.h5"
     eskin.simulate(train, participants=3, seed=21, runs=(2,))
     model = tmp_path / "model.joblib"
-    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20")
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20", "--selection", "cv")
     _eskin("export", model, "-o", tmp_path / "model.eskin")
     held = tmp_path / "held.h5"
     shutil.copy(campaign.path, held)
