@@ -141,6 +141,10 @@ def svm_train(K: np.ndarray, y_pm: np.ndarray, C: float, tol: float = 1e-3):
     K = np.ascontiguousarray(K, dtype=np.float64)
     y_pm = np.asarray(y_pm, dtype=np.float64)
     beta = np.zeros(K.shape[0])
+    if np.unique(y_pm).size < 2:
+        # one class only (e.g. a random MD labelling of a small set): libsvm returns no dual;
+        # the solution is the constant machine f = y, with no support vector
+        return beta, float(y_pm[0]) if y_pm.size else 0.0, np.zeros(0, dtype=np.intp)
     if _sk_libsvm is not None:
         # sklearn passes class indices (here 0 for -1, 1 for +1) and flips the binary signs
         # so that decision > 0 means classes_[1]

@@ -600,9 +600,7 @@ class LinkListener:
         return self.open()
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None and self._writer is not None:
-            # keep what was recorded: a Ctrl-C should not lose the campaign
-            pass
+        # the recording is finished even after an error or Ctrl-C: what was received is kept
         self.close()
 
     def reconnect(self) -> Connection:

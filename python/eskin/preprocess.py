@@ -61,11 +61,15 @@ class WindowConfig:
 
     Frame energy ``E`` = mean over a frame of the squared DC-blocked signal, summed (or maxed)
     over the taxels. The noise floor is the ``noise_quantile`` of the last ``noise_window_s`` of
-    idle frames (at least ``min_noise_energy``). A touch starts at the first frame with
-    ``E > on_factor * floor``, stays on while ``E > off_factor * floor``, and ends after
-    ``hold_s`` below that (and once ``pad_after_s`` has elapsed); touches shorter than
-    ``min_duration_s`` are dropped; the window is ``[onset - pad_before_s, offset +
-    pad_after_s)``, at most ``max_window_s`` long.
+    idle frames (at least ``min_noise_energy``). A touch is triggered by a frame with
+    ``E > on_factor * floor``; its onset moves back over the preceding frames with
+    ``E > off_factor * floor`` (at most ``lookback_s``); it stays on while
+    ``E > max(off_factor * floor, release_fraction * peak)`` and ends after ``hold_s`` below
+    that (and once ``pad_after_s`` has elapsed); touches shorter than ``min_duration_s`` are
+    dropped; the window is ``[onset - pad_before_s, offset + pad_after_s)``, at most
+    ``max_window_s`` long. For one window per recording, ``select`` takes the span of the
+    touches holding at least ``span_fraction`` of the strongest one's energy ("span"), the
+    most energetic touch ("energy") or the first ("first"). See docs/preprocessing.md.
     """
 
     frame_s: float = 0.010

@@ -593,3 +593,28 @@ def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_m
     # every sample the controller produced was received or counted as lost
     assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
     assert s.lost_samples == stats["dropped_samples"] == s.controller_dropped_samples
+
+
+def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_model):
+    """The host's Python path (TouchDetector + a TouchModel's machines) on the live stream."""
+    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
+    from eskin.models import load_model
+
+    cm, path, rf, _ = small_model
+    model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
+                                "--wait-start")
+    try:
+        with LinkListener(pty_path, model=model, backend="python", stats_interval=None) as link:
+            assert link.classifier.kind == "python"
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        finish(proc)
+    dec = [e for e in events if isinstance(e, Decision)]
+    ctrl = [d for d in dec if d.source == "controller"]
+    host = [d for d in dec if d.source == "host"]
+    assert len(ctrl) == len(host) > 0
+    for c, h in zip(ctrl, host):
+        assert (c.onset_sample, c.offset_sample, c.label) == (h.onset_sample, h.offset_sample,
+                                                              h.label)
+        np.testing.assert_allclose(c.values, h.values, atol=1e-6)

@@ -189,12 +189,13 @@ class TouchDetector {
   int64_t n_taxels_;
   bool store_;
 
+  int64_t dc_fast_n_ = 0;  // samples n < dc_fast_n_ use the running mean (1/(n+1) >= dc_alpha)
   // per-taxel state
   std::vector<double> dc_mean_;
   std::vector<double> acc_;
-  // idle-frame energies (noise floor) and a scratch copy for the quantile
-  std::vector<double> noise_ring_;
-  std::vector<double> noise_scratch_;
+  // idle-frame energies (noise floor)
+  std::vector<double> noise_ring_;    // in arrival order (to know which value leaves)
+  std::vector<double> noise_sorted_;  // the same values, sorted (the quantile is an index)
   // energies of the last lookback_frames frames (onset backtracking)
   std::vector<double> frame_ring_;
   int64_t noise_count_ = 0;

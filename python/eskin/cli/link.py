@@ -193,6 +193,7 @@ def register(app: typer.Typer) -> None:
             rate = 3000.0
             recent: deque = deque(maxlen=12)
             last_stats = None
+            last_info = None
             events = listener.events(duration=duration, until_eof=until_eof)
             if live_mode:
                 last_stats = _run_live(listener, events, recent, out)
@@ -201,6 +202,10 @@ def register(app: typer.Typer) -> None:
                     if isinstance(ev, InfoEvent):
                         rate = ev.info.sample_rate_hz
                         names = ", ".join(ev.info.class_names) or "-"
+                        key = (ev.info.rows, ev.info.cols, rate, names, ev.info.speed)
+                        if key == last_info:
+                            continue  # sent again at every (re)start: print it once
+                        last_info = key
                         typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
                                    f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
                     elif isinstance(ev, Decision):
