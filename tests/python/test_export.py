@@ -460,7 +460,6 @@ def test_eskin_classify_errors(campaign, tmp_path, which, message):
 
 
 def test_cli_export_writes_model_and_header(campaign, tmp_path):
-    pytest.importorskip("eskin.models")
     from eskin.models import TouchModel, save_model
 
     est, _ = _fit(campaign, 20, "svm", 2, "half")
@@ -514,7 +513,6 @@ def test_train_export_classify_matches_python_labels(campaign, tmp_path):
     """`eskin train` -> `eskin export` (float32) -> `eskin-classify` on a held-out simulated
     campaign gives exactly the labels of the Python model (`eskin predict`), and so does
     `eskin predict --engine cpp`."""
-    pytest.importorskip("eskin.models")
     exe = _eskin_classify()
     train = tmp_path / "train.h5"
     eskin.simulate(train, participants=3, seed=21, runs=(2,))
