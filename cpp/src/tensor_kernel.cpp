@@ -358,19 +358,26 @@ std::vector<std::size_t> half_alphas(const std::vector<std::size_t>& dims) {
   return out;
 }
 
+namespace {
+// x[(p * m + i) * after + s] -> out[i * n + p * after + s]  (no checks, no allocation)
+void unfold_unchecked(const double* x, const std::vector<std::size_t>& dims, std::size_t mode,
+                      double* out) noexcept {
+  std::size_t before = 1, after = 1;
+  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
+  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
+  const std::size_t m = dims[mode], n = before * after;
+  for (std::size_t p = 0; p < before; ++p)
+    for (std::size_t i = 0; i < m; ++i)
+      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+}
+}  // namespace
+
 void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t mode, double* out) {
   check_dims(dims);
   if (mode >= dims.size())
     throw std::invalid_argument("mode " + std::to_string(mode) + " out of range for tensor shape " +
                                 dims_str(dims));
-  std::size_t before = 1, after = 1;
-  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
-  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
-  const std::size_t m = dims[mode], n = before * after;
-  // x[(p * m + i) * after + s] -> out[i * n + p * after + s]
-  for (std::size_t p = 0; p < before; ++p)
-    for (std::size_t i = 0; i < m; ++i)
-      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+  unfold_unchecked(x, dims, mode, out);
 }
 
 // ---- heap-free workspace --------------------------------------------------------------------
@@ -468,7 +475,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
       for (std::size_t k = 0; k <= i; ++k) g[i * q + k] = dot(x + i * m, x + k * m, m);
   } else {
     // general case: materialise the unfolding, then G = A^T A by rank-one updates of its rows
-    unfold(x, layout_.dims(), z, unfold_.data());
+    unfold_unchecked(x, layout_.dims(), z, unfold_.data());
     const double* a = unfold_.data();
     std::fill(g, g + q * q, 0.0);
     for (std::size_t i = 0; i < m; ++i) {
@@ -762,7 +769,8 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
     plan_items(&a, z, &pa[z]);
     if (!self) plan_items(&B, z, &pbk[z]);
   }
-  parallel_for(pack_items.size(), nt, [&](std::size_t i, std::size_t) {
+  // packing is a copy: not worth a thread below ~2 MB
+  parallel_for(pack_items.size(), total < (std::size_t(1) << 18) ? 1 : nt, [&](std::size_t i, std::size_t) {
     const PackItem& it = pack_items[i];
     pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
   });
