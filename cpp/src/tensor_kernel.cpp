@@ -770,7 +770,8 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
     if (!self) plan_items(&B, z, &pbk[z]);
   }
   // packing is a copy: not worth a thread below ~2 MB
-  parallel_for(pack_items.size(), total < (std::size_t(1) << 18) ? 1 : nt, [&](std::size_t i, std::size_t) {
+  const int pack_threads = total < (std::size_t(1) << 18) ? 1 : nt;
+  parallel_for(pack_items.size(), pack_threads, [&](std::size_t i, std::size_t) {
     const PackItem& it = pack_items[i];
     pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
   });
