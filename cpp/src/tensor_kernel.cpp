@@ -648,7 +648,7 @@ namespace {
 // Scratch memory kept by the calling thread between calls, so that repeated Gram computations
 // do not pay the page faults of fresh large allocations; released after a call that needed more
 // than kKeepScratch doubles.
-constexpr std::size_t kKeepScratch = std::size_t(1) << 22;  // 32 MiB
+constexpr std::size_t kKeepScratch = std::size_t(1) << 20;  // 8 MiB
 struct Scratch {
   std::vector<double> buf;
   double* get(std::size_t n) {
