@@ -96,7 +96,7 @@ inline double hyp(double a, double b) noexcept {
   return std::hypot(a, b);
 }
 
-void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
   for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
   for (std::size_t i = n - 1; i > 0; --i) {
@@ -170,7 +170,7 @@ void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   e[0] = 0.0;
 }
 
-bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
   for (std::size_t i = 1; i < n; ++i) e[i - 1] = e[i];
   e[n - 1] = 0.0;
   double f = 0.0, tst1 = 0.0;
