@@ -12,8 +12,8 @@ Baselines, both written here:
   patterns (fastest of --literal-repeats runs) and extrapolated: per-pattern work scaled by
   n / n_sub, per-pair work (pairs i < j, as eskin computes them) by n (n - 1) / n_sub (n_sub - 1).
 
-Two measurements (fastest of repeated runs, as timeit advises; this machine is shared, the
-ratios are the point):
+Two measurements (fastest of repeated runs, eskin and numpy taking turns, as timeit advises;
+this machine is shared, the ratios are the point):
 A) wall clock with all cores (eskin's threads, numpy's BLAS threads);
 B) one thread each, timed with the CPU time of the calling thread (``time.thread_time``), which
    other processes competing for the cores do not inflate.
@@ -94,14 +94,17 @@ def paper_literal_parts(X: np.ndarray, alphas=ALPHA, sigma=SIGMA):
     return K, t1.since(t0), t2.since(t1)
 
 
-def best_time(fn, repeats: int, clock=time.perf_counter) -> float:
-    """Fastest of `repeats` runs (as timeit advises: the others measure the machine's load)."""
-    times = []
+def best_times(fns, repeats: int, clock=time.perf_counter) -> list[float]:
+    """Fastest of `repeats` runs of each function, the functions taking turns within each
+    repeat so that they see the same background load (timeit's advice: the slower runs measure
+    the machine's other work, not the code)."""
+    best = [float("inf")] * len(fns)
     for _ in range(repeats):
-        t0 = clock()
-        fn()
-        times.append(clock() - t0)
-    return min(times)
+        for i, fn in enumerate(fns):
+            t0 = clock()
+            fn()
+            best[i] = min(best[i], clock() - t0)
+    return best
 
 
 def main() -> None:
@@ -155,11 +158,11 @@ def main() -> None:
         def run_numpy(X=X):
             return numpy_best(X)
 
-        wall_e = best_time(run_eskin, args.repeats)
-        wall_n = best_time(run_numpy, args.repeats)
-        cpu_e = best_time(partial(run_eskin, 1), args.repeats, time.thread_time)
+        wall_e, wall_n = best_times([run_eskin, run_numpy], args.repeats)
         with threadpool_limits(limits=1):
-            cpu_n = best_time(run_numpy, args.repeats, time.thread_time)
+            cpu_e, cpu_n = best_times(
+                [partial(run_eskin, 1), run_numpy], args.repeats, time.thread_time
+            )
         scale_pairs = (args.n * (args.n - 1)) / (args.subset * (args.subset - 1))
         lit_wall, lit_cpu = t_pat * args.n / args.subset + t_pair * scale_pairs
         rows.append((D, wall_e, wall_n, cpu_e, cpu_n, lit_wall, lit_cpu, err_np, err_lit))
