@@ -140,16 +140,29 @@ def test_many_patterns_cross_tiles_and_threads():
                                    rtol=0, atol=1e-10)
         # X-vs-X equals X-vs-Y with Y = X
         np.testing.assert_allclose(single, mode_distances(X, X, alpha=alpha), rtol=0, atol=1e-12)
+        # the fused kernel equals exp of the distances, in both layouts, for any thread count
+        sig = (0.7, 1.3, 2.0)
+        for nt in (1, 2):
+            np.testing.assert_allclose(tensor_kernel(X, sigma=sig, alpha=alpha, n_threads=nt),
+                                       kernel_from_distances(single, sig), rtol=1e-14, atol=0)
+            np.testing.assert_allclose(tensor_kernel(X, Y, sigma=sig, alpha=alpha, n_threads=nt),
+                                       kernel_from_distances(got, sig), rtol=1e-14, atol=0)
 
 
 def test_generic_and_vector_micro_kernels_agree(monkeypatch):
     rng = np.random.default_rng(3)
     X = rng.normal(size=(21, 4, 4, 30))
-    best = mode_distances(X, alpha=(2, 2, 8))
-    monkeypatch.setenv("ESKIN_KERNEL_ISA", "generic")
-    assert _core.tensor_kernel_isa() == "generic"
-    generic = mode_distances(X, alpha=(2, 2, 8))
-    np.testing.assert_allclose(best, generic, rtol=0, atol=1e-12)
+    Y = rng.normal(size=(5, 4, 4, 30))
+    results = {}
+    for isa in ["generic", "avx2", "avx512"]:
+        monkeypatch.setenv("ESKIN_KERNEL_ISA", isa)
+        name = _core.tensor_kernel_isa()
+        results[name] = [mode_distances(X, alpha=a) for a in [(2, 2, 8), (3, 1, 12)]]
+        results[name] += [mode_distances(X, Y, alpha=(4, 4, 16))]
+    assert "generic" in results
+    for name, got in results.items():
+        for g, ref in zip(got, results["generic"]):
+            np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12, err_msg=name)
 
 
 # ----------------------------------------------------------------------------------------------
