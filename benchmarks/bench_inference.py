@@ -24,6 +24,7 @@ The data are simulated (eskin.simulate).
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import subprocess
@@ -206,6 +207,8 @@ def main() -> None:
                                 agree.append(base.decide_window(touch_windows[-1])
                                              == cm.class_names.index(e["label"]))
             touch_us = float(np.median(touch_ns)) / 1e3
+            warm_us = float(np.median(cm._clf.time_classify_tensors(
+                eskin.subsample(touch_windows[0][None], D), 200))) / 1e3
             numpy_touch_us = median_us(base.decide_window, touch_windows, 2)
             py_touch_us = median_us(
                 lambda w: model.decision_function(eskin.subsample(w[None], D)), touch_windows, 1)
@@ -219,7 +222,7 @@ def main() -> None:
                                                "eskin::Classifier::classify(*")
             rows.append(dict(D=D, bytes=cm.file_bytes, bases32=bases32, nsv=cm.n_support,
                              terms=terms, alpha=cm.alpha_store, touch=touch_us,
-                             np_touch=numpy_touch_us, py_touch=py_touch_us, rec=rec_us,
+                             np_touch=numpy_touch_us, warm=warm_us, py_touch=py_touch_us, rec=rec_us,
                              py_rec=py_rec_us, i_touch=instr_touch, i_rec=instr_rec,
                              agree=float(np.mean(agree)), n=len(touch_ns)))
         print()
@@ -232,14 +235,14 @@ def main() -> None:
                   f"{r['nsv']} ({r['terms']}) | {r['alpha']} |")
         print()
         print("Latency per decision, median (C++ timed in C++; baselines in the same run):")
-        print("| D | end of touch -> label, C++ us | numpy us | ratio | Python model us | ratio "
-              "| instructions | 7-s recording -> label, C++ us | Python model us | ratio "
+        print("| D | end of touch -> label, C++ us | (warm) | numpy us | ratio | Python model us "
+              "| ratio | instructions | 7-s recording -> label, C++ us | Python model us | ratio "
               "| instructions |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             def ins(v):
                 return "n/a" if v is None else f"{v / 1e6:.2f} M"
-            print(f"| {r['D']} | {r['touch']:.1f} | {r['np_touch']:.0f} | "
+            print(f"| {r['D']} | {r['touch']:.1f} | {r['warm']:.1f} | {r['np_touch']:.0f} | "
                   f"{r['np_touch'] / r['touch']:.0f}x | {r['py_touch']:.0f} | "
                   f"{r['py_touch'] / r['touch']:.0f}x | {ins(r['i_touch'])} | {r['rec']:.0f} | "
                   f"{r['py_rec']:.0f} | {r['py_rec'] / r['rec']:.1f}x | {ins(r['i_rec'])} |")
@@ -251,6 +254,8 @@ def main() -> None:
               "Classifier.classify on the raw int16 recording (energy detector over all samples, "
               "then the decision) vs eskin.preprocess + TouchModel.decision_function. "
               "Instructions: callgrind on eskin-classify, per call of classify_tensor / classify.")
+        print("(warm): the same decision repeated 200 times on one window (caches warm). "
+              f"Load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
         print("numpy baseline labels equal to C++: "
               + ", ".join(f"D={r['D']}: {100 * r['agree']:.0f} %" for r in rows))
 

@@ -385,8 +385,7 @@ class Simulator {
     bool ok = link_.send(f, reserve);
     while (!ok && o_.speed == 0 && link_.host_connected() && !g_stop) {
       if (!link_.flush_tx()) break;
-      link_.wait_io(20, true);
-      service_input();
+      link_.wait_writable(20);  // host commands wait until after (no re-entrant queueing)
       bool rc, dc;
       link_.update_host(rc, dc);
       ok = link_.send(f, reserve);

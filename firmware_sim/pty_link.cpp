@@ -182,6 +182,11 @@ void PtyLink::wait_io(int timeout_ms, bool want_output) {
   ::poll(&p, 1, timeout_ms);
 }
 
+void PtyLink::wait_writable(int timeout_ms) {
+  pollfd p{port_.fd(), POLLOUT, 0};
+  ::poll(&p, 1, timeout_ms);
+}
+
 void PtyLink::drain(int timeout_ms) {
   const int sfd = ::open(slave_path_.c_str(), O_RDONLY | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
   if (sfd < 0) return;

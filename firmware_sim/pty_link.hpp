@@ -67,6 +67,8 @@ class PtyLink {
   void clear_tx() { begin_ = size_ = 0; }
   /// Waits (poll) until the pty can take more output, input arrives, or timeout_ms passes.
   void wait_io(int timeout_ms, bool want_output);
+  /// Waits (poll) until the pty can take more output, or timeout_ms passes.
+  void wait_writable(int timeout_ms);
   /// Waits until the host has read everything written (or the timeout): closing the master
   /// discards what the slave has not read yet.
   /// (The master's own output queue is always empty: the bytes sit in the slave's input queue,

@@ -269,7 +269,35 @@ void bind_model(py::module_& m) {
             }
             return ns;
           },
-          py::arg("signals"), py::arg("repeats") = 1);
+          py::arg("signals"), py::arg("repeats") = 1)
+      .def(
+          "time_classify_tensors",
+          [](Classifier& c, py::array_t<double, py::array::c_style | py::array::forcecast> x,
+             int repeats) {
+            // Wall time of each classify_tensor() call (bases + machines), in nanoseconds;
+            // each tensor is classified `repeats` times in a row (warm caches).
+            const Model& mm = c.model();
+            if (x.ndim() != 4 || x.shape(1) != mm.rows() || x.shape(2) != mm.cols() || x.shape(3) != mm.D())
+              throw std::invalid_argument("tensors: expected shape (n, rows, cols, D)");
+            const py::ssize_t n = x.shape(0);
+            const std::size_t sz = static_cast<std::size_t>(mm.rows()) * mm.cols() * mm.D();
+            py::array_t<double> ns(n * repeats);
+            auto out = ns.mutable_unchecked<1>();
+            const double* d = x.data();
+            {
+              py::gil_scoped_release release;
+              for (py::ssize_t i = 0; i < n; ++i)
+                for (int r = 0; r < repeats; ++r) {
+                  Decision dec;
+                  const auto t0 = std::chrono::steady_clock::now();
+                  c.classify_tensor(d + static_cast<std::size_t>(i) * sz, &dec);
+                  const auto t1 = std::chrono::steady_clock::now();
+                  out(i * repeats + r) = std::chrono::duration<double, std::nano>(t1 - t0).count();
+                }
+            }
+            return ns;
+          },
+          py::arg("tensors"), py::arg("repeats") = 1);
 
   py::class_<StreamClassifier>(m, "StreamClassifier",
                                "The controller's path: one multi-taxel sample at a time.")

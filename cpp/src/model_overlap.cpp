@@ -85,39 +85,61 @@ __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   return _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
 }
 
+// Dot products of columns b_k (k in kb) with x_l (l in lb), 2 x 2 at a time: each pass loads
+// two columns of b and two of x and feeds four FMAs.
 __attribute__((target("avx2,fma"))) double overlap_f32_avx2(const float* b, const float* x,
                                                             std::size_t n,
                                                             std::size_t alpha) noexcept {
   double s = 0.0;
-  for (std::size_t k = 0; k < alpha; ++k) {
-    const float* bk = b + k * n;
+  const std::size_t n8 = n - n % 8;
+  auto tail = [&](const float* p, const float* q) {
+    double t = 0.0;
+    for (std::size_t i = n8; i < n; ++i) t += static_cast<double>(p[i]) * static_cast<double>(q[i]);
+    return t;
+  };
+  std::size_t k = 0;
+  for (; k + 2 <= alpha; k += 2) {
+    const float* b0 = b + k * n;
+    const float* b1 = b0 + n;
     std::size_t l = 0;
-    // two columns of x per pass: each load of b feeds two FMAs
     for (; l + 2 <= alpha; l += 2) {
       const float* x0 = x + l * n;
       const float* x1 = x0 + n;
-      __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps();
-      std::size_t i = 0;
-      for (; i + 8 <= n; i += 8) {
-        const __m256 bv = _mm256_loadu_ps(bk + i);
-        a0 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x0 + i), a0);
-        a1 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x1 + i), a1);
+      __m256 a00 = _mm256_setzero_ps(), a01 = _mm256_setzero_ps();
+      __m256 a10 = _mm256_setzero_ps(), a11 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8) {
+        const __m256 vb0 = _mm256_loadu_ps(b0 + i), vb1 = _mm256_loadu_ps(b1 + i);
+        const __m256 vx0 = _mm256_loadu_ps(x0 + i), vx1 = _mm256_loadu_ps(x1 + i);
+        a00 = _mm256_fmadd_ps(vb0, vx0, a00);
+        a01 = _mm256_fmadd_ps(vb0, vx1, a01);
+        a10 = _mm256_fmadd_ps(vb1, vx0, a10);
+        a11 = _mm256_fmadd_ps(vb1, vx1, a11);
       }
-      double d0 = hsum8(a0), d1 = hsum8(a1);
-      for (; i < n; ++i) {
-        d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
-        d1 += static_cast<double>(bk[i]) * static_cast<double>(x1[i]);
-      }
-      s += d0 * d0 + d1 * d1;
+      const double d00 = hsum8(a00) + tail(b0, x0), d01 = hsum8(a01) + tail(b0, x1);
+      const double d10 = hsum8(a10) + tail(b1, x0), d11 = hsum8(a11) + tail(b1, x1);
+      s += d00 * d00 + d01 * d01 + d10 * d10 + d11 * d11;
     }
     for (; l < alpha; ++l) {
       const float* x0 = x + l * n;
-      __m256 a0 = _mm256_setzero_ps();
-      std::size_t i = 0;
-      for (; i + 8 <= n; i += 8) a0 = _mm256_fmadd_ps(_mm256_loadu_ps(bk + i), _mm256_loadu_ps(x0 + i), a0);
-      double d0 = hsum8(a0);
-      for (; i < n; ++i) d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
-      s += d0 * d0;
+      __m256 a00 = _mm256_setzero_ps(), a10 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8) {
+        const __m256 vx0 = _mm256_loadu_ps(x0 + i);
+        a00 = _mm256_fmadd_ps(_mm256_loadu_ps(b0 + i), vx0, a00);
+        a10 = _mm256_fmadd_ps(_mm256_loadu_ps(b1 + i), vx0, a10);
+      }
+      const double d00 = hsum8(a00) + tail(b0, x0), d10 = hsum8(a10) + tail(b1, x0);
+      s += d00 * d00 + d10 * d10;
+    }
+  }
+  for (; k < alpha; ++k) {
+    const float* b0 = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const float* x0 = x + l * n;
+      __m256 a00 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8)
+        a00 = _mm256_fmadd_ps(_mm256_loadu_ps(b0 + i), _mm256_loadu_ps(x0 + i), a00);
+      const double d00 = hsum8(a00) + tail(b0, x0);
+      s += d00 * d00;
     }
   }
   return s;

@@ -543,6 +543,7 @@ class LinkListener:
         self._base = 0  # stream index of the host classifier's sample 0
         self._lost_ranges: list[tuple[int, int]] = []
         self._lost_samples = 0
+        self._tail_counted = False
         self._index_resets = 0
         self._history: Optional[_History] = None
         self._pending_touch: list[tuple[int, int, str]] = []  # (start, stop, label) to record
@@ -658,10 +659,14 @@ class LinkListener:
 
     # -- the event loop --------------------------------------------------------------------
     def events(self, *, duration: Optional[float] = None, until_eof: bool = False,
-               eof_grace_s: float = 0.3) -> Iterator[LinkEvent]:
+               eof_grace_s: float = 0.3, flush: bool = True) -> Iterator[LinkEvent]:
         """Yield events until ``duration`` seconds passed, or (``until_eof``) the controller
         reported the end of its replay (STATUS state FINISHED) and ``eof_grace_s`` more seconds
-        passed, or the peer closed the port (and could not be reopened), or :meth:`stop`."""
+        passed, or the peer closed the port (and could not be reopened), or :meth:`stop`.
+
+        At the end, with ``flush`` (the default), a touch in progress is ended and decided and
+        pending touch recordings are written with what was received; pass ``flush=False`` to
+        call :meth:`events` again later on the same stream. The last event is :class:`Stats`."""
         if self._port is None:
             self.open()
             yield Connection("connected", self.path)
@@ -695,8 +700,9 @@ class LinkListener:
                 if self.stats_interval is not None and now - t_stats >= self.stats_interval:
                     t_stats = now
                     yield Stats(self.stats)
-            for ev in self._end_of_stream():
-                yield ev
+            if flush:
+                for ev in self._end_of_stream():
+                    yield ev
             yield Stats(self.stats)
         finally:
             self._stop = False
@@ -945,11 +951,11 @@ class LinkListener:
                 seg = segs[self._next_segment]
                 start = self.replay_offset + int(seg["start"])
                 stop = start + int(seg["length"])
-                if h.end < stop and not final:
-                    break
+                if h.end < stop:
+                    break  # not there yet (a segment never completed is never written)
                 self._next_segment += 1
-                if h.begin > start or h.end < stop:
-                    continue  # not (fully) received: joined late or the stream ended early
+                if h.begin > start:
+                    continue  # not fully received: joined late, or a long hole inside it
                 label = int(seg["label"])
                 names = self._writer_names()
                 modality = label if label >= 0 else len(names) - 1
@@ -992,6 +998,12 @@ class LinkListener:
 
     def _end_of_stream(self) -> list[LinkEvent]:
         out: list[LinkEvent] = []
+        s = self.last_status
+        if (s is not None and s.state == StreamState.FINISHED and self._next is not None
+                and s.next_sample > self._next and not self._tail_counted):
+            # samples produced after the last one received, which no later frame revealed
+            self._lost_samples += s.next_sample - self._next
+            self._tail_counted = True
         for c in (self.classifier, self._det):
             if c is not None and self._history is not None:
                 out.extend(self._touches(c, c.flush(), None))

@@ -603,12 +603,15 @@ class MaximalDiscrepancySearch(_SearchBase):
             int(self.n_init), int(self.max_iter), self.flip,
         )
         blocks = _blocks(configs)
-        results = Parallel(n_jobs=self.n_jobs)(
-            delayed(_md_block)(
-                kind, dists[alphas], sigmas, y_pm, cfgs, settings, self.random_state_, b
+        # BLAS on one thread here too: with a threading backend the blocks' limits are
+        # process-wide, and every nested limit must restore 1, not the caller's setting
+        with _single_threaded_blas():
+            results = Parallel(n_jobs=self.n_jobs)(
+                delayed(_md_block)(
+                    kind, dists[alphas], sigmas, y_pm, cfgs, settings, self.random_state_, b
+                )
+                for b, ((alphas, sigmas), cfgs) in enumerate(blocks)
             )
-            for b, ((alphas, sigmas), cfgs) in enumerate(blocks)
-        )
         by_index = {}
         for (_, cfgs), res in zip(blocks, results):
             for cfg, r in zip(cfgs, res):
@@ -723,10 +726,11 @@ class CrossValidationSearch(_SearchBase):
                 )
         self.splits_ = splits
         blocks = _blocks(configs)
-        results = Parallel(n_jobs=self.n_jobs)(
-            delayed(_cv_block)(kind, dists[alphas], sigmas, y_pm, cfgs, splits)
-            for (alphas, sigmas), cfgs in blocks
-        )
+        with _single_threaded_blas():  # see MaximalDiscrepancySearch.fit
+            results = Parallel(n_jobs=self.n_jobs)(
+                delayed(_cv_block)(kind, dists[alphas], sigmas, y_pm, cfgs, splits)
+                for (alphas, sigmas), cfgs in blocks
+            )
         test_err = np.empty((len(configs), len(splits)))
         train_err = np.empty((len(configs), len(splits)))
         for (_, cfgs), (te, tr) in zip(blocks, results):

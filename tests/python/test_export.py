@@ -223,6 +223,53 @@ def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
     np.testing.assert_array_equal(got.windows, np.asarray(windows).reshape(-1, 2))
 
 
+def _fit(campaign, D, machine, n_classes, alpha):
+    """A real machine trained on the first 3 participants (simulated data)."""
+    from eskin.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+
+    X = _patterns(campaign, D)
+    y = np.asarray(campaign.modality).astype(np.int64)
+    part = np.asarray(campaign.participant)
+    train = np.isin(part, np.unique(part)[:3])
+    if n_classes == 2:
+        train &= y < 2
+    base = (TensorSVC(C=10.0, sigma=0.5, alpha=alpha) if machine == "svm"
+            else TensorRLS(lam=0.1, sigma=0.5, alpha=alpha))
+    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
+    est.fit(X[train], y[train])
+    return est, X
+
+
+@pytest.mark.parametrize("D", [20, 50])
+@pytest.mark.parametrize("machine", ["svm", "rls"])
+@pytest.mark.parametrize("n_classes", [2, 3])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_parity_with_trained_estimators(campaign, D, machine, n_classes, dtype):
+    """Trained TensorSVC / TensorRLS / OneVsAllTouchClassifier: C++ on the raw recordings of
+    the whole campaign (held-out participant included) against Python on eskin.preprocess."""
+    from eskin.export import spec_from_estimator
+
+    alpha = "half" if machine == "svm" else "full"
+    est, X = _fit(campaign, D, machine, n_classes, alpha)
+    names = list(campaign.modalities[:n_classes])
+    spec = spec_from_estimator(est, names, D=D, grid_shape=(4, 4),
+                               sample_rate_hz=campaign.sample_rate_hz)
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    got = cm.classify(*_signals(campaign))
+    F = np.asarray(est.decision_function(X), float).reshape(len(X), -1)
+    if n_classes == 2:
+        labels, dont_know = (F[:, 0] > 0).astype(int), np.zeros(len(X), bool)
+    else:
+        labels, dont_know = est.predict(X), est.dont_know_
+    np.testing.assert_array_equal(got.label_indices, labels)
+    np.testing.assert_array_equal(got.dont_know, dont_know)
+    if dtype == "float64":
+        np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+    else:
+        _, scale = _python_decisions(spec, X)
+        assert np.all(np.abs(got.decision_values - F) <= 1e-4 * scale)
+
+
 def test_even_subsampling_and_no_window(campaign):
     spec = _random_spec(campaign, 50, 3, subsample="even")
     spec.window = "none"
@@ -413,45 +460,34 @@ def test_eskin_classify_errors(campaign, tmp_path, which, message):
 
 
 def test_cli_export_writes_model_and_header(campaign, tmp_path):
-    pytest.importorskip("eskin.models")
     from eskin.models import TouchModel, save_model
 
-    spec = _random_spec(campaign, 20, 2)
-    src = save_model(_touch_model_from_spec(spec, TouchModel), tmp_path / "model.joblib")
+    est, _ = _fit(campaign, 20, "svm", 2, "half")
+    model = TouchModel(
+        classes=list(campaign.modalities[:2]), estimator=est, machine="svm", selection="fixed",
+        D=20, window="energy", subsample="algorithm2", sample_rate_hz=campaign.sample_rate_hz,
+        grid_shape=(4, 4),
+    )
+    src = save_model(model, tmp_path / "model.joblib")
     out = tmp_path / "model.eskin"
     header = tmp_path / "model.h"
-    res = subprocess.run(
-        [sys.executable, "-m", "eskin", "export", str(src), "-o", str(out), "--float64",
-         "--c-header", str(header)],
-        capture_output=True, text=True,
-    )
-    assert res.returncode == 0, res.stderr
-    assert CompiledModel(out).is_float64
+    res = _eskin("export", src, "-o", out, "--float64", "--c-header", header)
+    assert "support vectors" in res.stdout
+    cm = CompiledModel(out)
+    assert cm.is_float64 and cm.class_names == list(campaign.modalities[:2])
     assert "eskin_model_data" in header.read_text()
-    res = subprocess.run([sys.executable, "-m", "eskin", "export", str(out), "-o", str(tmp_path / "x")],
-                         capture_output=True, text=True)
+    X = _patterns(campaign, 20)
+    np.testing.assert_allclose(cm.classify(*_signals(campaign)).decision_values[:, 0],
+                               est.decision_function(X), rtol=0, atol=1e-9)
+    # a .eskin file loads back as a TouchModel (Python preprocessing, C++ machines)
+    from eskin.models import load_model
+
+    back = load_model(out)
+    np.testing.assert_allclose(back.decision_function(X), est.decision_function(X), atol=1e-9)
+    res = _eskin("export", out, "-o", tmp_path / "again.eskin", check=False)
+    assert res.returncode == 2 and "already an exported" in res.stderr
+    res = _eskin("export", header, "-o", tmp_path / "x.eskin", check=False)
     assert res.returncode == 2 and "error:" in res.stderr and "Traceback" not in res.stderr
-
-
-class _SpecMachine:
-    """A fitted-binary-machine stand-in built from a MachineSpec (attributes per COMMON.md)."""
-
-    def __init__(self, m):
-        self.support_vectors_ = m.support_vectors
-        self.dual_coef_ = m.dual_coef
-        self.intercept_ = m.intercept
-        self.alphas_ = tuple(m.alphas)
-        self.sigmas_ = tuple(m.sigmas)
-        self.classes_ = np.array([m.negative, m.positive])
-
-
-def _touch_model_from_spec(spec, TouchModel):
-    return TouchModel(
-        classes=list(spec.class_names), estimator=_SpecMachine(spec.machines[0]), machine="svm",
-        selection="md", D=spec.D, window=spec.window, subsample=spec.subsample,
-        sample_rate_hz=spec.sample_rate_hz, grid_shape=tuple(spec.grid_shape),
-        window_config=spec.window_config,
-    )
 
 
 def test_meta_section_is_json(campaign):
@@ -460,3 +496,39 @@ def test_meta_section_is_json(campaign):
     n = struct.unpack_from("<I", data, pos + 4)[0]
     meta = json.loads(data[pos + 8 : pos + 8 + n])
     assert meta["format"] == "eskin-model" and meta["dtype"] == "float32"
+
+
+# ----------------------------------------------------------------------------- end to end
+
+
+def _eskin(*args, check=True):
+    res = subprocess.run([sys.executable, "-m", "eskin", *map(str, args)], capture_output=True,
+                         text=True)
+    if check:
+        assert res.returncode == 0, res.stderr
+    return res
+
+
+def test_train_export_classify_matches_python_labels(campaign, tmp_path):
+    """`eskin train` -> `eskin export` (float32) -> `eskin-classify` on a held-out simulated
+    campaign gives exactly the labels of the Python model (`eskin predict`), and so does
+    `eskin predict --engine cpp`."""
+    exe = _eskin_classify()
+    train = tmp_path / "train.h5"
+    eskin.simulate(train, participants=3, seed=21, runs=(2,))
+    model = tmp_path / "model.joblib"
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20", "--selection", "cv")
+    _eskin("export", model, "-o", tmp_path / "model.eskin")
+    held = tmp_path / "held.h5"
+    shutil.copy(campaign.path, held)
+    _eskin("predict", model, held, "--json", tmp_path / "py.json")
+    python_labels = [p["label"] for p in json.loads((tmp_path / "py.json").read_text())]
+    npy = tmp_path / "held.npy"
+    np.save(npy, np.asarray(campaign.signals))
+    res = subprocess.run([exe, str(tmp_path / "model.eskin"), str(npy)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert [r["label"] for r in _parse(res.stdout)[1]] == python_labels
+    _eskin("predict", model, held, "--engine", "cpp", "--json", tmp_path / "cpp.json")
+    cpp = json.loads((tmp_path / "cpp.json").read_text())
+    assert [p["label"] for p in cpp] == python_labels

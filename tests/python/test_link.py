@@ -343,7 +343,7 @@ def test_host_disconnect_and_reconnect(pty):
     frames = c.data_frames(stream)
     with LinkListener(path, stats_interval=None) as link:
         write_thread = feed_when_open(state, DELIMITER + b"".join(frames[:10]))
-        ev1 = list(link.events(duration=0.4))
+        ev1 = list(link.events(duration=0.4, flush=False))
         write_thread.join()
         conn = link.reconnect()  # the host closes and reopens; the controller kept streaming
         assert conn.state == "reconnected"
@@ -496,7 +496,9 @@ def small_model(tmp_path_factory):
 def run_fw_sim(exe, *args):
     import subprocess
 
-    proc = subprocess.Popen([str(exe), *map(str, args), "--quiet"], stdout=subprocess.PIPE,
+    # a 1 MB transmit queue: a host slowed down by a busy test machine must not lose samples
+    proc = subprocess.Popen([str(exe), *map(str, args), "--tx-buffer", str(1 << 20), "--quiet"],
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     first = proc.stdout.readline().split()
     assert first and first[0] == "PTY", (first, proc.stderr.read())
@@ -580,7 +582,7 @@ def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_m
     proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 4, "--wait-start")
     try:
         with LinkListener(pty_path, stats_interval=None) as link:
-            first = list(link.events(duration=0.5))
+            first = list(link.events(duration=0.5, flush=False))
             link.reconnect()  # the controller keeps streaming (and drops) while nobody listens
             rest = list(link.events(until_eof=True, duration=60))
     finally:
@@ -590,9 +592,10 @@ def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_m
     assert all(np.array_equal(x, src[i]) for i, x in got.items())
     s = rest[-1].stats
     assert s.reconnects == 1 and s.rejected == 0 and min(got) == 0
-    # every sample the controller produced was received or counted as lost
+    # every sample the controller produced was received or counted as lost: the ones it
+    # dropped while nobody listened, and the ones still in the port's buffer when it closed
     assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
-    assert s.lost_samples == stats["dropped_samples"] == s.controller_dropped_samples
+    assert s.lost_samples >= stats["dropped_samples"] == s.controller_dropped_samples
 
 
 def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_model):

@@ -208,14 +208,20 @@ def _assert_same_results(a, b):
     assert a.best_index_ == b.best_index_ and a.best_params_ == b.best_params_
 
 
+# the cluster's own start-up/tear-down chatter on a loaded machine is not what is tested here
+@pytest.mark.filterwarnings("ignore::UserWarning:distributed")
+@pytest.mark.filterwarnings("ignore::ResourceWarning")
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_dask_cluster_gives_the_serial_results():
     distributed = pytest.importorskip("distributed")
+    import dask
+
     X, y = _noise(30, seed=6)
     grid = {"lam": [1e-2, 1.0], "sigma": [0.5, 2.0], "alpha": [1, "half"]}
     serial = _md(TensorSVC(), grid, X, y, n_jobs=1, random_state=3)
-    with distributed.LocalCluster(
+    with dask.config.set({"distributed.comm.timeouts.connect": "60s"}), distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster, distributed.Client(cluster):
+    ) as cluster, distributed.Client(cluster, timeout="60s"):
         with joblib.parallel_backend("dask"):
             on_dask = _md(TensorSVC(), grid, X, y, random_state=3)
             cv_dask = CrossValidationSearch(

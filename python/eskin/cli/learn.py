@@ -25,6 +25,11 @@ class Window(str, Enum):
     none = "none"
 
 
+class Engine(str, Enum):
+    python = "python"
+    cpp = "cpp"
+
+
 class Subsample(str, Enum):
     algorithm2 = "algorithm2"
     even = "even"
@@ -169,6 +174,9 @@ def register(app: typer.Typer) -> None:
         model_path: Path = typer.Argument(..., metavar="MODEL", help="model file"),
         campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
         json_out: Optional[Path] = typer.Option(None, "--json", help="write predictions as JSON"),
+        engine: Engine = typer.Option(
+            Engine.python, help="python: the Python model; cpp: the compiled C++ classifier"
+        ),
     ) -> None:
         """Classify every recording of a campaign; print labels, decision values, error rate."""
         from eskin.campaign import load_campaign
@@ -177,7 +185,12 @@ def register(app: typer.Typer) -> None:
         try:
             model = load_model(model_path)
             camp = load_campaign(campaign)
-            preds = model.predict_recordings(camp)
+            if engine is Engine.cpp:
+                from eskin.export import compiled_engine
+
+                preds = compiled_engine(model).predict_recordings(camp)
+            else:
+                preds = model.predict_recordings(camp)
         except (ValueError, OSError, KeyError) as exc:
             _fail(str(exc))
         if abs(float(camp.sample_rate_hz) - model.sample_rate_hz) > 1e-9:
