@@ -51,8 +51,13 @@ def _mean_sd(values: Sequence[float]) -> dict[str, float]:
 def summarise(results: dict[str, Any]) -> dict[str, Any]:
     """Means over runs (in %) of every cell, MD vs CV, baseline, 3-class and subsampling."""
     groups: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
+    sigmas: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
+    lambdas: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
     for d in results["binary"]:
-        groups[(d["machine"], d["selection"], d["problem"], int(d["D"]))].append(d["error"])
+        key = (d["machine"], d["selection"], d["problem"], int(d["D"]))
+        groups[key].append(d["error"])
+        sigmas[key].append(d["selected"]["sigma"])
+        lambdas[key].append(d["selected"]["lambda"])
     problems = list(results.get("problems") or sorted({k[2] for k in groups}))
 
     def order(k: tuple[str, str, str, int]) -> tuple[int, int, int, int]:
@@ -84,6 +89,10 @@ def summarise(results: dict[str, Any]) -> dict[str, Any]:
                 "md_mean": md,
                 "cv_mean": cv,
                 "md_minus_cv": md - cv,
+                "md_median_sigma": float(np.median(sigmas[(m, "md", p, D)])),
+                "cv_median_sigma": float(np.median(sigmas[(m, "cv", p, D)])),
+                "md_median_lambda": float(np.median(lambdas[(m, "md", p, D)])),
+                "cv_median_lambda": float(np.median(lambdas[(m, "cv", p, D)])),
             }
         )
     overall = {}
@@ -363,12 +372,17 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
         "patterns."
     )
     L.append("")
-    L.append("| machine | problem | D | MD mean % | CV mean % | MD - CV |")
-    L.append("|---|---|---|---|---|---|")
+    L.append(
+        "| machine | problem | D | MD mean % | CV mean % | MD - CV | median sigma MD / CV "
+        "| median lambda MD / CV |"
+    )
+    L.append("|---|---|---|---|---|---|---|---|")
     for r in s["md_vs_cv"]:
         L.append(
             f"| {MACHINE_NAME[r['machine']]} | {r['problem']} | {r['D']} | "
-            f"{r['md_mean']:.1f} | {r['cv_mean']:.1f} | {r['md_minus_cv']:+.1f} |"
+            f"{r['md_mean']:.1f} | {r['cv_mean']:.1f} | {r['md_minus_cv']:+.1f} | "
+            f"{_pw(r.get('md_median_sigma'), 2)} / {_pw(r.get('cv_median_sigma'), 2)} | "
+            f"{_pw(r.get('md_median_lambda'), 10)} / {_pw(r.get('cv_median_lambda'), 10)} |"
         )
     L.append("")
     L.extend(_md_cv_statement(results))
