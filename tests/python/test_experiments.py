@@ -257,3 +257,16 @@ def test_experiment_errors(sim_path, tmp_path):
     )
     assert res.exit_code == 2
     assert "none.h5" in res.output
+
+
+def test_cli_problem_option_parsing():
+    from eskin.cli.learn import _problems
+
+    assert _problems(None) is None
+    assert _problems("A,B") == ["A", "B"]
+    assert _problems("brush:washer;finger:washer") == ["brush,washer", "finger,washer"]
+    names = ["brush", "finger", "washer"]
+    assert resolve_problems(_problems("brush:washer;C"), names) == {
+        "brush vs washer": ("brush", "washer"),
+        "C": ("washer", "finger"),
+    }
