@@ -603,7 +603,7 @@ def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_mode
     pytest.importorskip("eskin.models", reason="the learning stack is not installed")
     from eskin.models import load_model
 
-    cm, path, rf, _ = small_model
+    _, path, rf, _ = small_model
     model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing
     proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
                                 "--wait-start")
