@@ -12,8 +12,8 @@ Baselines, both written here:
   patterns (fastest of --literal-repeats runs) and extrapolated: per-pattern work scaled by
   n / n_sub, per-pair work (pairs i < j, as eskin computes them) by n (n - 1) / n_sub (n_sub - 1).
 
-Two measurements (fastest of repeated runs, as timeit advises; this machine is shared, the
-ratios are the point):
+Two measurements (fastest of repeated runs, eskin and numpy taking turns, as timeit advises;
+this machine is shared, the ratios are the point):
 A) wall clock with all cores (eskin's threads, numpy's BLAS threads);
 B) one thread each, timed with the CPU time of the calling thread (``time.thread_time``), which
    other processes competing for the cores do not inflate.
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from functools import partial
 
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
@@ -64,7 +65,7 @@ class _Clocks:
     def __init__(self) -> None:
         self.wall, self.cpu = time.perf_counter(), time.thread_time()
 
-    def since(self, other: "_Clocks") -> np.ndarray:
+    def since(self, other: _Clocks) -> np.ndarray:
         return np.array([self.wall - other.wall, self.cpu - other.cpu])
 
 
@@ -93,14 +94,17 @@ def paper_literal_parts(X: np.ndarray, alphas=ALPHA, sigma=SIGMA):
     return K, t1.since(t0), t2.since(t1)
 
 
-def best_time(fn, repeats: int, clock=time.perf_counter) -> float:
-    """Fastest of `repeats` runs (as timeit advises: the others measure the machine's load)."""
-    times = []
+def best_times(fns, repeats: int, clock=time.perf_counter) -> list[float]:
+    """Fastest of `repeats` runs of each function, the functions taking turns within each
+    repeat so that they see the same background load (timeit's advice: the slower runs measure
+    the machine's other work, not the code)."""
+    best = [float("inf")] * len(fns)
     for _ in range(repeats):
-        t0 = clock()
-        fn()
-        times.append(clock() - t0)
-    return min(times)
+        for i, fn in enumerate(fns):
+            t0 = clock()
+            fn()
+            best[i] = min(best[i], clock() - t0)
+    return best
 
 
 def main() -> None:
@@ -116,14 +120,20 @@ def main() -> None:
     threads = args.threads or _core.default_threads()
     blas = threadpool_info()
     blas_threads = max((i["num_threads"] for i in blas), default=1)
-    print(f"eskin tensor-kernel benchmark: n={args.n} patterns 4x4xD, alpha={ALPHA}, "
-          f"sigma={SIGMA}; eskin micro-kernel {_core.tensor_kernel_isa()}; "
-          f"{os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}; "
-          f"fastest of {args.repeats} runs")
-    print("A) wall clock, all cores: eskin with "
-          f"{threads} thread(s), numpy with {blas_threads} BLAS thread(s)")
-    print("B) one thread each, CPU time of the calling thread (insensitive to other load): eskin "
-          "n_threads=1, numpy with BLAS limited to 1 thread")
+    print(
+        f"eskin tensor-kernel benchmark: n={args.n} patterns 4x4xD, alpha={ALPHA}, "
+        f"sigma={SIGMA}; eskin micro-kernel {_core.tensor_kernel_isa()}; "
+        f"{os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}; "
+        f"fastest of {args.repeats} runs"
+    )
+    print(
+        "A) wall clock, all cores: eskin with "
+        f"{threads} thread(s), numpy with {blas_threads} BLAS thread(s)"
+    )
+    print(
+        "B) one thread each, CPU time of the calling thread (insensitive to other load): eskin "
+        "n_threads=1, numpy with BLAS limited to 1 thread"
+    )
     print("paper-literal: BLAS limited to 1 thread, on a subset, extrapolated; both clocks")
     rows = []
     for D in args.D:
@@ -142,31 +152,42 @@ def main() -> None:
         err_lit = np.abs(K_eskin[: args.subset, : args.subset] - K_lit).max()
         assert err_np < 1e-9 and err_lit < 1e-9, (err_np, err_lit)
 
-        def run_eskin(nt=threads):
+        def run_eskin(nt=threads, X=X):
             return eskin.tensor_kernel(X, sigma=SIGMA, alpha=ALPHA, n_threads=nt)
 
-        wall_e = best_time(run_eskin, args.repeats)
-        wall_n = best_time(lambda: numpy_best(X), args.repeats)
-        cpu_e = best_time(lambda: run_eskin(1), args.repeats, time.thread_time)
+        def run_numpy(X=X):
+            return numpy_best(X)
+
+        wall_e, wall_n = best_times([run_eskin, run_numpy], args.repeats)
         with threadpool_limits(limits=1):
-            cpu_n = best_time(lambda: numpy_best(X), args.repeats, time.thread_time)
-        pairs = lambda k: k * (k - 1) / 2  # noqa: E731
-        lit_wall, lit_cpu = t_pat * args.n / args.subset + t_pair * pairs(args.n) / pairs(args.subset)
+            cpu_e, cpu_n = best_times(
+                [partial(run_eskin, 1), run_numpy], args.repeats, time.thread_time
+            )
+        scale_pairs = (args.n * (args.n - 1)) / (args.subset * (args.subset - 1))
+        lit_wall, lit_cpu = t_pat * args.n / args.subset + t_pair * scale_pairs
         rows.append((D, wall_e, wall_n, cpu_e, cpu_n, lit_wall, lit_cpu, err_np, err_lit))
 
     print()
-    print("| D | clock | eskin (ms) | numpy best (ms) | paper-literal (ms, extrap.) "
-          "| numpy best / eskin | paper-literal / eskin |")
+    print(
+        "| D | clock | eskin (ms) | numpy best (ms) | paper-literal (ms, extrap.) "
+        "| numpy best / eskin | paper-literal / eskin |"
+    )
     print("|---|---|---|---|---|---|---|")
     for D, we, wn, ce, cn, lw, lc, _, _ in rows:
-        print(f"| {D} | A: wall, all cores | {we * 1e3:.2f} | {wn * 1e3:.1f} | {lw * 1e3:.0f} "
-              f"| {wn / we:.1f}x | {lw / we:.0f}x |")
-        print(f"| {D} | B: CPU, 1 thread | {ce * 1e3:.2f} | {cn * 1e3:.1f} | {lc * 1e3:.0f} "
-              f"| {cn / ce:.1f}x | {lc / ce:.0f}x |")
+        print(
+            f"| {D} | A: wall, all cores | {we * 1e3:.2f} | {wn * 1e3:.1f} | {lw * 1e3:.0f} "
+            f"| {wn / we:.1f}x | {lw / we:.0f}x |"
+        )
+        print(
+            f"| {D} | B: CPU, 1 thread | {ce * 1e3:.2f} | {cn * 1e3:.1f} | {lc * 1e3:.0f} "
+            f"| {cn / ce:.1f}x | {lc / ce:.0f}x |"
+        )
     print()
     print("max |K_eskin - K_numpy_best| = " + ", ".join(f"{r[7]:.1e} (D={r[0]})" for r in rows))
-    print("max |K_eskin - K_paper_literal| on the subset = "
-          + ", ".join(f"{r[8]:.1e} (D={r[0]})" for r in rows))
+    print(
+        "max |K_eskin - K_paper_literal| on the subset = "
+        + ", ".join(f"{r[8]:.1e} (D={r[0]})" for r in rows)
+    )
 
 
 if __name__ == "__main__":

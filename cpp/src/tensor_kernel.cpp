@@ -41,31 +41,37 @@ void check_dims(const std::vector<std::size_t>& dims) {
 // (columns); tql2 takes that transformation TRANSPOSED (rows) and leaves the eigenvectors in the
 // rows of v, eigenvalues ascending in d; e: scratch of n.
 
-// Dot product with eight partial sums in a fixed order (deterministic). GCC/Clang vector
-// extensions give 2-wide SIMD on the x86-64 baseline (SSE2) without any -m flag.
+// Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
+// twice (function multi-versioning: an x86-64-v3 = AVX2+FMA clone and the baseline one) and
+// the loader picks one for the CPU; no -m flag anywhere. Partial sums in a fixed order:
+// deterministic for a given clone.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define ESKIN_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define ESKIN_CLONES
+#endif
+
 #if defined(__GNUC__)
-typedef double eskin_v2d __attribute__((vector_size(16)));
-inline eskin_v2d load2(const double* p) noexcept {
-  eskin_v2d v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-inline double dot(const double* a, const double* b, std::size_t n) noexcept {
-  eskin_v2d s0 = {0.0, 0.0}, s1 = s0, s2 = s0, s3 = s0;
+typedef double eskin_v4d __attribute__((vector_size(32)));
+ESKIN_CLONES double dot(const double* a, const double* b, std::size_t n) noexcept {
+  eskin_v4d s0 = {0.0, 0.0, 0.0, 0.0}, s1 = s0;
   std::size_t k = 0;
   for (; k + 8 <= n; k += 8) {
-    s0 += load2(a + k) * load2(b + k);
-    s1 += load2(a + k + 2) * load2(b + k + 2);
-    s2 += load2(a + k + 4) * load2(b + k + 4);
-    s3 += load2(a + k + 6) * load2(b + k + 6);
+    eskin_v4d a0, b0, a1, b1;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    std::memcpy(&a1, a + k + 4, sizeof a1);
+    std::memcpy(&b1, b + k + 4, sizeof b1);
+    s0 += a0 * b0;
+    s1 += a1 * b1;
   }
-  const eskin_v2d t = (s0 + s1) + (s2 + s3);
-  double r = t[0] + t[1];
+  const eskin_v4d t = s0 + s1;
+  double r = (t[0] + t[1]) + (t[2] + t[3]);
   for (; k < n; ++k) r += a[k] * b[k];
   return r;
 }
 #else
-inline double dot(const double* a, const double* b, std::size_t n) noexcept {
+double dot(const double* a, const double* b, std::size_t n) noexcept {
   double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
   std::size_t k = 0;
   for (; k + 4 <= n; k += 4) {
@@ -79,13 +85,18 @@ inline double dot(const double* a, const double* b, std::size_t n) noexcept {
 }
 #endif
 
+// y += f * x
+ESKIN_CLONES void axpy(double f, const double* x, double* y, std::size_t n) noexcept {
+  for (std::size_t k = 0; k < n; ++k) y[k] += f * x[k];
+}
+
 inline double hyp(double a, double b) noexcept {
   const double r = std::sqrt(a * a + b * b);
   if (r > 1e-150 && r < 1e150) return r;
   return std::hypot(a, b);
 }
 
-void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
   for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
   for (std::size_t i = n - 1; i > 0; --i) {
@@ -159,7 +170,7 @@ void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   e[0] = 0.0;
 }
 
-bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
   for (std::size_t i = 1; i < n; ++i) e[i - 1] = e[i];
   e[n - 1] = 0.0;
   double f = 0.0, tst1 = 0.0;
@@ -358,19 +369,26 @@ std::vector<std::size_t> half_alphas(const std::vector<std::size_t>& dims) {
   return out;
 }
 
+namespace {
+// x[(p * m + i) * after + s] -> out[i * n + p * after + s]  (no checks, no allocation)
+void unfold_unchecked(const double* x, const std::vector<std::size_t>& dims, std::size_t mode,
+                      double* out) noexcept {
+  std::size_t before = 1, after = 1;
+  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
+  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
+  const std::size_t m = dims[mode], n = before * after;
+  for (std::size_t p = 0; p < before; ++p)
+    for (std::size_t i = 0; i < m; ++i)
+      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+}
+}  // namespace
+
 void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t mode, double* out) {
   check_dims(dims);
   if (mode >= dims.size())
     throw std::invalid_argument("mode " + std::to_string(mode) + " out of range for tensor shape " +
                                 dims_str(dims));
-  std::size_t before = 1, after = 1;
-  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
-  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
-  const std::size_t m = dims[mode], n = before * after;
-  // x[(p * m + i) * after + s] -> out[i * n + p * after + s]
-  for (std::size_t p = 0; p < before; ++p)
-    for (std::size_t i = 0; i < m; ++i)
-      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+  unfold_unchecked(x, dims, mode, out);
 }
 
 // ---- heap-free workspace --------------------------------------------------------------------
@@ -468,7 +486,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
       for (std::size_t k = 0; k <= i; ++k) g[i * q + k] = dot(x + i * m, x + k * m, m);
   } else {
     // general case: materialise the unfolding, then G = A^T A by rank-one updates of its rows
-    unfold(x, layout_.dims(), z, unfold_.data());
+    unfold_unchecked(x, layout_.dims(), z, unfold_.data());
     const double* a = unfold_.data();
     std::fill(g, g + q * q, 0.0);
     for (std::size_t i = 0; i < m; ++i) {
@@ -511,7 +529,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
         for (std::size_t i = 0; i < m; ++i) {
           const double ui = u[i] * inv;
           const double* xi = x + (p * m + i) * after;
-          for (std::size_t s0 = 0; s0 < after; ++s0) vp[s0] += ui * xi[s0];
+          axpy(ui, xi, vp, after);
         }
       }
     }
@@ -527,7 +545,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
           const double* w = out + p * n;
           const double dt = dot(v, w, n);
           if (std::fabs(dt) > 1e-8) again = true;
-          for (std::size_t j = 0; j < n; ++j) v[j] -= dt * w[j];
+          axpy(-dt, w, v, n);
         }
         const double nrm = std::sqrt(dot(v, v, n));
         if (!(nrm > 0.0)) return KernelStatus::no_convergence;
@@ -641,7 +659,7 @@ namespace {
 // Scratch memory kept by the calling thread between calls, so that repeated Gram computations
 // do not pay the page faults of fresh large allocations; released after a call that needed more
 // than kKeepScratch doubles.
-constexpr std::size_t kKeepScratch = std::size_t(1) << 22;  // 32 MiB
+constexpr std::size_t kKeepScratch = std::size_t(1) << 20;  // 8 MiB
 struct Scratch {
   std::vector<double> buf;
   double* get(std::size_t n) {
@@ -762,7 +780,9 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
     plan_items(&a, z, &pa[z]);
     if (!self) plan_items(&B, z, &pbk[z]);
   }
-  parallel_for(pack_items.size(), nt, [&](std::size_t i, std::size_t) {
+  // packing is a copy: not worth a thread below ~2 MB
+  const int pack_threads = total < (std::size_t(1) << 18) ? 1 : nt;
+  parallel_for(pack_items.size(), pack_threads, [&](std::size_t i, std::size_t) {
     const PackItem& it = pack_items[i];
     pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
   });
