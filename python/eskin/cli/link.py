@@ -163,7 +163,9 @@ def register(app: typer.Typer) -> None:
             False, "--reconnect", help="reopen the port when the controller goes away"),
         backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
         force: bool = typer.Option(False, "--force", help="replace the --record file"),
-        plain: bool = typer.Option(False, "--plain", help="plain lines even on a terminal"),
+        view: str = typer.Option(
+            "auto", help="live (rich view), plain (one line per event) or auto (live on a "
+                         "terminal)"),
     ) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
         from eskin.link import (
@@ -178,7 +180,10 @@ def register(app: typer.Typer) -> None:
         if duration is not None and duration <= 0:
             typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
             raise typer.Exit(2)
-        live_mode = sys.stdout.isatty() and not plain
+        if view not in ("auto", "live", "plain"):
+            typer.echo(f"error: --view must be auto, live or plain, got {view!r}", err=True)
+            raise typer.Exit(2)
+        live_mode = view == "live" or (view == "auto" and sys.stdout.isatty())
         with _user_errors():
             listener = LinkListener(port, model=model, backend=backend, record=record,
                                     replay=replay, reconnect=reconnect, overwrite=force,
