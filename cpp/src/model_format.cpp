@@ -198,8 +198,8 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   if (short_policy > 1)
     fail(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
                                  " (0 interpolate, 1 error)");
-  if (!(std::isfinite(rate) && rate > 0))
-    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be finite and > 0");
+  if (!(std::isfinite(rate) && rate > 0 && rate <= 1e7))
+    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be in (0, 1e7]");
   const auto& names = window_config_field_names();
   if (n_fields != kWindowConfigSize)
     fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
@@ -214,9 +214,10 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
     if (k == kWindowConfigSize)
       fail(ModelError::kValue, w + ": unknown window field '" + name + "'");
     if (seen[k]) fail(ModelError::kValue, w + ": window field '" + name + "' repeated");
-    if (!std::isfinite(value))
+    // bounded so that seconds * rate stays far inside int64 in the detector's conversions
+    if (!std::isfinite(value) || std::fabs(value) > 1e6)
       fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
-                                   " is not finite");
+                                   " is not a finite value in [-1e6, 1e6]");
     seen[k] = true;
     values[k] = value;
   }
