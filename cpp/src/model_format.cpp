@@ -214,10 +214,16 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
     if (k == kWindowConfigSize)
       fail(ModelError::kValue, w + ": unknown window field '" + name + "'");
     if (seen[k]) fail(ModelError::kValue, w + ": window field '" + name + "' repeated");
-    // bounded so that seconds * rate stays far inside int64 in the detector's conversions
-    if (!std::isfinite(value) || std::fabs(value) > 1e6)
+    if (!std::isfinite(value))
       fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
-                                   " is not a finite value in [-1e6, 1e6]");
+                                   " is not finite");
+    // times (seconds) and frequencies are bounded so that seconds * rate stays far inside
+    // int64 in the detector's conversions to samples
+    const bool converted = name.size() > 2 && (name.compare(name.size() - 2, 2, "_s") == 0 ||
+                                               name.compare(name.size() - 3, 3, "_hz") == 0);
+    if (converted && std::fabs(value) > 1e6)
+      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+                                   " is outside [-1e6, 1e6]");
     seen[k] = true;
     values[k] = value;
   }
