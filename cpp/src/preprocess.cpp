@@ -111,7 +111,7 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
     bad("dc_cutoff_hz", c.dc_cutoff_hz, "must be in [0, sample_rate_hz/2)");
   }
   p.dc_alpha = c.dc_cutoff_hz > 0 ? 1.0 - std::exp(-2.0 * kPi * c.dc_cutoff_hz / rate) : 0.0;
-  p.combine = choice("combine", c.combine, 2);
+  p.combine = choice("combine", c.combine, 3);
   if (!(c.noise_window_s > 0)) bad("noise_window_s", c.noise_window_s, "must be > 0");
   p.noise_frames = std::max<int64_t>(1, to_samples(c.noise_window_s, rate) / p.frame_len);
   if (c.noise_quantile < 0 || c.noise_quantile > 1) {
@@ -379,12 +379,18 @@ void TouchDetector::push_noise(double e) noexcept {
 Status TouchDetector::on_frame() noexcept {
   const double inv = 1.0 / static_cast<double>(p_.frame_len);
   double e = 0.0;
-  if (p_.combine == 0) {
-    for (double v : acc_) e += v;
-  } else {
+  if (p_.combine == 1) {
     for (double v : acc_) e = std::max(e, v);
+  } else {
+    double top = 0.0;
+    for (double v : acc_) {
+      e += v;
+      top = std::max(top, v);
+    }
+    // combine 2: the sum without the most energetic taxel (one noisy taxel cannot trigger)
+    if (p_.combine == 2 && n_taxels_ > 1) e -= top;
   }
-  e *= inv;  // mean square per sample (summed or maxed over taxels)
+  e *= inv;  // mean square per sample (summed, maxed or trimmed over taxels)
   std::fill(acc_.begin(), acc_.end(), 0.0);
   last_energy_ = e;
   const int64_t f = frames_seen_++;  // index of this frame
@@ -719,7 +725,8 @@ std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxe
       n, n_threads, [&]() { return Worker<T>(proto, T_total); },
       [&](Worker<T>& wk, int64_t i) {
         const int64_t len = lengths ? lengths[i] : T_total;
-        out[i] = detect_one(wk.det, wk.sel, wk.block, data + i * n_taxels * T_total, T_total, len, i);
+        const T* rec = data + i * n_taxels * T_total;
+        out[i] = detect_one(wk.det, wk.sel, wk.block, rec, T_total, len, i);
       });
   return out;
 }

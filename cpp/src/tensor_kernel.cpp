@@ -41,31 +41,37 @@ void check_dims(const std::vector<std::size_t>& dims) {
 // (columns); tql2 takes that transformation TRANSPOSED (rows) and leaves the eigenvectors in the
 // rows of v, eigenvalues ascending in d; e: scratch of n.
 
-// Dot product with eight partial sums in a fixed order (deterministic). GCC/Clang vector
-// extensions give 2-wide SIMD on the x86-64 baseline (SSE2) without any -m flag.
+// Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
+// twice (function multi-versioning: an x86-64-v3 = AVX2+FMA clone and the baseline one) and
+// the loader picks one for the CPU; no -m flag anywhere. Partial sums in a fixed order:
+// deterministic for a given clone.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define ESKIN_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define ESKIN_CLONES
+#endif
+
 #if defined(__GNUC__)
-typedef double eskin_v2d __attribute__((vector_size(16)));
-inline eskin_v2d load2(const double* p) noexcept {
-  eskin_v2d v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-inline double dot(const double* a, const double* b, std::size_t n) noexcept {
-  eskin_v2d s0 = {0.0, 0.0}, s1 = s0, s2 = s0, s3 = s0;
+typedef double eskin_v4d __attribute__((vector_size(32)));
+ESKIN_CLONES double dot(const double* a, const double* b, std::size_t n) noexcept {
+  eskin_v4d s0 = {0.0, 0.0, 0.0, 0.0}, s1 = s0;
   std::size_t k = 0;
   for (; k + 8 <= n; k += 8) {
-    s0 += load2(a + k) * load2(b + k);
-    s1 += load2(a + k + 2) * load2(b + k + 2);
-    s2 += load2(a + k + 4) * load2(b + k + 4);
-    s3 += load2(a + k + 6) * load2(b + k + 6);
+    eskin_v4d a0, b0, a1, b1;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    std::memcpy(&a1, a + k + 4, sizeof a1);
+    std::memcpy(&b1, b + k + 4, sizeof b1);
+    s0 += a0 * b0;
+    s1 += a1 * b1;
   }
-  const eskin_v2d t = (s0 + s1) + (s2 + s3);
-  double r = t[0] + t[1];
+  const eskin_v4d t = s0 + s1;
+  double r = (t[0] + t[1]) + (t[2] + t[3]);
   for (; k < n; ++k) r += a[k] * b[k];
   return r;
 }
 #else
-inline double dot(const double* a, const double* b, std::size_t n) noexcept {
+double dot(const double* a, const double* b, std::size_t n) noexcept {
   double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
   std::size_t k = 0;
   for (; k + 4 <= n; k += 4) {
@@ -79,13 +85,18 @@ inline double dot(const double* a, const double* b, std::size_t n) noexcept {
 }
 #endif
 
+// y += f * x
+ESKIN_CLONES void axpy(double f, const double* x, double* y, std::size_t n) noexcept {
+  for (std::size_t k = 0; k < n; ++k) y[k] += f * x[k];
+}
+
 inline double hyp(double a, double b) noexcept {
   const double r = std::sqrt(a * a + b * b);
   if (r > 1e-150 && r < 1e150) return r;
   return std::hypot(a, b);
 }
 
-void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
   for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
   for (std::size_t i = n - 1; i > 0; --i) {
@@ -159,7 +170,7 @@ void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   e[0] = 0.0;
 }
 
-bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
+ESKIN_CLONES bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
   for (std::size_t i = 1; i < n; ++i) e[i - 1] = e[i];
   e[n - 1] = 0.0;
   double f = 0.0, tst1 = 0.0;
@@ -358,19 +369,26 @@ std::vector<std::size_t> half_alphas(const std::vector<std::size_t>& dims) {
   return out;
 }
 
+namespace {
+// x[(p * m + i) * after + s] -> out[i * n + p * after + s]  (no checks, no allocation)
+void unfold_unchecked(const double* x, const std::vector<std::size_t>& dims, std::size_t mode,
+                      double* out) noexcept {
+  std::size_t before = 1, after = 1;
+  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
+  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
+  const std::size_t m = dims[mode], n = before * after;
+  for (std::size_t p = 0; p < before; ++p)
+    for (std::size_t i = 0; i < m; ++i)
+      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+}
+}  // namespace
+
 void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t mode, double* out) {
   check_dims(dims);
   if (mode >= dims.size())
     throw std::invalid_argument("mode " + std::to_string(mode) + " out of range for tensor shape " +
                                 dims_str(dims));
-  std::size_t before = 1, after = 1;
-  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
-  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
-  const std::size_t m = dims[mode], n = before * after;
-  // x[(p * m + i) * after + s] -> out[i * n + p * after + s]
-  for (std::size_t p = 0; p < before; ++p)
-    for (std::size_t i = 0; i < m; ++i)
-      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+  unfold_unchecked(x, dims, mode, out);
 }
 
 // ---- heap-free workspace --------------------------------------------------------------------
@@ -468,7 +486,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
       for (std::size_t k = 0; k <= i; ++k) g[i * q + k] = dot(x + i * m, x + k * m, m);
   } else {
     // general case: materialise the unfolding, then G = A^T A by rank-one updates of its rows
-    unfold(x, layout_.dims(), z, unfold_.data());
+    unfold_unchecked(x, layout_.dims(), z, unfold_.data());
     const double* a = unfold_.data();
     std::fill(g, g + q * q, 0.0);
     for (std::size_t i = 0; i < m; ++i) {
@@ -511,7 +529,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
         for (std::size_t i = 0; i < m; ++i) {
           const double ui = u[i] * inv;
           const double* xi = x + (p * m + i) * after;
-          for (std::size_t s0 = 0; s0 < after; ++s0) vp[s0] += ui * xi[s0];
+          axpy(ui, xi, vp, after);
         }
       }
     }
@@ -527,7 +545,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
           const double* w = out + p * n;
           const double dt = dot(v, w, n);
           if (std::fabs(dt) > 1e-8) again = true;
-          for (std::size_t j = 0; j < n; ++j) v[j] -= dt * w[j];
+          axpy(-dt, w, v, n);
         }
         const double nrm = std::sqrt(dot(v, v, n));
         if (!(nrm > 0.0)) return KernelStatus::no_convergence;
@@ -641,7 +659,7 @@ namespace {
 // Scratch memory kept by the calling thread between calls, so that repeated Gram computations
 // do not pay the page faults of fresh large allocations; released after a call that needed more
 // than kKeepScratch doubles.
-constexpr std::size_t kKeepScratch = std::size_t(1) << 22;  // 32 MiB
+constexpr std::size_t kKeepScratch = std::size_t(1) << 20;  // 8 MiB
 struct Scratch {
   std::vector<double> buf;
   double* get(std::size_t n) {
@@ -714,11 +732,22 @@ void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_
 
 }  // namespace
 
-void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads) {
+namespace {
+
+// Row blocks of kRowBlock patterns of `a`: a whole number of pattern groups in every mode
+// (patterns per group = floor(8 / alpha) is 1, 2, 4 or 8), so that one work item owns every
+// output entry of its rows, for all modes at once.
+constexpr std::size_t kRowBlock = 8;
+
+// The pairwise engine shared by mode_distances and tensor_kernel. For every row block (a work
+// item, run on some thread t) it calls sink.begin(t, r0, r1), then sink.pair(t, z, ia, ib, d)
+// for every mode z and pair (ia in [r0, r1), ib in B; ib > ia when self), then sink.end(t, r0, r1).
+template <class Sink>
+void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_threads, Sink& sink) {
   const bool self = (b == nullptr);
   const PatternBases& B = self ? a : *b;
   if (!self && a.layout != B.layout)
-    throw std::invalid_argument("mode_distances: the two pattern sets have different layouts");
+    throw std::invalid_argument("the two pattern sets have different shapes or alphas");
   const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
   if (n == 0 || m == 0) return;
   const int nt = resolve_threads(n_threads);
@@ -751,98 +780,109 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
     plan_items(&a, z, &pa[z]);
     if (!self) plan_items(&B, z, &pbk[z]);
   }
-  parallel_for(pack_items.size(), nt, [&](std::size_t i, std::size_t) {
+  // packing is a copy: not worth a thread below ~2 MB
+  const int pack_threads = total < (std::size_t(1) << 18) ? 1 : nt;
+  parallel_for(pack_items.size(), pack_threads, [&](std::size_t i, std::size_t) {
     const PackItem& it = pack_items[i];
     pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
   });
   const TileFn tile = select_tile_kernel();
   const TileSumFn tile_sum = select_tile_sum_kernel();
-  // work items: (mode, row group), biggest first
-  struct Item {
-    std::size_t z, g;
-    double cost;
-  };
-  std::vector<Item> items;
-  for (std::size_t z = 0; z < nz; ++z) {
-    const ModePack& P = pa[z];
-    const std::size_t gb = self ? P.groups : pbk[z].groups;
-    for (std::size_t g = 0; g < P.groups; ++g) {
-      const double cols = double(self ? gb - g : gb);
-      items.push_back({z, g, cols * double(P.panels * P.panels) * double(P.k + 8)});
-    }
-  }
-  std::stable_sort(items.begin(), items.end(),
-                   [](const Item& x, const Item& y) { return x.cost > y.cost; });
-  const std::size_t zstride = n * m;
-  parallel_for(items.size(), nt, [&](std::size_t it, std::size_t) {
-    const std::size_t z = items[it].z, gi = items[it].g;
-    const ModePack& PA = pa[z];
-    const ModePack& PB = self ? pa[z] : pbk[z];
-    const std::size_t ppg = PA.ppg, nz_ = a.layout.n_modes();
-    double* o = out + z * zstride;
-    alignas(32) double tilebuf[kTileWidth * kTileWidth];
+  // work items: row blocks, biggest first (in X-vs-X the first blocks have the most pairs)
+  const std::size_t n_blocks = (n + kRowBlock - 1) / kRowBlock;
+  parallel_for(n_blocks, nt, [&](std::size_t rb, std::size_t t) {
+    const std::size_t r0 = rb * kRowBlock, r1 = std::min(n, r0 + kRowBlock);
+    sink.begin(t, r0, r1);
+    alignas(64) double tilebuf[kTileWidth * kTileWidth];
     double acc[kTileWidth * kTileWidth];  // ppg x ppg <= 8 x 8
-    const std::size_t na = PA.group_count(gi);
-    for (std::size_t gj = self ? gi : 0; gj < PB.groups; ++gj) {
-      const std::size_t nb = PB.group_count(gj);
-      const bool diag = self && gj == gi;
-      std::fill(acc, acc + ppg * ppg, 0.0);
-      const int* rmap_g = PA.map(gi);
-      const int* cmap_g = PB.map(gj);
-      if (ppg == 1) {
-        // one pattern per group: every tile belongs to the pair (padding vectors are zero)
-        double sum = 0.0;
-        for (std::size_t pi = 0; pi < PA.panels; ++pi)
-          for (std::size_t pj = 0; pj < PB.panels; ++pj)
-            sum += tile_sum(PA.panel(gi, pi), PB.panel(gj, pj), PA.k);
-        acc[0] = sum;
-      } else
-      for (std::size_t pi = 0; pi < PA.panels; ++pi) {
-        const int* rmap = rmap_g + pi * kTileWidth;
-        if (rmap[0] < 0) break;
-        for (std::size_t pj = 0; pj < PB.panels; ++pj) {
-          const int* cmap = cmap_g + pj * kTileWidth;
-          if (cmap[0] < 0) break;
-          tile(PA.panel(gi, pi), PB.panel(gj, pj), PA.k, tilebuf);
-          // rows -> local row patterns (vector adds), then columns -> column patterns
-          double rsum[kTileWidth * kTileWidth];
-          const int x0 = rmap[0];
-          int x1 = x0;
-          for (std::size_t r = 0; r < kTileWidth; ++r)
-            if (rmap[r] >= 0) x1 = rmap[r];
-          std::fill(rsum, rsum + (x1 - x0 + 1) * kTileWidth, 0.0);
-          for (std::size_t r = 0; r < kTileWidth; ++r) {
-            if (rmap[r] < 0) break;
-            double* dst = rsum + (rmap[r] - x0) * kTileWidth;
-            const double* src = tilebuf + r * kTileWidth;
-            for (std::size_t s2 = 0; s2 < kTileWidth; ++s2) dst[s2] += src[s2];
+    for (std::size_t z = 0; z < nz; ++z) {
+      const ModePack& PA = pa[z];
+      const ModePack& PB = self ? pa[z] : pbk[z];
+      const std::size_t ppg = PA.ppg;
+      const std::size_t g_begin = r0 / ppg, g_end = (r1 + ppg - 1) / ppg;
+      for (std::size_t gi = g_begin; gi < g_end; ++gi) {
+        const std::size_t na = PA.group_count(gi);
+        const int* rmap_g = PA.map(gi);
+        for (std::size_t gj = self ? gi : 0; gj < PB.groups; ++gj) {
+          const std::size_t nb = PB.group_count(gj);
+          const bool diag = self && gj == gi;
+          if (ppg == 1) {
+            // one pattern per group: every tile belongs to the pair (padding vectors are zero)
+            if (diag) continue;
+            double sum = 0.0;
+            for (std::size_t pi = 0; pi < PA.panels; ++pi)
+              for (std::size_t pj = 0; pj < PB.panels; ++pj)
+                sum += tile_sum(PA.panel(gi, pi), PB.panel(gj, pj), PA.k);
+            acc[0] = sum;
+          } else {
+            std::fill(acc, acc + ppg * ppg, 0.0);
+            const int* cmap_g = PB.map(gj);
+            for (std::size_t pi = 0; pi < PA.panels; ++pi) {
+              const int* rmap = rmap_g + pi * kTileWidth;
+              if (rmap[0] < 0) break;
+              for (std::size_t pj = 0; pj < PB.panels; ++pj) {
+                const int* cmap = cmap_g + pj * kTileWidth;
+                if (cmap[0] < 0) break;
+                tile(PA.panel(gi, pi), PB.panel(gj, pj), PA.k, tilebuf);
+                // rows -> local row patterns (vector adds), then columns -> column patterns
+                double rsum[kTileWidth * kTileWidth];
+                const int x0 = rmap[0];
+                int x1 = x0;
+                for (std::size_t r = 0; r < kTileWidth; ++r)
+                  if (rmap[r] >= 0) x1 = rmap[r];
+                std::fill(rsum, rsum + (x1 - x0 + 1) * kTileWidth, 0.0);
+                for (std::size_t r = 0; r < kTileWidth; ++r) {
+                  if (rmap[r] < 0) break;
+                  double* dst = rsum + (rmap[r] - x0) * kTileWidth;
+                  const double* src = tilebuf + r * kTileWidth;
+                  for (std::size_t s2 = 0; s2 < kTileWidth; ++s2) dst[s2] += src[s2];
+                }
+                for (int x = x0; x <= x1; ++x) {
+                  const double* src = rsum + (x - x0) * kTileWidth;
+                  double* arow = acc + std::size_t(x) * ppg;
+                  for (std::size_t s2 = 0; s2 < kTileWidth; ++s2)
+                    if (cmap[s2] >= 0) arow[cmap[s2]] += src[s2];
+                }
+              }
+            }
           }
-          for (int x = x0; x <= x1; ++x) {
-            const double* src = rsum + (x - x0) * kTileWidth;
-            double* arow = acc + std::size_t(x) * ppg;
-            for (std::size_t s2 = 0; s2 < kTileWidth; ++s2)
-              if (cmap[s2] >= 0) arow[cmap[s2]] += src[s2];
+          for (std::size_t x = 0; x < na; ++x) {
+            const std::size_t ia = gi * ppg + x;
+            const double ra = a.ranks[ia * nz + z];
+            for (std::size_t y = diag ? x + 1 : 0; y < nb; ++y) {
+              const std::size_t ib = gj * ppg + y;
+              const double rbk = B.ranks[ib * nz + z];
+              sink.pair(t, z, ia, ib, std::max(0.0, ra + rbk - 2.0 * acc[x * ppg + y]));
+            }
           }
-        }
-      }
-      for (std::size_t x = 0; x < na; ++x) {
-        const std::size_t ia = gi * ppg + x;
-        const double ra = a.ranks[ia * nz_ + z];
-        for (std::size_t y = 0; y < nb; ++y) {
-          const std::size_t ib = gj * ppg + y;
-          if (diag && y <= x) {
-            if (y == x) o[ia * m + ia] = 0.0;
-            continue;
-          }
-          const double rb = B.ranks[ib * nz_ + z];
-          const double d = std::max(0.0, ra + rb - 2.0 * acc[x * ppg + y]);
-          o[ia * m + ib] = d;
-          if (self) o[ib * m + ia] = d;
         }
       }
     }
+    sink.end(t, r0, r1);
   });
   g_pack_scratch.trim();
+}
+
+}  // namespace
+
+void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads) {
+  const bool self = (b == nullptr);
+  const std::size_t n = a.count, m = self ? a.count : b->count, zs = n * m;
+  struct Sink {
+    double* out;
+    std::size_t m, zs;
+    bool self;
+    void begin(std::size_t, std::size_t, std::size_t) {}
+    void pair(std::size_t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
+      out[z * zs + ia * m + ib] = d;
+      if (self) out[z * zs + ib * m + ia] = d;
+    }
+    void end(std::size_t, std::size_t, std::size_t) {}
+  } sink{out, m, zs, self};
+  pairwise_distances(a, b, n_threads, sink);
+  if (self)  // the diagonal is exactly zero
+    for (std::size_t z = 0; z < a.layout.n_modes(); ++z)
+      for (std::size_t i = 0; i < n; ++i) out[z * zs + i * m + i] = 0.0;
 }
 
 void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vector<double>& sigmas,
@@ -858,20 +898,40 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
       throw std::invalid_argument("sigma " + std::to_string(s) + " must be a positive finite number");
     coef[z] = 1.0 / (2.0 * s * s);
   }
-  const std::size_t n = a.count, m = b ? b->count : a.count;
+  const bool self = (b == nullptr);
+  const std::size_t n = a.count, m = self ? a.count : b->count;
   if (n == 0 || m == 0) return;
-  double* dist = g_dist_scratch.get(nz * n * m);
-  mode_distances(a, b, dist, n_threads);
-  const int nt = resolve_threads(n_threads);
-  const std::size_t total = n * m, chunk = 4096;
-  parallel_for((total + chunk - 1) / chunk, nt, [&](std::size_t c, std::size_t) {
-    const std::size_t i0 = c * chunk, i1 = std::min(total, i0 + chunk);
-    for (std::size_t i = i0; i < i1; ++i) {
-      double e = 0.0;
-      for (std::size_t z = 0; z < nz; ++z) e += coef[z] * dist[z * total + i];
-      out[i] = std::exp(-e);
+  // Each row block accumulates the exponents of its rows in a per-thread buffer
+  // (kRowBlock x m), then writes exp(-.) (and the mirror image in X-vs-X).
+  const std::size_t team = team_size((n + kRowBlock - 1) / kRowBlock, resolve_threads(n_threads));
+  double* expo = g_dist_scratch.get(team * kRowBlock * m);
+  struct Sink {
+    double* out;
+    double* expo;
+    const double* coef;
+    std::size_t m;
+    bool self;
+    double* rows(std::size_t t) { return expo + t * kRowBlock * m; }
+    void begin(std::size_t t, std::size_t r0_, std::size_t r1) {
+      std::fill(rows(t), rows(t) + (r1 - r0_) * m, 0.0);
     }
-  });
+    void pair(std::size_t t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
+      rows(t)[(ia % kRowBlock) * m + ib] += coef[z] * d;
+    }
+    void end(std::size_t t, std::size_t r0_, std::size_t r1) {
+      for (std::size_t ia = r0_; ia < r1; ++ia) {
+        const double* e = rows(t) + (ia - r0_) * m;
+        double* o = out + ia * m;
+        if (self) {
+          o[ia] = 1.0;
+          for (std::size_t ib = ia + 1; ib < m; ++ib) o[ib] = out[ib * m + ia] = std::exp(-e[ib]);
+        } else {
+          for (std::size_t ib = 0; ib < m; ++ib) o[ib] = std::exp(-e[ib]);
+        }
+      }
+    }
+  } sink{out, expo, coef.data(), m, self};
+  pairwise_distances(a, b, n_threads, sink);
   g_dist_scratch.trim();
 }
 

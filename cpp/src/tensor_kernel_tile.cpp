@@ -147,6 +147,59 @@ __attribute__((target("avx2,fma"))) double tile_sum_avx2(const double* a, const 
   return (t[0] + t[1]) + (t[2] + t[3]);
 }
 
+// AVX-512: the whole 8 x 8 tile in eight zmm accumulators (one per row of A^T B), no chunking.
+#define ESKIN_TILE512_BODY                                   \
+  __m512d c0 = _mm512_setzero_pd(), c1 = _mm512_setzero_pd(); \
+  __m512d c2 = _mm512_setzero_pd(), c3 = _mm512_setzero_pd(); \
+  __m512d c4 = _mm512_setzero_pd(), c5 = _mm512_setzero_pd(); \
+  __m512d c6 = _mm512_setzero_pd(), c7 = _mm512_setzero_pd(); \
+  for (std::size_t kk = 0; kk < k; ++kk) {                    \
+    const __m512d bv = _mm512_loadu_pd(b + kk * 8);           \
+    const double* ak = a + kk * 8;                            \
+    c0 = _mm512_fmadd_pd(_mm512_set1_pd(ak[0]), bv, c0);      \
+    c1 = _mm512_fmadd_pd(_mm512_set1_pd(ak[1]), bv, c1);      \
+    c2 = _mm512_fmadd_pd(_mm512_set1_pd(ak[2]), bv, c2);      \
+    c3 = _mm512_fmadd_pd(_mm512_set1_pd(ak[3]), bv, c3);      \
+    c4 = _mm512_fmadd_pd(_mm512_set1_pd(ak[4]), bv, c4);      \
+    c5 = _mm512_fmadd_pd(_mm512_set1_pd(ak[5]), bv, c5);      \
+    c6 = _mm512_fmadd_pd(_mm512_set1_pd(ak[6]), bv, c6);      \
+    c7 = _mm512_fmadd_pd(_mm512_set1_pd(ak[7]), bv, c7);      \
+  }
+
+__attribute__((target("avx512f"))) void tile_avx512(const double* a, const double* b,
+                                                    std::size_t k, double* c) noexcept {
+  ESKIN_TILE512_BODY
+  _mm512_storeu_pd(c + 0, _mm512_mul_pd(c0, c0));
+  _mm512_storeu_pd(c + 8, _mm512_mul_pd(c1, c1));
+  _mm512_storeu_pd(c + 16, _mm512_mul_pd(c2, c2));
+  _mm512_storeu_pd(c + 24, _mm512_mul_pd(c3, c3));
+  _mm512_storeu_pd(c + 32, _mm512_mul_pd(c4, c4));
+  _mm512_storeu_pd(c + 40, _mm512_mul_pd(c5, c5));
+  _mm512_storeu_pd(c + 48, _mm512_mul_pd(c6, c6));
+  _mm512_storeu_pd(c + 56, _mm512_mul_pd(c7, c7));
+}
+
+__attribute__((target("avx512f"))) double tile_sum_avx512(const double* a, const double* b,
+                                                         std::size_t k) noexcept {
+  ESKIN_TILE512_BODY
+  __m512d s0 = _mm512_mul_pd(c0, c0), s1 = _mm512_mul_pd(c1, c1);
+  s0 = _mm512_fmadd_pd(c2, c2, s0);
+  s1 = _mm512_fmadd_pd(c3, c3, s1);
+  s0 = _mm512_fmadd_pd(c4, c4, s0);
+  s1 = _mm512_fmadd_pd(c5, c5, s1);
+  s0 = _mm512_fmadd_pd(c6, c6, s0);
+  s1 = _mm512_fmadd_pd(c7, c7, s1);
+  alignas(64) double t[8];
+  _mm512_store_pd(t, _mm512_add_pd(s0, s1));
+  return ((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]));
+}
+#undef ESKIN_TILE512_BODY
+
+bool cpu_has_avx512() noexcept {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512f");
+}
+
 bool cpu_has_avx2_fma() noexcept {
   __builtin_cpu_init();
   return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
@@ -156,30 +209,55 @@ bool cpu_has_avx2_fma() noexcept {
 #endif
 
 namespace {
-bool force_generic() noexcept {
+// Highest instruction set allowed by ESKIN_KERNEL_ISA: 0 generic, 1 avx2, 2 avx512 (default).
+[[maybe_unused]] int isa_cap() noexcept {
   const char* env = std::getenv("ESKIN_KERNEL_ISA");
-  return env != nullptr && std::strcmp(env, "generic") == 0;
+  if (env == nullptr) return 2;
+  if (std::strcmp(env, "generic") == 0) return 0;
+  if (std::strcmp(env, "avx2") == 0) return 1;
+  return 2;
+}
+
+// 0 generic, 1 avx2+fma, 2 avx512f: what this CPU can run, capped by the environment.
+int isa_level() noexcept {
+#ifdef ESKIN_HAVE_X86_DISPATCH
+  static const int cpu = cpu_has_avx512() && cpu_has_avx2_fma() ? 2 : (cpu_has_avx2_fma() ? 1 : 0);
+  const int cap = isa_cap();
+  return cpu < cap ? cpu : cap;
+#else
+  return 0;
+#endif
 }
 }  // namespace
 
 TileFn select_tile_kernel() noexcept {
 #ifdef ESKIN_HAVE_X86_DISPATCH
-  static const bool avx2 = cpu_has_avx2_fma();
-  if (avx2 && !force_generic()) return &tile_avx2;
+  switch (isa_level()) {
+    case 2: return &tile_avx512;
+    case 1: return &tile_avx2;
+    default: break;
+  }
 #endif
   return &tile_generic;
 }
 
 TileSumFn select_tile_sum_kernel() noexcept {
 #ifdef ESKIN_HAVE_X86_DISPATCH
-  static const bool avx2 = cpu_has_avx2_fma();
-  if (avx2 && !force_generic()) return &tile_sum_avx2;
+  switch (isa_level()) {
+    case 2: return &tile_sum_avx512;
+    case 1: return &tile_sum_avx2;
+    default: break;
+  }
 #endif
   return &tile_sum_generic;
 }
 
 const char* tile_kernel_name() noexcept {
-  return select_tile_kernel() == &tile_generic ? "generic" : "avx2-fma";
+  switch (isa_level()) {
+    case 2: return "avx512";
+    case 1: return "avx2-fma";
+    default: return "generic";
+  }
 }
 
 }  // namespace eskin

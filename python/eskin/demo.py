@@ -1,7 +1,8 @@
 """`make demo`: the whole eskin story on the built-in simulated campaign, in a few minutes.
 
 1. simulate a campaign (SIMULATED data, :func:`eskin.simulate`);
-2. train a 3-class model with Maximal Discrepancy selection on some participants
+2. train a 3-class model (tensor-RLS by default, or tensor-SVM) with Maximal Discrepancy
+   selection on some participants
    (:func:`eskin.models.train_model`), save it and export it to a ``.eskin`` file
    (:func:`eskin.export.export_model`);
 3. write the held-out participants' recordings as a replay file
@@ -187,6 +188,7 @@ def run_demo(
     seed: int = 0,
     n_jobs: int = 2,
     quick: bool = False,
+    machine: str = "rls",
     max_recordings: Optional[int] = None,
     gap_s: float = 0.5,
     log: Optional[Callable[[str], None]] = None,
@@ -195,7 +197,8 @@ def run_demo(
 
     ``participants`` are simulated, the last ``test_participants`` of them held out and streamed
     (all their recordings, or ``max_recordings`` of them spread over the classes) at ``speed`` x
-    real time; ``quick`` trains on a 2x2x2 grid instead of the paper's 135 configurations.
+    real time; ``machine`` is "svm" (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a
+    2x2x2 grid instead of the paper's 135 configurations.
     """
     from eskin.campaign import load_campaign
     from eskin.link import Decision, LinkListener, Recorded
@@ -243,10 +246,10 @@ def run_demo(
 
     # 2. train, save, export
     t0 = time.perf_counter()
-    say(f"[bold]2/5[/] training a 3-class tensor-SVM with MD selection on "
+    say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} with MD selection on "
         f"{len(parts) - test_participants} participants ({len(train_idx)} recordings"
         f"{', quick grid' if quick else ''})")
-    model = train_model(camp.subset(train_idx), selection="md", machine="svm", quick=quick,
+    model = train_model(camp.subset(train_idx), selection="md", machine=machine, quick=quick,
                         seed=seed, n_jobs=1)
     save_model(model, files["model"])
     export_model(model, files["eskin"])

@@ -301,6 +301,7 @@ def preprocess_campaign(
     window: str = "energy",
     config: Any = None,
     sample_rate_hz: float | None = None,
+    short: str = "interpolate",
     chunk: int = 32,
     stats: bool = False,
     on_chunk: Callable[[int], None] | None = None,
@@ -311,7 +312,8 @@ def preprocess_campaign(
     windows are detected once per recording with :func:`eskin.detect_windows` (or the whole
     recording is the window with ``window="none"``) and handed to :func:`eskin.preprocess` for
     every variant, so detection is not repeated. Recordings are read in chunks: a lazily loaded
-    campaign never sits in memory whole. ``stats`` also computes the per-recording bad-taxel
+    campaign never sits in memory whole. ``short`` says what to do with a window shorter than D
+    ("interpolate" or "error", see :func:`eskin.preprocess`). ``stats`` also computes the per-recording bad-taxel
     counts and window SNR used to rank outlier participants.
     """
     from eskin.preprocess import detect_windows, preprocess
@@ -361,6 +363,7 @@ def preprocess_campaign(
                 window=win,
                 subsample=s,
                 config=config,
+                short=short,
             )
         windows[c0 : c0 + len(sel)] = win
         if stats:
@@ -396,6 +399,7 @@ class TouchModel:
     sample_rate_hz: float
     grid_shape: tuple[int, int]
     window_config: Any = None
+    short: str = "interpolate"
     selected: list[dict[str, Any]] = field(default_factory=list)
     selection_report: dict[str, Any] = field(default_factory=dict)
     training: dict[str, Any] = field(default_factory=dict)
@@ -426,6 +430,7 @@ class TouchModel:
             "D": int(self.D),
             "window": self.window,
             "subsample": self.subsample,
+            "short": getattr(self, "short", "interpolate"),
             "sample_rate_hz": float(self.sample_rate_hz),
             "grid_shape": [int(v) for v in self.grid_shape],
             "window_config": (
@@ -450,7 +455,12 @@ class TouchModel:
                 f"on {self.grid_shape[0]}x{self.grid_shape[1]}"
             )
         prep = preprocess_campaign(
-            rec, idx, [(self.D, self.subsample)], window=self.window, config=self.window_config
+            rec,
+            idx,
+            [(self.D, self.subsample)],
+            window=self.window,
+            config=self.window_config,
+            short=getattr(self, "short", "interpolate"),
         )
         return prep.X[(self.D, self.subsample)]
 

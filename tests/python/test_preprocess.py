@@ -306,6 +306,7 @@ def test_streaming_equals_batch(select):
     [
         WindowConfig(),
         WindowConfig(select="energy", combine="max", dc_cutoff_hz=0.0),
+        WindowConfig(combine="trimmed", noise_quantile=0.25),
         WindowConfig(select="first", max_window_s=1.0, lookback_s=0.0, release_fraction=0.0),
     ],
 )
@@ -431,7 +432,8 @@ def test_errors(call, match):
 def test_nan_names_recording_taxel_and_sample():
     x = np.zeros((3, 4, 4, 1000))
     x[2, 1, 2, 500] = np.nan
-    with pytest.raises(ValueError, match=r"signals\[2\] has a non-finite value at taxel 6, sample 500"):
+    msg = r"signals\[2\] has a non-finite value at taxel 6, sample 500"
+    with pytest.raises(ValueError, match=msg):
         preprocess(x, 10)
     with pytest.raises(ValueError, match=r"signals\[2\]"):
         preprocess(x, 10, window="none")

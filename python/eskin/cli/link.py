@@ -239,6 +239,7 @@ def register(app: typer.Typer) -> None:
         speed: float = typer.Option(5.0, help="replay speed (x real time)"),
         seed: int = typer.Option(0, help="random seed"),
         jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
+        machine: str = typer.Option("rls", help="rls (tensor-RLS) or svm (tensor-SVM)"),
         quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
         recordings: Optional[int] = typer.Option(
             None, "--recordings", help="stream only this many held-out recordings"),
@@ -253,7 +254,7 @@ def register(app: typer.Typer) -> None:
             try:
                 result = run_demo(out, participants=participants,
                                   test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, quick=quick, max_recordings=recordings,
+                                  n_jobs=jobs, quick=quick, machine=machine, max_recordings=recordings,
                                   log=lambda m: console.print(m))
             except DemoError as exc:
                 console.print(f"[bold red]demo failed:[/] {exc}")
