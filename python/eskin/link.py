@@ -760,9 +760,8 @@ class LinkListener:
         return out
 
     def _class_name(self, index: int) -> Optional[str]:
+        """A controller label's name, from its INFO (None before INFO or out of range)."""
         names: Sequence[str] = self.info.class_names if self.info is not None else ()
-        if not names and self.classifier is not None:
-            names = self.classifier.class_names
         return str(names[index]) if 0 <= index < len(names) else None
 
     def _on_controller_decision(self, f: DecisionFrame) -> Decision:
@@ -888,8 +887,10 @@ class LinkListener:
             if c is self.classifier:
                 lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
                 latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
-                d = Decision("host", start, stop, self._class_name(t.label_index), t.label_index,
-                             t.values, t.dont_know, self._next or stop, latency, lost)
+                names = c.class_names  # the host model's classes, not the controller's
+                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
+                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
+                             self._next or stop, latency, lost)
                 self._counts["decisions_host"] += 1
                 self.decisions.append(d)
                 out.append(d)
