@@ -335,14 +335,19 @@ def _print_demo(console: Any, result: Any) -> None:
     console.print(Columns([matrix(f"{k} ({result.error_rates[k]:.1%} error)", cm, names)
                            for k, cm in result.confusion.items()]))
     t = Table(title="agreement (touch by touch, then per recording)")
-    for c in ("decisions", "touches", "same window + label", "recordings", "equal labels",
-              "max |value diff|"):
-        t.add_column(c)
+    t.add_column("decisions", no_wrap=True)
+    for c in ("touches", "same touches", "recs", "same labels", "max |dv|"):
+        t.add_column(c, justify="right")
     for k, row in result.agreement.items():
         diff = row["max_value_diff"]
-        t.add_row(k, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
-                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.2e}")
+        short = (k.replace(" (live)", "").replace(" (Python)", "")
+                 .replace("offline batch (per recording)", "batch").replace(" vs ", " / "))
+        t.add_row(short, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
+                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.1e}")
     console.print(t)
+    console.print("same touches: equal window and label, touch by touch; recs: recordings "
+                  "compared (one decision each: its longest touch); max |dv|: largest "
+                  "difference of the decision values (float32 export vs float64)")
     console.print(stats_table(result.stats, title="link statistics (live run)"))
     for line in result.summary:
         console.print(line)
