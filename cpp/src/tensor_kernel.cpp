@@ -66,6 +66,13 @@ ESKIN_CLONES double dot(const double* a, const double* b, std::size_t n) noexcep
     s0 += a0 * b0;
     s1 += a1 * b1;
   }
+  if (k + 4 <= n) {
+    eskin_v4d a0, b0;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    s0 += a0 * b0;
+    k += 4;
+  }
   const eskin_v4d t = s0 + s1;
   double r = (t[0] + t[1]) + (t[2] + t[3]);
   for (; k < n; ++k) r += a[k] * b[k];
@@ -571,8 +578,16 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
   // sign: largest-magnitude entry (first on ties) positive
   for (std::size_t c = 0; c < k; ++c) {
     double* v = out + c * n;
-    double top = 0.0;
-    for (std::size_t j = 0; j < n; ++j) top = std::max(top, std::fabs(v[j]));
+    double t0 = 0.0, t1 = 0.0, t2 = 0.0, t3 = 0.0;  // four partial maxima
+    std::size_t j = 0;
+    for (; j + 4 <= n; j += 4) {
+      t0 = std::max(t0, std::fabs(v[j]));
+      t1 = std::max(t1, std::fabs(v[j + 1]));
+      t2 = std::max(t2, std::fabs(v[j + 2]));
+      t3 = std::max(t3, std::fabs(v[j + 3]));
+    }
+    for (; j < n; ++j) t0 = std::max(t0, std::fabs(v[j]));
+    const double top = std::max(std::max(t0, t1), std::max(t2, t3));
     std::size_t best = 0;
     while (best + 1 < n && std::fabs(v[best]) != top) ++best;
     if (v[best] < 0)
