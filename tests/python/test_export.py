@@ -517,7 +517,7 @@ def test_train_export_classify_matches_python_labels(campaign, tmp_path):
     train = tmp_path / "train.h5"
     eskin.simulate(train, participants=3, seed=21, runs=(2,))
     model = tmp_path / "model.joblib"
-    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20", "--selection", "cv")
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20")
     _eskin("export", model, "-o", tmp_path / "model.eskin")
     held = tmp_path / "held.h5"
     shutil.copy(campaign.path, held)
