@@ -259,8 +259,8 @@ def register(app: typer.Typer) -> None:
             try:
                 result = run_demo(out, participants=participants,
                                   test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, quick=quick, machine=machine, max_recordings=recordings,
-                                  log=lambda m: console.print(m))
+                                  n_jobs=jobs, quick=quick, machine=machine,
+                                  max_recordings=recordings, log=lambda m: console.print(m))
             except DemoError as exc:
                 console.print(f"[bold red]demo failed:[/] {exc}")
                 raise typer.Exit(1) from None
