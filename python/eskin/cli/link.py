@@ -346,7 +346,7 @@ def _print_demo(console: Any, result: Any) -> None:
                   str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.1e}")
     console.print(t)
     console.print("same touches: equal window and label, touch by touch; recs: recordings "
-                  "compared (one decision each: its longest touch); max |dv|: largest "
+                  "compared (one decision each: the touch on its true contact); max |dv|: largest "
                   "difference of the decision values (float32 export vs float64)")
     console.print(stats_table(result.stats, title="link statistics (live run)"))
     for line in result.summary:
