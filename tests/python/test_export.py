@@ -310,7 +310,9 @@ def test_window_choice_with_several_touches_matches_detect_windows(campaign, sel
 
 
 def test_stream_classifier_decides_like_the_batch_classifier(campaign):
-    cm = CompiledModel(model_to_bytes(_random_spec(campaign, 50, 3), "float64"))
+    spec = _random_spec(campaign, 50, 3)
+    spec.window_config = eskin.WindowConfig(select="energy")  # batch: one of the stream's touches
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
     sig, lengths = _signals(campaign)
     batch = cm.classify(sig[:6], lengths[:6])
     for i in range(6):
