@@ -740,20 +740,28 @@ ModePack plan_mode(const PatternBases& pb, std::size_t z) {
 void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
                  std::size_t g1) {
   const BasisLayout& L = pb.layout;
-  const std::size_t width = mp.panels * kTileWidth;
   const std::size_t off = L.offset(z), bs = L.bases_size();
+  static const double kZeros[1] = {0.0};
   for (std::size_t g = g0; g < g1; ++g) {
     const std::size_t used = mp.group_count(g) * mp.alpha;
-    for (std::size_t lv = 0; lv < width; ++lv) {
-      double* dst = mp.data + (g * mp.panels + lv / kTileWidth) * mp.k * kTileWidth +
-                    lv % kTileWidth;
-      if (lv >= used) {  // padding vector: zeros
-        for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = 0.0;
-        continue;
+    for (std::size_t p = 0; p < mp.panels; ++p) {
+      // the panel's 8 source columns (padding: a zero read with stride 0)
+      const double* col[kTileWidth];
+      std::size_t stride[kTileWidth];
+      for (std::size_t c = 0; c < kTileWidth; ++c) {
+        const std::size_t lv = p * kTileWidth + c;
+        if (lv < used) {
+          col[c] = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
+                   (lv % mp.alpha) * mp.k;
+          stride[c] = 1;
+        } else {
+          col[c] = kZeros;
+          stride[c] = 0;
+        }
       }
-      const double* col = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
-                          (lv % mp.alpha) * mp.k;
-      for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = col[kk];
+      double* dst = mp.data + (g * mp.panels + p) * mp.k * kTileWidth;
+      for (std::size_t kk = 0; kk < mp.k; ++kk, dst += kTileWidth)
+        for (std::size_t c = 0; c < kTileWidth; ++c) dst[c] = col[c][kk * stride[c]];
     }
   }
 }
