@@ -17,7 +17,8 @@ Events, in arrival order:
   ``source="host"`` (this host's own streaming classifier, when a model was given);
 * :class:`StatusEvent` / :class:`InfoEvent` - the controller's STATUS and INFO frames;
 * :class:`Recorded` - a recording was appended to the campaign file (``record=``);
-* :class:`Connection` - the port was opened, the peer went away, or the port was reopened;
+* :class:`Connection` - :meth:`LinkListener.events` opened the port itself ("connected"), the
+  peer went away ("disconnected"), or the port was reopened ("reconnected");
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 
 Host decisions. With ``model=`` (a ``.eskin`` file, a saved TouchModel, or a loaded
