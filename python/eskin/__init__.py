@@ -67,7 +67,10 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'eskin' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"eskin.{module}"), name)
+    submodule = importlib.import_module(f"eskin.{module}")
+    # a name that is also its submodule's name (eskin.preprocess) resolves to the submodule,
+    # which is then callable, so that `import eskin.preprocess as m` keeps working
+    value = submodule if name == module else getattr(submodule, name)
     globals()[name] = value
     return value
 

@@ -1,0 +1,257 @@
+// Preprocessing of Section 5.1 of Gastaldo et al. (Sensors 2014): find the touch window of a
+// recording with an energy detector (NOTES.md point 19), then shrink its time axis to D samples
+// with Algorithm 2 (point 18) or an evenly spaced alternative.
+//
+// Layout conventions
+// - A recording has n_taxels = rows*cols taxels; the batch functions take it taxel-major, as
+//   stored in a campaign: (rows, cols, T) C-order, i.e. taxel k's samples are contiguous
+//   (taxel stride T, time stride 1). A live stream delivers one multi-taxel sample at a time:
+//   n_taxels consecutive values (sample-major).
+// - Output tensors are (n_taxels, D) row-major, i.e. (rows, cols, D) C-order, float64.
+// - Windows are half-open sample ranges [start, stop).
+//
+// The batch detector and the streaming detector are one class (TouchDetector): the batch path
+// feeds a recording to it sample by sample, so both give identical windows by construction.
+// The per-sample path (TouchDetector::push*) never allocates and never throws: it returns a
+// Status. Construction validates the configuration and allocates every buffer.
+//
+// See docs/preprocessing.md for the design and the choice of defaults.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace eskin {
+
+// All parameters of the touch-window detector, as plain numbers (times in seconds, so that the
+// same configuration works at any sample rate; the detector converts them with its rate). It is
+// a POD so that it can be written into a model file as a flat array (window_config_to_array).
+struct WindowConfig {
+  double frame_s = 0.010;          // short-time energy frame (non-overlapping), seconds
+  double dc_cutoff_hz = 1.0;       // one-pole DC blocker per taxel before squaring; 0 = off
+  double combine = 0;              // 0: frame energy = sum over taxels; 1: max over taxels
+  double noise_window_s = 1.0;     // noise floor: quantile of this much recent idle frames
+  double noise_quantile = 0.25;    // which quantile of the idle-frame energies (robust floor)
+  double warmup_s = 0.1;           // idle frames needed before detection is enabled
+  double min_noise_energy = 0.0;   // absolute lower bound of the noise floor (input units^2)
+  double on_factor = 4.0;          // onset: frame energy > on_factor * noise floor
+  double off_factor = 2.0;         // stays active while energy > off_factor * noise floor
+  double hold_s = 0.15;            // the touch ends after this long below the off threshold
+  double min_duration_s = 0.05;    // touches shorter than this (onset..offset) are dropped
+  double pad_before_s = 0.05;      // window start = onset - pad_before
+  double pad_after_s = 0.05;       // window stop  = offset + pad_after
+  double max_window_s = 7.0;       // a window never exceeds this (the touch is cut)
+  double select = 0;               // batch, several touches: 0 most energetic, 1 first, 2 span
+  double fallback = 0;             // batch, no touch: 0 whole recording, 1 error
+};
+
+inline constexpr std::size_t kWindowConfigSize = 16;
+// Field names, in the order of window_config_to_array (the serialisation order).
+const std::array<const char*, kWindowConfigSize>& window_config_field_names();
+std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig& cfg);
+// Throws std::invalid_argument when n != kWindowConfigSize.
+WindowConfig window_config_from_array(const double* values, std::size_t n);
+
+// The configuration converted to samples and frames for one sample rate. Throws
+// std::invalid_argument naming the bad field and value.
+struct DetectorParams {
+  int64_t frame_len = 0;       // samples per frame
+  double dc_alpha = 0.0;       // DC blocker coefficient (0 = off)
+  int combine = 0;
+  int64_t noise_frames = 0;    // capacity of the idle-frame history
+  double noise_quantile = 0.0;
+  int64_t warmup_frames = 0;   // >= 1
+  double min_noise_energy = 0.0;
+  double on_factor = 0.0;
+  double off_factor = 0.0;
+  int64_t hold_frames = 0;
+  int64_t min_duration = 0;    // samples
+  int64_t pad_before = 0;      // samples
+  int64_t pad_after = 0;       // samples
+  int64_t max_window = 0;      // samples
+  int select = 0;
+  int fallback = 0;
+};
+DetectorParams resolve_window_config(const WindowConfig& cfg, double sample_rate_hz);
+
+// One detected touch. onset/offset delimit where the energy was above threshold (frame
+// resolution); start/stop add the padding and are clipped to the stream and to max_window.
+struct TouchWindow {
+  int64_t start = 0;
+  int64_t stop = 0;
+  int64_t onset = 0;
+  int64_t offset = 0;
+  double energy = 0.0;     // sum over the touch's frames above off threshold of frame energy * frame_len
+  bool truncated = false;  // cut by max_window (or by the end of the stream) while still active
+  bool found = true;       // batch result only: false when no touch was found (fallback window)
+};
+
+enum class Status : int32_t {
+  kOk = 0,                // sample consumed, nothing to report
+  kWindow = 1,            // sample consumed and a touch window completed: see last_window()
+  kNonFiniteSample = -1,  // a value was NaN or infinite: the sample was ignored (not counted)
+  kNullPointer = -2,      // no data given
+  kNoWindow = -3,         // subsample_last_window: there is no stored window
+  kBadArgument = -4,      // subsample_last_window: D < 1, or S < D with ShortPolicy::kError
+};
+const char* status_name(Status s) noexcept;
+
+enum class SubsampleMethod : int32_t {
+  kAlgorithm2 = 0,  // interval = floor(S/D); sample (d-1)*interval, d = 1..D (the paper)
+  kEven = 1,        // sample round(d*(S-1)/(D-1)), d = 0..D-1 (spread over the whole window)
+};
+enum class ShortPolicy : int32_t {
+  kInterpolate = 0,  // S < D: linear interpolation of the S samples at D evenly spaced points
+  kError = 1,        // S < D: error
+};
+
+// The D sample indices (0-based, into a window of S samples) chosen by the method, for S >= D.
+// Writes D indices to out. No allocation, no exceptions; returns false when D < 1 or S < D.
+bool subsample_indices(int64_t S, int64_t D, SubsampleMethod method, int64_t* out) noexcept;
+
+// Subsample one window: x points at the window's first sample of taxel 0; taxel k's sample t is
+// x[k*taxel_stride + t*time_stride]. Writes out[k*D + d]. Returns kBadArgument (D < 1, S < 1,
+// or S < D with kError) without writing, else kOk. No allocation, no exceptions.
+template <class T>
+Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int64_t time_stride,
+                        int64_t S, int64_t D, SubsampleMethod method, ShortPolicy short_policy,
+                        double* out) noexcept;
+
+// The streaming detector. Feed it one multi-taxel sample at a time (push) or a block of
+// samples (push_block); it reports a touch when it ends.
+class TouchDetector {
+ public:
+  // store_samples: keep the raw samples of the current window (a pre-pad ring buffer plus a
+  // max_window buffer) so that the window's tensor can be produced (subsample_last_window).
+  // The batch path turns it off (it reads the window from the recording instead).
+  TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
+                bool store_samples = true);
+
+  // One sample: n_taxels values. Returns kOk, kWindow (a touch ended with this sample; read
+  // last_window() before the next push), kNonFiniteSample or kNullPointer.
+  Status push(const int16_t* sample) noexcept { return step(sample, 1); }
+  Status push(const float* sample) noexcept { return step(sample, 1); }
+  Status push(const double* sample) noexcept { return step(sample, 1); }
+  // One sample whose taxel k is at sample[k*taxel_stride] (e.g. a taxel-major recording).
+  template <class T>
+  Status push_strided(const T* sample, int64_t taxel_stride) noexcept {
+    return step(sample, taxel_stride);
+  }
+  // A block of n samples, sample-major (n x n_taxels). Stops right after a sample that
+  // completes a window (returns kWindow) or is rejected (returns that status; the bad sample
+  // counts as consumed); *consumed tells how many samples were taken. Call again with the rest.
+  template <class T>
+  Status push_block(const T* samples, int64_t n, int64_t* consumed) noexcept;
+
+  // End of stream: a touch in progress ends at the current sample. Returns kWindow or kOk.
+  Status flush() noexcept;
+  // Back to the state right after construction (buffers kept).
+  void reset() noexcept;
+
+  const TouchWindow& last_window() const noexcept { return last_; }
+  // The raw samples of the last window (sample-major, last_window_length() x n_taxels), or
+  // nullptr when none is stored (store_samples off, or overwritten by a newer touch's onset).
+  const double* last_window_data() const noexcept;
+  int64_t last_window_length() const noexcept;
+  // The (n_taxels x D) tensor of the last window. No allocation, no exceptions.
+  Status subsample_last_window(int64_t D, SubsampleMethod method, ShortPolicy short_policy,
+                               double* out) const noexcept;
+
+  int64_t n_taxels() const noexcept { return n_taxels_; }
+  int64_t samples_seen() const noexcept { return now_; }
+  bool in_touch() const noexcept { return state_ == State::kActive; }
+  bool ready() const noexcept { return frames_seen_ >= p_.warmup_frames; }
+  double noise_floor() const noexcept { return floor_; }
+  double last_frame_energy() const noexcept { return last_energy_; }
+  const DetectorParams& params() const noexcept { return p_; }
+  const WindowConfig& config() const noexcept { return cfg_; }
+
+ private:
+  enum class State { kIdle, kActive, kRefractory };
+
+  template <class T>
+  Status step(const T* x, int64_t taxel_stride) noexcept;
+  Status on_frame() noexcept;
+  Status finalise(bool forced) noexcept;
+  void push_noise(double e) noexcept;
+
+  WindowConfig cfg_;
+  DetectorParams p_;
+  int64_t n_taxels_;
+  bool store_;
+
+  // per-taxel state
+  std::vector<double> dc_mean_;
+  std::vector<double> acc_;
+  // idle-frame energies (noise floor) and a scratch copy for the quantile
+  std::vector<double> noise_ring_;
+  std::vector<double> noise_scratch_;
+  int64_t noise_count_ = 0;
+  int64_t noise_pos_ = 0;
+  // raw samples: pre-pad ring (capacity pad_before + frame_len) and the window buffer
+  std::vector<double> ring_;
+  int64_t ring_cap_ = 0;
+  std::vector<double> window_;
+  int64_t window_len_ = 0;
+  bool window_valid_ = false;
+
+  State state_ = State::kIdle;
+  int64_t now_ = 0;          // samples consumed
+  int64_t frame_pos_ = 0;    // samples in the current frame
+  int64_t frames_seen_ = 0;  // complete frames
+  double floor_ = 0.0;
+  double last_energy_ = 0.0;
+  // the touch in progress
+  int64_t onset_ = 0;
+  int64_t start_ = 0;
+  int64_t last_above_end_ = 0;
+  int64_t quiet_frames_ = 0;
+  double energy_ = 0.0;
+  TouchWindow last_;
+};
+
+// ---- batch (whole recordings)
+
+// The touch window of one taxel-major recording (n_taxels x T, taxel stride T): runs a
+// TouchDetector over its first `length` samples and picks one touch with cfg.select; when none
+// is found, cfg.fallback decides (whole recording with found=false, or std::runtime_error).
+// Throws std::invalid_argument for a NaN/inf sample (naming taxel and sample).
+template <class T>
+TouchWindow detect_window(const T* recording, int64_t n_taxels, int64_t T_total, int64_t length,
+                          double sample_rate_hz, const WindowConfig& cfg);
+
+// Windows of n recordings (data: n x n_taxels x T_total, lengths: n values in [1, T_total] or
+// nullptr for T_total), on n_threads std::threads (0 = hardware concurrency). Errors name the
+// recording index.
+template <class T>
+std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
+                                        const int64_t* lengths, double sample_rate_hz,
+                                        const WindowConfig& cfg, int n_threads = 0);
+
+enum class WindowMode : int32_t {
+  kEnergy = 0,  // energy detector
+  kNone = 1,    // the whole valid recording [0, length)
+  kGiven = 2,   // windows given by the caller
+};
+
+struct PreprocessOptions {
+  int64_t D = 100;
+  WindowMode window = WindowMode::kEnergy;
+  SubsampleMethod method = SubsampleMethod::kAlgorithm2;
+  ShortPolicy short_policy = ShortPolicy::kInterpolate;
+  double sample_rate_hz = 3000.0;
+  WindowConfig config{};
+  int n_threads = 0;
+};
+
+// Preprocess n recordings: out receives n x n_taxels x D float64 values; windows_out (n
+// entries, may be nullptr) receives the window used. With WindowMode::kGiven, `given` holds n
+// [start, stop) pairs (2n values) within [0, length]. Throws std::invalid_argument.
+template <class T>
+void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
+                const int64_t* lengths, const PreprocessOptions& opt, double* out,
+                TouchWindow* windows_out = nullptr, const int64_t* given = nullptr);
+
+}  // namespace eskin

@@ -1,0 +1,670 @@
+// Touch-window detector and Algorithm 2 subsampling; see preprocess.hpp and
+// docs/preprocessing.md.
+#include "eskin/preprocess.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <exception>
+#include <limits>
+#include <mutex>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <type_traits>
+
+namespace eskin {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+std::string fmt(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+[[noreturn]] void bad(const std::string& field, double value, const std::string& why) {
+  throw std::invalid_argument("WindowConfig." + field + " = " + fmt(value) + ": " + why);
+}
+
+int64_t to_samples(double seconds, double rate) {
+  return static_cast<int64_t>(std::llround(seconds * rate));
+}
+
+int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
+
+template <class T>
+constexpr bool kIsFloat = std::is_floating_point_v<T>;
+
+}  // namespace
+
+// ---------------------------------------------------------------- configuration
+
+const std::array<const char*, kWindowConfigSize>& window_config_field_names() {
+  static const std::array<const char*, kWindowConfigSize> names = {
+      "frame_s",        "dc_cutoff_hz", "combine",        "noise_window_s",
+      "noise_quantile", "warmup_s",     "min_noise_energy", "on_factor",
+      "off_factor",     "hold_s",       "min_duration_s", "pad_before_s",
+      "pad_after_s",    "max_window_s", "select",         "fallback"};
+  return names;
+}
+
+std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig& c) {
+  return {c.frame_s,    c.dc_cutoff_hz,   c.combine,      c.noise_window_s,
+          c.noise_quantile, c.warmup_s,   c.min_noise_energy, c.on_factor,
+          c.off_factor, c.hold_s,         c.min_duration_s, c.pad_before_s,
+          c.pad_after_s, c.max_window_s,  c.select,       c.fallback};
+}
+
+WindowConfig window_config_from_array(const double* v, std::size_t n) {
+  if (v == nullptr || n != kWindowConfigSize) {
+    throw std::invalid_argument("WindowConfig array: expected " +
+                                std::to_string(kWindowConfigSize) + " values, got " +
+                                std::to_string(v == nullptr ? 0 : n));
+  }
+  WindowConfig c;
+  c.frame_s = v[0];
+  c.dc_cutoff_hz = v[1];
+  c.combine = v[2];
+  c.noise_window_s = v[3];
+  c.noise_quantile = v[4];
+  c.warmup_s = v[5];
+  c.min_noise_energy = v[6];
+  c.on_factor = v[7];
+  c.off_factor = v[8];
+  c.hold_s = v[9];
+  c.min_duration_s = v[10];
+  c.pad_before_s = v[11];
+  c.pad_after_s = v[12];
+  c.max_window_s = v[13];
+  c.select = v[14];
+  c.fallback = v[15];
+  return c;
+}
+
+DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
+  if (!(std::isfinite(rate) && rate > 0)) {
+    throw std::invalid_argument("sample_rate_hz = " + fmt(rate) + ": must be finite and > 0");
+  }
+  const auto arr = window_config_to_array(c);
+  for (std::size_t i = 0; i < kWindowConfigSize; ++i) {
+    if (!std::isfinite(arr[i])) bad(window_config_field_names()[i], arr[i], "must be finite");
+  }
+  auto choice = [](const char* name, double v, int n) {
+    if (v != std::floor(v) || v < 0 || v >= n) {
+      bad(name, v, "must be an integer in [0, " + std::to_string(n - 1) + "]");
+    }
+    return static_cast<int>(v);
+  };
+  DetectorParams p;
+  if (!(c.frame_s > 0)) bad("frame_s", c.frame_s, "must be > 0");
+  p.frame_len = std::max<int64_t>(1, to_samples(c.frame_s, rate));
+  if (c.dc_cutoff_hz < 0 || c.dc_cutoff_hz >= rate / 2) {
+    bad("dc_cutoff_hz", c.dc_cutoff_hz, "must be in [0, sample_rate_hz/2)");
+  }
+  p.dc_alpha = c.dc_cutoff_hz > 0 ? 1.0 - std::exp(-2.0 * kPi * c.dc_cutoff_hz / rate) : 0.0;
+  p.combine = choice("combine", c.combine, 2);
+  if (!(c.noise_window_s > 0)) bad("noise_window_s", c.noise_window_s, "must be > 0");
+  p.noise_frames = std::max<int64_t>(1, to_samples(c.noise_window_s, rate) / p.frame_len);
+  if (c.noise_quantile < 0 || c.noise_quantile > 1) {
+    bad("noise_quantile", c.noise_quantile, "must be in [0, 1]");
+  }
+  p.noise_quantile = c.noise_quantile;
+  if (c.warmup_s < 0) bad("warmup_s", c.warmup_s, "must be >= 0");
+  p.warmup_frames = std::max<int64_t>(1, ceil_div(to_samples(c.warmup_s, rate), p.frame_len));
+  if (p.warmup_frames > p.noise_frames) {
+    bad("warmup_s", c.warmup_s, "must not exceed noise_window_s = " + fmt(c.noise_window_s));
+  }
+  if (c.min_noise_energy < 0) bad("min_noise_energy", c.min_noise_energy, "must be >= 0");
+  p.min_noise_energy = c.min_noise_energy;
+  if (!(c.off_factor > 0)) bad("off_factor", c.off_factor, "must be > 0");
+  if (!(c.on_factor >= c.off_factor)) {
+    bad("on_factor", c.on_factor, "must be >= off_factor = " + fmt(c.off_factor) + " (hysteresis)");
+  }
+  p.on_factor = c.on_factor;
+  p.off_factor = c.off_factor;
+  if (c.hold_s < 0) bad("hold_s", c.hold_s, "must be >= 0");
+  p.hold_frames = std::max<int64_t>(1, ceil_div(to_samples(c.hold_s, rate), p.frame_len));
+  if (c.min_duration_s < 0) bad("min_duration_s", c.min_duration_s, "must be >= 0");
+  p.min_duration = to_samples(c.min_duration_s, rate);
+  if (c.pad_before_s < 0) bad("pad_before_s", c.pad_before_s, "must be >= 0");
+  if (c.pad_after_s < 0) bad("pad_after_s", c.pad_after_s, "must be >= 0");
+  p.pad_before = to_samples(c.pad_before_s, rate);
+  p.pad_after = to_samples(c.pad_after_s, rate);
+  p.max_window = to_samples(c.max_window_s, rate);
+  if (p.max_window < p.pad_before + 2 * p.frame_len) {
+    bad("max_window_s", c.max_window_s,
+        "must leave room for pad_before_s plus two frames (" +
+            fmt(static_cast<double>(p.pad_before + 2 * p.frame_len) / rate) + " s)");
+  }
+  if (p.max_window > (int64_t{1} << 34)) bad("max_window_s", c.max_window_s, "is too large");
+  p.select = choice("select", c.select, 3);
+  p.fallback = choice("fallback", c.fallback, 2);
+  return p;
+}
+
+const char* status_name(Status s) noexcept {
+  switch (s) {
+    case Status::kOk: return "ok";
+    case Status::kWindow: return "window";
+    case Status::kNonFiniteSample: return "non-finite sample";
+    case Status::kNullPointer: return "null pointer";
+    case Status::kNoWindow: return "no window";
+    case Status::kBadArgument: return "bad argument";
+  }
+  return "unknown";
+}
+
+// ---------------------------------------------------------------- subsampling
+
+bool subsample_indices(int64_t S, int64_t D, SubsampleMethod method, int64_t* out) noexcept {
+  if (D < 1 || S < D || out == nullptr) return false;
+  if (method == SubsampleMethod::kAlgorithm2) {
+    const int64_t interval = S / D;  // floor(S/D) >= 1
+    for (int64_t d = 0; d < D; ++d) out[d] = d * interval;
+  } else {
+    if (D == 1) {
+      out[0] = 0;
+      return true;
+    }
+    // round(d*(S-1)/(D-1)) in exact integer arithmetic, halves rounded up
+    const int64_t num = S - 1, den = D - 1;
+    for (int64_t d = 0; d < D; ++d) out[d] = (2 * d * num + den) / (2 * den);
+  }
+  return true;
+}
+
+template <class T>
+Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int64_t time_stride,
+                        int64_t S, int64_t D, SubsampleMethod method, ShortPolicy short_policy,
+                        double* out) noexcept {
+  if (x == nullptr || out == nullptr) return Status::kNullPointer;
+  if (D < 1 || S < 1 || n_taxels < 0) return Status::kBadArgument;
+  if (S >= D) {
+    if (method == SubsampleMethod::kAlgorithm2) {
+      const int64_t interval = S / D;
+      for (int64_t k = 0; k < n_taxels; ++k) {
+        const T* xk = x + k * taxel_stride;
+        double* ok = out + k * D;
+        for (int64_t d = 0; d < D; ++d) ok[d] = static_cast<double>(xk[d * interval * time_stride]);
+      }
+    } else {
+      const int64_t num = S - 1, den = std::max<int64_t>(D - 1, 1);
+      for (int64_t k = 0; k < n_taxels; ++k) {
+        const T* xk = x + k * taxel_stride;
+        double* ok = out + k * D;
+        for (int64_t d = 0; d < D; ++d) {
+          const int64_t t = D == 1 ? 0 : (2 * d * num + den) / (2 * den);
+          ok[d] = static_cast<double>(xk[t * time_stride]);
+        }
+      }
+    }
+    return Status::kOk;
+  }
+  if (short_policy == ShortPolicy::kError) return Status::kBadArgument;
+  // S < D (so D >= 2): linear interpolation at positions d*(S-1)/(D-1)
+  for (int64_t k = 0; k < n_taxels; ++k) {
+    const T* xk = x + k * taxel_stride;
+    double* ok = out + k * D;
+    for (int64_t d = 0; d < D; ++d) {
+      const int64_t num = d * (S - 1);
+      const int64_t i0 = num / (D - 1);
+      const double frac = static_cast<double>(num - i0 * (D - 1)) / static_cast<double>(D - 1);
+      const double a = static_cast<double>(xk[i0 * time_stride]);
+      ok[d] = frac == 0.0 ? a
+                          : a + frac * (static_cast<double>(xk[(i0 + 1) * time_stride]) - a);
+    }
+  }
+  return Status::kOk;
+}
+
+template Status subsample_window<int16_t>(const int16_t*, int64_t, int64_t, int64_t, int64_t,
+                                          int64_t, SubsampleMethod, ShortPolicy, double*) noexcept;
+template Status subsample_window<float>(const float*, int64_t, int64_t, int64_t, int64_t, int64_t,
+                                        SubsampleMethod, ShortPolicy, double*) noexcept;
+template Status subsample_window<double>(const double*, int64_t, int64_t, int64_t, int64_t,
+                                         int64_t, SubsampleMethod, ShortPolicy, double*) noexcept;
+
+// ---------------------------------------------------------------- streaming detector
+
+TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
+                             bool store_samples)
+    : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels),
+      store_(store_samples) {
+  if (n_taxels < 1) {
+    throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
+  }
+  dc_mean_.assign(static_cast<std::size_t>(n_taxels), 0.0);
+  acc_.assign(static_cast<std::size_t>(n_taxels), 0.0);
+  noise_ring_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
+  noise_scratch_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
+  if (store_) {
+    ring_cap_ = p_.pad_before + p_.frame_len;
+    ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), 0.0);
+    window_.assign(static_cast<std::size_t>(p_.max_window * n_taxels), 0.0);
+  }
+  reset();
+}
+
+void TouchDetector::reset() noexcept {
+  std::fill(dc_mean_.begin(), dc_mean_.end(), 0.0);
+  std::fill(acc_.begin(), acc_.end(), 0.0);
+  noise_count_ = noise_pos_ = 0;
+  window_len_ = 0;
+  window_valid_ = false;
+  state_ = State::kIdle;
+  now_ = frame_pos_ = frames_seen_ = 0;
+  floor_ = p_.min_noise_energy;
+  last_energy_ = 0.0;
+  onset_ = start_ = last_above_end_ = quiet_frames_ = 0;
+  energy_ = 0.0;
+  last_ = TouchWindow{};
+}
+
+template <class T>
+Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
+  if (x == nullptr) return Status::kNullPointer;
+  if constexpr (kIsFloat<T>) {
+    for (int64_t k = 0; k < n_taxels_; ++k) {
+      if (!std::isfinite(x[k * taxel_stride])) return Status::kNonFiniteSample;
+    }
+  }
+  const int64_t K = n_taxels_;
+  if (store_) {
+    double* r = ring_.data() + (now_ % ring_cap_) * K;
+    for (int64_t k = 0; k < K; ++k) r[k] = static_cast<double>(x[k * taxel_stride]);
+    if (state_ == State::kActive) {
+      std::copy(r, r + K, window_.data() + window_len_ * K);
+      ++window_len_;
+    }
+  }
+  const double a = p_.dc_alpha;
+  if (a > 0) {
+    if (now_ == 0) {
+      for (int64_t k = 0; k < K; ++k) dc_mean_[k] = static_cast<double>(x[k * taxel_stride]);
+    }
+    for (int64_t k = 0; k < K; ++k) {
+      const double y = static_cast<double>(x[k * taxel_stride]) - dc_mean_[k];
+      dc_mean_[k] += a * y;
+      acc_[k] += y * y;
+    }
+  } else {
+    for (int64_t k = 0; k < K; ++k) {
+      const double y = static_cast<double>(x[k * taxel_stride]);
+      acc_[k] += y * y;
+    }
+  }
+  ++now_;
+  Status st = Status::kOk;
+  if (state_ == State::kActive && now_ - start_ >= p_.max_window) st = finalise(true);
+  if (++frame_pos_ == p_.frame_len) {
+    frame_pos_ = 0;
+    if (on_frame() == Status::kWindow) st = Status::kWindow;
+  }
+  return st;
+}
+
+template <class T>
+Status TouchDetector::push_block(const T* samples, int64_t n, int64_t* consumed) noexcept {
+  int64_t i = 0;
+  Status st = Status::kOk;
+  if (samples == nullptr && n > 0) {
+    st = Status::kNullPointer;
+  } else {
+    while (i < n) {
+      st = step(samples + i * n_taxels_, 1);
+      ++i;
+      if (st != Status::kOk) break;
+    }
+  }
+  if (consumed != nullptr) *consumed = i;
+  return st;
+}
+
+void TouchDetector::push_noise(double e) noexcept {
+  noise_ring_[noise_pos_] = e;
+  noise_pos_ = (noise_pos_ + 1) % p_.noise_frames;
+  if (noise_count_ < p_.noise_frames) ++noise_count_;
+  std::copy(noise_ring_.begin(), noise_ring_.begin() + noise_count_, noise_scratch_.begin());
+  // the "lower" quantile: element floor(q*(n-1)) of the sorted values (numpy method="lower")
+  const auto kq = static_cast<int64_t>(
+      std::floor(p_.noise_quantile * static_cast<double>(noise_count_ - 1)));
+  std::nth_element(noise_scratch_.begin(), noise_scratch_.begin() + kq,
+                   noise_scratch_.begin() + noise_count_);
+  floor_ = std::max(p_.min_noise_energy, noise_scratch_[kq]);
+}
+
+Status TouchDetector::on_frame() noexcept {
+  const double inv = 1.0 / static_cast<double>(p_.frame_len);
+  double e = 0.0;
+  if (p_.combine == 0) {
+    for (double v : acc_) e += v;
+  } else {
+    for (double v : acc_) e = std::max(e, v);
+  }
+  e *= inv;  // mean square per sample (summed or maxed over taxels)
+  std::fill(acc_.begin(), acc_.end(), 0.0);
+  last_energy_ = e;
+  ++frames_seen_;
+  if (frames_seen_ <= p_.warmup_frames) {
+    push_noise(e);
+    return Status::kOk;
+  }
+  const double on = p_.on_factor * floor_;
+  const double off = p_.off_factor * floor_;
+  switch (state_) {
+    case State::kIdle:
+      if (e > on) {
+        state_ = State::kActive;
+        onset_ = now_ - p_.frame_len;
+        start_ = std::max<int64_t>(0, onset_ - p_.pad_before);
+        last_above_end_ = now_;
+        quiet_frames_ = 0;
+        energy_ = e * static_cast<double>(p_.frame_len);
+        window_valid_ = false;
+        if (store_) {
+          window_len_ = now_ - start_;
+          for (int64_t t = start_; t < now_; ++t) {
+            const double* r = ring_.data() + (t % ring_cap_) * n_taxels_;
+            std::copy(r, r + n_taxels_, window_.data() + (t - start_) * n_taxels_);
+          }
+        }
+      } else {
+        push_noise(e);
+      }
+      return Status::kOk;
+    case State::kActive:
+      if (e > off) {
+        last_above_end_ = now_;
+        quiet_frames_ = 0;
+        energy_ += e * static_cast<double>(p_.frame_len);
+        return Status::kOk;
+      }
+      ++quiet_frames_;
+      if (quiet_frames_ >= p_.hold_frames && now_ >= last_above_end_ + p_.pad_after) {
+        return finalise(false);
+      }
+      return Status::kOk;
+    case State::kRefractory:
+      if (e <= off) state_ = State::kIdle;
+      return Status::kOk;
+  }
+  return Status::kOk;
+}
+
+Status TouchDetector::finalise(bool forced) noexcept {
+  // still above threshold (or not yet quiet for the hold time): the touch was cut here
+  const bool truncated = quiet_frames_ < p_.hold_frames && quiet_frames_ == 0;
+  TouchWindow w;
+  w.onset = onset_;
+  w.start = start_;
+  w.offset = truncated ? now_ : last_above_end_;
+  w.stop = truncated ? now_ : std::min(now_, last_above_end_ + p_.pad_after);
+  w.energy = energy_;
+  w.truncated = truncated;
+  w.found = true;
+  state_ = forced ? State::kRefractory : State::kIdle;
+  if (w.offset - w.onset < p_.min_duration) {
+    if (store_) window_len_ = 0;
+    return Status::kOk;
+  }
+  last_ = w;
+  if (store_) window_valid_ = true;
+  return Status::kWindow;
+}
+
+Status TouchDetector::flush() noexcept {
+  if (state_ != State::kActive) return Status::kOk;
+  return finalise(false);
+}
+
+const double* TouchDetector::last_window_data() const noexcept {
+  return (store_ && window_valid_) ? window_.data() : nullptr;
+}
+
+int64_t TouchDetector::last_window_length() const noexcept {
+  return (store_ && window_valid_) ? last_.stop - last_.start : 0;
+}
+
+Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
+                                            ShortPolicy short_policy, double* out) const noexcept {
+  const double* data = last_window_data();
+  if (data == nullptr) return Status::kNoWindow;
+  return subsample_window(data, n_taxels_, 1, n_taxels_, last_window_length(), D, method,
+                          short_policy, out);
+}
+
+template Status TouchDetector::push_block<int16_t>(const int16_t*, int64_t, int64_t*) noexcept;
+template Status TouchDetector::push_block<float>(const float*, int64_t, int64_t*) noexcept;
+template Status TouchDetector::push_block<double>(const double*, int64_t, int64_t*) noexcept;
+template Status TouchDetector::step<int16_t>(const int16_t*, int64_t) noexcept;
+template Status TouchDetector::step<float>(const float*, int64_t) noexcept;
+template Status TouchDetector::step<double>(const double*, int64_t) noexcept;
+
+// ---------------------------------------------------------------- batch
+
+namespace {
+
+// Chooses one window among the touches of a recording (cfg.select).
+struct Selector {
+  int select;
+  int64_t max_window;
+  bool any = false;
+  TouchWindow best{};
+
+  void add(const TouchWindow& w) {
+    if (!any) {
+      best = w;
+      any = true;
+      return;
+    }
+    if (select == 0) {
+      if (w.energy > best.energy) best = w;
+    } else if (select == 2) {
+      best.stop = std::min(w.stop, best.start + max_window);
+      best.offset = std::min(w.offset, best.stop);
+      best.energy += w.energy;
+      best.truncated = best.truncated || w.truncated || w.stop > best.stop;
+    }
+  }
+};
+
+template <class T>
+TouchWindow detect_one(TouchDetector& det, const T* rec, int64_t T_total, int64_t length,
+                       int64_t index) {
+  det.reset();
+  const DetectorParams& p = det.params();
+  Selector sel{p.select, p.max_window};
+  for (int64_t t = 0; t < length; ++t) {
+    const Status st = det.push_strided(rec + t, T_total);
+    if (st == Status::kWindow) {
+      sel.add(det.last_window());
+    } else if (st == Status::kNonFiniteSample) {
+      for (int64_t k = 0; k < det.n_taxels(); ++k) {
+        if (!std::isfinite(static_cast<double>(rec[k * T_total + t]))) {
+          throw std::invalid_argument(
+              (index >= 0 ? "signals[" + std::to_string(index) + "]" : std::string("signal")) +
+              " has a non-finite value at taxel " + std::to_string(k) + ", sample " +
+              std::to_string(t));
+        }
+      }
+    }
+  }
+  if (det.flush() == Status::kWindow) sel.add(det.last_window());
+  if (sel.any) return sel.best;
+  if (p.fallback == 1) {
+    throw std::runtime_error(
+        (index >= 0 ? "signals[" + std::to_string(index) + "]" : std::string("signal")) +
+        ": no touch detected (WindowConfig.fallback = 1)");
+  }
+  TouchWindow w;
+  w.start = w.onset = 0;
+  w.stop = w.offset = length;
+  w.found = false;
+  return w;
+}
+
+void check_batch(int64_t n, int64_t n_taxels, int64_t T_total, const int64_t* lengths) {
+  if (n < 0) throw std::invalid_argument("n = " + std::to_string(n) + ": must be >= 0");
+  if (n_taxels < 1) {
+    throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
+  }
+  if (T_total < 1) {
+    throw std::invalid_argument("T = " + std::to_string(T_total) + ": must be >= 1");
+  }
+  if (lengths != nullptr) {
+    for (int64_t i = 0; i < n; ++i) {
+      if (lengths[i] < 1 || lengths[i] > T_total) {
+        throw std::invalid_argument("lengths[" + std::to_string(i) + "] = " +
+                                    std::to_string(lengths[i]) + ": must be in [1, " +
+                                    std::to_string(T_total) + "]");
+      }
+    }
+  }
+}
+
+// Runs body(worker_state, i) for i in [0, n) on up to n_threads threads; rethrows the first
+// error (lowest index) in the caller.
+template <class MakeState, class Body>
+void parallel_for(int64_t n, int n_threads, MakeState make_state, Body body) {
+  if (n == 0) return;
+  int nt = n_threads > 0 ? n_threads : static_cast<int>(std::thread::hardware_concurrency());
+  nt = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(nt, n)));
+  std::atomic<int64_t> next{0};
+  std::mutex mu;
+  std::exception_ptr err;
+  int64_t err_index = std::numeric_limits<int64_t>::max();
+  auto worker = [&]() {
+    try {
+      auto state = make_state();
+      for (int64_t i = next++; i < n; i = next++) {
+        try {
+          body(state, i);
+        } catch (...) {
+          std::lock_guard<std::mutex> lock(mu);
+          if (i < err_index) {
+            err_index = i;
+            err = std::current_exception();
+          }
+        }
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mu);
+      if (!err) err = std::current_exception();
+    }
+  };
+  if (nt == 1) {
+    worker();
+  } else {
+    std::vector<std::thread> threads;
+    threads.reserve(static_cast<std::size_t>(nt));
+    for (int i = 0; i < nt; ++i) threads.emplace_back(worker);
+    for (auto& t : threads) t.join();
+  }
+  if (err) std::rethrow_exception(err);
+}
+
+}  // namespace
+
+template <class T>
+TouchWindow detect_window(const T* recording, int64_t n_taxels, int64_t T_total, int64_t length,
+                          double sample_rate_hz, const WindowConfig& cfg) {
+  if (recording == nullptr) throw std::invalid_argument("recording is null");
+  if (length < 1 || length > T_total) {
+    throw std::invalid_argument("length = " + std::to_string(length) + ": must be in [1, " +
+                                std::to_string(T_total) + "]");
+  }
+  TouchDetector det(n_taxels, sample_rate_hz, cfg, false);
+  return detect_one(det, recording, T_total, length, -1);
+}
+
+template <class T>
+std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
+                                        const int64_t* lengths, double sample_rate_hz,
+                                        const WindowConfig& cfg, int n_threads) {
+  check_batch(n, n_taxels, T_total, lengths);
+  TouchDetector proto(n_taxels, sample_rate_hz, cfg, false);  // validates cfg once
+  std::vector<TouchWindow> out(static_cast<std::size_t>(n));
+  parallel_for(
+      n, n_threads, [&]() { return TouchDetector(proto); },
+      [&](TouchDetector& det, int64_t i) {
+        const int64_t len = lengths ? lengths[i] : T_total;
+        out[i] = detect_one(det, data + i * n_taxels * T_total, T_total, len, i);
+      });
+  return out;
+}
+
+template <class T>
+void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
+                const int64_t* lengths, const PreprocessOptions& opt, double* out,
+                TouchWindow* windows_out, const int64_t* given) {
+  check_batch(n, n_taxels, T_total, lengths);
+  if (opt.D < 1) throw std::invalid_argument("D = " + std::to_string(opt.D) + ": must be >= 1");
+  if (opt.window == WindowMode::kGiven && given == nullptr) {
+    throw std::invalid_argument("window = given but no windows were passed");
+  }
+  const bool energy = opt.window == WindowMode::kEnergy;
+  // validates the configuration and the rate even when it is not used
+  TouchDetector proto(n_taxels, opt.sample_rate_hz, opt.config, false);
+  parallel_for(
+      n, opt.n_threads, [&]() { return TouchDetector(proto); },
+      [&](TouchDetector& det, int64_t i) {
+        const T* rec = data + i * n_taxels * T_total;
+        const int64_t len = lengths ? lengths[i] : T_total;
+        TouchWindow w;
+        if (energy) {
+          w = detect_one(det, rec, T_total, len, i);
+        } else if (opt.window == WindowMode::kGiven) {
+          w.start = w.onset = given[2 * i];
+          w.stop = w.offset = given[2 * i + 1];
+          if (w.start < 0 || w.stop > len || w.stop <= w.start) {
+            throw std::invalid_argument("windows[" + std::to_string(i) + "] = [" +
+                                        std::to_string(w.start) + ", " + std::to_string(w.stop) +
+                                        "): must satisfy 0 <= start < stop <= length = " +
+                                        std::to_string(len));
+          }
+        } else {
+          w.start = w.onset = 0;
+          w.stop = w.offset = len;
+          if constexpr (kIsFloat<T>) {
+            for (int64_t k = 0; k < n_taxels; ++k) {
+              for (int64_t t = 0; t < len; ++t) {
+                if (!std::isfinite(rec[k * T_total + t])) {
+                  throw std::invalid_argument("signals[" + std::to_string(i) +
+                                              "] has a non-finite value at taxel " +
+                                              std::to_string(k) + ", sample " + std::to_string(t));
+                }
+              }
+            }
+          }
+        }
+        if (windows_out != nullptr) windows_out[i] = w;
+        const int64_t S = w.stop - w.start;
+        const Status st = subsample_window(rec + w.start, n_taxels, T_total, 1, S, opt.D,
+                                           opt.method, opt.short_policy,
+                                           out + i * n_taxels * opt.D);
+        if (st != Status::kOk) {
+          throw std::invalid_argument("signals[" + std::to_string(i) + "]: window of S = " +
+                                      std::to_string(S) + " samples is shorter than D = " +
+                                      std::to_string(opt.D) + " (short = error)");
+        }
+      });
+}
+
+#define ESKIN_INSTANTIATE(T)                                                                     \
+  template TouchWindow detect_window<T>(const T*, int64_t, int64_t, int64_t, double,             \
+                                        const WindowConfig&);                                    \
+  template std::vector<TouchWindow> detect_windows<T>(const T*, int64_t, int64_t, int64_t,       \
+                                                      const int64_t*, double, const WindowConfig&, \
+                                                      int);                                      \
+  template void preprocess<T>(const T*, int64_t, int64_t, int64_t, const int64_t*,               \
+                              const PreprocessOptions&, double*, TouchWindow*, const int64_t*);
+ESKIN_INSTANTIATE(int16_t)
+ESKIN_INSTANTIATE(float)
+ESKIN_INSTANTIATE(double)
+#undef ESKIN_INSTANTIATE
+
+}  // namespace eskin

@@ -1,0 +1,581 @@
+"""Preprocessing of Section 5.1: the touch window and Algorithm 2 subsampling.
+
+A recording ``S`` (rows x cols x T, usually 4 x 4 x 21000 int16 ADC codes) becomes a tensor
+``L`` (rows x cols x D, float64) in two steps, both in the C++ core (``eskin._core``):
+
+1. the touch window ``[start, stop)``: an energy detector (short-time energy summed over the
+   taxels against a running robust noise floor, with hysteresis, a hold time and padding), see
+   :class:`WindowConfig` and ``docs/preprocessing.md``;
+2. subsampling of the window to D samples: Algorithm 2 of the paper
+   (``interval = floor(S/D)``, samples ``(d-1)*interval``, d = 1..D, the faithful default) or
+   evenly spaced indices ``round(d*(S-1)/(D-1))`` spanning the whole window.
+
+The same detector runs on a live stream (:class:`TouchDetector`), one sample at a time, and
+gives the same windows as the batch functions.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import sys
+import types
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Iterable, Optional, Sequence, Union
+
+import numpy as np
+
+from eskin import _core
+
+__all__ = [
+    "WindowConfig",
+    "TouchWindow",
+    "TouchWindows",
+    "TouchDetector",
+    "preprocess",
+    "detect_windows",
+    "detect_touches",
+    "subsample",
+    "subsample_indices",
+]
+
+_WINDOW_MODES = {"energy": 0, "none": 1}
+_METHODS = {"algorithm2": 0, "even": 1}
+_SHORT = {"interpolate": 0, "error": 1}
+_COMBINE = ("sum", "max")
+_SELECT = ("energy", "first", "span")
+_FALLBACK = ("whole", "error")
+# recordings read at a time from a lazy (h5py) dataset
+_CHUNK = 32
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Parameters of the energy touch detector (mirrors the C++ POD ``eskin::WindowConfig``).
+
+    Times are in seconds and converted to samples with the sample rate when the detector is
+    built, so one configuration serves any rate. ``to_array()`` / ``from_array()`` give the flat
+    float64 form (field order :data:`WindowConfig.field_names`) stored in model files; the three
+    choice fields are stored as their index (``combine``: sum=0, max=1; ``select``: energy=0,
+    first=1, span=2; ``fallback``: whole=0, error=1).
+
+    Frame energy ``E`` = mean over a frame of the squared DC-blocked signal, summed (or maxed)
+    over the taxels. The noise floor is the ``noise_quantile`` of the last ``noise_window_s`` of
+    idle frames (at least ``min_noise_energy``). A touch starts at the first frame with
+    ``E > on_factor * floor``, stays on while ``E > off_factor * floor``, and ends after
+    ``hold_s`` below that (and once ``pad_after_s`` has elapsed); touches shorter than
+    ``min_duration_s`` are dropped; the window is ``[onset - pad_before_s, offset +
+    pad_after_s)``, at most ``max_window_s`` long.
+    """
+
+    frame_s: float = 0.010
+    dc_cutoff_hz: float = 1.0
+    combine: str = "sum"
+    noise_window_s: float = 1.0
+    noise_quantile: float = 0.25
+    warmup_s: float = 0.1
+    min_noise_energy: float = 0.0
+    on_factor: float = 4.0
+    off_factor: float = 2.0
+    hold_s: float = 0.15
+    min_duration_s: float = 0.05
+    pad_before_s: float = 0.05
+    pad_after_s: float = 0.05
+    max_window_s: float = 7.0
+    select: str = "energy"
+    fallback: str = "whole"
+
+    def __post_init__(self) -> None:
+        for name, choices in (("combine", _COMBINE), ("select", _SELECT), ("fallback", _FALLBACK)):
+            value = getattr(self, name)
+            if value not in choices:
+                raise ValueError(f"WindowConfig.{name} = {value!r}: must be one of {choices}")
+        for f in fields(self):
+            if f.name in ("combine", "select", "fallback"):
+                continue
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ValueError(f"WindowConfig.{f.name} = {value!r}: must be a number")
+            if not math.isfinite(float(value)):
+                raise ValueError(f"WindowConfig.{f.name} = {value!r}: must be finite")
+            object.__setattr__(self, f.name, float(value))
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    def to_array(self) -> np.ndarray:
+        """The flat float64 form, in the C++ field order."""
+        out = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "combine":
+                value = _COMBINE.index(value)
+            elif f.name == "select":
+                value = _SELECT.index(value)
+            elif f.name == "fallback":
+                value = _FALLBACK.index(value)
+            out.append(float(value))
+        return np.asarray(out, dtype=np.float64)
+
+    @classmethod
+    def from_array(cls, values: Any) -> "WindowConfig":
+        """Inverse of :meth:`to_array`."""
+        a = np.asarray(values, dtype=np.float64)
+        names = cls.field_names()
+        if a.shape != (len(names),):
+            raise ValueError(
+                f"WindowConfig array: expected shape ({len(names)},), got {a.shape}"
+            )
+        kw: dict[str, Any] = {}
+        for name, v in zip(names, a.tolist()):
+            if name in ("combine", "select", "fallback"):
+                choices = {"combine": _COMBINE, "select": _SELECT, "fallback": _FALLBACK}[name]
+                if v != int(v) or not 0 <= int(v) < len(choices):
+                    raise ValueError(f"WindowConfig array: {name} = {v} is not a valid index")
+                kw[name] = choices[int(v)]
+            else:
+                kw[name] = v
+        return cls(**kw)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "WindowConfig":
+        unknown = set(d) - set(cls.field_names())
+        if unknown:
+            raise ValueError(f"WindowConfig: unknown fields {sorted(unknown)}")
+        return cls(**d)
+
+    def resolve(self, sample_rate_hz: float = 3000.0) -> dict[str, Any]:
+        """The parameters in samples/frames at a rate (validates the configuration)."""
+        return dict(_core.window_config_resolve(self.to_array(), _rate(sample_rate_hz)))
+
+
+@dataclass(frozen=True)
+class TouchWindow:
+    """One touch found by :class:`TouchDetector` (sample indices from the stream start)."""
+
+    start: int
+    stop: int
+    onset: int
+    offset: int
+    energy: float
+    truncated: bool
+    tensor: Optional[np.ndarray] = None  # (rows, cols, D) when the detector was given D
+
+
+@dataclass(frozen=True)
+class TouchWindows:
+    """Per-recording detector results of :func:`detect_touches` (arrays of length n)."""
+
+    start: np.ndarray
+    stop: np.ndarray
+    onset: np.ndarray
+    offset: np.ndarray
+    energy: np.ndarray
+    truncated: np.ndarray
+    found: np.ndarray
+
+    @property
+    def windows(self) -> np.ndarray:
+        return np.stack([self.start, self.stop], axis=1)
+
+
+# --------------------------------------------------------------------------- argument checks
+
+
+def _rate(sample_rate_hz: Any) -> float:
+    if isinstance(sample_rate_hz, bool) or not isinstance(sample_rate_hz, numbers.Real):
+        raise ValueError(f"sample_rate_hz = {sample_rate_hz!r}: must be a number")
+    r = float(sample_rate_hz)
+    if not (math.isfinite(r) and r > 0):
+        raise ValueError(f"sample_rate_hz = {sample_rate_hz!r}: must be finite and > 0")
+    return r
+
+
+def _check_D(D: Any) -> int:
+    if isinstance(D, bool) or not isinstance(D, numbers.Integral):
+        raise ValueError(f"D = {D!r}: must be an integer >= 1")
+    if int(D) < 1:
+        raise ValueError(f"D = {D!r}: must be an integer >= 1")
+    return int(D)
+
+
+def _config(config: Any) -> np.ndarray:
+    if config is None:
+        return WindowConfig().to_array()
+    if isinstance(config, WindowConfig):
+        return config.to_array()
+    if isinstance(config, dict):
+        return WindowConfig.from_dict(config).to_array()
+    raise ValueError(f"config must be a WindowConfig, a dict or None, not {type(config).__name__}")
+
+
+def _choice(name: str, value: Any, table: dict[str, int]) -> int:
+    if value not in table:
+        raise ValueError(f"{name} = {value!r}: must be one of {tuple(table)}")
+    return table[value]
+
+
+def _threads(n_threads: Optional[int]) -> int:
+    if n_threads is None:
+        return 0
+    if isinstance(n_threads, bool) or not isinstance(n_threads, numbers.Integral) or n_threads < 0:
+        raise ValueError(f"n_threads = {n_threads!r}: must be a non-negative integer or None")
+    return int(n_threads)
+
+
+class _Batch:
+    """signals normalised to (n, rows, cols, T) with lengths; lazily sliced when not in memory."""
+
+    def __init__(self, signals: Any, lengths: Any) -> None:
+        if isinstance(signals, (list, tuple)):
+            signals = np.asarray(signals)
+        shape = getattr(signals, "shape", None)
+        dtype = getattr(signals, "dtype", None)
+        if shape is None or dtype is None:
+            raise ValueError(
+                f"signals must be an array (n, rows, cols, T) or (rows, cols, T), "
+                f"not {type(signals).__name__}"
+            )
+        shape = tuple(int(s) for s in shape)
+        if len(shape) == 3:
+            self.single = True
+            self.source = signals
+            n = 1
+            rows, cols, T = shape
+        elif len(shape) == 4:
+            self.single = False
+            self.source = signals
+            n, rows, cols, T = shape
+        else:
+            raise ValueError(
+                f"signals must have shape (n, rows, cols, T) or (rows, cols, T), got {shape}"
+            )
+        if rows < 1 or cols < 1 or T < 1:
+            raise ValueError(f"signals has an empty grid or time axis: shape {shape}")
+        dtype = np.dtype(dtype)
+        if not (dtype.kind in "iub" or dtype.kind == "f"):
+            raise ValueError(f"signals must be integer or real, got dtype {dtype}")
+        self.dtype = dtype
+        self.n, self.rows, self.cols, self.T = n, rows, cols, T
+        self.lengths = self._lengths(lengths)
+
+    def _lengths(self, lengths: Any) -> Optional[np.ndarray]:
+        if lengths is None:
+            return None
+        a = np.asarray(lengths)
+        if self.single and a.ndim == 0:
+            a = a.reshape(1)
+        if a.shape != (self.n,):
+            raise ValueError(f"lengths must have shape ({self.n},), got {a.shape}")
+        if a.dtype.kind == "f":
+            if not np.all(np.isfinite(a)) or np.any(a != np.round(a)):
+                raise ValueError("lengths must be integers")
+        elif a.dtype.kind not in "iu":
+            raise ValueError(f"lengths must be integers, got dtype {a.dtype}")
+        a = a.astype(np.int64)
+        bad = np.flatnonzero((a < 1) | (a > self.T))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"lengths[{i}] = {int(a[i])}: must be in [1, T = {self.T}]")
+        return a
+
+    def chunks(self) -> Iterable[tuple[int, np.ndarray, Optional[np.ndarray]]]:
+        """(first index, (m, n_taxels, T) int16 or float64 C-contiguous, lengths or None)."""
+        K = self.rows * self.cols
+        in_memory = isinstance(self.source, np.ndarray)
+        step = self.n if in_memory else _CHUNK
+        for i0 in range(0, self.n, max(step, 1)):
+            i1 = min(self.n, i0 + step)
+            if self.single:
+                block = np.asarray(self.source)[None]
+            else:
+                block = np.asarray(self.source[i0:i1])
+            block = block.reshape(i1 - i0, K, self.T)
+            if block.dtype != np.int16:
+                block = block.astype(np.float64, copy=False)
+            block = np.ascontiguousarray(block)
+            lens = None if self.lengths is None else self.lengths[i0:i1]
+            yield i0, block, lens
+
+
+def _raise_indexed(err: Exception, i0: int) -> None:
+    """Re-raise a core error with the recording index shifted to the batch's numbering."""
+    msg = str(err)
+    if i0 and msg.startswith("signals["):
+        j = msg.index("]")
+        msg = f"signals[{int(msg[8:j]) + i0}]{msg[j + 1:]}"
+    raise type(err)(msg) from None
+
+
+# --------------------------------------------------------------------------- batch API
+
+
+def detect_touches(
+    signals: Any,
+    lengths: Any = None,
+    sample_rate_hz: float = 3000.0,
+    config: Union[WindowConfig, dict, None] = None,
+    *,
+    n_threads: Optional[int] = None,
+) -> TouchWindows:
+    """Run the touch detector on every recording; all per-recording results (one touch each,
+    chosen by ``config.select``; ``found`` is False where the fallback window was used)."""
+    rate = _rate(sample_rate_hz)
+    cfg = _config(config)
+    b = _Batch(signals, lengths)
+    nt = _threads(n_threads)
+    infos, energies = [], []
+    for i0, block, lens in b.chunks():
+        try:
+            info, energy = _core.detect_windows(block, lens, rate, cfg, nt)
+        except (ValueError, RuntimeError) as err:
+            _raise_indexed(err, i0)
+        infos.append(info)
+        energies.append(energy)
+    info = np.concatenate(infos) if infos else np.zeros((0, 6), np.int64)
+    energy = np.concatenate(energies) if energies else np.zeros(0)
+    return TouchWindows(
+        start=info[:, 0].copy(),
+        stop=info[:, 1].copy(),
+        onset=info[:, 2].copy(),
+        offset=info[:, 3].copy(),
+        energy=energy,
+        truncated=info[:, 4].astype(bool),
+        found=info[:, 5].astype(bool),
+    )
+
+
+def detect_windows(
+    signals: Any,
+    lengths: Any = None,
+    sample_rate_hz: float = 3000.0,
+    config: Union[WindowConfig, dict, None] = None,
+    *,
+    n_threads: Optional[int] = None,
+) -> np.ndarray:
+    """Touch windows ``[start, stop)`` (sample indices), int64 (n, 2); (2,) for a single
+    recording (rows, cols, T). Where no touch is found the window is the whole recording
+    ``[0, length)`` (``config.fallback = "whole"``) or a RuntimeError is raised ("error")."""
+    w = detect_touches(signals, lengths, sample_rate_hz, config, n_threads=n_threads).windows
+    return w[0] if np.ndim(signals) == 3 else w
+
+
+def preprocess(
+    signals: Any,
+    D: int = 100,
+    *,
+    lengths: Any = None,
+    sample_rate_hz: float = 3000.0,
+    window: Union[str, np.ndarray, Sequence] = "energy",
+    subsample: str = "algorithm2",
+    config: Union[WindowConfig, dict, None] = None,
+    short: str = "interpolate",
+    n_threads: Optional[int] = None,
+    return_windows: bool = False,
+) -> Any:
+    """Recordings -> (n, rows, cols, D) float64 tensors (the paper's phi).
+
+    signals: (n, rows, cols, T) or one recording (rows, cols, T) (then the result is
+    (rows, cols, D)); int16 ADC codes (kept as codes) or real values; an h5py dataset is read a
+    few recordings at a time. lengths: valid samples per recording (default T).
+    window: "energy" (the detector, see :class:`WindowConfig`), "none" (the whole valid
+    recording), or an (n, 2) array of given ``[start, stop)`` windows.
+    subsample: "algorithm2" (the paper, default) or "even".
+    short: what to do when a window has fewer than D samples: "interpolate" (linear
+    interpolation at D evenly spaced points) or "error".
+    return_windows: also return the (n, 2) int64 windows used.
+    """
+    D = _check_D(D)
+    rate = _rate(sample_rate_hz)
+    cfg = _config(config)
+    method = _choice("subsample", subsample, _METHODS)
+    short_policy = _choice("short", short, _SHORT)
+    nt = _threads(n_threads)
+    b = _Batch(signals, lengths)
+    given: Optional[np.ndarray] = None
+    if isinstance(window, str):
+        mode = _choice("window", window, _WINDOW_MODES)
+    else:
+        mode = 2
+        given = np.asarray(window)
+        if b.single and given.shape == (2,):
+            given = given.reshape(1, 2)
+        if given.shape != (b.n, 2) or given.dtype.kind not in "iu":
+            raise ValueError(
+                f"window must be 'energy', 'none' or an integer array of shape ({b.n}, 2), "
+                f"got {given.dtype} {given.shape}"
+            )
+        given = given.astype(np.int64)
+    outs, wins = [], []
+    for i0, block, lens in b.chunks():
+        g = None if given is None else given[i0 : i0 + block.shape[0]]
+        try:
+            out, info, _ = _core.preprocess(
+                block, lens, D, mode, method, short_policy, rate, cfg, g, nt
+            )
+        except (ValueError, RuntimeError) as err:
+            _raise_indexed(err, i0)
+        outs.append(out)
+        wins.append(info[:, :2])
+    if outs:
+        out = np.concatenate(outs).reshape(b.n, b.rows, b.cols, D)
+        w = np.concatenate(wins)
+    else:
+        out = np.zeros((0, b.rows, b.cols, D))
+        w = np.zeros((0, 2), np.int64)
+    if b.single:
+        out, w = out[0], w[0]
+    return (out, w) if return_windows else out
+
+
+def subsample(
+    signals: Any,
+    D: int = 100,
+    *,
+    method: str = "algorithm2",
+    short: str = "interpolate",
+    windows: Any = None,
+    lengths: Any = None,
+) -> np.ndarray:
+    """Subsample already windowed recordings (or given ``windows``; default the whole valid
+    length) to D samples: (n, rows, cols, D) float64, or (rows, cols, D) for one recording."""
+    return preprocess(
+        signals,
+        D,
+        lengths=lengths,
+        window="none" if windows is None else windows,
+        subsample=method,
+        short=short,
+    )
+
+
+def subsample_indices(S: int, D: int, method: str = "algorithm2") -> np.ndarray:
+    """The D (0-based) indices into a window of S >= D samples that ``method`` keeps."""
+    D = _check_D(D)
+    if isinstance(S, bool) or not isinstance(S, numbers.Integral) or S < D:
+        raise ValueError(f"S = {S!r}: must be an integer >= D = {D}")
+    return _core.subsample_indices(int(S), D, _choice("method", method, _METHODS))
+
+
+# --------------------------------------------------------------------------- streaming
+
+
+class TouchDetector:
+    """The streaming touch detector: push samples as they arrive, get touches when they end.
+
+    ``grid`` is (rows, cols) (or the number of taxels). ``push(samples)`` takes one sample
+    (rows, cols) / (n_taxels,) or a block (n, rows, cols) / (n, n_taxels), int16 or real, and
+    returns the list of :class:`TouchWindow` completed by it; with ``D`` given each carries its
+    (rows, cols, D) tensor. ``flush()`` ends a touch in progress (end of stream). Sample indices
+    count from the first sample pushed (or the last ``reset()``). The C++ detector allocates
+    everything at construction; pushing never allocates in the core.
+    """
+
+    def __init__(
+        self,
+        grid: Union[int, tuple[int, int]] = (4, 4),
+        sample_rate_hz: float = 3000.0,
+        config: Union[WindowConfig, dict, None] = None,
+        *,
+        D: Optional[int] = None,
+        subsample: str = "algorithm2",
+        short: str = "interpolate",
+    ) -> None:
+        if isinstance(grid, numbers.Integral) and not isinstance(grid, bool):
+            grid = (1, int(grid))
+        try:
+            rows, cols = (int(g) for g in grid)  # type: ignore[union-attr]
+        except (TypeError, ValueError):
+            raise ValueError(f"grid = {grid!r}: must be (rows, cols) or a taxel count") from None
+        if rows < 1 or cols < 1:
+            raise ValueError(f"grid = {grid!r}: must be positive")
+        self.grid = (rows, cols)
+        self.sample_rate_hz = _rate(sample_rate_hz)
+        self.config = config if isinstance(config, WindowConfig) else (
+            WindowConfig() if config is None else WindowConfig.from_dict(config)
+        )
+        self.D = None if D is None else _check_D(D)
+        self.subsample = subsample
+        self.short = short
+        self._det = _core.TouchDetector(
+            rows * cols,
+            self.sample_rate_hz,
+            self.config.to_array(),
+            0 if self.D is None else self.D,
+            _choice("subsample", subsample, _METHODS),
+            _choice("short", short, _SHORT),
+        )
+
+    @property
+    def n_taxels(self) -> int:
+        return self.grid[0] * self.grid[1]
+
+    @property
+    def samples_seen(self) -> int:
+        return int(self._det.samples_seen)
+
+    @property
+    def in_touch(self) -> bool:
+        return bool(self._det.in_touch)
+
+    @property
+    def noise_floor(self) -> float:
+        return float(self._det.noise_floor)
+
+    def _wrap(self, found: list) -> list[TouchWindow]:
+        out = []
+        for start, stop, onset, offset, energy, truncated, tensor in found:
+            if tensor is not None:
+                tensor = np.asarray(tensor).reshape(self.grid[0], self.grid[1], -1)
+            out.append(
+                TouchWindow(int(start), int(stop), int(onset), int(offset), float(energy),
+                            bool(truncated), tensor)
+            )
+        return out
+
+    def push(self, samples: Any) -> list[TouchWindow]:
+        a = np.asarray(samples)
+        K = self.n_taxels
+        if a.dtype.kind not in "iubf":
+            raise ValueError(f"samples must be integer or real, got dtype {a.dtype}")
+        if a.shape in ((K,), self.grid):
+            a = a.reshape(1, K)
+        elif a.ndim == 3 and a.shape[1:] == self.grid:
+            a = a.reshape(a.shape[0], K)
+        elif not (a.ndim == 2 and a.shape[1] == K):
+            raise ValueError(
+                f"samples must be (n, {self.grid[0]}, {self.grid[1]}), (n, {K}) or one sample, "
+                f"got shape {a.shape}"
+            )
+        if a.dtype != np.int16:
+            a = a.astype(np.float64, copy=False)
+            bad = ~np.isfinite(a)
+            if bad.any():
+                i, k = np.argwhere(bad)[0]
+                raise ValueError(
+                    f"samples[{int(i)}] has a non-finite value at taxel {int(k)}; nothing was "
+                    f"pushed from this block"
+                )
+        return self._wrap(self._det.push(np.ascontiguousarray(a)))
+
+    def flush(self) -> list[TouchWindow]:
+        return self._wrap(self._det.flush())
+
+    def reset(self) -> None:
+        self._det.reset()
+
+
+# ``eskin.preprocess`` names both this module and its main function. Importing the module (for
+# instance ``from eskin.preprocess import WindowConfig``) makes the attribute ``eskin.preprocess``
+# the module, so the module itself is made callable: ``eskin.preprocess(signals, D)`` works
+# whichever of the two the attribute holds.
+class _CallableModule(types.ModuleType):
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return preprocess(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

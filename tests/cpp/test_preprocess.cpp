@@ -1,0 +1,515 @@
+// Tests of the preprocessing concern: Algorithm 2 and even subsampling, the S < D rule, the
+// energy touch detector on synthetic bursts, streaming == batch, and no heap allocation on
+// the per-sample path (counted through a replaced global operator new).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <new>
+#include <random>
+#include <stdexcept>
+#include <vector>
+
+#include "eskin/preprocess.hpp"
+
+// ---- allocation counter: every operator new in this executable goes through here
+static std::atomic<long> g_allocations{0};
+
+void* operator new(std::size_t n) {
+  ++g_allocations;
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) {
+  ++g_allocations;
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+
+namespace {
+
+using eskin::ShortPolicy;
+using eskin::Status;
+using eskin::SubsampleMethod;
+using eskin::TouchDetector;
+using eskin::TouchWindow;
+using eskin::WindowConfig;
+
+constexpr double kRate = 3000.0;
+constexpr int64_t kTaxels = 16;
+
+struct Burst {
+  int64_t a, b;      // [a, b) samples
+  double amplitude;  // of an 80 Hz sine on every taxel
+};
+
+// Taxel-major recording (kTaxels x T) int16: Gaussian noise (sd 20 codes), an ADC offset per
+// taxel, and sine bursts.
+std::vector<int16_t> make_recording(int64_t T, const std::vector<Burst>& bursts, unsigned seed) {
+  std::mt19937 gen(seed);
+  std::normal_distribution<double> noise(0.0, 20.0);
+  std::vector<int16_t> x(static_cast<std::size_t>(kTaxels * T));
+  for (int64_t k = 0; k < kTaxels; ++k) {
+    const double offset = 100.0 * static_cast<double>(k) - 700.0;
+    for (int64_t t = 0; t < T; ++t) {
+      double v = offset + noise(gen);
+      for (const Burst& b : bursts) {
+        if (t >= b.a && t < b.b) {
+          v += b.amplitude * (1.0 + 0.05 * static_cast<double>(k)) *
+               std::sin(2.0 * 3.14159265358979 * 80.0 * static_cast<double>(t) / kRate);
+        }
+      }
+      x[static_cast<std::size_t>(k * T + t)] = static_cast<int16_t>(std::lround(v));
+    }
+  }
+  return x;
+}
+
+// Sample-major copy (T x kTaxels) of a taxel-major recording.
+std::vector<int16_t> interleave(const std::vector<int16_t>& x, int64_t T) {
+  std::vector<int16_t> y(x.size());
+  for (int64_t k = 0; k < kTaxels; ++k) {
+    for (int64_t t = 0; t < T; ++t) y[t * kTaxels + k] = x[k * T + t];
+  }
+  return y;
+}
+
+bool same(const TouchWindow& a, const TouchWindow& b) {
+  return a.start == b.start && a.stop == b.stop && a.onset == b.onset && a.offset == b.offset &&
+         a.truncated == b.truncated && a.energy == b.energy;
+}
+
+std::vector<TouchWindow> stream_all(TouchDetector& det, const std::vector<int16_t>& inter,
+                                    int64_t T) {
+  std::vector<TouchWindow> out;
+  for (int64_t t = 0; t < T; ++t) {
+    if (det.push(inter.data() + t * kTaxels) == Status::kWindow) out.push_back(det.last_window());
+  }
+  if (det.flush() == Status::kWindow) out.push_back(det.last_window());
+  return out;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------ subsampling
+
+TEST(Subsample, Algorithm2IndicesExactly) {
+  std::vector<int64_t> idx(100);
+  ASSERT_TRUE(eskin::subsample_indices(1000, 100, SubsampleMethod::kAlgorithm2, idx.data()));
+  for (int64_t d = 0; d < 100; ++d) EXPECT_EQ(idx[d], d * 10);
+  // interval = floor(1099/100) = 10: the last 99 samples are never used (the remainder)
+  ASSERT_TRUE(eskin::subsample_indices(1099, 100, SubsampleMethod::kAlgorithm2, idx.data()));
+  EXPECT_EQ(idx[99], 990);
+  // D <= S < 2D: interval 1, Algorithm 2 keeps only the first D samples
+  ASSERT_TRUE(eskin::subsample_indices(199, 100, SubsampleMethod::kAlgorithm2, idx.data()));
+  for (int64_t d = 0; d < 100; ++d) EXPECT_EQ(idx[d], d);
+  ASSERT_TRUE(eskin::subsample_indices(100, 100, SubsampleMethod::kAlgorithm2, idx.data()));
+  EXPECT_EQ(idx[99], 99);
+  EXPECT_FALSE(eskin::subsample_indices(99, 100, SubsampleMethod::kAlgorithm2, idx.data()));
+  EXPECT_FALSE(eskin::subsample_indices(10, 0, SubsampleMethod::kAlgorithm2, idx.data()));
+}
+
+TEST(Subsample, Algorithm2PaperTranscription) {
+  // L(:,:,d) = S(:,:,p), p = 1, p += interval (1-based), over many (S, D)
+  for (int64_t S = 1; S <= 400; S += 7) {
+    for (int64_t D : {1, 2, 3, 20, 50, 100}) {
+      if (S < D) continue;
+      std::vector<int64_t> idx(static_cast<std::size_t>(D));
+      ASSERT_TRUE(eskin::subsample_indices(S, D, SubsampleMethod::kAlgorithm2, idx.data()));
+      const int64_t interval = S / D;
+      int64_t p = 1;
+      for (int64_t d = 1; d <= D; ++d) {
+        EXPECT_EQ(idx[d - 1] + 1, p) << "S=" << S << " D=" << D << " d=" << d;
+        p += interval;
+      }
+    }
+  }
+}
+
+TEST(Subsample, EvenSpansWholeWindow) {
+  for (int64_t S : {100, 101, 150, 199, 1000, 21000}) {
+    for (int64_t D : {2, 20, 50, 100}) {
+      std::vector<int64_t> idx(static_cast<std::size_t>(D));
+      ASSERT_TRUE(eskin::subsample_indices(S, D, SubsampleMethod::kEven, idx.data()));
+      EXPECT_EQ(idx.front(), 0);
+      EXPECT_EQ(idx.back(), S - 1);
+      for (int64_t d = 0; d < D; ++d) {
+        const long double exact = static_cast<long double>(d) * (S - 1) / (D - 1);
+        EXPECT_EQ(idx[d], static_cast<int64_t>(std::floor(exact + 0.5L)));
+        if (d > 0) EXPECT_GT(idx[d], idx[d - 1]);
+      }
+    }
+  }
+  int64_t one = -1;
+  ASSERT_TRUE(eskin::subsample_indices(50, 1, SubsampleMethod::kEven, &one));
+  EXPECT_EQ(one, 0);
+}
+
+TEST(Subsample, WindowTakesTheIndexedSamplesOfEveryTaxel) {
+  // taxel-major 3 taxels x 23 samples: x[k][t] = 100k + t
+  const int64_t K = 3, S = 23, D = 5;
+  std::vector<double> x(K * S);
+  for (int64_t k = 0; k < K; ++k)
+    for (int64_t t = 0; t < S; ++t) x[k * S + t] = 100.0 * k + t;
+  std::vector<double> out(K * D);
+  ASSERT_EQ(eskin::subsample_window(x.data(), K, S, 1, S, D, SubsampleMethod::kAlgorithm2,
+                                    ShortPolicy::kError, out.data()),
+            Status::kOk);
+  for (int64_t k = 0; k < K; ++k)
+    for (int64_t d = 0; d < D; ++d) EXPECT_EQ(out[k * D + d], 100.0 * k + 4 * d);  // interval 4
+  // the same data sample-major gives the same tensor
+  std::vector<double> y(K * S);
+  for (int64_t k = 0; k < K; ++k)
+    for (int64_t t = 0; t < S; ++t) y[t * K + k] = x[k * S + t];
+  std::vector<double> out2(K * D);
+  ASSERT_EQ(eskin::subsample_window(y.data(), K, 1, K, S, D, SubsampleMethod::kAlgorithm2,
+                                    ShortPolicy::kError, out2.data()),
+            Status::kOk);
+  EXPECT_EQ(out, out2);
+}
+
+TEST(Subsample, ShortWindowInterpolatesOrFails) {
+  // S = 4 < D = 7: a linear ramp stays a linear ramp through the D points
+  const int64_t S = 4, D = 7;
+  std::vector<double> x = {0.0, 3.0, 6.0, 9.0};
+  std::vector<double> out(D, -1.0);
+  ASSERT_EQ(eskin::subsample_window(x.data(), 1, S, 1, S, D, SubsampleMethod::kAlgorithm2,
+                                    ShortPolicy::kInterpolate, out.data()),
+            Status::kOk);
+  for (int64_t d = 0; d < D; ++d) EXPECT_NEAR(out[d], 9.0 * d / (D - 1), 1e-12);
+  EXPECT_EQ(out.front(), 0.0);
+  EXPECT_EQ(out.back(), 9.0);
+  // a single sample is repeated
+  ASSERT_EQ(eskin::subsample_window(x.data(), 1, 1, 1, 1, D, SubsampleMethod::kEven,
+                                    ShortPolicy::kInterpolate, out.data()),
+            Status::kOk);
+  for (double v : out) EXPECT_EQ(v, 0.0);
+  EXPECT_EQ(eskin::subsample_window(x.data(), 1, S, 1, S, D, SubsampleMethod::kAlgorithm2,
+                                    ShortPolicy::kError, out.data()),
+            Status::kBadArgument);
+  EXPECT_EQ(eskin::subsample_window(x.data(), 1, S, 1, 0, D, SubsampleMethod::kAlgorithm2,
+                                    ShortPolicy::kInterpolate, out.data()),
+            Status::kBadArgument);
+}
+
+// ------------------------------------------------------------------ configuration
+
+TEST(WindowConfig, ArrayRoundTripAndNames) {
+  WindowConfig c;
+  c.on_factor = 5.5;
+  c.select = 2;
+  const auto a = eskin::window_config_to_array(c);
+  const WindowConfig d = eskin::window_config_from_array(a.data(), a.size());
+  EXPECT_EQ(eskin::window_config_to_array(d), a);
+  EXPECT_STREQ(eskin::window_config_field_names()[7], "on_factor");
+  EXPECT_EQ(a[7], 5.5);
+  EXPECT_THROW(eskin::window_config_from_array(a.data(), a.size() - 1), std::invalid_argument);
+}
+
+TEST(WindowConfig, ResolvesToSamplesAtAnyRate) {
+  const WindowConfig c;
+  const auto p = eskin::resolve_window_config(c, 3000.0);
+  EXPECT_EQ(p.frame_len, 30);
+  EXPECT_EQ(p.pad_before, 150);
+  EXPECT_EQ(p.max_window, 21000);
+  EXPECT_EQ(p.hold_frames, 15);
+  const auto q = eskin::resolve_window_config(c, 1000.0);
+  EXPECT_EQ(q.frame_len, 10);
+  EXPECT_EQ(q.max_window, 7000);
+}
+
+TEST(WindowConfig, RejectsBadValuesNamingTheField) {
+  auto expect_bad = [](WindowConfig c, const char* field) {
+    try {
+      eskin::resolve_window_config(c, kRate);
+      ADD_FAILURE() << "no error for " << field;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  WindowConfig c;
+  c.frame_s = 0;
+  expect_bad(c, "frame_s");
+  c = WindowConfig{};
+  c.on_factor = 1.0;  // below off_factor
+  expect_bad(c, "on_factor");
+  c = WindowConfig{};
+  c.noise_quantile = 1.5;
+  expect_bad(c, "noise_quantile");
+  c = WindowConfig{};
+  c.combine = 0.5;
+  expect_bad(c, "combine");
+  c = WindowConfig{};
+  c.max_window_s = 0.01;
+  expect_bad(c, "max_window_s");
+  c = WindowConfig{};
+  c.hold_s = std::nan("");
+  expect_bad(c, "hold_s");
+  EXPECT_THROW(eskin::resolve_window_config(WindowConfig{}, 0.0), std::invalid_argument);
+  EXPECT_THROW(TouchDetector(0, kRate, WindowConfig{}), std::invalid_argument);
+}
+
+// ------------------------------------------------------------------ detector
+
+TEST(Detector, FindsBurstsWithKnownOnsetAndOffset) {
+  const int64_t T = 21000;
+  const std::vector<Burst> bursts = {{4000, 9000, 150.0}, {12500, 15000, 150.0}};
+  const auto x = make_recording(T, bursts, 1);
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  const auto ws = stream_all(det, interleave(x, T), T);
+  ASSERT_EQ(ws.size(), 2u);
+  const int64_t frame = det.params().frame_len, pad = det.params().pad_before;
+  for (std::size_t i = 0; i < 2; ++i) {
+    EXPECT_LE(std::llabs(ws[i].onset - bursts[i].a), frame) << i;
+    EXPECT_LE(std::llabs(ws[i].offset - bursts[i].b), 2 * frame) << i;
+    EXPECT_EQ(ws[i].start, ws[i].onset - pad);
+    EXPECT_EQ(ws[i].stop, ws[i].offset + det.params().pad_after);
+    EXPECT_FALSE(ws[i].truncated);
+    EXPECT_GT(ws[i].energy, 0.0);
+  }
+  // select = energy picks the longer (more energetic) burst; first picks the first; span both
+  WindowConfig c;
+  const TouchWindow w0 = eskin::detect_window(x.data(), kTaxels, T, T, kRate, c);
+  EXPECT_TRUE(same(w0, ws[0]));
+  c.select = 1;
+  EXPECT_TRUE(same(eskin::detect_window(x.data(), kTaxels, T, T, kRate, c), ws[0]));
+  c.select = 2;
+  const TouchWindow span = eskin::detect_window(x.data(), kTaxels, T, T, kRate, c);
+  EXPECT_EQ(span.start, ws[0].start);
+  EXPECT_EQ(span.stop, ws[1].stop);
+}
+
+TEST(Detector, NoTouchFallsBackOrFails) {
+  const int64_t T = 6000;
+  const auto x = make_recording(T, {}, 2);
+  WindowConfig c;
+  const TouchWindow w = eskin::detect_window(x.data(), kTaxels, T, 5000, kRate, c);
+  EXPECT_FALSE(w.found);
+  EXPECT_EQ(w.start, 0);
+  EXPECT_EQ(w.stop, 5000);
+  c.fallback = 1;
+  EXPECT_THROW(eskin::detect_window(x.data(), kTaxels, T, T, kRate, c), std::runtime_error);
+}
+
+TEST(Detector, DropsBlipsShorterThanMinDuration) {
+  const int64_t T = 9000;
+  const auto x = make_recording(T, {{4000, 4040, 400.0}}, 3);  // 13 ms
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  EXPECT_TRUE(stream_all(det, interleave(x, T), T).empty());
+}
+
+TEST(Detector, BridgesShortGapsWithTheHoldTime) {
+  const int64_t T = 12000;
+  // a 60 ms gap (< hold 150 ms) is bridged, a 600 ms gap is not
+  const auto x = make_recording(T, {{3000, 4000, 150}, {4180, 5000, 150}, {6800, 8000, 150}}, 4);
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  const auto ws = stream_all(det, interleave(x, T), T);
+  ASSERT_EQ(ws.size(), 2u);
+  EXPECT_LE(std::llabs(ws[0].onset - 3000), 30);
+  EXPECT_LE(std::llabs(ws[0].offset - 5000), 60);
+  EXPECT_LE(std::llabs(ws[1].onset - 6800), 30);
+}
+
+TEST(Detector, MaxWindowCutsALongTouch) {
+  const int64_t T = 15000;
+  const auto x = make_recording(T, {{3000, 14000, 150.0}}, 5);
+  WindowConfig c;
+  c.max_window_s = 1.0;  // 3000 samples
+  TouchDetector det(kTaxels, kRate, c);
+  const auto ws = stream_all(det, interleave(x, T), T);
+  // one cut window, then the detector waits for the energy to fall (no second window)
+  ASSERT_EQ(ws.size(), 1u);
+  EXPECT_TRUE(ws[0].truncated);
+  EXPECT_EQ(ws[0].stop - ws[0].start, 3000);
+  EXPECT_EQ(ws[0].stop, ws[0].offset);
+  // its tensor is still available from the window buffer (no newer onset overwrote it)
+  std::vector<double> t(kTaxels * 10);
+  EXPECT_EQ(det.subsample_last_window(10, SubsampleMethod::kAlgorithm2, ShortPolicy::kError,
+                                      t.data()),
+            Status::kOk);
+  EXPECT_EQ(det.last_window_length(), 3000);
+}
+
+TEST(Detector, TouchAtTheEndIsClosedByFlush) {
+  const int64_t T = 9000;
+  const auto x = make_recording(T, {{6000, 9000, 150.0}}, 6);
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  const auto ws = stream_all(det, interleave(x, T), T);
+  ASSERT_EQ(ws.size(), 1u);
+  EXPECT_TRUE(ws[0].truncated);
+  EXPECT_EQ(ws[0].stop, T);
+}
+
+TEST(Detector, RejectsNonFiniteSamplesWithAStatus) {
+  TouchDetector det(2, kRate, WindowConfig{});
+  const double good[2] = {1.0, 2.0};
+  const double bad[2] = {1.0, std::nan("")};
+  EXPECT_EQ(det.push(good), Status::kOk);
+  EXPECT_EQ(det.push(bad), Status::kNonFiniteSample);
+  EXPECT_EQ(det.samples_seen(), 1);
+  EXPECT_EQ(det.push(static_cast<const double*>(nullptr)), Status::kNullPointer);
+  // the batch path throws, naming the sample
+  std::vector<float> rec(2 * 100, 0.0f);
+  rec[1 * 100 + 42] = INFINITY;
+  try {
+    eskin::detect_window(rec.data(), 2, 100, 100, kRate, WindowConfig{});
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("taxel 1, sample 42"), std::string::npos) << e.what();
+  }
+}
+
+// ------------------------------------------------------------------ streaming == batch
+
+TEST(StreamingEqualsBatch, SameWindowsSampleBySampleBlocksAndBatch) {
+  const int64_t T = 21000;
+  for (unsigned seed = 10; seed < 14; ++seed) {
+    std::mt19937 gen(seed);
+    std::uniform_int_distribution<int64_t> pos(1000, 16000), len(200, 4000);
+    std::vector<Burst> bursts;
+    for (int i = 0; i < 3; ++i) {
+      const int64_t a = pos(gen);
+      bursts.push_back({a, std::min<int64_t>(T, a + len(gen)), 60.0 + 40.0 * i});
+    }
+    const auto x = make_recording(T, bursts, seed);
+    const auto inter = interleave(x, T);
+    for (double select : {0.0, 1.0, 2.0}) {
+      WindowConfig c;
+      c.select = select;
+      TouchDetector det(kTaxels, kRate, c);
+      const auto ws = stream_all(det, inter, T);
+      ASSERT_FALSE(ws.empty());
+      // blocks of uneven size
+      TouchDetector det2(kTaxels, kRate, c);
+      std::vector<TouchWindow> ws2;
+      int64_t t = 0, chunk = 1;
+      while (t < T) {
+        const int64_t n = std::min<int64_t>(chunk, T - t);
+        int64_t consumed = 0;
+        const Status st = det2.push_block(inter.data() + t * kTaxels, n, &consumed);
+        t += consumed;
+        if (st == Status::kWindow) ws2.push_back(det2.last_window());
+        chunk = chunk * 3 % 2047 + 1;
+      }
+      if (det2.flush() == Status::kWindow) ws2.push_back(det2.last_window());
+      ASSERT_EQ(ws.size(), ws2.size());
+      for (std::size_t i = 0; i < ws.size(); ++i) EXPECT_TRUE(same(ws[i], ws2[i]));
+      // the batch function's choice is one of the streamed windows (or their span)
+      const TouchWindow b = eskin::detect_window(x.data(), kTaxels, T, T, kRate, c);
+      if (select == 1.0) {
+        EXPECT_TRUE(same(b, ws.front()));
+      } else if (select == 0.0) {
+        const TouchWindow* best = &ws[0];
+        for (const auto& w : ws)
+          if (w.energy > best->energy) best = &w;
+        EXPECT_TRUE(same(b, *best));
+      } else {
+        EXPECT_EQ(b.start, ws.front().start);
+        EXPECT_EQ(b.stop, std::min(ws.back().stop, ws.front().start + det.params().max_window));
+      }
+    }
+  }
+}
+
+TEST(StreamingEqualsBatch, StreamedTensorEqualsBatchPreprocess) {
+  const int64_t T = 12000, D = 50;
+  const auto x = make_recording(T, {{5000, 8000, 120.0}}, 21);
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  const auto inter = interleave(x, T);
+  std::vector<double> streamed(kTaxels * D);
+  bool got = false;
+  for (int64_t t = 0; t < T; ++t) {
+    if (det.push(inter.data() + t * kTaxels) == Status::kWindow) {
+      ASSERT_EQ(det.subsample_last_window(D, SubsampleMethod::kAlgorithm2,
+                                          ShortPolicy::kInterpolate, streamed.data()),
+                Status::kOk);
+      got = true;
+    }
+  }
+  ASSERT_TRUE(got);
+  for (auto method : {SubsampleMethod::kAlgorithm2}) {
+    eskin::PreprocessOptions opt;
+    opt.D = D;
+    opt.method = method;
+    std::vector<double> batch(kTaxels * D);
+    TouchWindow w;
+    eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, batch.data(), &w);
+    EXPECT_TRUE(same(w, det.last_window()));
+    EXPECT_EQ(batch, streamed);
+  }
+}
+
+TEST(Batch, ThreadsGiveTheSameResultAsOneThread) {
+  const int64_t T = 9000, n = 7;
+  std::vector<int16_t> data;
+  std::vector<int64_t> lengths;
+  for (int64_t i = 0; i < n; ++i) {
+    const auto x = make_recording(T, {{1000 + 500 * i, 3000 + 700 * i, 100.0}}, 30 + i);
+    data.insert(data.end(), x.begin(), x.end());
+    lengths.push_back(T - 300 * i);
+  }
+  const auto w1 = eskin::detect_windows(data.data(), n, kTaxels, T, lengths.data(), kRate,
+                                        WindowConfig{}, 1);
+  const auto w4 = eskin::detect_windows(data.data(), n, kTaxels, T, lengths.data(), kRate,
+                                        WindowConfig{}, 4);
+  for (int64_t i = 0; i < n; ++i) {
+    EXPECT_TRUE(same(w1[i], w4[i]));
+    EXPECT_TRUE(w1[i].found);
+    EXPECT_LE(w1[i].stop, lengths[i]);
+  }
+  eskin::PreprocessOptions opt;
+  opt.D = 20;
+  opt.n_threads = 3;
+  std::vector<double> out(n * kTaxels * 20);
+  std::vector<TouchWindow> ws(n);
+  eskin::preprocess(data.data(), n, kTaxels, T, lengths.data(), opt, out.data(), ws.data());
+  for (int64_t i = 0; i < n; ++i) EXPECT_TRUE(same(ws[i], w1[i]));
+  // a bad length names the recording
+  lengths[3] = T + 1;
+  try {
+    eskin::detect_windows(data.data(), n, kTaxels, T, lengths.data(), kRate, WindowConfig{}, 2);
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("lengths[3]"), std::string::npos) << e.what();
+  }
+}
+
+// ------------------------------------------------------------------ no allocation per sample
+
+TEST(NoAllocation, PerSamplePathNeverAllocates) {
+  const int64_t T = 21000, D = 100;
+  const auto x = make_recording(T, {{3000, 6000, 150.0}, {9000, 9500, 150.0}, {14000, 20000, 90.0}},
+                                40);
+  const auto inter = interleave(x, T);
+  std::vector<float> inter_f(inter.begin(), inter.end());
+  TouchDetector det(kTaxels, kRate, WindowConfig{});
+  std::vector<double> tensor(kTaxels * D);
+  int windows = 0;
+  const long before = g_allocations.load();
+  for (int64_t t = 0; t < T; ++t) {
+    const Status st = (t % 2) ? det.push(inter.data() + t * kTaxels)
+                              : det.push(inter_f.data() + t * kTaxels);
+    if (st == Status::kWindow) {
+      ++windows;
+      if (det.subsample_last_window(D, SubsampleMethod::kEven, ShortPolicy::kInterpolate,
+                                    tensor.data()) != Status::kOk) {
+        ADD_FAILURE() << "subsample failed";
+      }
+    }
+  }
+  if (det.flush() == Status::kWindow) ++windows;
+  det.reset();
+  int64_t consumed = 0;
+  (void)det.push_block(inter.data(), T, &consumed);
+  const long after = g_allocations.load();
+  EXPECT_EQ(after - before, 0);
+  EXPECT_EQ(windows, 3);
+  // the counter does count: constructing a detector allocates
+  TouchDetector other(kTaxels, kRate, WindowConfig{});
+  EXPECT_GT(g_allocations.load(), after);
+}

@@ -1,0 +1,427 @@
+"""Tests of eskin.preprocess: Algorithm 2 against a direct numpy transcription, the even and
+S < D rules, detector invariants, streaming == batch, errors."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import eskin
+from eskin import _core
+from eskin.preprocess import (
+    TouchDetector,
+    WindowConfig,
+    detect_touches,
+    detect_windows,
+    preprocess,
+    subsample,
+    subsample_indices,
+)
+
+RATE = 3000.0
+
+
+def algorithm2_numpy(S_bar: np.ndarray, D: int) -> np.ndarray:
+    """Algorithm 2 of the paper, transcribed literally (1-based p, as printed)."""
+    S_i = S_bar.shape[2]
+    interval = S_i // D
+    L = np.empty(S_bar.shape[:2] + (D,))
+    p = 1
+    for d in range(1, D + 1):
+        L[:, :, d - 1] = S_bar[:, :, p - 1]
+        p = p + interval
+    return L
+
+
+def even_numpy(S_bar: np.ndarray, D: int) -> np.ndarray:
+    S = S_bar.shape[2]
+    if D == 1:
+        return S_bar[:, :, :1].astype(float)
+    idx = [(2 * d * (S - 1) + (D - 1)) // (2 * (D - 1)) for d in range(D)]
+    return S_bar[:, :, idx].astype(float)
+
+
+def recording(
+    T: int, bursts: list[tuple[int, int, float]], seed: int, grid=(4, 4), noise=20.0
+) -> np.ndarray:
+    """int16 (rows, cols, T): noise, per-taxel offsets, 80 Hz bursts [a, b) of an amplitude."""
+    rng = np.random.default_rng(seed)
+    rows, cols = grid
+    x = rng.normal(0.0, noise, (rows, cols, T))
+    x += rng.integers(-500, 500, (rows, cols, 1))
+    t = np.arange(T)
+    for a, b, amp in bursts:
+        gain = 1.0 + 0.05 * np.arange(rows * cols).reshape(rows, cols, 1)
+        x[:, :, a:b] += amp * gain * np.sin(2 * np.pi * 80.0 * t[a:b] / RATE)
+    return np.round(x).astype(np.int16)
+
+
+# --------------------------------------------------------------------------- subsampling
+
+
+@pytest.mark.parametrize("S", [100, 101, 150, 199, 200, 999, 4321, 21000])
+@pytest.mark.parametrize("D", [1, 20, 50, 100])
+def test_algorithm2_matches_the_paper_transcription(S, D):
+    rng = np.random.default_rng(S * 1000 + D)
+    x = rng.integers(-30000, 30000, (4, 4, S), dtype=np.int16)
+    got = subsample(x, D)
+    np.testing.assert_array_equal(got, algorithm2_numpy(x, D))
+    assert got.dtype == np.float64 and got.shape == (4, 4, D)
+    np.testing.assert_array_equal(subsample_indices(S, D), np.arange(D) * (S // D))
+
+
+def test_algorithm2_remainder_keeps_only_the_first_D_samples():
+    # D <= S < 2D: interval 1, the rest of the touch is dropped (NOTES point 18)
+    x = np.arange(150, dtype=float).reshape(1, 1, 150)
+    np.testing.assert_array_equal(subsample(x, 100)[0, 0], np.arange(100))
+    # the even alternative spans the whole window
+    ev = subsample(x, 100, method="even")[0, 0]
+    assert ev[0] == 0 and ev[-1] == 149
+    np.testing.assert_array_equal(ev, even_numpy(x, 100)[0, 0])
+
+
+@pytest.mark.parametrize("S,D", [(100, 100), (101, 100), (21000, 100), (5, 2), (7, 1)])
+def test_even_indices(S, D):
+    rng = np.random.default_rng(S + D)
+    x = rng.normal(size=(2, 3, S))
+    np.testing.assert_array_equal(subsample(x, D, method="even"), even_numpy(x, D))
+
+
+def test_short_window_interpolates_or_errors():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(4, 4, 37))
+    got = subsample(x, 100)
+    pos = np.arange(100) * 36 / 99
+    want = np.stack([np.interp(pos, np.arange(37), v) for v in x.reshape(16, 37)]).reshape(
+        4, 4, 100
+    )
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got[..., 0], x[..., 0])
+    np.testing.assert_array_equal(got[..., -1], x[..., -1])
+    # the method does not matter when S < D
+    np.testing.assert_array_equal(subsample(x, 100, method="even"), got)
+    with pytest.raises(ValueError, match="shorter than D"):
+        subsample(x, 100, short="error")
+
+
+def test_subsample_uses_lengths_and_given_windows():
+    rng = np.random.default_rng(4)
+    x = rng.integers(-100, 100, (3, 2, 2, 500), dtype=np.int16)
+    lengths = np.array([500, 320, 211])
+    got = subsample(x, 50, lengths=lengths)
+    for i in range(3):
+        np.testing.assert_array_equal(got[i], algorithm2_numpy(x[i, :, :, : lengths[i]], 50))
+    windows = np.array([[10, 400], [0, 320], [100, 211]])
+    got = subsample(x, 20, windows=windows, lengths=lengths)
+    for i, (a, b) in enumerate(windows):
+        np.testing.assert_array_equal(got[i], algorithm2_numpy(x[i, :, :, a:b], 20))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    S=st.integers(1, 3000),
+    D=st.integers(1, 200),
+    method=st.sampled_from(["algorithm2", "even"]),
+    rows=st.integers(1, 4),
+    cols=st.integers(1, 5),
+)
+def test_subsample_invariants(S, D, method, rows, cols):
+    rng = np.random.default_rng(S * 7 + D)
+    x = rng.integers(-1000, 1000, (rows, cols, S)).astype(np.int16)
+    out = subsample(x, D, method=method)
+    assert out.shape == (rows, cols, D) and out.dtype == np.float64
+    if S >= D:
+        idx = subsample_indices(S, D, method)
+        assert idx[0] == 0 and np.all(np.diff(idx) > 0) and idx[-1] <= S - 1
+        if method == "algorithm2":
+            # Algorithm 2 never reaches the tail: the last interval's rest plus the remainder
+            assert S - 1 - idx[-1] == (S // D - 1) + S % D
+        else:
+            assert idx[-1] == S - 1 or D == 1
+        np.testing.assert_array_equal(out, x[:, :, idx].astype(float))
+    else:
+        # interpolation stays within each taxel's range and hits both ends
+        lo, hi = x.min(axis=2, keepdims=True), x.max(axis=2, keepdims=True)
+        assert np.all(out >= lo - 1e-9) and np.all(out <= hi + 1e-9)
+        np.testing.assert_array_equal(out[..., 0], x[..., 0])
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_window_config_mirrors_the_cpp_struct():
+    assert WindowConfig.field_names() == tuple(_core.WINDOW_CONFIG_FIELDS)
+    np.testing.assert_array_equal(WindowConfig().to_array(), _core.window_config_defaults())
+    c = WindowConfig(on_factor=6.0, combine="max", select="span", fallback="error")
+    assert WindowConfig.from_array(c.to_array()) == c
+    assert WindowConfig.from_dict(c.to_dict()) == c
+    r = WindowConfig().resolve(3000.0)
+    assert r["frame_len"] == 30 and r["max_window"] == 21000 and r["pad_before"] == 150
+    assert WindowConfig().resolve(1000.0)["frame_len"] == 10
+
+
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(combine="mean"), "combine"),
+        (dict(select="last"), "select"),
+        (dict(on_factor=float("nan")), "on_factor"),
+        (dict(hold_s="long"), "hold_s"),
+    ],
+)
+def test_window_config_rejects_bad_fields(kw, match):
+    with pytest.raises(ValueError, match=match):
+        WindowConfig(**kw)
+
+
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(on_factor=1.0), "on_factor"),
+        (dict(frame_s=0.0), "frame_s"),
+        (dict(noise_quantile=2.0), "noise_quantile"),
+        (dict(max_window_s=0.01), "max_window_s"),
+    ],
+)
+def test_window_config_values_checked_when_used(kw, match):
+    x = recording(3000, [], 0)
+    with pytest.raises(ValueError, match=match):
+        detect_windows(x, config=WindowConfig(**kw))
+
+
+def test_window_config_from_array_errors():
+    with pytest.raises(ValueError, match="shape"):
+        WindowConfig.from_array(np.zeros(3))
+    a = WindowConfig().to_array()
+    a[2] = 5
+    with pytest.raises(ValueError, match="combine"):
+        WindowConfig.from_array(a)
+    with pytest.raises(ValueError, match="unknown"):
+        WindowConfig.from_dict({"bogus": 1})
+
+
+# --------------------------------------------------------------------------- detector
+
+
+def test_detects_a_burst_with_known_onset_and_offset():
+    x = recording(21000, [(4500, 10500, 120.0)], 1)
+    t = detect_touches(x[None])
+    assert t.found[0] and not t.truncated[0]
+    assert abs(t.onset[0] - 4500) <= 30 and abs(t.offset[0] - 10500) <= 60
+    assert t.start[0] == t.onset[0] - 150 and t.stop[0] == t.offset[0] + 150
+    np.testing.assert_array_equal(detect_windows(x), [t.start[0], t.stop[0]])
+    assert detect_windows(x[None]).shape == (1, 2) and detect_windows(x).dtype == np.int64
+
+
+def test_no_touch_gives_the_whole_recording_or_an_error():
+    x = recording(6000, [], 2)
+    t = detect_touches(x[None], lengths=[5000])
+    assert not t.found[0]
+    np.testing.assert_array_equal(t.windows, [[0, 5000]])
+    with pytest.raises(RuntimeError, match="no touch"):
+        detect_windows(x, config=WindowConfig(fallback="error"))
+
+
+def test_any_grid_and_rate():
+    # a 2 x 3 grid at 1 kHz; times are in seconds so the same config applies
+    rate = 1000.0
+    rng = np.random.default_rng(5)
+    x = rng.normal(0, 1.0, (2, 3, 5000))
+    t = np.arange(5000)
+    x[:, :, 2000:3000] += 8 * np.sin(2 * np.pi * 40 * t[2000:3000] / rate)
+    w = detect_windows(x, sample_rate_hz=rate)
+    assert abs(w[0] - (2000 - 50)) <= 10 and abs(w[1] - (3000 + 50)) <= 20
+    out = preprocess(x, 20, sample_rate_hz=rate)
+    np.testing.assert_array_equal(out, algorithm2_numpy(x[:, :, w[0] : w[1]], 20))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    a=st.integers(500, 15000),
+    dur=st.integers(300, 5000),
+    amp=st.floats(60.0, 500.0),
+    k=st.integers(-3, 3),
+    seed=st.integers(0, 2**16),
+)
+def test_detector_invariants(a, dur, amp, k, seed):
+    T = 21000
+    x = recording(T, [(a, min(T, a + dur), amp)], seed).astype(np.float64)
+    length = T - seed % 2000
+    t = detect_touches(x[None], lengths=[length])
+    assert 0 <= t.start[0] < t.stop[0] <= length
+    assert t.start[0] <= t.onset[0] <= t.offset[0] <= t.stop[0]
+    assert t.stop[0] - t.start[0] <= 21000
+    # thresholds are relative to the noise floor: scaling by a power of two changes nothing
+    t2 = detect_touches(x[None] * 2.0**k, lengths=[length])
+    np.testing.assert_array_equal(t2.windows, t.windows)
+    # int16 and float64 inputs give the same windows
+    t3 = detect_touches(x[None].astype(np.int16), lengths=[length])
+    np.testing.assert_array_equal(t3.windows, t.windows)
+
+
+# --------------------------------------------------------------------------- streaming == batch
+
+
+@pytest.mark.parametrize("select", ["energy", "first", "span"])
+def test_streaming_equals_batch(select):
+    rng = np.random.default_rng(11)
+    cfg = WindowConfig(select=select)
+    for seed in range(3):
+        bursts = [(int(a), int(a + rng.integers(300, 4000)), 80.0 + 40 * j)
+                  for j, a in enumerate(sorted(rng.integers(1000, 16000, 3)))]
+        x = recording(21000, bursts, seed)
+        det = TouchDetector((4, 4), RATE, cfg, D=50)
+        stream = np.moveaxis(x, -1, 0)  # (T, 4, 4), sample-major
+        found = []
+        i = 0
+        while i < stream.shape[0]:
+            n = int(rng.integers(1, 3000))
+            found += det.push(stream[i : i + n])
+            i += n
+        found += det.flush()
+        assert det.samples_seen == 21000
+        assert found
+        b = detect_touches(x[None], config=cfg)
+        energies = [w.energy for w in found]
+        if select == "first":
+            chosen = found[0]
+        elif select == "energy":
+            chosen = found[int(np.argmax(energies))]
+        if select == "span":
+            assert b.start[0] == found[0].start and b.stop[0] == found[-1].stop
+        else:
+            assert (b.start[0], b.stop[0], b.onset[0], b.offset[0]) == (
+                chosen.start, chosen.stop, chosen.onset, chosen.offset)
+            assert b.energy[0] == chosen.energy
+            # the streamed window's tensor equals the batch tensor
+            np.testing.assert_array_equal(chosen.tensor, preprocess(x, 50, config=cfg))
+
+
+def test_streaming_one_sample_at_a_time_and_reset():
+    x = recording(9000, [(3000, 6000, 150.0)], 12)
+    det = TouchDetector(16, RATE)
+    found = []
+    for t in range(9000):
+        found += det.push(x[:, :, t].reshape(16))
+    found += det.flush()
+    assert len(found) == 1 and found[0].tensor is None
+    np.testing.assert_array_equal([found[0].start, found[0].stop], detect_windows(x))
+    det.reset()
+    assert det.samples_seen == 0
+    again = det.push(np.moveaxis(x, -1, 0).reshape(9000, 16)) + det.flush()
+    assert [(w.start, w.stop) for w in again] == [(w.start, w.stop) for w in found]
+
+
+def test_streaming_rejects_bad_samples():
+    det = TouchDetector((4, 4), RATE)
+    with pytest.raises(ValueError, match="samples must be"):
+        det.push(np.zeros((10, 3, 3)))
+    bad = np.zeros((5, 16))
+    bad[3, 7] = np.nan
+    with pytest.raises(ValueError, match=r"samples\[3\].*taxel 7"):
+        det.push(bad)
+    assert det.samples_seen == 0
+    with pytest.raises(ValueError, match="grid"):
+        TouchDetector((0, 4))
+
+
+# --------------------------------------------------------------------------- batch API
+
+
+def test_preprocess_batch_and_single():
+    xs = np.stack([recording(21000, [(3000 + 1000 * i, 9000 + 500 * i, 120.0)], i)
+                   for i in range(4)])
+    out, w = preprocess(xs, 100, return_windows=True)
+    assert out.shape == (4, 4, 4, 100) and out.dtype == np.float64 and w.shape == (4, 2)
+    np.testing.assert_array_equal(w, detect_windows(xs))
+    for i in range(4):
+        np.testing.assert_array_equal(out[i], preprocess(xs[i], 100))
+        np.testing.assert_array_equal(out[i], algorithm2_numpy(xs[i, :, :, w[i, 0]:w[i, 1]], 100))
+    even = preprocess(xs, 20, subsample="even")
+    np.testing.assert_array_equal(even[1], even_numpy(xs[1, :, :, w[1, 0]:w[1, 1]], 20))
+    none = preprocess(xs, 20, window="none", lengths=[21000, 20000, 15000, 100])
+    np.testing.assert_array_equal(none[2], algorithm2_numpy(xs[2, :, :, :15000], 20))
+    # threads do not change anything
+    np.testing.assert_array_equal(preprocess(xs, 100, n_threads=1), out)
+    # the public names resolve through the package; eskin.preprocess is callable even though
+    # the submodule eskin.preprocess has been imported (and shadows the attribute)
+    np.testing.assert_array_equal(eskin.preprocess(xs, 100), out)
+    assert eskin.WindowConfig is WindowConfig and eskin.detect_windows is detect_windows
+
+
+def test_preprocess_reads_h5py_datasets_in_chunks(tmp_path):
+    n = 37  # more than one chunk
+    rng = np.random.default_rng(8)
+    xs = rng.normal(0, 20, (n, 2, 2, 3000))
+    for i in range(n):
+        a = 500 + 30 * i
+        xs[i, :, :, a : a + 1000] += 200 * np.sin(np.arange(1000) / 3.0)
+    xs = np.round(xs).astype(np.int16)
+    lengths = rng.integers(2500, 3001, n)
+    with h5py.File(tmp_path / "c.h5", "w") as f:
+        f.create_dataset("s", data=xs, chunks=(1, 2, 2, 3000))
+    with h5py.File(tmp_path / "c.h5", "r") as f:
+        got = preprocess(f["s"], 20, lengths=lengths)
+        wins = detect_windows(f["s"], lengths)
+    np.testing.assert_array_equal(got, preprocess(xs, 20, lengths=lengths))
+    np.testing.assert_array_equal(wins, detect_windows(xs, lengths))
+    # an error in a later chunk names the recording's index in the whole dataset
+    xf = xs.astype(float)
+    xf[35, 1, 0, 17] = np.nan
+    with h5py.File(tmp_path / "d.h5", "w") as f:
+        f.create_dataset("s", data=xf)
+    with h5py.File(tmp_path / "d.h5", "r") as f:
+        with pytest.raises(ValueError, match=r"signals\[35\] has a non-finite value at taxel 2"):
+            preprocess(f["s"], 20)
+
+
+@pytest.mark.parametrize(
+    "call,match",
+    [
+        (lambda x: preprocess(x, 0), "D = 0"),
+        (lambda x: preprocess(x, 2.5), "D = 2.5"),
+        (lambda x: preprocess(x, True), "D = True"),
+        (lambda x: preprocess(x[0, 0], 10), "shape"),
+        (lambda x: preprocess(x[None], 10), "shape"),
+        (lambda x: preprocess(x, 10, lengths=[0, 100]), r"lengths\[0\] = 0"),
+        (lambda x: preprocess(x, 10, lengths=[100, 5000]), r"lengths\[1\] = 5000"),
+        (lambda x: preprocess(x, 10, lengths=[100]), "lengths must have shape"),
+        (lambda x: preprocess(x, 10, lengths=[100.5, 3]), "integers"),
+        (lambda x: preprocess(x, 10, window="hann"), "window"),
+        (lambda x: preprocess(x, 10, subsample="random"), "subsample"),
+        (lambda x: preprocess(x, 10, sample_rate_hz=0), "sample_rate_hz"),
+        (lambda x: preprocess(x, 10, config=3), "config"),
+        (lambda x: preprocess(x, 10, window=[[0, 10]]), "window"),
+        (lambda x: preprocess(x, 10, window=[[0, 10], [50, 40]]), r"windows\[1\]"),
+        (lambda x: preprocess(x.astype(complex), 10), "dtype"),
+        (lambda x: detect_windows("abc"), "signals"),
+    ],
+)
+def test_errors(call, match):
+    x = np.zeros((2, 4, 4, 3000), dtype=np.int16)
+    with pytest.raises(ValueError, match=match):
+        call(x)
+
+
+def test_nan_names_recording_taxel_and_sample():
+    x = np.zeros((3, 4, 4, 1000))
+    x[2, 1, 2, 500] = np.nan
+    with pytest.raises(ValueError, match=r"signals\[2\] has a non-finite value at taxel 6, sample 500"):
+        preprocess(x, 10)
+    with pytest.raises(ValueError, match=r"signals\[2\]"):
+        preprocess(x, 10, window="none")
+    # NaN beyond the valid length is padding and is ignored
+    assert preprocess(x, 10, lengths=[1000, 1000, 400]).shape == (3, 4, 4, 10)
+
+
+def test_eskin_preprocess_is_both_the_function_and_the_module():
+    import eskin.preprocess as module  # noqa: PLC0415
+
+    assert callable(eskin.preprocess) and eskin.preprocess.WindowConfig is WindowConfig
+    assert module.preprocess is preprocess
+    x = recording(3000, [(1000, 2000, 150.0)], 9)
+    np.testing.assert_array_equal(eskin.preprocess(x, 10), preprocess(x, 10))
+    np.testing.assert_array_equal(module(x, 10, window="none"), preprocess(x, 10, window="none"))
