@@ -196,3 +196,30 @@ def test_tdms_errors(tmp_path):
     with pytest.raises(ValueError, match=r"group 'recording 0': no 'modality' property"):
         import_tdms(nolabel, out)
     assert not out.exists()
+
+
+def test_cli_import_csv_and_tdms(tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    folder, truth = _csv_folder(tmp_path)
+    out = tmp_path / "csv.h5"
+    run = CliRunner().invoke
+    r = run(app, ["import-csv", str(folder), "-o", str(out), "--rows", "4", "--cols", "4",
+                  "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 0, r.output
+    assert "4 recordings" in r.output
+    r = run(app, ["import-csv", str(folder), "-o", str(out), "--rows", "4", "--cols", "4",
+                  "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 2 and "refusing to overwrite" in r.output
+    r = run(app, ["import-csv", str(folder), "-o", str(tmp_path / "x.h5"), "--rows", "3",
+                  "--cols", "4", "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 2 and "expected 12" in r.output
+
+    p = tmp_path / "s.tdms"
+    _tdms(p, _recs())
+    r = run(app, ["import-tdms", str(p), "-o", str(tmp_path / "t.h5"),
+                  "--modalities", "brush,finger,washer"])
+    assert r.exit_code == 0, r.output
+    assert "3 recordings" in r.output
