@@ -233,6 +233,7 @@ void bind_preprocess(py::module_& m) {
         d["noise_frames"] = p.noise_frames;
         d["warmup_frames"] = p.warmup_frames;
         d["hold_frames"] = p.hold_frames;
+        d["lookback_frames"] = p.lookback_frames;
         d["min_duration"] = p.min_duration;
         d["pad_before"] = p.pad_before;
         d["pad_after"] = p.pad_after;

@@ -45,18 +45,20 @@ constexpr bool kIsFloat = std::is_floating_point_v<T>;
 
 const std::array<const char*, kWindowConfigSize>& window_config_field_names() {
   static const std::array<const char*, kWindowConfigSize> names = {
-      "frame_s",        "dc_cutoff_hz", "combine",        "noise_window_s",
-      "noise_quantile", "warmup_s",     "min_noise_energy", "on_factor",
-      "off_factor",     "hold_s",       "min_duration_s", "pad_before_s",
-      "pad_after_s",    "max_window_s", "select",         "fallback"};
+      "frame_s",          "dc_cutoff_hz", "combine",        "noise_window_s",
+      "noise_quantile",   "warmup_s",     "min_noise_energy", "on_factor",
+      "off_factor",       "release_fraction", "lookback_s", "hold_s",
+      "min_duration_s",   "pad_before_s", "pad_after_s",    "max_window_s",
+      "select",           "span_fraction", "fallback"};
   return names;
 }
 
 std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig& c) {
-  return {c.frame_s,    c.dc_cutoff_hz,   c.combine,      c.noise_window_s,
-          c.noise_quantile, c.warmup_s,   c.min_noise_energy, c.on_factor,
-          c.off_factor, c.hold_s,         c.min_duration_s, c.pad_before_s,
-          c.pad_after_s, c.max_window_s,  c.select,       c.fallback};
+  return {c.frame_s,          c.dc_cutoff_hz,     c.combine,        c.noise_window_s,
+          c.noise_quantile,   c.warmup_s,         c.min_noise_energy, c.on_factor,
+          c.off_factor,       c.release_fraction, c.lookback_s,     c.hold_s,
+          c.min_duration_s,   c.pad_before_s,     c.pad_after_s,    c.max_window_s,
+          c.select,           c.span_fraction,    c.fallback};
 }
 
 WindowConfig window_config_from_array(const double* v, std::size_t n) {
@@ -75,13 +77,16 @@ WindowConfig window_config_from_array(const double* v, std::size_t n) {
   c.min_noise_energy = v[6];
   c.on_factor = v[7];
   c.off_factor = v[8];
-  c.hold_s = v[9];
-  c.min_duration_s = v[10];
-  c.pad_before_s = v[11];
-  c.pad_after_s = v[12];
-  c.max_window_s = v[13];
-  c.select = v[14];
-  c.fallback = v[15];
+  c.release_fraction = v[9];
+  c.lookback_s = v[10];
+  c.hold_s = v[11];
+  c.min_duration_s = v[12];
+  c.pad_before_s = v[13];
+  c.pad_after_s = v[14];
+  c.max_window_s = v[15];
+  c.select = v[16];
+  c.span_fraction = v[17];
+  c.fallback = v[18];
   return c;
 }
 
@@ -126,6 +131,12 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   }
   p.on_factor = c.on_factor;
   p.off_factor = c.off_factor;
+  if (c.release_fraction < 0 || c.release_fraction >= 1) {
+    bad("release_fraction", c.release_fraction, "must be in [0, 1)");
+  }
+  p.release_fraction = c.release_fraction;
+  if (c.lookback_s < 0) bad("lookback_s", c.lookback_s, "must be >= 0");
+  p.lookback_frames = to_samples(c.lookback_s, rate) / p.frame_len;
   if (c.hold_s < 0) bad("hold_s", c.hold_s, "must be >= 0");
   p.hold_frames = std::max<int64_t>(1, ceil_div(to_samples(c.hold_s, rate), p.frame_len));
   if (c.min_duration_s < 0) bad("min_duration_s", c.min_duration_s, "must be >= 0");
@@ -135,13 +146,18 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   p.pad_before = to_samples(c.pad_before_s, rate);
   p.pad_after = to_samples(c.pad_after_s, rate);
   p.max_window = to_samples(c.max_window_s, rate);
-  if (p.max_window < p.pad_before + 2 * p.frame_len) {
+  const int64_t room = p.pad_before + (p.lookback_frames + 2) * p.frame_len;
+  if (p.max_window < room) {
     bad("max_window_s", c.max_window_s,
-        "must leave room for pad_before_s plus two frames (" +
-            fmt(static_cast<double>(p.pad_before + 2 * p.frame_len) / rate) + " s)");
+        "must leave room for pad_before_s, lookback_s and two frames (" +
+            fmt(static_cast<double>(room) / rate) + " s)");
   }
   if (p.max_window > (int64_t{1} << 34)) bad("max_window_s", c.max_window_s, "is too large");
   p.select = choice("select", c.select, 3);
+  if (c.span_fraction < 0 || c.span_fraction > 1) {
+    bad("span_fraction", c.span_fraction, "must be in [0, 1]");
+  }
+  p.span_fraction = c.span_fraction;
   p.fallback = choice("fallback", c.fallback, 2);
   return p;
 }
@@ -241,8 +257,9 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   acc_.assign(static_cast<std::size_t>(n_taxels), 0.0);
   noise_ring_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
   noise_scratch_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
+  frame_ring_.assign(static_cast<std::size_t>(std::max<int64_t>(1, p_.lookback_frames)), 0.0);
   if (store_) {
-    ring_cap_ = p_.pad_before + p_.frame_len;
+    ring_cap_ = p_.pad_before + (p_.lookback_frames + 1) * p_.frame_len;
     ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), 0.0);
     window_.assign(static_cast<std::size_t>(p_.max_window * n_taxels), 0.0);
   }
@@ -260,7 +277,9 @@ void TouchDetector::reset() noexcept {
   floor_ = p_.min_noise_energy;
   last_energy_ = 0.0;
   onset_ = start_ = last_above_end_ = quiet_frames_ = 0;
-  energy_ = 0.0;
+  energy_ = peak_ = 0.0;
+  last_stop_ = 0;
+  std::fill(frame_ring_.begin(), frame_ring_.end(), 0.0);
   last_ = TouchWindow{};
 }
 
@@ -281,14 +300,14 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
       ++window_len_;
     }
   }
-  const double a = p_.dc_alpha;
-  if (a > 0) {
-    if (now_ == 0) {
-      for (int64_t k = 0; k < K; ++k) dc_mean_[k] = static_cast<double>(x[k * taxel_stride]);
-    }
+  if (p_.dc_alpha > 0) {
+    // DC blocker: an exponential mean with a fast start (the plain running mean while that is
+    // the faster, so that an ADC offset is removed from the first sample on)
+    const double a = std::max(p_.dc_alpha, 1.0 / static_cast<double>(now_ + 1));
     for (int64_t k = 0; k < K; ++k) {
-      const double y = static_cast<double>(x[k * taxel_stride]) - dc_mean_[k];
-      dc_mean_[k] += a * y;
+      const double v = static_cast<double>(x[k * taxel_stride]);
+      dc_mean_[k] += a * (v - dc_mean_[k]);
+      const double y = v - dc_mean_[k];
       acc_[k] += y * y;
     }
   } else {
@@ -348,51 +367,70 @@ Status TouchDetector::on_frame() noexcept {
   e *= inv;  // mean square per sample (summed or maxed over taxels)
   std::fill(acc_.begin(), acc_.end(), 0.0);
   last_energy_ = e;
-  ++frames_seen_;
+  const int64_t f = frames_seen_++;  // index of this frame
+  // energies of the frames before this one, for onset backtracking
+  const auto ring_n = static_cast<int64_t>(frame_ring_.size());
+  auto previous = [&](int64_t j) { return frame_ring_[(f - j) % ring_n]; };  // frame f - j
+  Status st = Status::kOk;
   if (frames_seen_ <= p_.warmup_frames) {
     push_noise(e);
-    return Status::kOk;
-  }
-  const double on = p_.on_factor * floor_;
-  const double off = p_.off_factor * floor_;
-  switch (state_) {
-    case State::kIdle:
-      if (e > on) {
-        state_ = State::kActive;
-        onset_ = now_ - p_.frame_len;
-        start_ = std::max<int64_t>(0, onset_ - p_.pad_before);
-        last_above_end_ = now_;
-        quiet_frames_ = 0;
-        energy_ = e * static_cast<double>(p_.frame_len);
-        window_valid_ = false;
-        if (store_) {
-          window_len_ = now_ - start_;
-          for (int64_t t = start_; t < now_; ++t) {
-            const double* r = ring_.data() + (t % ring_cap_) * n_taxels_;
-            std::copy(r, r + n_taxels_, window_.data() + (t - start_) * n_taxels_);
+  } else {
+    const double on = p_.on_factor * floor_;
+    const double off = p_.off_factor * floor_;
+    switch (state_) {
+      case State::kIdle:
+        if (e > on) {
+          state_ = State::kActive;
+          // double-threshold hysteresis: the touch also covers the frames just before the
+          // trigger that were already above the off threshold (at most lookback_frames, not
+          // into the warm-up nor the previous touch)
+          int64_t first = f;
+          while (f - first < p_.lookback_frames && first - 1 >= p_.warmup_frames &&
+                 (first - 1) * p_.frame_len >= last_stop_ && previous(f - first + 1) > off) {
+            --first;
           }
+          onset_ = first * p_.frame_len;
+          start_ = std::max<int64_t>(0, onset_ - p_.pad_before);
+          last_above_end_ = now_;
+          quiet_frames_ = 0;
+          energy_ = e * static_cast<double>(p_.frame_len);
+          for (int64_t j = 1; j <= f - first; ++j) {
+            energy_ += previous(j) * static_cast<double>(p_.frame_len);
+          }
+          peak_ = e;
+          window_valid_ = false;
+          if (store_) {
+            window_len_ = now_ - start_;
+            for (int64_t t = start_; t < now_; ++t) {
+              const double* r = ring_.data() + (t % ring_cap_) * n_taxels_;
+              std::copy(r, r + n_taxels_, window_.data() + (t - start_) * n_taxels_);
+            }
+          }
+        } else {
+          push_noise(e);
         }
-      } else {
+        break;
+      case State::kActive: {
+        peak_ = std::max(peak_, e);
+        if (e > std::max(off, p_.release_fraction * peak_)) {
+          last_above_end_ = now_;
+          quiet_frames_ = 0;
+          energy_ += e * static_cast<double>(p_.frame_len);
+        } else if (++quiet_frames_ >= p_.hold_frames && now_ >= last_above_end_ + p_.pad_after) {
+          st = finalise(false);
+        }
+        break;
+      }
+      case State::kRefractory:
+        // after a cut at max_window: wait for the energy to fall, re-learning the noise floor
+        // meanwhile (a raised background is not a touch that never ends)
+        if (e <= off) state_ = State::kIdle;
         push_noise(e);
-      }
-      return Status::kOk;
-    case State::kActive:
-      if (e > off) {
-        last_above_end_ = now_;
-        quiet_frames_ = 0;
-        energy_ += e * static_cast<double>(p_.frame_len);
-        return Status::kOk;
-      }
-      ++quiet_frames_;
-      if (quiet_frames_ >= p_.hold_frames && now_ >= last_above_end_ + p_.pad_after) {
-        return finalise(false);
-      }
-      return Status::kOk;
-    case State::kRefractory:
-      if (e <= off) state_ = State::kIdle;
-      return Status::kOk;
+        break;
+    }
   }
-  return Status::kOk;
+  if (ring_n > 0) frame_ring_[f % ring_n] = e;
+  return st;
 }
 
 Status TouchDetector::finalise(bool forced) noexcept {
@@ -407,6 +445,7 @@ Status TouchDetector::finalise(bool forced) noexcept {
   w.truncated = truncated;
   w.found = true;
   state_ = forced ? State::kRefractory : State::kIdle;
+  last_stop_ = w.stop;
   if (w.offset - w.onset < p_.min_duration) {
     if (store_) window_len_ = 0;
     return Status::kOk;
@@ -444,40 +483,81 @@ template Status TouchDetector::step<int16_t>(const int16_t*, int64_t) noexcept;
 template Status TouchDetector::step<float>(const float*, int64_t) noexcept;
 template Status TouchDetector::step<double>(const double*, int64_t) noexcept;
 
+// ---------------------------------------------------------------- window selection
+
+int64_t WindowSelector::capacity_for(const DetectorParams& p, int64_t length) noexcept {
+  // reported touches: each next onset is at or after the previous stop, so onsets are at least
+  // min_duration apart; each next trigger comes after the previous end decision, so offsets
+  // are at least hold (and one frame) apart
+  const int64_t period =
+      std::max({p.frame_len, p.min_duration, p.hold_frames * p.frame_len});
+  return std::max<int64_t>(1, length / std::max<int64_t>(1, period) + 2);
+}
+
+WindowSelector::WindowSelector(const DetectorParams& p, int64_t capacity)
+    : select_(p.select), span_fraction_(p.span_fraction), max_window_(p.max_window) {
+  if (capacity < 1) capacity = capacity_for(p, 4 * p.max_window);
+  buf_.assign(static_cast<std::size_t>(select_ == 2 ? capacity : 1), TouchWindow{});
+}
+
+void WindowSelector::add(const TouchWindow& w) noexcept {
+  if (select_ == 1) {  // first
+    if (n_ == 0) buf_[0] = w, n_ = 1;
+    return;
+  }
+  if (select_ == 0) {  // most energetic (the earliest on ties)
+    if (n_ == 0 || w.energy > buf_[0].energy) buf_[0] = w;
+    n_ = 1;
+    return;
+  }
+  const auto cap = static_cast<int64_t>(buf_.size());
+  if (n_ == cap) {  // full: drop the least energetic touch (never reached within capacity_for)
+    int64_t lo = 0;
+    for (int64_t i = 1; i < n_; ++i) {
+      if (buf_[i].energy < buf_[lo].energy) lo = i;
+    }
+    if (w.energy <= buf_[lo].energy) return;
+    for (int64_t i = lo; i + 1 < n_; ++i) buf_[i] = buf_[i + 1];
+    --n_;
+  }
+  buf_[n_++] = w;
+}
+
+TouchWindow WindowSelector::result() const noexcept {
+  if (select_ != 2 || n_ == 0) return buf_[0];
+  double peak = buf_[0].energy;
+  for (int64_t i = 1; i < n_; ++i) peak = std::max(peak, buf_[i].energy);
+  // span: from the first to the last touch holding at least span_fraction of the peak energy
+  const double min_energy = span_fraction_ * peak;
+  TouchWindow out{};
+  bool any = false;
+  for (int64_t i = 0; i < n_; ++i) {
+    const TouchWindow& w = buf_[i];
+    if (w.energy < min_energy) continue;
+    if (!any) {
+      out = w;
+      any = true;
+      continue;
+    }
+    out.energy += w.energy;
+    out.truncated = out.truncated || w.truncated || w.stop > out.start + max_window_;
+    out.stop = std::min(w.stop, out.start + max_window_);
+    out.offset = std::min(w.offset, out.stop);
+  }
+  return out;
+}
+
 // ---------------------------------------------------------------- batch
 
 namespace {
 
 // Chooses one window among the touches of a recording (cfg.select).
-struct Selector {
-  int select;
-  int64_t max_window;
-  bool any = false;
-  TouchWindow best{};
-
-  void add(const TouchWindow& w) {
-    if (!any) {
-      best = w;
-      any = true;
-      return;
-    }
-    if (select == 0) {
-      if (w.energy > best.energy) best = w;
-    } else if (select == 2) {
-      best.stop = std::min(w.stop, best.start + max_window);
-      best.offset = std::min(w.offset, best.stop);
-      best.energy += w.energy;
-      best.truncated = best.truncated || w.truncated || w.stop > best.stop;
-    }
-  }
-};
-
 template <class T>
-TouchWindow detect_one(TouchDetector& det, const T* rec, int64_t T_total, int64_t length,
-                       int64_t index) {
+TouchWindow detect_one(TouchDetector& det, WindowSelector& sel, const T* rec, int64_t T_total,
+                       int64_t length, int64_t index) {
   det.reset();
+  sel.reset();
   const DetectorParams& p = det.params();
-  Selector sel{p.select, p.max_window};
   for (int64_t t = 0; t < length; ++t) {
     const Status st = det.push_strided(rec + t, T_total);
     if (st == Status::kWindow) {
@@ -494,7 +574,7 @@ TouchWindow detect_one(TouchDetector& det, const T* rec, int64_t T_total, int64_
     }
   }
   if (det.flush() == Status::kWindow) sel.add(det.last_window());
-  if (sel.any) return sel.best;
+  if (!sel.empty()) return sel.result();
   if (p.fallback == 1) {
     throw std::runtime_error(
         (index >= 0 ? "signals[" + std::to_string(index) + "]" : std::string("signal")) +
@@ -506,6 +586,11 @@ TouchWindow detect_one(TouchDetector& det, const T* rec, int64_t T_total, int64_
   w.found = false;
   return w;
 }
+
+struct Worker {
+  TouchDetector det;
+  WindowSelector sel;
+};
 
 void check_batch(int64_t n, int64_t n_taxels, int64_t T_total, const int64_t* lengths) {
   if (n < 0) throw std::invalid_argument("n = " + std::to_string(n) + ": must be >= 0");
@@ -578,7 +663,8 @@ TouchWindow detect_window(const T* recording, int64_t n_taxels, int64_t T_total,
                                 std::to_string(T_total) + "]");
   }
   TouchDetector det(n_taxels, sample_rate_hz, cfg, false);
-  return detect_one(det, recording, T_total, length, -1);
+  WindowSelector sel(det.params(), WindowSelector::capacity_for(det.params(), length));
+  return detect_one(det, sel, recording, T_total, length, -1);
 }
 
 template <class T>
@@ -589,10 +675,13 @@ std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxe
   TouchDetector proto(n_taxels, sample_rate_hz, cfg, false);  // validates cfg once
   std::vector<TouchWindow> out(static_cast<std::size_t>(n));
   parallel_for(
-      n, n_threads, [&]() { return TouchDetector(proto); },
-      [&](TouchDetector& det, int64_t i) {
+      n, n_threads, [&]() {
+        return Worker{proto, WindowSelector(proto.params(),
+                                            WindowSelector::capacity_for(proto.params(), T_total))};
+      },
+      [&](Worker& wk, int64_t i) {
         const int64_t len = lengths ? lengths[i] : T_total;
-        out[i] = detect_one(det, data + i * n_taxels * T_total, T_total, len, i);
+        out[i] = detect_one(wk.det, wk.sel, data + i * n_taxels * T_total, T_total, len, i);
       });
   return out;
 }
@@ -610,13 +699,16 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
   // validates the configuration and the rate even when it is not used
   TouchDetector proto(n_taxels, opt.sample_rate_hz, opt.config, false);
   parallel_for(
-      n, opt.n_threads, [&]() { return TouchDetector(proto); },
-      [&](TouchDetector& det, int64_t i) {
+      n, opt.n_threads, [&]() {
+        return Worker{proto, WindowSelector(proto.params(),
+                                            WindowSelector::capacity_for(proto.params(), T_total))};
+      },
+      [&](Worker& wk, int64_t i) {
         const T* rec = data + i * n_taxels * T_total;
         const int64_t len = lengths ? lengths[i] : T_total;
         TouchWindow w;
         if (energy) {
-          w = detect_one(det, rec, T_total, len, i);
+          w = detect_one(wk.det, wk.sel, rec, T_total, len, i);
         } else if (opt.window == WindowMode::kGiven) {
           w.start = w.onset = given[2 * i];
           w.stop = w.offset = given[2 * i + 1];

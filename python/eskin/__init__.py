@@ -22,6 +22,11 @@ _EXPORTS: dict[str, str] = {
     "tensor_kernel": "kernel",
     "mode_distances": "kernel",
     "resolve_alphas": "kernel",
+    "pattern_bases": "kernel",
+    "PatternBases": "kernel",
+    "bases_mode_distances": "kernel",
+    "bases_tensor_kernel": "kernel",
+    "kernel_from_distances": "kernel",
     # preprocessing (issue 3)
     "preprocess": "preprocess",
     "WindowConfig": "preprocess",
@@ -58,6 +63,9 @@ _EXPORTS: dict[str, str] = {
     "FrameDecoder": "protocol",
     "encode_frame": "protocol",
     "LinkListener": "link",
+    "SerialPort": "serial_port",
+    "write_replay_file": "replay",
+    "read_replay_file": "replay",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

@@ -69,20 +69,23 @@ class WindowConfig:
     """
 
     frame_s: float = 0.010
-    dc_cutoff_hz: float = 1.0
+    dc_cutoff_hz: float = 5.0
     combine: str = "sum"
     noise_window_s: float = 1.0
-    noise_quantile: float = 0.25
+    noise_quantile: float = 0.5
     warmup_s: float = 0.1
     min_noise_energy: float = 0.0
     on_factor: float = 4.0
     off_factor: float = 2.0
+    release_fraction: float = 1e-3
+    lookback_s: float = 0.3
     hold_s: float = 0.15
     min_duration_s: float = 0.05
     pad_before_s: float = 0.05
     pad_after_s: float = 0.05
     max_window_s: float = 7.0
-    select: str = "energy"
+    select: str = "span"
+    span_fraction: float = 0.05
     fallback: str = "whole"
 
     def __post_init__(self) -> None:

@@ -274,6 +274,7 @@ TEST(Detector, FindsBurstsWithKnownOnsetAndOffset) {
   }
   // select = energy picks the longer (more energetic) burst; first picks the first; span both
   WindowConfig c;
+  c.select = 0;
   const TouchWindow w0 = eskin::detect_window(x.data(), kTaxels, T, T, kRate, c);
   EXPECT_TRUE(same(w0, ws[0]));
   c.select = 1;
@@ -512,4 +513,42 @@ TEST(NoAllocation, PerSamplePathNeverAllocates) {
   // the counter does count: constructing a detector allocates
   TouchDetector other(kTaxels, kRate, WindowConfig{});
   EXPECT_GT(g_allocations.load(), after);
+}
+
+// ------------------------------------------------------------------ window selection
+
+TEST(WindowSelector, SpanIgnoresWeakTouchesAndCapacityBoundHolds) {
+  WindowConfig c;  // select = span, span_fraction = 0.05
+  const auto p = eskin::resolve_window_config(c, kRate);
+  eskin::WindowSelector sel(p, 8);
+  auto touch = [](int64_t a, int64_t b, double e) {
+    TouchWindow w;
+    w.start = a - 10;
+    w.onset = a;
+    w.offset = b;
+    w.stop = b + 10;
+    w.energy = e;
+    return w;
+  };
+  sel.add(touch(100, 200, 1.0));     // weak: ignored by span
+  sel.add(touch(1000, 3000, 100.0));
+  sel.add(touch(4000, 4500, 10.0));
+  sel.add(touch(6000, 6100, 2.0));   // weak
+  const TouchWindow w = sel.result();
+  EXPECT_EQ(w.start, 990);
+  EXPECT_EQ(w.stop, 4510);
+  EXPECT_DOUBLE_EQ(w.energy, 110.0);
+  // over capacity, the least energetic touches are dropped: the span stays right
+  for (int i = 0; i < 20; ++i) sel.add(touch(7000 + 100 * i, 7050 + 100 * i, 0.5));
+  EXPECT_EQ(sel.result().start, 990);
+  EXPECT_EQ(sel.result().stop, 4510);
+  // no recording can produce more touches than capacity_for says: a burst every frame-ish
+  const int64_t T = 21000;
+  std::vector<Burst> bursts;
+  for (int64_t a = 1000; a + 300 < T; a += 700) bursts.push_back({a, a + 200, 150.0});
+  const auto x = make_recording(T, bursts, 50);
+  TouchDetector det(kTaxels, kRate, c);
+  const auto ws = stream_all(det, interleave(x, T), T);
+  EXPECT_GT(ws.size(), 20u);
+  EXPECT_LE(static_cast<int64_t>(ws.size()), eskin::WindowSelector::capacity_for(p, T));
 }

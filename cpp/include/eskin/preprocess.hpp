@@ -30,24 +30,28 @@ namespace eskin {
 // a POD so that it can be written into a model file as a flat array (window_config_to_array).
 struct WindowConfig {
   double frame_s = 0.010;          // short-time energy frame (non-overlapping), seconds
-  double dc_cutoff_hz = 1.0;       // one-pole DC blocker per taxel before squaring; 0 = off
+  double dc_cutoff_hz = 5.0;       // one-pole DC blocker per taxel before squaring; 0 = off
   double combine = 0;              // 0: frame energy = sum over taxels; 1: max over taxels
   double noise_window_s = 1.0;     // noise floor: quantile of this much recent idle frames
-  double noise_quantile = 0.25;    // which quantile of the idle-frame energies (robust floor)
+  double noise_quantile = 0.5;     // which quantile of the idle-frame energies (robust floor)
   double warmup_s = 0.1;           // idle frames needed before detection is enabled
   double min_noise_energy = 0.0;   // absolute lower bound of the noise floor (input units^2)
   double on_factor = 4.0;          // onset: frame energy > on_factor * noise floor
   double off_factor = 2.0;         // stays active while energy > off_factor * noise floor
+  double release_fraction = 1e-3;  // ... and > release_fraction * the touch's peak frame energy
+  double lookback_s = 0.3;         // onset moved back over frames > off threshold, this far at most
   double hold_s = 0.15;            // the touch ends after this long below the off threshold
   double min_duration_s = 0.05;    // touches shorter than this (onset..offset) are dropped
   double pad_before_s = 0.05;      // window start = onset - pad_before
   double pad_after_s = 0.05;       // window stop  = offset + pad_after
   double max_window_s = 7.0;       // a window never exceeds this (the touch is cut)
-  double select = 0;               // batch, several touches: 0 most energetic, 1 first, 2 span
+  double select = 2;               // batch, several touches: 0 most energetic, 1 first, 2 span
+  double span_fraction = 0.05;     // select = span ignores touches below this fraction of the
+                                   // most energetic touch's energy
   double fallback = 0;             // batch, no touch: 0 whole recording, 1 error
 };
 
-inline constexpr std::size_t kWindowConfigSize = 16;
+inline constexpr std::size_t kWindowConfigSize = 19;
 // Field names, in the order of window_config_to_array (the serialisation order).
 const std::array<const char*, kWindowConfigSize>& window_config_field_names();
 std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig& cfg);
@@ -66,12 +70,15 @@ struct DetectorParams {
   double min_noise_energy = 0.0;
   double on_factor = 0.0;
   double off_factor = 0.0;
+  double release_fraction = 0.0;
+  int64_t lookback_frames = 0;
   int64_t hold_frames = 0;
   int64_t min_duration = 0;    // samples
   int64_t pad_before = 0;      // samples
   int64_t pad_after = 0;       // samples
   int64_t max_window = 0;      // samples
   int select = 0;
+  double span_fraction = 0.0;
   int fallback = 0;
 };
 DetectorParams resolve_window_config(const WindowConfig& cfg, double sample_rate_hz);
@@ -188,6 +195,8 @@ class TouchDetector {
   // idle-frame energies (noise floor) and a scratch copy for the quantile
   std::vector<double> noise_ring_;
   std::vector<double> noise_scratch_;
+  // energies of the last lookback_frames frames (onset backtracking)
+  std::vector<double> frame_ring_;
   int64_t noise_count_ = 0;
   int64_t noise_pos_ = 0;
   // raw samples: pre-pad ring (capacity pad_before + frame_len) and the window buffer
@@ -209,10 +218,36 @@ class TouchDetector {
   int64_t last_above_end_ = 0;
   int64_t quiet_frames_ = 0;
   double energy_ = 0.0;
+  double peak_ = 0.0;
+  int64_t last_stop_ = 0;  // end of the previous touch (onset backtracking stops there)
   TouchWindow last_;
 };
 
 // ---- batch (whole recordings)
+
+// Picks the one window of a recording among its touches (WindowConfig.select, span_fraction),
+// fed the touches in stream order. Allocates at construction only; add() never allocates.
+// Exact while at most capacity() touches are added (capacity_for gives a bound that holds for
+// any recording of a given length); beyond that, span drops the least energetic touch.
+class WindowSelector {
+ public:
+  explicit WindowSelector(const DetectorParams& p, int64_t capacity = 0);
+  // The most touches a recording of `length` samples can produce with these parameters.
+  static int64_t capacity_for(const DetectorParams& p, int64_t length) noexcept;
+  void reset() noexcept { n_ = 0; }
+  void add(const TouchWindow& w) noexcept;
+  bool empty() const noexcept { return n_ == 0; }
+  int64_t capacity() const noexcept { return static_cast<int64_t>(buf_.size()); }
+  // The chosen window (found = true); precondition: !empty().
+  TouchWindow result() const noexcept;
+
+ private:
+  int select_;
+  double span_fraction_;
+  int64_t max_window_;
+  std::vector<TouchWindow> buf_;
+  int64_t n_ = 0;
+};
 
 // The touch window of one taxel-major recording (n_taxels x T, taxel stride T): runs a
 // TouchDetector over its first `length` samples and picks one touch with cfg.select; when none

@@ -1,9 +1,327 @@
-"""CLI commands: listen, demo (issue 6)."""
+"""CLI commands: listen, demo (issue 6).
+
+``eskin listen PORT`` shows the controller's live stream (decisions, link statistics, taxel
+activity) with rich.live on a terminal and as plain lines otherwise; ``eskin demo`` runs the whole
+pipeline (eskin.demo) and prints its tables. Errors a user can cause exit with code 2 and a
+one-line message.
+"""
 
 from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import time
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, Optional
 
 import typer
 
 
+@contextlib.contextmanager
+def _user_errors() -> Iterator[None]:
+    """Turn the errors a user can cause into a clear message and exit code 2."""
+    from eskin.serial_port import SerialPortError
+
+    try:
+        yield
+    except (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError, PermissionError,
+            SerialPortError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def _fmt_values(values: Any) -> str:
+    return "[" + ", ".join(f"{v:+.3f}" for v in values) + "]"
+
+
+def decision_line(d: Any, rate: float) -> str:
+    """One plain line for a decision."""
+    label = d.label if d.label is not None else f"#{d.label_index}"
+    dk = " (don't know)" if d.dont_know else ""
+    lost = f" lost={d.lost_samples}" if d.lost_samples else ""
+    return (f"decision {d.source:<10} onset={d.onset_sample} ({d.onset_sample / rate:.2f} s) "
+            f"label={label}{dk} values={_fmt_values(d.values)}{lost}")
+
+
+def stats_line(s: Any) -> str:
+    return (f"stats frames={s.frames} bytes={s.bytes} samples={s.samples} "
+            f"crc_errors={s.crc_errors} malformed={s.malformed} oversize={s.oversize} "
+            f"sequence_gaps={s.sequence_gaps} lost_frames={s.lost_frames} "
+            f"lost_samples={s.lost_samples} overrun_frames={s.overrun_frames} "
+            f"controller_dropped={s.controller_dropped_samples} "
+            f"controller_overruns={s.controller_overrun_events} "
+            f"decisions controller={s.decisions_controller} host={s.decisions_host}")
+
+
+def stats_table(s: Any, title: str = "link statistics") -> Any:
+    from rich.table import Table
+
+    t = Table(title=title, show_header=False, box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column(justify="right")
+    rows = [
+        ("elapsed", f"{s.elapsed_s:.1f} s"),
+        ("bytes / frames", f"{s.bytes} / {s.frames}"),
+        ("samples", f"{s.samples} ({s.rate_samples_per_s:.0f}/s)"),
+        ("CRC errors", str(s.crc_errors)),
+        ("malformed / oversize", f"{s.malformed} / {s.oversize}"),
+        ("sequence gaps (frames)", f"{s.sequence_gaps} ({s.lost_frames})"),
+        ("lost samples", str(s.lost_samples)),
+        ("DATA frames flagged overrun", str(s.overrun_frames)),
+        ("controller dropped samples", str(s.controller_dropped_samples)),
+        ("controller overrun events", str(s.controller_overrun_events)),
+        ("controller rx errors", str(s.controller_rx_errors)),
+        ("controller faults injected", str(s.controller_faults_injected)),
+        ("controller pacing p50 / p99", f"{s.controller_pacing_p50_us:.0f} / "
+                                        f"{s.controller_pacing_p99_us:.0f} us"),
+        ("controller state", s.controller_state),
+        ("decisions controller / host", f"{s.decisions_controller} / {s.decisions_host}"),
+        ("disconnects / reconnects", f"{s.disconnects} / {s.reconnects}"),
+    ]
+    if s.recordings:
+        rows.append(("recordings written", str(s.recordings)))
+    for k, v in rows:
+        t.add_row(k, v)
+    return t
+
+
+def heat_table(activity: Any, title: str = "taxel activity (RMS counts, last 0.2 s)") -> Any:
+    """A rows x cols heat map of recent energy, coloured on a log scale."""
+    import math
+
+    from rich.table import Table
+    from rich.text import Text
+
+    t = Table(title=title, show_header=False, box=None, padding=(0, 0))
+    if activity is None:
+        t.add_column()
+        t.add_row("(no data yet)")
+        return t
+    rows, cols = activity.shape
+    for _ in range(cols):
+        t.add_column(justify="center", min_width=7)
+    top = max(float(activity.max()), 1.0)
+    ramp = ["grey15", "grey30", "dark_blue", "blue", "dark_green", "green3", "yellow",
+            "dark_orange", "red", "bright_red"]
+    for r in range(rows):
+        cells = []
+        for c in range(cols):
+            v = float(activity[r, c])
+            level = 0 if v <= 0 else int(
+                min(len(ramp) - 1, max(0.0, math.log10(max(v, 1.0)) / math.log10(max(top, 10.0)))
+                * (len(ramp) - 1)))
+            cells.append(Text(f"{v:6.0f} ", style=f"on {ramp[level]}"))
+        t.add_row(*cells)
+    return t
+
+
+def decisions_table(decisions: Any, rate: float) -> Any:
+    from rich.table import Table
+
+    t = Table(title="decisions (latest last)")
+    for name in ("source", "onset s", "label", "values", "lost"):
+        t.add_column(name)
+    for d in decisions:
+        label = d.label if d.label is not None else f"#{d.label_index}"
+        if d.dont_know:
+            label += " ?"
+        t.add_row(d.source, f"{d.onset_sample / rate:.2f}", label, _fmt_values(d.values),
+                  str(d.lost_samples or ""))
+    return t
+
+
+# --------------------------------------------------------------------------- commands
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
+
+    @app.command("listen")
+    def listen_cmd(
+        port: str = typer.Argument(..., help="serial port or pseudo-terminal (e.g. the path "
+                                              "eskin-fw-sim prints, or its --link symlink)"),
+        model: Optional[Path] = typer.Option(
+            None, "--model", help="classify on the host too (.eskin file or saved model)"),
+        jsonl: Optional[Path] = typer.Option(
+            None, "--jsonl", help="write one JSON object per decision, then the link statistics"),
+        duration: Optional[float] = typer.Option(None, "--duration", help="stop after S seconds"),
+        until_eof: bool = typer.Option(
+            False, "--until-eof", help="stop when the controller's replay is over (or it closes)"),
+        record: Optional[Path] = typer.Option(
+            None, "--record", help="record the received stream to a campaign file (.h5)"),
+        replay: Optional[Path] = typer.Option(
+            None, "--replay", help="the replay file the controller streams: record one "
+                                   "recording per segment, with its true label"),
+        reconnect: bool = typer.Option(
+            False, "--reconnect", help="reopen the port when the controller goes away"),
+        backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
+        force: bool = typer.Option(False, "--force", help="replace the --record file"),
+        plain: bool = typer.Option(False, "--plain", help="plain lines even on a terminal"),
+    ) -> None:
+        """Listen to the skin controller: live decisions, link statistics, taxel activity."""
+        from eskin.link import (
+            Connection,
+            Decision,
+            InfoEvent,
+            LinkListener,
+            Recorded,
+            Stats,
+        )
+
+        if duration is not None and duration <= 0:
+            typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
+            raise typer.Exit(2)
+        live_mode = sys.stdout.isatty() and not plain
+        with _user_errors():
+            listener = LinkListener(port, model=model, backend=backend, record=record,
+                                    replay=replay, reconnect=reconnect, overwrite=force,
+                                    stats_interval=0.25 if live_mode else 5.0)
+        out = None
+        try:
+            with _user_errors():
+                listener.open()
+                out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
+            typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
+                                                 if listener.classifier is not None else ""))
+            rate = 3000.0
+            recent: deque = deque(maxlen=12)
+            last_stats = None
+            events = listener.events(duration=duration, until_eof=until_eof)
+            if live_mode:
+                last_stats = _run_live(listener, events, recent, out)
+            else:
+                for ev in events:
+                    if isinstance(ev, InfoEvent):
+                        rate = ev.info.sample_rate_hz
+                        names = ", ".join(ev.info.class_names) or "-"
+                        typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
+                                   f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
+                    elif isinstance(ev, Decision):
+                        typer.echo(decision_line(ev, rate))
+                        if out is not None:
+                            out.write(json.dumps(ev.as_dict()) + "\n")
+                            out.flush()
+                    elif isinstance(ev, Connection):
+                        typer.echo(f"{ev.state} {ev.path} {ev.reason}".rstrip())
+                    elif isinstance(ev, Recorded):
+                        typer.echo(f"recorded #{ev.index} [{ev.start}, {ev.stop}) {ev.label}")
+                    elif isinstance(ev, Stats):
+                        last_stats = ev.stats
+                        typer.echo(stats_line(ev.stats))
+            if out is not None and last_stats is not None:
+                out.write(json.dumps({"type": "stats", **last_stats.as_dict()}) + "\n")
+        except KeyboardInterrupt:
+            typer.echo("interrupted")
+        finally:
+            if out is not None:
+                out.close()
+            listener.close()
+        if record is not None:
+            typer.echo(f"wrote {record}")
+
+    @app.command("demo")
+    def demo_cmd(
+        out: Path = typer.Option(Path("demo_out"), "--out", help="folder for every file"),
+        participants: int = typer.Option(8, help="simulated participants"),
+        test_participants: int = typer.Option(2, help="held out, streamed over the link"),
+        speed: float = typer.Option(5.0, help="replay speed (x real time)"),
+        seed: int = typer.Option(0, help="random seed"),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
+    ) -> None:
+        """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
+        from rich.console import Console
+
+        from eskin.demo import DemoError, run_demo
+
+        console = Console()
+        with _user_errors():
+            try:
+                result = run_demo(out, participants=participants,
+                                  test_participants=test_participants, speed=speed, seed=seed,
+                                  n_jobs=jobs, log=lambda m: console.print(m))
+            except DemoError as exc:
+                console.print(f"[bold red]demo failed:[/] {exc}")
+                raise typer.Exit(1) from None
+        _print_demo(console, result)
+        if not result.agree:
+            console.print(f"[bold red]demo failed: live and offline decisions disagree:[/] "
+                          f"{result.disagreement}")
+            raise typer.Exit(1)
+        console.print("[bold green]live decisions (controller and host) equal the offline "
+                      "ones[/]")
+
+
+def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
+    """The rich.live view; returns the last statistics."""
+    from rich.console import Group
+    from rich.live import Live
+    from rich.panel import Panel
+    from rich.table import Table
+
+    from eskin.link import Decision, InfoEvent, Stats
+
+    rate = 3000.0
+    last_stats = listener.stats
+    header = f"port {listener.path}"
+
+    def view() -> Any:
+        grid = Table.grid(padding=(0, 4))
+        grid.add_row(heat_table(listener.activity()), stats_table(last_stats))
+        return Panel(Group(header, grid, decisions_table(list(recent), rate)),
+                     title="eskin listen")
+
+    t_draw = 0.0
+    with Live(view(), refresh_per_second=8, transient=False) as live:
+        for ev in events:
+            if isinstance(ev, InfoEvent):
+                rate = ev.info.sample_rate_hz
+                header = (f"port {listener.path}  grid {ev.info.rows}x{ev.info.cols}  "
+                          f"{rate:g} Hz  x{ev.info.speed:g}  classes: "
+                          f"{', '.join(ev.info.class_names) or '-'}")
+            elif isinstance(ev, Decision):
+                recent.append(ev)
+                if out is not None:
+                    out.write(json.dumps(ev.as_dict()) + "\n")
+                    out.flush()
+            elif isinstance(ev, Stats):
+                last_stats = ev.stats
+            now = time.monotonic()
+            if now - t_draw > 0.1:
+                t_draw = now
+                live.update(view())
+        live.update(view())
+    return last_stats
+
+
+def _print_demo(console: Any, result: Any) -> None:
+    from rich.columns import Columns
+    from rich.table import Table
+
+    def matrix(title: str, cm: Any, names: list[str]) -> Table:
+        t = Table(title=title)
+        t.add_column("true \\ decided", style="bold")
+        for n in names:
+            t.add_column(n, justify="right")
+        t.add_column("none", justify="right")
+        for i, n in enumerate(names):
+            t.add_row(n, *[str(int(v)) for v in cm[i]])
+        return t
+
+    names = list(result.class_names)
+    console.print(Columns([matrix(f"{k} ({result.error_rates[k]:.1%} error)", cm, names)
+                           for k, cm in result.confusion.items()]))
+    t = Table(title="per-recording agreement")
+    for c in ("decisions", "recordings", "equal labels", "max |value diff|"):
+        t.add_column(c)
+    for k, row in result.agreement.items():
+        t.add_row(k, str(row["n"]), str(row["equal"]), f"{row['max_value_diff']:.2e}")
+    console.print(t)
+    console.print(stats_table(result.stats, title="link statistics (live run)"))
+    for line in result.summary:
+        console.print(line)

@@ -1,0 +1,221 @@
+// The deployable model: the `.eskin` file format (docs/model-format.md), its validating loader,
+// and the classifier that runs a loaded model on raw piezo windows.
+//
+// Loading allocates and throws (ModelFormatError, a std::runtime_error, whose message names the
+// field and the bad value). Classifying does neither: a Classifier allocates its workspace once,
+// at construction, and its per-decision calls return a Status.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "eskin/preprocess.hpp"
+#include "eskin/tensor_kernel.hpp"
+
+namespace eskin {
+
+/// What went wrong while reading a model file.
+enum class ModelError : int {
+  kIo = 1,             ///< the file cannot be opened or read
+  kNotAModel,          ///< magic bytes missing: a foreign file
+  kVersion,            ///< a format version this library does not read
+  kTruncated,          ///< shorter than its header says
+  kChecksum,           ///< CRC-32 mismatch: corrupted
+  kLayout,             ///< sections missing, out of order, or of the wrong size
+  kValue,              ///< a field holds an impossible value (NaN, out of range, inconsistent)
+};
+
+/// Thrown by the loader. `what()` names the file (when there is one), the field and the value.
+class ModelFormatError : public std::runtime_error {
+ public:
+  ModelFormatError(ModelError code, const std::string& msg) : std::runtime_error(msg), code_(code) {}
+  ModelError code() const noexcept { return code_; }
+
+ private:
+  ModelError code_;
+};
+
+/// Binary layout constants (docs/model-format.md).
+namespace model_format {
+inline constexpr std::uint8_t kMagic[8] = {0x89, 'E', 'S', 'K', 'I', 'N', '\r', '\n'};
+inline constexpr std::uint16_t kVersion = 1;
+inline constexpr std::uint32_t kHeaderBytes = 32;
+inline constexpr std::uint32_t kFlagFloat64 = 1u;
+inline constexpr std::size_t kNameBytes = 32;  ///< class and window-field names, NUL padded
+inline constexpr int kModes = 3;               ///< (rows, cols, D) tensors
+/// CRC-32 with the zlib polynomial (reflected 0xEDB88320, init and final xor 0xFFFFFFFF);
+/// equal to Python's zlib.crc32. `crc` continues a previous call (start with 0).
+std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc = 0) noexcept;
+}  // namespace model_format
+
+enum class DecisionRule : std::uint32_t { kBinary = 0, kOneVsAll = 1 };
+
+/// One binary machine f(x) = sum_t coef[t] K(sv[t], x) + intercept, with
+/// K = prod_z exp(-dist_z / (2 sigma_z^2)) on the first alpha_z basis columns of each mode.
+struct ModelMachine {
+  int positive = 0;   ///< class index claimed when f > 0
+  int negative = -1;  ///< class index when f <= 0 (binary rule), -1 = "all the others"
+  double intercept = 0.0;
+  std::array<int, model_format::kModes> alpha{};
+  std::array<double, model_format::kModes> sigma{};
+  std::vector<std::uint32_t> sv_index;  ///< rows of the model's support-vector table
+  std::vector<double> coef;             ///< dual coefficients, as stored (float32 or float64)
+};
+
+/// A loaded, fully validated model. Immutable once loaded.
+class Model {
+ public:
+  /// Parse and validate a model held in memory (e.g. a C header's byte array).
+  static Model from_bytes(const std::uint8_t* data, std::size_t size);
+  /// Read and validate a `.eskin` file. Errors name the path.
+  static Model load(const std::string& path);
+
+  // preprocessing settings
+  int rows() const noexcept { return rows_; }
+  int cols() const noexcept { return cols_; }
+  int D() const noexcept { return D_; }
+  WindowMode window_mode() const noexcept { return window_mode_; }
+  SubsampleMethod subsample() const noexcept { return subsample_; }
+  ShortPolicy short_policy() const noexcept { return short_policy_; }
+  double sample_rate_hz() const noexcept { return sample_rate_hz_; }
+  const WindowConfig& window_config() const noexcept { return window_config_; }
+
+  // classes and machines
+  DecisionRule rule() const noexcept { return rule_; }
+  const std::vector<std::string>& class_names() const noexcept { return class_names_; }
+  const std::vector<ModelMachine>& machines() const noexcept { return machines_; }
+
+  // support-vector table: bases stored with alpha_store(z) columns per mode
+  bool is_float64() const noexcept { return float64_; }
+  int n_support() const noexcept { return n_sv_; }
+  int alpha_store(int z) const noexcept { return alpha_store_[z]; }
+  /// Rows of the mode-z basis (product of the other tensor dimensions).
+  int basis_rows(int z) const noexcept { return basis_rows_[z]; }
+  /// Numerical rank of support vector i in mode z (its nonzero basis columns).
+  int rank(int i, int z) const noexcept { return ranks_[static_cast<std::size_t>(i) * 3 + z]; }
+  /// Mode-z bases of all support vectors: SV i, column k, row n at
+  /// ((i * alpha_store(z) + k) * basis_rows(z) + n). Exactly one of the two is non-empty.
+  const std::vector<float>& bases_f32(int z) const noexcept { return bases32_[z]; }
+  const std::vector<double>& bases_f64(int z) const noexcept { return bases64_[z]; }
+  std::size_t file_bytes() const noexcept { return file_bytes_; }
+
+ private:
+  int rows_ = 0, cols_ = 0, D_ = 0;
+  WindowMode window_mode_ = WindowMode::kEnergy;
+  SubsampleMethod subsample_ = SubsampleMethod::kAlgorithm2;
+  ShortPolicy short_policy_ = ShortPolicy::kInterpolate;
+  double sample_rate_hz_ = 0.0;
+  WindowConfig window_config_{};
+  DecisionRule rule_ = DecisionRule::kBinary;
+  std::vector<std::string> class_names_;
+  std::vector<ModelMachine> machines_;
+  bool float64_ = false;
+  int n_sv_ = 0;
+  std::array<int, 3> alpha_store_{};
+  std::array<int, 3> basis_rows_{};
+  std::vector<int> ranks_;
+  std::array<std::vector<float>, 3> bases32_;
+  std::array<std::vector<double>, 3> bases64_;
+  std::size_t file_bytes_ = 0;
+
+  friend class ModelParser;
+};
+
+/// Result of a per-decision call (no exceptions on that path).
+enum class ClassifyStatus : int {
+  kOk = 0,
+  kDecision = 1,     ///< StreamClassifier: a touch ended and was classified (see decision())
+  kBadShape = -1,    ///< the window's rows/cols/length do not fit the model or the classifier
+  kNoTouch = -2,     ///< the energy detector found no touch and the model's fallback is "error"
+  kNotFinite = -3,   ///< NaN or Inf in the input
+  kTooShort = -4,    ///< the window is shorter than D and the model's short policy is "error"
+  kKernel = -5,      ///< the basis computation failed (eigen-solver did not converge)
+  kNullPointer = -6,
+};
+const char* to_string(ClassifyStatus s) noexcept;
+
+/// One decision. `values` points into the classifier that produced it (valid until its next call).
+struct Decision {
+  int label = -1;                  ///< class index into Model::class_names(), -1 if no decision
+  bool dont_know = false;          ///< one-vs-all: no machine, or more than one, claims the pattern
+  int n_machines = 0;              ///< entries in `values`
+  const double* values = nullptr;  ///< per-machine decision values f_k(x)
+  std::int64_t window_start = 0;   ///< window used, [start, stop) in samples of the input/stream
+  std::int64_t window_stop = 0;
+  bool window_found = true;        ///< false when the detector found no touch (fallback window)
+};
+
+/// Runs a Model on raw windows. Owns every buffer it needs (allocated at construction); the
+/// classify calls perform no heap allocation and throw nothing. Not thread-safe: one Classifier
+/// per thread (a Model can be shared; it must outlive its classifiers).
+class Classifier {
+ public:
+  explicit Classifier(const Model& model);
+  ~Classifier();
+  Classifier(Classifier&&) noexcept;
+  Classifier& operator=(Classifier&&) = delete;
+  Classifier(const Classifier&) = delete;
+  Classifier& operator=(const Classifier&) = delete;
+
+  /// A raw recording (or window) in C order (rows, cols, T): sample t of taxel (r, c) at
+  /// (r * cols + c) * T + t; only its first `length` samples are used (length <= T; pass T).
+  /// Applies the model's preprocessing (energy window or whole recording, then subsampling
+  /// to D) and its machines, as eskin.preprocess + the Python model would.
+  ClassifyStatus classify(const std::int16_t* x, int rows, int cols, std::int64_t T,
+                          std::int64_t length, Decision* out) noexcept;
+  ClassifyStatus classify(const float* x, int rows, int cols, std::int64_t T, std::int64_t length,
+                          Decision* out) noexcept;
+  ClassifyStatus classify(const double* x, int rows, int cols, std::int64_t T, std::int64_t length,
+                          Decision* out) noexcept;
+  /// An already preprocessed tensor (rows, cols, D), C order: only the machines run.
+  ClassifyStatus classify_tensor(const double* tensor, Decision* out) noexcept;
+
+  const Model& model() const noexcept { return *model_; }
+
+  struct Impl;
+
+ private:
+  template <typename T>
+  ClassifyStatus classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
+                              std::int64_t length, Decision* out) noexcept;
+  const Model* model_;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// The controller's path: fed one multi-taxel sample at a time (rows*cols values, taxel
+/// (r, c) at r * cols + c), it detects each touch with the model's window detector and
+/// classifies it when it ends. No heap allocation after construction, no exceptions.
+class StreamClassifier {
+ public:
+  explicit StreamClassifier(const Model& model);
+
+  /// One sample. Returns kOk (nothing to report), kDecision (a touch just ended and was
+  /// classified: read decision()), or an error status (the sample, or the touch, is dropped).
+  ClassifyStatus push(const std::int16_t* sample) noexcept;
+  ClassifyStatus push(const float* sample) noexcept;
+  ClassifyStatus push(const double* sample) noexcept;
+  /// End of the stream: a touch in progress ends now. kDecision or kOk.
+  ClassifyStatus flush() noexcept;
+  /// Forget the stream (keeps the buffers).
+  void reset() noexcept;
+
+  const Decision& decision() const noexcept { return decision_; }
+  std::int64_t samples_seen() const noexcept { return detector_.samples_seen(); }
+  bool in_touch() const noexcept { return detector_.in_touch(); }
+  const TouchDetector& detector() const noexcept { return detector_; }
+
+ private:
+  ClassifyStatus after_push(Status st) noexcept;
+  const Model* model_;
+  Classifier classifier_;
+  TouchDetector detector_;
+  std::vector<double> tensor_;
+  Decision decision_{};
+};
+
+}  // namespace eskin

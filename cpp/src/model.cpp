@@ -1,0 +1,279 @@
+// The classifier of a loaded model: raw window -> preprocessing -> bases -> machines -> label.
+// Everything is allocated in the constructors; the per-decision calls neither allocate nor throw.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <type_traits>
+
+#include "eskin/model.hpp"
+#include "model_overlap.hpp"
+
+namespace eskin {
+
+const char* to_string(ClassifyStatus s) noexcept {
+  switch (s) {
+    case ClassifyStatus::kOk: return "ok";
+    case ClassifyStatus::kDecision: return "decision";
+    case ClassifyStatus::kBadShape: return "bad_shape";
+    case ClassifyStatus::kNoTouch: return "no_touch";
+    case ClassifyStatus::kNotFinite: return "not_finite";
+    case ClassifyStatus::kTooShort: return "too_short";
+    case ClassifyStatus::kKernel: return "kernel_failure";
+    case ClassifyStatus::kNullPointer: return "null_pointer";
+  }
+  return "unknown";
+}
+
+// Machines are grouped by their alpha triple: the per-mode distances of a support vector depend
+// only on it, so they are computed once per (group, support vector) and shared by the machines.
+struct Classifier::Impl {
+  struct Group {
+    std::array<int, 3> alpha{};
+    std::vector<std::uint32_t> svs;  // support vectors used by the group's machines (sorted)
+  };
+
+  explicit Impl(const Model& m)
+      : layout({static_cast<std::size_t>(m.rows()), static_cast<std::size_t>(m.cols()),
+                static_cast<std::size_t>(m.D())},
+               {static_cast<std::size_t>(m.alpha_store(0)), static_cast<std::size_t>(m.alpha_store(1)),
+                static_cast<std::size_t>(m.alpha_store(2))}),
+        ws(layout),
+        detector(static_cast<std::int64_t>(m.rows()) * m.cols(), m.sample_rate_hz(),
+                 m.window_config(), /*store_samples=*/false),
+        tensor(static_cast<std::size_t>(m.rows()) * m.cols() * m.D()),
+        values(m.machines().size()),
+        ov32(detail::select_overlap_f32()),
+        ov64(detail::select_overlap_f64()) {
+    if (m.is_float64()) xb64.resize(layout.bases_size());
+    else xb32.resize(layout.bases_size());
+    machine_group.resize(m.machines().size());
+    for (std::size_t k = 0; k < m.machines().size(); ++k) {
+      const auto& mm = m.machines()[k];
+      std::size_t g = 0;
+      while (g < groups.size() && groups[g].alpha != mm.alpha) ++g;
+      if (g == groups.size()) groups.push_back(Group{mm.alpha, {}});
+      machine_group[k] = g;
+      auto& svs = groups[g].svs;
+      svs.insert(svs.end(), mm.sv_index.begin(), mm.sv_index.end());
+    }
+    for (auto& g : groups) {
+      std::sort(g.svs.begin(), g.svs.end());
+      g.svs.erase(std::unique(g.svs.begin(), g.svs.end()), g.svs.end());
+    }
+    dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
+  }
+
+  BasisLayout layout;
+  BasisWorkspace ws;
+  TouchDetector detector;
+  std::vector<double> tensor;
+  std::vector<double> xb64;
+  std::vector<float> xb32;
+  int xr[3] = {0, 0, 0};
+  std::vector<Group> groups;
+  std::vector<std::size_t> machine_group;
+  std::vector<double> dist;  // (group, sv, mode) squared mode distances
+  std::vector<double> values;
+  detail::OverlapF32 ov32;
+  detail::OverlapF64 ov64;
+};
+
+Classifier::Classifier(const Model& model) : model_(&model), impl_(std::make_unique<Impl>(model)) {}
+Classifier::~Classifier() = default;
+Classifier::Classifier(Classifier&&) noexcept = default;
+
+ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) noexcept {
+  if (tensor == nullptr || out == nullptr) return ClassifyStatus::kNullPointer;
+  const Model& m = *model_;
+  Impl& s = *impl_;
+  const bool f64 = m.is_float64();
+  const KernelStatus ks = f64 ? s.ws.compute(tensor, s.xb64.data(), s.xr)
+                              : s.ws.compute(tensor, s.xb32.data(), s.xr);
+  if (ks == KernelStatus::not_finite) return ClassifyStatus::kNotFinite;
+  if (ks != KernelStatus::ok) return ClassifyStatus::kKernel;
+
+  const std::size_t n_sv = static_cast<std::size_t>(m.n_support());
+  for (std::size_t g = 0; g < s.groups.size(); ++g) {
+    const auto& grp = s.groups[g];
+    for (int z = 0; z < 3; ++z) {
+      const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
+      const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
+      const std::size_t a = static_cast<std::size_t>(grp.alpha[static_cast<std::size_t>(z)]);
+      const int rx = std::min(s.xr[z], static_cast<int>(a));
+      const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
+      for (const std::uint32_t i : grp.svs) {
+        const double ov = f64 ? s.ov64(m.bases_f64(z).data() + i * A * N, s.xb64.data() + xoff, N, a)
+                              : s.ov32(m.bases_f32(z).data() + i * A * N, s.xb32.data() + xoff, N, a);
+        const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+        s.dist[(g * n_sv + i) * 3 + static_cast<std::size_t>(z)] =
+            std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov);
+      }
+    }
+  }
+  const auto& machines = m.machines();
+  for (std::size_t k = 0; k < machines.size(); ++k) {
+    const auto& mm = machines[k];
+    const double* d = s.dist.data() + s.machine_group[k] * n_sv * 3;
+    double w[3];
+    for (int z = 0; z < 3; ++z) w[z] = 1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] * mm.sigma[static_cast<std::size_t>(z)]);
+    double f = 0.0;
+    for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
+      const double* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
+      f += mm.coef[t] * std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
+    }
+    s.values[k] = f + mm.intercept;
+  }
+  out->n_machines = static_cast<int>(machines.size());
+  out->values = s.values.data();
+  if (m.rule() == DecisionRule::kBinary) {
+    const auto& mm = machines[0];
+    out->label = s.values[0] > 0 ? mm.positive : mm.negative;
+    out->dont_know = false;
+  } else {
+    // Paper rule: exactly one machine claims (f > 0) -> that class; otherwise the largest f,
+    // flagged as "don't know" (no claim, or several).
+    int claims = 0, claimed = -1;
+    std::size_t best = 0;
+    for (std::size_t k = 0; k < machines.size(); ++k) {
+      if (s.values[k] > 0) {
+        ++claims;
+        claimed = static_cast<int>(k);
+      }
+      if (s.values[k] > s.values[best]) best = k;
+    }
+    if (claims == 1) {
+      out->label = machines[static_cast<std::size_t>(claimed)].positive;
+      out->dont_know = false;
+    } else {
+      out->label = machines[best].positive;
+      out->dont_know = true;
+    }
+  }
+  return ClassifyStatus::kOk;
+}
+
+namespace {
+// The batch window choice of eskin::detect_window (WindowConfig.select), without allocation.
+struct WindowChoice {
+  int select;
+  std::int64_t max_window;
+  bool any = false;
+  TouchWindow best{};
+  void add(const TouchWindow& w) noexcept {
+    if (!any) {
+      best = w;
+      any = true;
+    } else if (select == 0) {
+      if (w.energy > best.energy) best = w;
+    } else if (select == 2) {
+      best.stop = std::min(w.stop, best.start + max_window);
+      best.offset = std::min(w.offset, best.stop);
+      best.energy += w.energy;
+      best.truncated = best.truncated || w.truncated || w.stop > best.stop;
+    }
+  }
+};
+}  // namespace
+
+template <typename T>
+ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
+                                        std::int64_t length, Decision* out) noexcept {
+  if (x == nullptr || out == nullptr) return ClassifyStatus::kNullPointer;
+  const Model& m = *model_;
+  Impl& s = *impl_;
+  if (rows != m.rows() || cols != m.cols() || T_total < 1 || length < 1 || length > T_total)
+    return ClassifyStatus::kBadShape;
+  const std::int64_t n_taxels = static_cast<std::int64_t>(rows) * cols;
+  TouchWindow w;
+  w.start = 0;
+  w.stop = length;
+  w.found = true;
+  if (m.window_mode() == WindowMode::kEnergy) {
+    TouchDetector& det = s.detector;
+    det.reset();
+    WindowChoice choice{det.params().select, det.params().max_window};
+    for (std::int64_t t = 0; t < length; ++t) {
+      const Status st = det.push_strided(x + t, T_total);
+      if (st == Status::kWindow) choice.add(det.last_window());
+      else if (st == Status::kNonFiniteSample) return ClassifyStatus::kNotFinite;
+    }
+    if (det.flush() == Status::kWindow) choice.add(det.last_window());
+    if (choice.any) {
+      w = choice.best;
+    } else {
+      if (det.params().fallback == 1) return ClassifyStatus::kNoTouch;
+      w.found = false;
+    }
+  } else if constexpr (std::is_floating_point_v<T>) {
+    for (std::int64_t k = 0; k < n_taxels; ++k)
+      for (std::int64_t t = 0; t < length; ++t)
+        if (!std::isfinite(x[k * T_total + t])) return ClassifyStatus::kNotFinite;
+  }
+  const Status st = subsample_window(x + w.start, n_taxels, T_total, 1, w.stop - w.start, m.D(),
+                                     m.subsample(), m.short_policy(), s.tensor.data());
+  if (st != Status::kOk) return ClassifyStatus::kTooShort;
+  const ClassifyStatus cs = classify_tensor(s.tensor.data(), out);
+  out->window_start = w.start;
+  out->window_stop = w.stop;
+  out->window_found = w.found;
+  return cs;
+}
+
+ClassifyStatus Classifier::classify(const std::int16_t* x, int rows, int cols, std::int64_t T,
+                                    std::int64_t length, Decision* out) noexcept {
+  return classify_raw(x, rows, cols, T, length, out);
+}
+ClassifyStatus Classifier::classify(const float* x, int rows, int cols, std::int64_t T,
+                                    std::int64_t length, Decision* out) noexcept {
+  return classify_raw(x, rows, cols, T, length, out);
+}
+ClassifyStatus Classifier::classify(const double* x, int rows, int cols, std::int64_t T,
+                                    std::int64_t length, Decision* out) noexcept {
+  return classify_raw(x, rows, cols, T, length, out);
+}
+
+// ---- streaming
+
+StreamClassifier::StreamClassifier(const Model& model)
+    : model_(&model),
+      classifier_(model),
+      detector_(static_cast<std::int64_t>(model.rows()) * model.cols(), model.sample_rate_hz(),
+                model.window_config(), /*store_samples=*/true),
+      tensor_(static_cast<std::size_t>(model.rows()) * model.cols() * model.D()) {}
+
+ClassifyStatus StreamClassifier::after_push(Status st) noexcept {
+  switch (st) {
+    case Status::kOk: return ClassifyStatus::kOk;
+    case Status::kNonFiniteSample: return ClassifyStatus::kNotFinite;
+    case Status::kNullPointer: return ClassifyStatus::kNullPointer;
+    case Status::kWindow: break;
+    default: return ClassifyStatus::kBadShape;
+  }
+  const TouchWindow& w = detector_.last_window();
+  const Status ss = detector_.subsample_last_window(model_->D(), model_->subsample(),
+                                                    model_->short_policy(), tensor_.data());
+  if (ss != Status::kOk) return ClassifyStatus::kTooShort;
+  const ClassifyStatus cs = classifier_.classify_tensor(tensor_.data(), &decision_);
+  if (cs != ClassifyStatus::kOk) return cs;
+  decision_.window_start = w.start;
+  decision_.window_stop = w.stop;
+  decision_.window_found = true;
+  return ClassifyStatus::kDecision;
+}
+
+ClassifyStatus StreamClassifier::push(const std::int16_t* sample) noexcept {
+  return after_push(detector_.push(sample));
+}
+ClassifyStatus StreamClassifier::push(const float* sample) noexcept {
+  return after_push(detector_.push(sample));
+}
+ClassifyStatus StreamClassifier::push(const double* sample) noexcept {
+  return after_push(detector_.push(sample));
+}
+ClassifyStatus StreamClassifier::flush() noexcept { return after_push(detector_.flush()); }
+void StreamClassifier::reset() noexcept {
+  detector_.reset();
+  decision_ = Decision{};
+}
+
+}  // namespace eskin

@@ -1,0 +1,567 @@
+// The .eskin loader: every byte is bounds-checked, every size is checked against the ones it
+// implies, and every value is validated before a Model is returned (docs/model-format.md).
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <sstream>
+
+#include "eskin/model.hpp"
+
+namespace eskin {
+
+namespace model_format {
+namespace {
+struct CrcTable {
+  std::uint32_t t[256];
+  constexpr CrcTable() : t{} {
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1u) ? (0xEDB88320u ^ (c >> 1)) : (c >> 1);
+      t[i] = c;
+    }
+  }
+};
+constexpr CrcTable kCrcTable{};
+}  // namespace
+
+std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc) noexcept {
+  crc = ~crc;
+  for (std::size_t i = 0; i < n; ++i) crc = kCrcTable.t[(crc ^ data[i]) & 0xFFu] ^ (crc >> 8);
+  return ~crc;
+}
+}  // namespace model_format
+
+namespace {
+
+// Limits that keep every product of sizes far from overflow and every allocation sane.
+constexpr std::uint32_t kMaxGrid = 256;      // rows, cols
+constexpr std::uint32_t kMaxD = 100000;      // subsampled length
+constexpr std::uint32_t kMaxClasses = 1024;
+constexpr std::uint32_t kMaxFields = 256;
+constexpr std::uint64_t kMaxFileBytes = 1ull << 31;
+
+std::string fmt_double(double v) {
+  std::ostringstream os;
+  os.precision(17);
+  os << v;
+  return os.str();
+}
+
+[[noreturn]] void fail(ModelError code, const std::string& msg) { throw ModelFormatError(code, msg); }
+
+// Little-endian reads from a bounded byte range.
+class Reader {
+ public:
+  Reader(const std::uint8_t* data, std::size_t size, std::string what)
+      : p_(data), n_(size), what_(std::move(what)) {}
+  std::size_t pos() const { return pos_; }
+  std::size_t remaining() const { return n_ - pos_; }
+  void need(std::size_t k, const char* field) const {
+    if (k > n_ - pos_)
+      fail(ModelError::kLayout, what_ + ": field '" + field + "' runs past the end of the section (" +
+                                    std::to_string(n_ - pos_) + " bytes left, " +
+                                    std::to_string(k) + " needed)");
+  }
+  std::uint32_t u32(const char* field) {
+    need(4, field);
+    std::uint32_t v = 0;
+    for (int i = 3; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
+    pos_ += 4;
+    return v;
+  }
+  std::int32_t i32(const char* field) {
+    const std::uint32_t u = u32(field);
+    std::int32_t v;
+    std::memcpy(&v, &u, 4);
+    return v;
+  }
+  std::uint64_t u64(const char* field) {
+    need(8, field);
+    std::uint64_t v = 0;
+    for (int i = 7; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
+    pos_ += 8;
+    return v;
+  }
+  double f64(const char* field) {
+    const std::uint64_t u = u64(field);
+    double v;
+    std::memcpy(&v, &u, 8);
+    return v;
+  }
+  float f32(const char* field) {
+    const std::uint32_t u = u32(field);
+    float v;
+    std::memcpy(&v, &u, 4);
+    return v;
+  }
+  std::string name(const char* field) {
+    need(model_format::kNameBytes, field);
+    const char* s = reinterpret_cast<const char*>(p_ + pos_);
+    const std::size_t len = strnlen(s, model_format::kNameBytes);
+    if (len == 0 || len == model_format::kNameBytes)
+      fail(ModelError::kValue, what_ + ": field '" + field + "' must be a non-empty name of at most " +
+                                   std::to_string(model_format::kNameBytes - 1) +
+                                   " bytes, NUL padded");
+    for (std::size_t i = len; i < model_format::kNameBytes; ++i)
+      if (s[i] != 0) fail(ModelError::kValue, what_ + ": field '" + field + "' has non-zero padding");
+    for (std::size_t i = 0; i < len; ++i) {
+      const unsigned char c = static_cast<unsigned char>(s[i]);
+      if (c < 0x20 || c == 0x7F)
+        fail(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
+    }
+    std::string out(s, len);
+    pos_ += model_format::kNameBytes;
+    return out;
+  }
+  // Zero padding up to the next multiple of 8 (relative to the section start).
+  void pad8(const char* field) {
+    const std::size_t k = (8 - (pos_ % 8)) % 8;
+    need(k, field);
+    for (std::size_t i = 0; i < k; ++i)
+      if (p_[pos_ + i] != 0) fail(ModelError::kValue, what_ + ": non-zero padding after '" + field + "'");
+    pos_ += k;
+  }
+  void zero_u32(const char* field) {
+    if (u32(field) != 0) fail(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
+  }
+  const std::uint8_t* raw(std::size_t k, const char* field) {
+    need(k, field);
+    const std::uint8_t* r = p_ + pos_;
+    pos_ += k;
+    return r;
+  }
+  void expect_end() const {
+    if (pos_ != n_)
+      fail(ModelError::kLayout, what_ + ": " + std::to_string(n_ - pos_) +
+                                    " unexpected trailing bytes in the section");
+  }
+  const std::string& what() const { return what_; }
+
+ private:
+  const std::uint8_t* p_;
+  std::size_t n_;
+  std::size_t pos_ = 0;
+  std::string what_;
+};
+
+std::string tag_str(std::uint32_t tag) {
+  std::string s(4, '?');
+  for (int i = 0; i < 4; ++i) {
+    const char c = static_cast<char>((tag >> (8 * i)) & 0xFF);
+    s[static_cast<std::size_t>(i)] = (c >= 0x20 && c < 0x7F) ? c : '?';
+  }
+  return s;
+}
+
+constexpr std::uint32_t tag_of(const char (&s)[5]) {
+  return static_cast<std::uint32_t>(static_cast<unsigned char>(s[0])) |
+         (static_cast<std::uint32_t>(static_cast<unsigned char>(s[1])) << 8) |
+         (static_cast<std::uint32_t>(static_cast<unsigned char>(s[2])) << 16) |
+         (static_cast<std::uint32_t>(static_cast<unsigned char>(s[3])) << 24);
+}
+
+}  // namespace
+
+// Friend of Model: fills its private fields.
+class ModelParser {
+ public:
+  static Model parse(const std::uint8_t* data, std::size_t size, const std::string& origin);
+
+ private:
+  static void parse_prep(Reader& r, Model& m);
+  static void parse_clas(Reader& r, Model& m);
+  static void parse_svbs(Reader& r, Model& m);
+  static void parse_mach(Reader& r, Model& m);
+  static void check_machines(Model& m, const std::string& origin);
+};
+
+void ModelParser::parse_prep(Reader& r, Model& m) {
+  const std::string& w = r.what();
+  const std::uint32_t rows = r.u32("rows"), cols = r.u32("cols"), D = r.u32("D");
+  const std::uint32_t window = r.u32("window_mode"), sub = r.u32("subsample");
+  const std::uint32_t short_policy = r.u32("short_policy");
+  const std::uint32_t n_fields = r.u32("n_window_fields");
+  r.zero_u32("reserved");
+  const double rate = r.f64("sample_rate_hz");
+  if (rows < 1 || rows > kMaxGrid || cols < 1 || cols > kMaxGrid)
+    fail(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
+                                 std::to_string(cols) + " out of range [1, 256]");
+  if (D < 2 || D > kMaxD)
+    fail(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
+  if (window > 1)
+    fail(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 energy, 1 none)");
+  if (sub > 1)
+    fail(ModelError::kValue, w + ": subsample=" + std::to_string(sub) + " (0 algorithm2, 1 even)");
+  if (short_policy > 1)
+    fail(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
+                                 " (0 interpolate, 1 error)");
+  if (!(std::isfinite(rate) && rate > 0))
+    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be finite and > 0");
+  const auto& names = window_config_field_names();
+  if (n_fields != kWindowConfigSize)
+    fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
+                                 std::to_string(kWindowConfigSize) + " (the WindowConfig fields)");
+  std::array<double, kWindowConfigSize> values{};
+  std::array<bool, kWindowConfigSize> seen{};
+  for (std::uint32_t i = 0; i < n_fields; ++i) {
+    const std::string name = r.name("window field name");
+    const double value = r.f64("window field value");
+    std::size_t k = 0;
+    while (k < kWindowConfigSize && name != names[k]) ++k;
+    if (k == kWindowConfigSize)
+      fail(ModelError::kValue, w + ": unknown window field '" + name + "'");
+    if (seen[k]) fail(ModelError::kValue, w + ": window field '" + name + "' repeated");
+    if (!std::isfinite(value))
+      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+                                   " is not finite");
+    seen[k] = true;
+    values[k] = value;
+  }
+  r.expect_end();
+  const WindowConfig cfg = window_config_from_array(values.data(), values.size());
+  try {
+    (void)resolve_window_config(cfg, rate);  // the detector's own validation
+  } catch (const std::exception& e) {
+    fail(ModelError::kValue, w + ": " + e.what());
+  }
+  m.rows_ = static_cast<int>(rows);
+  m.cols_ = static_cast<int>(cols);
+  m.D_ = static_cast<int>(D);
+  m.window_mode_ = static_cast<WindowMode>(window);
+  m.subsample_ = static_cast<SubsampleMethod>(sub);
+  m.short_policy_ = static_cast<ShortPolicy>(short_policy);
+  m.sample_rate_hz_ = rate;
+  m.window_config_ = cfg;
+}
+
+void ModelParser::parse_clas(Reader& r, Model& m) {
+  const std::string& w = r.what();
+  const std::uint32_t n = r.u32("n_classes"), rule = r.u32("rule");
+  if (n < 2 || n > kMaxClasses)
+    fail(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, 1024]");
+  if (rule > 1) fail(ModelError::kValue, w + ": rule=" + std::to_string(rule) + " (0 binary, 1 one_vs_all)");
+  if (rule == 0 && n != 2)
+    fail(ModelError::kValue, w + ": the binary rule needs 2 classes, got " + std::to_string(n));
+  m.rule_ = static_cast<DecisionRule>(rule);
+  r.need(static_cast<std::size_t>(n) * model_format::kNameBytes, "class names");
+  m.class_names_.clear();
+  for (std::uint32_t i = 0; i < n; ++i) {
+    std::string s = r.name("class name");
+    for (const auto& g : m.class_names_)
+      if (g == s) fail(ModelError::kValue, w + ": class name '" + s + "' repeated");
+    m.class_names_.push_back(std::move(s));
+  }
+  r.expect_end();
+}
+
+void ModelParser::parse_svbs(Reader& r, Model& m) {
+  const std::string& w = r.what();
+  const std::uint32_t Z = r.u32("n_modes"), n_sv = r.u32("n_sv");
+  if (Z != 3) fail(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
+  std::array<std::uint32_t, 3> dims{}, astore{};
+  for (auto& d : dims) d = r.u32("dims");
+  for (auto& a : astore) a = r.u32("alpha_store");
+  const std::array<std::uint32_t, 3> expect{static_cast<std::uint32_t>(m.rows_),
+                                            static_cast<std::uint32_t>(m.cols_),
+                                            static_cast<std::uint32_t>(m.D_)};
+  if (dims != expect)
+    fail(ModelError::kValue, w + ": tensor dims (" + std::to_string(dims[0]) + ", " +
+                                 std::to_string(dims[1]) + ", " + std::to_string(dims[2]) +
+                                 ") differ from the preprocessing's (rows, cols, D) = (" +
+                                 std::to_string(expect[0]) + ", " + std::to_string(expect[1]) + ", " +
+                                 std::to_string(expect[2]) + ")");
+  const std::uint64_t total = std::uint64_t{dims[0]} * dims[1] * dims[2];
+  std::size_t bytes_needed = 0;
+  const std::size_t real_bytes = m.float64_ ? 8 : 4;
+  for (int z = 0; z < 3; ++z) {
+    const std::uint64_t N = total / dims[z];
+    const std::uint64_t Q = std::min<std::uint64_t>(dims[z], N);
+    if (astore[z] < 1 || astore[z] > Q)
+      fail(ModelError::kValue, w + ": alpha_store[" + std::to_string(z) + "]=" +
+                                   std::to_string(astore[z]) + " out of range [1, Q=" +
+                                   std::to_string(Q) + "]");
+    m.alpha_store_[z] = static_cast<int>(astore[z]);
+    m.basis_rows_[z] = static_cast<int>(N);
+    bytes_needed += static_cast<std::size_t>(N * astore[z] * real_bytes);
+  }
+  if (n_sv < 1) fail(ModelError::kValue, w + ": n_sv=0: a model needs at least one support vector");
+  // Everything that follows must fit in the section: checked before allocating anything.
+  const std::uint64_t rank_bytes = (std::uint64_t{n_sv} * 3 * 4 + 7) / 8 * 8;
+  if (std::uint64_t{n_sv} * bytes_needed + rank_bytes > r.remaining())
+    fail(ModelError::kLayout, w + ": n_sv=" + std::to_string(n_sv) + " needs " +
+                                  std::to_string(std::uint64_t{n_sv} * bytes_needed + rank_bytes) +
+                                  " bytes of ranks and bases, the section has " +
+                                  std::to_string(r.remaining()));
+  m.n_sv_ = static_cast<int>(n_sv);
+  m.ranks_.resize(static_cast<std::size_t>(n_sv) * 3);
+  for (std::uint32_t i = 0; i < n_sv; ++i)
+    for (int z = 0; z < 3; ++z) {
+      const std::uint32_t rk = r.u32("ranks");
+      if (rk > astore[z])
+        fail(ModelError::kValue, w + ": rank of support vector " + std::to_string(i) + " in mode " +
+                                     std::to_string(z) + " is " + std::to_string(rk) +
+                                     " > alpha_store " + std::to_string(astore[z]));
+      m.ranks_[static_cast<std::size_t>(i) * 3 + static_cast<std::size_t>(z)] = static_cast<int>(rk);
+    }
+  r.pad8("ranks");
+  for (int z = 0; z < 3; ++z) {
+    const std::size_t N = static_cast<std::size_t>(m.basis_rows_[z]);
+    const std::size_t A = static_cast<std::size_t>(astore[z]);
+    const std::size_t count = static_cast<std::size_t>(n_sv) * A * N;
+    const std::uint8_t* p = r.raw(count * real_bytes, "bases");
+    if (m.float64_) m.bases64_[z].resize(count);
+    else m.bases32_[z].resize(count);
+    for (std::size_t j = 0; j < count; ++j) {
+      double v;
+      if (m.float64_) {
+        std::uint64_t u = 0;
+        for (int b = 7; b >= 0; --b) u = (u << 8) | p[j * 8 + static_cast<std::size_t>(b)];
+        std::memcpy(&v, &u, 8);
+        m.bases64_[z][j] = v;
+      } else {
+        std::uint32_t u = 0;
+        for (int b = 3; b >= 0; --b) u = (u << 8) | p[j * 4 + static_cast<std::size_t>(b)];
+        float f;
+        std::memcpy(&f, &u, 4);
+        m.bases32_[z][j] = f;
+        v = f;
+      }
+      if (!std::isfinite(v) || std::fabs(v) > 1.0 + 1e-5)
+        fail(ModelError::kValue, w + ": basis entry " + std::to_string(j) + " of mode " +
+                                     std::to_string(z) + " is " + fmt_double(v) +
+                                     " (entries of orthonormal columns lie in [-1, 1])");
+    }
+    // Orthonormal columns up to the rank, zero columns beyond it.
+    const double tol = m.float64_ ? 1e-8 : 1e-4;
+    for (std::size_t i = 0; i < n_sv; ++i) {
+      const int rk = m.ranks_[i * 3 + static_cast<std::size_t>(z)];
+      for (std::size_t k = 0; k < A; ++k)
+        for (std::size_t l = 0; l <= k; ++l) {
+          double dot = 0;
+          for (std::size_t n = 0; n < N; ++n) {
+            const std::size_t a = (i * A + k) * N + n, b = (i * A + l) * N + n;
+            dot += m.float64_ ? m.bases64_[z][a] * m.bases64_[z][b]
+                              : double{m.bases32_[z][a]} * double{m.bases32_[z][b]};
+          }
+          const double want = (k == l && static_cast<int>(k) < rk) ? 1.0 : 0.0;
+          if (std::fabs(dot - want) > tol)
+            fail(ModelError::kValue, w + ": basis of support vector " + std::to_string(i) +
+                                         " in mode " + std::to_string(z) + " is not orthonormal " +
+                                         "up to its rank " + std::to_string(rk) + " (columns " +
+                                         std::to_string(l) + "," + std::to_string(k) + ": " +
+                                         fmt_double(dot) + ")");
+        }
+    }
+  }
+  r.expect_end();
+}
+
+void ModelParser::parse_mach(Reader& r, Model& m) {
+  const std::string& w = r.what();
+  const std::uint32_t n = r.u32("n_machines");
+  r.zero_u32("reserved");
+  const std::size_t real_bytes = m.float64_ ? 8 : 4;
+  // A machine takes at least 24 + 3*16 bytes: bound n before reserving.
+  if (n < 1 || std::uint64_t{n} * 72 > r.remaining())
+    fail(ModelError::kValue, w + ": n_machines=" + std::to_string(n) + " impossible for a section of " +
+                                 std::to_string(r.remaining()) + " bytes");
+  m.machines_.clear();
+  m.machines_.reserve(n);
+  for (std::uint32_t k = 0; k < n; ++k) {
+    const std::string mw = w + ": machine " + std::to_string(k);
+    ModelMachine mm;
+    mm.positive = r.i32("positive_class");
+    mm.negative = r.i32("negative_class");
+    const std::uint32_t n_terms = r.u32("n_terms");
+    r.zero_u32("reserved");
+    mm.intercept = r.f64("intercept");
+    if (!std::isfinite(mm.intercept))
+      fail(ModelError::kValue, mw + ": intercept=" + fmt_double(mm.intercept) + " is not finite");
+    for (int z = 0; z < 3; ++z) {
+      const std::uint32_t a = r.u32("alpha");
+      r.zero_u32("reserved");
+      const double s = r.f64("sigma");
+      if (a < 1 || static_cast<int>(a) > m.alpha_store_[z])
+        fail(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
+                                     " out of range [1, alpha_store=" +
+                                     std::to_string(m.alpha_store_[z]) + "]");
+      if (!(std::isfinite(s) && s > 0))
+        fail(ModelError::kValue, mw + ": sigma[" + std::to_string(z) + "]=" + fmt_double(s) +
+                                     " must be finite and > 0");
+      mm.alpha[static_cast<std::size_t>(z)] = static_cast<int>(a);
+      mm.sigma[static_cast<std::size_t>(z)] = s;
+    }
+    if (n_terms < 1 || n_terms > static_cast<std::uint32_t>(m.n_sv_))
+      fail(ModelError::kValue, mw + ": n_terms=" + std::to_string(n_terms) + " out of range [1, n_sv=" +
+                                   std::to_string(m.n_sv_) + "]");
+    r.need(std::size_t{n_terms} * (4 + real_bytes), "support-vector indices and coefficients");
+    mm.sv_index.resize(n_terms);
+    for (std::uint32_t t = 0; t < n_terms; ++t) {
+      const std::uint32_t i = r.u32("sv_index");
+      if (i >= static_cast<std::uint32_t>(m.n_sv_))
+        fail(ModelError::kValue, mw + ": sv_index[" + std::to_string(t) + "]=" + std::to_string(i) +
+                                     " >= n_sv=" + std::to_string(m.n_sv_));
+      if (t > 0 && i <= mm.sv_index[t - 1])
+        fail(ModelError::kValue, mw + ": sv_index must be strictly increasing (entry " +
+                                     std::to_string(t) + ")");
+      mm.sv_index[t] = i;
+    }
+    r.pad8("sv_index");
+    mm.coef.resize(n_terms);
+    for (std::uint32_t t = 0; t < n_terms; ++t) {
+      const double c = m.float64_ ? r.f64("coef") : static_cast<double>(r.f32("coef"));
+      if (!std::isfinite(c))
+        fail(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
+      mm.coef[t] = c;
+    }
+    r.pad8("coef");
+    m.machines_.push_back(std::move(mm));
+  }
+  r.expect_end();
+}
+
+void ModelParser::check_machines(Model& m, const std::string& origin) {
+  const int nc = static_cast<int>(m.class_names_.size());
+  const int nm = static_cast<int>(m.machines_.size());
+  if (m.rule_ == DecisionRule::kBinary) {
+    if (nm != 1)
+      fail(ModelError::kValue, origin + ": the binary rule needs 1 machine, got " + std::to_string(nm));
+    const auto& mm = m.machines_[0];
+    if (!((mm.positive == 1 && mm.negative == 0) || (mm.positive == 0 && mm.negative == 1)))
+      fail(ModelError::kValue, origin + ": binary machine classes (" + std::to_string(mm.positive) +
+                                   ", " + std::to_string(mm.negative) + ") must be (1, 0) or (0, 1)");
+  } else {
+    if (nm != nc)
+      fail(ModelError::kValue, origin + ": one_vs_all needs one machine per class (" +
+                                   std::to_string(nc) + "), got " + std::to_string(nm));
+    for (int k = 0; k < nm; ++k)
+      if (m.machines_[static_cast<std::size_t>(k)].positive != k ||
+          m.machines_[static_cast<std::size_t>(k)].negative != -1)
+        fail(ModelError::kValue, origin + ": one_vs_all machine " + std::to_string(k) +
+                                     " must have positive_class=" + std::to_string(k) +
+                                     " and negative_class=-1");
+  }
+  std::vector<char> used(static_cast<std::size_t>(m.n_sv_), 0);
+  for (const auto& mm : m.machines_)
+    for (auto i : mm.sv_index) used[i] = 1;
+  for (int i = 0; i < m.n_sv_; ++i)
+    if (!used[static_cast<std::size_t>(i)])
+      fail(ModelError::kValue, origin + ": support vector " + std::to_string(i) +
+                                   " is used by no machine");
+}
+
+Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin) {
+  namespace mf = model_format;
+  if (data == nullptr && size > 0) fail(ModelError::kIo, origin + ": null data");
+  if (size < 8 || std::memcmp(data, mf::kMagic, 8) != 0)
+    fail(ModelError::kNotAModel, origin + ": not an eskin model file (magic bytes \\x89ESKIN\\r\\n missing)");
+  if (size < mf::kHeaderBytes + 4)
+    fail(ModelError::kTruncated, origin + ": truncated: " + std::to_string(size) +
+                                     " bytes, shorter than the 36-byte header and checksum");
+  Reader h(data, mf::kHeaderBytes, origin + ": header");
+  h.raw(8, "magic");
+  const std::uint32_t vh = h.u32("version/header_bytes");
+  const std::uint32_t version = vh & 0xFFFFu, header_bytes = vh >> 16;
+  if (version != mf::kVersion)
+    fail(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
+                                   " is not supported (this library reads version " +
+                                   std::to_string(mf::kVersion) + ")");
+  if (header_bytes != mf::kHeaderBytes)
+    fail(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
+  const std::uint32_t flags = h.u32("flags");
+  const std::uint32_t file_bytes = h.u32("file_bytes");
+  const std::uint32_t n_sections = h.u32("section_count");
+  if (file_bytes > size)
+    fail(ModelError::kTruncated, origin + ": truncated: the header says " + std::to_string(file_bytes) +
+                                     " bytes, only " + std::to_string(size) + " present");
+  if (file_bytes < size)
+    fail(ModelError::kLayout, origin + ": " + std::to_string(size - file_bytes) +
+                                  " unexpected bytes after the end of the model (file_bytes=" +
+                                  std::to_string(file_bytes) + ")");
+  if (file_bytes < mf::kHeaderBytes + 4 || file_bytes > kMaxFileBytes || file_bytes % 4 != 0)
+    fail(ModelError::kLayout, origin + ": file_bytes=" + std::to_string(file_bytes) + " is impossible");
+  std::uint32_t stored_crc = 0;
+  for (int i = 3; i >= 0; --i) stored_crc = (stored_crc << 8) | data[file_bytes - 4 + static_cast<std::uint32_t>(i)];
+  const std::uint32_t crc = mf::crc32(data, file_bytes - 4);
+  if (crc != stored_crc) {
+    std::ostringstream os;
+    os << origin << ": checksum mismatch (stored CRC-32 0x" << std::hex << stored_crc
+       << ", computed 0x" << crc << "): the file is corrupted";
+    fail(ModelError::kChecksum, os.str());
+  }
+  // Checksum good: now the structure.
+  if (flags & ~mf::kFlagFloat64)
+    fail(ModelError::kValue, origin + ": unknown flags 0x" + std::to_string(flags));
+  h.zero_u32("reserved");
+  h.zero_u32("reserved");
+  Model m;
+  m.float64_ = (flags & mf::kFlagFloat64) != 0;
+  m.file_bytes_ = file_bytes;
+  static constexpr std::uint32_t kOrder[4] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
+                                              tag_of("MACH")};
+  int next = 0;
+  std::size_t pos = mf::kHeaderBytes;
+  const std::size_t end = file_bytes - 4;
+  for (std::uint32_t s = 0; s < n_sections; ++s) {
+    if (end - pos < 8)
+      fail(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
+    Reader sh(data + pos, 8, origin + ": section header");
+    const std::uint32_t tag = sh.u32("tag"), bytes = sh.u32("payload_bytes");
+    pos += 8;
+    const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
+    if (padded > end - pos)
+      fail(ModelError::kLayout, origin + ": section '" + tag_str(tag) + "' (" + std::to_string(bytes) +
+                                    " bytes) runs past the end of the file");
+    for (std::size_t i = bytes; i < padded; ++i)
+      if (data[pos + i] != 0)
+        fail(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
+    Reader r(data + pos, bytes, origin + ": section " + tag_str(tag));
+    const char first = static_cast<char>(tag & 0xFF);
+    if (first >= 'a' && first <= 'z') {
+      // ancillary section (e.g. "meta"): skipped
+    } else if (next < 4 && tag == kOrder[next]) {
+      switch (next) {
+        case 0: parse_prep(r, m); break;
+        case 1: parse_clas(r, m); break;
+        case 2: parse_svbs(r, m); break;
+        default: parse_mach(r, m); break;
+      }
+      ++next;
+    } else {
+      fail(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
+                                    (next < 4 ? tag_str(kOrder[next]) : std::string("end")) + "')");
+    }
+    pos += padded;
+  }
+  if (next < 4)
+    fail(ModelError::kLayout, origin + ": required section '" + tag_str(kOrder[next]) + "' missing");
+  if (pos != end)
+    fail(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
+                                  " bytes after the last section, before the checksum");
+  check_machines(m, origin);
+  return m;
+}
+
+Model Model::from_bytes(const std::uint8_t* data, std::size_t size) {
+  return ModelParser::parse(data, size, "model");
+}
+
+Model Model::load(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) fail(ModelError::kIo, path + ": cannot open the model file");
+  f.seekg(0, std::ios::end);
+  const std::streamoff n = f.tellg();
+  if (n < 0) fail(ModelError::kIo, path + ": cannot read the model file");
+  if (static_cast<std::uint64_t>(n) > kMaxFileBytes)
+    fail(ModelError::kLayout, path + ": " + std::to_string(n) + " bytes, too large for a model file");
+  f.seekg(0);
+  std::vector<std::uint8_t> buf(static_cast<std::size_t>(n));
+  if (n > 0 && !f.read(reinterpret_cast<char*>(buf.data()), n))
+    fail(ModelError::kIo, path + ": cannot read the model file");
+  return ModelParser::parse(buf.data(), buf.size(), path);
+}
+
+}  // namespace eskin

@@ -1,0 +1,161 @@
+// Subspace-overlap micro-kernels of the model classifier (see model_overlap.hpp).
+#include "model_overlap.hpp"
+
+#include <cstdlib>
+#include <cstring>
+
+#if (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
+#define ESKIN_MODEL_X86_DISPATCH 1
+#include <immintrin.h>
+#endif
+
+namespace eskin::detail {
+
+namespace {
+
+// Portable versions: 8 partial sums per dot product (float products accumulated in float within
+// a lane, lanes summed in double), so the float32 and AVX2 variants round alike.
+double overlap_f32_generic(const float* b, const float* x, std::size_t n,
+                           std::size_t alpha) noexcept {
+  double s = 0.0;
+  for (std::size_t k = 0; k < alpha; ++k) {
+    const float* bk = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const float* xl = x + l * n;
+      float acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+      std::size_t i = 0;
+      for (; i + 8 <= n; i += 8)
+        for (std::size_t j = 0; j < 8; ++j) acc[j] += bk[i + j] * xl[i + j];
+      double dot = 0.0;
+      for (std::size_t j = 0; j < 8; ++j) dot += static_cast<double>(acc[j]);
+      for (; i < n; ++i) dot += static_cast<double>(bk[i]) * static_cast<double>(xl[i]);
+      s += dot * dot;
+    }
+  }
+  return s;
+}
+
+double overlap_f64_generic(const double* b, const double* x, std::size_t n,
+                           std::size_t alpha) noexcept {
+  double s = 0.0;
+  for (std::size_t k = 0; k < alpha; ++k) {
+    const double* bk = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const double* xl = x + l * n;
+      double acc[4] = {0, 0, 0, 0};
+      std::size_t i = 0;
+      for (; i + 4 <= n; i += 4)
+        for (std::size_t j = 0; j < 4; ++j) acc[j] += bk[i + j] * xl[i + j];
+      double dot = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+      for (; i < n; ++i) dot += bk[i] * xl[i];
+      s += dot * dot;
+    }
+  }
+  return s;
+}
+
+#ifdef ESKIN_MODEL_X86_DISPATCH
+__attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
+  // lanes summed in double, as in the generic version
+  const __m256d lo = _mm256_cvtps_pd(_mm256_castps256_ps128(v));
+  const __m256d hi = _mm256_cvtps_pd(_mm256_extractf128_ps(v, 1));
+  const __m256d s = _mm256_add_pd(lo, hi);
+  const __m128d t = _mm_add_pd(_mm256_castpd256_pd128(s), _mm256_extractf128_pd(s, 1));
+  return _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
+}
+
+__attribute__((target("avx2,fma"))) double overlap_f32_avx2(const float* b, const float* x,
+                                                            std::size_t n,
+                                                            std::size_t alpha) noexcept {
+  double s = 0.0;
+  for (std::size_t k = 0; k < alpha; ++k) {
+    const float* bk = b + k * n;
+    std::size_t l = 0;
+    // two columns of x per pass: each load of b feeds two FMAs
+    for (; l + 2 <= alpha; l += 2) {
+      const float* x0 = x + l * n;
+      const float* x1 = x0 + n;
+      __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps();
+      std::size_t i = 0;
+      for (; i + 8 <= n; i += 8) {
+        const __m256 bv = _mm256_loadu_ps(bk + i);
+        a0 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x0 + i), a0);
+        a1 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x1 + i), a1);
+      }
+      double d0 = hsum8(a0), d1 = hsum8(a1);
+      for (; i < n; ++i) {
+        d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
+        d1 += static_cast<double>(bk[i]) * static_cast<double>(x1[i]);
+      }
+      s += d0 * d0 + d1 * d1;
+    }
+    for (; l < alpha; ++l) {
+      const float* x0 = x + l * n;
+      __m256 a0 = _mm256_setzero_ps();
+      std::size_t i = 0;
+      for (; i + 8 <= n; i += 8) a0 = _mm256_fmadd_ps(_mm256_loadu_ps(bk + i), _mm256_loadu_ps(x0 + i), a0);
+      double d0 = hsum8(a0);
+      for (; i < n; ++i) d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
+      s += d0 * d0;
+    }
+  }
+  return s;
+}
+
+__attribute__((target("avx2,fma"))) double overlap_f64_avx2(const double* b, const double* x,
+                                                            std::size_t n,
+                                                            std::size_t alpha) noexcept {
+  double s = 0.0;
+  for (std::size_t k = 0; k < alpha; ++k) {
+    const double* bk = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const double* xl = x + l * n;
+      __m256d a0 = _mm256_setzero_pd();
+      std::size_t i = 0;
+      for (; i + 4 <= n; i += 4) a0 = _mm256_fmadd_pd(_mm256_loadu_pd(bk + i), _mm256_loadu_pd(xl + i), a0);
+      const __m128d t = _mm_add_pd(_mm256_castpd256_pd128(a0), _mm256_extractf128_pd(a0, 1));
+      double dot = _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
+      for (; i < n; ++i) dot += bk[i] * xl[i];
+      s += dot * dot;
+    }
+  }
+  return s;
+}
+
+bool cpu_has_avx2_fma() noexcept {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+}
+#endif
+
+bool use_simd() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  static const bool ok = [] {
+    const char* env = std::getenv("ESKIN_KERNEL_ISA");
+    return cpu_has_avx2_fma() && !(env != nullptr && std::strcmp(env, "generic") == 0);
+  }();
+  return ok;
+#else
+  return false;
+#endif
+}
+
+}  // namespace
+
+OverlapF32 select_overlap_f32() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &overlap_f32_avx2;
+#endif
+  return &overlap_f32_generic;
+}
+
+OverlapF64 select_overlap_f64() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &overlap_f64_avx2;
+#endif
+  return &overlap_f64_generic;
+}
+
+const char* overlap_kernel_name() noexcept { return use_simd() ? "avx2-fma" : "generic"; }
+
+}  // namespace eskin::detail

@@ -1,0 +1,24 @@
+// Private to the model classifier: the subspace-overlap micro-kernel of the inference path,
+//   ov = sum_{k < alpha, l < alpha} (b_k . x_l)^2,
+// with b_k, x_l the columns of two N x alpha_stride column-major basis blocks (only their first
+// alpha columns are used). Kept in its own translation unit (model_overlap.cpp), free of Eigen
+// and std templates, so that its AVX2/FMA variant (a function-level target attribute, not
+// -march) cannot leak wider instructions into code shared with the rest of the library.
+#pragma once
+
+#include <cstddef>
+
+namespace eskin::detail {
+
+using OverlapF32 = double (*)(const float* b, const float* x, std::size_t n,
+                              std::size_t alpha) noexcept;
+using OverlapF64 = double (*)(const double* b, const double* x, std::size_t n,
+                              std::size_t alpha) noexcept;
+
+/// Best variants for this CPU (AVX2+FMA on x86 when available; ESKIN_KERNEL_ISA=generic forces
+/// the portable ones).
+OverlapF32 select_overlap_f32() noexcept;
+OverlapF64 select_overlap_f64() noexcept;
+const char* overlap_kernel_name() noexcept;
+
+}  // namespace eskin::detail

@@ -1,0 +1,630 @@
+// eskin-fw-sim: the skin controller, simulated. It publishes a pseudo-terminal and streams a
+// replay of recorded (or simulated) taxel signals over it in the eskin wire protocol, at the
+// real sample rate, optionally classifying touches on board. See `eskin-fw-sim --help`.
+#include <signal.h>
+#include <time.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "eskin/protocol.hpp"
+#include "pty_link.hpp"
+#include "replay_source.hpp"
+
+#if __has_include("eskin/model.hpp")
+#include "eskin/model.hpp"
+#define ESKIN_FWSIM_HAS_MODEL 1
+#else
+#define ESKIN_FWSIM_HAS_MODEL 0
+#endif
+
+namespace eskin::fwsim {
+namespace {
+
+namespace proto = eskin::protocol;
+
+volatile sig_atomic_t g_stop = 0;
+void on_signal(int) { g_stop = 1; }
+
+std::int64_t now_ns() {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
+}
+
+void sleep_until(std::int64_t deadline_ns) {
+  timespec ts{};
+  ts.tv_sec = deadline_ns / 1000000000LL;
+  ts.tv_nsec = deadline_ns % 1000000000LL;
+  while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR && !g_stop) {
+  }
+}
+
+const char* kUsage = R"(usage: eskin-fw-sim INPUT [options]
+
+Simulates the e-skin controller: creates a pseudo-terminal (raw mode), prints
+"PTY <slave path>" as the first line of stdout, and streams INPUT over it in the eskin wire
+protocol (docs/wire-protocol.md) at the real sample rate.
+
+INPUT: an eskin replay file (.eskr, written by eskin.replay.write_replay_file) or a .npy
+little-endian int16 array (n_samples, rows, cols) / (n_samples, taxels) with --grid.
+
+options:
+  --link PATH          also publish the port as a symlink PATH (replaced if it is a symlink)
+  --speed X            replay speed (1 = real time, 0 = unpaced: as fast as the host reads)
+  --rate HZ            sample rate (default: the file's, else 3000)
+  --samples-per-frame N  samples per DATA frame (default 10)
+  --tick N             wake up every N samples (default: 1 with --model, else samples-per-frame)
+  --loop               repeat the replay forever
+  --hold S             keep the port open S seconds after the replay (default 0)
+  --wait-start         stream only after the host sends START (default: stream at once)
+  --status-ms MS       STATUS period in wall-clock ms (default 250)
+  --tx-buffer BYTES    transmit queue size (default 16384); when full, samples are dropped
+  --model MODEL        run the streaming classifier (.eskin model file) and send DECISION frames
+  --grid RxC           grid of a 2-d .npy input (default 4x4)
+  --drop-rate P        fault injection: drop each byte with probability P
+  --flip-rate P        fault injection: flip one bit of each byte with probability P
+  --burst P            fault injection: precede each frame by random garbage with probability P
+  --burst-len N        longest garbage burst (default 32)
+  --truncate-rate P    fault injection: cut each frame short with probability P
+  --seed N             fault-injection seed (default 1)
+  --quiet              no progress on stderr
+
+On exit it prints "STATS {json}" on stdout (pacing, drops, decisions, latencies).
+)";
+
+struct Options {
+  std::string input;
+  std::string link;
+  std::string model;
+  double speed = 1.0;
+  double rate = 0.0;
+  int samples_per_frame = 10;
+  int tick = 0;
+  bool loop = false;
+  double hold_s = 0.0;
+  bool wait_start = false;
+  int status_ms = 250;
+  std::size_t tx_buffer = 16384;
+  int grid_rows = 4, grid_cols = 4;
+  FaultConfig faults;
+  bool quiet = false;
+};
+
+[[noreturn]] void usage_error(const std::string& msg) {
+  std::fprintf(stderr, "eskin-fw-sim: %s\n(see eskin-fw-sim --help)\n", msg.c_str());
+  std::exit(2);
+}
+
+double parse_double(const std::string& opt, const char* v, double lo, double hi) {
+  char* end = nullptr;
+  const double x = std::strtod(v, &end);
+  if (end == v || *end != '\0' || !std::isfinite(x) || x < lo || x > hi)
+    usage_error(opt + " " + v + ": expected a number in [" + std::to_string(lo) + ", " +
+                std::to_string(hi) + "]");
+  return x;
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> const char* {
+      if (i + 1 >= argc) usage_error(a + " needs a value");
+      return argv[++i];
+    };
+    if (a == "-h" || a == "--help") {
+      std::fputs(kUsage, stdout);
+      std::exit(0);
+    } else if (a == "--link") o.link = val();
+    else if (a == "--model") o.model = val();
+    else if (a == "--speed") o.speed = parse_double(a, val(), 0.0, 1e6);
+    else if (a == "--rate") o.rate = parse_double(a, val(), 1.0, 1e7);
+    else if (a == "--samples-per-frame") o.samples_per_frame = static_cast<int>(parse_double(a, val(), 1, 65535));
+    else if (a == "--tick") o.tick = static_cast<int>(parse_double(a, val(), 1, 65535));
+    else if (a == "--loop") o.loop = true;
+    else if (a == "--hold") o.hold_s = parse_double(a, val(), 0.0, 1e7);
+    else if (a == "--wait-start") o.wait_start = true;
+    else if (a == "--status-ms") o.status_ms = static_cast<int>(parse_double(a, val(), 1, 1e7));
+    else if (a == "--tx-buffer") o.tx_buffer = static_cast<std::size_t>(parse_double(a, val(), 1024, 1 << 28));
+    else if (a == "--grid") {
+      const std::string g = val();
+      if (std::sscanf(g.c_str(), "%dx%d", &o.grid_rows, &o.grid_cols) != 2 || o.grid_rows < 1 ||
+          o.grid_cols < 1 || o.grid_rows > 255 || o.grid_cols > 255)
+        usage_error("--grid " + g + ": expected RxC, e.g. 4x4");
+    } else if (a == "--drop-rate") o.faults.drop_rate = parse_double(a, val(), 0.0, 1.0);
+    else if (a == "--flip-rate") o.faults.flip_rate = parse_double(a, val(), 0.0, 1.0);
+    else if (a == "--burst") o.faults.burst_rate = parse_double(a, val(), 0.0, 1.0);
+    else if (a == "--burst-len") o.faults.burst_len = static_cast<int>(parse_double(a, val(), 1, 4096));
+    else if (a == "--truncate-rate") o.faults.truncate_rate = parse_double(a, val(), 0.0, 1.0);
+    else if (a == "--seed") o.faults.seed = static_cast<std::uint64_t>(parse_double(a, val(), 0, 9e15));
+    else if (a == "--quiet") o.quiet = true;
+    else if (!a.empty() && a[0] == '-') usage_error("unknown option " + a);
+    else if (o.input.empty()) o.input = a;
+    else usage_error("more than one INPUT: " + o.input + " and " + a);
+  }
+  if (o.input.empty()) usage_error("missing INPUT (a .eskr replay file or a .npy array)");
+  return o;
+}
+
+/// Wake-up lateness histogram: 1 us bins up to 50 ms, exact maximum.
+class PacingStats {
+ public:
+  void add(std::int64_t late_ns) {
+    if (late_ns < 0) late_ns = 0;
+    const std::size_t bin = static_cast<std::size_t>(late_ns / 1000);
+    ++bins_[std::min(bin, bins_.size() - 1)];
+    max_ = std::max(max_, late_ns);
+    ++n_;
+  }
+  std::int64_t percentile_ns(double q) const {
+    if (n_ == 0) return 0;
+    const auto target = static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(n_)));
+    std::uint64_t acc = 0;
+    for (std::size_t i = 0; i < bins_.size(); ++i) {
+      acc += bins_[i];
+      if (acc >= std::max<std::uint64_t>(target, 1)) return static_cast<std::int64_t>(i) * 1000 + 500;
+    }
+    return max_;
+  }
+  std::int64_t max_ns() const { return max_; }
+  std::uint64_t count() const { return n_; }
+
+ private:
+  std::array<std::uint64_t, 50001> bins_{};
+  std::int64_t max_ = 0;
+  std::uint64_t n_ = 0;
+};
+
+std::uint32_t clamp_u32(std::int64_t v) {
+  return static_cast<std::uint32_t>(std::clamp<std::int64_t>(v, 0, 0xFFFFFFFFLL));
+}
+
+class Simulator {
+ public:
+  Simulator(const Options& o, ReplaySource& src, PtyLink& link)
+      : o_(o), src_(src), link_(link), taxels_(src.taxels()) {
+    rate_ = o.rate > 0 ? o.rate : (src.sample_rate_hz() > 0 ? src.sample_rate_hz() : 3000.0);
+    const std::size_t max_spf = proto::max_samples_per_frame(taxels_);
+    spf_ = std::min<std::size_t>(static_cast<std::size_t>(o.samples_per_frame), max_spf);
+    tick_ = o.tick > 0 ? static_cast<std::size_t>(o.tick) : (o.model.empty() ? spf_ : 1);
+    streaming_ = !o.wait_start;
+    class_names_ = src.class_names();
+    frame_samples_.resize(spf_ * taxels_);
+  }
+
+#if ESKIN_FWSIM_HAS_MODEL
+  void set_model(const Model* model) {
+    model_ = model;
+    stream_ = std::make_unique<StreamClassifier>(*model);
+    class_names_ = model->class_names();
+  }
+#endif
+
+  int run() {
+    origin_ = now_ns();
+    anchor_ns_ = origin_;
+    std::printf("PTY %s\nORIGIN_NS %lld\n", link_.slave_path().c_str(),
+                static_cast<long long>(origin_));
+    std::fflush(stdout);
+    if (!o_.quiet)
+      std::fprintf(stderr, "eskin-fw-sim: %s, %llu samples of %dx%d taxels at %.0f Hz x %g%s\n",
+                   link_.slave_path().c_str(), static_cast<unsigned long long>(src_.n_samples()),
+                   src_.rows(), src_.cols(), rate_, o_.speed, o_.speed == 0 ? " (unpaced)" : "");
+    service();
+    if (streaming_) start_stream(false);
+    std::int64_t finished_at = 0;
+    while (!g_stop) {
+      if (streaming_ && !finished_) {
+        step();
+        if (finished_) {
+          finished_at = now_ns();
+          send_status();
+          link_.flush_tx();
+        }
+      } else {
+        link_.wait_io(5, link_.queued() > 0);
+        service();
+        if (finished_ && now_ns() - finished_at >= static_cast<std::int64_t>(o_.hold_s * 1e9)) break;
+      }
+    }
+    // last words: a final STATUS, and a bounded wait for the host to take what is queued
+    send_status();
+    const std::int64_t give_up = now_ns() + 1000000000LL;
+    while (link_.queued() > 0 && link_.host_connected() && now_ns() < give_up) {
+      if (!link_.flush_tx()) break;
+      link_.wait_io(5, true);
+      bool rc, dc;
+      link_.update_host(rc, dc);
+    }
+    if (link_.host_connected()) link_.drain(2000);
+    print_stats();
+    return 0;
+  }
+
+ private:
+  /// Acquisition deadline of the sample that ends at stream index `end` (exclusive).
+  std::int64_t deadline_for(std::uint64_t end) const {
+    return anchor_ns_ +
+           static_cast<std::int64_t>(static_cast<double>(end - anchor_sample_) * 1e9 /
+                                     (rate_ * o_.speed));
+  }
+
+  void step() {
+    const std::uint64_t left = src_.n_samples() - pos_;
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(tick_, left));
+    std::int64_t acquired = 0;
+    if (o_.speed > 0) {
+      const std::int64_t deadline = deadline_for(next_sample_ + n);
+      sleep_until(deadline);
+      const std::int64_t t = now_ns();
+      pacing_.add(t - deadline);
+      acquired = deadline;
+    } else {
+      acquired = now_ns();
+    }
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::int16_t* s = src_.sample(pos_);
+      std::memcpy(frame_samples_.data() + frame_fill_ * taxels_, s, taxels_ * sizeof(std::int16_t));
+      if (frame_fill_ == 0) frame_first_ = next_sample_;
+      ++frame_fill_;
+      ++pos_;
+      ++next_sample_;
+      // with tick > 1, sample k of this batch was acquired (n - 1 - k) periods before the last
+      const double period_ns = o_.speed > 0 ? 1e9 / (rate_ * o_.speed) : 0.0;
+      classify(s, acquired - static_cast<std::int64_t>(static_cast<double>(n - 1 - k) * period_ns));
+      if (frame_fill_ == spf_) send_data(acquired);
+    }
+    if (pos_ == src_.n_samples()) {
+      if (frame_fill_ > 0) send_data(acquired);
+      if (o_.loop) {
+        pos_ = 0;
+        loop_flag_ = true;
+      } else {
+        finished_ = true;
+#if ESKIN_FWSIM_HAS_MODEL
+        if (stream_ && stream_->flush() == ClassifyStatus::kDecision) send_decision(now_ns());
+#endif
+      }
+    }
+    service();
+  }
+
+  void classify(const std::int16_t* sample, std::int64_t acquired_ns) {
+#if ESKIN_FWSIM_HAS_MODEL
+    if (!stream_) return;
+    const ClassifyStatus st = stream_->push(sample);
+    if (st == ClassifyStatus::kDecision) {
+      send_decision(acquired_ns);
+    } else if (st != ClassifyStatus::kOk) {
+      ++classify_errors_;
+    }
+#else
+    (void)sample;
+    (void)acquired_ns;
+#endif
+  }
+
+#if ESKIN_FWSIM_HAS_MODEL
+  void send_decision(std::int64_t acquired_ns) {
+    const Decision& d = stream_->decision();
+    proto::Frame f;
+    f.type = proto::FrameType::decision;
+    auto& p = f.decision;
+    p.onset_sample = static_cast<std::uint64_t>(std::max<std::int64_t>(d.window_start, 0));
+    p.offset_sample = static_cast<std::uint64_t>(std::max<std::int64_t>(d.window_stop, 0));
+    p.decided_sample = next_sample_ == 0 ? 0 : next_sample_ - 1;
+    p.label = static_cast<std::int16_t>(d.label);
+    p.dont_know = d.dont_know ? 1 : 0;
+    p.n_values = static_cast<std::uint8_t>(
+        std::min<int>(d.n_machines, static_cast<int>(proto::kMaxDecisionValues)));
+    for (int i = 0; i < p.n_values; ++i) p.values[i] = d.values[i];
+    const std::int64_t t = now_ns();
+    p.timestamp_us = static_cast<std::uint64_t>((t - origin_) / 1000);
+    p.latency_us = clamp_u32((t - acquired_ns) / 1000);
+    ++decisions_made_;
+    // A decision is never dropped for lack of room while a host listens: make room by waiting.
+    if (!queue(f, /*flow_control=*/true)) return;
+    ++decisions_sent_;
+    latencies_us_.push_back(p.latency_us);
+    link_.flush_tx();
+  }
+#endif
+
+  void send_data(std::int64_t acquired_ns) {
+    proto::Frame f;
+    f.type = proto::FrameType::data;
+    f.data.first_sample = frame_first_;
+    f.data.timestamp_us = static_cast<std::uint64_t>((acquired_ns - origin_) / 1000);
+    f.data.rows = static_cast<std::uint8_t>(src_.rows());
+    f.data.cols = static_cast<std::uint8_t>(src_.cols());
+    f.data.n_samples = static_cast<std::uint16_t>(frame_fill_);
+    f.data.samples = frame_samples_.data();
+    f.flags = static_cast<std::uint8_t>((dropped_since_data_ ? proto::flags::kOverrun : 0) |
+                                        (loop_flag_ ? proto::flags::kLoop : 0));
+    const std::size_t n = frame_fill_;
+    frame_fill_ = 0;
+    if (queue(f, o_.speed == 0)) {
+      samples_sent_ += n;
+      dropped_since_data_ = false;
+      loop_flag_ = false;
+      dropping_ = false;
+    } else {
+      dropped_samples_ += n;
+      dropped_since_data_ = dropped_since_status_ = true;
+      if (!dropping_ && link_.host_connected()) ++overrun_events_;
+      dropping_ = link_.host_connected();
+    }
+    link_.flush_tx();
+  }
+
+  /// Queues a frame if a host is there and it fits; with flow control, waits for room while
+  /// the host is connected (unpaced replay, decisions) instead of dropping.
+  bool queue(proto::Frame& f, bool flow_control) {
+    if (!link_.host_connected()) return false;
+    if (sync_pending_) f.flags |= proto::flags::kSync;
+    bool ok = link_.send(f);
+    while (!ok && flow_control && link_.host_connected() && !g_stop) {
+      if (!link_.flush_tx()) break;
+      link_.wait_io(20, true);
+      service_input();
+      ok = link_.send(f);
+    }
+    if (ok) sync_pending_ = false;
+    return ok;
+  }
+
+  void start_stream(bool from_command) {
+    if (from_command && finished_) {  // START after the end: play it again
+      pos_ = 0;
+      finished_ = false;
+    }
+    streaming_ = true;
+    anchor_ns_ = now_ns();
+    anchor_sample_ = next_sample_;
+    announce();
+  }
+
+  /// Delimiter + INFO, with SYNC on the first frame after it.
+  void announce() {
+    if (!link_.host_connected()) return;
+    link_.send_delimiter();
+    sync_pending_ = true;
+    send_info();
+    link_.flush_tx();
+  }
+
+  void send_info() {
+    proto::Frame f;
+    f.type = proto::FrameType::info;
+    auto& p = f.info;
+    p.rows = static_cast<std::uint8_t>(src_.rows());
+    p.cols = static_cast<std::uint8_t>(src_.cols());
+    p.samples_per_frame = static_cast<std::uint16_t>(spf_);
+    p.sample_rate_hz = rate_;
+    p.volts_per_count = src_.volts_per_count();
+    p.speed = o_.speed;
+    p.has_model = has_model() ? 1 : 0;
+    names_joined_.clear();
+    std::size_t n = 0;
+    for (const auto& c : class_names_) {
+      if (n == 255 || names_joined_.size() + c.size() + 1 > 2048) break;
+      if (n) names_joined_ += '\n';
+      names_joined_ += c;
+      ++n;
+    }
+    p.n_classes = static_cast<std::uint8_t>(n);
+    p.names_len = static_cast<std::uint16_t>(names_joined_.size());
+    p.class_names = names_joined_.data();
+    queue(f, true);
+  }
+
+  void send_status() {
+    proto::Frame f;
+    f.type = proto::FrameType::status;
+    auto& s = f.status;
+    const std::int64_t t = now_ns();
+    s.uptime_us = static_cast<std::uint64_t>((t - origin_) / 1000);
+    s.next_sample = next_sample_;
+    s.samples_sent = samples_sent_;
+    s.dropped_samples = dropped_samples_;
+    s.overrun_events = overrun_events_;
+    s.rx_errors = link_.rx_errors();
+    s.faults_injected = clamp_u32(static_cast<std::int64_t>(link_.faults_injected()));
+    s.decisions_sent = static_cast<std::uint32_t>(decisions_sent_);
+    s.pacing_p50_ns = clamp_u32(pacing_.percentile_ns(0.5));
+    s.pacing_p99_ns = clamp_u32(pacing_.percentile_ns(0.99));
+    s.pacing_max_ns = clamp_u32(pacing_.max_ns());
+    s.state = finished_ ? proto::StreamState::finished
+              : streaming_ ? proto::StreamState::streaming
+                           : proto::StreamState::stopped;
+    s.host_connected = link_.host_connected() ? 1 : 0;
+    f.flags = dropped_since_status_ ? proto::flags::kOverrun : 0;
+    if (queue(f, false)) dropped_since_status_ = false;
+    last_status_ns_ = t;
+  }
+
+  bool has_model() const {
+#if ESKIN_FWSIM_HAS_MODEL
+    return stream_ != nullptr;
+#else
+    return false;
+#endif
+  }
+
+  void service_input() {
+    link_.poll_commands([this](const proto::Frame& f) { on_command(f); });
+  }
+
+  /// Host presence, host commands, periodic STATUS, and writing out the queue.
+  void service() {
+    bool reconnected = false, disconnected = false;
+    link_.update_host(reconnected, disconnected);
+    if (disconnected && !o_.quiet) std::fprintf(stderr, "eskin-fw-sim: host closed the port\n");
+    if (reconnected) {
+      ++connections_;
+      if (!o_.quiet) std::fprintf(stderr, "eskin-fw-sim: host connected\n");
+      announce();  // a delimiter first, so the host's decoder syncs before our first frame
+    }
+    if (link_.host_connected()) service_input();
+    if (now_ns() - last_status_ns_ >= static_cast<std::int64_t>(o_.status_ms) * 1000000LL)
+      send_status();
+    if (!link_.flush_tx()) {
+      bool rc, dc;
+      link_.update_host(rc, dc);
+    }
+  }
+
+  void on_command(const proto::Frame& f) {
+    switch (f.type) {
+      case proto::FrameType::start:
+        if (!streaming_ || finished_) start_stream(true);
+        else announce();
+        break;
+      case proto::FrameType::stop:
+        streaming_ = false;
+        send_status();
+        break;
+      case proto::FrameType::ping: {
+        proto::Frame r;
+        r.type = proto::FrameType::pong;
+        r.ping.token = f.ping.token;
+        r.ping.timestamp_us = static_cast<std::uint64_t>((now_ns() - origin_) / 1000);
+        queue(r, true);
+        break;
+      }
+      case proto::FrameType::info_request:
+        send_info();
+        break;
+      default:
+        ++unexpected_frames_;  // a controller -> host frame sent to us
+    }
+    link_.flush_tx();
+  }
+
+  void print_stats() {
+    std::vector<std::uint32_t> lat = latencies_us_;
+    std::sort(lat.begin(), lat.end());
+    auto pct = [&](double q) -> double {
+      if (lat.empty()) return 0.0;
+      const std::size_t i = std::min(lat.size() - 1, static_cast<std::size_t>(q * (lat.size() - 1) + 0.5));
+      return lat[i];
+    };
+    std::printf(
+        "STATS {\"samples_produced\": %llu, \"samples_sent\": %llu, \"dropped_samples\": %llu, "
+        "\"overrun_events\": %u, \"faults_injected\": %llu, \"bytes_written\": %llu, "
+        "\"rx_errors\": %u, \"connections\": %u, \"pacing_wakeups\": %llu, \"pacing_p50_ns\": %lld, "
+        "\"pacing_p99_ns\": %lld, \"pacing_max_ns\": %lld, \"decisions_made\": %llu, "
+        "\"decisions_sent\": %llu, \"classify_errors\": %llu, \"latency_p50_us\": %.0f, "
+        "\"latency_p99_us\": %.0f, \"latency_max_us\": %.0f, \"elapsed_s\": %.6f, "
+        "\"origin_ns\": %lld}\n",
+        static_cast<unsigned long long>(next_sample_), static_cast<unsigned long long>(samples_sent_),
+        static_cast<unsigned long long>(dropped_samples_), overrun_events_,
+        static_cast<unsigned long long>(link_.faults_injected()),
+        static_cast<unsigned long long>(link_.bytes_written()), link_.rx_errors(), connections_,
+        static_cast<unsigned long long>(pacing_.count()),
+        static_cast<long long>(pacing_.percentile_ns(0.5)),
+        static_cast<long long>(pacing_.percentile_ns(0.99)), static_cast<long long>(pacing_.max_ns()),
+        static_cast<unsigned long long>(decisions_made_), static_cast<unsigned long long>(decisions_sent_),
+        static_cast<unsigned long long>(classify_errors_), pct(0.5), pct(0.99),
+        lat.empty() ? 0.0 : static_cast<double>(lat.back()),
+        static_cast<double>(now_ns() - origin_) * 1e-9, static_cast<long long>(origin_));
+    std::fflush(stdout);
+  }
+
+  const Options& o_;
+  ReplaySource& src_;
+  PtyLink& link_;
+  std::size_t taxels_;
+  double rate_ = 3000.0;
+  std::size_t spf_ = 10;
+  std::size_t tick_ = 10;
+  bool streaming_ = true;
+  bool finished_ = false;
+  bool sync_pending_ = false;
+  bool loop_flag_ = false;
+  bool dropping_ = false;
+  bool dropped_since_data_ = false;
+  bool dropped_since_status_ = false;
+  std::vector<std::string> class_names_;
+  std::string names_joined_;
+  std::vector<std::int16_t> frame_samples_;
+  std::size_t frame_fill_ = 0;
+  std::uint64_t frame_first_ = 0;
+  std::uint64_t pos_ = 0;
+  std::uint64_t next_sample_ = 0;
+  std::int64_t origin_ = 0;
+  std::int64_t anchor_ns_ = 0;
+  std::uint64_t anchor_sample_ = 0;
+  std::int64_t last_status_ns_ = 0;
+  std::uint64_t samples_sent_ = 0;
+  std::uint64_t dropped_samples_ = 0;
+  std::uint32_t overrun_events_ = 0;
+  std::uint32_t connections_ = 0;
+  std::uint64_t unexpected_frames_ = 0;
+  std::uint64_t decisions_made_ = 0;
+  std::uint64_t decisions_sent_ = 0;
+  std::uint64_t classify_errors_ = 0;
+  std::vector<std::uint32_t> latencies_us_;
+  PacingStats pacing_;
+#if ESKIN_FWSIM_HAS_MODEL
+  const Model* model_ = nullptr;
+  std::unique_ptr<StreamClassifier> stream_;
+#endif
+};
+
+int main_impl(int argc, char** argv) {
+  const Options o = parse(argc, argv);
+  ReplaySource src;
+  std::string error;
+  if (!src.open(o.input, o.grid_rows, o.grid_cols, error)) usage_error(error);
+
+#if ESKIN_FWSIM_HAS_MODEL
+  std::unique_ptr<Model> model;
+  if (!o.model.empty()) {
+    try {
+      model = std::make_unique<Model>(Model::load(o.model));
+    } catch (const std::exception& e) {
+      usage_error(std::string("--model: ") + e.what());
+    }
+    if (model->rows() != src.rows() || model->cols() != src.cols())
+      usage_error("--model " + o.model + " expects a " + std::to_string(model->rows()) + "x" +
+                  std::to_string(model->cols()) + " grid, the input has " +
+                  std::to_string(src.rows()) + "x" + std::to_string(src.cols()));
+  }
+#else
+  if (!o.model.empty())
+    usage_error("--model: this build has no on-board classifier (eskin/model.hpp)");
+#endif
+
+  PtyLink link(o.tx_buffer, o.faults);
+  if (!link.open(o.link, error)) {
+    std::fprintf(stderr, "eskin-fw-sim: %s\n", error.c_str());
+    return 1;
+  }
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+  sigaction(SIGHUP, &sa, nullptr);
+  signal(SIGPIPE, SIG_IGN);
+
+  auto sim = std::make_unique<Simulator>(o, src, link);
+#if ESKIN_FWSIM_HAS_MODEL
+  if (model) sim->set_model(model.get());
+#endif
+  return sim->run();
+}
+
+}  // namespace
+}  // namespace eskin::fwsim
+
+int main(int argc, char** argv) { return eskin::fwsim::main_impl(argc, argv); }

@@ -1,0 +1,335 @@
+"""`make demo`: the whole eskin story on the built-in simulated campaign, in a few minutes.
+
+1. simulate a campaign (SIMULATED data, :func:`eskin.simulate`);
+2. train a 3-class model with Maximal Discrepancy selection on some participants
+   (:func:`eskin.models.train_model`), save it and export it to a ``.eskin`` file
+   (:func:`eskin.export.export_model`);
+3. write the held-out participants' recordings as a replay file
+   (:func:`eskin.replay.write_replay_file`) and start the firmware simulator ``eskin-fw-sim`` on
+   it with the model on board: it publishes a pseudo-terminal and streams the recordings at
+   ``speed`` x real time, sending its own DECISION frames;
+4. listen on the pseudo-terminal (:class:`eskin.link.LinkListener`) with the same model on the
+   host, recording the received stream to a campaign file (one recording per replay segment);
+5. compare, recording by recording, the controller's live decisions, the host's live decisions and
+   the offline Python predictions (``TouchModel.predict_recordings`` on the same recordings read
+   from the campaign file): the confusion matrices must be equal, and so must every label.
+
+:func:`run_demo` does the work and returns a :class:`DemoResult`; ``eskin demo`` prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+__all__ = ["DemoError", "DemoResult", "assign_decisions", "confusion_matrix", "run_demo",
+           "start_fw_sim"]
+
+# decisions of one source per replay segment: label index (-1: no decision), values, dont_know
+SOURCES = ("controller (live)", "host (live)", "offline (Python)")
+
+
+class DemoError(RuntimeError):
+    """A step of the demo failed; the message says which and why."""
+
+
+@dataclass
+class DemoResult:
+    class_names: list[str]
+    true_labels: np.ndarray  # (n,) per held-out recording
+    labels: dict[str, np.ndarray]  # source -> (n,) label index, -1 = no decision
+    values: dict[str, np.ndarray]  # source -> (n, n_machines), nan where no decision
+    confusion: dict[str, np.ndarray]  # source -> (k, k + 1) counts; last column: no decision
+    error_rates: dict[str, float]
+    agreement: dict[str, dict[str, Any]]  # "a vs b" -> n, equal, max_value_diff
+    stats: Any  # eskin.link.LinkStats of the live run
+    fw_stats: dict[str, Any]  # the simulator's final STATS line
+    files: dict[str, Path]
+    timings: dict[str, float]
+    agree: bool = True
+    disagreement: str = ""
+    summary: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- pieces
+
+
+def confusion_matrix(true: np.ndarray, pred: np.ndarray, n_classes: int) -> np.ndarray:
+    """(k, k + 1) counts: row = true class, column = decided class, last column = no decision."""
+    cm = np.zeros((n_classes, n_classes + 1), np.int64)
+    for t, p in zip(np.asarray(true), np.asarray(pred)):
+        cm[int(t), int(p) if p >= 0 else n_classes] += 1
+    return cm
+
+
+def assign_decisions(decisions: list, segments: np.ndarray, n_values: int,
+                     offset: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+    """Decisions (eskin.link.Decision of one source) -> one per replay segment.
+
+    A decision belongs to the segment its window ``[onset, offset)`` overlaps most; when several
+    fall on one segment the one with the largest overlap is kept. Returns (labels, values,
+    dont_know, extra) with -1 / nan where a segment got no decision; ``extra`` counts the
+    decisions that were not kept (touches in the gaps, or second touches in a segment).
+    """
+    n = len(segments)
+    labels = np.full(n, -1, np.int64)
+    values = np.full((n, n_values), np.nan)
+    dk = np.zeros(n, bool)
+    best = np.zeros(n, np.int64)
+    extra = [0] * (n + 1)
+    starts = offset + segments["start"].astype(np.int64)
+    stops = starts + segments["length"].astype(np.int64)
+    for d in decisions:
+        ov = np.minimum(stops, d.offset_sample) - np.maximum(starts, d.onset_sample)
+        k = int(np.argmax(ov))
+        if ov[k] <= 0:
+            extra[n] += 1
+            continue
+        if ov[k] > best[k]:
+            if labels[k] >= 0:
+                extra[k] += 1
+            best[k] = ov[k]
+            labels[k] = d.label_index
+            v = np.asarray(d.values, float)[:n_values]
+            values[k, : len(v)] = v
+            dk[k] = d.dont_know
+        else:
+            extra[k] += 1
+    return labels, values, dk, extra
+
+
+def start_fw_sim(args: list[str], timeout: float = 20.0) -> tuple[subprocess.Popen, str]:
+    """Start ``eskin-fw-sim`` with ``args``; return the process and the pty path it published."""
+    from eskin._paths import find_executable
+
+    exe = find_executable("eskin-fw-sim")
+    proc = subprocess.Popen([str(exe), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    found: list[str] = []
+
+    def read_first() -> None:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        found.append(line)
+
+    t = threading.Thread(target=read_first, daemon=True)
+    t.start()
+    t.join(timeout)
+    if not found or not found[0].startswith("PTY "):
+        proc.kill()
+        err = proc.stderr.read() if proc.stderr is not None else ""
+        raise DemoError(f"{exe} did not publish its pseudo-terminal "
+                        f"(first line {found[0] if found else 'none'!r}): {err.strip()}")
+    return proc, found[0][4:].strip()
+
+
+def finish_fw_sim(proc: subprocess.Popen, timeout: float = 10.0) -> dict[str, Any]:
+    """Wait for the simulator to exit; return its final ``STATS {json}`` (empty if none)."""
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        out, err = proc.communicate(timeout=5)
+    stats: dict[str, Any] = {}
+    for line in (out or "").splitlines():
+        if line.startswith("STATS "):
+            try:
+                stats = json.loads(line[6:])
+            except json.JSONDecodeError:
+                pass
+    if proc.returncode not in (0, None, -15):
+        raise DemoError(f"eskin-fw-sim exited with code {proc.returncode}: {(err or '').strip()}")
+    return stats
+
+
+# --------------------------------------------------------------------------- the demo
+
+
+def run_demo(
+    out: str | os.PathLike[str],
+    *,
+    participants: int = 8,
+    test_participants: int = 2,
+    speed: float = 5.0,
+    seed: int = 0,
+    n_jobs: int = 2,
+    quick: bool = True,
+    gap_s: float = 0.5,
+    log: Optional[Callable[[str], None]] = None,
+) -> DemoResult:
+    """Run the demo in folder ``out`` (created; its files are replaced). See the module doc."""
+    from eskin.campaign import load_campaign
+    from eskin.link import Decision, LinkListener, Recorded
+    from eskin.replay import write_replay_file
+    from eskin.simulator import simulate
+
+    try:
+        from eskin.export import CompiledModel, export_model
+        from eskin.models import save_model, train_model
+    except ImportError as exc:
+        raise DemoError(f"a part of the pipeline is missing from this installation ({exc})") from None
+
+    say = log or (lambda m: None)
+    if participants < 2 or not 1 <= test_participants < participants:
+        raise ValueError(f"need participants >= 2 and 1 <= test_participants < participants, got "
+                         f"{participants} and {test_participants}")
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"campaign": out / "campaign.h5", "model": out / "model.joblib",
+             "eskin": out / "model.eskin", "replay": out / "test.eskr",
+             "live": out / "live.h5", "decisions": out / "decisions.jsonl",
+             "report": out / "report.json"}
+    timings: dict[str, float] = {}
+
+    # 1. simulate
+    t0 = time.perf_counter()
+    say(f"[bold]1/5[/] simulating {participants} participants x 12 recordings "
+        f"(SIMULATED data) -> {files['campaign']}")
+    simulate(files["campaign"], participants=participants, seed=seed, n_jobs=n_jobs,
+             overwrite=True)
+    timings["simulate"] = time.perf_counter() - t0
+    camp = load_campaign(files["campaign"])
+    parts = np.unique(camp.participant)
+    test_parts = parts[-test_participants:]
+    is_test = np.isin(camp.participant, test_parts)
+    train_idx, test_idx = np.flatnonzero(~is_test), np.flatnonzero(is_test)
+
+    # 2. train, save, export
+    t0 = time.perf_counter()
+    say(f"[bold]2/5[/] training a 3-class tensor-SVM with MD selection on "
+        f"{len(parts) - test_participants} participants ({len(train_idx)} recordings"
+        f"{', quick grid' if quick else ''})")
+    model = train_model(camp.subset(train_idx), selection="md", machine="svm", quick=quick,
+                        seed=seed, n_jobs=1)
+    save_model(model, files["model"])
+    export_model(model, files["eskin"])
+    compiled = CompiledModel(files["eskin"])
+    timings["train"] = time.perf_counter() - t0
+    names = list(model.classes)
+    say(f"      classes {names}; exported {files['eskin']} ({files['eskin'].stat().st_size} "
+        f"bytes, {compiled.n_support} support patterns)")
+
+    # 3. offline predictions on the held-out recordings (Python)
+    t0 = time.perf_counter()
+    offline = model.predict_recordings(camp, test_idx)
+    timings["offline"] = time.perf_counter() - t0
+    n_values = 1 if len(names) == 2 else len(names)
+    off_labels = np.array([names.index(p["label"]) for p in offline], np.int64)
+    off_values = np.array([p["decision_values"] for p in offline], float).reshape(-1, n_values)
+
+    # 4. stream them through the firmware simulator and listen
+    rf = write_replay_file(camp, test_idx, files["replay"], gap_s=gap_s, seed=seed)
+    true = np.asarray(rf.segments["label"], np.int64)
+    if list(rf.class_names) != list(camp.modalities):
+        raise DemoError("replay class names differ from the campaign's")
+    # model classes are names; map the campaign's modality ids onto them
+    true = np.array([names.index(camp.modalities[t]) for t in true], np.int64)
+    stream_s = rf.n_samples / rf.sample_rate_hz
+    say(f"[bold]3/5[/] eskin-fw-sim streams {len(test_idx)} held-out recordings "
+        f"({stream_s:.0f} s of signal at {speed:g}x: ~{stream_s / speed:.0f} s) with the model "
+        f"on board")
+    link_path = out / "skin.tty"
+    proc, pty = start_fw_sim([str(files["replay"]), "--model", str(files["eskin"]),
+                              "--speed", f"{speed:g}", "--wait-start", "--link", str(link_path),
+                              "--quiet"])
+    t0 = time.perf_counter()
+    decisions: list[Decision] = []
+    try:
+        say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
+            f"{files['live']}")
+        with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
+                          record_source="simulated", stats_interval=None,
+                          record_attrs={"description": "SIMULATED campaign streamed over the "
+                                        "eskin-fw-sim pseudo-terminal by `eskin demo`"}) as link:
+            with open(files["decisions"], "w", encoding="utf-8") as jf:
+                for ev in link.events(until_eof=True, duration=max(60.0, 4 * stream_s / speed)):
+                    if isinstance(ev, Decision):
+                        decisions.append(ev)
+                        jf.write(json.dumps(ev.as_dict()) + "\n")
+                        if ev.source == "controller":
+                            say(f"      {ev.onset_sample / rf.sample_rate_hz:7.2f} s  "
+                                f"controller: {ev.label}")
+                    elif isinstance(ev, Recorded):
+                        pass
+                stats = link.stats
+                jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
+    finally:
+        fw_stats = finish_fw_sim(proc)
+    timings["live"] = time.perf_counter() - t0
+
+    # 5. compare
+    live: dict[str, tuple[np.ndarray, np.ndarray, list[int]]] = {}
+    for src, key in (("controller", SOURCES[0]), ("host", SOURCES[1])):
+        ds = [d for d in decisions if d.source == src]
+        lab, val, _, extra = assign_decisions(ds, rf.segments, n_values)
+        live[key] = (lab, val, extra)
+    labels = {SOURCES[0]: live[SOURCES[0]][0], SOURCES[1]: live[SOURCES[1]][0],
+              SOURCES[2]: off_labels}
+    values = {SOURCES[0]: live[SOURCES[0]][1], SOURCES[1]: live[SOURCES[1]][1],
+              SOURCES[2]: off_values}
+    k = len(names)
+    confusion = {s: confusion_matrix(true, labels[s], k) for s in SOURCES}
+    error_rates = {s: float(np.mean(labels[s] != true)) for s in SOURCES}
+    agreement: dict[str, dict[str, Any]] = {}
+    problems: list[str] = []
+    for a, b in ((SOURCES[0], SOURCES[2]), (SOURCES[1], SOURCES[2]), (SOURCES[0], SOURCES[1])):
+        eq = labels[a] == labels[b]
+        both = (labels[a] >= 0) & (labels[b] >= 0)
+        diff = np.abs(values[a][both] - values[b][both])
+        agreement[f"{a} vs {b}"] = {"n": int(len(eq)), "equal": int(eq.sum()),
+                                    "max_value_diff": float(diff.max()) if diff.size else 0.0}
+        if not eq.all():
+            bad = np.flatnonzero(~eq)
+            problems.append(f"{a} vs {b}: {len(bad)} of {len(eq)} recordings differ (replay "
+                            f"segments {bad.tolist()[:10]})")
+    if not np.array_equal(confusion[SOURCES[0]], confusion[SOURCES[2]]):
+        problems.append("the live and offline confusion matrices differ")
+    lost = stats.lost_samples + stats.rejected + stats.controller_dropped_samples
+    summary = [
+        f"SIMULATED campaign: {len(camp)} recordings; trained on {len(train_idx)}, streamed "
+        f"{len(test_idx)} held-out recordings over a real pseudo-terminal at {speed:g}x.",
+        f"live decisions: {stats.decisions_controller} from the controller, "
+        f"{stats.decisions_host} from the host ({sum(live[SOURCES[0]][2])} outside the "
+        f"recordings or repeated); link losses: {lost} "
+        f"(lost samples {stats.lost_samples}, rejected frames {stats.rejected}, controller "
+        f"drops {stats.controller_dropped_samples}).",
+    ]
+    if fw_stats:
+        lat = fw_stats.get("decision_latency_us") or fw_stats.get("latency_us") or {}
+        if isinstance(lat, dict) and lat:
+            summary.append("controller decision latency (us): " + ", ".join(
+                f"{k2} {v}" for k2, v in lat.items()))
+    timings["total"] = sum(timings.values())
+    summary.append("timings (s): " + ", ".join(f"{k2} {v:.1f}" for k2, v in timings.items()))
+    summary.append(f"files in {out}: " + ", ".join(p.name for p in files.values()))
+    result = DemoResult(
+        class_names=names, true_labels=true, labels=labels, values=values, confusion=confusion,
+        error_rates=error_rates, agreement=agreement, stats=stats, fw_stats=fw_stats,
+        files=files, timings=timings, agree=not problems, disagreement="; ".join(problems),
+        summary=summary,
+    )
+    files["report"].write_text(json.dumps({
+        "class_names": names,
+        "source": "simulated",
+        "confusion": {s: c.tolist() for s, c in confusion.items()},
+        "error_rates": error_rates,
+        "agreement": agreement,
+        "agree": result.agree,
+        "disagreement": result.disagreement,
+        "link_stats": stats.as_dict(),
+        "fw_sim_stats": fw_stats,
+        "timings_s": timings,
+    }, indent=2, default=str))
+    say("[bold]5/5[/] comparing live and offline decisions")
+    return result

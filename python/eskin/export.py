@@ -1,0 +1,690 @@
+"""Deployment: write a trained model as a ``.eskin`` file (or a C header) and run it in C++.
+
+The file format is specified in ``docs/model-format.md``. In short: a 32-byte header (magic,
+version, flags, size), four sections (preprocessing, classes, support-vector bases, machines) and a
+CRC-32 trailer. Support vectors are stored as their per-mode subspace bases (all the kernel needs
+at inference), deduplicated across the machines of a one-vs-all model.
+
+Three entry points:
+
+* :func:`export_model` writes a :class:`eskin.models.TouchModel` (or a plain :class:`ModelSpec`)
+  to a file, float32 by default;
+* :func:`write_c_header` writes the same bytes as a C header, for firmware without a file system;
+* :class:`CompiledModel` loads a file into the C++ core and classifies raw windows with it.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence, Union
+
+import numpy as np
+
+__all__ = [
+    "CompiledDecisions",
+    "pattern_bases",
+    "MAGIC",
+    "FORMAT_VERSION",
+    "MachineSpec",
+    "ModelSpec",
+    "ModelFormatError",
+    "CompiledModel",
+    "export_model",
+    "model_to_bytes",
+    "spec_from_model",
+    "write_c_header",
+]
+
+MAGIC = b"\x89ESKIN\r\n"
+FORMAT_VERSION = 1
+HEADER_BYTES = 32
+FLAG_FLOAT64 = 1
+NAME_BYTES = 32
+_WINDOW_MODES = {"energy": 0, "none": 1}
+_SHORT = {"interpolate": 0, "error": 1}
+_SUBSAMPLE = {"algorithm2": 0, "even": 1}
+_RULES = {"binary": 0, "one_vs_all": 1}
+
+PathLike = Union[str, Path]
+
+
+class ModelFormatError(ValueError):
+    """A model file (or a model description) is invalid; the message names the field."""
+
+
+@dataclass
+class MachineSpec:
+    """One binary machine: f(x) = sum_i dual_coef[i] K(support_vectors[i], x) + intercept.
+
+    ``positive`` is the class index claimed when f(x) > 0; ``negative`` the class index when
+    f(x) <= 0 for a binary model, -1 for a one-vs-all machine ("all the other classes").
+    ``alphas`` and ``sigmas`` hold one value per tensor mode (rows, cols, D).
+    """
+
+    positive: int
+    negative: int
+    intercept: float
+    alphas: tuple[int, ...]
+    sigmas: tuple[float, ...]
+    support_vectors: np.ndarray  # (n_sv, rows, cols, D)
+    dual_coef: np.ndarray  # (n_sv,)
+
+
+@dataclass
+class ModelSpec:
+    """Everything a ``.eskin`` file holds, before the support vectors become bases."""
+
+    class_names: list[str]
+    rule: str  # "binary" | "one_vs_all"
+    machines: list[MachineSpec]
+    D: int
+    grid_shape: tuple[int, int]
+    window: str = "energy"  # "energy" | "none"
+    subsample: str = "algorithm2"  # "algorithm2" | "even"
+    short: str = "interpolate"  # windows shorter than D: "interpolate" | "error"
+    sample_rate_hz: float = 3000.0
+    window_config: Any = None  # eskin.WindowConfig (or its fields as a mapping); None = default
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _check_name(what: str, name: str) -> bytes:
+    raw = str(name).encode("utf-8")
+    if not raw or len(raw) >= NAME_BYTES or b"\x00" in raw:
+        raise ModelFormatError(
+            f"{what} {name!r}: must be a non-empty name of at most {NAME_BYTES - 1} UTF-8 bytes"
+        )
+    if any(c < 0x20 or c == 0x7F for c in raw):
+        raise ModelFormatError(f"{what} {name!r}: contains control characters")
+    return raw.ljust(NAME_BYTES, b"\x00")
+
+
+def _validate_spec(spec: ModelSpec) -> None:
+    rows, cols = (int(v) for v in spec.grid_shape)
+    D = int(spec.D)
+    if spec.rule not in _RULES:
+        raise ModelFormatError(f"rule={spec.rule!r}: expected 'binary' or 'one_vs_all'")
+    if spec.window not in _WINDOW_MODES:
+        raise ModelFormatError(f"window={spec.window!r}: expected 'energy' or 'none'")
+    if spec.subsample not in _SUBSAMPLE:
+        raise ModelFormatError(f"subsample={spec.subsample!r}: expected 'algorithm2' or 'even'")
+    if spec.short not in _SHORT:
+        raise ModelFormatError(f"short={spec.short!r}: expected 'interpolate' or 'error'")
+    if not (np.isfinite(spec.sample_rate_hz) and spec.sample_rate_hz > 0):
+        raise ModelFormatError(f"sample_rate_hz={spec.sample_rate_hz!r}: must be finite and > 0")
+    nc = len(spec.class_names)
+    if len(set(spec.class_names)) != nc:
+        raise ModelFormatError(f"class_names {spec.class_names!r}: repeated names")
+    if spec.rule == "binary":
+        if nc != 2 or len(spec.machines) != 1:
+            raise ModelFormatError(
+                f"binary model: needs 2 classes and 1 machine, got {nc} and {len(spec.machines)}"
+            )
+        m = spec.machines[0]
+        if {m.positive, m.negative} != {0, 1}:
+            raise ModelFormatError(
+                f"binary machine classes ({m.positive}, {m.negative}) must be (1, 0) or (0, 1)"
+            )
+    else:
+        if len(spec.machines) != nc or nc < 2:
+            raise ModelFormatError(
+                f"one_vs_all model: needs one machine per class ({nc}), got {len(spec.machines)}"
+            )
+        for k, m in enumerate(spec.machines):
+            if m.positive != k or m.negative != -1:
+                raise ModelFormatError(
+                    f"one_vs_all machine {k}: positive/negative = ({m.positive}, {m.negative}), "
+                    f"expected ({k}, -1)"
+                )
+    shape = (rows, cols, D)
+    for k, m in enumerate(spec.machines):
+        sv = np.asarray(m.support_vectors)
+        if sv.ndim != 4 or sv.shape[1:] != shape or sv.shape[0] < 1:
+            raise ModelFormatError(
+                f"machine {k}: support_vectors shape {sv.shape}, expected (n>=1, {rows}, {cols}, {D})"
+            )
+        if not np.all(np.isfinite(sv)):
+            raise ModelFormatError(f"machine {k}: support_vectors contain NaN or Inf")
+        coef = np.asarray(m.dual_coef, dtype=np.float64).reshape(-1)
+        if coef.shape[0] != sv.shape[0]:
+            raise ModelFormatError(
+                f"machine {k}: {coef.shape[0]} dual coefficients for {sv.shape[0]} support vectors"
+            )
+        if not np.all(np.isfinite(coef)) or not np.isfinite(m.intercept):
+            raise ModelFormatError(f"machine {k}: dual_coef or intercept not finite")
+        if len(m.alphas) != 3 or len(m.sigmas) != 3:
+            raise ModelFormatError(f"machine {k}: alphas/sigmas need one value per mode (3)")
+        for z in range(3):
+            n_z = rows * cols * D // shape[z]
+            q = min(shape[z], n_z)
+            if not 1 <= int(m.alphas[z]) <= q:
+                raise ModelFormatError(
+                    f"machine {k}: alpha[{z}]={m.alphas[z]} out of range [1, Q={q}]"
+                )
+            if not (np.isfinite(m.sigmas[z]) and m.sigmas[z] > 0):
+                raise ModelFormatError(f"machine {k}: sigma[{z}]={m.sigmas[z]} must be > 0")
+
+
+def _window_fields(cfg: Any) -> dict[str, float]:
+    """The detector settings as name -> float (an eskin.WindowConfig or a plain mapping)."""
+    if cfg is None:
+        from eskin.preprocess import WindowConfig
+
+        cfg = WindowConfig()
+    if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):
+        return dict(zip(cfg.field_names(), (float(v) for v in cfg.to_array())))
+    return {str(k): float(v) for k, v in dict(cfg).items()}
+
+
+# ----------------------------------------------------------------------------- bases
+
+
+def pattern_bases(
+    tensors: np.ndarray, alphas: Sequence[int]
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Per-mode subspace bases of patterns (n, rows, cols, D), as the C++ classifier computes them.
+
+    Returns ``(ranks, bases)``: ranks (n, 3) int, and for each mode z an array (n, alpha_z, N_z)
+    whose row k is basis column k (zero beyond the pattern's numerical rank). Computed by the
+    compiled core, so that the stored bases and the ones computed at inference use the same
+    unfolding and the same rules for ties and rank deficiency.
+    """
+    from eskin import _core
+
+    X = np.ascontiguousarray(tensors, dtype=np.float64)
+    ranks, bases = _core.model_pattern_bases(X, [int(a) for a in alphas])
+    return np.asarray(ranks), [np.asarray(b) for b in bases]
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def _section(tag: bytes, payload: bytes) -> bytes:
+    pad = (-len(payload)) % 8
+    return struct.pack("<4sI", tag, len(payload)) + payload + b"\x00" * pad
+
+
+def _pad8(b: bytes) -> bytes:
+    return b + b"\x00" * ((-len(b)) % 8)
+
+
+def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) -> bytes:
+    """Serialise a :class:`ModelSpec` to the ``.eskin`` byte layout.
+
+    ``bases_fn(tensors, alphas) -> (ranks, bases)`` defaults to :func:`pattern_bases` (the compiled
+    core); tests of the format alone may pass another one.
+    """
+    bases_fn = pattern_bases if bases_fn is None else bases_fn
+    if dtype not in ("float32", "float64"):
+        raise ModelFormatError(f"dtype={dtype!r}: expected 'float32' or 'float64'")
+    _validate_spec(spec)
+    real = np.dtype("<f8") if dtype == "float64" else np.dtype("<f4")
+    rows, cols = (int(v) for v in spec.grid_shape)
+    D = int(spec.D)
+
+    # one table of unique support vectors, in order of first appearance
+    table: dict[bytes, int] = {}
+    unique: list[np.ndarray] = []
+    machine_terms: list[dict[int, float]] = []
+    for m in spec.machines:
+        terms: dict[int, float] = {}
+        sv = np.ascontiguousarray(m.support_vectors, dtype=np.float64)
+        for x, c in zip(sv, np.asarray(m.dual_coef, dtype=np.float64).reshape(-1)):
+            key = x.tobytes()
+            idx = table.get(key)
+            if idx is None:
+                idx = table[key] = len(unique)
+                unique.append(x)
+            terms[idx] = terms.get(idx, 0.0) + float(c)  # a repeated pattern: one term
+        machine_terms.append(terms)
+    alpha_store = tuple(max(int(m.alphas[z]) for m in spec.machines) for z in range(3))
+    ranks, bases = bases_fn(np.stack(unique), alpha_store)
+
+    prep = struct.pack(
+        "<IIIIIIII d",
+        rows,
+        cols,
+        D,
+        _WINDOW_MODES[spec.window],
+        _SUBSAMPLE[spec.subsample],
+        _SHORT[spec.short],
+        len(_window_fields(spec.window_config)),
+        0,
+        float(spec.sample_rate_hz),
+    )
+    for name, value in _window_fields(spec.window_config).items():
+        v = float(value)
+        if not np.isfinite(v):
+            raise ModelFormatError(f"window_config[{name!r}]={value!r} is not finite")
+        prep += _check_name("window_config field", name) + struct.pack("<d", v)
+
+    clas = struct.pack("<II", len(spec.class_names), _RULES[spec.rule])
+    clas += b"".join(_check_name("class name", n) for n in spec.class_names)
+
+    n_sv = len(unique)
+    svbs = struct.pack("<II", 3, n_sv) + struct.pack("<3I", rows, cols, D)
+    svbs += struct.pack("<3I", *alpha_store)
+    svbs += _pad8(np.ascontiguousarray(ranks, dtype="<u4").tobytes())
+    for z in range(3):
+        svbs += np.ascontiguousarray(bases[z], dtype=real).tobytes()
+
+    mach = struct.pack("<II", len(spec.machines), 0)
+    for m, terms in zip(spec.machines, machine_terms):
+        idx = sorted(terms)
+        mach += struct.pack("<iiII d", m.positive, m.negative, len(idx), 0, float(m.intercept))
+        for z in range(3):
+            mach += struct.pack("<II d", int(m.alphas[z]), 0, float(m.sigmas[z]))
+        mach += _pad8(np.asarray(idx, dtype="<u4").tobytes())
+        mach += _pad8(np.asarray([terms[i] for i in idx], dtype=real).tobytes())
+
+    meta = json.dumps(
+        {"format": "eskin-model", "dtype": dtype, **spec.meta}, sort_keys=True, default=str
+    ).encode("utf-8")
+    sections = [
+        _section(b"PREP", prep),
+        _section(b"CLAS", clas),
+        _section(b"SVBS", svbs),
+        _section(b"MACH", mach),
+        _section(b"meta", meta),
+    ]
+    body_len = HEADER_BYTES + sum(len(s) for s in sections)
+    flags = FLAG_FLOAT64 if dtype == "float64" else 0
+    header = MAGIC + struct.pack(
+        "<HHIIIII", FORMAT_VERSION, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
+    )
+    body = header + b"".join(sections)
+    return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+
+
+# ----------------------------------------------------------------------------- from a TouchModel
+
+
+def _machine_spec(est: Any, positive: int, negative: int, where: str) -> MachineSpec:
+    for attr in ("support_vectors_", "dual_coef_", "intercept_", "alphas_", "sigmas_"):
+        if not hasattr(est, attr):
+            raise ModelFormatError(f"{where}: the estimator has no fitted attribute {attr!r}")
+    sv = np.asarray(est.support_vectors_, dtype=np.float64)
+    coef = np.asarray(est.dual_coef_, dtype=np.float64).reshape(-1)
+    if sv.shape[0] == 0:
+        raise ModelFormatError(f"{where}: the machine has no support vectors; nothing to export")
+    return MachineSpec(
+        positive=positive,
+        negative=negative,
+        intercept=float(est.intercept_),
+        alphas=tuple(int(a) for a in est.alphas_),
+        sigmas=tuple(float(s) for s in est.sigmas_),
+        support_vectors=sv,
+        dual_coef=coef,
+    )
+
+
+def spec_from_model(model: Any) -> ModelSpec:
+    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel`.
+
+    A binary model's machine has ``classes_`` = [0, 1] (f > 0 means ``classes[1]``); a model
+    of three or more classes holds a OneVsAllTouchClassifier whose machine k claims class k.
+    """
+    if isinstance(model, ModelSpec):
+        return model
+    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
+        if not hasattr(model, attr):
+            raise ModelFormatError(
+                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
+                f"(missing {attr!r})"
+            )
+    est = model.estimator
+    classes = [str(c) for c in model.classes]
+    if hasattr(est, "estimators_"):
+        if len(est.estimators_) != len(classes):
+            raise ModelFormatError(
+                f"one-vs-all estimator has {len(est.estimators_)} machines for {len(classes)} classes"
+            )
+        ids = [int(c) for c in np.asarray(est.classes_)]
+        if ids != list(range(len(classes))):
+            raise ModelFormatError(f"one-vs-all classes_ {ids} must be 0..{len(classes) - 1}")
+        machines = [
+            _machine_spec(m, k, -1, f"machine {k} ({classes[k]} vs rest)")
+            for k, m in enumerate(est.estimators_)
+        ]
+        rule = "one_vs_all"
+    else:
+        cls = [int(c) for c in np.asarray(getattr(est, "classes_", [0, 1]))]
+        if len(classes) != 2 or sorted(cls) != [0, 1]:
+            raise ModelFormatError(
+                f"binary estimator classes_ {cls} must be [0, 1] for the classes {classes}"
+            )
+        machines = [_machine_spec(est, cls[1], cls[0], "binary machine")]
+        rule = "binary"
+    import eskin
+
+    meta = {
+        "eskin_version": eskin.__version__,
+        "classes": classes,
+        "machine": getattr(model, "machine", None),
+        "selection": getattr(model, "selection", None),
+    }
+    return ModelSpec(
+        class_names=classes,
+        rule=rule,
+        machines=machines,
+        D=int(model.D),
+        grid_shape=tuple(int(v) for v in model.grid_shape),
+        window=str(model.window),
+        subsample=str(model.subsample),
+        short=str(getattr(model, "short", "interpolate")),
+        sample_rate_hz=float(model.sample_rate_hz),
+        window_config=getattr(model, "window_config", None),
+        meta=meta,
+    )
+
+
+def export_model(model: Any, path: PathLike, dtype: str = "float32") -> Path:
+    """Write a trained model (a TouchModel or a :class:`ModelSpec`) as a ``.eskin`` file.
+
+    ``dtype`` is the precision of the stored bases and coefficients: "float32" (default, half
+    the size) or "float64". The written file is read back by the C++ loader before returning,
+    so a file that this function returns is one the controller can load. Returns the path.
+    """
+    data = model_to_bytes(spec_from_model(model), dtype)
+    CompiledModel(data)  # the C++ validator must accept what we write
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    return path
+
+
+# ----------------------------------------------------------------------------- C header
+
+
+def _c_ident(name: str) -> str:
+    ident = "".join(c if c.isalnum() or c == "_" else "_" for c in name)
+    if not ident or ident[0].isdigit():
+        ident = "m_" + ident
+    return ident
+
+
+def write_c_header(model_or_file: Any, path: PathLike, *, name: str = "eskin_model",
+                   dtype: str = "float32") -> Path:
+    """Write a model as a C/C++ header for firmware without a file system.
+
+    ``model_or_file``: a TouchModel / :class:`ModelSpec` (exported with ``dtype``) or the path
+    of a ``.eskin`` file. The header holds the very bytes of the ``.eskin`` file as
+    ``static const unsigned char <name>_data[]`` (and ``<name>_size``), plus macros describing
+    it; the controller loads it with ``eskin::Model::from_bytes(<name>_data, <name>_size)``.
+    """
+    if isinstance(model_or_file, (str, Path)):
+        src = Path(model_or_file)
+        if not src.is_file():
+            raise FileNotFoundError(f"model file {src} does not exist")
+        data = src.read_bytes()
+    elif isinstance(model_or_file, (bytes, bytearray)):
+        data = bytes(model_or_file)
+    else:
+        data = model_to_bytes(spec_from_model(model_or_file), dtype)
+    cm = CompiledModel(data)  # validates
+    ident = _c_ident(name)
+    guard = ident.upper() + "_H"
+    lines = [
+        f"/* {ident}: an eskin model (.eskin format version {FORMAT_VERSION}, docs/model-format.md)",
+        f" * classes: {', '.join(cm.class_names)} ({cm.rule})",
+        f" * grid {cm.grid_shape[0]}x{cm.grid_shape[1]}, D = {cm.D}, window {cm.window}, "
+        f"subsample {cm.subsample}, {cm.sample_rate_hz:g} Hz",
+        f" * {cm.n_support} support vectors, {'float64' if cm.is_float64 else 'float32'}, "
+        f"{len(data)} bytes, CRC-32 0x{zlib.crc32(data[:-4]) & 0xFFFFFFFF:08x}",
+        " * Load with eskin::Model::from_bytes(" + ident + "_data, " + ident + "_size).",
+        " * Generated by eskin.export.write_c_header; do not edit. */",
+        f"#ifndef {guard}",
+        f"#define {guard}",
+        "",
+        "#include <stddef.h>",
+        "",
+        f"#define {ident.upper()}_N_CLASSES {len(cm.class_names)}",
+        f"#define {ident.upper()}_ROWS {cm.grid_shape[0]}",
+        f"#define {ident.upper()}_COLS {cm.grid_shape[1]}",
+        f"#define {ident.upper()}_D {cm.D}",
+        f"#define {ident.upper()}_N_SUPPORT {cm.n_support}",
+        "",
+        f"static const char* const {ident}_class_names[{len(cm.class_names)}] = {{"
+        + ", ".join(json.dumps(c) for c in cm.class_names)
+        + "};",
+        f"static const size_t {ident}_size = {len(data)};",
+        f"static const unsigned char {ident}_data[{len(data)}] = {{",
+    ]
+    for i in range(0, len(data), 16):
+        chunk = data[i : i + 16]
+        lines.append("  " + ", ".join(f"0x{b:02x}" for b in chunk) + ",")
+    lines += ["};", "", f"#endif /* {guard} */", ""]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines))
+    return path
+
+
+# ----------------------------------------------------------------------------- compiled model
+
+
+@dataclass(frozen=True)
+class CompiledDecisions:
+    """Decisions of the C++ classifier on a batch of recordings.
+
+    ``labels``: class names; ``label_indices``: indices into the model's classes;
+    ``decision_values``: (n, n_machines) (one machine for a binary model, > 0 meaning the second
+    class); ``dont_know``: one-vs-all flags; ``windows``: (n, 2) the [start, stop) touch window
+    used, in samples; ``window_found``: False where the detector found no touch (the whole
+    recording was used).
+    """
+
+    labels: np.ndarray
+    label_indices: np.ndarray
+    decision_values: np.ndarray
+    dont_know: np.ndarray
+    windows: np.ndarray
+    window_found: np.ndarray
+
+
+_STATUS = {
+    -1: "its shape does not fit the model",
+    -2: "no touch was detected (the model's detector has fallback = error)",
+    -3: "it holds NaN or Inf values",
+    -4: "its window is shorter than D (the model's short policy is error)",
+    -5: "the basis computation failed",
+    -6: "null data",
+}
+
+
+class CompiledModel:
+    """A ``.eskin`` model loaded into the C++ core: classify raw recordings as the controller does.
+
+    ``CompiledModel(path_or_bytes)``; or :meth:`from_model` to compile a trained TouchModel in
+    memory. Raises :class:`ModelFormatError` (a ValueError) naming the problem for a file that is
+    not a valid model.
+    """
+
+    def __init__(self, source: Union[PathLike, bytes, bytearray]) -> None:
+        from eskin import _core
+
+        try:
+            if isinstance(source, (bytes, bytearray)):
+                self._model = _core.Model.from_bytes(bytes(source))
+                self.path: Path | None = None
+            else:
+                self.path = Path(source)
+                if not self.path.is_file():
+                    raise FileNotFoundError(f"model file {self.path} does not exist")
+                self._model = _core.Model.load(str(self.path))
+        except _core.ModelFormatError as exc:
+            raise ModelFormatError(str(exc)) from None
+        self._clf = _core.Classifier(self._model)
+
+    @classmethod
+    def from_model(cls, model: Any, dtype: str = "float32") -> "CompiledModel":
+        """Compile a TouchModel (or :class:`ModelSpec`) without writing a file."""
+        return cls(model_to_bytes(spec_from_model(model), dtype))
+
+    # -- description
+    class_names = property(lambda self: list(self._model.class_names))
+    classes = class_names
+    rule = property(lambda self: self._model.rule)
+    D = property(lambda self: int(self._model.D))
+    grid_shape = property(lambda self: (int(self._model.rows), int(self._model.cols)))
+    window = property(lambda self: self._model.window)
+    subsample = property(lambda self: self._model.subsample)
+    sample_rate_hz = property(lambda self: float(self._model.sample_rate_hz))
+    window_config = property(lambda self: dict(self._model.window_config))
+    n_support = property(lambda self: int(self._model.n_support))
+    alpha_store = property(lambda self: tuple(self._model.alpha_store))
+    is_float64 = property(lambda self: bool(self._model.is_float64))
+    file_bytes = property(lambda self: int(self._model.file_bytes))
+    machines = property(lambda self: list(self._model.machines))
+
+    def __repr__(self) -> str:
+        return (
+            f"CompiledModel(classes={self.class_names}, rule={self.rule!r}, D={self.D}, "
+            f"n_support={self.n_support}, {'float64' if self.is_float64 else 'float32'})"
+        )
+
+    # -- decisions
+    def _signals(self, signals: Any) -> np.ndarray:
+        x = np.asarray(signals)
+        if x.ndim == 3:
+            x = x[None]
+        if x.ndim != 4 or x.shape[1:3] != self.grid_shape:
+            raise ValueError(
+                f"signals: expected shape (n, {self.grid_shape[0]}, {self.grid_shape[1]}, T) or "
+                f"({self.grid_shape[0]}, {self.grid_shape[1]}, T), got {np.shape(signals)}"
+            )
+        if x.dtype not in (np.int16, np.float32, np.float64):
+            x = x.astype(np.float64)
+        return np.ascontiguousarray(x)
+
+    def classify(self, signals: Any, lengths: Any = None) -> CompiledDecisions:
+        """Classify raw recordings (n, rows, cols, T) (or one (rows, cols, T)), int16 or float,
+        with the model's own preprocessing (touch window, subsampling to D) in C++.
+        ``lengths``: valid samples of each recording (default T)."""
+        x = self._signals(signals)
+        lab, val, dk, status, win, found = self._clf.classify(
+            x, None if lengths is None else np.asarray(lengths, dtype=np.int64)
+        )
+        return self._decisions(lab, val, dk, status, win, found)
+
+    def classify_tensors(self, X: Any) -> CompiledDecisions:
+        """Classify already preprocessed patterns (n, rows, cols, D) (the machines only)."""
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim == 3:
+            X = X[None]
+        lab, val, dk, status = self._clf.classify_tensors(np.ascontiguousarray(X))
+        n = len(lab)
+        return self._decisions(
+            lab, val, dk, status, np.zeros((n, 2), np.int64), np.ones(n, bool)
+        )
+
+    def _decisions(self, lab, val, dk, status, win, found) -> CompiledDecisions:
+        bad = np.flatnonzero(np.asarray(status) != 0)
+        if bad.size:
+            i = int(bad[0])
+            why = _STATUS.get(int(status[i]), f"status {int(status[i])}")
+            raise ValueError(
+                f"recording {i} cannot be classified: {why} ({bad.size} recording(s) failed)"
+            )
+        lab = np.asarray(lab, dtype=np.int64)
+        names = np.asarray(self.class_names, dtype=object)[lab]
+        return CompiledDecisions(names, lab, np.asarray(val), np.asarray(dk, bool),
+                                 np.asarray(win), np.asarray(found, bool))
+
+    def decision_function(self, signals: Any, lengths: Any = None) -> np.ndarray:
+        """Decision values of raw recordings: (n,) for a binary model, (n, n_classes) otherwise."""
+        v = self.classify(signals, lengths).decision_values
+        return v[:, 0] if self.rule == "binary" else v
+
+    def predict(self, signals: Any, lengths: Any = None) -> np.ndarray:
+        """Class names of raw recordings."""
+        return self.classify(signals, lengths).labels
+
+    def stream(self, samples: Any, *, flush: bool = True) -> list[dict[str, Any]]:
+        """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
+        (rows, cols, T)), one sample at a time as the controller would. Returns the events:
+        dicts with ``sample`` (samples seen when it happened), ``status_name`` and, for
+        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``."""
+        from eskin import _core
+
+        x = np.asarray(samples, dtype=np.float64)
+        if x.ndim == 3:
+            x = x.reshape(-1, x.shape[-1]).T
+        sc = _core.StreamClassifier(self._model)
+        events = sc.feed(np.ascontiguousarray(x), flush)
+        for e in events:
+            if "label" in e:
+                e["label"] = self.class_names[e["label"]]
+        return events
+
+
+# ----------------------------------------------------------------------------- model files
+
+
+class _CompiledMachines:
+    """An estimator-like view of a CompiledModel, so that a ``.eskin`` file loads back as a
+    TouchModel (Python preprocessing, C++ machines)."""
+
+    def __init__(self, compiled: CompiledModel) -> None:
+        self.compiled = compiled
+        self.classes_ = np.arange(len(compiled.class_names))
+        self._dont_know = np.zeros(0, bool)
+
+    def decision_function(self, X: np.ndarray) -> np.ndarray:
+        v = self.compiled.classify_tensors(X).decision_values
+        return v[:, 0] if self.compiled.rule == "binary" else v
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        d = self.compiled.classify_tensors(X)
+        self._dont_know = d.dont_know
+        return d.label_indices
+
+    @property
+    def dont_know_(self) -> np.ndarray:
+        return self._dont_know
+
+
+def _save_eskin(model: Any, path: Path) -> None:
+    export_model(model, path)
+
+
+def _load_eskin(path: Path) -> Any:
+    from eskin.models import TouchModel
+
+    cm = CompiledModel(path)
+    try:
+        from eskin.preprocess import WindowConfig
+
+        cfg = WindowConfig.from_array(np.array(list(cm.window_config.values())))
+    except Exception:  # noqa: BLE001 - keep the mapping if the dataclass cannot take it
+        cfg = cm.window_config
+    return TouchModel(
+        classes=cm.class_names,
+        estimator=_CompiledMachines(cm),
+        machine="compiled",
+        selection="compiled",
+        D=cm.D,
+        window=cm.window,
+        subsample=cm.subsample,
+        sample_rate_hz=cm.sample_rate_hz,
+        grid_shape=cm.grid_shape,
+        window_config=cfg,
+        training={"source": str(path), "format": "eskin-model"},
+    )
+
+
+def _register() -> None:
+    try:
+        from eskin.models import register_model_format
+    except ImportError:  # the learning stack is not there: export works without it
+        return
+    register_model_format(".eskin", _save_eskin, _load_eskin)
+
+
+_register()

@@ -1,0 +1,262 @@
+"""Replay files: what the firmware simulator ``eskin-fw-sim`` streams.
+
+The C++ side has no HDF5, so a campaign's recordings are laid out for it as one continuous
+int16 stream, recordings separated by gaps of quiet noise, in a small documented binary file
+(``docs/wire-protocol.md``, section "Replay file"). The file also holds where each recording
+sits in the stream, its label and (when known) its contact interval, so a host can compare
+what arrives over the link with the source::
+
+    rf = write_replay_file(campaign, test_indices, "test.eskr", gap_s=0.5)
+    # eskin-fw-sim test.eskr   ->  streams rf.samples at 3000 samples/s
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+__all__ = [
+    "REPLAY_MAGIC",
+    "REPLAY_VERSION",
+    "ReplayFile",
+    "ReplayFormatError",
+    "read_replay_file",
+    "write_replay_arrays",
+    "write_replay_file",
+]
+
+REPLAY_MAGIC = b"ESKREPLY"
+REPLAY_VERSION = 1
+_HEADER = struct.Struct("<8sIIQHHIddII")  # 56 bytes
+_SEGMENT = struct.Struct("<QQqqiIQ")  # 48 bytes
+SEGMENT_DTYPE = np.dtype(
+    [
+        ("start", "<u8"),  # stream index of the recording's first sample
+        ("length", "<u8"),  # samples
+        ("contact_onset", "<i8"),  # within the recording; -1 when unknown
+        ("contact_offset", "<i8"),
+        ("label", "<i4"),  # class index into class_names; -1 when unknown
+        ("recording", "<u4"),  # index of the recording in its source campaign
+        ("reserved", "<u8"),
+    ]
+)
+assert _HEADER.size == 56 and _SEGMENT.size == SEGMENT_DTYPE.itemsize == 48
+
+
+class ReplayFormatError(ValueError):
+    """A replay file is not valid (names the file and the problem)."""
+
+
+@dataclass(frozen=True)
+class ReplayFile:
+    """A replay stream: ``samples`` int16 (n_samples, rows, cols) (memory-mapped when read)."""
+
+    path: Path
+    samples: np.ndarray
+    segments: np.ndarray  # SEGMENT_DTYPE records, one per recording, in stream order
+    sample_rate_hz: float
+    volts_per_count: float
+    class_names: tuple[str, ...]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        return int(self.samples.shape[1]), int(self.samples.shape[2])
+
+    def recording(self, k: int) -> np.ndarray:
+        """Segment ``k`` as a campaign-layout int16 array (rows, cols, length)."""
+        seg = self.segments[k]
+        start, length = int(seg["start"]), int(seg["length"])
+        return np.ascontiguousarray(np.moveaxis(self.samples[start : start + length], 0, -1))
+
+
+def _quiet_level(recordings: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    """Per-taxel baseline and noise std (ADC counts) from the first tenth of each recording."""
+    heads = []
+    for r in recordings:
+        q = max(1, min(300, r.shape[-1] // 10))
+        heads.append(np.asarray(r[..., :q], dtype=np.float64))
+    baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), axis=0)
+    noise = float(np.median([np.std(h, axis=-1).mean() for h in heads]))
+    return baseline, noise
+
+
+def write_replay_arrays(
+    path: str | os.PathLike[str],
+    recordings: Sequence[np.ndarray],
+    *,
+    labels: Optional[Sequence[int]] = None,
+    class_names: Sequence[str] = (),
+    sample_rate_hz: float = 3000.0,
+    volts_per_count: float = 1.0,
+    contact_intervals: Optional[np.ndarray] = None,
+    recording_indices: Optional[Sequence[int]] = None,
+    gap_s: float = 0.5,
+    noise_counts: Optional[float] = None,
+    baseline: Optional[np.ndarray] = None,
+    seed: int = 0,
+) -> ReplayFile:
+    """Write recordings (each int16 (rows, cols, length)) as one replay stream.
+
+    A gap of ``gap_s`` seconds of quiet noise precedes every recording (and follows the last),
+    centred on ``baseline`` (per taxel; default: estimated from the recordings' first tenth)
+    with standard deviation ``noise_counts`` (default: estimated the same way), from a
+    generator seeded with ``seed``.
+    """
+    path = Path(path)
+    recs = [np.asarray(r) for r in recordings]
+    if not recs:
+        raise ValueError("write_replay_arrays needs at least one recording")
+    grid = recs[0].shape[:2]
+    for i, r in enumerate(recs):
+        if r.ndim != 3 or r.shape[:2] != grid or r.shape[2] < 1:
+            raise ValueError(
+                f"recording {i} has shape {r.shape}; expected (rows, cols, length) with grid {grid}"
+            )
+        if r.dtype.kind not in "iu":
+            raise ValueError(f"recording {i} must hold integer ADC codes, got dtype {r.dtype}")
+    rows, cols = int(grid[0]), int(grid[1])
+    if not (1 <= rows <= 255 and 1 <= cols <= 255):
+        raise ValueError(f"grid shape {grid} is not within 1..255 x 1..255")
+    n = len(recs)
+    labels_a = np.full(n, -1, dtype=np.int64) if labels is None else np.asarray(labels, np.int64)
+    if labels_a.shape != (n,):
+        raise ValueError(f"labels must have one entry per recording ({n}), got {labels_a.shape}")
+    names = [str(c) for c in class_names]
+    for c in names:
+        if "\n" in c:
+            raise ValueError(f"class name {c!r} contains a newline")
+    if len(names) > 255:
+        raise ValueError(f"at most 255 class names, got {len(names)}")
+    if labels_a.min() < -1 or (names and labels_a.max() >= len(names)):
+        raise ValueError(f"labels must be -1 or index class_names ({len(names)} names)")
+    if contact_intervals is None:
+        contacts = np.full((n, 2), -1, dtype=np.int64)
+    else:
+        contacts = np.asarray(contact_intervals, dtype=np.int64)
+        if contacts.shape != (n, 2):
+            raise ValueError(f"contact_intervals must be ({n}, 2), got {contacts.shape}")
+    rec_idx = np.arange(n) if recording_indices is None else np.asarray(recording_indices)
+    if rec_idx.shape != (n,):
+        raise ValueError(f"recording_indices must have {n} entries, got {rec_idx.shape}")
+    if not (sample_rate_hz > 0):
+        raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
+    if gap_s < 0:
+        raise ValueError(f"gap_s must be >= 0, got {gap_s}")
+
+    est_base, est_noise = _quiet_level(recs)
+    base = est_base if baseline is None else np.broadcast_to(np.asarray(baseline, float), grid)
+    noise = est_noise if noise_counts is None else float(noise_counts)
+    if noise < 0:
+        raise ValueError(f"noise_counts must be >= 0, got {noise}")
+    gap = int(round(gap_s * sample_rate_hz))
+    rng = np.random.default_rng(seed)
+
+    def quiet(length: int) -> np.ndarray:
+        z = base[None] + noise * rng.standard_normal((length, rows, cols))
+        return np.clip(np.rint(z), -32768, 32767).astype("<i2")
+
+    segments = np.zeros(n, dtype=SEGMENT_DTYPE)
+    start = gap
+    for i, r in enumerate(recs):
+        segments[i] = (start, r.shape[2], contacts[i, 0], contacts[i, 1], labels_a[i], rec_idx[i], 0)
+        start += r.shape[2] + gap
+    total = start
+
+    names_b = "\n".join(names).encode("utf-8")
+    table = segments.tobytes() + names_b
+    data_offset = (_HEADER.size + len(table) + 7) // 8 * 8
+    header = _HEADER.pack(
+        REPLAY_MAGIC, REPLAY_VERSION, data_offset, total, rows, cols, n,
+        float(sample_rate_hz), float(volts_per_count), len(names_b), 0,
+    )
+    head = header + table + b"\0" * (data_offset - _HEADER.size - len(table))
+    crc = zlib.crc32(head)
+    head = head[:52] + struct.pack("<I", crc) + head[56:]
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(head)
+        f.write(quiet(gap).tobytes())
+        for r in recs:
+            clipped = np.clip(r, -32768, 32767).astype("<i2")
+            f.write(np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes())
+            f.write(quiet(gap).tobytes())
+    return read_replay_file(path)
+
+
+def write_replay_file(
+    campaign: Any,
+    indices: Optional[Sequence[int]],
+    path: str | os.PathLike[str],
+    *,
+    gap_s: float = 0.5,
+    noise_counts: Optional[float] = None,
+    seed: int = 0,
+) -> ReplayFile:
+    """Write recordings ``indices`` (all when None) of a campaign as a replay file.
+
+    ``campaign`` is an ``eskin.Campaign`` (or anything with ``recording(i)``, ``modality``,
+    ``modalities``, ``sample_rate_hz`` and ``volts_per_count``); labels are its modality ids,
+    contact intervals its simulator ground truth when present.
+    """
+    idx = np.arange(len(campaign)) if indices is None else np.asarray(indices, dtype=np.int64)
+    recs = [np.asarray(campaign.recording(int(i))) for i in idx]
+    labels = np.asarray(campaign.modality)[idx] if getattr(campaign, "modality", None) is not None else None
+    contact = getattr(campaign, "contact_interval", None)
+    contacts = np.asarray(contact)[idx] if contact is not None else None
+    return write_replay_arrays(
+        path,
+        recs,
+        labels=labels,
+        class_names=list(getattr(campaign, "modalities", ()) or ()),
+        sample_rate_hz=float(getattr(campaign, "sample_rate_hz", 3000.0)),
+        volts_per_count=float(getattr(campaign, "volts_per_count", 1.0)),
+        contact_intervals=contacts,
+        recording_indices=idx,
+        gap_s=gap_s,
+        noise_counts=noise_counts,
+        seed=seed,
+    )
+
+
+def read_replay_file(path: str | os.PathLike[str]) -> ReplayFile:
+    """Open a replay file (samples memory-mapped); ReplayFormatError if it is not valid."""
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        raw = f.read(_HEADER.size)
+        if len(raw) < _HEADER.size or raw[:8] != REPLAY_MAGIC:
+            raise ReplayFormatError(f"{path}: not an eskin replay file (bad magic)")
+        (_, version, data_offset, total, rows, cols, n_seg, rate, vpc, names_len, crc) = (
+            _HEADER.unpack(raw)
+        )
+        if version != REPLAY_VERSION:
+            raise ReplayFormatError(f"{path}: replay version {version}, expected {REPLAY_VERSION}")
+        table_end = _HEADER.size + n_seg * _SEGMENT.size + names_len
+        if data_offset < table_end or data_offset > size or data_offset % 8:
+            raise ReplayFormatError(f"{path}: bad data offset {data_offset}")
+        rest = f.read(data_offset - _HEADER.size)
+    head = raw[:52] + b"\0\0\0\0" + rest
+    if zlib.crc32(head) != crc:
+        raise ReplayFormatError(f"{path}: header checksum mismatch")
+    if rows < 1 or cols < 1:
+        raise ReplayFormatError(f"{path}: bad grid {rows}x{cols}")
+    expected = data_offset + total * rows * cols * 2
+    if size != expected:
+        raise ReplayFormatError(f"{path}: size {size} bytes, expected {expected}")
+    segments = np.frombuffer(rest[: n_seg * _SEGMENT.size], dtype=SEGMENT_DTYPE).copy()
+    names_b = rest[n_seg * _SEGMENT.size : n_seg * _SEGMENT.size + names_len]
+    names = tuple(names_b.decode("utf-8").split("\n")) if names_len else ()
+    samples = np.memmap(path, dtype="<i2", mode="r", offset=data_offset, shape=(total, rows, cols))
+    return ReplayFile(path, samples, segments, float(rate), float(vpc), names)

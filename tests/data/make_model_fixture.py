@@ -1,0 +1,75 @@
+"""Write tests/data/model_small.eskin: a small valid 3-class model for the C++ loader tests.
+
+Its bases are random orthonormal columns (QR), not bases of real patterns: the loader and fuzz
+tests check the format, not the classifier. Run from the repository root:
+    PYTHONPATH=python python tests/data/make_model_fixture.py
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eskin.export import MachineSpec, ModelSpec, model_to_bytes
+
+
+# eskin::WindowConfig defaults (the fixture must not depend on the Python preprocessing module)
+DEFAULT_WINDOW = dict(
+    frame_s=0.010, dc_cutoff_hz=5.0, combine=0.0, noise_window_s=1.0, noise_quantile=0.5,
+    warmup_s=0.1, min_noise_energy=0.0, on_factor=4.0, off_factor=2.0, release_fraction=1e-3,
+    lookback_s=0.3, hold_s=0.15, min_duration_s=0.05, pad_before_s=0.05, pad_after_s=0.05,
+    max_window_s=7.0, select=2.0, span_fraction=0.05, fallback=0.0,
+)
+
+
+def qr_bases(tensors, alphas):
+    rng = np.random.default_rng(1)
+    n = tensors.shape[0]
+    shape = tensors.shape[1:]
+    total = int(np.prod(shape))
+    ranks = np.zeros((n, 3), dtype=np.uint32)
+    bases = []
+    for z in range(3):
+        N = total // shape[z]
+        a = int(alphas[z])
+        b = np.zeros((n, a, N))
+        for i in range(n):
+            r = a if i % 4 else max(1, a - 1)  # some rank-deficient patterns
+            q, _ = np.linalg.qr(rng.standard_normal((N, a)))
+            b[i, :r] = q[:, :r].T
+            ranks[i, z] = r
+        bases.append(b)
+    return ranks, bases
+
+
+def main() -> None:
+    rng = np.random.default_rng(0)
+    D = 8
+    pool = rng.standard_normal((9, 4, 4, D))
+    machines = []
+    for k in range(3):
+        idx = np.sort(rng.choice(9, size=5, replace=False))
+        machines.append(
+            MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0), pool[idx], rng.standard_normal(5))
+        )
+    spec = ModelSpec(
+        class_names=["brush", "finger", "washer"],
+        rule="one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=(4, 4),
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=3000.0,
+        window_config=DEFAULT_WINDOW,
+        meta={"note": "loader test fixture, random bases"},
+    )
+    for dtype in ("float32", "float64"):
+        out = Path(__file__).with_name(f"model_small_{dtype}.eskin")
+        out.write_bytes(model_to_bytes(spec, dtype, bases_fn=qr_bases))
+        print(out, out.stat().st_size)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,432 @@
+"""Deployment: the .eskin format, the C++ classifier against Python, the C header, eskin-classify.
+
+Parity in the emlearn/m2cgen manner: the same simulated recordings go through the C++ classifier
+(raw samples in, decisions out) and through Python (eskin.preprocess + the Python model), for
+several models and D; labels must be identical and decision values within 1e-9 (float64 model)
+or 1e-4 relative (float32 model).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import eskin
+from eskin._paths import find_executable
+from eskin.export import (
+    CompiledModel,
+    MachineSpec,
+    ModelFormatError,
+    ModelSpec,
+    export_model,
+    model_to_bytes,
+    write_c_header,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+# ----------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="session")
+def campaign(tmp_path_factory):
+    """A small simulated campaign: 4 participants, run 2, 24 recordings (simulated data)."""
+    path = tmp_path_factory.mktemp("campaign") / "sim.h5"
+    eskin.simulate(path, participants=4, seed=11, runs=(2,))
+    return eskin.load_campaign(path, in_memory=True)
+
+
+def _signals(campaign):
+    return np.asarray(campaign.signals), np.asarray(campaign.lengths)
+
+
+def _patterns(campaign, D, subsample="algorithm2", window="energy"):
+    sig, lengths = _signals(campaign)
+    return eskin.preprocess(
+        sig, D, lengths=lengths, sample_rate_hz=campaign.sample_rate_hz, window=window,
+        subsample=subsample,
+    )
+
+
+def _random_spec(campaign, D, n_classes, *, seed=0, mixed_alphas=False, subsample="algorithm2"):
+    """Machines whose support vectors are real patterns of the campaign, with random
+    coefficients; sigma chosen so that kernel values are neither all 0 nor all 1."""
+    rng = np.random.default_rng(seed)
+    X = _patterns(campaign, D, subsample)
+    full = eskin.resolve_alphas(X.shape[1:], "full")
+    half = eskin.resolve_alphas(X.shape[1:], "half")
+    machines = []
+    n_machines = 1 if n_classes == 2 else n_classes
+    for k in range(n_machines):
+        idx = np.sort(rng.choice(len(X) // 2, size=8, replace=False))  # first half: SVs
+        alphas = half if not (mixed_alphas and k == 1) else (1, full[1], max(1, full[2] - 3))
+        sig = (1.5, 1.2, 2.0)
+        pos, neg = ((1, 0) if n_classes == 2 else (k, -1))
+        machines.append(MachineSpec(pos, neg, float(rng.normal(0, 0.1)), alphas, sig, X[idx],
+                                    rng.normal(0, 1, size=8)))
+    return ModelSpec(
+        class_names=list(campaign.modalities[:n_classes]) if n_classes <= 3 else
+        [f"c{k}" for k in range(n_classes)],
+        rule="binary" if n_classes == 2 else "one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=X.shape[1:3],
+        window="energy",
+        subsample=subsample,
+        sample_rate_hz=campaign.sample_rate_hz,
+        window_config=eskin.WindowConfig(),
+    )
+
+
+def _python_decisions(spec, X):
+    """Decision values of a ModelSpec computed in Python (eskin.tensor_kernel), and the
+    scale sum_i |c_i| K_i + |b| used for relative tolerances."""
+    F, S = [], []
+    for m in spec.machines:
+        K = eskin.tensor_kernel(X, m.support_vectors, sigma=m.sigmas, alpha=m.alphas)
+        F.append(K @ m.dual_coef + m.intercept)
+        S.append(K @ np.abs(m.dual_coef) + abs(m.intercept))
+    return np.stack(F, axis=1), np.stack(S, axis=1)
+
+
+def _python_labels(spec, F):
+    if spec.rule == "binary":
+        m = spec.machines[0]
+        return np.where(F[:, 0] > 0, m.positive, m.negative), np.zeros(len(F), bool)
+    claims = F > 0
+    n = claims.sum(axis=1)
+    return np.where(n == 1, np.argmax(claims, axis=1), np.argmax(F, axis=1)), n != 1
+
+
+# ----------------------------------------------------------------------------- the format
+
+
+def test_layout_header_and_checksum(campaign):
+    spec = _random_spec(campaign, 20, 3)
+    data = model_to_bytes(spec)
+    assert data[:8] == b"\x89ESKIN\r\n"
+    version, header_bytes, flags, size, n_sections = struct.unpack_from("<HHIII", data, 8)
+    assert (version, header_bytes, flags, size) == (1, 32, 0, len(data))
+    assert n_sections == 5
+    assert struct.unpack("<I", data[-4:])[0] == zlib.crc32(data[:-4])
+    assert struct.unpack_from("<I", model_to_bytes(spec, "float64"), 12)[0] == 1  # flag float64
+
+
+def test_metadata_round_trips_through_the_cpp_loader(campaign):
+    spec = _random_spec(campaign, 20, 3, mixed_alphas=True)
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    assert cm.class_names == ["brush", "finger", "washer"]
+    assert cm.rule == "one_vs_all" and cm.D == 20 and cm.grid_shape == (4, 4)
+    assert cm.window == "energy" and cm.subsample == "algorithm2"
+    assert cm.sample_rate_hz == campaign.sample_rate_hz
+    assert cm.window_config == dict(
+        zip(eskin.WindowConfig.field_names(), eskin.WindowConfig().to_array())
+    )
+    for m, got in zip(spec.machines, cm.machines):
+        assert got["alphas"] == tuple(m.alphas)
+        assert got["sigmas"] == pytest.approx(m.sigmas, abs=0)
+        assert got["intercept"] == m.intercept
+        assert sorted(got["coef"]) == sorted(m.dual_coef.tolist())
+    assert cm.alpha_store == tuple(max(m.alphas[z] for m in spec.machines) for z in range(3))
+
+
+def test_support_vectors_are_deduplicated_across_machines(campaign):
+    spec = _random_spec(campaign, 20, 3, seed=4)
+    unique = {x.tobytes() for m in spec.machines for x in m.support_vectors}
+    total = sum(len(m.support_vectors) for m in spec.machines)
+    assert len(unique) < total  # the fixture draws overlapping support vectors
+    cm = CompiledModel(model_to_bytes(spec))
+    assert cm.n_support == len(unique)
+    # size: bases in float32 + a small header/metadata part
+    N = [4 * 20, 4 * 20, 16]
+    bases_bytes = sum(len(unique) * n * a * 4 for n, a in zip(N, cm.alpha_store))
+    assert bases_bytes < cm.file_bytes < bases_bytes + 2048 + 8 * total
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda b: b"PK\x03\x04" + b[4:], "not an eskin model"),
+        (lambda b: b[:8] + b"\x07" + b[9:], "version 7 is not supported"),
+        (lambda b: b[:100] + bytes([b[100] ^ 1]) + b[101:], "checksum mismatch"),
+        (lambda b: b[: len(b) // 2], "truncated"),
+        (lambda b: b + b"\x00", "unexpected bytes"),
+    ],
+    ids=["foreign", "version", "checksum", "truncated", "trailing"],
+)
+def test_bad_files_give_clear_errors(campaign, tmp_path, mutate, message):
+    good = model_to_bytes(_random_spec(campaign, 20, 2))
+    path = tmp_path / "bad.eskin"
+    path.write_bytes(mutate(good))
+    with pytest.raises(ModelFormatError, match=message) as err:
+        CompiledModel(path)
+    assert str(path) in str(err.value)
+
+
+def test_inconsistent_sizes_are_rejected_even_with_a_valid_checksum(campaign):
+    good = bytearray(model_to_bytes(_random_spec(campaign, 20, 2)))
+    prep = 32 + 8  # first section payload
+    struct.pack_into("<I", good, prep + 8, 21)  # D: 20 -> 21, SV bases stay for D = 20
+    good[-4:] = struct.pack("<I", zlib.crc32(bytes(good[:-4])))
+    with pytest.raises(ModelFormatError, match="differ from the preprocessing"):
+        CompiledModel(bytes(good))
+
+
+def test_invalid_descriptions_are_rejected_before_writing(campaign):
+    spec = _random_spec(campaign, 20, 2)
+    spec.machines[0].alphas = (5, 2, 8)
+    with pytest.raises(ModelFormatError, match=r"alpha\[0\]=5 out of range"):
+        model_to_bytes(spec)
+    spec = _random_spec(campaign, 20, 2)
+    spec.class_names = ["brush", "a" * 40]
+    with pytest.raises(ModelFormatError, match="at most 31"):
+        model_to_bytes(spec)
+    with pytest.raises(ModelFormatError, match="dtype"):
+        model_to_bytes(_random_spec(campaign, 20, 2), "float16")
+
+
+def test_missing_file():
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        CompiledModel("/nonexistent/model.eskin")
+
+
+# ----------------------------------------------------------------------------- parity
+
+
+@pytest.mark.parametrize("D", [20, 50, 100])
+@pytest.mark.parametrize("n_classes", [2, 3])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
+    spec = _random_spec(campaign, D, n_classes, seed=D + n_classes, mixed_alphas=n_classes == 3)
+    X = _patterns(campaign, D)
+    F, scale = _python_decisions(spec, X)
+    labels, dont_know = _python_labels(spec, F)
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    sig, lengths = _signals(campaign)
+    got = cm.classify(sig, lengths)  # raw int16 recordings in
+    np.testing.assert_array_equal(got.label_indices, labels)
+    np.testing.assert_array_equal(got.dont_know, dont_know)
+    if dtype == "float64":
+        np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+    else:
+        assert np.all(np.abs(got.decision_values - F) <= 1e-4 * scale)
+    windows = eskin.detect_windows(sig, lengths=lengths, sample_rate_hz=campaign.sample_rate_hz)
+    np.testing.assert_array_equal(got.windows, np.asarray(windows).reshape(-1, 2))
+
+
+def test_even_subsampling_and_no_window(campaign):
+    spec = _random_spec(campaign, 50, 3, subsample="even")
+    spec.window = "none"
+    X = _patterns(campaign, 50, subsample="even", window="none")
+    F, _ = _python_decisions(spec, X)
+    got = CompiledModel(model_to_bytes(spec, "float64")).classify(*_signals(campaign))
+    np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+
+
+def test_stream_classifier_decides_like_the_batch_classifier(campaign):
+    cm = CompiledModel(model_to_bytes(_random_spec(campaign, 50, 3), "float64"))
+    sig, lengths = _signals(campaign)
+    batch = cm.classify(sig[:6], lengths[:6])
+    for i in range(6):
+        events = cm.stream(sig[i, :, :, : lengths[i]])
+        decisions = [e for e in events if e["status_name"] == "decision"]
+        assert decisions, f"recording {i}: no touch detected by the stream classifier"
+        # the batch window is the most energetic touch; the stream reports every touch
+        match = [e for e in decisions if tuple(e["window"]) == tuple(batch.windows[i])]
+        assert len(match) == 1
+        assert match[0]["label"] == batch.labels[i]
+        np.testing.assert_allclose(match[0]["values"], batch.decision_values[i], atol=1e-12)
+
+
+def test_classify_rejects_bad_input(campaign):
+    cm = CompiledModel(model_to_bytes(_random_spec(campaign, 20, 2)))
+    with pytest.raises(ValueError, match="expected shape"):
+        cm.classify(np.zeros((2, 3, 4, 100), np.int16))
+    x = np.asarray(campaign.signals[:2], dtype=np.float64)
+    x[1, 0, 0, 10] = np.nan
+    with pytest.raises(ValueError, match="recording 1 cannot be classified: it holds NaN"):
+        cm.classify(x)
+
+
+# ----------------------------------------------------------------------------- C header
+
+
+def test_c_header_compiles_and_classifies_identically(campaign, tmp_path):
+    cxx = shutil.which("g++")
+    lib = _core_library()
+    if cxx is None or lib is None:
+        pytest.skip("g++ or the built libeskin_core.a is not available")
+    spec = _random_spec(campaign, 20, 3)
+    model_file = export_model(spec, tmp_path / "m.eskin")
+    header = write_c_header(model_file, tmp_path / "model.h", name="touch_model")
+    text = header.read_text()
+    assert "static const unsigned char touch_model_data[" in text
+    assert "#define TOUCH_MODEL_D 20" in text
+    src = tmp_path / "main.cpp"
+    src.write_text(
+        '#include <cstdio>\n#include <vector>\n#include "eskin/model.hpp"\n#include "model.h"\n'
+        "int main(int argc, char** argv) {\n"
+        "  const eskin::Model m = eskin::Model::from_bytes(touch_model_data, touch_model_size);\n"
+        "  eskin::Classifier clf(m);\n"
+        "  std::FILE* f = std::fopen(argv[1], \"rb\");\n"
+        "  const int n = std::atoi(argv[2]), T = std::atoi(argv[3]);\n"
+        "  std::vector<short> x(16 * (size_t)T);\n"
+        "  for (int i = 0; i < n; ++i) {\n"
+        "    if (std::fread(x.data(), 2, x.size(), f) != x.size()) return 3;\n"
+        "    eskin::Decision d;\n"
+        "    if (clf.classify(x.data(), 4, 4, T, T, &d) != eskin::ClassifyStatus::kOk) return 4;\n"
+        "    std::printf(\"%d\", d.label);\n"
+        "    for (int k = 0; k < d.n_machines; ++k) std::printf(\" %.17g\", d.values[k]);\n"
+        "    std::printf(\"\\n\");\n"
+        "  }\n  return argc > 0 ? 0 : 1;\n}\n"
+    )
+    exe = tmp_path / "firmware"
+    subprocess.run(
+        [cxx, "-std=c++17", "-O1", f"-I{REPO / 'cpp/include'}", f"-I{tmp_path}", str(src),
+         str(lib), "-lpthread", "-o", str(exe)],
+        check=True, capture_output=True,
+    )
+    sig = np.ascontiguousarray(np.asarray(campaign.signals[:5]), dtype="<i2")
+    raw = tmp_path / "rec.bin"
+    raw.write_bytes(sig.tobytes())
+    out = subprocess.run([str(exe), str(raw), "5", str(sig.shape[-1])], check=True,
+                         capture_output=True, text=True).stdout.split("\n")
+    ref = CompiledModel(model_file).classify(sig)
+    for i in range(5):
+        fields = out[i].split()
+        assert int(fields[0]) == ref.label_indices[i]
+        np.testing.assert_array_equal(np.array(fields[1:], float), ref.decision_values[i])
+
+
+def _core_library():
+    import os
+
+    for d in filter(None, [os.environ.get("ESKIN_BIN_DIR"), REPO / "build/dev", REPO / "build/cpp"]):
+        p = Path(d) / "libeskin_core.a"
+        if p.is_file():
+            return p
+    return None
+
+
+# ----------------------------------------------------------------------------- eskin-classify
+
+
+def _eskin_classify():
+    try:
+        return str(find_executable("eskin-classify"))
+    except FileNotFoundError:
+        pytest.skip("eskin-classify is not built")
+
+
+def _parse(stdout):
+    lines = [ln for ln in stdout.splitlines() if ln and not ln.startswith("#")]
+    header = lines[0].split("\t")
+    rows = [dict(zip(header, ln.split("\t"))) for ln in lines[1:]]
+    return header, rows
+
+
+def test_eskin_classify_npy_and_raw_stdin(campaign, tmp_path):
+    exe = _eskin_classify()
+    spec = _random_spec(campaign, 50, 3)
+    model_file = export_model(spec, tmp_path / "m.eskin", dtype="float64")
+    sig = np.asarray(campaign.signals[:6])
+    ref = CompiledModel(model_file).classify(sig)
+    npy = tmp_path / "rec.npy"
+    np.save(npy, sig)
+    res = subprocess.run([exe, str(model_file), str(npy)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    header, rows = _parse(res.stdout)
+    assert header[:5] == ["index", "label", "dont_know", "window_start", "window_stop"]
+    assert [r["label"] for r in rows] == list(ref.labels)
+    vals = np.array([[float(r[h]) for h in header[5:]] for r in rows])
+    np.testing.assert_array_equal(vals, ref.decision_values)
+    # one recording as float32 (rows, cols, T)
+    np.save(npy, sig[2].astype(np.float32))
+    res = subprocess.run([exe, str(model_file), str(npy)], capture_output=True, text=True)
+    assert _parse(res.stdout)[1][0]["label"] == ref.labels[2]
+    # raw records on standard input
+    raw = b"".join(
+        b"ESKR" + struct.pack("<HHII", 4, 4, r.shape[-1], 0) + r.astype("<i2").tobytes()
+        for r in sig
+    )
+    res = subprocess.run([exe, str(model_file), "-"], input=raw, capture_output=True)
+    assert res.returncode == 0, res.stderr
+    assert [r["label"] for r in _parse(res.stdout.decode())[1]] == list(ref.labels)
+
+
+@pytest.mark.parametrize(
+    ("which", "message"),
+    [("model", "not an eskin model"), ("input", "neither a .npy file"), ("grid", "model expects 4x4")],
+)
+def test_eskin_classify_errors(campaign, tmp_path, which, message):
+    exe = _eskin_classify()
+    model_file = export_model(_random_spec(campaign, 20, 2), tmp_path / "m.eskin")
+    npy = tmp_path / "rec.npy"
+    np.save(npy, np.zeros((3, 4, 50), np.int16) if which == "grid" else np.zeros((4, 4, 50), np.int16))
+    args = {"model": [str(npy), str(npy)], "input": [str(model_file), str(model_file)],
+            "grid": [str(model_file), str(npy)]}[which]
+    res = subprocess.run([exe, *args], capture_output=True, text=True)
+    assert res.returncode == 2
+    assert message in res.stderr
+
+
+# ----------------------------------------------------------------------------- CLI export
+
+
+def test_cli_export_writes_model_and_header(campaign, tmp_path):
+    pytest.importorskip("eskin.models")
+    from eskin.models import TouchModel, save_model
+
+    spec = _random_spec(campaign, 20, 2)
+    src = save_model(_touch_model_from_spec(spec, TouchModel), tmp_path / "model.joblib")
+    out = tmp_path / "model.eskin"
+    header = tmp_path / "model.h"
+    res = subprocess.run(
+        [sys.executable, "-m", "eskin", "export", str(src), "-o", str(out), "--float64",
+         "--c-header", str(header)],
+        capture_output=True, text=True,
+    )
+    assert res.returncode == 0, res.stderr
+    assert CompiledModel(out).is_float64
+    assert "eskin_model_data" in header.read_text()
+    res = subprocess.run([sys.executable, "-m", "eskin", "export", str(out), "-o", str(tmp_path / "x")],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "error:" in res.stderr and "Traceback" not in res.stderr
+
+
+class _SpecMachine:
+    """A fitted-binary-machine stand-in built from a MachineSpec (attributes per COMMON.md)."""
+
+    def __init__(self, m):
+        self.support_vectors_ = m.support_vectors
+        self.dual_coef_ = m.dual_coef
+        self.intercept_ = m.intercept
+        self.alphas_ = tuple(m.alphas)
+        self.sigmas_ = tuple(m.sigmas)
+        self.classes_ = np.array([m.negative, m.positive])
+
+
+def _touch_model_from_spec(spec, TouchModel):
+    return TouchModel(
+        classes=list(spec.class_names), estimator=_SpecMachine(spec.machines[0]), machine="svm",
+        selection="md", D=spec.D, window=spec.window, subsample=spec.subsample,
+        sample_rate_hz=spec.sample_rate_hz, grid_shape=tuple(spec.grid_shape),
+        window_config=spec.window_config,
+    )
+
+
+def test_meta_section_is_json(campaign):
+    data = model_to_bytes(_random_spec(campaign, 20, 2))
+    pos = data.index(b"meta")
+    n = struct.unpack_from("<I", data, pos + 4)[0]
+    meta = json.loads(data[pos + 8 : pos + 8 + n])
+    assert meta["format"] == "eskin-model" and meta["dtype"] == "float32"

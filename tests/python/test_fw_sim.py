@@ -1,0 +1,357 @@
+"""eskin-fw-sim end to end: the real executable, a real pseudo-terminal, the bound SerialPort
+and FrameDecoder on the host side."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin._paths import find_executable
+from eskin.protocol import (
+    CommandFrame,
+    DataFrame,
+    DecisionFrame,
+    FrameDecoder,
+    FrameType,
+    InfoFrame,
+    PingFrame,
+    PongFrame,
+    StatusFrame,
+    StreamState,
+    encode_frame,
+)
+from eskin.replay import read_replay_file, write_replay_arrays
+from eskin.serial_port import PeerClosedError, SerialPort
+
+START = encode_frame(CommandFrame(FrameType.START))
+STOP = encode_frame(CommandFrame(FrameType.STOP))
+
+
+@pytest.fixture(scope="module")
+def fw_sim() -> Path:
+    try:
+        return find_executable("eskin-fw-sim")
+    except FileNotFoundError as e:  # the C++ tools are part of every build
+        pytest.fail(str(e))
+
+
+@pytest.fixture(scope="module")
+def replay(tmp_path_factory) -> Path:
+    """Three recordings (0.5-1.2 s) of random 4x4 ADC codes with 0.1 s quiet gaps."""
+    rng = np.random.default_rng(42)
+    recs = []
+    for n in (1500, 3600, 2400):
+        r = rng.normal(0, 300, size=(4, 4, n))
+        r[:, :, n // 3 : 2 * n // 3] *= 20
+        recs.append(np.clip(r, -32768, 32767).astype(np.int16))
+    path = tmp_path_factory.mktemp("replay") / "small.eskr"
+    write_replay_arrays(
+        path, recs, labels=[0, 1, 2], class_names=["brush", "finger", "washer"], gap_s=0.1,
+        volts_per_count=2.5e-4, seed=3,
+    )
+    return path
+
+
+class Sim:
+    """A running eskin-fw-sim; always terminated at the end of the test."""
+
+    def __init__(self, exe: Path, *args: str):
+        self.proc = subprocess.Popen(
+            [str(exe), *args] + ([] if os.environ.get("FWSIM_VERBOSE") else ["--quiet"]), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        first = self.proc.stdout.readline().split()
+        assert first[0] == "PTY", first
+        self.path = first[1]
+        assert self.proc.stdout.readline().startswith("ORIGIN_NS ")
+
+    def stats(self, timeout: float = 20.0) -> dict:
+        out, err = self.proc.communicate(timeout=timeout)
+        assert self.proc.returncode == 0, err
+        line = [x for x in out.splitlines() if x.startswith("STATS ")][-1]
+        return json.loads(line[len("STATS ") :])
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.communicate()
+
+
+@pytest.fixture
+def sim(fw_sim):
+    started: list[Sim] = []
+
+    def start(*args: str) -> Sim:
+        s = Sim(fw_sim, *[str(a) for a in args])
+        started.append(s)
+        return s
+
+    yield start
+    for s in started:
+        s.close()
+
+
+def read_until_closed(port: SerialPort, dec: FrameDecoder, limit_s: float = 30.0) -> list:
+    frames: list = []
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        try:
+            frames += dec.feed(port.read(65536, timeout=0.5))
+        except PeerClosedError:
+            return frames
+    raise AssertionError("the simulator did not finish in time")
+
+
+def check_samples(frames: list, source: np.ndarray) -> int:
+    """Every DATA frame holds exactly the source samples at its indices; returns the count."""
+    n = 0
+    for f in frames:
+        if isinstance(f, DataFrame):
+            np.testing.assert_array_equal(f.samples, source[f.first_sample : f.end_sample])
+            n += f.n_samples
+    return n
+
+
+def test_every_sample_arrives_intact(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "0", "--wait-start")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    got = np.concatenate([f.samples for f in data])
+    np.testing.assert_array_equal(got, rf.samples)
+    assert [f.first_sample for f in data] == list(range(0, rf.n_samples, 10))
+    info = next(f for f in frames if isinstance(f, InfoFrame))
+    assert (info.rows, info.cols, info.sample_rate_hz) == (4, 4, 3000.0)
+    assert info.class_names == ("brush", "finger", "washer")
+    assert info.volts_per_count == pytest.approx(2.5e-4)
+    status = [f for f in frames if isinstance(f, StatusFrame)]
+    assert status[-1].state == StreamState.FINISHED
+    assert status[-1].samples_sent == rf.n_samples
+    st = dec.stats
+    assert st.rejected == st.lost_samples == st.sequence_gaps == 0
+    assert stats["samples_sent"] == rf.n_samples and stats["dropped_samples"] == 0
+
+
+def test_paced_replay_reports_pacing(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "8", "--wait-start")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    assert check_samples(frames, rf.samples) == rf.n_samples
+    assert stats["pacing_wakeups"] == rf.n_samples // 10
+    assert stats["pacing_p50_ns"] <= stats["pacing_p99_ns"] <= stats["pacing_max_ns"]
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    # timestamps follow the sample clock (x8): last minus first ~ duration / 8
+    span_us = data[-1].timestamp_us - data[0].timestamp_us
+    expected_us = (data[-1].end_sample - data[0].end_sample) / 3000 / 8 * 1e6
+    assert span_us == pytest.approx(expected_us, rel=0.05, abs=2000)
+
+
+@pytest.mark.parametrize(
+    "faults",
+    [
+        ["--flip-rate", "2e-4"],
+        ["--drop-rate", "2e-4"],
+        ["--burst", "0.01", "--burst-len", "40"],
+        ["--truncate-rate", "0.01"],
+        ["--flip-rate", "1e-4", "--drop-rate", "1e-4", "--burst", "0.005", "--truncate-rate", "0.005"],
+    ],
+    ids=["flip", "drop", "burst", "truncate", "all"],
+)
+def test_faults_never_corrupt_and_every_loss_is_counted(sim, replay, faults):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "0", "--wait-start", "--seed", "7", *faults)
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    assert stats["faults_injected"] > 0
+    received = check_samples(frames, rf.samples)  # no corrupted frame was accepted
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    st = dec.stats
+    span = data[-1].end_sample - data[0].first_sample
+    assert received + st.lost_samples == span  # every lost sample is counted
+    assert received < rf.n_samples
+    # each fault costs at most two frames
+    assert st.lost_frames <= 2 * stats["faults_injected"]
+    if "--burst" not in faults:
+        assert st.rejected > 0
+
+
+def test_slow_host_makes_the_sim_drop_not_block(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "4", "--wait-start", "--tx-buffer", "4096")  # 0.73 s
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        time.sleep(0.3)  # the host stalls: pty and queue fill up
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    assert stats["dropped_samples"] > 0 and stats["overrun_events"] >= 1
+    received = check_samples(frames, rf.samples)
+    assert received + stats["dropped_samples"] == rf.n_samples
+    assert dec.stats.lost_samples == stats["dropped_samples"]
+    assert any(f.overrun for f in frames if isinstance(f, DataFrame))
+
+
+def test_host_disconnect_and_reconnect(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "4", "--wait-start")
+    dec = FrameDecoder()
+    frames: list = []
+    port = SerialPort(s.path)
+    port.write(START)
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:
+        frames += dec.feed(port.read(65536, timeout=0.05))
+    port.close()
+    time.sleep(0.25)  # the host is away; the controller keeps sampling
+    with SerialPort(s.path) as port:
+        frames += read_until_closed(port, dec)
+    stats = s.stats()
+    assert stats["connections"] == 2
+    received = check_samples(frames, rf.samples)
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    assert data[0].first_sample == 0 and data[-1].end_sample == rf.n_samples
+    assert stats["dropped_samples"] > 0
+    assert received + dec.stats.lost_samples == rf.n_samples
+    assert dec.stats.lost_samples >= stats["dropped_samples"]
+
+
+def test_joining_mid_stream(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "4")  # streams at once, nobody listening yet
+    time.sleep(0.3)
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    assert data[0].first_sample > 0  # what streamed while no host was there is gone
+    received = check_samples(frames, rf.samples)
+    assert received == rf.n_samples - data[0].first_sample
+    assert dec.stats.lost_samples == 0 and dec.stats.rejected == 0
+    assert stats["dropped_samples"] == data[0].first_sample
+
+
+def test_commands_ping_stop_start_and_link(sim, replay, tmp_path):
+    rf = read_replay_file(replay)
+    link = tmp_path / "ttyESKIN"
+    s = sim(replay, "--speed", "2", "--wait-start", "--link", link, "--status-ms", "50")
+    assert os.readlink(link) == s.path
+    with SerialPort(link) as port:
+        dec = FrameDecoder()
+        port.write(encode_frame(PingFrame(token=1234, timestamp_us=5)))
+        frames: list = []
+        end = time.monotonic() + 5
+        while not any(isinstance(f, PongFrame) for f in frames) and time.monotonic() < end:
+            frames += dec.feed(port.read(4096, timeout=0.1))
+        pong = next(f for f in frames if isinstance(f, PongFrame))
+        assert pong.token == 1234
+        assert not any(isinstance(f, DataFrame) for f in frames)  # waiting for START
+        port.write(encode_frame(CommandFrame(FrameType.START, seq=1)))
+        while sum(isinstance(f, DataFrame) for f in frames) < 20:
+            frames += dec.feed(port.read(4096, timeout=0.5))
+        port.write(encode_frame(CommandFrame(FrameType.STOP, seq=2)))
+        # after STOP, a STOPPED status arrives and DATA ceases
+        while not any(isinstance(f, StatusFrame) and f.state == StreamState.STOPPED for f in frames):
+            frames += dec.feed(port.read(4096, timeout=0.5))
+        time.sleep(0.2)
+        after_stop = dec.feed(port.read_nonblocking(65536))
+        frames += after_stop
+        stop_data = [f for f in after_stop if isinstance(f, DataFrame)]
+        assert len(stop_data) <= 2  # at most what was already in flight
+        port.write(encode_frame(CommandFrame(FrameType.START, seq=3)))
+        n_before = sum(f.n_samples for f in frames if isinstance(f, DataFrame))
+        while sum(f.n_samples for f in frames if isinstance(f, DataFrame)) < n_before + 100:
+            frames += dec.feed(port.read(4096, timeout=0.5))
+    s.close()
+    assert not link.exists()  # the symlink goes away with the simulator
+    check_samples(frames, rf.samples)
+    assert dec.stats.lost_samples == 0  # STOP pauses the replay; indices continue
+    assert dec.stats.rejected == 0
+
+
+def test_bad_input_is_a_clear_error(fw_sim, tmp_path):
+    bad = tmp_path / "bad.eskr"
+    bad.write_bytes(b"not a replay file at all")
+    out = subprocess.run([str(fw_sim), str(bad)], capture_output=True, text=True, timeout=10)
+    assert out.returncode == 2
+    assert "bad.eskr" in out.stderr and "replay" in out.stderr
+    out = subprocess.run([str(fw_sim), str(bad), "--speed", "x"], capture_output=True, text=True)
+    assert out.returncode == 2 and "--speed" in out.stderr
+
+
+def test_npy_input(sim, tmp_path):
+    rng = np.random.default_rng(1)
+    arr = rng.integers(-1000, 1000, size=(905, 16)).astype("<i2")
+    np.save(tmp_path / "stream.npy", arr)
+    s = sim(tmp_path / "stream.npy", "--grid", "4x4", "--speed", "0", "--wait-start")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    s.stats()
+    got = np.concatenate([f.samples for f in frames if isinstance(f, DataFrame)])
+    np.testing.assert_array_equal(got.reshape(-1, 16), arr)
+
+
+def small_model(path: Path) -> Path:
+    """A 3-class one-vs-all model (random support tensors, real bases) in a .eskin file."""
+    from eskin.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(0)
+    pool = rng.standard_normal((9, 4, 4, 8))
+    machines = [
+        MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0),
+                    pool[np.sort(rng.choice(9, 5, replace=False))], rng.standard_normal(5))
+        for k in range(3)
+    ]
+    spec = ModelSpec(class_names=["brush", "finger", "washer"], rule="one_vs_all",
+                     machines=machines, D=8, grid_shape=(4, 4))
+    path.write_bytes(model_to_bytes(spec, "float64"))
+    return path
+
+
+def test_on_board_decisions_equal_offline_decisions(sim, replay, tmp_path):
+    from eskin.export import CompiledModel
+
+    rf = read_replay_file(replay)
+    model = small_model(tmp_path / "m.eskin")
+    offline = [e for e in CompiledModel(model).stream(np.asarray(rf.samples).reshape(rf.n_samples, -1))
+               if e["status_name"] == "decision"]
+    assert len(offline) == 3  # one per loud recording
+    s = sim(replay, "--speed", "0", "--wait-start", "--model", model)
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    stats = s.stats()
+    info = next(f for f in frames if isinstance(f, InfoFrame))
+    assert info.has_model and info.class_names == ("brush", "finger", "washer")
+    live = [f for f in frames if isinstance(f, DecisionFrame)]
+    assert len(live) == len(offline) == stats["decisions_sent"]
+    for d, e in zip(live, offline):
+        assert info.class_names[d.label] == e["label"]
+        assert d.dont_know == e["dont_know"]
+        assert (d.onset_sample, d.offset_sample) == tuple(e["window"])
+        assert d.decided_sample == e["sample"] - 1
+        np.testing.assert_allclose(d.values, e["values"], rtol=0, atol=1e-12)
+    assert check_samples(frames, rf.samples) == rf.n_samples

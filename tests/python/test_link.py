@@ -1,0 +1,572 @@
+"""eskin.link.LinkListener and `eskin listen` on real pseudo-terminals.
+
+Unit-level tests open a pty pair with os.openpty and play the controller by writing encoded
+frames into the master end; end-to-end tests start eskin-fw-sim on a small replay file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin.campaign import load_campaign
+from eskin.link import (
+    Connection,
+    DataBlock,
+    Decision,
+    InfoEvent,
+    LinkListener,
+    Recorded,
+    Stats,
+    StatusEvent,
+)
+from eskin.protocol import (
+    DELIMITER,
+    CommandFrame,
+    DataFrame,
+    DecisionFrame,
+    Flags,
+    FrameDecoder,
+    FrameType,
+    InfoFrame,
+    StatusFrame,
+    StreamState,
+    encode_frame,
+)
+from eskin.replay import write_replay_arrays
+
+SPF = 10  # samples per DATA frame
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+@pytest.fixture
+def pty(tmp_path):
+    """(master fd, stable symlink path to the slave) - the symlink can be re-pointed."""
+    master, slave = os.openpty()
+    link = tmp_path / "skin.tty"
+    link.symlink_to(os.ttyname(slave))
+    os.close(slave)
+    state = {"master": master, "done": threading.Event(), "threads": []}
+    yield state, str(link)
+    state["done"].set()  # no helper thread may outlive its test (fd numbers get reused)
+    for t in state["threads"]:
+        t.join(5)
+    try:
+        os.close(state["master"])
+    except OSError:
+        pass
+
+
+def write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        try:
+            n = os.write(fd, view[:4096])
+        except OSError:
+            return  # the host went away
+        view = view[n:]
+
+
+class Controller:
+    """Plays the controller: encodes frames with its own sequence counter."""
+
+    def __init__(self, grid=(4, 4), rate=3000.0, names=()):
+        self.seq = 0
+        self.grid = grid
+        self.rate = rate
+        self.names = tuple(names)
+
+    def _next(self) -> int:
+        s = self.seq
+        self.seq = (self.seq + 1) % 65536
+        return s
+
+    def info(self) -> bytes:
+        return encode_frame(InfoFrame(self.grid[0], self.grid[1], self.rate, volts_per_count=1e-4,
+                                      has_model=bool(self.names), class_names=self.names,
+                                      seq=self._next(), flags=int(Flags.SYNC)))
+
+    def data(self, first: int, samples: np.ndarray, flags: int = 0) -> bytes:
+        return encode_frame(DataFrame(first, first * 333, samples, self._next(), flags))
+
+    def data_frames(self, stream: np.ndarray, first: int = 0) -> list[bytes]:
+        return [self.data(first + k, stream[k:k + SPF]) for k in range(0, len(stream), SPF)]
+
+    def status(self, state=StreamState.STREAMING, dropped=0) -> bytes:
+        return encode_frame(StatusFrame(uptime_us=1, next_sample=0, dropped_samples=dropped,
+                                        state=state, host_connected=True, seq=self._next()))
+
+    def decision(self, onset, offset, label, values) -> bytes:
+        return encode_frame(DecisionFrame(onset, offset, label, tuple(values), False, offset,
+                                          0, 120, self._next()))
+
+
+def wait_for_start(state, master: int | None = None, timeout: float = 20.0) -> list:
+    """Read the master end until the host's START arrives (it has opened the port in raw
+    mode by then); returns the commands seen."""
+    import select
+
+    master = state["master"] if master is None else master
+    dec = FrameDecoder()
+    seen: list = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not state["done"].is_set():
+        r, _, _ = select.select([master], [], [], 0.05)
+        if not r:
+            continue
+        try:
+            seen += dec.feed(os.read(master, 4096))
+        except OSError:  # EIO: no slave end open yet
+            time.sleep(0.02)
+            continue
+        if any(getattr(f, "command", None) == FrameType.START for f in seen):
+            return seen
+    return seen
+
+
+def feed_when_open(state, data: bytes, seen: list | None = None) -> threading.Thread:
+    """Write ``data`` into the master once the host has opened the port and sent START."""
+
+    def run():
+        cmds = wait_for_start(state)
+        if seen is not None:
+            seen.extend(cmds)
+        if not state["done"].is_set():
+            write_all(state["master"], data)
+
+    return start_thread(state, run)
+
+
+def start_thread(state, target) -> threading.Thread:
+    t = threading.Thread(target=target, daemon=True)
+    state["threads"].append(t)
+    t.start()
+    return t
+
+
+def rng_stream(n: int, seed: int = 0, grid=(4, 4)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(-2000, 2000, size=(n, *grid)).astype(np.int16)
+
+
+def received_samples(events) -> dict[int, np.ndarray]:
+    out = {}
+    for ev in events:
+        if isinstance(ev, DataBlock):
+            for k in range(ev.samples.shape[0]):
+                out[ev.first_sample + k] = ev.samples[k]
+    return out
+
+
+def touch_stream(seed: int = 1, n_quiet: int = 4500, n_touch: int = 900) -> np.ndarray:
+    """Quiet noise, one strong burst on a few taxels, quiet noise: int16 (n, 4, 4)."""
+    rng = np.random.default_rng(seed)
+    n = 2 * n_quiet + n_touch
+    x = rng.normal(0, 5, size=(n, 4, 4))
+    t = np.arange(n_touch) / 3000.0
+    x[n_quiet:n_quiet + n_touch, 1:3, 1:3] += (800 * np.sin(2 * np.pi * 40 * t))[:, None, None]
+    return np.rint(x).astype(np.int16)
+
+
+# --------------------------------------------------------------------------- unit level (pty pair)
+
+
+def test_stream_events_commands_and_stats(pty):
+    state, path = pty
+    c = Controller(names=("brush", "finger", "washer"))
+    stream = rng_stream(600)
+    payload = (DELIMITER + c.info() + b"".join(c.data_frames(stream))
+               + c.decision(100, 400, 1, (-0.5, 0.7, -0.2)) + c.status(StreamState.FINISHED, 7))
+    cmds: list = []
+    with LinkListener(path, stats_interval=None) as link:
+        feed_when_open(state, payload, cmds).join(10)
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+    # the host asked for the stream and the controller's description
+    assert [f.command for f in cmds][:1] == [FrameType.START]
+    assert FrameType.INFO_REQUEST in [f.command for f in cmds] or len(cmds) == 1
+    assert any(isinstance(e, InfoEvent) for e in events)
+    got = received_samples(events)
+    assert sorted(got) == list(range(600))
+    assert np.array_equal(np.stack([got[i] for i in range(600)]), stream)
+    dec = [e for e in events if isinstance(e, Decision)]
+    assert len(dec) == 1 and dec[0].source == "controller" and dec[0].label == "finger"
+    assert dec[0].values == (-0.5, 0.7, -0.2) and dec[0].onset_sample == 100
+    assert isinstance(events[-1], Stats)
+    s = events[-1].stats
+    assert s.data_frames == 60 and s.samples == 600 and s.lost_samples == 0
+    assert s.rejected == 0 and s.sequence_gaps == 0 and s.controller_dropped_samples == 7
+    assert s.controller_state == "finished" and s.decisions_controller == 1
+    assert any(isinstance(e, StatusEvent) for e in events)
+
+
+def _damage(kind: str, frame: bytes, rng: np.random.Generator) -> bytes:
+    b = bytearray(frame)
+    body = len(b) - 1  # the last byte is the delimiter
+    if kind == "flip":
+        i = int(rng.integers(0, len(b)))
+        b[i] ^= 1 << int(rng.integers(0, 8))
+    elif kind == "drop":
+        del b[int(rng.integers(0, len(b)))]
+    elif kind == "truncate":
+        b = b[: int(rng.integers(1, body))]  # cut short, delimiter lost too
+    elif kind == "burst":
+        i = int(rng.integers(0, body - 24))
+        b[i:i + 24] = rng.integers(0, 256, 24, dtype=np.uint8).tobytes()
+    elif kind == "garbage_before":
+        b = bytearray(rng.integers(0, 256, 40, dtype=np.uint8).tobytes()) + b
+    elif kind == "garbage_zeros":
+        junk = bytearray(rng.integers(0, 256, 40, dtype=np.uint8).tobytes())
+        junk[::7] = b"\x00" * len(junk[::7])
+        b = junk + b
+    return bytes(b)
+
+
+FAULTS = ("flip", "drop", "truncate", "burst", "garbage_before", "garbage_zeros")
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_faults_never_accept_corruption_cost_at_most_two_frames_and_are_counted(pty, seed):
+    state, path = pty
+    rng = np.random.default_rng(seed)
+    c = Controller()
+    n_frames = 240
+    stream = rng_stream(n_frames * SPF, seed)
+    frames = c.data_frames(stream)
+    fault_at = {}
+    for k in range(5, n_frames - 5, 6):  # one fault every 6 frames, each kind many times
+        fault_at[k] = FAULTS[(k // 6) % len(FAULTS)]
+    wire = bytearray(DELIMITER)
+    for k, f in enumerate(frames):
+        wire += _damage(fault_at[k], f, rng) if k in fault_at else f
+    wire += c.status(StreamState.FINISHED)
+    with LinkListener(path, stats_interval=None) as link:
+        feed_when_open(state, bytes(wire))
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+    got = received_samples(events)
+    # no corrupted frame was accepted: every received sample is the sent one
+    for i, x in got.items():
+        assert np.array_equal(x, stream[i]), f"sample {i} corrupted"
+    lost_frames = sorted({i // SPF for i in range(len(stream))} - {i // SPF for i in got})
+    # each fault costs at most two frames, and only the frames around it
+    for lf in lost_frames:
+        assert lf in fault_at or lf - 1 in fault_at, f"frame {lf} lost without a fault near it"
+    for k in fault_at:
+        assert sum(1 for lf in lost_frames if lf in (k, k + 1)) <= 2
+    s = events[-1].stats
+    # every loss is counted: lost samples, sequence gaps, and the rejected blocks
+    assert s.lost_samples == len(stream) - len(got) == SPF * len(lost_frames)
+    assert s.lost_frames == len(lost_frames)
+    assert sum(e.lost_before for e in events if isinstance(e, DataBlock)) == s.lost_samples
+    assert s.rejected >= len([k for k, v in fault_at.items() if v != "garbage_before"]) // 2
+    assert s.samples == len(got)
+
+
+def test_joining_mid_stream_skips_the_partial_frame(pty):
+    state, path = pty
+    c = Controller()
+    stream = rng_stream(300, 3)
+    frames = c.data_frames(stream)
+    wire = b"".join(frames)[len(frames[0]) + 17:] + c.status(StreamState.FINISHED)
+    with LinkListener(path, stats_interval=None) as link:
+        feed_when_open(state, wire)
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+    got = received_samples(events)
+    assert sorted(got) == list(range(20, 300))  # frame 0 gone, frame 1 cut, the rest whole
+    s = events[-1].stats
+    assert s.skipped_bytes == len(frames[1]) - 17 - 1 and s.rejected == 0 and s.lost_samples == 0
+
+
+def test_peer_close_and_reconnect_on_the_same_path(pty, tmp_path):
+    state, path = pty
+    c = Controller()
+    stream = rng_stream(400, 4)
+    frames = c.data_frames(stream)
+    events: list = []
+    with LinkListener(path, reconnect=True, reconnect_timeout=5.0, stats_interval=None) as link:
+        def controller():
+            wait_for_start(state)
+            write_all(state["master"], DELIMITER + b"".join(frames[:15]))
+            time.sleep(0.2)
+            os.close(state["master"])  # the controller goes away ...
+            master, slave = os.openpty()  # ... and comes back on a new pty behind the same link
+            os.unlink(path)
+            os.symlink(os.ttyname(slave), path)
+            os.close(slave)
+            state["master"] = master
+            wait_for_start(state, master)  # the host reopens and sends START
+            write_all(master, DELIMITER + b"".join(frames[25:]) + c.status(StreamState.FINISHED))
+
+        t = start_thread(state, controller)
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+        t.join(5)
+    kinds = [e.state for e in events if isinstance(e, Connection)]
+    assert kinds == ["disconnected", "reconnected"]
+    got = received_samples(events)
+    assert sorted(got) == list(range(150)) + list(range(250, 400))
+    s = events[-1].stats
+    assert s.disconnects == 1 and s.reconnects == 1
+    assert s.lost_samples == 100 and s.rejected == 0
+
+
+def test_peer_close_without_reconnect_ends_the_events(pty):
+    state, path = pty
+    c = Controller()
+    frames = c.data_frames(rng_stream(50, 5))
+    with LinkListener(path, stats_interval=None) as link:
+        def controller():
+            wait_for_start(state)
+            write_all(state["master"], DELIMITER + b"".join(frames))
+            time.sleep(0.1)
+            os.close(state["master"])
+
+        start_thread(state, controller)
+        events = list(link.events(duration=10.0))
+    assert [e.state for e in events if isinstance(e, Connection)] == ["disconnected"]
+    assert events[-1].stats.samples == 50 and events[-1].stats.disconnects == 1
+
+
+def test_host_disconnect_and_reconnect(pty):
+    state, path = pty
+    c = Controller()
+    stream = rng_stream(300, 6)
+    frames = c.data_frames(stream)
+    with LinkListener(path, stats_interval=None) as link:
+        write_thread = feed_when_open(state, DELIMITER + b"".join(frames[:10]))
+        ev1 = list(link.events(duration=0.4))
+        write_thread.join()
+        conn = link.reconnect()  # the host closes and reopens; the controller kept streaming
+        assert conn.state == "reconnected"
+        feed_when_open(state, DELIMITER + b"".join(frames[20:]) + c.status(StreamState.FINISHED))
+        ev2 = list(link.events(until_eof=True, eof_grace_s=0.05))
+    got = received_samples(ev1 + ev2)
+    assert sorted(got) == list(range(100)) + list(range(200, 300))
+    assert ev2[-1].stats.lost_samples == 100 and ev2[-1].stats.reconnects == 1
+
+
+def test_small_holes_are_bridged_for_the_detector_and_reported(pty):
+    """Holes up to max_fill_s keep the detector's indices aligned; decisions report the loss."""
+    state, path = pty
+    c = Controller()
+    stream = touch_stream()
+    frames = c.data_frames(stream)
+    dropped = set(range(470, 475))  # 50 samples inside the touch
+    wire = DELIMITER + b"".join(f for k, f in enumerate(frames) if k not in dropped)
+    wire += c.status(StreamState.FINISHED)
+    out = Path(os.path.dirname(path)) / "touches.h5"
+    with LinkListener(path, record=out, stats_interval=None) as link:
+        feed_when_open(state, wire)
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+    rec = [e for e in events if isinstance(e, Recorded)]
+    assert len(rec) == 1 and rec[0].label == "unknown" and rec[0].lost_samples == 50
+    camp = load_campaign(out)
+    assert len(camp) == 1 and camp.modalities == ["unknown"]
+    r = camp.recording(0)
+    start = int(camp.extras["stream_start"][0])
+    assert start == rec[0].start and start < 4500 < 5400 < rec[0].stop
+    src = np.moveaxis(stream[rec[0].start:rec[0].stop], 0, -1)
+    keep = np.ones(r.shape[-1], bool)
+    keep[4700 - start:4750 - start] = False
+    assert np.array_equal(r[..., keep], src[..., keep])  # everything received is kept exactly
+    assert events[-1].stats.lost_samples == 50
+
+
+def test_record_segments_reads_back_equal_to_the_source(pty, tmp_path):
+    state, path = pty
+    rng = np.random.default_rng(7)
+    recs = [rng.integers(-500, 500, size=(4, 4, n)).astype(np.int16) for n in (700, 450, 900)]
+    rf = write_replay_arrays(tmp_path / "r.eskr", recs, labels=[2, 0, 1],
+                             class_names=["brush", "finger", "washer"], gap_s=0.1,
+                             contact_intervals=np.array([[10, 600], [0, 450], [100, 200]]))
+    c = Controller(names=())
+    stream = np.asarray(rf.samples)
+    wire = DELIMITER + c.info() + b"".join(c.data_frames(stream)) + c.status(StreamState.FINISHED)
+    out = tmp_path / "live.h5"
+    with LinkListener(path, record=out, replay=rf, stats_interval=None,
+                      record_source="simulated") as link:
+        assert link.record_policy == "segment"
+        feed_when_open(state, wire)
+        events = list(link.events(until_eof=True, eof_grace_s=0.05))
+    assert [e.index for e in events if isinstance(e, Recorded)] == [0, 1, 2]
+    camp = load_campaign(out)
+    assert camp.modalities == ["brush", "finger", "washer"] and camp.source == "simulated"
+    assert list(camp.modality) == [2, 0, 1]
+    assert np.array_equal(camp.contact_interval, [[10, 600], [0, 450], [100, 200]])
+    assert camp.attrs["record_policy"] == "segment"
+    for k, r in enumerate(recs):
+        assert np.array_equal(camp.recording(k), r)
+
+
+def test_jsonl_schema_from_the_cli(pty, tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    state, path = pty
+    c = Controller(names=("brush", "finger", "washer"))
+    wire = (DELIMITER + c.info() + b"".join(c.data_frames(rng_stream(200, 8)))
+            + c.decision(20, 180, 2, (-1.0, -0.25, 0.5)) + c.status(StreamState.FINISHED))
+    out = tmp_path / "d.jsonl"
+    feed_when_open(state, wire)
+    res = CliRunner().invoke(app, ["listen", path, "--jsonl", str(out), "--until-eof",
+                                   "--duration", "20"])
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(lines) == 2
+    d, s = lines
+    assert d == {"type": "decision", "source": "controller", "onset_sample": 20,
+                 "offset_sample": 180, "decided_sample": 180, "label": "washer",
+                 "label_index": 2, "values": [-1.0, -0.25, 0.5], "dont_know": False,
+                 "latency_us": 120.0, "lost_samples": 0}
+    assert s["type"] == "stats" and s["samples"] == 200 and s["lost_samples"] == 0
+    assert {"frames", "bytes", "crc_errors", "malformed", "sequence_gaps", "lost_samples",
+            "controller_dropped_samples", "controller_overrun_events"} <= set(s)
+    assert "decision controller" in res.output  # plain lines when not on a terminal
+
+
+def test_listen_reports_a_missing_port_clearly(tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    res = CliRunner().invoke(app, ["listen", str(tmp_path / "nope"), "--duration", "1"])
+    assert res.exit_code == 2 and "nope" in res.output and "Traceback" not in res.output
+
+
+# --------------------------------------------------------------------------- with eskin-fw-sim
+
+
+def synthetic_touch(kind: int, seed: int, n: int = 3000) -> np.ndarray:
+    """A 1 s recording (4, 4, n): quiet noise and one touch whose place, frequency and
+    duration depend on ``kind`` (0, 1, 2)."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, 4, size=(4, 4, n))
+    on = 900 + 37 * (seed % 5)
+    dur = (450, 700, 300)[kind] + 20 * (seed % 3)
+    t = np.arange(dur) / 3000.0
+    env = np.sin(np.pi * np.arange(dur) / dur) ** 2
+    freq = (25.0, 60.0, 120.0)[kind]
+    amp = 600 + 40 * (seed % 4)
+    rows = (slice(0, 2), slice(1, 4), slice(2, 4))[kind]
+    x[rows, :, on:on + dur] += amp * env * np.sin(2 * np.pi * freq * t)
+    return np.rint(x).astype(np.int16)
+
+
+@pytest.fixture(scope="module")
+def fw_sim_path():
+    from eskin._paths import find_executable
+
+    return find_executable("eskin-fw-sim")
+
+
+@pytest.fixture(scope="module")
+def small_model(tmp_path_factory):
+    """A real compiled 3-class model (support patterns = preprocessed synthetic touches) and a
+    replay file of 9 other synthetic touches."""
+    from eskin.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+    from eskin.preprocess import preprocess
+
+    d = tmp_path_factory.mktemp("model")
+    D = 20
+    train = [synthetic_touch(k, 100 + i) for i in range(3) for k in range(3)]
+    y = np.array([k for _ in range(3) for k in range(3)])
+    X = preprocess(np.stack(train), D)
+    X /= np.linalg.norm(X.reshape(len(X), -1), axis=1)[:, None, None, None]
+    machines = [MachineSpec(k, -1, -0.2, (2, 2, 3), (1.0, 1.0, 1.0), X,
+                            np.where(y == k, 1.0, -0.5)) for k in range(3)]
+    spec = ModelSpec(["brush", "finger", "washer"], "one_vs_all", machines, D, (4, 4))
+    path = d / "small.eskin"
+    path.write_bytes(model_to_bytes(spec, "float32"))
+    test = [synthetic_touch(k, i) for i in range(3) for k in range(3)]
+    rf = write_replay_arrays(d / "test.eskr", test, labels=[k for _ in range(3) for k in range(3)],
+                             class_names=spec.class_names, gap_s=0.4, seed=5)
+    return CompiledModel(path), path, rf, test
+
+
+def run_fw_sim(exe, *args):
+    import subprocess
+
+    proc = subprocess.Popen([str(exe), *map(str, args), "--quiet"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline().split()
+    assert first and first[0] == "PTY", (first, proc.stderr.read())
+    return proc, first[1]
+
+
+def finish(proc) -> dict:
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    return json.loads([x for x in out.splitlines() if x.startswith("STATS ")][-1][6:])
+
+
+def test_live_decisions_equal_offline_decisions(fw_sim_path, small_model, tmp_path):
+    from eskin.demo import assign_decisions
+
+    cm, path, rf, test = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
+                                "--wait-start")
+    try:
+        with LinkListener(pty_path, model=cm, replay=rf, record=tmp_path / "live.h5",
+                          stats_interval=None) as link:
+            assert link.classifier.kind == "compiled"
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    s = events[-1].stats
+    assert s.lost_samples == 0 and s.rejected == 0 and s.controller_dropped_samples == 0
+    assert s.samples == rf.n_samples == stats["samples_sent"]
+    dec = [e for e in events if isinstance(e, Decision)]
+    ctrl = [d for d in dec if d.source == "controller"]
+    host = [d for d in dec if d.source == "host"]
+    assert len(ctrl) == len(host) == stats["decisions_sent"] >= len(test)
+    # the host runs the controller's classifier on the samples it received: same decisions
+    for c, h in zip(ctrl, host):
+        assert (c.onset_sample, c.offset_sample, c.label, c.dont_know) == (
+            h.onset_sample, h.offset_sample, h.label, h.dont_know)
+        np.testing.assert_allclose(c.values, h.values, rtol=0, atol=1e-9)
+    # and the same as offline: the stream classifier over the replay file, and per recording
+    offline = [e for e in cm.stream(np.asarray(rf.samples).reshape(rf.n_samples, -1))
+               if "label" in e]
+    assert [(c.onset_sample, c.offset_sample, c.label) for c in ctrl] == [
+        (e["window"][0], e["window"][1], e["label"]) for e in offline]
+    batch = cm.classify(np.stack(test))
+    for src in (ctrl, host):
+        lab, val, dk, extra = assign_decisions(src, rf.segments, 3)
+        assert list(lab) == list(batch.label_indices)
+        np.testing.assert_allclose(val, batch.decision_values, atol=1e-5)
+    # the recording of the stream reads back equal to the source
+    camp = load_campaign(tmp_path / "live.h5")
+    assert len(camp) == len(test)
+    for k, r in enumerate(test):
+        assert np.array_equal(camp.recording(k), r)
+
+
+def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 0, "--wait-start",
+                                "--flip-rate", "1e-4", "--drop-rate", "1e-4", "--burst", "0.01",
+                                "--truncate-rate", "0.01", "--seed", 3)
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(events)
+    src = np.asarray(rf.samples)
+    for i, x in got.items():  # no corrupted frame was ever accepted
+        assert np.array_equal(x, src[i]), f"sample {i} corrupted"
+    s = events[-1].stats
+    assert stats["faults_injected"] > 10
+    # every loss is counted: holes inside the stream, plus what never came at its end
+    tail = rf.n_samples - (max(got) + 1)
+    assert s.samples + s.lost_samples + tail + min(got) == rf.n_samples
+    assert s.rejected > 0
+    # each fault costs at most two frames
+    assert s.lost_samples <= 2 * SPF * stats["faults_injected"]

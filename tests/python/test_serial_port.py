@@ -1,0 +1,91 @@
+"""eskin.serial_port.SerialPort on a real pseudo-terminal (the master end held by os)."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import pytest
+
+from eskin.serial_port import PeerClosedError, SerialPort, SerialPortError
+
+
+@pytest.fixture
+def pty():
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)  # the port under test opens the slave by path, like a host would
+    yield master, path
+    try:
+        os.close(master)
+    except OSError:
+        pass
+
+
+def test_round_trip_all_byte_values(pty):
+    master, path = pty
+    with SerialPort(path, baud=115200) as port:
+        assert port.path == path and port.baud == 115200 and port.is_open
+        data = bytes(range(256)) * 4
+        os.write(master, data)
+        got = b""
+        while len(got) < len(data):
+            got += port.read(4096, timeout=1.0)
+        assert got == data
+        assert port.write(b"\x00\x03\x11hello", timeout=1.0) == 8
+        assert os.read(master, 100) == b"\x00\x03\x11hello"
+    assert not port.is_open
+
+
+def test_timeout_is_silence_not_closure(pty):
+    master, path = pty
+    with SerialPort(path) as port:
+        assert port.read(10, timeout=0.02) == b""
+        assert port.read_nonblocking() == b""
+        os.write(master, b"abc")
+        assert port.read_exact(5, timeout=0.05) == b"abc"
+        os.write(master, b"xyz")
+        assert port.read(2, timeout=1.0) == b"xy"
+        assert port.in_waiting == 1
+        port.flush(output=False)
+        assert port.in_waiting == 0
+
+
+def test_closed_peer_raises(pty):
+    master, path = pty
+    port = SerialPort(path)
+    os.close(master)
+    with pytest.raises(PeerClosedError, match="hung up"):
+        port.read(10, timeout=1.0)
+    with pytest.raises(PeerClosedError):
+        port.write(b"x", timeout=0.1)
+    port.close()
+
+
+def test_blocking_read_releases_the_gil(pty):
+    master, path = pty
+    with SerialPort(path) as port:
+        result: list[bytes] = []
+        t = threading.Thread(target=lambda: result.append(port.read(10, timeout=5.0)))
+        t.start()
+        # this thread runs Python while the other waits inside the core
+        total = sum(range(10000))
+        os.write(master, b"ping")
+        t.join(timeout=5.0)
+        assert total > 0 and result == [b"ping"]
+
+
+def test_open_errors_name_the_port():
+    with pytest.raises(SerialPortError, match="/no/such/tty") as err:
+        SerialPort("/no/such/tty")
+    assert err.value.status == "open_failed"
+    with pytest.raises(SerialPortError, match="not_a_tty"):
+        SerialPort("/dev/null")
+
+
+def test_bad_baud_and_timeout(pty):
+    _, path = pty
+    with pytest.raises(SerialPortError, match="baud"):
+        SerialPort(path, baud=1234)
+    with SerialPort(path) as port, pytest.raises(ValueError, match="timeout"):
+        port.read(1, timeout=-1)
