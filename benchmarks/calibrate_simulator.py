@@ -159,9 +159,10 @@ def calibrate(difficulty: float, participants: int, jobs: int, seed: int, runs: 
               Ds: list[int], workdir: Path) -> dict[str, dict[int, list[float]]]:
     import hashlib
 
-    from eskin.simulator import SimulatorConfig
+    from eskin.simulator import CALIBRATED_LEVEL, SimulatorConfig
 
-    key = hashlib.sha1(SimulatorConfig(difficulty=difficulty).to_json().encode()).hexdigest()[:8]
+    text = SimulatorConfig(difficulty=difficulty).to_json() + repr(CALIBRATED_LEVEL)
+    key = hashlib.sha1(text.encode()).hexdigest()[:8]
     path = workdir / f"cal_{difficulty:g}_{seed}_{participants}_{key}.h5"
     t0 = time.perf_counter()
     if not path.exists():

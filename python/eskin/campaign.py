@@ -301,7 +301,8 @@ class Campaign:
     arrays (validated the same way). Attributes: ``signals`` (int16, (n, rows, cols, T),
     lazy or ndarray), ``lengths``, ``modality``, ``participant``, ``direction``, ``run``,
     ``contact_interval`` (or None), ``modalities``, ``sample_rate_hz``, ``volts_per_count``,
-    ``source``, ``attrs`` (every root attribute, decoded), ``path`` (or None).
+    ``source``, ``attrs`` (every root attribute, decoded), ``extras`` (name -> per-recording
+    array, from ``/recordings/extra``), ``path`` (or None).
     """
 
     def __init__(
@@ -868,6 +869,7 @@ def write_campaign(
     lengths: Any = None,
     contact_interval: Any = None,
     attrs: Mapping[str, Any] | None = None,
+    extras: Mapping[str, Any] | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write a whole campaign at once; ``signals`` is int16 (n, rows, cols, T) or any
@@ -902,16 +904,22 @@ def write_campaign(
     ci = None if contact_interval is None else np.asarray(contact_interval)
     if ci is not None and ci.shape != (n, 2):
         raise ValueError(f"contact_interval must have shape ({n}, 2), got {ci.shape}")
+    ex = {k: np.asarray(v) for k, v in dict(extras or {}).items()}
+    for k, v in ex.items():
+        if v.ndim < 1 or v.shape[0] != n:
+            raise ValueError(f"extras[{k!r}] must have one entry per recording ({n}), "
+                             f"got shape {v.shape}")
     with CampaignWriter(path, grid_shape=grid, n_samples=max(t, 1), sample_rate_hz=sample_rate_hz,
                         volts_per_count=volts_per_count, modalities=modalities, source=source,
-                        attrs=attrs, contact_interval=ci is not None,
-                        overwrite=overwrite) as w:
+                        attrs=attrs, contact_interval=ci is not None, overwrite=overwrite,
+                        extra_fields={k: v.dtype for k, v in ex.items()}) as w:
         for i, rec in enumerate(recs):
             w.append(rec, modality=int(labels["modality"][i]),
                      participant=int(labels["participant"][i]),
                      direction=int(labels["direction"][i]), run=int(labels["run"][i]),
                      length=None if lens is None else int(lens[i]),
-                     contact_interval=None if ci is None else tuple(ci[i]))
+                     contact_interval=None if ci is None else tuple(ci[i]),
+                     extra={k: v[i] for k, v in ex.items()})
     return Path(path)
 
 
@@ -924,4 +932,5 @@ def save_campaign(campaign: Campaign, path: str | os.PathLike[str], *,
         direction=campaign.direction, run=campaign.run, modalities=campaign.modalities,
         sample_rate_hz=campaign.sample_rate_hz, volts_per_count=campaign.volts_per_count,
         source=campaign.source, lengths=campaign.lengths,
-        contact_interval=campaign.contact_interval, attrs=extra, overwrite=overwrite)
+        contact_interval=campaign.contact_interval, attrs=extra, extras=campaign.extras,
+        overwrite=overwrite)

@@ -40,7 +40,7 @@ BRUSH, FINGER, WASHER = 0, 1, 2
 DEFAULT_DIFFICULTY = 1.0
 # variability level at difficulty 1: the scale found by benchmarks/calibrate_simulator.py so that
 # the paper's protocol lands in the paper's error ranges (docs/simulator.md, "Calibration")
-CALIBRATED_LEVEL = 0.6
+CALIBRATED_LEVEL = 0.9
 
 
 @dataclass(frozen=True)
@@ -724,6 +724,7 @@ def simulate(
         "simulator_seed": int(seed),
         "simulator_participants": int(participants),
         "difficulty": float(cfg.difficulty),
+        "simulator_level": float(cfg.level),
         "description": "SIMULATED campaign (eskin physics-based simulator); not recorded data",
     }
     extra_fields = {"speed_mm_s": np.float32, "force_n": np.float32, "line_mm": np.float32,

@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
         difficulty: Optional[float] = typer.Option(
             None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
-        jobs: int = typer.Option(1, "--jobs", "-j", help="worker processes"),
+        jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
     ) -> None:
@@ -53,8 +53,11 @@ def register(app: typer.Typer) -> None:
                 if not quiet and (done % step == 0 or done == total):
                     typer.echo(f"  {done}/{total} recordings", err=True)
 
+            import os
+
+            n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
             simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                     n_jobs=jobs, overwrite=force, progress=progress)
+                     n_jobs=n_jobs, overwrite=force, progress=progress)
             typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
                        f"in {time.perf_counter() - t0:.1f} s")
 
