@@ -44,8 +44,7 @@ _TIME_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds", "sample"}
 def parse_direction(value: Any, where: str) -> int:
     """'h'/'horizontal'/0 -> 0, 'v'/'vertical'/1 -> 1, ''/'unknown'/255 -> 255."""
     key = str(value).strip().lower()
-    if key.endswith(".0"):
-        key = key[:-2]
+    key = key.removesuffix(".0")
     if key not in _DIRECTIONS:
         raise ValueError(
             f"{where}: direction {value!r} not understood (use h/horizontal/0, v/vertical/1, "

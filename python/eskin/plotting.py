@@ -13,7 +13,6 @@ def _detect_window(rec: np.ndarray, length: int, rate: float) -> tuple[tuple[int
     """The touch window of one recording, from eskin.preprocess.detect_windows."""
     from eskin.preprocess import detect_windows
 
-
     win = detect_windows(rec[None].astype(np.int16), lengths=np.array([length]),
                          sample_rate_hz=rate)
     return (int(win[0, 0]), int(win[0, 1])), "detected window (eskin.preprocess)"

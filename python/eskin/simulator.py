@@ -641,13 +641,20 @@ def _job_list(participants: int, runs: tuple[int, ...]) -> list[tuple[int, int, 
             for m in range(len(MODALITIES)) for d in (0, 1)]
 
 
-def _simulate_one(args: tuple[SimulatorConfig, int, tuple[int, int, int, int]]
-                  ) -> tuple[np.ndarray, RecordingTruth]:
-    cfg, seed, (participant, run, modality, direction) = args
+def _simulate_one(args: tuple[Any, ...]) -> tuple[Any, RecordingTruth]:
+    """One recording: (config, seed, job[, compression level]) -> (int16 array, or the
+    EncodedRecording when a compression level is given, truth)."""
+    cfg, seed, (participant, run, modality, direction) = args[:3]
     chain = _chain_for(cfg, seed)
     style = _participant_style(cfg, np.random.default_rng([seed, participant, 0x57]))
     rng = np.random.default_rng([seed, participant, run, modality, direction, 0xA1])
-    return chain.record(rng, style, modality, direction, run)
+    rec, truth = chain.record(rng, style, modality, direction, run)
+    if len(args) > 3:
+        from eskin.campaign import encode_recording
+
+        rec = encode_recording(rec, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
+                               compression_level=args[3])
+    return rec, truth
 
 
 _CHAIN_CACHE: dict[tuple[str, int], _Chain] = {}
@@ -664,28 +671,40 @@ def _chain_for(cfg: SimulatorConfig, seed: int) -> _Chain:
 
 def iter_recordings(participants: int = 70, seed: int = 0, *,
                     config: SimulatorConfig | None = None, runs: tuple[int, ...] = (1, 2),
-                    n_jobs: int = 1) -> Iterator[tuple[tuple[int, int, int, int], np.ndarray,
-                                                      RecordingTruth]]:
+                    n_jobs: int = 1, _encode: Any = ()) -> Iterator[tuple[
+                        tuple[int, int, int, int], np.ndarray, RecordingTruth]]:
     """Yield ((participant, run, modality, direction), int16 (rows, cols, T), truth) in order.
 
-    Only a few recordings exist at a time (at most 2 * n_jobs in flight).
+    With ``n_jobs`` > 1, worker processes simulate ahead while the caller consumes; at most
+    2 * n_jobs + 1 recordings are in flight, so memory stays bounded.
     """
     cfg = config or SimulatorConfig()
     jobs = _job_list(int(participants), tuple(runs))
     if n_jobs <= 1:
         for job in jobs:
-            yield (job, *_simulate_one((cfg, seed, job)))
+            yield (job, *_simulate_one((cfg, seed, job, *_encode)))
         return
     import multiprocessing as mp
+    from collections import deque
 
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with ctx.Pool(n_jobs) as pool:
-        batch = 2 * n_jobs
-        for start in range(0, len(jobs), batch):
-            chunk = jobs[start:start + batch]
-            for job, (rec, truth) in zip(chunk, pool.map(
-                    _simulate_one, [(cfg, seed, j) for j in chunk], chunksize=1)):
-                yield job, rec, truth
+        todo = iter(jobs)
+        pending: deque[Any] = deque()
+
+        def submit() -> None:
+            job = next(todo, None)
+            if job is not None:
+                pending.append((job, pool.apply_async(_simulate_one,
+                                                      ((cfg, seed, job, *_encode),))))
+
+        for _ in range(2 * n_jobs + 1):
+            submit()
+        while pending:
+            job, result = pending.popleft()
+            rec, truth = result.get()
+            submit()
+            yield job, rec, truth
 
 
 def simulate(
@@ -738,7 +757,8 @@ def simulate(
                         contact_interval=True, overwrite=overwrite,
                         extra_fields=extra_fields) as w:
         for k, ((participant, run, modality, direction), rec, truth) in enumerate(
-                iter_recordings(participants, seed, config=cfg, runs=runs, n_jobs=n_jobs)):
+                iter_recordings(participants, seed, config=cfg, runs=runs, n_jobs=n_jobs,
+                                _encode=(w.compression_level,))):
             w.append(rec, modality=modality, participant=participant, direction=direction,
                      run=run, contact_interval=truth.contact_interval, extra={
                          "speed_mm_s": truth.speed_mm_s, "force_n": truth.force_n,

@@ -340,3 +340,26 @@ def test_extras_round_trip_and_follow_subsets(tmp_path):
         f["recordings/extra/speed"] = np.zeros(4)
     with pytest.raises(CampaignFormatError, match="/recordings/extra/speed: wrong shape"):
         load_campaign(p)
+
+
+def test_encoded_and_uncompressed_recordings(tmp_path):
+    from eskin.campaign import encode_recording
+
+    rec = np.arange(2 * 3 * 40, dtype=np.int16).reshape(2, 3, 40) - 100
+    enc = encode_recording(rec, grid_shape=(2, 3), n_samples=50, length=30)
+    for level in (None, 1):
+        p = tmp_path / f"e{level}.h5"
+        with CampaignWriter(p, grid_shape=(2, 3), n_samples=50, sample_rate_hz=10.0,
+                            volts_per_count=1.0, modalities=["a"], source="recorded",
+                            compression_level=level) as w:
+            if level == 1:
+                w.append(enc, modality=0, participant=1, direction=0, run=1)
+            else:
+                with pytest.raises(ValueError, match="encoded for grid"):
+                    w.append(enc, modality=0, participant=1, direction=0, run=1)
+                w.append(rec, modality=0, participant=1, direction=0, run=1, length=30)
+        with h5py.File(p) as f:
+            assert f["recordings/signals"].compression == (None if level is None else "gzip")
+        with load_campaign(p) as c:
+            np.testing.assert_array_equal(c.recording(0), rec[..., :30])
+            assert np.all(np.asarray(c.signals)[0, ..., 30:] == 0)

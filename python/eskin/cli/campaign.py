@@ -69,9 +69,8 @@ def register(app: typer.Typer) -> None:
         """Summarise a campaign file: grid, rate, counts, lengths, source."""
         from eskin.campaign import load_campaign
 
-        with _user_errors():
-            with load_campaign(file, check_data=check) as c:
-                _print_info(c)
+        with _user_errors(), load_campaign(file, check_data=check) as c:
+            _print_info(c)
 
     @app.command("plot")
     def plot_cmd(
@@ -148,7 +147,7 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"wrote {output}: {len(c)} recordings")
 
 
-def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
+def _print_info(c) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -177,9 +176,9 @@ def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
     table.add_column("modality (id)")
     runs = sorted(s["per_run"])
     dirs = sorted({int(d) for d in c.direction})
-    from eskin.campaign import DIRECTION_NAMES
-
     import numpy as np
+
+    from eskin.campaign import DIRECTION_NAMES
 
     for r in runs:
         for d in dirs:
@@ -194,6 +193,6 @@ def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
     console.print(table)
     pp = s["per_participant"]
     counts = sorted(set(pp.values()))
-    console.print(f"  recordings per participant: "
+    console.print("  recordings per participant: "
                   + ", ".join(f"{sum(1 for v in pp.values() if v == n)} participants x {n}"
                               for n in counts))
