@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +26,13 @@ import numpy as np
 
 from eskin.campaign import CampaignWriter, load_campaign
 from eskin.simulator import MODALITIES, SimulatorConfig, simulate
+
+
+def _cpu() -> float:
+    """CPU seconds used so far by this process and its finished children (pool workers)."""
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def _write_noise(path: Path, n: int, cfg: SimulatorConfig) -> float:
@@ -53,17 +61,20 @@ def main() -> None:
         t_w = _write_noise(tmp / "noise.h5", n, cfg)
         print(f"baseline W  write {n} noise recordings      {t_w:7.1f} s  "
               f"{n / t_w:7.1f} rec/s")
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu()
         simulate(tmp / "sim1.h5", participants=args.participants, seed=0, n_jobs=1)
-        t_1 = time.perf_counter() - t0
+        t_1, c_1 = time.perf_counter() - t0, _cpu() - c0
         print(f"simulate    1 process                   {t_1:7.1f} s  {n / t_1:7.1f} rec/s  "
-              f"= {t_1 / t_w:5.2f} x W")
+              f"= {t_1 / t_w:5.2f} x W   CPU {c_1:6.1f} s = {1000 * c_1 / n:.0f} ms/recording")
         if args.jobs > 1:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), _cpu()
             simulate(tmp / "simN.h5", participants=args.participants, seed=0, n_jobs=args.jobs)
-            t_n = time.perf_counter() - t0
+            t_n, c_n = time.perf_counter() - t0, _cpu() - c0
             print(f"simulate    {args.jobs} processes                 {t_n:7.1f} s  "
-                  f"{n / t_n:7.1f} rec/s  = {t_n / t_w:5.2f} x W, speed-up {t_1 / t_n:4.2f}")
+                  f"{n / t_n:7.1f} rec/s  = {t_n / t_w:5.2f} x W, speed-up {t_1 / t_n:4.2f}"
+                  f"   CPU {c_n:6.1f} s")
+        print(f"load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
+              f"(wall times stretch when other work shares the cores; CPU times do not)")
         t0 = time.perf_counter()
         with load_campaign(tmp / "sim1.h5") as c:
             total = 0

@@ -17,9 +17,8 @@ three classes ~23-29 %. Usage::
 
     python benchmarks/calibrate_simulator.py [--difficulty 1.0 ...] [--participants 70] [--jobs 2]
 
-The tensor kernel is eskin.tensor_kernel when the package has it, else the small numpy version
-below (same definition: per mode, the first alpha right singular vectors of the unfolding;
-k = prod_z exp(-||P_a - P_b||_F^2 / (2 sigma^2))).
+The tensor kernel is eskin's (eskin.mode_distances, alpha = Q_z/2, then
+k = prod_z exp(-d_z / (2 sigma^2))); SVMs are sklearn's SVC on the precomputed kernel.
 """
 
 from __future__ import annotations
@@ -42,40 +41,9 @@ CS = [0.1, 1.0, 10.0, 100.0]
 PROBLEMS = {"A": ("brush", "washer"), "B": ("brush", "finger"), "C": ("washer", "finger")}
 
 
-def _bases(X: np.ndarray, alpha: str = "half") -> list[np.ndarray]:
-    """Per mode, (n, a_z, N_z) row-stacked right singular vectors of each pattern's unfolding."""
-    n, r, c, d = X.shape
-    unf = [X.reshape(n, r, c * d), X.transpose(0, 2, 1, 3).reshape(n, c, r * d),
-           X.transpose(0, 3, 1, 2).reshape(n, d, r * c)]
-    out = []
-    for U in unf:
-        q = min(U.shape[1], U.shape[2])
-        a = max(1, q // 2) if alpha == "half" else (q if alpha == "full" else 1)
-        _, s, vt = np.linalg.svd(U, full_matrices=False)
-        vt = vt[:, :a, :].copy()
-        rank_ok = s[:, :a] > s[:, :1] * 1e-10
-        vt *= rank_ok[:, :, None]
-        out.append(vt)
-    return out
-
-
-def mode_distances_np(X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
-    bx = _bases(X)
-    by = bx if Y is None else _bases(Y)
-    ds = []
-    for vx, vy in zip(bx, by):
-        rx = np.sum(vx**2, axis=(1, 2))
-        ry = np.sum(vy**2, axis=(1, 2))
-        g = np.einsum("iak,jbk->ijab", vx, vy, optimize=True)
-        ds.append(np.maximum(rx[:, None] + ry[None, :] - 2 * np.sum(g**2, axis=(2, 3)), 0.0))
-    return np.stack(ds)
-
-
-def mode_distances(X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
-    try:
-        return np.asarray(eskin.mode_distances(X, Y, alpha="half"))
-    except (ImportError, AttributeError):
-        return mode_distances_np(X, Y)
+def mode_distances(X: np.ndarray) -> np.ndarray:
+    """Per-mode subspace distances (n_modes, n, n) with alpha = Q_z/2 (eskin.mode_distances)."""
+    return np.asarray(eskin.mode_distances(X, alpha="half"))
 
 
 def _kernel(dist: np.ndarray, sigma: float) -> np.ndarray:
