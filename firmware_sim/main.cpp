@@ -1,8 +1,11 @@
 // eskin-fw-sim: the skin controller, simulated. It publishes a pseudo-terminal and streams a
 // replay of recorded (or simulated) taxel signals over it in the eskin wire protocol, at the
 // real sample rate, optionally classifying touches on board. See `eskin-fw-sim --help`.
+#include <sched.h>
 #include <signal.h>
 #include <time.h>
+
+#include <cerrno>
 
 #include <algorithm>
 #include <array>
@@ -31,6 +34,7 @@ namespace {
 namespace proto = eskin::protocol;
 
 volatile sig_atomic_t g_stop = 0;
+bool realtime_granted = false;
 void on_signal(int) { g_stop = 1; }
 
 std::int64_t now_ns() {
@@ -75,6 +79,8 @@ options:
   --burst-len N        longest garbage burst (default 32)
   --truncate-rate P    fault injection: cut each frame short with probability P
   --seed N             fault-injection seed (default 1)
+  --realtime           ask for SCHED_FIFO scheduling (steadier pacing on a busy machine; the
+                       simulator sleeps between samples, so it does not hog a core)
   --quiet              no progress on stderr
 
 On exit it prints "STATS {json}" on stdout (pacing, drops, decisions, latencies).
@@ -96,6 +102,7 @@ struct Options {
   int grid_rows = 4, grid_cols = 4;
   FaultConfig faults;
   bool quiet = false;
+  bool realtime = false;
 };
 
 [[noreturn]] void usage_error(const std::string& msg) {
@@ -146,6 +153,7 @@ Options parse(int argc, char** argv) {
     else if (a == "--truncate-rate") o.faults.truncate_rate = parse_double(a, val(), 0.0, 1.0);
     else if (a == "--seed") o.faults.seed = static_cast<std::uint64_t>(parse_double(a, val(), 0, 9e15));
     else if (a == "--quiet") o.quiet = true;
+    else if (a == "--realtime") o.realtime = true;
     else if (!a.empty() && a[0] == '-') usage_error("unknown option " + a);
     else if (o.input.empty()) o.input = a;
     else usage_error("more than one INPUT: " + o.input + " and " + a);
@@ -182,6 +190,9 @@ class PacingStats {
   std::int64_t max_ = 0;
   std::uint64_t n_ = 0;
 };
+
+/// Queue bytes DATA frames leave free for control frames (DECISION, STATUS, INFO, PONG).
+constexpr std::size_t kControlReserve = 1024;
 
 std::uint32_t clamp_u32(std::int64_t v) {
   return static_cast<std::uint32_t>(std::clamp<std::int64_t>(v, 0, 0xFFFFFFFFLL));
@@ -330,8 +341,8 @@ class Simulator {
     p.timestamp_us = static_cast<std::uint64_t>((t - origin_) / 1000);
     p.latency_us = clamp_u32((t - acquired_ns) / 1000);
     ++decisions_made_;
-    // A decision is never dropped for lack of room while a host listens: make room by waiting.
-    if (!queue(f, /*flow_control=*/true)) return;
+    // DATA leaves room for control frames, so a decision is queued even while samples drop.
+    if (!queue(f)) return;
     ++decisions_sent_;
     latencies_us_.push_back(p.latency_us);
     link_.flush_tx();
@@ -351,7 +362,7 @@ class Simulator {
                                         (loop_flag_ ? proto::flags::kLoop : 0));
     const std::size_t n = frame_fill_;
     frame_fill_ = 0;
-    if (queue(f, o_.speed == 0)) {
+    if (queue(f, kControlReserve)) {
       samples_sent_ += n;
       dropped_since_data_ = false;
       loop_flag_ = false;
@@ -365,17 +376,19 @@ class Simulator {
     link_.flush_tx();
   }
 
-  /// Queues a frame if a host is there and it fits; with flow control, waits for room while
-  /// the host is connected (unpaced replay, decisions) instead of dropping.
-  bool queue(proto::Frame& f, bool flow_control) {
+  /// Queues a frame if a host is there and it fits (keeping `reserve` bytes free). Unpaced
+  /// (--speed 0), it waits for room while the host is connected: the replay then runs as fast
+  /// as the host reads. Paced, it never waits: the caller drops and counts.
+  bool queue(proto::Frame& f, std::size_t reserve = 0) {
     if (!link_.host_connected()) return false;
     if (sync_pending_) f.flags |= proto::flags::kSync;
-    bool ok = link_.send(f);
-    while (!ok && flow_control && link_.host_connected() && !g_stop) {
+    bool ok = link_.send(f, reserve);
+    while (!ok && o_.speed == 0 && link_.host_connected() && !g_stop) {
       if (!link_.flush_tx()) break;
-      link_.wait_io(20, true);
-      service_input();
-      ok = link_.send(f);
+      link_.wait_writable(20);  // host commands wait until after (no re-entrant queueing)
+      bool rc, dc;
+      link_.update_host(rc, dc);
+      ok = link_.send(f, reserve);
     }
     if (ok) sync_pending_ = false;
     return ok;
@@ -423,7 +436,7 @@ class Simulator {
     p.n_classes = static_cast<std::uint8_t>(n);
     p.names_len = static_cast<std::uint16_t>(names_joined_.size());
     p.class_names = names_joined_.data();
-    queue(f, true);
+    queue(f);
   }
 
   void send_status() {
@@ -447,7 +460,7 @@ class Simulator {
                            : proto::StreamState::stopped;
     s.host_connected = link_.host_connected() ? 1 : 0;
     f.flags = dropped_since_status_ ? proto::flags::kOverrun : 0;
-    if (queue(f, false)) dropped_since_status_ = false;
+    if (queue(f)) dropped_since_status_ = false;
     last_status_ns_ = t;
   }
 
@@ -497,7 +510,7 @@ class Simulator {
         r.type = proto::FrameType::pong;
         r.ping.token = f.ping.token;
         r.ping.timestamp_us = static_cast<std::uint64_t>((now_ns() - origin_) / 1000);
-        queue(r, true);
+        queue(r);
         break;
       }
       case proto::FrameType::info_request:
@@ -524,7 +537,7 @@ class Simulator {
         "\"pacing_p99_ns\": %lld, \"pacing_max_ns\": %lld, \"decisions_made\": %llu, "
         "\"decisions_sent\": %llu, \"classify_errors\": %llu, \"latency_p50_us\": %.0f, "
         "\"latency_p99_us\": %.0f, \"latency_max_us\": %.0f, \"elapsed_s\": %.6f, "
-        "\"origin_ns\": %lld}\n",
+        "\"origin_ns\": %lld, \"realtime\": %s}\n",
         static_cast<unsigned long long>(next_sample_), static_cast<unsigned long long>(samples_sent_),
         static_cast<unsigned long long>(dropped_samples_), overrun_events_,
         static_cast<unsigned long long>(link_.faults_injected()),
@@ -535,7 +548,8 @@ class Simulator {
         static_cast<unsigned long long>(decisions_made_), static_cast<unsigned long long>(decisions_sent_),
         static_cast<unsigned long long>(classify_errors_), pct(0.5), pct(0.99),
         lat.empty() ? 0.0 : static_cast<double>(lat.back()),
-        static_cast<double>(now_ns() - origin_) * 1e-9, static_cast<long long>(origin_));
+        static_cast<double>(now_ns() - origin_) * 1e-9, static_cast<long long>(origin_),
+        realtime_granted ? "true" : "false");
     std::fflush(stdout);
   }
 
@@ -616,6 +630,14 @@ int main_impl(int argc, char** argv) {
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGHUP, &sa, nullptr);
   signal(SIGPIPE, SIG_IGN);
+  if (o.realtime) {
+    sched_param sp{};
+    sp.sched_priority = 10;
+    realtime_granted = sched_setscheduler(0, SCHED_FIFO, &sp) == 0;
+    if (!realtime_granted && !o.quiet)
+      std::fprintf(stderr, "eskin-fw-sim: --realtime: SCHED_FIFO refused (%s); normal scheduling\n",
+                   std::strerror(errno));
+  }
 
   auto sim = std::make_unique<Simulator>(o, src, link);
 #if ESKIN_FWSIM_HAS_MODEL

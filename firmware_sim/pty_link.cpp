@@ -149,10 +149,10 @@ std::size_t PtyLink::apply_faults(const std::uint8_t* in, std::size_t n, std::ui
   return o;
 }
 
-bool PtyLink::send(protocol::Frame& frame) {
+bool PtyLink::send(protocol::Frame& frame, std::size_t reserve) {
   frame.seq = seq_;
   const std::size_t n = encoder_.encode(frame, scratch_.data(), scratch_.size());
-  if (n == 0 || !fits(n)) return false;
+  if (n == 0 || !fits(n + reserve)) return false;
   seq_ = static_cast<std::uint16_t>(seq_ + 1);
   if (!faults_.any()) return push_bytes(scratch_.data(), n);
   const std::size_t m = apply_faults(scratch_.data(), n, faulted_.data());
@@ -179,6 +179,11 @@ bool PtyLink::flush_tx() {
 
 void PtyLink::wait_io(int timeout_ms, bool want_output) {
   pollfd p{port_.fd(), static_cast<short>(POLLIN | (want_output ? POLLOUT : 0)), 0};
+  ::poll(&p, 1, timeout_ms);
+}
+
+void PtyLink::wait_writable(int timeout_ms) {
+  pollfd p{port_.fd(), POLLOUT, 0};
   ::poll(&p, 1, timeout_ms);
 }
 

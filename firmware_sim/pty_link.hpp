@@ -53,17 +53,22 @@ class PtyLink {
   bool host_connected() const { return host_connected_; }
 
   /// Frame queueing. Assigns the sequence number, encodes, applies faults, and queues the
-  /// bytes if they all fit (never a partial frame). Returns false when the queue is full.
-  bool send(protocol::Frame& frame);
+  /// bytes if they all fit with `reserve` bytes to spare (never a partial frame). Returns false
+  /// when the queue is too full. DATA keeps a reserve so that control frames (DECISION,
+  /// STATUS, INFO, PONG) still fit when samples are being dropped.
+  bool send(protocol::Frame& frame, std::size_t reserve = 0);
   /// Queues a lone delimiter (stream start). False when full.
   bool send_delimiter();
   bool fits(std::size_t encoded_bytes) const { return capacity_ - size_ >= encoded_bytes + extra_; }
+  std::size_t capacity() const { return capacity_; }
   /// Writes as much queued data as the pty takes now (non-blocking). False if the peer closed.
   bool flush_tx();
   std::size_t queued() const { return size_; }
   void clear_tx() { begin_ = size_ = 0; }
   /// Waits (poll) until the pty can take more output, input arrives, or timeout_ms passes.
   void wait_io(int timeout_ms, bool want_output);
+  /// Waits (poll) until the pty can take more output, or timeout_ms passes.
+  void wait_writable(int timeout_ms);
   /// Waits until the host has read everything written (or the timeout): closing the master
   /// discards what the slave has not read yet.
   /// (The master's own output queue is always empty: the bytes sit in the slave's input queue,

@@ -3,6 +3,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <cstring>
 #include <limits>
 #include <tuple>
@@ -240,7 +241,63 @@ void bind_model(py::module_& m) {
             }
             return py::make_tuple(labels, values, dont_know, status);
           },
-          py::arg("tensors"));
+          py::arg("tensors"))
+      .def(
+          "time_classify",
+          [](Classifier& c, py::array_t<std::int16_t, py::array::c_style | py::array::forcecast> a,
+             int repeats) {
+            // Wall time of each classify() call (raw window -> label), in nanoseconds, measured
+            // in C++ around the call alone: for benchmarks/bench_inference.py.
+            const Model& mm = c.model();
+            if (a.ndim() != 4 || a.shape(1) != mm.rows() || a.shape(2) != mm.cols())
+              throw std::invalid_argument("signals: expected shape (n, rows, cols, T)");
+            const py::ssize_t n = a.shape(0), T = a.shape(3);
+            const std::size_t per = static_cast<std::size_t>(mm.rows() * mm.cols() * T);
+            py::array_t<double> ns(n * repeats);
+            auto out = ns.mutable_unchecked<1>();
+            const std::int16_t* d = a.data();
+            {
+              py::gil_scoped_release release;
+              for (int r = 0; r < repeats; ++r)
+                for (py::ssize_t i = 0; i < n; ++i) {
+                  Decision dec;
+                  const auto t0 = std::chrono::steady_clock::now();
+                  c.classify(d + static_cast<std::size_t>(i) * per, mm.rows(), mm.cols(), T, T, &dec);
+                  const auto t1 = std::chrono::steady_clock::now();
+                  out(r * n + i) = std::chrono::duration<double, std::nano>(t1 - t0).count();
+                }
+            }
+            return ns;
+          },
+          py::arg("signals"), py::arg("repeats") = 1)
+      .def(
+          "time_classify_tensors",
+          [](Classifier& c, py::array_t<double, py::array::c_style | py::array::forcecast> x,
+             int repeats) {
+            // Wall time of each classify_tensor() call (bases + machines), in nanoseconds;
+            // each tensor is classified `repeats` times in a row (warm caches).
+            const Model& mm = c.model();
+            if (x.ndim() != 4 || x.shape(1) != mm.rows() || x.shape(2) != mm.cols() || x.shape(3) != mm.D())
+              throw std::invalid_argument("tensors: expected shape (n, rows, cols, D)");
+            const py::ssize_t n = x.shape(0);
+            const std::size_t sz = static_cast<std::size_t>(mm.rows()) * mm.cols() * mm.D();
+            py::array_t<double> ns(n * repeats);
+            auto out = ns.mutable_unchecked<1>();
+            const double* d = x.data();
+            {
+              py::gil_scoped_release release;
+              for (py::ssize_t i = 0; i < n; ++i)
+                for (int r = 0; r < repeats; ++r) {
+                  Decision dec;
+                  const auto t0 = std::chrono::steady_clock::now();
+                  c.classify_tensor(d + static_cast<std::size_t>(i) * sz, &dec);
+                  const auto t1 = std::chrono::steady_clock::now();
+                  out(i * repeats + r) = std::chrono::duration<double, std::nano>(t1 - t0).count();
+                }
+            }
+            return ns;
+          },
+          py::arg("tensors"), py::arg("repeats") = 1);
 
   py::class_<StreamClassifier>(m, "StreamClassifier",
                                "The controller's path: one multi-taxel sample at a time.")
@@ -248,12 +305,13 @@ void bind_model(py::module_& m) {
       .def(
           "feed",
           [](StreamClassifier& sc, py::array_t<double, py::array::c_style | py::array::forcecast> a,
-             bool flush) {
+             bool flush, bool timed) {
             // a: (n_samples, n_taxels) sample-major
             if (a.ndim() != 2 || a.shape(1) != sc.detector().n_taxels())
               throw std::invalid_argument("samples: expected shape (n, " +
                                           std::to_string(sc.detector().n_taxels()) + ")");
-            std::vector<std::tuple<std::int64_t, int, ClassifyStatus, Decision, std::vector<double>>> events;
+            std::vector<std::tuple<std::int64_t, int, ClassifyStatus, Decision, std::vector<double>, double>> events;
+            double push_ns = 0.0;
             const double* p = a.data();
             const py::ssize_t n = a.shape(0), nt = a.shape(1);
             {
@@ -263,9 +321,18 @@ void bind_model(py::module_& m) {
                 const Decision& d = sc.decision();
                 std::vector<double> v;
                 if (s == ClassifyStatus::kDecision) v.assign(d.values, d.values + d.n_machines);
-                events.emplace_back(sc.samples_seen(), static_cast<int>(s), s, d, std::move(v));
+                events.emplace_back(sc.samples_seen(), static_cast<int>(s), s, d, std::move(v), push_ns);
               };
-              for (py::ssize_t i = 0; i < n; ++i) record(sc.push(p + i * nt));
+              for (py::ssize_t i = 0; i < n; ++i) {
+                if (!timed) {
+                  record(sc.push(p + i * nt));
+                  continue;
+                }
+                const auto t0 = std::chrono::steady_clock::now();
+                const ClassifyStatus s = sc.push(p + i * nt);
+                push_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count();
+                record(s);
+              }
               if (flush) record(sc.flush());
             }
             py::list out;
@@ -274,6 +341,7 @@ void bind_model(py::module_& m) {
               d["sample"] = std::get<0>(e);
               d["status"] = std::get<1>(e);
               d["status_name"] = to_string(std::get<2>(e));
+              if (timed) d["push_ns"] = std::get<5>(e);
               const Decision& dec = std::get<3>(e);
               if (std::get<2>(e) == ClassifyStatus::kDecision) {
                 d["label"] = dec.label;
@@ -285,13 +353,16 @@ void bind_model(py::module_& m) {
             }
             return out;
           },
-          py::arg("samples"), py::arg("flush") = false,
-          "Push samples (n, n_taxels); returns the events (decisions and errors) as dicts.")
+          py::arg("samples"), py::arg("flush") = false, py::arg("timed") = false,
+          "Push samples (n, n_taxels); returns the events (decisions and errors) as dicts "
+          "(timed: with the wall time of the push that produced each event, push_ns).")
       .def("reset", &StreamClassifier::reset)
       .def_property_readonly("samples_seen", &StreamClassifier::samples_seen)
       .def_property_readonly("in_touch", &StreamClassifier::in_touch);
 
   m.attr("MODEL_FORMAT_VERSION") = model_format::kVersion;
+  m.def("model_overlap_kernel", &overlap_kernel_name,
+        "The overlap micro-kernel of the model classifier on this CPU.");
 }
 
 }  // namespace eskin::bindings

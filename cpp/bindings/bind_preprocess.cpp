@@ -91,7 +91,9 @@ py::tuple preprocess_py(const py::array& signals, const py::object& lengths, int
   opt.D = D;
   if (window < 0 || window > 2) throw std::invalid_argument("window mode out of range");
   if (method < 0 || method > 1) throw std::invalid_argument("subsample method out of range");
-  if (short_policy < 0 || short_policy > 1) throw std::invalid_argument("short policy out of range");
+  if (short_policy < 0 || short_policy > 1) {
+    throw std::invalid_argument("short policy out of range");
+  }
   opt.window = static_cast<WindowMode>(window);
   opt.method = static_cast<SubsampleMethod>(method);
   opt.short_policy = static_cast<ShortPolicy>(short_policy);

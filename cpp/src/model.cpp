@@ -10,6 +10,10 @@
 
 namespace eskin {
 
+namespace {
+constexpr std::size_t kMaxTouches = 4096;  // touches remembered in one recording (batch path)
+}  // namespace
+
 const char* to_string(ClassifyStatus s) noexcept {
   switch (s) {
     case ClassifyStatus::kOk: return "ok";
@@ -20,9 +24,12 @@ const char* to_string(ClassifyStatus s) noexcept {
     case ClassifyStatus::kTooShort: return "too_short";
     case ClassifyStatus::kKernel: return "kernel_failure";
     case ClassifyStatus::kNullPointer: return "null_pointer";
+    case ClassifyStatus::kOverflow: return "too_many_touches";
   }
   return "unknown";
 }
+
+const char* overlap_kernel_name() noexcept { return detail::overlap_kernel_name(); }
 
 // Machines are grouped by their alpha triple: the per-mode distances of a support vector depend
 // only on it, so they are computed once per (group, support vector) and shared by the machines.
@@ -30,7 +37,27 @@ struct Classifier::Impl {
   struct Group {
     std::array<int, 3> alpha{};
     std::vector<std::uint32_t> svs;  // support vectors used by the group's machines (sorted)
+    // Modes with few basis rows (N_z < alpha_z^2, e.g. the time mode: N = rows*cols = 16)
+    // use projections: ||V_i^T V_x||_F^2 = <P_i, P_x>_F with P = V V^T (N x N), precomputed
+    // here for the support vectors, one N^2 dot per support vector instead of alpha^2 N.
+    std::array<bool, 3> proj{};
+    std::array<std::vector<float>, 3> p32;   // (n_sv, N, N) when proj[z], float32 models
+    std::array<std::vector<double>, 3> p64;  // idem, float64 models
+    std::array<std::vector<double>, 3> px;   // the input's projection, N x N
+    std::array<std::vector<float>, 3> px32;
   };
+
+  // P = sum_{k < a} v_k v_k^T of the N x A column-major block `v` (first a columns).
+  template <typename T, typename Out>
+  static void projection(const T* v, std::size_t N, std::size_t a, Out* P) noexcept {
+    for (std::size_t r = 0; r < N; ++r)
+      for (std::size_t c = 0; c < N; ++c) {
+        double acc = 0.0;
+        for (std::size_t k = 0; k < a; ++k)
+          acc += static_cast<double>(v[k * N + r]) * static_cast<double>(v[k * N + c]);
+        P[r * N + c] = static_cast<Out>(acc);
+      }
+  }
 
   explicit Impl(const Model& m)
       : layout({static_cast<std::size_t>(m.rows()), static_cast<std::size_t>(m.cols()),
@@ -51,7 +78,10 @@ struct Classifier::Impl {
       const auto& mm = m.machines()[k];
       std::size_t g = 0;
       while (g < groups.size() && groups[g].alpha != mm.alpha) ++g;
-      if (g == groups.size()) groups.push_back(Group{mm.alpha, {}});
+      if (g == groups.size()) {
+        groups.emplace_back();
+        groups.back().alpha = mm.alpha;
+      }
       machine_group[k] = g;
       auto& svs = groups[g].svs;
       svs.insert(svs.end(), mm.sv_index.begin(), mm.sv_index.end());
@@ -59,8 +89,29 @@ struct Classifier::Impl {
     for (auto& g : groups) {
       std::sort(g.svs.begin(), g.svs.end());
       g.svs.erase(std::unique(g.svs.begin(), g.svs.end()), g.svs.end());
+      for (int z = 0; z < 3; ++z) {
+        const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
+        const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
+        const std::size_t a = static_cast<std::size_t>(g.alpha[static_cast<std::size_t>(z)]);
+        const auto zz = static_cast<std::size_t>(z);
+        g.proj[zz] = N <= 64 && N < a * a;
+        if (!g.proj[zz]) continue;
+        g.px[zz].resize(N * N);
+        if (m.is_float64()) g.p64[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
+        else {
+          g.p32[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
+          g.px32[zz].resize(N * N);
+        }
+        for (const std::uint32_t i : g.svs) {
+          if (m.is_float64())
+            projection(m.bases_f64(z).data() + i * A * N, N, a, g.p64[zz].data() + i * N * N);
+          else
+            projection(m.bases_f32(z).data() + i * A * N, N, a, g.p32[zz].data() + i * N * N);
+        }
+      }
     }
     dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
+    touches.reserve(kMaxTouches);
   }
 
   BasisLayout layout;
@@ -74,8 +125,11 @@ struct Classifier::Impl {
   std::vector<std::size_t> machine_group;
   std::vector<double> dist;  // (group, sv, mode) squared mode distances
   std::vector<double> values;
+  std::vector<TouchWindow> touches;  // capacity kMaxTouches, reserved at construction
   detail::OverlapF32 ov32;
   detail::OverlapF64 ov64;
+  detail::DotF32 dot32 = detail::select_dot_f32();
+  detail::DotF64 dot64 = detail::select_dot_f64();
 };
 
 Classifier::Classifier(const Model& model) : model_(&model), impl_(std::make_unique<Impl>(model)) {}
@@ -94,13 +148,31 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
 
   const std::size_t n_sv = static_cast<std::size_t>(m.n_support());
   for (std::size_t g = 0; g < s.groups.size(); ++g) {
-    const auto& grp = s.groups[g];
+    auto& grp = s.groups[g];
     for (int z = 0; z < 3; ++z) {
       const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
       const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
       const std::size_t a = static_cast<std::size_t>(grp.alpha[static_cast<std::size_t>(z)]);
       const int rx = std::min(s.xr[z], static_cast<int>(a));
       const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
+      const auto zz = static_cast<std::size_t>(z);
+      if (grp.proj[zz]) {
+        double* px = grp.px[zz].data();
+        if (f64) {
+          Impl::projection(s.xb64.data() + xoff, N, a, px);
+        } else {
+          Impl::projection(s.xb32.data() + xoff, N, a, px);
+          for (std::size_t j = 0; j < N * N; ++j) grp.px32[zz][j] = static_cast<float>(px[j]);
+        }
+        for (const std::uint32_t i : grp.svs) {
+          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, px, N * N)
+                                : s.dot32(grp.p32[zz].data() + i * N * N, grp.px32[zz].data(), N * N);
+          const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+          s.dist[(g * n_sv + i) * 3 + zz] =
+              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov);
+        }
+        continue;
+      }
       for (const std::uint32_t i : grp.svs) {
         const double ov = f64 ? s.ov64(m.bases_f64(z).data() + i * A * N, s.xb64.data() + xoff, N, a)
                               : s.ov32(m.bases_f32(z).data() + i * A * N, s.xb32.data() + xoff, N, a);
@@ -153,26 +225,33 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
 }
 
 namespace {
-// The batch window choice of eskin::detect_window (WindowConfig.select), without allocation.
-struct WindowChoice {
-  int select;
-  std::int64_t max_window;
+
+// The window choice of eskin::detect_window (WindowConfig.select: 0 most energetic, 1 first,
+// 2 span from the first to the last touch holding span_fraction of the peak energy), on a
+// buffer allocated with the classifier: no allocation per decision.
+TouchWindow choose_window(const DetectorParams& p, const std::vector<TouchWindow>& touches) noexcept {
+  if (p.select == 1) return touches.front();
+  const TouchWindow* best = &touches.front();
+  for (const TouchWindow& w : touches)
+    if (w.energy > best->energy) best = &w;
+  if (p.select == 0) return *best;
+  const double min_energy = p.span_fraction * best->energy;
+  TouchWindow out{};
   bool any = false;
-  TouchWindow best{};
-  void add(const TouchWindow& w) noexcept {
+  for (const TouchWindow& w : touches) {
+    if (w.energy < min_energy) continue;
     if (!any) {
-      best = w;
+      out = w;
       any = true;
-    } else if (select == 0) {
-      if (w.energy > best.energy) best = w;
-    } else if (select == 2) {
-      best.stop = std::min(w.stop, best.start + max_window);
-      best.offset = std::min(w.offset, best.stop);
-      best.energy += w.energy;
-      best.truncated = best.truncated || w.truncated || w.stop > best.stop;
+      continue;
     }
+    out.energy += w.energy;
+    out.truncated = out.truncated || w.truncated || w.stop > out.start + p.max_window;
+    out.stop = std::min(w.stop, out.start + p.max_window);
+    out.offset = std::min(w.offset, out.stop);
   }
-};
+  return out;
+}
 }  // namespace
 
 template <typename T>
@@ -191,15 +270,30 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
   if (m.window_mode() == WindowMode::kEnergy) {
     TouchDetector& det = s.detector;
     det.reset();
-    WindowChoice choice{det.params().select, det.params().max_window};
+    auto& touches = s.touches;
+    touches.clear();
+    const DetectorParams& p = det.params();
+    auto add = [&](const TouchWindow& tw) {
+      if (p.select == 1 && !touches.empty()) return true;
+      if (p.select == 0 && !touches.empty()) {  // only the most energetic (first on ties)
+        if (tw.energy > touches.front().energy) touches.front() = tw;
+        return true;
+      }
+      if (touches.size() == touches.capacity()) return false;
+      touches.push_back(tw);  // within the reserved capacity: no allocation
+      return true;
+    };
     for (std::int64_t t = 0; t < length; ++t) {
       const Status st = det.push_strided(x + t, T_total);
-      if (st == Status::kWindow) choice.add(det.last_window());
-      else if (st == Status::kNonFiniteSample) return ClassifyStatus::kNotFinite;
+      if (st == Status::kWindow) {
+        if (!add(det.last_window())) return ClassifyStatus::kOverflow;
+      } else if (st == Status::kNonFiniteSample) {
+        return ClassifyStatus::kNotFinite;
+      }
     }
-    if (det.flush() == Status::kWindow) choice.add(det.last_window());
-    if (choice.any) {
-      w = choice.best;
+    if (det.flush() == Status::kWindow && !add(det.last_window())) return ClassifyStatus::kOverflow;
+    if (!touches.empty()) {
+      w = choose_window(p, touches);
     } else {
       if (det.params().fallback == 1) return ClassifyStatus::kNoTouch;
       w.found = false;

@@ -54,6 +54,27 @@ double overlap_f64_generic(const double* b, const double* x, std::size_t n,
   return s;
 }
 
+double dot_f32_generic(const float* a, const float* b, std::size_t n) noexcept {
+  float acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    for (std::size_t j = 0; j < 8; ++j) acc[j] += a[i + j] * b[i + j];
+  double dot = 0.0;
+  for (std::size_t j = 0; j < 8; ++j) dot += static_cast<double>(acc[j]);
+  for (; i < n; ++i) dot += static_cast<double>(a[i]) * static_cast<double>(b[i]);
+  return dot;
+}
+
+double dot_f64_generic(const double* a, const double* b, std::size_t n) noexcept {
+  double acc[4] = {0, 0, 0, 0};
+  std::size_t i = 0;
+  for (; i + 4 <= n; i += 4)
+    for (std::size_t j = 0; j < 4; ++j) acc[j] += a[i + j] * b[i + j];
+  double dot = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+  for (; i < n; ++i) dot += a[i] * b[i];
+  return dot;
+}
+
 #ifdef ESKIN_MODEL_X86_DISPATCH
 __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   // lanes summed in double, as in the generic version
@@ -64,39 +85,61 @@ __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   return _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
 }
 
+// Dot products of columns b_k (k in kb) with x_l (l in lb), 2 x 2 at a time: each pass loads
+// two columns of b and two of x and feeds four FMAs.
 __attribute__((target("avx2,fma"))) double overlap_f32_avx2(const float* b, const float* x,
                                                             std::size_t n,
                                                             std::size_t alpha) noexcept {
   double s = 0.0;
-  for (std::size_t k = 0; k < alpha; ++k) {
-    const float* bk = b + k * n;
+  const std::size_t n8 = n - n % 8;
+  auto tail = [&](const float* p, const float* q) {
+    double t = 0.0;
+    for (std::size_t i = n8; i < n; ++i) t += static_cast<double>(p[i]) * static_cast<double>(q[i]);
+    return t;
+  };
+  std::size_t k = 0;
+  for (; k + 2 <= alpha; k += 2) {
+    const float* b0 = b + k * n;
+    const float* b1 = b0 + n;
     std::size_t l = 0;
-    // two columns of x per pass: each load of b feeds two FMAs
     for (; l + 2 <= alpha; l += 2) {
       const float* x0 = x + l * n;
       const float* x1 = x0 + n;
-      __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps();
-      std::size_t i = 0;
-      for (; i + 8 <= n; i += 8) {
-        const __m256 bv = _mm256_loadu_ps(bk + i);
-        a0 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x0 + i), a0);
-        a1 = _mm256_fmadd_ps(bv, _mm256_loadu_ps(x1 + i), a1);
+      __m256 a00 = _mm256_setzero_ps(), a01 = _mm256_setzero_ps();
+      __m256 a10 = _mm256_setzero_ps(), a11 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8) {
+        const __m256 vb0 = _mm256_loadu_ps(b0 + i), vb1 = _mm256_loadu_ps(b1 + i);
+        const __m256 vx0 = _mm256_loadu_ps(x0 + i), vx1 = _mm256_loadu_ps(x1 + i);
+        a00 = _mm256_fmadd_ps(vb0, vx0, a00);
+        a01 = _mm256_fmadd_ps(vb0, vx1, a01);
+        a10 = _mm256_fmadd_ps(vb1, vx0, a10);
+        a11 = _mm256_fmadd_ps(vb1, vx1, a11);
       }
-      double d0 = hsum8(a0), d1 = hsum8(a1);
-      for (; i < n; ++i) {
-        d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
-        d1 += static_cast<double>(bk[i]) * static_cast<double>(x1[i]);
-      }
-      s += d0 * d0 + d1 * d1;
+      const double d00 = hsum8(a00) + tail(b0, x0), d01 = hsum8(a01) + tail(b0, x1);
+      const double d10 = hsum8(a10) + tail(b1, x0), d11 = hsum8(a11) + tail(b1, x1);
+      s += d00 * d00 + d01 * d01 + d10 * d10 + d11 * d11;
     }
     for (; l < alpha; ++l) {
       const float* x0 = x + l * n;
-      __m256 a0 = _mm256_setzero_ps();
-      std::size_t i = 0;
-      for (; i + 8 <= n; i += 8) a0 = _mm256_fmadd_ps(_mm256_loadu_ps(bk + i), _mm256_loadu_ps(x0 + i), a0);
-      double d0 = hsum8(a0);
-      for (; i < n; ++i) d0 += static_cast<double>(bk[i]) * static_cast<double>(x0[i]);
-      s += d0 * d0;
+      __m256 a00 = _mm256_setzero_ps(), a10 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8) {
+        const __m256 vx0 = _mm256_loadu_ps(x0 + i);
+        a00 = _mm256_fmadd_ps(_mm256_loadu_ps(b0 + i), vx0, a00);
+        a10 = _mm256_fmadd_ps(_mm256_loadu_ps(b1 + i), vx0, a10);
+      }
+      const double d00 = hsum8(a00) + tail(b0, x0), d10 = hsum8(a10) + tail(b1, x0);
+      s += d00 * d00 + d10 * d10;
+    }
+  }
+  for (; k < alpha; ++k) {
+    const float* b0 = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const float* x0 = x + l * n;
+      __m256 a00 = _mm256_setzero_ps();
+      for (std::size_t i = 0; i < n8; i += 8)
+        a00 = _mm256_fmadd_ps(_mm256_loadu_ps(b0 + i), _mm256_loadu_ps(x0 + i), a00);
+      const double d00 = hsum8(a00) + tail(b0, x0);
+      s += d00 * d00;
     }
   }
   return s;
@@ -120,6 +163,31 @@ __attribute__((target("avx2,fma"))) double overlap_f64_avx2(const double* b, con
     }
   }
   return s;
+}
+
+__attribute__((target("avx2,fma"))) double dot_f32_avx2(const float* a, const float* b,
+                                                        std::size_t n) noexcept {
+  __m256 a0 = _mm256_setzero_ps();
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) a0 = _mm256_fmadd_ps(_mm256_loadu_ps(a + i), _mm256_loadu_ps(b + i), a0);
+  double dot = hsum8(a0);
+  for (; i < n; ++i) dot += static_cast<double>(a[i]) * static_cast<double>(b[i]);
+  return dot;
+}
+
+__attribute__((target("avx2,fma"))) double dot_f64_avx2(const double* a, const double* b,
+                                                        std::size_t n) noexcept {
+  __m256d a0 = _mm256_setzero_pd(), a1 = _mm256_setzero_pd();
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    a0 = _mm256_fmadd_pd(_mm256_loadu_pd(a + i), _mm256_loadu_pd(b + i), a0);
+    a1 = _mm256_fmadd_pd(_mm256_loadu_pd(a + i + 4), _mm256_loadu_pd(b + i + 4), a1);
+  }
+  a0 = _mm256_add_pd(a0, a1);
+  const __m128d t = _mm_add_pd(_mm256_castpd256_pd128(a0), _mm256_extractf128_pd(a0, 1));
+  double dot = _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
+  for (; i < n; ++i) dot += a[i] * b[i];
+  return dot;
 }
 
 bool cpu_has_avx2_fma() noexcept {
@@ -154,6 +222,20 @@ OverlapF64 select_overlap_f64() noexcept {
   if (use_simd()) return &overlap_f64_avx2;
 #endif
   return &overlap_f64_generic;
+}
+
+DotF32 select_dot_f32() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &dot_f32_avx2;
+#endif
+  return &dot_f32_generic;
+}
+
+DotF64 select_dot_f64() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &dot_f64_avx2;
+#endif
+  return &dot_f64_generic;
 }
 
 const char* overlap_kernel_name() noexcept { return use_simd() ? "avx2-fma" : "generic"; }

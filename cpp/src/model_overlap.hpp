@@ -15,10 +15,16 @@ using OverlapF32 = double (*)(const float* b, const float* x, std::size_t n,
 using OverlapF64 = double (*)(const double* b, const double* x, std::size_t n,
                               std::size_t alpha) noexcept;
 
+/// Plain dot products sum_i a_i b_i (float products accumulated as in the overlap kernels).
+using DotF32 = double (*)(const float* a, const float* b, std::size_t n) noexcept;
+using DotF64 = double (*)(const double* a, const double* b, std::size_t n) noexcept;
+
 /// Best variants for this CPU (AVX2+FMA on x86 when available; ESKIN_KERNEL_ISA=generic forces
 /// the portable ones).
 OverlapF32 select_overlap_f32() noexcept;
 OverlapF64 select_overlap_f64() noexcept;
+DotF32 select_dot_f32() noexcept;
+DotF64 select_dot_f64() noexcept;
 const char* overlap_kernel_name() noexcept;
 
 }  // namespace eskin::detail

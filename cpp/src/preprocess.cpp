@@ -111,7 +111,7 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
     bad("dc_cutoff_hz", c.dc_cutoff_hz, "must be in [0, sample_rate_hz/2)");
   }
   p.dc_alpha = c.dc_cutoff_hz > 0 ? 1.0 - std::exp(-2.0 * kPi * c.dc_cutoff_hz / rate) : 0.0;
-  p.combine = choice("combine", c.combine, 2);
+  p.combine = choice("combine", c.combine, 3);
   if (!(c.noise_window_s > 0)) bad("noise_window_s", c.noise_window_s, "must be > 0");
   p.noise_frames = std::max<int64_t>(1, to_samples(c.noise_window_s, rate) / p.frame_len);
   if (c.noise_quantile < 0 || c.noise_quantile > 1) {
@@ -253,10 +253,17 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   if (n_taxels < 1) {
     throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
   }
+  if (p_.dc_alpha > 0) {
+    // the number of first samples n for which 1/(n+1) >= dc_alpha
+    int64_t N = static_cast<int64_t>(std::floor(1.0 / p_.dc_alpha));
+    while (N >= 1 && 1.0 / static_cast<double>(N) < p_.dc_alpha) --N;
+    while (1.0 / static_cast<double>(N + 1) >= p_.dc_alpha) ++N;
+    dc_fast_n_ = N;
+  }
   dc_mean_.assign(static_cast<std::size_t>(n_taxels), 0.0);
   acc_.assign(static_cast<std::size_t>(n_taxels), 0.0);
   noise_ring_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
-  noise_scratch_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
+  noise_sorted_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
   frame_ring_.assign(static_cast<std::size_t>(std::max<int64_t>(1, p_.lookback_frames)), 0.0);
   if (store_) {
     ring_cap_ = p_.pad_before + (p_.lookback_frames + 1) * p_.frame_len;
@@ -300,20 +307,23 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
       ++window_len_;
     }
   }
+  double* __restrict acc = acc_.data();
   if (p_.dc_alpha > 0) {
     // DC blocker: an exponential mean with a fast start (the plain running mean while that is
-    // the faster, so that an ADC offset is removed from the first sample on)
-    const double a = std::max(p_.dc_alpha, 1.0 / static_cast<double>(now_ + 1));
+    // the faster, i.e. a = max(dc_alpha, 1/(n+1)), so that an ADC offset is removed from the
+    // first sample on)
+    const double a = now_ < dc_fast_n_ ? 1.0 / static_cast<double>(now_ + 1) : p_.dc_alpha;
+    double* __restrict m = dc_mean_.data();
     for (int64_t k = 0; k < K; ++k) {
       const double v = static_cast<double>(x[k * taxel_stride]);
-      dc_mean_[k] += a * (v - dc_mean_[k]);
-      const double y = v - dc_mean_[k];
-      acc_[k] += y * y;
+      m[k] += a * (v - m[k]);
+      const double y = v - m[k];
+      acc[k] += y * y;
     }
   } else {
     for (int64_t k = 0; k < K; ++k) {
       const double y = static_cast<double>(x[k * taxel_stride]);
-      acc_[k] += y * y;
+      acc[k] += y * y;
     }
   }
   ++now_;
@@ -344,27 +354,43 @@ Status TouchDetector::push_block(const T* samples, int64_t n, int64_t* consumed)
 }
 
 void TouchDetector::push_noise(double e) noexcept {
+  // keep noise_sorted_ sorted: drop the value that leaves the window, insert the new one
+  // (a shift of at most noise_frames values, instead of a selection per frame)
+  double* sorted = noise_sorted_.data();
+  int64_t n = noise_count_;
+  if (n == p_.noise_frames) {
+    const double old = noise_ring_[noise_pos_];
+    const int64_t i = std::lower_bound(sorted, sorted + n, old) - sorted;
+    std::copy(sorted + i + 1, sorted + n, sorted + i);
+    --n;
+  }
+  const int64_t j = std::upper_bound(sorted, sorted + n, e) - sorted;
+  std::copy_backward(sorted + j, sorted + n, sorted + n + 1);
+  sorted[j] = e;
+  noise_count_ = n + 1;
   noise_ring_[noise_pos_] = e;
   noise_pos_ = (noise_pos_ + 1) % p_.noise_frames;
-  if (noise_count_ < p_.noise_frames) ++noise_count_;
-  std::copy(noise_ring_.begin(), noise_ring_.begin() + noise_count_, noise_scratch_.begin());
   // the "lower" quantile: element floor(q*(n-1)) of the sorted values (numpy method="lower")
   const auto kq = static_cast<int64_t>(
       std::floor(p_.noise_quantile * static_cast<double>(noise_count_ - 1)));
-  std::nth_element(noise_scratch_.begin(), noise_scratch_.begin() + kq,
-                   noise_scratch_.begin() + noise_count_);
-  floor_ = std::max(p_.min_noise_energy, noise_scratch_[kq]);
+  floor_ = std::max(p_.min_noise_energy, sorted[kq]);
 }
 
 Status TouchDetector::on_frame() noexcept {
   const double inv = 1.0 / static_cast<double>(p_.frame_len);
   double e = 0.0;
-  if (p_.combine == 0) {
-    for (double v : acc_) e += v;
-  } else {
+  if (p_.combine == 1) {
     for (double v : acc_) e = std::max(e, v);
+  } else {
+    double top = 0.0;
+    for (double v : acc_) {
+      e += v;
+      top = std::max(top, v);
+    }
+    // combine 2: the sum without the most energetic taxel (one noisy taxel cannot trigger)
+    if (p_.combine == 2 && n_taxels_ > 1) e -= top;
   }
-  e *= inv;  // mean square per sample (summed or maxed over taxels)
+  e *= inv;  // mean square per sample (summed, maxed or trimmed over taxels)
   std::fill(acc_.begin(), acc_.end(), 0.0);
   last_energy_ = e;
   const int64_t f = frames_seen_++;  // index of this frame
@@ -552,18 +578,33 @@ TouchWindow WindowSelector::result() const noexcept {
 namespace {
 
 // Chooses one window among the touches of a recording (cfg.select).
+constexpr int64_t kBlock = 256;  // samples transposed at a time by the batch path
+
+// Runs the detector over one taxel-major recording: blocks of kBlock samples are transposed to
+// the stream's sample-major layout into `block` (n_taxels * kBlock values) and pushed, so the
+// taxels of a sample are processed side by side (independent dependency chains).
 template <class T>
-TouchWindow detect_one(TouchDetector& det, WindowSelector& sel, const T* rec, int64_t T_total,
-                       int64_t length, int64_t index) {
+TouchWindow detect_one(TouchDetector& det, WindowSelector& sel, std::vector<T>& block,
+                       const T* rec, int64_t T_total, int64_t length, int64_t index) {
   det.reset();
   sel.reset();
   const DetectorParams& p = det.params();
-  for (int64_t t = 0; t < length; ++t) {
-    const Status st = det.push_strided(rec + t, T_total);
-    if (st == Status::kWindow) {
-      sel.add(det.last_window());
-    } else if (st == Status::kNonFiniteSample) {
-      for (int64_t k = 0; k < det.n_taxels(); ++k) {
+  const int64_t K = det.n_taxels();
+  for (int64_t t0 = 0; t0 < length; t0 += kBlock) {
+    const int64_t n = std::min(kBlock, length - t0);
+    for (int64_t k = 0; k < K; ++k) {
+      const T* src = rec + k * T_total + t0;
+      for (int64_t j = 0; j < n; ++j) block[j * K + k] = src[j];
+    }
+    int64_t done = 0;
+    while (done < n) {
+      int64_t consumed = 0;
+      const Status st = det.push_block(block.data() + done * K, n - done, &consumed);
+      done += consumed;
+      if (st == Status::kWindow) sel.add(det.last_window());
+      if (st != Status::kNonFiniteSample) continue;
+      const int64_t t = t0 + done - 1;
+      for (int64_t k = 0; k < K; ++k) {
         if (!std::isfinite(static_cast<double>(rec[k * T_total + t]))) {
           throw std::invalid_argument(
               (index >= 0 ? "signals[" + std::to_string(index) + "]" : std::string("signal")) +
@@ -587,9 +628,16 @@ TouchWindow detect_one(TouchDetector& det, WindowSelector& sel, const T* rec, in
   return w;
 }
 
+// Per-thread state of the batch functions, allocated once per thread.
+template <class T>
 struct Worker {
+  Worker(const TouchDetector& proto, int64_t T_total)
+      : det(proto),
+        sel(proto.params(), WindowSelector::capacity_for(proto.params(), T_total)),
+        block(static_cast<std::size_t>(proto.n_taxels() * kBlock)) {}
   TouchDetector det;
   WindowSelector sel;
+  std::vector<T> block;
 };
 
 void check_batch(int64_t n, int64_t n_taxels, int64_t T_total, const int64_t* lengths) {
@@ -662,9 +710,8 @@ TouchWindow detect_window(const T* recording, int64_t n_taxels, int64_t T_total,
     throw std::invalid_argument("length = " + std::to_string(length) + ": must be in [1, " +
                                 std::to_string(T_total) + "]");
   }
-  TouchDetector det(n_taxels, sample_rate_hz, cfg, false);
-  WindowSelector sel(det.params(), WindowSelector::capacity_for(det.params(), length));
-  return detect_one(det, sel, recording, T_total, length, -1);
+  Worker<T> wk(TouchDetector(n_taxels, sample_rate_hz, cfg, false), length);
+  return detect_one(wk.det, wk.sel, wk.block, recording, T_total, length, -1);
 }
 
 template <class T>
@@ -675,13 +722,11 @@ std::vector<TouchWindow> detect_windows(const T* data, int64_t n, int64_t n_taxe
   TouchDetector proto(n_taxels, sample_rate_hz, cfg, false);  // validates cfg once
   std::vector<TouchWindow> out(static_cast<std::size_t>(n));
   parallel_for(
-      n, n_threads, [&]() {
-        return Worker{proto, WindowSelector(proto.params(),
-                                            WindowSelector::capacity_for(proto.params(), T_total))};
-      },
-      [&](Worker& wk, int64_t i) {
+      n, n_threads, [&]() { return Worker<T>(proto, T_total); },
+      [&](Worker<T>& wk, int64_t i) {
         const int64_t len = lengths ? lengths[i] : T_total;
-        out[i] = detect_one(wk.det, wk.sel, data + i * n_taxels * T_total, T_total, len, i);
+        const T* rec = data + i * n_taxels * T_total;
+        out[i] = detect_one(wk.det, wk.sel, wk.block, rec, T_total, len, i);
       });
   return out;
 }
@@ -699,16 +744,13 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
   // validates the configuration and the rate even when it is not used
   TouchDetector proto(n_taxels, opt.sample_rate_hz, opt.config, false);
   parallel_for(
-      n, opt.n_threads, [&]() {
-        return Worker{proto, WindowSelector(proto.params(),
-                                            WindowSelector::capacity_for(proto.params(), T_total))};
-      },
-      [&](Worker& wk, int64_t i) {
+      n, opt.n_threads, [&]() { return Worker<T>(proto, T_total); },
+      [&](Worker<T>& wk, int64_t i) {
         const T* rec = data + i * n_taxels * T_total;
         const int64_t len = lengths ? lengths[i] : T_total;
         TouchWindow w;
         if (energy) {
-          w = detect_one(wk.det, wk.sel, rec, T_total, len, i);
+          w = detect_one(wk.det, wk.sel, wk.block, rec, T_total, len, i);
         } else if (opt.window == WindowMode::kGiven) {
           w.start = w.onset = given[2 * i];
           w.stop = w.offset = given[2 * i + 1];

@@ -37,8 +37,66 @@ void check_dims(const std::vector<std::size_t>& dims) {
 
 // ---- symmetric eigen-decomposition (Householder tridiagonalisation + implicit QL), after the
 // public-domain JAMA/EISPACK tred2/tql2. Works on caller buffers, allocates nothing.
-// v: n x n row-major, holds the matrix on entry and the eigenvectors (columns) on exit;
-// d: eigenvalues ascending; e: scratch of n.
+// tred2: v (n x n, column-major) holds the symmetric matrix on entry and the accumulated
+// transformation on exit; read row-major, its columns are rows, which is what tql2 takes: tql2
+// leaves the eigenvectors in the rows of v (row-major), eigenvalues ascending in d; e: scratch
+// of n.
+
+// Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
+// twice (function multi-versioning: an x86-64-v3 = AVX2+FMA clone and the baseline one) and
+// the loader picks one for the CPU; no -m flag anywhere. Partial sums in a fixed order:
+// deterministic for a given clone.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define ESKIN_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define ESKIN_CLONES
+#endif
+
+#if defined(__GNUC__)
+typedef double eskin_v4d __attribute__((vector_size(32)));
+ESKIN_CLONES double dot(const double* a, const double* b, std::size_t n) noexcept {
+  eskin_v4d s0 = {0.0, 0.0, 0.0, 0.0}, s1 = s0;
+  std::size_t k = 0;
+  for (; k + 8 <= n; k += 8) {
+    eskin_v4d a0, b0, a1, b1;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    std::memcpy(&a1, a + k + 4, sizeof a1);
+    std::memcpy(&b1, b + k + 4, sizeof b1);
+    s0 += a0 * b0;
+    s1 += a1 * b1;
+  }
+  if (k + 4 <= n) {
+    eskin_v4d a0, b0;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    s0 += a0 * b0;
+    k += 4;
+  }
+  const eskin_v4d t = s0 + s1;
+  double r = (t[0] + t[1]) + (t[2] + t[3]);
+  for (; k < n; ++k) r += a[k] * b[k];
+  return r;
+}
+#else
+double dot(const double* a, const double* b, std::size_t n) noexcept {
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  std::size_t k = 0;
+  for (; k + 4 <= n; k += 4) {
+    s0 += a[k] * b[k];
+    s1 += a[k + 1] * b[k + 1];
+    s2 += a[k + 2] * b[k + 2];
+    s3 += a[k + 3] * b[k + 3];
+  }
+  for (; k < n; ++k) s0 += a[k] * b[k];
+  return (s0 + s1) + (s2 + s3);
+}
+#endif
+
+// y += f * x
+ESKIN_CLONES void axpy(double f, const double* x, double* y, std::size_t n) noexcept {
+  for (std::size_t k = 0; k < n; ++k) y[k] += f * x[k];
+}
 
 inline double hyp(double a, double b) noexcept {
   const double r = std::sqrt(a * a + b * b);
@@ -46,8 +104,9 @@ inline double hyp(double a, double b) noexcept {
   return std::hypot(a, b);
 }
 
-void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
-  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
+ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
+  // column-major: the inner loops over k run down columns, i.e. contiguously
+  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[c * n + r]; };
   for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
   for (std::size_t i = n - 1; i > 0; --i) {
     double scale = 0.0, h = 0.0;
@@ -120,8 +179,7 @@ void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
   e[0] = 0.0;
 }
 
-bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
-  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
+ESKIN_CLONES bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
   for (std::size_t i = 1; i < n; ++i) e[i - 1] = e[i];
   e[n - 1] = 0.0;
   double f = 0.0, tst1 = 0.0;
@@ -160,14 +218,17 @@ bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
           h = c * p;
           r = hyp(p, e[ii]);
           e[ii + 1] = s * r;
-          s = e[ii] / r;
-          c = p / r;
+          const double inv_r = 1.0 / r;
+          s = e[ii] * inv_r;
+          c = p * inv_r;
           p = c * d[ii] - s * g;
           d[ii + 1] = h + s * (c * g + s * d[ii]);
+          double* w0 = v + ii * n;
+          double* w1 = v + (ii + 1) * n;
           for (std::size_t k = 0; k < n; ++k) {
-            h = V(k, ii + 1);
-            V(k, ii + 1) = s * V(k, ii) + c * h;
-            V(k, ii) = c * V(k, ii) - s * h;
+            const double hk = w1[k];
+            w1[k] = s * w0[k] + c * hk;
+            w0[k] = c * w0[k] - s * hk;
           }
         }
         p = -s * s2 * c3 * el1 * e[l] / dl1;
@@ -191,7 +252,7 @@ bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
     if (k != i) {
       d[k] = d[i];
       d[i] = p;
-      for (std::size_t j = 0; j < n; ++j) std::swap(V(j, i), V(j, k));
+      for (std::size_t j = 0; j < n; ++j) std::swap(v[i * n + j], v[k * n + j]);
     }
   }
   return true;
@@ -317,19 +378,26 @@ std::vector<std::size_t> half_alphas(const std::vector<std::size_t>& dims) {
   return out;
 }
 
+namespace {
+// x[(p * m + i) * after + s] -> out[i * n + p * after + s]  (no checks, no allocation)
+void unfold_unchecked(const double* x, const std::vector<std::size_t>& dims, std::size_t mode,
+                      double* out) noexcept {
+  std::size_t before = 1, after = 1;
+  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
+  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
+  const std::size_t m = dims[mode], n = before * after;
+  for (std::size_t p = 0; p < before; ++p)
+    for (std::size_t i = 0; i < m; ++i)
+      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+}
+}  // namespace
+
 void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t mode, double* out) {
   check_dims(dims);
   if (mode >= dims.size())
     throw std::invalid_argument("mode " + std::to_string(mode) + " out of range for tensor shape " +
                                 dims_str(dims));
-  std::size_t before = 1, after = 1;
-  for (std::size_t z = 0; z < mode; ++z) before *= dims[z];
-  for (std::size_t z = mode + 1; z < dims.size(); ++z) after *= dims[z];
-  const std::size_t m = dims[mode], n = before * after;
-  // x[(p * m + i) * after + s] -> out[i * n + p * after + s]
-  for (std::size_t p = 0; p < before; ++p)
-    for (std::size_t i = 0; i < m; ++i)
-      std::memcpy(out + i * n + p * after, x + (p * m + i) * after, after * sizeof(double));
+  unfold_unchecked(x, dims, mode, out);
 }
 
 // ---- heap-free workspace --------------------------------------------------------------------
@@ -344,6 +412,7 @@ BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
     svn += layout_.q(z);
   }
   unfold_.assign(layout_.tensor_size(), 0.0);
+  scaled_.assign(layout_.tensor_size(), 0.0);
   gram_.assign(qmax * qmax, 0.0);
   d_.assign(qmax, 0.0);
   e_.assign(qmax, 0.0);
@@ -364,20 +433,33 @@ KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks)
   std::fill(bases, bases + layout_.bases_size(), 0.0);
   std::fill(ranks, ranks + nz, 0);
   std::fill(sv_.begin(), sv_.end(), 0.0);
-  double amax = 0.0;
-  for (std::size_t i = 0; i < layout_.tensor_size(); ++i) {
-    const double a = std::fabs(x[i]);
-    if (!(a <= std::numeric_limits<double>::max())) return KernelStatus::not_finite;
-    amax = std::max(amax, a);
+  // max |x| (four partial maxima) and a NaN flag, branch-free; an infinity shows in amax
+  const std::size_t size = layout_.tensor_size();
+  double m0 = 0.0, m1 = 0.0, m2 = 0.0, m3 = 0.0;
+  int nan = 0;
+  std::size_t i = 0;
+  for (; i + 4 <= size; i += 4) {
+    m0 = std::max(m0, std::fabs(x[i]));
+    m1 = std::max(m1, std::fabs(x[i + 1]));
+    m2 = std::max(m2, std::fabs(x[i + 2]));
+    m3 = std::max(m3, std::fabs(x[i + 3]));
+    nan |= int(x[i] != x[i]) | int(x[i + 1] != x[i + 1]) | int(x[i + 2] != x[i + 2]) |
+           int(x[i + 3] != x[i + 3]);
   }
+  for (; i < size; ++i) {
+    m0 = std::max(m0, std::fabs(x[i]));
+    nan |= int(x[i] != x[i]);
+  }
+  const double amax = std::max(std::max(m0, m1), std::max(m2, m3));
+  if (nan || !(amax <= std::numeric_limits<double>::max())) return KernelStatus::not_finite;
   if (amax == 0.0) return KernelStatus::ok;  // all-zero pattern: rank 0, zero bases
   // scale by a power of two (exact) so that max |x| is in [0.5, 1)
   int ex = 0;
   std::frexp(amax, &ex);
   const double scale = std::ldexp(1.0, -ex);
+  double* xs = scaled_.data();
+  for (std::size_t i = 0; i < layout_.tensor_size(); ++i) xs[i] = x[i] * scale;
   for (std::size_t z = 0; z < nz; ++z) {
-    unfold(x, layout_.dims(), z, unfold_.data());
-    for (double& v : unfold_) v *= scale;
     const KernelStatus st = compute_mode(z, bases + layout_.offset(z), ranks + z);
     if (st != KernelStatus::ok) {
       std::fill(bases, bases + layout_.bases_size(), 0.0);
@@ -391,43 +473,60 @@ KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks)
 }
 
 KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank) noexcept {
+  // The pattern (scaled) seen as P x M x S (C-order): P = product of the dimensions before z,
+  // M = d_z, S = product of those after. Unfolding: A[i][p * S + s] = x[(p * M + i) * S + s].
   const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z),
                     alpha = layout_.alpha(z);
-  const double* a = unfold_.data();  // m x n row-major
-  double* g = gram_.data();          // q x q row-major
+  std::size_t before = 1;
+  for (std::size_t k = 0; k < z; ++k) before *= layout_.dim(k);
+  const std::size_t after = n / before;
+  const double* x = scaled_.data();
+  double* g = gram_.data();  // q x q row-major
   if (m <= n) {
-    // G = A A^T
-    for (std::size_t i = 0; i < m; ++i)
-      for (std::size_t k = 0; k <= i; ++k) {
-        const double* ai = a + i * n;
-        const double* ak = a + k * n;
-        double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-        std::size_t j = 0;
-        for (; j + 4 <= n; j += 4) {
-          s0 += ai[j] * ak[j];
-          s1 += ai[j + 1] * ak[j + 1];
-          s2 += ai[j + 2] * ak[j + 2];
-          s3 += ai[j + 3] * ak[j + 3];
+    // G = A A^T: G[i][k] = sum_p <x[p, i, :], x[p, k, :]>
+    std::fill(g, g + q * q, 0.0);
+    if (after >= 4) {
+      for (std::size_t p = 0; p < before; ++p)
+        for (std::size_t i = 0; i < m; ++i)
+          for (std::size_t k = 0; k <= i; ++k)
+            g[i * q + k] += dot(x + (p * m + i) * after, x + (p * m + k) * after, after);
+    } else {
+      // short rows: rank-one updates with the unfolding's columns x[p, :, s]
+      for (std::size_t p = 0; p < before; ++p)
+        for (std::size_t s0 = 0; s0 < after; ++s0) {
+          const double* col = x + p * m * after + s0;
+          for (std::size_t i = 0; i < m; ++i) {
+            const double f = col[i * after];
+            double* gi = g + i * q;
+            for (std::size_t k = 0; k <= i; ++k) gi[k] += f * col[k * after];
+          }
         }
-        for (; j < n; ++j) s0 += ai[j] * ak[j];
-        g[i * q + k] = g[k * q + i] = (s0 + s1) + (s2 + s3);
-      }
+    }
+  } else if (after == 1) {
+    // G = A^T A with A's columns the contiguous rows x[p, :]: G[p][p'] = <x[p, :], x[p', :]>
+    for (std::size_t i = 0; i < n; ++i)
+      for (std::size_t k = 0; k <= i; ++k) g[i * q + k] = dot(x + i * m, x + k * m, m);
   } else {
-    // G = A^T A, accumulated row by row (axpy form)
+    // general case: materialise the unfolding, then G = A^T A by rank-one updates of its rows
+    unfold_unchecked(x, layout_.dims(), z, unfold_.data());
+    const double* a = unfold_.data();
     std::fill(g, g + q * q, 0.0);
     for (std::size_t i = 0; i < m; ++i) {
       const double* ai = a + i * n;
       for (std::size_t j = 0; j < n; ++j) {
         const double f = ai[j];
         double* gj = g + j * q;
-        for (std::size_t l = 0; l < n; ++l) gj[l] += f * ai[l];
+        for (std::size_t l = 0; l <= j; ++l) gj[l] += f * ai[l];
       }
     }
   }
+  for (std::size_t i = 0; i < q; ++i)
+    for (std::size_t k = 0; k < i; ++k) g[k * q + i] = g[i * q + k];
   double* d = d_.data();
   tred2(q, g, d, e_.data());
+  // tred2 stores column-major: its transformation's columns are the rows tql2 works on
   if (!tql2(q, g, d, e_.data())) return KernelStatus::no_convergence;
-  // eigenvalues ascending in d; eigenvector j = column j of g
+  // eigenvalues ascending in d; eigenvector j = row j of g
   const double lmax = std::max(0.0, d[q - 1]);
   double* sv = sv_.data() + sv_off_[z];
   for (std::size_t i = 0; i < q; ++i) sv[i] = std::sqrt(std::max(0.0, d[q - 1 - i]));
@@ -437,46 +536,60 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
   while (r < q && lmax > 0.0 && d[q - 1 - r] > tau * lmax) ++r;
   const std::size_t k = std::min(alpha, r);
   if (m > n) {
-    for (std::size_t c = 0; c < k; ++c) {
-      const std::size_t col = q - 1 - c;
-      for (std::size_t j = 0; j < n; ++j) out[c * n + j] = g[j * q + col];
-    }
+    for (std::size_t c = 0; c < k; ++c) std::copy(g + (q - 1 - c) * q, g + (q - c) * q, out + c * n);
   } else {
+    // v_c = A^T u_c / s_c: v_c[p * S + s] = sum_i u_c[i] x[p, i, s] / s_c
     for (std::size_t c = 0; c < k; ++c) {
-      const std::size_t col = q - 1 - c;
-      const double inv = 1.0 / std::sqrt(d[col]);
+      const double* u = g + (q - 1 - c) * q;
+      const double inv = 1.0 / std::sqrt(d[q - 1 - c]);
       double* v = out + c * n;
       std::fill(v, v + n, 0.0);
-      for (std::size_t i = 0; i < m; ++i) {
-        const double ui = g[i * q + col] * inv;
-        const double* ai = a + i * n;
-        for (std::size_t j = 0; j < n; ++j) v[j] += ui * ai[j];
+      for (std::size_t p = 0; p < before; ++p) {
+        double* vp = v + p * after;
+        for (std::size_t i = 0; i < m; ++i) {
+          const double ui = u[i] * inv;
+          const double* xi = x + (p * m + i) * after;
+          axpy(ui, xi, vp, after);
+        }
       }
     }
     // re-orthonormalise (modified Gram-Schmidt, two passes): V = A^T U S^-1 loses
     // orthogonality in proportion to s_1 / s_k.
-    for (int pass = 0; pass < 2; ++pass)
+    // A second pass runs only when the first one corrected more than 1e-8 (twice is enough).
+    bool again = true;
+    for (int pass = 0; pass < 2 && again; ++pass) {
+      again = false;
       for (std::size_t c = 0; c < k; ++c) {
         double* v = out + c * n;
         for (std::size_t p = 0; p < c; ++p) {
           const double* w = out + p * n;
-          double dot = 0.0;
-          for (std::size_t j = 0; j < n; ++j) dot += v[j] * w[j];
-          for (std::size_t j = 0; j < n; ++j) v[j] -= dot * w[j];
+          const double dt = dot(v, w, n);
+          if (std::fabs(dt) > 1e-8) again = true;
+          axpy(-dt, w, v, n);
         }
-        double nrm = 0.0;
-        for (std::size_t j = 0; j < n; ++j) nrm += v[j] * v[j];
-        nrm = std::sqrt(nrm);
+        const double nrm = std::sqrt(dot(v, v, n));
         if (!(nrm > 0.0)) return KernelStatus::no_convergence;
-        for (std::size_t j = 0; j < n; ++j) v[j] /= nrm;
+        const double inv = 1.0 / nrm;
+        for (std::size_t j = 0; j < n; ++j) v[j] *= inv;
+        if (std::fabs(nrm - 1.0) > 1e-8) again = true;
       }
+    }
   }
   // sign: largest-magnitude entry (first on ties) positive
   for (std::size_t c = 0; c < k; ++c) {
     double* v = out + c * n;
+    double t0 = 0.0, t1 = 0.0, t2 = 0.0, t3 = 0.0;  // four partial maxima
+    std::size_t j = 0;
+    for (; j + 4 <= n; j += 4) {
+      t0 = std::max(t0, std::fabs(v[j]));
+      t1 = std::max(t1, std::fabs(v[j + 1]));
+      t2 = std::max(t2, std::fabs(v[j + 2]));
+      t3 = std::max(t3, std::fabs(v[j + 3]));
+    }
+    for (; j < n; ++j) t0 = std::max(t0, std::fabs(v[j]));
+    const double top = std::max(std::max(t0, t1), std::max(t2, t3));
     std::size_t best = 0;
-    for (std::size_t j = 1; j < n; ++j)
-      if (std::fabs(v[j]) > std::fabs(v[best])) best = j;
+    while (best + 1 < n && std::fabs(v[best]) != top) ++best;
     if (v[best] < 0)
       for (std::size_t j = 0; j < n; ++j) v[j] = -v[j];
   }
@@ -571,16 +684,39 @@ namespace {
 // Bases of one mode repacked for the tile kernel: patterns are put in groups of `ppg` whole
 // patterns (ppg = floor(8 / alpha), at least 1); a group's ppg*alpha basis vectors fill
 // `panels` panels of 8 vectors each (zero padded); a panel is K x 8 row-major (K = N_z).
+// Scratch memory kept by the calling thread between calls, so that repeated Gram computations
+// do not pay the page faults of fresh large allocations; released after a call that needed more
+// than kKeepScratch doubles.
+constexpr std::size_t kKeepScratch = std::size_t(1) << 20;  // 8 MiB
+struct Scratch {
+  std::vector<double> buf;
+  double* get(std::size_t n) {
+    if (buf.size() < n) buf.resize(n);
+    return buf.data();
+  }
+  void trim() {
+    if (buf.size() > kKeepScratch) std::vector<double>().swap(buf);
+  }
+};
+thread_local Scratch g_pack_scratch, g_dist_scratch;
+
 struct ModePack {
   std::size_t count = 0, alpha = 0, k = 0, ppg = 0, panels = 0, groups = 0;
-  std::vector<double> data;
+  double* data = nullptr;  // groups * panels * k * 8 doubles (in scratch memory)
+  // local pattern index (within its group) of each of the panels * 8 vectors of a group, or -1
+  // for padding; one map for full groups, one for the last (possibly partial) group
+  std::vector<int> map_full, map_last;
+  std::size_t size() const { return groups * panels * k * kTileWidth; }
   const double* panel(std::size_t g, std::size_t p) const {
-    return data.data() + (g * panels + p) * k * kTileWidth;
+    return data + (g * panels + p) * k * kTileWidth;
   }
   std::size_t group_count(std::size_t g) const { return std::min(ppg, count - g * ppg); }
+  const int* map(std::size_t g) const {
+    return (g + 1 == groups ? map_last : map_full).data();
+  }
 };
 
-ModePack pack_mode(const PatternBases& pb, std::size_t z, int n_threads) {
+ModePack plan_mode(const PatternBases& pb, std::size_t z) {
   ModePack mp;
   const BasisLayout& L = pb.layout;
   mp.count = pb.count;
@@ -589,102 +725,200 @@ ModePack pack_mode(const PatternBases& pb, std::size_t z, int n_threads) {
   mp.ppg = std::max<std::size_t>(1, kTileWidth / mp.alpha);
   mp.panels = (mp.ppg * mp.alpha + kTileWidth - 1) / kTileWidth;
   mp.groups = (pb.count + mp.ppg - 1) / mp.ppg;
-  mp.data.assign(mp.groups * mp.panels * mp.k * kTileWidth, 0.0);
+  const std::size_t width = mp.panels * kTileWidth;
+  mp.map_full.assign(width, -1);
+  mp.map_last.assign(width, -1);
+  const std::size_t last_count = mp.groups ? mp.group_count(mp.groups - 1) : 0;
+  for (std::size_t lv = 0; lv < width; ++lv) {
+    if (lv < mp.ppg * mp.alpha) mp.map_full[lv] = int(lv / mp.alpha);
+    if (lv < last_count * mp.alpha) mp.map_last[lv] = int(lv / mp.alpha);
+  }
+  return mp;
+}
+
+// Fill groups [g0, g1) of mp.data (already pointing at mp.size() doubles) from the bases of mode z.
+void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
+                 std::size_t g1) {
+  const BasisLayout& L = pb.layout;
   const std::size_t off = L.offset(z), bs = L.bases_size();
-  parallel_for(mp.groups, n_threads, [&](std::size_t g, std::size_t) {
-    for (std::size_t lp = 0; lp < mp.group_count(g); ++lp) {
-      const double* src = pb.bases.data() + (g * mp.ppg + lp) * bs + off;
-      for (std::size_t c = 0; c < mp.alpha; ++c) {
-        const std::size_t lv = lp * mp.alpha + c;
-        double* dst = mp.data.data() + (g * mp.panels + lv / kTileWidth) * mp.k * kTileWidth +
-                      lv % kTileWidth;
-        const double* col = src + c * mp.k;
-        for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = col[kk];
+  static const double kZeros[1] = {0.0};
+  for (std::size_t g = g0; g < g1; ++g) {
+    const std::size_t used = mp.group_count(g) * mp.alpha;
+    for (std::size_t p = 0; p < mp.panels; ++p) {
+      // the panel's 8 source columns (padding: a zero read with stride 0)
+      const double* col[kTileWidth];
+      std::size_t stride[kTileWidth];
+      for (std::size_t c = 0; c < kTileWidth; ++c) {
+        const std::size_t lv = p * kTileWidth + c;
+        if (lv < used) {
+          col[c] = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
+                   (lv % mp.alpha) * mp.k;
+          stride[c] = 1;
+        } else {
+          col[c] = kZeros;
+          stride[c] = 0;
+        }
+      }
+      double* dst = mp.data + (g * mp.panels + p) * mp.k * kTileWidth;
+      for (std::size_t kk = 0; kk < mp.k; ++kk, dst += kTileWidth)
+        for (std::size_t c = 0; c < kTileWidth; ++c) dst[c] = col[c][kk * stride[c]];
+    }
+  }
+}
+
+}  // namespace
+
+namespace {
+
+// Row blocks of kRowBlock patterns of `a`: a whole number of pattern groups in every mode
+// (patterns per group = floor(8 / alpha) is 1, 2, 4 or 8), so that one work item owns every
+// output entry of its rows, for all modes at once.
+constexpr std::size_t kRowBlock = 8;
+
+// The pairwise engine shared by mode_distances and tensor_kernel. For every row block (a work
+// item, run on some thread t) it calls sink.begin(t, r0, r1), then sink.pair(t, z, ia, ib, d)
+// for every mode z and pair (ia in [r0, r1), ib in B; ib > ia when self), then sink.end(t, r0, r1).
+template <class Sink>
+void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_threads, Sink& sink) {
+  const bool self = (b == nullptr);
+  const PatternBases& B = self ? a : *b;
+  if (!self && a.layout != B.layout)
+    throw std::invalid_argument("the two pattern sets have different shapes or alphas");
+  const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
+  if (n == 0 || m == 0) return;
+  const int nt = resolve_threads(n_threads);
+  std::vector<ModePack> pa(nz), pbk(self ? 0 : nz);
+  std::size_t total = 0;
+  for (std::size_t z = 0; z < nz; ++z) {
+    pa[z] = plan_mode(a, z);
+    total += pa[z].size();
+    if (!self) {
+      pbk[z] = plan_mode(B, z);
+      total += pbk[z].size();
+    }
+  }
+  double* mem = g_pack_scratch.get(total);
+  struct PackItem {
+    const PatternBases* src;
+    std::size_t z;
+    ModePack* mp;
+    std::size_t g0, g1;
+  };
+  std::vector<PackItem> pack_items;
+  auto plan_items = [&](const PatternBases* src, std::size_t z, ModePack* mp) {
+    mp->data = mem;
+    mem += mp->size();
+    const std::size_t step = std::max<std::size_t>(1, 64 / mp->panels);
+    for (std::size_t g = 0; g < mp->groups; g += step)
+      pack_items.push_back({src, z, mp, g, std::min(mp->groups, g + step)});
+  };
+  for (std::size_t z = 0; z < nz; ++z) {
+    plan_items(&a, z, &pa[z]);
+    if (!self) plan_items(&B, z, &pbk[z]);
+  }
+  // packing is a copy: not worth a thread below ~2 MB
+  const int pack_threads = total < (std::size_t(1) << 18) ? 1 : nt;
+  parallel_for(pack_items.size(), pack_threads, [&](std::size_t i, std::size_t) {
+    const PackItem& it = pack_items[i];
+    pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
+  });
+  const TileFn tile = select_tile_kernel();
+  const TileSumFn tile_sum = select_tile_sum_kernel();
+  // work items: row blocks, biggest first (in X-vs-X the first blocks have the most pairs)
+  const std::size_t n_blocks = (n + kRowBlock - 1) / kRowBlock;
+  parallel_for(n_blocks, nt, [&](std::size_t rb, std::size_t t) {
+    const std::size_t r0 = rb * kRowBlock, r1 = std::min(n, r0 + kRowBlock);
+    sink.begin(t, r0, r1);
+    alignas(64) double tilebuf[kTileWidth * kTileWidth];
+    double acc[kTileWidth * kTileWidth];  // ppg x ppg <= 8 x 8
+    for (std::size_t z = 0; z < nz; ++z) {
+      const ModePack& PA = pa[z];
+      const ModePack& PB = self ? pa[z] : pbk[z];
+      const std::size_t ppg = PA.ppg;
+      const std::size_t g_begin = r0 / ppg, g_end = (r1 + ppg - 1) / ppg;
+      for (std::size_t gi = g_begin; gi < g_end; ++gi) {
+        const std::size_t na = PA.group_count(gi);
+        const int* rmap_g = PA.map(gi);
+        for (std::size_t gj = self ? gi : 0; gj < PB.groups; ++gj) {
+          const std::size_t nb = PB.group_count(gj);
+          const bool diag = self && gj == gi;
+          if (ppg == 1) {
+            // one pattern per group: every tile belongs to the pair (padding vectors are zero)
+            if (diag) continue;
+            double sum = 0.0;
+            for (std::size_t pi = 0; pi < PA.panels; ++pi)
+              for (std::size_t pj = 0; pj < PB.panels; ++pj)
+                sum += tile_sum(PA.panel(gi, pi), PB.panel(gj, pj), PA.k);
+            acc[0] = sum;
+          } else {
+            std::fill(acc, acc + ppg * ppg, 0.0);
+            const int* cmap_g = PB.map(gj);
+            for (std::size_t pi = 0; pi < PA.panels; ++pi) {
+              const int* rmap = rmap_g + pi * kTileWidth;
+              if (rmap[0] < 0) break;
+              for (std::size_t pj = 0; pj < PB.panels; ++pj) {
+                const int* cmap = cmap_g + pj * kTileWidth;
+                if (cmap[0] < 0) break;
+                tile(PA.panel(gi, pi), PB.panel(gj, pj), PA.k, tilebuf);
+                // rows -> local row patterns (vector adds), then columns -> column patterns
+                double rsum[kTileWidth * kTileWidth];
+                const int x0 = rmap[0];
+                int x1 = x0;
+                for (std::size_t r = 0; r < kTileWidth; ++r)
+                  if (rmap[r] >= 0) x1 = rmap[r];
+                std::fill(rsum, rsum + (x1 - x0 + 1) * kTileWidth, 0.0);
+                for (std::size_t r = 0; r < kTileWidth; ++r) {
+                  if (rmap[r] < 0) break;
+                  double* dst = rsum + (rmap[r] - x0) * kTileWidth;
+                  const double* src = tilebuf + r * kTileWidth;
+                  for (std::size_t s2 = 0; s2 < kTileWidth; ++s2) dst[s2] += src[s2];
+                }
+                for (int x = x0; x <= x1; ++x) {
+                  const double* src = rsum + (x - x0) * kTileWidth;
+                  double* arow = acc + std::size_t(x) * ppg;
+                  for (std::size_t s2 = 0; s2 < kTileWidth; ++s2)
+                    if (cmap[s2] >= 0) arow[cmap[s2]] += src[s2];
+                }
+              }
+            }
+          }
+          for (std::size_t x = 0; x < na; ++x) {
+            const std::size_t ia = gi * ppg + x;
+            const double ra = a.ranks[ia * nz + z];
+            for (std::size_t y = diag ? x + 1 : 0; y < nb; ++y) {
+              const std::size_t ib = gj * ppg + y;
+              const double rbk = B.ranks[ib * nz + z];
+              sink.pair(t, z, ia, ib, std::max(0.0, ra + rbk - 2.0 * acc[x * ppg + y]));
+            }
+          }
+        }
       }
     }
+    sink.end(t, r0, r1);
   });
-  return mp;
+  g_pack_scratch.trim();
 }
 
 }  // namespace
 
 void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads) {
   const bool self = (b == nullptr);
-  const PatternBases& B = self ? a : *b;
-  if (!self && a.layout != B.layout)
-    throw std::invalid_argument("mode_distances: the two pattern sets have different layouts");
-  const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
-  if (n == 0 || m == 0) return;
-  const int nt = resolve_threads(n_threads);
-  std::vector<ModePack> pa(nz), pbk(self ? 0 : nz);
-  for (std::size_t z = 0; z < nz; ++z) {
-    pa[z] = pack_mode(a, z, nt);
-    if (!self) pbk[z] = pack_mode(B, z, nt);
-  }
-  const TileFn tile = select_tile_kernel();
-  // work items: (mode, row group), biggest first
-  struct Item {
-    std::size_t z, g;
-    double cost;
-  };
-  std::vector<Item> items;
-  for (std::size_t z = 0; z < nz; ++z) {
-    const ModePack& P = pa[z];
-    const std::size_t gb = self ? P.groups : pbk[z].groups;
-    for (std::size_t g = 0; g < P.groups; ++g) {
-      const double cols = double(self ? gb - g : gb);
-      items.push_back({z, g, cols * double(P.panels * P.panels) * double(P.k + 8)});
+  const std::size_t n = a.count, m = self ? a.count : b->count, zs = n * m;
+  struct Sink {
+    double* out;
+    std::size_t m, zs;
+    bool self;
+    void begin(std::size_t, std::size_t, std::size_t) {}
+    void pair(std::size_t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
+      out[z * zs + ia * m + ib] = d;
+      if (self) out[z * zs + ib * m + ia] = d;
     }
-  }
-  std::stable_sort(items.begin(), items.end(),
-                   [](const Item& x, const Item& y) { return x.cost > y.cost; });
-  const std::size_t zstride = n * m;
-  parallel_for(items.size(), nt, [&](std::size_t it, std::size_t) {
-    const std::size_t z = items[it].z, gi = items[it].g;
-    const ModePack& PA = pa[z];
-    const ModePack& PB = self ? pa[z] : pbk[z];
-    const std::size_t alpha = PA.alpha, ppg = PA.ppg, nz_ = a.layout.n_modes();
-    double* o = out + z * zstride;
-    double tilebuf[kTileWidth * kTileWidth];
-    double acc[kTileWidth * kTileWidth];  // ppg x ppg <= 8 x 8
-    const std::size_t na = PA.group_count(gi);
-    for (std::size_t gj = self ? gi : 0; gj < PB.groups; ++gj) {
-      const std::size_t nb = PB.group_count(gj);
-      const bool diag = self && gj == gi;
-      std::fill(acc, acc + ppg * ppg, 0.0);
-      for (std::size_t pi = 0; pi < PA.panels; ++pi)
-        for (std::size_t pj = 0; pj < PB.panels; ++pj) {
-          tile(PA.panel(gi, pi), PB.panel(gj, pj), PA.k, tilebuf);
-          for (std::size_t r = 0; r < kTileWidth; ++r) {
-            const std::size_t lv = pi * kTileWidth + r;
-            if (lv >= na * alpha) break;
-            const std::size_t pa_ = lv / alpha;
-            const double* trow = tilebuf + r * kTileWidth;
-            for (std::size_t s = 0; s < kTileWidth; ++s) {
-              const std::size_t lw = pj * kTileWidth + s;
-              if (lw >= nb * alpha) break;
-              const std::size_t pb_ = lw / alpha;
-              acc[pa_ * ppg + pb_] += trow[s] * trow[s];
-            }
-          }
-        }
-      for (std::size_t x = 0; x < na; ++x) {
-        const std::size_t ia = gi * ppg + x;
-        const double ra = a.ranks[ia * nz_ + z];
-        for (std::size_t y = 0; y < nb; ++y) {
-          const std::size_t ib = gj * ppg + y;
-          if (diag && y <= x) {
-            if (y == x) o[ia * m + ia] = 0.0;
-            continue;
-          }
-          const double rb = B.ranks[ib * nz_ + z];
-          const double d = std::max(0.0, ra + rb - 2.0 * acc[x * ppg + y]);
-          o[ia * m + ib] = d;
-          if (self) o[ib * m + ia] = d;
-        }
-      }
-    }
-  });
+    void end(std::size_t, std::size_t, std::size_t) {}
+  } sink{out, m, zs, self};
+  pairwise_distances(a, b, n_threads, sink);
+  if (self)  // the diagonal is exactly zero
+    for (std::size_t z = 0; z < a.layout.n_modes(); ++z)
+      for (std::size_t i = 0; i < n; ++i) out[z * zs + i * m + i] = 0.0;
 }
 
 void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vector<double>& sigmas,
@@ -700,20 +934,41 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
       throw std::invalid_argument("sigma " + std::to_string(s) + " must be a positive finite number");
     coef[z] = 1.0 / (2.0 * s * s);
   }
-  const std::size_t n = a.count, m = b ? b->count : a.count;
+  const bool self = (b == nullptr);
+  const std::size_t n = a.count, m = self ? a.count : b->count;
   if (n == 0 || m == 0) return;
-  std::vector<double> dist(nz * n * m);
-  mode_distances(a, b, dist.data(), n_threads);
-  const int nt = resolve_threads(n_threads);
-  const std::size_t total = n * m, chunk = 4096;
-  parallel_for((total + chunk - 1) / chunk, nt, [&](std::size_t c, std::size_t) {
-    const std::size_t i0 = c * chunk, i1 = std::min(total, i0 + chunk);
-    for (std::size_t i = i0; i < i1; ++i) {
-      double e = 0.0;
-      for (std::size_t z = 0; z < nz; ++z) e += coef[z] * dist[z * total + i];
-      out[i] = std::exp(-e);
+  // Each row block accumulates the exponents of its rows in a per-thread buffer
+  // (kRowBlock x m), then writes exp(-.) (and the mirror image in X-vs-X).
+  const std::size_t team = team_size((n + kRowBlock - 1) / kRowBlock, resolve_threads(n_threads));
+  double* expo = g_dist_scratch.get(team * kRowBlock * m);
+  struct Sink {
+    double* out;
+    double* expo;
+    const double* coef;
+    std::size_t m;
+    bool self;
+    double* rows(std::size_t t) { return expo + t * kRowBlock * m; }
+    void begin(std::size_t t, std::size_t r0_, std::size_t r1) {
+      std::fill(rows(t), rows(t) + (r1 - r0_) * m, 0.0);
     }
-  });
+    void pair(std::size_t t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
+      rows(t)[(ia % kRowBlock) * m + ib] += coef[z] * d;
+    }
+    void end(std::size_t t, std::size_t r0_, std::size_t r1) {
+      for (std::size_t ia = r0_; ia < r1; ++ia) {
+        const double* e = rows(t) + (ia - r0_) * m;
+        double* o = out + ia * m;
+        if (self) {
+          o[ia] = 1.0;
+          for (std::size_t ib = ia + 1; ib < m; ++ib) o[ib] = out[ib * m + ia] = std::exp(-e[ib]);
+        } else {
+          for (std::size_t ib = 0; ib < m; ++ib) o[ib] = std::exp(-e[ib]);
+        }
+      }
+    }
+  } sink{out, expo, coef.data(), m, self};
+  pairwise_distances(a, b, n_threads, sink);
+  g_dist_scratch.trim();
 }
 
 }  // namespace eskin

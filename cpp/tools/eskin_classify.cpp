@@ -20,7 +20,6 @@
 #include <exception>
 #include <fstream>
 #include <iostream>
-#include <iterator>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -42,7 +41,13 @@ const char* kUsage =
     "  window_stop, and the decision value of each machine.\n";
 
 std::vector<std::uint8_t> read_all(std::istream& in) {
-  return std::vector<std::uint8_t>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  std::vector<std::uint8_t> out;
+  std::vector<char> chunk(1 << 16);
+  while (in) {
+    in.read(chunk.data(), static_cast<std::streamsize>(chunk.size()));
+    out.insert(out.end(), chunk.begin(), chunk.begin() + in.gcount());
+  }
+  return out;
 }
 
 class Printer {

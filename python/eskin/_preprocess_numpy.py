@@ -36,7 +36,10 @@ def frame_energies(x: np.ndarray, p: dict, dc_alpha: float, combine: str) -> np.
         y = x
     F = n // L
     e = (y[:, : F * L] ** 2).reshape(K, F, L).sum(axis=2) / L
-    return e.sum(axis=0) if combine == "sum" else e.max(axis=0)
+    if combine == "max":
+        return e.max(axis=0)
+    total = e.sum(axis=0)
+    return total - e.max(axis=0) if combine == "trimmed" and K > 1 else total
 
 
 def detect(x: np.ndarray, sample_rate_hz: float, cfg: WindowConfig) -> list[dict]:

@@ -33,8 +33,10 @@ __all__ = [
     "ModelSpec",
     "ModelFormatError",
     "CompiledModel",
+    "compiled_engine",
     "export_model",
     "model_to_bytes",
+    "spec_from_estimator",
     "spec_from_model",
     "write_c_header",
 ]
@@ -324,22 +326,27 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
     )
 
 
-def spec_from_model(model: Any) -> ModelSpec:
-    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel`.
+def spec_from_estimator(
+    estimator: Any,
+    class_names: Sequence[str],
+    *,
+    D: int,
+    grid_shape: tuple[int, int],
+    window: str = "energy",
+    subsample: str = "algorithm2",
+    short: str = "interpolate",
+    sample_rate_hz: float = 3000.0,
+    window_config: Any = None,
+    meta: dict[str, Any] | None = None,
+) -> ModelSpec:
+    """The :class:`ModelSpec` of a fitted estimator and the preprocessing it was trained with.
 
-    A binary model's machine has ``classes_`` = [0, 1] (f > 0 means ``classes[1]``); a model
-    of three or more classes holds a OneVsAllTouchClassifier whose machine k claims class k.
+    ``estimator``: a fitted binary machine (TensorSVC / TensorRLS: ``classes_`` = [0, 1] index
+    ``class_names``, f > 0 means ``classes_[1]``) or a fitted OneVsAllTouchClassifier whose
+    ``classes_`` are 0..k-1 (machine k claims class k).
     """
-    if isinstance(model, ModelSpec):
-        return model
-    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
-        if not hasattr(model, attr):
-            raise ModelFormatError(
-                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
-                f"(missing {attr!r})"
-            )
-    est = model.estimator
-    classes = [str(c) for c in model.classes]
+    est = estimator
+    classes = [str(c) for c in class_names]
     if hasattr(est, "estimators_"):
         if len(est.estimators_) != len(classes):
             raise ModelFormatError(
@@ -363,24 +370,44 @@ def spec_from_model(model: Any) -> ModelSpec:
         rule = "binary"
     import eskin
 
-    meta = {
-        "eskin_version": eskin.__version__,
-        "classes": classes,
-        "machine": getattr(model, "machine", None),
-        "selection": getattr(model, "selection", None),
-    }
     return ModelSpec(
         class_names=classes,
         rule=rule,
         machines=machines,
-        D=int(model.D),
-        grid_shape=tuple(int(v) for v in model.grid_shape),
-        window=str(model.window),
-        subsample=str(model.subsample),
+        D=int(D),
+        grid_shape=(int(grid_shape[0]), int(grid_shape[1])),
+        window=str(window),
+        subsample=str(subsample),
+        short=str(short),
+        sample_rate_hz=float(sample_rate_hz),
+        window_config=window_config,
+        meta={"eskin_version": eskin.__version__, "classes": classes, **dict(meta or {})},
+    )
+
+
+def spec_from_model(model: Any) -> ModelSpec:
+    """The :class:`ModelSpec` of a trained :class:`eskin.models.TouchModel` (a binary machine
+    for two classes, a OneVsAllTouchClassifier for more; see :func:`spec_from_estimator`)."""
+    if isinstance(model, ModelSpec):
+        return model
+    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
+        if not hasattr(model, attr):
+            raise ModelFormatError(
+                f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
+                f"(missing {attr!r})"
+            )
+    return spec_from_estimator(
+        model.estimator,
+        model.classes,
+        D=model.D,
+        grid_shape=model.grid_shape,
+        window=model.window,
+        subsample=model.subsample,
         short=str(getattr(model, "short", "interpolate")),
-        sample_rate_hz=float(model.sample_rate_hz),
+        sample_rate_hz=float(getattr(model, "sample_rate_hz", 3000.0)),
         window_config=getattr(model, "window_config", None),
-        meta=meta,
+        meta={"machine": getattr(model, "machine", None),
+              "selection": getattr(model, "selection", None)},
     )
 
 
@@ -495,6 +522,7 @@ _STATUS = {
     -4: "its window is shorter than D (the model's short policy is error)",
     -5: "the basis computation failed",
     -6: "null data",
+    -7: "it holds more than 4096 separate touches",
 }
 
 
@@ -606,18 +634,59 @@ class CompiledModel:
         """Class names of raw recordings."""
         return self.classify(signals, lengths).labels
 
-    def stream(self, samples: Any, *, flush: bool = True) -> list[dict[str, Any]]:
+    def predict_recordings(self, data: Any, indices: Any = None, *,
+                           chunk: int = 32) -> list[dict[str, Any]]:
+        """Per-recording decisions on a campaign (or raw signals (n, rows, cols, T)), in the
+        format of :meth:`eskin.models.TouchModel.predict_recordings`: dicts with ``index``,
+        ``label``, ``decision_values``, ``dont_know``, ``window`` and, for a campaign with
+        modality labels, ``true_label``. Recordings are read ``chunk`` at a time."""
+        is_campaign = hasattr(data, "recording")
+        n_total = len(data) if is_campaign else int(np.shape(data)[0])
+        idx = np.arange(n_total) if indices is None else np.asarray(indices, np.int64)
+        lengths = np.asarray(data.lengths) if is_campaign else None
+        names = [str(m) for m in (getattr(data, "modalities", None) or [])]
+        modality = np.asarray(getattr(data, "modality", np.full(n_total, -1)))
+        out: list[dict[str, Any]] = []
+        for c0 in range(0, len(idx), chunk):
+            sel = idx[c0 : c0 + chunk]
+            if is_campaign:
+                recs = [np.asarray(data.recording(int(i))) for i in sel]
+                lens = np.array([min(r.shape[-1], int(lengths[i])) for r, i in zip(recs, sel)])
+                block = np.zeros((len(recs), *recs[0].shape[:2], int(lens.max())), recs[0].dtype)
+                for j, r in enumerate(recs):
+                    block[j, :, :, : lens[j]] = r[..., : lens[j]]
+            else:
+                block = np.asarray(data)[sel]
+                lens = None
+            d = self.classify(block, lens)
+            for j, i in enumerate(sel):
+                item: dict[str, Any] = {
+                    "index": int(i),
+                    "label": str(d.labels[j]),
+                    "decision_values": [float(v) for v in d.decision_values[j]],
+                    "dont_know": bool(d.dont_know[j]),
+                    "window": [int(d.windows[j, 0]), int(d.windows[j, 1])],
+                }
+                m = int(modality[i]) if i < len(modality) else -1
+                if names and 0 <= m < len(names):
+                    item["true_label"] = names[m]
+                out.append(item)
+        return out
+
+    def stream(self, samples: Any, *, flush: bool = True, timed: bool = False) -> list[dict[str, Any]]:
         """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
         (rows, cols, T)), one sample at a time as the controller would. Returns the events:
         dicts with ``sample`` (samples seen when it happened), ``status_name`` and, for
-        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``."""
+        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``; with
+        ``timed``, ``push_ns``: the wall time of the push that made the event (the latency from
+        the touch's last sample to its label)."""
         from eskin import _core
 
         x = np.asarray(samples, dtype=np.float64)
         if x.ndim == 3:
             x = x.reshape(-1, x.shape[-1]).T
         sc = _core.StreamClassifier(self._model)
-        events = sc.feed(np.ascontiguousarray(x), flush)
+        events = sc.feed(np.ascontiguousarray(x), flush, timed)
         for e in events:
             if "label" in e:
                 e["label"] = self.class_names[e["label"]]
@@ -648,6 +717,16 @@ class _CompiledMachines:
     @property
     def dont_know_(self) -> np.ndarray:
         return self._dont_know
+
+
+def compiled_engine(model: Any) -> CompiledModel:
+    """The C++ classifier of a model: the one a ``.eskin`` file was loaded into, or the
+    TouchModel compiled in memory in float64 (so that its labels equal the Python model's).
+    Used by ``eskin predict --engine cpp``."""
+    est = getattr(model, "estimator", None)
+    if isinstance(est, _CompiledMachines):
+        return est.compiled
+    return CompiledModel.from_model(model, dtype="float64")
 
 
 def _save_eskin(model: Any, path: Path) -> None:

@@ -106,8 +106,9 @@ def resolve_alphas(shape: Sequence[int], alpha: AlphaSpec = "full") -> tuple[int
 
 
 def _resolve_sigmas(sigma: SigmaSpec, n_modes: int) -> list[float]:
+    # ValueError (not TypeError) for every bad sigma: the API promises one error type
     if isinstance(sigma, (bool, np.bool_, str)):
-        raise ValueError(f"sigma={sigma!r}: expected a positive number or one per mode")
+        raise ValueError(f"sigma={sigma!r}: expected a positive number or one per mode")  # noqa: TRY004
     if isinstance(sigma, numbers.Real):
         values = [float(sigma)] * n_modes
     elif isinstance(sigma, (Sequence, np.ndarray)):
@@ -117,7 +118,7 @@ def _resolve_sigmas(sigma: SigmaSpec, n_modes: int) -> list[float]:
                 f"sigma={sigma!r} has {len(values)} values; expected one, or one per mode ({n_modes})"
             )
     else:
-        raise ValueError(f"sigma={sigma!r}: expected a positive number or one per mode")
+        raise ValueError(f"sigma={sigma!r}: expected a positive number or one per mode")  # noqa: TRY004
     for s in values:
         if not (math.isfinite(s) and s > 0):
             raise ValueError(f"sigma={s!r} must be a positive finite number")
@@ -167,11 +168,11 @@ def pattern_bases(
 
 def _check_pair(bx: PatternBases, by: PatternBases | None) -> None:
     if not isinstance(bx, PatternBases):
-        raise ValueError(f"expected PatternBases from eskin.kernel.pattern_bases, got {type(bx)}")
+        raise TypeError(f"expected PatternBases from eskin.kernel.pattern_bases, got {type(bx)}")
     if by is None:
         return
     if not isinstance(by, PatternBases):
-        raise ValueError(f"expected PatternBases from eskin.kernel.pattern_bases, got {type(by)}")
+        raise TypeError(f"expected PatternBases from eskin.kernel.pattern_bases, got {type(by)}")
     if tuple(bx.shape) != tuple(by.shape):
         raise ValueError(
             f"pattern shapes differ: X patterns {tuple(bx.shape)}, Y patterns {tuple(by.shape)}"

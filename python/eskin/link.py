@@ -17,7 +17,8 @@ Events, in arrival order:
   ``source="host"`` (this host's own streaming classifier, when a model was given);
 * :class:`StatusEvent` / :class:`InfoEvent` - the controller's STATUS and INFO frames;
 * :class:`Recorded` - a recording was appended to the campaign file (``record=``);
-* :class:`Connection` - the port was opened, the peer went away, or the port was reopened;
+* :class:`Connection` - :meth:`LinkListener.events` opened the port itself ("connected"), the
+  peer went away ("disconnected"), or the port was reopened ("reconnected");
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 
 Host decisions. With ``model=`` (a ``.eskin`` file, a saved TouchModel, or a loaded
@@ -59,7 +60,7 @@ import math
 import os
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Union
 
@@ -369,7 +370,7 @@ def load_host_classifier(model: Any, backend: str = "auto") -> HostClassifier:
     try:
         from eskin.export import CompiledModel
     except ImportError:
-        CompiledModel = None  # type: ignore[assignment,misc]  # noqa: N806
+        CompiledModel = None  # type: ignore[assignment,misc]
     if isinstance(model, (str, os.PathLike)):
         path = Path(model)
         if not path.is_file():
@@ -421,7 +422,8 @@ class _History:
         if first != self.end:  # a reset: start over at this index
             self.begin = self.end = first
         if n >= self.capacity:
-            block, lost, first = block[-self.capacity:], lost[-self.capacity:], first + n - self.capacity
+            first += n - self.capacity
+            block, lost = block[-self.capacity:], lost[-self.capacity:]
             n = self.capacity
             self.begin = self.end = first
         pos = (first + np.arange(n)) % self.capacity
@@ -487,7 +489,8 @@ class LinkListener:
         if record_policy is None:
             record_policy = "segment" if replay is not None else "touch"
         if record_policy not in RECORD_POLICIES:
-            raise ValueError(f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
+            raise ValueError(
+                f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
         if record_policy == "segment" and replay is None:
             raise ValueError("record_policy='segment' needs the replay file (replay=...)")
         for name, v in (("context_s", context_s), ("max_fill_s", max_fill_s),
@@ -541,6 +544,7 @@ class LinkListener:
         self._base = 0  # stream index of the host classifier's sample 0
         self._lost_ranges: list[tuple[int, int]] = []
         self._lost_samples = 0
+        self._tail_counted = False
         self._index_resets = 0
         self._history: Optional[_History] = None
         self._pending_touch: list[tuple[int, int, str]] = []  # (start, stop, label) to record
@@ -598,9 +602,7 @@ class LinkListener:
         return self.open()
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None and self._writer is not None:
-            # keep what was recorded: a Ctrl-C should not lose the campaign
-            pass
+        # the recording is finished even after an error or Ctrl-C: what was received is kept
         self.close()
 
     def reconnect(self) -> Connection:
@@ -645,23 +647,27 @@ class LinkListener:
     # -- taxel activity --------------------------------------------------------------------
     def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
-        taxel's deviation from its median over the held history (ADC counts); None before data."""
+        taxel's deviation from its mean over the last second (ADC counts); None before data."""
         h = self._history
         if h is None or h.end == h.begin:
             return None
         rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        ref, _ = h.get(h.begin, h.end)
+        ref, _ = h.get(h.end - int(rate), h.end)
         recent, _ = h.get(h.end - max(1, int(window_s * rate)), h.end)
-        base = np.median(ref.astype(np.float64), axis=0)
+        base = ref.mean(axis=0)
         dev = recent.astype(np.float64) - base
         return np.sqrt(np.mean(dev * dev, axis=0))
 
     # -- the event loop --------------------------------------------------------------------
     def events(self, *, duration: Optional[float] = None, until_eof: bool = False,
-               eof_grace_s: float = 0.3) -> Iterator[LinkEvent]:
+               eof_grace_s: float = 0.3, flush: bool = True) -> Iterator[LinkEvent]:
         """Yield events until ``duration`` seconds passed, or (``until_eof``) the controller
         reported the end of its replay (STATUS state FINISHED) and ``eof_grace_s`` more seconds
-        passed, or the peer closed the port (and could not be reopened), or :meth:`stop`."""
+        passed, or the peer closed the port (and could not be reopened), or :meth:`stop`.
+
+        At the end, with ``flush`` (the default), a touch in progress is ended and decided and
+        pending touch recordings are written with what was received; pass ``flush=False`` to
+        call :meth:`events` again later on the same stream. The last event is :class:`Stats`."""
         if self._port is None:
             self.open()
             yield Connection("connected", self.path)
@@ -695,8 +701,9 @@ class LinkListener:
                 if self.stats_interval is not None and now - t_stats >= self.stats_interval:
                     t_stats = now
                     yield Stats(self.stats)
-            for ev in self._end_of_stream():
-                yield ev
+            if flush:
+                for ev in self._end_of_stream():
+                    yield ev
             yield Stats(self.stats)
         finally:
             self._stop = False
@@ -754,9 +761,8 @@ class LinkListener:
         return out
 
     def _class_name(self, index: int) -> Optional[str]:
+        """A controller label's name, from its INFO (None before INFO or out of range)."""
         names: Sequence[str] = self.info.class_names if self.info is not None else ()
-        if not names and self.classifier is not None:
-            names = self.classifier.class_names
         return str(names[index]) if 0 <= index < len(names) else None
 
     def _on_controller_decision(self, f: DecisionFrame) -> Decision:
@@ -773,7 +779,8 @@ class LinkListener:
         need = self.history_s
         if self.record_path is not None:
             if self.record_policy == "segment":
-                longest = int(self.replay.segments["length"].max()) if len(self.replay.segments) else 0
+                segs = self.replay.segments
+                longest = int(segs["length"].max()) if len(segs) else 0
                 need = max(need, longest / rate + 1.0)
             else:
                 need = max(need, self._max_touch_s() + 2 * self.context_s + 1.0)
@@ -783,7 +790,8 @@ class LinkListener:
                 f"the controller streams a {grid[0]}x{grid[1]} grid; the host model expects "
                 f"{self.classifier.grid[0]}x{self.classifier.grid[1]}"
             )
-        if self.record_path is not None and self.record_policy == "touch" and self.classifier is None:
+        if (self.record_path is not None and self.record_policy == "touch"
+                and self.classifier is None):
             self._det = HostClassifier(grid, rate)
 
     def _max_touch_s(self) -> float:
@@ -880,8 +888,10 @@ class LinkListener:
             if c is self.classifier:
                 lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
                 latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
-                d = Decision("host", start, stop, self._class_name(t.label_index), t.label_index,
-                             t.values, t.dont_know, self._next or stop, latency, lost)
+                names = c.class_names  # the host model's classes, not the controller's
+                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
+                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
+                             self._next or stop, latency, lost)
                 self._counts["decisions_host"] += 1
                 self.decisions.append(d)
                 out.append(d)
@@ -943,11 +953,11 @@ class LinkListener:
                 seg = segs[self._next_segment]
                 start = self.replay_offset + int(seg["start"])
                 stop = start + int(seg["length"])
-                if h.end < stop and not final:
-                    break
+                if h.end < stop:
+                    break  # not there yet (a segment never completed is never written)
                 self._next_segment += 1
-                if h.begin > start or h.end < stop:
-                    continue  # not (fully) received: joined late or the stream ended early
+                if h.begin > start:
+                    continue  # not fully received: joined late, or a long hole inside it
                 label = int(seg["label"])
                 names = self._writer_names()
                 modality = label if label >= 0 else len(names) - 1
@@ -990,6 +1000,12 @@ class LinkListener:
 
     def _end_of_stream(self) -> list[LinkEvent]:
         out: list[LinkEvent] = []
+        s = self.last_status
+        if (s is not None and s.state == StreamState.FINISHED and self._next is not None
+                and s.next_sample > self._next and not self._tail_counted):
+            # samples produced after the last one received, which no later frame revealed
+            self._lost_samples += s.next_sample - self._next
+            self._tail_counted = True
         for c in (self.classifier, self._det):
             if c is not None and self._history is not None:
                 out.extend(self._touches(c, c.flush(), None))

@@ -42,7 +42,7 @@ __all__ = [
 _WINDOW_MODES = {"energy": 0, "none": 1}
 _METHODS = {"algorithm2": 0, "even": 1}
 _SHORT = {"interpolate": 0, "error": 1}
-_COMBINE = ("sum", "max")
+_COMBINE = ("sum", "max", "trimmed")
 _SELECT = ("energy", "first", "span")
 _FALLBACK = ("whole", "error")
 # recordings read at a time from a lazy (h5py) dataset
@@ -56,16 +56,21 @@ class WindowConfig:
     Times are in seconds and converted to samples with the sample rate when the detector is
     built, so one configuration serves any rate. ``to_array()`` / ``from_array()`` give the flat
     float64 form (field order :data:`WindowConfig.field_names`) stored in model files; the three
-    choice fields are stored as their index (``combine``: sum=0, max=1; ``select``: energy=0,
-    first=1, span=2; ``fallback``: whole=0, error=1).
+    choice fields are stored as their index (``combine``: sum=0, max=1, trimmed=2; ``select``:
+    energy=0, first=1, span=2; ``fallback``: whole=0, error=1).
 
-    Frame energy ``E`` = mean over a frame of the squared DC-blocked signal, summed (or maxed)
-    over the taxels. The noise floor is the ``noise_quantile`` of the last ``noise_window_s`` of
-    idle frames (at least ``min_noise_energy``). A touch starts at the first frame with
-    ``E > on_factor * floor``, stays on while ``E > off_factor * floor``, and ends after
-    ``hold_s`` below that (and once ``pad_after_s`` has elapsed); touches shorter than
-    ``min_duration_s`` are dropped; the window is ``[onset - pad_before_s, offset +
-    pad_after_s)``, at most ``max_window_s`` long.
+    Frame energy ``E`` = mean over a frame of the squared DC-blocked signal, summed over the
+    taxels (``combine="sum"``; or the max, or the sum without the largest taxel: "trimmed").
+    The noise floor is the ``noise_quantile`` of the last ``noise_window_s`` of
+    idle frames (at least ``min_noise_energy``). A touch is triggered by a frame with
+    ``E > on_factor * floor``; its onset moves back over the preceding frames with
+    ``E > off_factor * floor`` (at most ``lookback_s``); it stays on while
+    ``E > max(off_factor * floor, release_fraction * peak)`` and ends after ``hold_s`` below
+    that (and once ``pad_after_s`` has elapsed); touches shorter than ``min_duration_s`` are
+    dropped; the window is ``[onset - pad_before_s, offset + pad_after_s)``, at most
+    ``max_window_s`` long. For one window per recording, ``select`` takes the span of the
+    touches holding at least ``span_fraction`` of the strongest one's energy ("span"), the
+    most energetic touch ("energy") or the first ("first"). See docs/preprocessing.md.
     """
 
     frame_s: float = 0.010

@@ -1,15 +1,30 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <cstdlib>
 #include <cstring>
 #include <map>
+#include <new>
 #include <random>
 #include <string>
 #include <vector>
+
+#include <memory>
 
 #include "eskin/protocol.hpp"
 
 namespace p = eskin::protocol;
 using Bytes = std::vector<std::uint8_t>;
+
+// Counts heap allocations in this test binary, to check the byte path allocates nothing.
+static std::atomic<long> g_allocations{0};
+void* operator new(std::size_t n) {
+  ++g_allocations;
+  if (void* q = std::malloc(n ? n : 1)) return q;
+  throw std::bad_alloc();
+}
+void operator delete(void* q) noexcept { std::free(q); }
+void operator delete(void* q, std::size_t) noexcept { std::free(q); }
 
 namespace {
 
@@ -501,4 +516,25 @@ TEST(Decoder, ResetForgetsPartialInput) {
   EXPECT_EQ(n, 2U);
   dec.reset(true);
   EXPECT_EQ(dec.stats().frames, 0U);
+}
+
+TEST(NoHeap, EncodeAndDecodeAllocateNothing) {
+  const Stream s = make_stream(200, 13);
+  Bytes out(p::kMaxEncodedFrameSize * 200 + 1);
+  auto enc = std::make_unique<p::FrameEncoder>();
+  auto dec = std::make_unique<p::FrameDecoder>();
+  std::size_t accepted = 0;
+  const long before = g_allocations.load();
+  std::size_t n = 0;
+  out[n++] = p::kDelimiter;
+  for (const auto& f : s.frames) n += enc->encode(f, out.data() + n, out.size() - n);
+  for (std::size_t at = 0; at < n; at += 37)
+    dec->feed_all(out.data() + at, std::min<std::size_t>(37, n - at),
+                  [&](const p::Frame&) { ++accepted; });
+  // garbage too
+  for (std::size_t i = 0; i < n; i += 7) out[i] ^= 0x5A;
+  dec->feed_all(out.data(), n, [&](const p::Frame&) {});
+  const long after = g_allocations.load();
+  EXPECT_EQ(after - before, 0);
+  EXPECT_EQ(accepted, s.frames.size());
 }

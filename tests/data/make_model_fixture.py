@@ -1,7 +1,8 @@
 """Write tests/data/model_small.eskin: a small valid 3-class model for the C++ loader tests.
 
 Its bases are random orthonormal columns (QR), not bases of real patterns: the loader and fuzz
-tests check the format, not the classifier. Run from the repository root:
+tests check the format, not the classifier. Regenerate it when the format or eskin::WindowConfig
+changes. Run from the repository root:
     PYTHONPATH=python python tests/data/make_model_fixture.py
 """
 
@@ -12,15 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from eskin.export import MachineSpec, ModelSpec, model_to_bytes
-
-
-# eskin::WindowConfig defaults (the fixture must not depend on the Python preprocessing module)
-DEFAULT_WINDOW = dict(
-    frame_s=0.010, dc_cutoff_hz=5.0, combine=0.0, noise_window_s=1.0, noise_quantile=0.5,
-    warmup_s=0.1, min_noise_energy=0.0, on_factor=4.0, off_factor=2.0, release_fraction=1e-3,
-    lookback_s=0.3, hold_s=0.15, min_duration_s=0.05, pad_before_s=0.05, pad_after_s=0.05,
-    max_window_s=7.0, select=2.0, span_fraction=0.05, fallback=0.0,
-)
+from eskin.preprocess import WindowConfig
 
 
 def qr_bases(tensors, alphas):
@@ -62,7 +55,7 @@ def main() -> None:
         window="energy",
         subsample="algorithm2",
         sample_rate_hz=3000.0,
-        window_config=DEFAULT_WINDOW,
+        window_config=WindowConfig(),  # the detector's defaults
         meta={"note": "loader test fixture, random bases"},
     )
     for dtype in ("float32", "float64"):

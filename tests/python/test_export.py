@@ -223,6 +223,53 @@ def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
     np.testing.assert_array_equal(got.windows, np.asarray(windows).reshape(-1, 2))
 
 
+def _fit(campaign, D, machine, n_classes, alpha):
+    """A real machine trained on the first 3 participants (simulated data)."""
+    from eskin.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+
+    X = _patterns(campaign, D)
+    y = np.asarray(campaign.modality).astype(np.int64)
+    part = np.asarray(campaign.participant)
+    train = np.isin(part, np.unique(part)[:3])
+    if n_classes == 2:
+        train &= y < 2
+    base = (TensorSVC(C=10.0, sigma=0.5, alpha=alpha) if machine == "svm"
+            else TensorRLS(lam=0.1, sigma=0.5, alpha=alpha))
+    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
+    est.fit(X[train], y[train])
+    return est, X
+
+
+@pytest.mark.parametrize("D", [20, 50])
+@pytest.mark.parametrize("machine", ["svm", "rls"])
+@pytest.mark.parametrize("n_classes", [2, 3])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_parity_with_trained_estimators(campaign, D, machine, n_classes, dtype):
+    """Trained TensorSVC / TensorRLS / OneVsAllTouchClassifier: C++ on the raw recordings of
+    the whole campaign (held-out participant included) against Python on eskin.preprocess."""
+    from eskin.export import spec_from_estimator
+
+    alpha = "half" if machine == "svm" else "full"
+    est, X = _fit(campaign, D, machine, n_classes, alpha)
+    names = list(campaign.modalities[:n_classes])
+    spec = spec_from_estimator(est, names, D=D, grid_shape=(4, 4),
+                               sample_rate_hz=campaign.sample_rate_hz)
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    got = cm.classify(*_signals(campaign))
+    F = np.asarray(est.decision_function(X), float).reshape(len(X), -1)
+    if n_classes == 2:
+        labels, dont_know = (F[:, 0] > 0).astype(int), np.zeros(len(X), bool)
+    else:
+        labels, dont_know = est.predict(X), est.dont_know_
+    np.testing.assert_array_equal(got.label_indices, labels)
+    np.testing.assert_array_equal(got.dont_know, dont_know)
+    if dtype == "float64":
+        np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+    else:
+        _, scale = _python_decisions(spec, X)
+        assert np.all(np.abs(got.decision_values - F) <= 1e-4 * scale)
+
+
 def test_even_subsampling_and_no_window(campaign):
     spec = _random_spec(campaign, 50, 3, subsample="even")
     spec.window = "none"
@@ -232,8 +279,40 @@ def test_even_subsampling_and_no_window(campaign):
     np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
 
 
+def _two_touches(n, seed):
+    """Recordings with two or three separate touches of different energies (4x4, int16)."""
+    rng = np.random.default_rng(seed)
+    T = 15000
+    x = rng.normal(0, 12, size=(n, 4, 4, T))
+    t = np.arange(T)
+    for i in range(n):
+        for start, amp in zip(sorted(rng.choice(np.arange(1000, 13000, 2500), 3, replace=False)),
+                              rng.uniform(30, 900, size=3)):
+            L = int(rng.integers(600, 2000))
+            burst = amp * np.sin(2 * np.pi * rng.uniform(30, 300) * t[:L] / 3000.0)
+            x[i, :, :, start : start + L] += burst * rng.uniform(0.3, 1.0, size=(4, 4, 1))
+    return np.clip(x, -32768, 32767).astype(np.int16)
+
+
+@pytest.mark.parametrize("select", ["energy", "first", "span"])
+def test_window_choice_with_several_touches_matches_detect_windows(campaign, select):
+    cfg = eskin.WindowConfig(select=select)
+    spec = _random_spec(campaign, 20, 3)
+    spec.window_config = cfg
+    sig = _two_touches(8, seed=5)
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    got = cm.classify(sig)
+    ref = np.asarray(eskin.detect_windows(sig, config=cfg)).reshape(-1, 2)
+    np.testing.assert_array_equal(got.windows, ref)
+    X = eskin.preprocess(sig, 20, config=cfg)
+    F, _ = _python_decisions(spec, X)
+    np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-9)
+
+
 def test_stream_classifier_decides_like_the_batch_classifier(campaign):
-    cm = CompiledModel(model_to_bytes(_random_spec(campaign, 50, 3), "float64"))
+    spec = _random_spec(campaign, 50, 3)
+    spec.window_config = eskin.WindowConfig(select="energy")  # batch: one of the stream's touches
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
     sig, lengths = _signals(campaign)
     batch = cm.classify(sig[:6], lengths[:6])
     for i in range(6):
@@ -383,45 +462,34 @@ def test_eskin_classify_errors(campaign, tmp_path, which, message):
 
 
 def test_cli_export_writes_model_and_header(campaign, tmp_path):
-    pytest.importorskip("eskin.models")
     from eskin.models import TouchModel, save_model
 
-    spec = _random_spec(campaign, 20, 2)
-    src = save_model(_touch_model_from_spec(spec, TouchModel), tmp_path / "model.joblib")
+    est, _ = _fit(campaign, 20, "svm", 2, "half")
+    model = TouchModel(
+        classes=list(campaign.modalities[:2]), estimator=est, machine="svm", selection="fixed",
+        D=20, window="energy", subsample="algorithm2", sample_rate_hz=campaign.sample_rate_hz,
+        grid_shape=(4, 4),
+    )
+    src = save_model(model, tmp_path / "model.joblib")
     out = tmp_path / "model.eskin"
     header = tmp_path / "model.h"
-    res = subprocess.run(
-        [sys.executable, "-m", "eskin", "export", str(src), "-o", str(out), "--float64",
-         "--c-header", str(header)],
-        capture_output=True, text=True,
-    )
-    assert res.returncode == 0, res.stderr
-    assert CompiledModel(out).is_float64
+    res = _eskin("export", src, "-o", out, "--float64", "--c-header", header)
+    assert "support vectors" in res.stdout
+    cm = CompiledModel(out)
+    assert cm.is_float64 and cm.class_names == list(campaign.modalities[:2])
     assert "eskin_model_data" in header.read_text()
-    res = subprocess.run([sys.executable, "-m", "eskin", "export", str(out), "-o", str(tmp_path / "x")],
-                         capture_output=True, text=True)
+    X = _patterns(campaign, 20)
+    np.testing.assert_allclose(cm.classify(*_signals(campaign)).decision_values[:, 0],
+                               est.decision_function(X), rtol=0, atol=1e-9)
+    # a .eskin file loads back as a TouchModel (Python preprocessing, C++ machines)
+    from eskin.models import load_model
+
+    back = load_model(out)
+    np.testing.assert_allclose(back.decision_function(X), est.decision_function(X), atol=1e-9)
+    res = _eskin("export", out, "-o", tmp_path / "again.eskin", check=False)
+    assert res.returncode == 2 and "already an exported" in res.stderr
+    res = _eskin("export", header, "-o", tmp_path / "x.eskin", check=False)
     assert res.returncode == 2 and "error:" in res.stderr and "Traceback" not in res.stderr
-
-
-class _SpecMachine:
-    """A fitted-binary-machine stand-in built from a MachineSpec (attributes per COMMON.md)."""
-
-    def __init__(self, m):
-        self.support_vectors_ = m.support_vectors
-        self.dual_coef_ = m.dual_coef
-        self.intercept_ = m.intercept
-        self.alphas_ = tuple(m.alphas)
-        self.sigmas_ = tuple(m.sigmas)
-        self.classes_ = np.array([m.negative, m.positive])
-
-
-def _touch_model_from_spec(spec, TouchModel):
-    return TouchModel(
-        classes=list(spec.class_names), estimator=_SpecMachine(spec.machines[0]), machine="svm",
-        selection="md", D=spec.D, window=spec.window, subsample=spec.subsample,
-        sample_rate_hz=spec.sample_rate_hz, grid_shape=tuple(spec.grid_shape),
-        window_config=spec.window_config,
-    )
 
 
 def test_meta_section_is_json(campaign):
@@ -430,3 +498,85 @@ def test_meta_section_is_json(campaign):
     n = struct.unpack_from("<I", data, pos + 4)[0]
     meta = json.loads(data[pos + 8 : pos + 8 + n])
     assert meta["format"] == "eskin-model" and meta["dtype"] == "float32"
+
+
+# ----------------------------------------------------------------------------- end to end
+
+
+def _eskin(*args, check=True):
+    res = subprocess.run([sys.executable, "-m", "eskin", *map(str, args)], capture_output=True,
+                         text=True)
+    if check:
+        assert res.returncode == 0, res.stderr
+    return res
+
+
+def test_train_export_classify_matches_python_labels(campaign, tmp_path):
+    """`eskin train` -> `eskin export` (float32) -> `eskin-classify` on a held-out simulated
+    campaign gives exactly the labels of the Python model (`eskin predict`), and so does
+    `eskin predict --engine cpp`."""
+    exe = _eskin_classify()
+    train = tmp_path / "train.h5"
+    eskin.simulate(train, participants=3, seed=21, runs=(2,))
+    model = tmp_path / "model.joblib"
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20")
+    _eskin("export", model, "-o", tmp_path / "model.eskin")
+    held = tmp_path / "held.h5"
+    shutil.copy(campaign.path, held)
+    _eskin("predict", model, held, "--json", tmp_path / "py.json")
+    python_labels = [p["label"] for p in json.loads((tmp_path / "py.json").read_text())]
+    npy = tmp_path / "held.npy"
+    np.save(npy, np.asarray(campaign.signals))
+    res = subprocess.run([exe, str(tmp_path / "model.eskin"), str(npy)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert [r["label"] for r in _parse(res.stdout)[1]] == python_labels
+    _eskin("predict", model, held, "--engine", "cpp", "--json", tmp_path / "cpp.json")
+    cpp = json.loads((tmp_path / "cpp.json").read_text())
+    assert [p["label"] for p in cpp] == python_labels
+
+
+# ----------------------------------------------------------------------------- properties
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    rows=st.integers(1, 3), cols=st.integers(1, 3), D=st.integers(2, 9),
+    n_classes=st.integers(2, 4), n_pool=st.integers(1, 6), seed=st.integers(0, 2**16),
+    dtype=st.sampled_from(["float32", "float64"]),
+)
+def test_any_valid_description_round_trips(rows, cols, D, n_classes, n_pool, seed, dtype):
+    """Any valid description (grid, D, classes, shared support vectors, per-machine alphas)
+    is written, accepted by the C++ validator, and read back with the same machines; the
+    support-vector table holds each distinct pattern once; C++ decisions equal Python's."""
+    rng = np.random.default_rng(seed)
+    shape = (rows, cols, D)
+    full = eskin.resolve_alphas(shape, "full")
+    pool = rng.normal(size=(n_pool, *shape))
+    rule = "binary" if n_classes == 2 else "one_vs_all"
+    machines = []
+    for k in range(1 if rule == "binary" else n_classes):
+        idx = rng.choice(n_pool, size=int(rng.integers(1, n_pool + 1)), replace=True)
+        alphas = tuple(int(rng.integers(1, q + 1)) for q in full)
+        machines.append(MachineSpec(1 if rule == "binary" else k, 0 if rule == "binary" else -1,
+                                    float(rng.normal()), alphas,
+                                    tuple(float(v) for v in rng.uniform(0.3, 3, 3)),
+                                    pool[idx], rng.normal(size=len(idx))))
+    spec = ModelSpec([f"class{k}" for k in range(n_classes)], rule, machines, D, (rows, cols),
+                     window="none", sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    used = {pool[i].tobytes() for m in machines for i in range(n_pool)
+            if any(np.array_equal(pool[i], sv) for sv in m.support_vectors)}
+    assert cm.n_support == len(used)
+    for m, got in zip(machines, cm.machines):
+        assert got["alphas"] == m.alphas and got["intercept"] == m.intercept
+        # repeated patterns in one machine become one term with the summed coefficient
+        assert np.isclose(sum(got["coef"]), m.dual_coef.sum(), rtol=1e-5, atol=1e-5)
+    X = rng.normal(size=(3, *shape))
+    F, scale = _python_decisions(spec, X)
+    got = cm.classify_tensors(X).decision_values
+    tol = 1e-9 if dtype == "float64" else 1e-4
+    assert np.all(np.abs(got - F) <= tol * np.maximum(scale, 1e-300) + 1e-12)

@@ -17,6 +17,7 @@ from eskin.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
+    Flags,
     FrameDecoder,
     FrameType,
     InfoFrame,
@@ -30,6 +31,9 @@ from eskin.replay import read_replay_file, write_replay_arrays
 from eskin.serial_port import PeerClosedError, SerialPort
 
 START = encode_frame(CommandFrame(FrameType.START))
+# Paced tests that expect no drops give the simulator a queue that outlasts a host stalled by a
+# busy machine (drops are tested on their own, with a small queue).
+BIG_QUEUE = ("--tx-buffer", str(4 << 20))
 STOP = encode_frame(CommandFrame(FrameType.STOP))
 
 
@@ -147,7 +151,7 @@ def test_every_sample_arrives_intact(sim, replay):
 
 def test_paced_replay_reports_pacing(sim, replay):
     rf = read_replay_file(replay)
-    s = sim(replay, "--speed", "8", "--wait-start")
+    s = sim(replay, "--speed", "8", "--wait-start", *BIG_QUEUE)
     with SerialPort(s.path) as port:
         dec = FrameDecoder()
         port.write(START)
@@ -207,13 +211,15 @@ def test_slow_host_makes_the_sim_drop_not_block(sim, replay):
     assert stats["dropped_samples"] > 0 and stats["overrun_events"] >= 1
     received = check_samples(frames, rf.samples)
     assert received + stats["dropped_samples"] == rf.n_samples
-    assert dec.stats.lost_samples == stats["dropped_samples"]
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    # every drop before the last received frame shows up as a hole in the sample indices
+    assert dec.stats.lost_samples == stats["dropped_samples"] - (rf.n_samples - data[-1].end_sample)
     assert any(f.overrun for f in frames if isinstance(f, DataFrame))
 
 
 def test_host_disconnect_and_reconnect(sim, replay):
     rf = read_replay_file(replay)
-    s = sim(replay, "--speed", "4", "--wait-start")
+    s = sim(replay, "--speed", "4", "--wait-start", *BIG_QUEUE)
     dec = FrameDecoder()
     frames: list = []
     port = SerialPort(s.path)
@@ -237,7 +243,7 @@ def test_host_disconnect_and_reconnect(sim, replay):
 
 def test_joining_mid_stream(sim, replay):
     rf = read_replay_file(replay)
-    s = sim(replay, "--speed", "4")  # streams at once, nobody listening yet
+    s = sim(replay, "--speed", "4", *BIG_QUEUE)  # streams at once, nobody listening yet
     time.sleep(0.3)
     with SerialPort(s.path) as port:
         dec = FrameDecoder()
@@ -254,7 +260,7 @@ def test_joining_mid_stream(sim, replay):
 def test_commands_ping_stop_start_and_link(sim, replay, tmp_path):
     rf = read_replay_file(replay)
     link = tmp_path / "ttyESKIN"
-    s = sim(replay, "--speed", "2", "--wait-start", "--link", link, "--status-ms", "50")
+    s = sim(replay, "--speed", "2", "--wait-start", "--link", link, "--status-ms", "50", *BIG_QUEUE)
     assert os.readlink(link) == s.path
     with SerialPort(link) as port:
         dec = FrameDecoder()
@@ -287,6 +293,36 @@ def test_commands_ping_stop_start_and_link(sim, replay, tmp_path):
     check_samples(frames, rf.samples)
     assert dec.stats.lost_samples == 0  # STOP pauses the replay; indices continue
     assert dec.stats.rejected == 0
+
+
+def test_loop_repeats_the_replay_with_increasing_indices(sim, replay):
+    rf = read_replay_file(replay)
+    s = sim(replay, "--speed", "0", "--wait-start", "--loop")
+    frames: list = []
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        while sum(f.n_samples for f in frames if isinstance(f, DataFrame)) < 2 * rf.n_samples + 100:
+            frames += dec.feed(port.read(65536, timeout=1.0))
+    s.close()
+    data = [f for f in frames if isinstance(f, DataFrame)]
+    looped = [f for f in data if f.flags & Flags.LOOP]
+    assert looped and looped[0].first_sample >= rf.n_samples
+    for f in data:  # sample i of the stream is sample i mod n of the replay
+        idx = np.arange(f.first_sample, f.end_sample) % rf.n_samples
+        np.testing.assert_array_equal(f.samples, np.asarray(rf.samples)[idx])
+    assert dec.stats.lost_samples == 0 and dec.stats.sample_index_resets == 0
+
+
+def test_hold_keeps_the_port_open_after_the_replay(sim, replay):
+    s = sim(replay, "--speed", "0", "--wait-start", "--hold", "0.5", "--status-ms", "50")
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    s.stats()
+    finished = [f for f in frames if isinstance(f, StatusFrame) and f.state == StreamState.FINISHED]
+    assert len(finished) >= 3  # periodic STATUS while holding
 
 
 def test_bad_input_is_a_clear_error(fw_sim, tmp_path):

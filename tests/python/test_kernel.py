@@ -34,7 +34,8 @@ def literal_mode_distances(X: np.ndarray, Y: np.ndarray, alphas) -> np.ndarray:
     n_modes = X.ndim - 1
     out = np.empty((n_modes, len(X), len(Y)))
     for z, a in enumerate(alphas):
-        def proj(x):
+
+        def proj(x, z=z, a=a):
             _, _, vt = np.linalg.svd(literal_unfold(x, z), full_matrices=True)
             v = vt[:a].T
             return v @ v.T
@@ -58,7 +59,9 @@ def literal_kernel(X, Y, alphas, sigma):
 
 def _vector_cases():
     data = np.load(
-        __import__("pathlib").Path(__file__).resolve().parents[1] / "data" / "tensor_kernel_vectors.npz"
+        __import__("pathlib").Path(__file__).resolve().parents[1]
+        / "data"
+        / "tensor_kernel_vectors.npz"
     )
     keys = sorted(k[: -len("/alphas")] for k in data.files if k.endswith("/alphas"))
     return keys
@@ -97,11 +100,13 @@ LITERAL_CASES = [
     ((4, 4, 20), 1),
     ((3, 5, 7), "half"),
     ((6, 9), "full"),
-    ((6, 9), (3,  2)),
+    ((6, 9), (3, 2)),
     ((2, 3, 4, 5), "half"),
     ((2, 3, 4, 5), (1, 2, 3, 4)),
     ((5, 1, 3), "full"),
     ((4, 4, 10), (4, 3, 10)),
+    ((2, 12, 3), "full"),  # mode 2: M > N with columns not contiguous (general unfolding path)
+    ((2, 12, 3), (1, 4, 2)),
 ]
 
 
@@ -136,20 +141,42 @@ def test_many_patterns_cross_tiles_and_threads():
         single = mode_distances(X, alpha=alpha, n_threads=1)
         multi = mode_distances(X, alpha=alpha, n_threads=3)
         np.testing.assert_array_equal(single, multi)
-        np.testing.assert_allclose(single[:, :9, :9], literal_mode_distances(X[:9], X[:9], alpha),
-                                   rtol=0, atol=1e-10)
+        np.testing.assert_allclose(
+            single[:, :9, :9], literal_mode_distances(X[:9], X[:9], alpha), rtol=0, atol=1e-10
+        )
         # X-vs-X equals X-vs-Y with Y = X
         np.testing.assert_allclose(single, mode_distances(X, X, alpha=alpha), rtol=0, atol=1e-12)
+        # the fused kernel equals exp of the distances, in both layouts, for any thread count
+        sig = (0.7, 1.3, 2.0)
+        for nt in (1, 2):
+            np.testing.assert_allclose(
+                tensor_kernel(X, sigma=sig, alpha=alpha, n_threads=nt),
+                kernel_from_distances(single, sig),
+                rtol=1e-14,
+                atol=0,
+            )
+            np.testing.assert_allclose(
+                tensor_kernel(X, Y, sigma=sig, alpha=alpha, n_threads=nt),
+                kernel_from_distances(got, sig),
+                rtol=1e-14,
+                atol=0,
+            )
 
 
 def test_generic_and_vector_micro_kernels_agree(monkeypatch):
     rng = np.random.default_rng(3)
     X = rng.normal(size=(21, 4, 4, 30))
-    best = mode_distances(X, alpha=(2, 2, 8))
-    monkeypatch.setenv("ESKIN_KERNEL_ISA", "generic")
-    assert _core.tensor_kernel_isa() == "generic"
-    generic = mode_distances(X, alpha=(2, 2, 8))
-    np.testing.assert_allclose(best, generic, rtol=0, atol=1e-12)
+    Y = rng.normal(size=(5, 4, 4, 30))
+    results = {}
+    for isa in ["generic", "avx2", "avx512"]:
+        monkeypatch.setenv("ESKIN_KERNEL_ISA", isa)
+        name = _core.tensor_kernel_isa()
+        results[name] = [mode_distances(X, alpha=a) for a in [(2, 2, 8), (3, 1, 12)]]
+        results[name] += [mode_distances(X, Y, alpha=(4, 4, 16))]
+    assert "generic" in results
+    for name, got in results.items():
+        for g, ref in zip(got, results["generic"]):
+            np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12, err_msg=name)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -194,8 +221,9 @@ def test_invariant_to_scaling_a_pattern(data, scale, negative):
         mode_distances(X2, alpha=alphas), mode_distances(X, alpha=alphas), rtol=0, atol=1e-9
     )
     # a pattern against its own scaled copy: distance 0, kernel 1
-    np.testing.assert_allclose(mode_distances(X[i : i + 1], X2[i : i + 1], alpha=alphas), 0,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        mode_distances(X[i : i + 1], X2[i : i + 1], alpha=alphas), 0, atol=1e-9
+    )
 
 
 @HYP
@@ -228,8 +256,9 @@ def test_pattern_bases_are_orthonormal_and_sign_normalised():
             top = np.abs(v).argmax(axis=0)
             assert np.all(v[top, np.arange(a)] > 0)
     # the bases of -X are those of X (sign rule), and equal the first right-singular vectors
-    np.testing.assert_allclose(pattern_bases(-X, alpha=(2, 3, 8)).mode_bases(2), bx.mode_bases(2),
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        pattern_bases(-X, alpha=(2, 3, 8)).mode_bases(2), bx.mode_bases(2), atol=1e-10
+    )
     _, _, vt = np.linalg.svd(np.moveaxis(X[0], 2, 0).reshape(20, -1))
     proj = bx.mode_bases(2)[0] @ bx.mode_bases(2)[0].T
     np.testing.assert_allclose(proj, vt[:8].T @ vt[:8], atol=1e-10)
@@ -261,13 +290,17 @@ def test_precomputed_bases_reuse_and_sigma_sweep():
     X = rng.normal(size=(8, 4, 4, 10))
     Y = rng.normal(size=(3, 4, 4, 10))
     bx, by = pattern_bases(X, alpha="half"), pattern_bases(Y, alpha="half")
-    np.testing.assert_array_equal(bases_tensor_kernel(bx, by, sigma=0.7),
-                                  tensor_kernel(X, Y, sigma=0.7, alpha="half"))
+    np.testing.assert_array_equal(
+        bases_tensor_kernel(bx, by, sigma=0.7), tensor_kernel(X, Y, sigma=0.7, alpha="half")
+    )
     D = mode_distances(X, Y, alpha="half")
     np.testing.assert_array_equal(bases_mode_distances(bx, by), D)
     for sigma in [0.5, (0.5, 1.0, 2.0)]:
-        np.testing.assert_allclose(kernel_from_distances(D, sigma),
-                                   tensor_kernel(X, Y, sigma=sigma, alpha="half"), rtol=1e-14)
+        np.testing.assert_allclose(
+            kernel_from_distances(D, sigma),
+            tensor_kernel(X, Y, sigma=sigma, alpha="half"),
+            rtol=1e-14,
+        )
     with pytest.raises(ValueError, match="alphas differ"):
         bases_mode_distances(bx, pattern_bases(Y, alpha="full"))
 
@@ -372,8 +405,13 @@ def test_errors_name_the_argument_and_value():
     bad[2, 0, 1, 3] = np.inf
     with pytest.raises(ValueError, match=r"Y: pattern 2 contains NaN or Inf"):
         mode_distances(X, bad)
-    for sigma, match in [(0.0, r"sigma=0.0"), (-1.0, r"sigma=-1.0"), (np.nan, r"sigma=nan"),
-                         ((1.0, 2.0), r"sigma=\(1.0, 2.0\) has 2 values"), ("1", r"sigma='1'")]:
+    for sigma, match in [
+        (0.0, r"sigma=0.0"),
+        (-1.0, r"sigma=-1.0"),
+        (np.nan, r"sigma=nan"),
+        ((1.0, 2.0), r"sigma=\(1.0, 2.0\) has 2 values"),
+        ("1", r"sigma='1'"),
+    ]:
         with pytest.raises(ValueError, match=match):
             tensor_kernel(X, sigma=sigma)
     with pytest.raises(ValueError, match=r"alpha=17 for mode 2"):
@@ -399,11 +437,14 @@ def test_empty_and_single_pattern_sets():
 def test_integer_input_is_converted():
     rng = np.random.default_rng(8)
     X = rng.integers(-100, 100, size=(4, 4, 4, 12)).astype(np.int16)
-    np.testing.assert_allclose(tensor_kernel(X, alpha="half"),
-                               tensor_kernel(X.astype(float), alpha="half"), rtol=0, atol=0)
+    np.testing.assert_allclose(
+        tensor_kernel(X, alpha="half"), tensor_kernel(X.astype(float), alpha="half"), rtol=0, atol=0
+    )
 
 
 def test_unfold_column_order_is_c_order_of_remaining_indices():
     x = np.arange(2 * 3 * 4, dtype=float).reshape(2, 3, 4)
     for z in range(3):
-        np.testing.assert_array_equal(_core.unfold(x, z), np.moveaxis(x, z, 0).reshape(x.shape[z], -1))
+        np.testing.assert_array_equal(
+            _core.unfold(x, z), np.moveaxis(x, z, 0).reshape(x.shape[z], -1)
+        )

@@ -28,7 +28,6 @@ from eskin.link import (
 )
 from eskin.protocol import (
     DELIMITER,
-    CommandFrame,
     DataFrame,
     DecisionFrame,
     Flags,
@@ -187,8 +186,12 @@ def test_stream_events_commands_and_stats(pty):
                + c.decision(100, 400, 1, (-0.5, 0.7, -0.2)) + c.status(StreamState.FINISHED, 7))
     cmds: list = []
     with LinkListener(path, stats_interval=None) as link:
-        feed_when_open(state, payload, cmds).join(10)
+        assert link.activity() is None  # nothing received yet
+        feeder = feed_when_open(state, payload, cmds)
         events = list(link.events(until_eof=True, eof_grace_s=0.05))
+        act = link.activity()
+        feeder.join(10)
+    assert act.shape == (4, 4) and np.all(act > 100)  # the random stream is "active" everywhere
     # the host asked for the stream and the controller's description
     assert [f.command for f in cmds][:1] == [FrameType.START]
     assert FrameType.INFO_REQUEST in [f.command for f in cmds] or len(cmds) == 1
@@ -340,7 +343,7 @@ def test_host_disconnect_and_reconnect(pty):
     frames = c.data_frames(stream)
     with LinkListener(path, stats_interval=None) as link:
         write_thread = feed_when_open(state, DELIMITER + b"".join(frames[:10]))
-        ev1 = list(link.events(duration=0.4))
+        ev1 = list(link.events(duration=0.4, flush=False))
         write_thread.join()
         conn = link.reconnect()  # the host closes and reopens; the controller kept streaming
         assert conn.state == "reconnected"
@@ -370,7 +373,7 @@ def test_small_holes_are_bridged_for_the_detector_and_reported(pty):
     assert len(camp) == 1 and camp.modalities == ["unknown"]
     r = camp.recording(0)
     start = int(camp.extras["stream_start"][0])
-    assert start == rec[0].start and start < 4500 < 5400 < rec[0].stop
+    assert start == rec[0].start and start < 4500 and 5400 < rec[0].stop
     src = np.moveaxis(stream[rec[0].start:rec[0].stop], 0, -1)
     keep = np.ones(r.shape[-1], bool)
     keep[4700 - start:4750 - start] = False
@@ -493,7 +496,9 @@ def small_model(tmp_path_factory):
 def run_fw_sim(exe, *args):
     import subprocess
 
-    proc = subprocess.Popen([str(exe), *map(str, args), "--quiet"], stdout=subprocess.PIPE,
+    # a 1 MB transmit queue: a host slowed down by a busy test machine must not lose samples
+    proc = subprocess.Popen([str(exe), *map(str, args), "--tx-buffer", str(1 << 20), "--quiet"],
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     first = proc.stdout.readline().split()
     assert first and first[0] == "PTY", (first, proc.stderr.read())
@@ -538,7 +543,7 @@ def test_live_decisions_equal_offline_decisions(fw_sim_path, small_model, tmp_pa
         (e["window"][0], e["window"][1], e["label"]) for e in offline]
     batch = cm.classify(np.stack(test))
     for src in (ctrl, host):
-        lab, val, dk, extra = assign_decisions(src, rf.segments, 3)
+        lab, val, _, _ = assign_decisions(src, rf.segments, 3)
         assert list(lab) == list(batch.label_indices)
         np.testing.assert_allclose(val, batch.decision_values, atol=1e-5)
     # the recording of the stream reads back equal to the source
@@ -570,3 +575,69 @@ def test_faults_from_the_fw_sim_are_rejected_and_counted(fw_sim_path, small_mode
     assert s.rejected > 0
     # each fault costs at most two frames
     assert s.lost_samples <= 2 * SPF * stats["faults_injected"]
+
+
+def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_model):
+    _, _, rf, _ = small_model
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--speed", 4, "--wait-start")
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            first = list(link.events(duration=0.5, flush=False))
+            link.reconnect()  # the controller keeps streaming (and drops) while nobody listens
+            rest = list(link.events(until_eof=True, duration=60))
+    finally:
+        stats = finish(proc)
+    got = received_samples(first + rest)
+    src = np.asarray(rf.samples)
+    assert all(np.array_equal(x, src[i]) for i, x in got.items())
+    s = rest[-1].stats
+    assert s.reconnects == 1 and s.rejected == 0 and min(got) == 0
+    # every sample the controller produced was received or counted as lost: the ones it
+    # dropped while nobody listened, and the ones still in the port's buffer when it closed
+    assert s.samples + s.lost_samples == stats["samples_produced"] == rf.n_samples
+    assert s.lost_samples >= stats["dropped_samples"] == s.controller_dropped_samples
+
+
+def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_model):
+    """The host's Python path (TouchDetector + a TouchModel's machines) on the live stream."""
+    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
+    from eskin.models import load_model
+
+    _, path, rf, _ = small_model
+    model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing
+    proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
+                                "--wait-start")
+    try:
+        with LinkListener(pty_path, model=model, backend="python", stats_interval=None) as link:
+            assert link.classifier.kind == "python"
+            events = list(link.events(until_eof=True, duration=60))
+    finally:
+        finish(proc)
+    dec = [e for e in events if isinstance(e, Decision)]
+    ctrl = [d for d in dec if d.source == "controller"]
+    host = [d for d in dec if d.source == "host"]
+    assert len(ctrl) == len(host) > 0
+    for c, h in zip(ctrl, host):
+        assert (c.onset_sample, c.offset_sample, c.label) == (h.onset_sample, h.offset_sample,
+                                                              h.label)
+        np.testing.assert_allclose(c.values, h.values, atol=1e-6)
+
+
+def test_listen_live_view_renders(pty, tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    state, path = pty
+    c = Controller(names=("brush", "finger", "washer"))
+    wire = (DELIMITER + c.info() + b"".join(c.data_frames(touch_stream()))
+            + c.decision(4450, 5450, 0, (0.9, -0.5, -0.7)) + c.status(StreamState.FINISHED))
+    out = tmp_path / "d.jsonl"
+    feed_when_open(state, wire)
+    res = CliRunner().invoke(app, ["listen", path, "--view", "live", "--until-eof",
+                                   "--duration", "20", "--jsonl", str(out)])
+    assert res.exit_code == 0, res.output
+    for text in ("taxel activity", "link statistics", "decisions (latest last)", "brush",
+                 "lost samples"):
+        assert text in res.output
+    assert json.loads(out.read_text().splitlines()[0])["label"] == "brush"

@@ -306,6 +306,7 @@ def test_streaming_equals_batch(select):
     [
         WindowConfig(),
         WindowConfig(select="energy", combine="max", dc_cutoff_hz=0.0),
+        WindowConfig(combine="trimmed", noise_quantile=0.25),
         WindowConfig(select="first", max_window_s=1.0, lookback_s=0.0, release_fraction=0.0),
     ],
 )
@@ -431,7 +432,8 @@ def test_errors(call, match):
 def test_nan_names_recording_taxel_and_sample():
     x = np.zeros((3, 4, 4, 1000))
     x[2, 1, 2, 500] = np.nan
-    with pytest.raises(ValueError, match=r"signals\[2\] has a non-finite value at taxel 6, sample 500"):
+    msg = r"signals\[2\] has a non-finite value at taxel 6, sample 500"
+    with pytest.raises(ValueError, match=msg):
         preprocess(x, 10)
     with pytest.raises(ValueError, match=r"signals\[2\]"):
         preprocess(x, 10, window="none")
@@ -456,10 +458,10 @@ def test_windows_against_the_simulators_true_contact_interval(tmp_path, capsys):
     """Detected windows vs /recordings/contact_interval on a small simulated campaign.
 
     The true interval runs from the first to the last instant of contact; parts of a gesture
-    that give no electrode signal (a slow press, a stretch off the electrodes, the end of a
-    release) are invisible to any detector, so the error has a floor set by the physics. The
-    bounds below leave a margin over what the defaults give on 240 simulated recordings (see
-    docs/preprocessing.md).
+    that give no electrode signal (a slow press, a washer resting or rolling off the electrodes,
+    the end of a release) are invisible to any detector, so the error has a floor set by the
+    physics, highest for the washer. The bounds leave a margin over what the defaults give on
+    240 simulated recordings (docs/preprocessing.md); the distribution is printed.
     """
     from eskin.campaign import load_campaign
     from eskin.simulator import simulate
@@ -469,30 +471,39 @@ def test_windows_against_the_simulators_true_contact_interval(tmp_path, capsys):
         rate = c.sample_rate_hz
         t = detect_touches(c.signals, c.lengths, rate)
         truth = np.asarray(c.contact_interval, dtype=np.int64)
-    ms = 1000.0 / rate
-    err_start = (t.start - truth[:, 0]) * ms
-    err_stop = (t.stop - truth[:, 1]) * ms
-    err_onset = (t.onset - truth[:, 0]) * ms
-    err_offset = (t.offset - truth[:, 1]) * ms
-    inter = np.clip(np.minimum(t.stop, truth[:, 1]) - np.maximum(t.start, truth[:, 0]), 0, None)
-    iou = inter / (np.maximum(t.stop, truth[:, 1]) - np.minimum(t.start, truth[:, 0]))
-    with capsys.disabled():
-        print(f"\nwindow vs true contact interval, {len(truth)} simulated recordings (ms):")
-        for name, e in [("start-onset", err_start), ("stop-offset", err_stop),
-                        ("detected onset", err_onset), ("detected offset", err_offset)]:
-            p = np.percentile(np.abs(e), [50, 90, 100])
-            print(f"  {name:16s} |err| median {p[0]:6.0f}  p90 {p[1]:6.0f}  max {p[2]:6.0f}"
-                  f"   signed median {np.median(e):6.0f}")
-        print(f"  IoU median {np.median(iou):.2f}, 10th percentile {np.percentile(iou, 10):.2f}")
-    assert t.found.all()
-    # an independent numpy implementation of the same detector finds the same windows
-    with load_campaign(path) as c:
+        modality = np.asarray(c.modality)
+        names = list(c.modalities)
+        # an independent numpy implementation of the same detector finds the same windows
         ref_windows = [
             _ref.preprocess(c.recording(i), 20, rate, length=int(c.lengths[i]))[1]
             for i in range(0, len(c), 3)
         ]
     np.testing.assert_array_equal(np.array(ref_windows), t.windows[::3])
-    assert np.median(np.abs(err_start)) < 150 and np.median(np.abs(err_stop)) < 250
-    assert np.percentile(np.abs(err_start), 90) < 600
-    assert np.percentile(np.abs(err_stop), 90) < 600
-    assert np.median(iou) > 0.7
+    assert t.found.all()
+    ms = 1000.0 / rate
+    err = {
+        "start-onset": (t.start - truth[:, 0]) * ms,
+        "stop-offset": (t.stop - truth[:, 1]) * ms,
+        "detected onset": (t.onset - truth[:, 0]) * ms,
+        "detected offset": (t.offset - truth[:, 1]) * ms,
+    }
+    inter = np.clip(np.minimum(t.stop, truth[:, 1]) - np.maximum(t.start, truth[:, 0]), 0, None)
+    iou = inter / (np.maximum(t.stop, truth[:, 1]) - np.minimum(t.start, truth[:, 0]))
+    with capsys.disabled():
+        print(f"\nwindow vs true contact interval, {len(truth)} SIMULATED recordings (ms):")
+        for m, name in [(None, "all")] + list(enumerate(names)):
+            sel = np.ones(len(truth), bool) if m is None else modality == m
+            print(f"  {name} (n={sel.sum()}), IoU median {np.median(iou[sel]):.2f}")
+            for key, e in err.items():
+                a = np.abs(e[sel])
+                p = np.percentile(a, [50, 90, 100])
+                print(f"    {key:16s} |err| median {p[0]:6.0f}  p90 {p[1]:6.0f}  max {p[2]:6.0f}"
+                      f"   signed median {np.median(e[sel]):6.0f}")
+    start, stop = np.abs(err["start-onset"]), np.abs(err["stop-offset"])
+    assert np.median(start) < 150 and np.median(stop) < 300
+    assert np.median(iou) > 0.65
+    # brush and finger make signal from first to last contact: tighter bounds
+    bf = modality != names.index("washer")
+    assert np.median(start[bf]) < 100 and np.percentile(start[bf], 90) < 500
+    assert np.median(stop[bf]) < 300 and np.percentile(stop[bf], 90) < 600
+    assert np.median(start[~bf]) < 1200 and np.median(stop[~bf]) < 1200

@@ -3,7 +3,9 @@
 //
 // Loading allocates and throws (ModelFormatError, a std::runtime_error, whose message names the
 // field and the bad value). Classifying does neither: a Classifier allocates its workspace once,
-// at construction, and its per-decision calls return a Status.
+// at construction, and its per-decision calls return a ClassifyStatus. The StreamClassifier
+// (below) is the controller's path: one multi-taxel sample at a time, no allocation after
+// construction.
 #pragma once
 
 #include <array>
@@ -136,8 +138,13 @@ enum class ClassifyStatus : int {
   kTooShort = -4,    ///< the window is shorter than D and the model's short policy is "error"
   kKernel = -5,      ///< the basis computation failed (eigen-solver did not converge)
   kNullPointer = -6,
+  kOverflow = -7,    ///< more than 4096 separate touches in one recording (batch path)
 };
 const char* to_string(ClassifyStatus s) noexcept;
+
+/// Name of the subspace-overlap micro-kernel the classifiers use on this CPU ("avx2-fma" or
+/// "generic"; ESKIN_KERNEL_ISA=generic forces the portable one).
+const char* overlap_kernel_name() noexcept;
 
 /// One decision. `values` points into the classifier that produced it (valid until its next call).
 struct Decision {

@@ -31,7 +31,7 @@ namespace eskin {
 struct WindowConfig {
   double frame_s = 0.010;          // short-time energy frame (non-overlapping), seconds
   double dc_cutoff_hz = 5.0;       // one-pole DC blocker per taxel before squaring; 0 = off
-  double combine = 0;              // 0: frame energy = sum over taxels; 1: max over taxels
+  double combine = 0;              // frame energy over taxels: 0 sum, 1 max, 2 sum minus max
   double noise_window_s = 1.0;     // noise floor: quantile of this much recent idle frames
   double noise_quantile = 0.5;     // which quantile of the idle-frame energies (robust floor)
   double warmup_s = 0.1;           // idle frames needed before detection is enabled
@@ -90,7 +90,7 @@ struct TouchWindow {
   int64_t stop = 0;
   int64_t onset = 0;
   int64_t offset = 0;
-  double energy = 0.0;     // sum over the touch's frames above off threshold of frame energy * frame_len
+  double energy = 0.0;     // sum of frame energy * frame_len over the touch's frames
   bool truncated = false;  // cut by max_window (or by the end of the stream) while still active
   bool found = true;       // batch result only: false when no touch was found (fallback window)
 };
@@ -189,12 +189,13 @@ class TouchDetector {
   int64_t n_taxels_;
   bool store_;
 
+  int64_t dc_fast_n_ = 0;  // samples n < dc_fast_n_ use the running mean (1/(n+1) >= dc_alpha)
   // per-taxel state
   std::vector<double> dc_mean_;
   std::vector<double> acc_;
-  // idle-frame energies (noise floor) and a scratch copy for the quantile
-  std::vector<double> noise_ring_;
-  std::vector<double> noise_scratch_;
+  // idle-frame energies (noise floor)
+  std::vector<double> noise_ring_;    // in arrival order (to know which value leaves)
+  std::vector<double> noise_sorted_;  // the same values, sorted (the quantile is an index)
   // energies of the last lookback_frames frames (onset backtracking)
   std::vector<double> frame_ring_;
   int64_t noise_count_ = 0;

@@ -113,7 +113,7 @@ class BasisWorkspace {
  private:
   KernelStatus compute_mode(std::size_t z, double* out, int* rank) noexcept;
   BasisLayout layout_;
-  std::vector<double> unfold_, gram_, d_, e_, sv_, tmp_;
+  std::vector<double> scaled_, unfold_, gram_, d_, e_, sv_, tmp_;
   std::vector<std::size_t> sv_off_;
 };
 
@@ -149,8 +149,8 @@ struct PatternBases {
   std::vector<int> ranks;
 };
 
-/// Instruction set of the pairwise micro-kernel chosen at run time ("avx2-fma" or "generic";
-/// ESKIN_KERNEL_ISA=generic in the environment forces the portable one).
+/// Instruction set of the pairwise micro-kernel chosen at run time ("avx512", "avx2-fma" or
+/// "generic"; ESKIN_KERNEL_ISA=generic|avx2 in the environment caps the choice).
 const char* tensor_kernel_isa() noexcept;
 
 /// Number of threads used when the caller passes n_threads <= 0: $ESKIN_NUM_THREADS if set,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import sys
 import time
 from collections import deque
@@ -162,7 +163,9 @@ def register(app: typer.Typer) -> None:
             False, "--reconnect", help="reopen the port when the controller goes away"),
         backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
         force: bool = typer.Option(False, "--force", help="replace the --record file"),
-        plain: bool = typer.Option(False, "--plain", help="plain lines even on a terminal"),
+        view: str = typer.Option(
+            "auto", help="live (rich view), plain (one line per event) or auto (live on a "
+                         "terminal)"),
     ) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
         from eskin.link import (
@@ -177,7 +180,10 @@ def register(app: typer.Typer) -> None:
         if duration is not None and duration <= 0:
             typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
             raise typer.Exit(2)
-        live_mode = sys.stdout.isatty() and not plain
+        if view not in ("auto", "live", "plain"):
+            typer.echo(f"error: --view must be auto, live or plain, got {view!r}", err=True)
+            raise typer.Exit(2)
+        live_mode = view == "live" or (view == "auto" and sys.stdout.isatty())
         with _user_errors():
             listener = LinkListener(port, model=model, backend=backend, record=record,
                                     replay=replay, reconnect=reconnect, overwrite=force,
@@ -192,6 +198,7 @@ def register(app: typer.Typer) -> None:
             rate = 3000.0
             recent: deque = deque(maxlen=12)
             last_stats = None
+            last_info = None
             events = listener.events(duration=duration, until_eof=until_eof)
             if live_mode:
                 last_stats = _run_live(listener, events, recent, out)
@@ -200,6 +207,10 @@ def register(app: typer.Typer) -> None:
                     if isinstance(ev, InfoEvent):
                         rate = ev.info.sample_rate_hz
                         names = ", ".join(ev.info.class_names) or "-"
+                        key = (ev.info.rows, ev.info.cols, rate, names, ev.info.speed)
+                        if key == last_info:
+                            continue  # sent again at every (re)start: print it once
+                        last_info = key
                         typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
                                    f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
                     elif isinstance(ev, Decision):
@@ -233,6 +244,10 @@ def register(app: typer.Typer) -> None:
         speed: float = typer.Option(5.0, help="replay speed (x real time)"),
         seed: int = typer.Option(0, help="random seed"),
         jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
+        machine: str = typer.Option("rls", help="rls (tensor-RLS) or svm (tensor-SVM)"),
+        quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
+        recordings: Optional[int] = typer.Option(
+            None, "--recordings", help="stream only this many held-out recordings"),
     ) -> None:
         """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
         from rich.console import Console
@@ -244,7 +259,8 @@ def register(app: typer.Typer) -> None:
             try:
                 result = run_demo(out, participants=participants,
                                   test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, log=lambda m: console.print(m))
+                                  n_jobs=jobs, quick=quick, machine=machine,
+                                  max_recordings=recordings, log=lambda m: console.print(m))
             except DemoError as exc:
                 console.print(f"[bold red]demo failed:[/] {exc}")
                 raise typer.Exit(1) from None
@@ -276,8 +292,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
         return Panel(Group(header, grid, decisions_table(list(recent), rate)),
                      title="eskin listen")
 
+    # drawn from this loop, at most 5 times a second, so that rendering never competes with
+    # reading the port (no refresh thread)
     t_draw = 0.0
-    with Live(view(), refresh_per_second=8, transient=False) as live:
+    with Live(view(), auto_refresh=False, transient=False) as live:
         for ev in events:
             if isinstance(ev, InfoEvent):
                 rate = ev.info.sample_rate_hz
@@ -292,10 +310,10 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
             elif isinstance(ev, Stats):
                 last_stats = ev.stats
             now = time.monotonic()
-            if now - t_draw > 0.1:
+            if now - t_draw > 0.2:
                 t_draw = now
-                live.update(view())
-        live.update(view())
+                live.update(view(), refresh=True)
+        live.update(view(), refresh=True)
     return last_stats
 
 
@@ -316,12 +334,20 @@ def _print_demo(console: Any, result: Any) -> None:
     names = list(result.class_names)
     console.print(Columns([matrix(f"{k} ({result.error_rates[k]:.1%} error)", cm, names)
                            for k, cm in result.confusion.items()]))
-    t = Table(title="per-recording agreement")
-    for c in ("decisions", "recordings", "equal labels", "max |value diff|"):
-        t.add_column(c)
+    t = Table(title="agreement (touch by touch, then per recording)")
+    t.add_column("decisions", no_wrap=True)
+    for c in ("touches", "same touches", "recs", "same labels", "max |dv|"):
+        t.add_column(c, justify="right")
     for k, row in result.agreement.items():
-        t.add_row(k, str(row["n"]), str(row["equal"]), f"{row['max_value_diff']:.2e}")
+        diff = row["max_value_diff"]
+        short = (k.replace(" (live)", "").replace(" (Python)", "")
+                 .replace("offline batch (per recording)", "batch").replace(" vs ", " / "))
+        t.add_row(short, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
+                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.1e}")
     console.print(t)
+    console.print("same touches: equal window and label, touch by touch; recs: recordings "
+                  "compared (one decision each: the touch on its true contact); max |dv|: largest "
+                  "difference of the decision values (float32 export vs float64)")
     console.print(stats_table(result.stats, title="link statistics (live run)"))
     for line in result.summary:
         console.print(line)

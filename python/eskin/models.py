@@ -1,0 +1,839 @@
+"""Deployable touch models: train on a campaign (or arrays), save, load, predict.
+
+A :class:`TouchModel` bundles everything needed to classify a raw recording: the
+preprocessing settings (D, window mode and detector configuration, subsampling method, sample
+rate, grid shape), the class names, the fitted estimator (one binary tensor machine, or a
+:class:`~eskin.estimators.OneVsAllTouchClassifier` for three or more classes) and the model
+selection report.
+
+Files: :func:`save_model` / :func:`load_model` are the one function pair through which models
+are written and read. The default container is a joblib (pickle) file holding a header dict
+(``format``, ``format_version``, eskin version, classes, D, ...) and the model; loading checks the
+header and says clearly what is wrong with a file that is not an eskin model. Like any pickle,
+only load model files you trust. Other formats (the C++ ``.eskin`` file of :mod:`eskin.export`)
+plug in by file suffix through :func:`register_model_format`.
+
+This module also holds the pieces shared with :mod:`eskin.experiments`: the paper's grid in
+per-mode alpha terms, building MD/CV searches, and preprocessing a campaign once per (D,
+subsample method) in chunks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MODEL_FORMAT = "eskin.touch-model"
+MODEL_FORMAT_VERSION = 1
+
+#: The paper's grid (Section 5.2). For the SVM, C = 1/lambda.
+PAPER_LAMBDAS: tuple[float, ...] = (1e-3, 1e-2, 1e-1, 1e0, 1e1)
+PAPER_SIGMAS: tuple[float, ...] = tuple(2.0**k for k in range(-4, 5))
+PAPER_ALPHAS: tuple[str, ...] = ("1", "Q/2", "Q")
+
+QUICK_LAMBDAS: tuple[float, ...] = (1e-2, 1e0)
+QUICK_SIGMAS: tuple[float, ...] = (2.0**-1, 2.0**1)
+QUICK_ALPHAS: tuple[str, ...] = ("1", "Q/2")
+
+MACHINES: tuple[str, ...] = ("svm", "rls")
+SELECTIONS: tuple[str, ...] = ("md", "cv")
+
+
+class ModelFormatError(ValueError):
+    """A file that is not a readable eskin model (wrong type, version or content)."""
+
+
+class TrainingError(ValueError):
+    """Training data or options that cannot make a model (unknown class, one class, ...)."""
+
+
+# --------------------------------------------------------------------------------------------
+# grid and searches (shared with eskin.experiments)
+
+
+#: grid label -> the alpha value given to the estimators (see :func:`eskin.resolve_alphas`)
+ALPHA_SPEC: dict[str, Any] = {"1": 1, "Q/2": "half", "Q": "full"}
+
+
+def alpha_value(label: str, shape: Sequence[int]) -> tuple[int, ...]:
+    """Per-mode alpha of the grid labels "1", "Q/2", "Q" on patterns of ``shape`` (NOTES 8).
+
+    Q_z = min(d_z, product of the other dimensions) is the rank bound of the mode-z unfolding
+    (4, 4 and 16 for a 4x4xD pattern with D >= 16); Q_z/2 is rounded down and at least 1.
+    """
+    from eskin.kernel import resolve_alphas
+
+    if label not in ALPHA_SPEC:
+        raise TrainingError(f"alpha label must be one of '1', 'Q/2', 'Q', got {label!r}")
+    return tuple(int(a) for a in resolve_alphas(tuple(shape), ALPHA_SPEC[label]))
+
+
+def alpha_label(alpha: Any) -> str | None:
+    """The grid label ("1", "Q/2", "Q") of an estimator alpha value, or None."""
+    for lab, spec in ALPHA_SPEC.items():
+        if isinstance(alpha, str) == isinstance(spec, str) and alpha == spec:
+            return lab
+    return None
+
+
+def param_grid(
+    lambdas: Sequence[float] = PAPER_LAMBDAS,
+    sigmas: Sequence[float] = PAPER_SIGMAS,
+    alphas: Sequence[str] = PAPER_ALPHAS,
+) -> dict[str, list[Any]]:
+    """The search grid in lambda for both machines (the searches train the SVM with C =
+    1/lambda, NOTES 9), sigma, and alpha in the estimators' terms (1, "half", "full")."""
+    for a in alphas:
+        if a not in ALPHA_SPEC:
+            raise TrainingError(f"alpha label must be one of '1', 'Q/2', 'Q', got {a!r}")
+    if not lambdas or not sigmas or not alphas:
+        raise TrainingError("the grid needs at least one lambda, one sigma and one alpha")
+    return {
+        "lam": [float(v) for v in lambdas],
+        "sigma": [float(v) for v in sigmas],
+        "alpha": [ALPHA_SPEC[a] for a in alphas],
+    }
+
+
+def make_search(
+    machine: str,
+    selection: str,
+    grid: Mapping[str, list[Any]],
+    *,
+    seed: int = 0,
+    md_options: Mapping[str, Any] | None = None,
+    cv_options: Mapping[str, Any] | None = None,
+    n_jobs: int = 1,
+) -> Any:
+    """A Maximal Discrepancy or cross-validation search over ``grid`` for one tensor machine.
+
+    CV searches are fitted with ``groups`` (participants) when known (:func:`fit_search`), so
+    that no participant is on both sides of a split.
+    """
+    from eskin.estimators import TensorRLS, TensorSVC
+    from eskin.selection import CrossValidationSearch, MaximalDiscrepancySearch
+
+    if machine not in MACHINES:
+        raise TrainingError(f"machine must be 'svm' or 'rls', got {machine!r}")
+    est = TensorSVC() if machine == "svm" else TensorRLS()
+    if selection == "md":
+        return MaximalDiscrepancySearch(
+            est, dict(grid), random_state=seed, n_jobs=n_jobs, **dict(md_options or {})
+        )
+    if selection == "cv":
+        return CrossValidationSearch(
+            est, dict(grid), random_state=seed, n_jobs=n_jobs, **dict(cv_options or {})
+        )
+    raise TrainingError(f"selection must be 'md' or 'cv', got {selection!r}")
+
+
+def fit_search(search: Any, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> Any:
+    """Fit a search; CV searches get the participant groups (when there are at least 2)."""
+    from eskin.selection import CrossValidationSearch
+
+    if (
+        isinstance(search, CrossValidationSearch)
+        and groups is not None
+        and len(np.unique(groups)) >= 2
+    ):
+        return search.fit(X, y, groups=groups)
+    return search.fit(X, y)
+
+
+def describe_params(
+    machine: str, params: Mapping[str, Any], estimator: Any = None
+) -> dict[str, Any]:
+    """A selected setting in the paper's terms: lambda (and C for the SVM), sigma, alpha label,
+    and the per-mode alphas the fitted estimator used."""
+    alpha = params.get("alpha")
+    lam = 1.0 / float(params["C"]) if "C" in params else float(params["lam"])
+    out: dict[str, Any] = {
+        "lambda": lam,
+        "sigma": float(np.mean(np.atleast_1d(params["sigma"]))),
+        "alpha": alpha_label(alpha),
+        "alpha_value": alpha if isinstance(alpha, str) else np.atleast_1d(alpha).tolist(),
+        "alphas": [int(a) for a in getattr(estimator, "alphas_", ())] or None,
+    }
+    if machine == "svm":
+        out["C"] = 1.0 / lam
+    return out
+
+
+_TERMS = (
+    "train_error",
+    "chi",
+    "tau",
+    "bound",
+    "mean_random_error",
+    "cap_hits",
+    "n_support",
+    "gamma_0",
+    "mean_test_error",
+    "std_test_error",
+    "mean_train_error",
+)
+
+
+def selected_row(search: Any) -> dict[str, float]:
+    """The selection table's row of the chosen configuration (MD terms v = train_error, chi,
+    tau, bound; or the CV error)."""
+    res = getattr(search, "cv_results_", None)
+    idx = getattr(search, "best_index_", None)
+    if res is None or idx is None:
+        return {}
+    return {k: float(np.asarray(res[k], dtype=float)[idx]) for k in _TERMS if k in res}
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, (tuple, list, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.integer, int)) and not isinstance(v, bool):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return float(v)
+    return v if isinstance(v, (str, bool)) or v is None else str(v)
+
+
+def selection_table(search: Any) -> dict[str, list[Any]]:
+    """The whole selection table (one entry per configuration) as JSON-friendly lists."""
+    res = getattr(search, "cv_results_", None)
+    if res is None:
+        return {}
+    out: dict[str, list[Any]] = {}
+    for key, val in res.items():
+        if key.startswith("param_"):
+            out[key] = [_plain(v) for v in list(val)]
+        elif key in _TERMS:
+            out[key] = np.asarray(val, dtype=float).round(6).tolist()
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# preprocessing of whole campaigns, once per (D, subsample method)
+
+
+@dataclass
+class Prepared:
+    """Preprocessed patterns of some recordings, per (D, subsample method)."""
+
+    X: dict[tuple[int, str], np.ndarray]
+    windows: np.ndarray  # (n, 2) [start, stop) samples, per recording
+    bad_taxels: np.ndarray  # (n,) dead or noisy taxels per recording (with stats=True)
+    snr_db: np.ndarray  # (n,) power inside the window over power outside, dB (nan if undefined)
+    seconds: float
+
+
+class ArrayRecordings:
+    """Campaign-like access (recording(i), lengths, sample_rate_hz) to an in-memory array."""
+
+    def __init__(
+        self,
+        signals: np.ndarray,
+        lengths: Sequence[int] | None = None,
+        sample_rate_hz: float = 3000.0,
+    ) -> None:
+        sig = np.asarray(signals)
+        if sig.ndim != 4:
+            raise TrainingError(
+                f"signals must have shape (n, rows, cols, T), got shape {sig.shape}"
+            )
+        self.signals = sig
+        T = sig.shape[-1]
+        self.lengths = (
+            np.full(len(sig), T, np.int64) if lengths is None else np.asarray(lengths, np.int64)
+        )
+        if (
+            self.lengths.shape != (len(sig),)
+            or np.any(self.lengths < 1)
+            or np.any(self.lengths > T)
+        ):
+            raise TrainingError(f"lengths must be {len(sig)} values in 1..{T}")
+        self.sample_rate_hz = float(sample_rate_hz)
+
+    def __len__(self) -> int:
+        return len(self.signals)
+
+    def recording(self, i: int) -> np.ndarray:
+        return self.signals[i][..., : self.lengths[i]]
+
+
+def _recording_stats(rec: np.ndarray, start: int, stop: int) -> tuple[int, float]:
+    """(bad taxels, window SNR in dB) of one recording (rows, cols, length).
+
+    A taxel is bad when it is dead (standard deviation below 1 % of the recording's median
+    taxel standard deviation) or noisy (its standard deviation outside the touch window above
+    4 times the median over taxels). The SNR is the mean power inside the window over the mean
+    power outside it (nan when either side is empty).
+    """
+    x = rec.reshape(-1, rec.shape[-1]).astype(np.float64)
+    x = x - x.mean(axis=1, keepdims=True)
+    std = x.std(axis=1)
+    med = float(np.median(std))
+    dead = std <= 0.01 * med if med > 0 else np.ones(len(std), bool)
+    quiet = np.concatenate([x[:, :start], x[:, stop:]], axis=1)
+    noisy = np.zeros(len(std), bool)
+    if quiet.shape[1] > 1:
+        qstd = quiet.std(axis=1)
+        qmed = float(np.median(qstd))
+        if qmed > 0:
+            noisy = qstd > 4.0 * qmed
+    bad = int(np.sum(dead | noisy))
+    p = np.mean(x**2, axis=0)
+    inside = p[start:stop]
+    outside = np.concatenate([p[:start], p[stop:]])
+    if inside.size == 0 or outside.size == 0 or float(np.mean(outside)) <= 0:
+        return bad, float("nan")
+    return bad, 10 * math.log10(max(float(np.mean(inside)), 1e-300) / float(np.mean(outside)))
+
+
+def preprocess_campaign(
+    campaign: Any,
+    indices: Sequence[int] | np.ndarray,
+    variants: Sequence[tuple[int, str]],
+    *,
+    window: str = "energy",
+    config: Any = None,
+    sample_rate_hz: float | None = None,
+    short: str = "interpolate",
+    chunk: int = 32,
+    stats: bool = False,
+    on_chunk: Callable[[int], None] | None = None,
+) -> Prepared:
+    """Preprocess the recordings ``indices`` of ``campaign`` for every (D, subsample method).
+
+    ``campaign`` is a :class:`~eskin.campaign.Campaign` or an :class:`ArrayRecordings`. Touch
+    windows are detected once per recording with :func:`eskin.detect_windows` (or the whole
+    recording is the window with ``window="none"``) and handed to :func:`eskin.preprocess` for
+    every variant, so detection is not repeated. Recordings are read in chunks: a lazily loaded
+    campaign never sits in memory whole. ``short`` says what to do with a window shorter than D
+    ("interpolate" or "error", see :func:`eskin.preprocess`). ``stats`` also computes the per-recording bad-taxel
+    counts and window SNR used to rank outlier participants.
+    """
+    from eskin.preprocess import detect_windows, preprocess
+
+    if window not in ("energy", "none"):
+        raise TrainingError(f"window must be 'energy' or 'none', got {window!r}")
+    t0 = time.perf_counter()
+    rate = float(sample_rate_hz if sample_rate_hz is not None else campaign.sample_rate_hz)
+    indices = np.asarray(indices, dtype=np.int64)
+    lengths = np.asarray(campaign.lengths)
+    n = len(indices)
+    variants = sorted({(int(D), str(s)) for D, s in variants})
+    for D, s in variants:
+        if D < 1:
+            raise TrainingError(f"D must be >= 1, got {D}")
+        if s not in ("algorithm2", "even"):
+            raise TrainingError(f"subsample must be 'algorithm2' or 'even', got {s!r}")
+    if n == 0:
+        raise TrainingError("no recording to preprocess")
+    rows, cols = (int(v) for v in np.shape(campaign.recording(int(indices[0])))[:2])
+    out = {(D, s): np.empty((n, rows, cols, D)) for D, s in variants}
+    windows = np.zeros((n, 2), np.int64)
+    bad = np.zeros(n, np.int64)
+    snr = np.full(n, np.nan)
+    for c0 in range(0, n, chunk):
+        sel = indices[c0 : c0 + chunk]
+        recs = [np.asarray(campaign.recording(int(i))) for i in sel]
+        lens = np.minimum(np.array([r.shape[-1] for r in recs], np.int64), lengths[sel])
+        if np.any(lens < 1):
+            raise TrainingError(f"recording {int(sel[np.argmin(lens)])} is empty (length 0)")
+        block = np.zeros((len(recs), rows, cols, int(lens.max())), dtype=recs[0].dtype)
+        for j, r in enumerate(recs):
+            block[j, :, :, : lens[j]] = r[..., : lens[j]]
+        if window == "energy":
+            win = np.asarray(
+                detect_windows(block, lengths=lens, sample_rate_hz=rate, config=config),
+                dtype=np.int64,
+            ).reshape(len(recs), 2)
+        else:
+            win = np.stack([np.zeros_like(lens), lens], axis=1)
+        for D, s in variants:
+            out[(D, s)][c0 : c0 + len(sel)] = preprocess(
+                block,
+                D,
+                lengths=lens,
+                sample_rate_hz=rate,
+                window=win,
+                subsample=s,
+                config=config,
+                short=short,
+            )
+        windows[c0 : c0 + len(sel)] = win
+        if stats:
+            for j in range(len(recs)):
+                bad[c0 + j], snr[c0 + j] = _recording_stats(
+                    block[j, :, :, : lens[j]], int(win[j, 0]), int(win[j, 1])
+                )
+        if on_chunk is not None:
+            on_chunk(len(sel))
+    return Prepared(out, windows, bad, snr, time.perf_counter() - t0)
+
+
+# --------------------------------------------------------------------------------------------
+# the model
+
+
+@dataclass
+class TouchModel:
+    """A trained, deployable touch-modality classifier.
+
+    ``estimator`` is one fitted binary machine (``classes_`` = [0, 1], decision > 0 means
+    ``classes[1]``) for two classes, or a fitted OneVsAllTouchClassifier (``classes_`` =
+    0..k-1, one machine per class) for three or more. Labels map to names through ``classes``.
+    """
+
+    classes: list[str]
+    estimator: Any
+    machine: str
+    selection: str
+    D: int
+    window: str
+    subsample: str
+    sample_rate_hz: float
+    grid_shape: tuple[int, int]
+    window_config: Any = None
+    short: str = "interpolate"
+    selected: list[dict[str, Any]] = field(default_factory=list)
+    selection_report: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.classes)
+
+    @property
+    def is_binary(self) -> bool:
+        return len(self.classes) == 2
+
+    @property
+    def pattern_shape(self) -> tuple[int, int, int]:
+        return (int(self.grid_shape[0]), int(self.grid_shape[1]), int(self.D))
+
+    def header(self) -> dict[str, Any]:
+        """The summary written in front of the model in a model file."""
+        import eskin
+
+        return {
+            "format": MODEL_FORMAT,
+            "format_version": MODEL_FORMAT_VERSION,
+            "eskin_version": eskin.__version__,
+            "classes": list(self.classes),
+            "machine": self.machine,
+            "selection": self.selection,
+            "D": int(self.D),
+            "window": self.window,
+            "subsample": self.subsample,
+            "short": getattr(self, "short", "interpolate"),
+            "sample_rate_hz": float(self.sample_rate_hz),
+            "grid_shape": [int(v) for v in self.grid_shape],
+            "window_config": (
+                self.window_config.to_dict()
+                if hasattr(self.window_config, "to_dict")
+                else self.window_config
+            ),
+        }
+
+    # -- preprocessing and decisions ------------------------------------------------------
+    def preprocess(self, data: Any, indices: Sequence[int] | None = None) -> np.ndarray:
+        """Patterns (n, rows, cols, D) from a campaign, an :class:`ArrayRecordings` or raw
+        signals (n, rows, cols, T), preprocessed as in training."""
+        rec = (
+            data if hasattr(data, "recording") else ArrayRecordings(data, None, self.sample_rate_hz)
+        )
+        idx = np.arange(len(rec)) if indices is None else np.asarray(indices, np.int64)
+        shape = tuple(np.shape(rec.recording(int(idx[0])))[:2]) if len(idx) else self.grid_shape
+        if tuple(int(v) for v in shape) != tuple(int(v) for v in self.grid_shape):
+            raise TrainingError(
+                f"the recordings have a {shape[0]}x{shape[1]} taxel grid; the model was trained "
+                f"on {self.grid_shape[0]}x{self.grid_shape[1]}"
+            )
+        prep = preprocess_campaign(
+            rec,
+            idx,
+            [(self.D, self.subsample)],
+            window=self.window,
+            config=self.window_config,
+            short=getattr(self, "short", "interpolate"),
+        )
+        return prep.X[(self.D, self.subsample)]
+
+    def _check_patterns(self, X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 4 or X.shape[1:] != self.pattern_shape:
+            raise TrainingError(
+                f"patterns must have shape (n, {', '.join(map(str, self.pattern_shape))}), "
+                f"got {X.shape}"
+            )
+        return X
+
+    def decision_function(self, X: np.ndarray) -> np.ndarray:
+        """(n,) decision values for a binary model (> 0: classes[1]), (n, k) otherwise."""
+        return np.asarray(self.estimator.decision_function(self._check_patterns(X)), float)
+
+    def predict_indices(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(class indices, decision values, don't-know flags) for preprocessed patterns."""
+        X = self._check_patterns(X)
+        F = np.asarray(self.estimator.decision_function(X), float)
+        if self.is_binary:
+            return (F > 0).astype(np.int64), F, np.zeros(len(F), bool)
+        pred = np.asarray(self.estimator.predict(X)).astype(np.int64)
+        dk = np.asarray(getattr(self.estimator, "dont_know_", np.zeros(len(pred), bool)), bool)
+        return pred, F, dk
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """Class names of preprocessed patterns."""
+        return np.asarray(self.classes, dtype=object)[self.predict_indices(X)[0]]
+
+    def predict_recordings(
+        self, data: Any, indices: Sequence[int] | None = None
+    ) -> list[dict[str, Any]]:
+        """Per-recording predictions of a campaign (or raw signals), ready for JSON.
+
+        Each item: ``index`` (recording position in ``data``), ``label``, ``decision_values``
+        (a list: one value for a binary model, > 0 meaning classes[1]; one per class
+        otherwise), ``dont_know`` (1-vs-all: no machine or several claimed the pattern), and
+        ``true_label`` when ``data`` is a campaign whose modality names are known.
+        """
+        rec = (
+            data if hasattr(data, "recording") else ArrayRecordings(data, None, self.sample_rate_hz)
+        )
+        idx = np.arange(len(rec)) if indices is None else np.asarray(indices, np.int64)
+        X = self.preprocess(rec, idx)
+        pred, F, dk = self.predict_indices(X)
+        names = list(getattr(rec, "modalities", []) or [])
+        mod = np.asarray(getattr(rec, "modality", np.full(len(rec), -1)))
+        out = []
+        for j, i in enumerate(idx):
+            item: dict[str, Any] = {
+                "index": int(i),
+                "label": self.classes[int(pred[j])],
+                "decision_values": [float(v) for v in np.atleast_1d(F[j])],
+                "dont_know": bool(dk[j]),
+            }
+            m = int(mod[i]) if i < len(mod) else -1
+            if names and 0 <= m < len(names):
+                item["true_label"] = str(names[m])
+            out.append(item)
+        return out
+
+
+def error_rate(
+    predictions: Sequence[Mapping[str, Any]], classes: Sequence[str]
+) -> tuple[float, int]:
+    """(error rate, count) over the predictions whose true label is one of ``classes``."""
+    known = [p for p in predictions if p.get("true_label") in set(classes)]
+    if not known:
+        return float("nan"), 0
+    return float(np.mean([p["label"] != p["true_label"] for p in known])), len(known)
+
+
+# --------------------------------------------------------------------------------------------
+# training
+
+
+def _load_data(
+    data: Any, labels: Any, class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float
+) -> tuple[Any, np.ndarray, list[str], np.ndarray | None, dict[str, Any]]:
+    """(recordings, label ids, class names, participant ids or None, source info)."""
+    if isinstance(data, (str, Path)):
+        from eskin.campaign import load_campaign
+
+        path = Path(data)
+        data = load_campaign(path)
+        info = {"campaign": str(path)}
+    else:
+        info = {}
+    if hasattr(data, "modalities") and hasattr(data, "recording"):
+        info.update(
+            {"source": str(getattr(data, "source", "unknown")), "n_recordings": int(len(data))}
+        )
+        part = getattr(data, "participant", None)
+        return (
+            data,
+            np.asarray(data.modality).astype(np.int64),
+            [str(m) for m in data.modalities],
+            None if part is None else np.asarray(part),
+            info,
+        )
+    rec = ArrayRecordings(data, lengths, sample_rate_hz)
+    if labels is None:
+        raise TrainingError("training from arrays needs labels (one per recording)")
+    lab = np.asarray(labels)
+    if lab.shape != (len(rec),):
+        raise TrainingError(f"labels must have shape ({len(rec)},), got {lab.shape}")
+    if lab.dtype.kind in "iu":
+        if class_names is None:
+            names = [str(v) for v in sorted(set(lab.tolist()))]
+            ids = np.searchsorted(np.array(sorted(set(lab.tolist()))), lab)
+        else:
+            names = [str(c) for c in class_names]
+            if lab.min() < 0 or lab.max() >= len(names):
+                raise TrainingError(f"integer labels must index class_names (0..{len(names) - 1})")
+            ids = lab.astype(np.int64)
+    else:
+        names = [str(c) for c in (class_names or sorted(set(map(str, lab.tolist()))))]
+        unknown = sorted(set(map(str, lab.tolist())) - set(names))
+        if unknown:
+            raise TrainingError(f"labels {unknown} are not in class_names {names}")
+        ids = np.array([names.index(str(v)) for v in lab], np.int64)
+    info.update({"source": "arrays", "n_recordings": int(len(rec))})
+    return rec, ids, names, None, info
+
+
+def train_model(
+    data: Any,
+    labels: Any = None,
+    *,
+    classes: Sequence[str] | None = None,
+    machine: str = "svm",
+    selection: str = "md",
+    D: int = 100,
+    window: str = "energy",
+    subsample: str = "algorithm2",
+    window_config: Any = None,
+    lambdas: Sequence[float] = PAPER_LAMBDAS,
+    sigmas: Sequence[float] = PAPER_SIGMAS,
+    alphas: Sequence[str] = PAPER_ALPHAS,
+    quick: bool = False,
+    md_options: Mapping[str, Any] | None = None,
+    cv_options: Mapping[str, Any] | None = None,
+    negatives: str = "balanced",
+    runs: Sequence[int] | None = None,
+    class_names: Sequence[str] | None = None,
+    lengths: Sequence[int] | None = None,
+    sample_rate_hz: float = 3000.0,
+    seed: int = 0,
+    n_jobs: int = 1,
+) -> TouchModel:
+    """Select hyperparameters, fit on all the given data and return a :class:`TouchModel`.
+
+    Parameters
+    ----------
+    data : a campaign path, a loaded Campaign, or raw signals (n, rows, cols, T) with ``labels``
+        (class names, or integers indexing ``class_names``), ``lengths`` and ``sample_rate_hz``.
+    classes : the classes to learn (names; default: every class present). Two classes give one
+        binary machine (decision > 0 means ``classes[1]``); three or more give one 1-vs-all
+        machine per class, combined by the paper's rule (Section 5.3).
+    machine : "svm" (tensor-SVM, C = 1/lambda) or "rls" (tensor-RLS).
+    selection : "md" (Maximal Discrepancy, Algorithm 1; ``md_options`` go to
+        :class:`~eskin.MaximalDiscrepancySearch`) or "cv" (repeated random splits, grouped by
+        participant when participants are known; ``cv_options`` go to
+        :class:`~eskin.CrossValidationSearch`).
+    D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`).
+    lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
+        replaces it by a 2x2x2 grid (for tests and demos).
+    negatives : for 1-vs-all machines, "balanced" (the paper: as many random patterns of the
+        other classes as positives, seeded) or "all".
+    runs : only recordings of these runs (default: every recording).
+    """
+    if machine not in MACHINES:
+        raise TrainingError(f"machine must be 'svm' or 'rls', got {machine!r}")
+    if selection not in SELECTIONS:
+        raise TrainingError(f"selection must be 'md' or 'cv', got {selection!r}")
+    if negatives not in ("balanced", "all"):
+        raise TrainingError(f"negatives must be 'balanced' or 'all', got {negatives!r}")
+    if int(D) < 1:
+        raise TrainingError(f"D must be >= 1, got {D}")
+    if quick:
+        lambdas, sigmas, alphas = QUICK_LAMBDAS, QUICK_SIGMAS, QUICK_ALPHAS
+        md_options = {"n_labelings": 3, **dict(md_options or {})}
+        cv_options = {"n_splits": 3, **dict(cv_options or {})}
+    rec, ids, names, parts, info = _load_data(data, labels, class_names, lengths, sample_rate_hz)
+    present = [names[k] for k in sorted(set(ids.tolist())) if 0 <= k < len(names)]
+    if classes is None:
+        classes = present
+    classes = [str(c) for c in classes]
+    unknown = [c for c in classes if c not in names]
+    if unknown:
+        raise TrainingError(f"unknown class(es) {unknown}; the data has classes {names}")
+    if len(set(classes)) != len(classes):
+        raise TrainingError(f"classes must be distinct, got {classes}")
+    if len(classes) < 2:
+        raise TrainingError(f"at least 2 classes are needed, got {classes}")
+    cls_ids = [names.index(c) for c in classes]
+    mask = np.isin(ids, cls_ids)
+    if runs is not None and hasattr(rec, "run"):
+        mask &= np.isin(np.asarray(rec.run), list(runs))
+    idx = np.flatnonzero(mask)
+    missing = [c for c, k in zip(classes, cls_ids) if not np.any(ids[idx] == k)]
+    if missing:
+        raise TrainingError(f"no recording of class(es) {missing} in the training data")
+    y_all = np.array([cls_ids.index(k) for k in ids[idx]], np.int64)
+    groups = parts[idx] if parts is not None else None
+
+    rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
+    if window == "energy" and window_config is None:
+        from eskin.preprocess import WindowConfig
+
+        window_config = WindowConfig()  # the defaults, written into the model explicitly
+    prep = preprocess_campaign(
+        rec, idx, [(int(D), subsample)], window=window, config=window_config, sample_rate_hz=rate
+    )
+    X = prep.X[(int(D), subsample)]
+    shape = X.shape[1:]
+    grid = param_grid(lambdas, sigmas, alphas)
+    search = make_search(
+        machine,
+        selection,
+        grid,
+        seed=seed,
+        md_options=md_options,
+        cv_options=cv_options,
+        n_jobs=n_jobs,
+    )
+
+    def report(fitted_search: Any, ys: np.ndarray) -> dict[str, Any]:
+        return {
+            **describe_params(machine, fitted_search.best_params_, fitted_search.best_estimator_),
+            "selection_terms": selected_row(fitted_search),
+            "n_train": int(len(ys)),
+            "n_positive": int(np.sum(ys == 1)),
+        }
+
+    t0 = time.perf_counter()
+    if len(classes) == 2:
+        fit_search(search, X, y_all, groups)
+        estimator = search.best_estimator_
+        selected = [report(search, y_all)]
+    else:
+        from eskin.estimators import OneVsAllTouchClassifier
+
+        rng = np.random.default_rng(seed)
+        machine_indices = []
+        for k in range(len(classes)):
+            pos = np.flatnonzero(y_all == k)
+            neg = np.flatnonzero(y_all != k)
+            if negatives == "balanced" and len(neg) > len(pos):
+                neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
+            machine_indices.append(np.sort(np.concatenate([pos, neg])))
+        estimator = OneVsAllTouchClassifier(estimator=search).fit(
+            X, y_all, machine_indices=machine_indices
+        )
+        selected = [
+            {"class": classes[k], **report(srch, (y_all[mi] == k).astype(int))}
+            for k, (srch, mi) in enumerate(zip(estimator.searches_, machine_indices))
+        ]
+    import eskin
+
+    training = {
+        **info,
+        "n_patterns": int(len(idx)),
+        "patterns_per_class": {c: int(np.sum(y_all == k)) for k, c in enumerate(classes)},
+        "grid": {
+            "lambdas": list(map(float, lambdas)),
+            "sigmas": list(map(float, sigmas)),
+            "alphas": list(alphas),
+        },
+        "md_options": dict(md_options or {}),
+        "cv_options": dict(cv_options or {}),
+        "negatives": negatives,
+        "seed": seed,
+        "seconds": time.perf_counter() - t0 + prep.seconds,
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "eskin_version": eskin.__version__,
+    }
+    return TouchModel(
+        classes=classes,
+        estimator=estimator,
+        machine=machine,
+        selection=selection,
+        D=int(D),
+        window=window,
+        subsample=subsample,
+        sample_rate_hz=rate,
+        grid_shape=(int(shape[0]), int(shape[1])),
+        window_config=window_config,
+        selected=selected,
+        selection_report={"lambda_shown": "lambda for both machines; the SVM uses C = 1/lambda"},
+        training=training,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# files
+
+Saver = Callable[[TouchModel, Path], None]
+Loader = Callable[[Path], TouchModel]
+_FORMATS: dict[str, tuple[Saver, Loader]] = {}
+
+
+def register_model_format(suffix: str, saver: Saver, loader: Loader) -> None:
+    """Route :func:`save_model`/:func:`load_model` for files ending in ``suffix`` (e.g.
+    ".eskin") to ``saver``/``loader``. Every other suffix uses the joblib container."""
+    _FORMATS[suffix.lower()] = (saver, loader)
+
+
+def _format_for(path: Path) -> tuple[Saver, Loader] | None:
+    if not _FORMATS:
+        try:  # let the deployment module register its formats, if it is there
+            import eskin.export  # noqa: F401
+        except ImportError:
+            pass
+    return _FORMATS.get(path.suffix.lower())
+
+
+def save_model(model: TouchModel, path: str | Path) -> Path:
+    """Write ``model`` to ``path`` (a joblib container: header dict + model; other formats by
+    suffix, see :func:`register_model_format`). Returns the path."""
+    import joblib
+
+    if not isinstance(model, TouchModel):
+        raise TypeError(f"save_model expects a TouchModel, got {type(model).__name__}")
+    path = Path(path)
+    fmt = _format_for(path)
+    if fmt is not None:
+        fmt[0](model, path)
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    joblib.dump({"header": model.header(), "model": model}, path, compress=3)
+    return path
+
+
+def load_model(path: str | Path) -> TouchModel:
+    """Read a model written by :func:`save_model`, checking its header.
+
+    Raises FileNotFoundError for a missing file and :class:`ModelFormatError` (a ValueError)
+    for a file that is not an eskin model, has another format version, or is damaged.
+    Loading unpickles: only load model files you trust.
+    """
+    import joblib
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {path} does not exist")
+    fmt = _format_for(path)
+    if fmt is not None:
+        return fmt[1](path)
+    try:
+        obj = joblib.load(path)
+    except Exception as exc:
+        raise ModelFormatError(
+            f"{path} is not an eskin model file (cannot be read: {type(exc).__name__}: {exc})"
+        ) from None
+    if not isinstance(obj, dict) or not isinstance(obj.get("header"), dict):
+        raise ModelFormatError(f"{path} is not an eskin model file (no header)")
+    header = obj["header"]
+    if header.get("format") != MODEL_FORMAT:
+        raise ModelFormatError(
+            f"{path} is not an eskin model file (format {header.get('format')!r}, expected "
+            f"{MODEL_FORMAT!r})"
+        )
+    version = header.get("format_version")
+    if version != MODEL_FORMAT_VERSION:
+        raise ModelFormatError(
+            f"{path}: model format version {version!r} is not supported (this eskin reads "
+            f"version {MODEL_FORMAT_VERSION}); retrain the model or use the matching eskin"
+        )
+    model = obj.get("model")
+    if not isinstance(model, TouchModel):
+        raise ModelFormatError(f"{path}: the file holds no TouchModel")
+    if list(model.classes) != list(header.get("classes", [])) or int(model.D) != header.get("D"):
+        raise ModelFormatError(f"{path}: the header does not match the model it holds")
+    return model

@@ -1,0 +1,61 @@
+"""eskin.demo end to end on a tiny campaign: simulate, train, export, stream over a real
+pseudo-terminal through eskin-fw-sim, listen, and compare live with offline decisions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from eskin.demo import assign_decisions, confusion_matrix
+from eskin.link import Decision
+
+
+def _d(onset, offset, label):
+    return Decision("controller", onset, offset, None, label, (0.5, -0.5, -1.0))
+
+
+def test_assign_decisions_keeps_the_touch_on_the_contact():
+    seg = np.zeros(3, dtype=[("start", "<u8"), ("length", "<u8"), ("contact_onset", "<i8"),
+                             ("contact_offset", "<i8")])
+    seg["start"], seg["length"] = [100, 1000, 2000], [500, 500, 500]
+    seg["contact_onset"], seg["contact_offset"] = [50, -1, 0], [150, -1, 500]
+    ds = [_d(0, 50, 2), _d(150, 250, 1), _d(300, 590, 0), _d(1490, 1700, 2), _d(2600, 2700, 1)]
+    labels, values, _, extra = assign_decisions(ds, seg, 3)
+    # segment 0: [150, 250) covers the contact [150, 250); the longer [300, 590) does not;
+    # segment 1 (contact unknown): the largest overlap; segment 2: no decision
+    assert labels.tolist() == [1, 2, -1]
+    assert np.isnan(values[2]).all() and values[0].tolist() == [0.5, -0.5, -1.0]
+    assert extra == [1, 0, 0, 2]  # one other touch in segment 0; two outside every segment
+    cm = confusion_matrix(np.array([0, 1, 2]), labels, 3)
+    assert cm.tolist() == [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+
+
+def test_demo_end_to_end(tmp_path):
+    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
+    from eskin.demo import run_demo
+
+    lines: list[str] = []
+    r = run_demo(tmp_path / "demo", participants=2, test_participants=1, speed=20, quick=True,
+                 max_recordings=3, n_jobs=1, log=lines.append)
+    assert r.agree, r.disagreement
+    assert len(r.true_labels) == 3 and r.class_names == ["brush", "finger", "washer"]
+    for key in ("controller (live)", "host (live)", "offline (Python)"):
+        assert r.confusion[key].sum() == 3
+    assert r.stats.lost_samples == 0 and r.stats.rejected == 0
+    assert r.stats.decisions_controller == r.stats.decisions_host >= 3
+    report = json.loads(r.files["report"].read_text())
+    assert report["agree"] and report["source"] == "simulated"
+    jl = [json.loads(x) for x in r.files["decisions"].read_text().splitlines()]
+    assert jl[-1]["type"] == "stats" and {d["source"] for d in jl[:-1]} == {"controller", "host"}
+    from eskin.campaign import load_campaign
+    from eskin.replay import read_replay_file
+
+    live = load_campaign(r.files["live"])
+    src = load_campaign(r.files["campaign"])
+    rf = read_replay_file(r.files["replay"])
+    assert len(live) == 3 and live.source == "simulated" and len(src) == 24
+    for k, i in enumerate(rf.segments["recording"]):  # the stream, recorded, is the source
+        assert np.array_equal(live.recording(k), src.recording(int(i)))
+        assert live.modality[k] == src.modality[int(i)]
