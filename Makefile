@@ -12,7 +12,7 @@ CMAKE := $(VENV)/bin/cmake
 BUILD_CPP := build/cpp
 BUILD_DEV := build/dev
 
-.PHONY: all deps venv install cpp ctest pytest test demo dev devtest bench clean
+.PHONY: all deps venv install cpp ctest pytest test demo dev devtest bench clean stubs
 
 all: install cpp
 
@@ -72,3 +72,9 @@ devtest: dev
 
 clean:
 	rm -rf build python/eskin/_core*.so
+
+# Regenerate the type stub of the compiled module (python/eskin/_core.pyi) from a dev build.
+stubs: dev
+	$(PIP) install -q pybind11-stubgen
+	PYTHONPATH=python $(VENV)/bin/pybind11-stubgen eskin._core -o build/stubs
+	$(PY) tools/fix_stub.py build/stubs/eskin/_core/__init__.pyi python/eskin/_core.pyi

@@ -92,7 +92,7 @@ void bind_kernel(py::module_& m) {
         }
         return out;
       },
-      py::arg("a"), py::arg("b") = nullptr, py::arg("sigmas"), py::arg("n_threads") = 0);
+      py::arg("a"), py::arg("b").none(true), py::arg("sigmas"), py::arg("n_threads") = 0);
   m.def("full_alphas", &full_alphas, py::arg("dims"));
   m.def("half_alphas", &half_alphas, py::arg("dims"));
   m.def(

@@ -198,8 +198,8 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   if (short_policy > 1)
     fail(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
                                  " (0 interpolate, 1 error)");
-  if (!(std::isfinite(rate) && rate > 0))
-    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be finite and > 0");
+  if (!(std::isfinite(rate) && rate > 0 && rate <= 1e7))
+    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be in (0, 1e7]");
   const auto& names = window_config_field_names();
   if (n_fields != kWindowConfigSize)
     fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
@@ -217,6 +217,13 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
     if (!std::isfinite(value))
       fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
                                    " is not finite");
+    // times (seconds) and frequencies are bounded so that seconds * rate stays far inside
+    // int64 in the detector's conversions to samples
+    const bool converted = name.size() > 2 && (name.compare(name.size() - 2, 2, "_s") == 0 ||
+                                               name.compare(name.size() - 3, 3, "_hz") == 0);
+    if (converted && std::fabs(value) > 1e6)
+      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+                                   " is outside [-1e6, 1e6]");
     seen[k] = true;
     values[k] = value;
   }

@@ -37,9 +37,10 @@ void check_dims(const std::vector<std::size_t>& dims) {
 
 // ---- symmetric eigen-decomposition (Householder tridiagonalisation + implicit QL), after the
 // public-domain JAMA/EISPACK tred2/tql2. Works on caller buffers, allocates nothing.
-// tred2: v (n x n row-major) holds the matrix on entry, the accumulated transformation on exit
-// (columns); tql2 takes that transformation TRANSPOSED (rows) and leaves the eigenvectors in the
-// rows of v, eigenvalues ascending in d; e: scratch of n.
+// tred2: v (n x n, column-major) holds the symmetric matrix on entry and the accumulated
+// transformation on exit; read row-major, its columns are rows, which is what tql2 takes: tql2
+// leaves the eigenvectors in the rows of v (row-major), eigenvalues ascending in d; e: scratch
+// of n.
 
 // Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
 // twice (function multi-versioning: an x86-64-v3 = AVX2+FMA clone and the baseline one) and
@@ -64,6 +65,13 @@ ESKIN_CLONES double dot(const double* a, const double* b, std::size_t n) noexcep
     std::memcpy(&b1, b + k + 4, sizeof b1);
     s0 += a0 * b0;
     s1 += a1 * b1;
+  }
+  if (k + 4 <= n) {
+    eskin_v4d a0, b0;
+    std::memcpy(&a0, a + k, sizeof a0);
+    std::memcpy(&b0, b + k, sizeof b0);
+    s0 += a0 * b0;
+    k += 4;
   }
   const eskin_v4d t = s0 + s1;
   double r = (t[0] + t[1]) + (t[2] + t[3]);
@@ -97,7 +105,8 @@ inline double hyp(double a, double b) noexcept {
 }
 
 ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
-  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[r * n + c]; };
+  // column-major: the inner loops over k run down columns, i.e. contiguously
+  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[c * n + r]; };
   for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
   for (std::size_t i = n - 1; i > 0; --i) {
     double scale = 0.0, h = 0.0;
@@ -424,12 +433,25 @@ KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks)
   std::fill(bases, bases + layout_.bases_size(), 0.0);
   std::fill(ranks, ranks + nz, 0);
   std::fill(sv_.begin(), sv_.end(), 0.0);
-  double amax = 0.0;
-  for (std::size_t i = 0; i < layout_.tensor_size(); ++i) {
-    const double a = std::fabs(x[i]);
-    if (!(a <= std::numeric_limits<double>::max())) return KernelStatus::not_finite;
-    amax = std::max(amax, a);
+  // max |x| (four partial maxima) and a NaN flag, branch-free; an infinity shows in amax
+  const std::size_t size = layout_.tensor_size();
+  double m0 = 0.0, m1 = 0.0, m2 = 0.0, m3 = 0.0;
+  int nan = 0;
+  std::size_t i = 0;
+  for (; i + 4 <= size; i += 4) {
+    m0 = std::max(m0, std::fabs(x[i]));
+    m1 = std::max(m1, std::fabs(x[i + 1]));
+    m2 = std::max(m2, std::fabs(x[i + 2]));
+    m3 = std::max(m3, std::fabs(x[i + 3]));
+    nan |= int(x[i] != x[i]) | int(x[i + 1] != x[i + 1]) | int(x[i + 2] != x[i + 2]) |
+           int(x[i + 3] != x[i + 3]);
   }
+  for (; i < size; ++i) {
+    m0 = std::max(m0, std::fabs(x[i]));
+    nan |= int(x[i] != x[i]);
+  }
+  const double amax = std::max(std::max(m0, m1), std::max(m2, m3));
+  if (nan || !(amax <= std::numeric_limits<double>::max())) return KernelStatus::not_finite;
   if (amax == 0.0) return KernelStatus::ok;  // all-zero pattern: rank 0, zero bases
   // scale by a power of two (exact) so that max |x| is in [0.5, 1)
   int ex = 0;
@@ -502,9 +524,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
     for (std::size_t k = 0; k < i; ++k) g[k * q + i] = g[i * q + k];
   double* d = d_.data();
   tred2(q, g, d, e_.data());
-  // eigenvectors as rows from here on (contiguous rotations in tql2)
-  for (std::size_t i = 0; i < q; ++i)
-    for (std::size_t k = 0; k < i; ++k) std::swap(g[i * q + k], g[k * q + i]);
+  // tred2 stores column-major: its transformation's columns are the rows tql2 works on
   if (!tql2(q, g, d, e_.data())) return KernelStatus::no_convergence;
   // eigenvalues ascending in d; eigenvector j = row j of g
   const double lmax = std::max(0.0, d[q - 1]);
@@ -558,8 +578,16 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
   // sign: largest-magnitude entry (first on ties) positive
   for (std::size_t c = 0; c < k; ++c) {
     double* v = out + c * n;
-    double top = 0.0;
-    for (std::size_t j = 0; j < n; ++j) top = std::max(top, std::fabs(v[j]));
+    double t0 = 0.0, t1 = 0.0, t2 = 0.0, t3 = 0.0;  // four partial maxima
+    std::size_t j = 0;
+    for (; j + 4 <= n; j += 4) {
+      t0 = std::max(t0, std::fabs(v[j]));
+      t1 = std::max(t1, std::fabs(v[j + 1]));
+      t2 = std::max(t2, std::fabs(v[j + 2]));
+      t3 = std::max(t3, std::fabs(v[j + 3]));
+    }
+    for (; j < n; ++j) t0 = std::max(t0, std::fabs(v[j]));
+    const double top = std::max(std::max(t0, t1), std::max(t2, t3));
     std::size_t best = 0;
     while (best + 1 < n && std::fabs(v[best]) != top) ++best;
     if (v[best] < 0)
@@ -712,20 +740,28 @@ ModePack plan_mode(const PatternBases& pb, std::size_t z) {
 void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
                  std::size_t g1) {
   const BasisLayout& L = pb.layout;
-  const std::size_t width = mp.panels * kTileWidth;
   const std::size_t off = L.offset(z), bs = L.bases_size();
+  static const double kZeros[1] = {0.0};
   for (std::size_t g = g0; g < g1; ++g) {
     const std::size_t used = mp.group_count(g) * mp.alpha;
-    for (std::size_t lv = 0; lv < width; ++lv) {
-      double* dst = mp.data + (g * mp.panels + lv / kTileWidth) * mp.k * kTileWidth +
-                    lv % kTileWidth;
-      if (lv >= used) {  // padding vector: zeros
-        for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = 0.0;
-        continue;
+    for (std::size_t p = 0; p < mp.panels; ++p) {
+      // the panel's 8 source columns (padding: a zero read with stride 0)
+      const double* col[kTileWidth];
+      std::size_t stride[kTileWidth];
+      for (std::size_t c = 0; c < kTileWidth; ++c) {
+        const std::size_t lv = p * kTileWidth + c;
+        if (lv < used) {
+          col[c] = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
+                   (lv % mp.alpha) * mp.k;
+          stride[c] = 1;
+        } else {
+          col[c] = kZeros;
+          stride[c] = 0;
+        }
       }
-      const double* col = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
-                          (lv % mp.alpha) * mp.k;
-      for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth] = col[kk];
+      double* dst = mp.data + (g * mp.panels + p) * mp.k * kTileWidth;
+      for (std::size_t kk = 0; kk < mp.k; ++kk, dst += kTileWidth)
+        for (std::size_t c = 0; c < kTileWidth; ++c) dst[c] = col[c][kk * stride[c]];
     }
   }
 }

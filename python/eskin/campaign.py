@@ -24,7 +24,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -301,7 +303,8 @@ class Campaign:
     arrays (validated the same way). Attributes: ``signals`` (int16, (n, rows, cols, T),
     lazy or ndarray), ``lengths``, ``modality``, ``participant``, ``direction``, ``run``,
     ``contact_interval`` (or None), ``modalities``, ``sample_rate_hz``, ``volts_per_count``,
-    ``source``, ``attrs`` (every root attribute, decoded), ``path`` (or None).
+    ``source``, ``attrs`` (every root attribute, decoded), ``extras`` (name -> per-recording
+    array, from ``/recordings/extra``), ``path`` (or None).
     """
 
     def __init__(
@@ -502,7 +505,7 @@ class Campaign:
     def __enter__(self) -> Campaign:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __repr__(self) -> str:
@@ -645,6 +648,53 @@ def _attr_value(value: Any) -> Any:
     return value
 
 
+@dataclass(frozen=True)
+class EncodedRecording:
+    """One recording made ready for :class:`CampaignWriter` by :func:`encode_recording`:
+    padded to ``n_samples`` and compressed exactly as the writer's HDF5 filters would
+    (shuffle + deflate), so that the (slow) compression can run in worker processes."""
+
+    chunk: bytes
+    length: int
+    grid_shape: tuple[int, int]
+    n_samples: int
+    compression_level: int | None
+
+
+def encode_recording(signals: Any, *, grid_shape: tuple[int, int], n_samples: int,
+                     length: int | None = None, compression_level: int | None = 1,
+                     where: str = "recording") -> EncodedRecording:
+    """Validate, pad and compress one (rows, cols, length) integer recording into the chunk
+    that ``/recordings/signals`` stores (``compression_level`` None: uncompressed)."""
+    x = np.asarray(signals)
+    rows, cols = (int(v) for v in grid_shape)
+    if x.ndim != 3 or x.shape[:2] != (rows, cols):
+        raise ValueError(
+            f"{where}: signals must have shape ({rows}, {cols}, length), got {x.shape}")
+    if x.shape[2] > n_samples:
+        raise ValueError(
+            f"{where}: {x.shape[2]} samples, more than the campaign's T={n_samples}")
+    if x.dtype != np.int16:
+        if x.dtype.kind not in "iu":
+            raise ValueError(f"{where}: signals must be int16 ADC counts, got dtype {x.dtype}")
+        if x.size and (x.min() < -32768 or x.max() > 32767):
+            raise ValueError(f"{where}: values outside the int16 range")
+        x = x.astype(np.int16)
+    n_valid = x.shape[2] if length is None else int(length)
+    if not 0 <= n_valid <= x.shape[2]:
+        raise ValueError(f"{where}: length {n_valid} outside [0, {x.shape[2]}]")
+    buf = np.zeros((rows, cols, int(n_samples)), dtype="<i2")
+    buf[:, :, :n_valid] = x[:, :, :n_valid]
+    raw = buf.tobytes()
+    if compression_level is None:
+        chunk = raw
+    else:
+        # the HDF5 shuffle filter (byte planes), then deflate (zlib stream), as h5py would
+        planes = np.frombuffer(raw, dtype=np.uint8).reshape(-1, 2).T.tobytes()
+        chunk = zlib.compress(planes, int(compression_level))
+    return EncodedRecording(chunk, n_valid, (rows, cols), int(n_samples), compression_level)
+
+
 class CampaignWriter:
     """Write a campaign one recording at a time (never the whole campaign in memory).
 
@@ -660,6 +710,10 @@ class CampaignWriter:
     ``signals`` of one recording: integer (rows, cols, length) with length <= n_samples, padded
     with zeros. ``contact_interval=True`` adds the optional ground-truth field (then every append
     must give one). Extra root attributes go in ``attrs`` (dicts are stored as JSON text).
+    ``append`` also takes an :class:`EncodedRecording` (from :func:`encode_recording` with this
+    writer's ``grid_shape``, ``n_samples`` and ``compression_level``), which lets worker
+    processes do the compression. Compression: gzip (deflate) at ``compression_level`` with the
+    shuffle filter, or none (``compression_level=None``).
     """
 
     def __init__(
@@ -675,8 +729,7 @@ class CampaignWriter:
         attrs: Mapping[str, Any] | None = None,
         contact_interval: bool = False,
         overwrite: bool = False,
-        compression: str | None = "gzip",
-        compression_opts: int | None = 1,
+        compression_level: int | None = 1,
         extra_fields: Mapping[str, Any] | None = None,
     ):
         import h5py
@@ -700,8 +753,11 @@ class CampaignWriter:
             raise IsADirectoryError(f"{self.path}: is a directory")
         if not self.path.parent.exists():
             raise FileNotFoundError(f"{self.path.parent}: output folder does not exist")
+        if compression_level is not None and not 0 <= int(compression_level) <= 9:
+            raise ValueError(f"compression_level must be None or 0..9, got {compression_level}")
         self.grid_shape = (rows, cols)
         self.n_samples = int(n_samples)
+        self.compression_level = None if compression_level is None else int(compression_level)
         self.modalities = dec["modalities"]
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
         self._f = h5py.File(self._tmp, "w")
@@ -718,9 +774,10 @@ class CampaignWriter:
             self._signals = grp.create_dataset(
                 "signals", shape=(0, rows, cols, self.n_samples),
                 maxshape=(None, rows, cols, self.n_samples), dtype=np.int16,
-                chunks=(1, rows, cols, self.n_samples), compression=compression,
-                compression_opts=compression_opts if compression == "gzip" else None,
-                shuffle=compression is not None)
+                chunks=(1, rows, cols, self.n_samples),
+                compression=None if compression_level is None else "gzip",
+                compression_opts=self.compression_level,
+                shuffle=compression_level is not None)
         except BaseException:
             self._abort()
             raise
@@ -742,27 +799,23 @@ class CampaignWriter:
         """Append one recording; return its index."""
         if self._closed:
             raise ValueError(f"{self.path}: writer is closed")
-        x = np.asarray(signals)
-        rows, cols = self.grid_shape
-        if x.ndim != 3 or x.shape[:2] != (rows, cols):
-            raise ValueError(
-                f"recording {self._n}: signals must have shape ({rows}, {cols}, length), "
-                f"got {x.shape}")
-        if x.shape[2] > self.n_samples:
-            raise ValueError(
-                f"recording {self._n}: {x.shape[2]} samples, more than the campaign's "
-                f"T={self.n_samples}")
-        if x.dtype != np.int16:
-            if x.dtype.kind not in "iu":
+        where = f"recording {self._n}"
+        if isinstance(signals, EncodedRecording):
+            enc = signals
+            if (enc.grid_shape != self.grid_shape or enc.n_samples != self.n_samples
+                    or enc.compression_level != self.compression_level):
                 raise ValueError(
-                    f"recording {self._n}: signals must be int16 ADC counts, got dtype {x.dtype}")
-            if x.size and (x.min() < -32768 or x.max() > 32767):
-                raise ValueError(f"recording {self._n}: values outside the int16 range")
-            x = x.astype(np.int16)
-        n_valid = x.shape[2] if length is None else int(length)
-        if not 0 <= n_valid <= x.shape[2]:
-            raise ValueError(
-                f"recording {self._n}: length {n_valid} outside [0, {x.shape[2]}]")
+                    f"{where}: encoded for grid {enc.grid_shape}, T={enc.n_samples}, level "
+                    f"{enc.compression_level}; this writer has {self.grid_shape}, "
+                    f"T={self.n_samples}, level {self.compression_level}")
+            if length is not None and int(length) != enc.length:
+                raise ValueError(f"{where}: length {length} differs from the encoded "
+                                 f"recording's {enc.length}")
+        else:
+            enc = encode_recording(signals, grid_shape=self.grid_shape, n_samples=self.n_samples,
+                                   length=length, compression_level=self.compression_level,
+                                   where=where)
+        n_valid = enc.length
         if isinstance(modality, str):
             if modality not in self.modalities:
                 raise ValueError(
@@ -793,11 +846,8 @@ class CampaignWriter:
             self._ci.append((on, off))
         for k, v in extra.items():
             self._extra[k].append(v)
-        buf = np.zeros((rows, cols, self.n_samples), dtype=np.int16)
-        buf[:, :, : x.shape[2]] = x
-        buf[:, :, n_valid:] = 0
         self._signals.resize(self._n + 1, axis=0)
-        self._signals[self._n] = buf
+        self._signals.id.write_direct_chunk((self._n, 0, 0, 0), enc.chunk, filter_mask=0)
         for k, v in (("length", n_valid), ("modality", int(modality)),
                      ("participant", int(participant)), ("direction", int(direction)),
                      ("run", int(run))):
@@ -868,6 +918,7 @@ def write_campaign(
     lengths: Any = None,
     contact_interval: Any = None,
     attrs: Mapping[str, Any] | None = None,
+    extras: Mapping[str, Any] | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write a whole campaign at once; ``signals`` is int16 (n, rows, cols, T) or any
@@ -902,16 +953,22 @@ def write_campaign(
     ci = None if contact_interval is None else np.asarray(contact_interval)
     if ci is not None and ci.shape != (n, 2):
         raise ValueError(f"contact_interval must have shape ({n}, 2), got {ci.shape}")
+    ex = {k: np.asarray(v) for k, v in dict(extras or {}).items()}
+    for k, v in ex.items():
+        if v.ndim < 1 or v.shape[0] != n:
+            raise ValueError(f"extras[{k!r}] must have one entry per recording ({n}), "
+                             f"got shape {v.shape}")
     with CampaignWriter(path, grid_shape=grid, n_samples=max(t, 1), sample_rate_hz=sample_rate_hz,
                         volts_per_count=volts_per_count, modalities=modalities, source=source,
-                        attrs=attrs, contact_interval=ci is not None,
-                        overwrite=overwrite) as w:
+                        attrs=attrs, contact_interval=ci is not None, overwrite=overwrite,
+                        extra_fields={k: v.dtype for k, v in ex.items()}) as w:
         for i, rec in enumerate(recs):
             w.append(rec, modality=int(labels["modality"][i]),
                      participant=int(labels["participant"][i]),
                      direction=int(labels["direction"][i]), run=int(labels["run"][i]),
                      length=None if lens is None else int(lens[i]),
-                     contact_interval=None if ci is None else tuple(ci[i]))
+                     contact_interval=None if ci is None else tuple(ci[i]),
+                     extra={k: v[i] for k, v in ex.items()})
     return Path(path)
 
 
@@ -924,4 +981,5 @@ def save_campaign(campaign: Campaign, path: str | os.PathLike[str], *,
         direction=campaign.direction, run=campaign.run, modalities=campaign.modalities,
         sample_rate_hz=campaign.sample_rate_hz, volts_per_count=campaign.volts_per_count,
         source=campaign.source, lengths=campaign.lengths,
-        contact_interval=campaign.contact_interval, attrs=extra, overwrite=overwrite)
+        contact_interval=campaign.contact_interval, attrs=extra, extras=campaign.extras,
+        overwrite=overwrite)

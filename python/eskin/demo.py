@@ -16,8 +16,8 @@
    file) run over the replay stream touch by touch (``eskin.preprocess.TouchDetector`` with the
    model's detector settings), exactly what a controller sees. Every touch must get the same
    window and label from all three, and so the per-recording confusion matrices are equal (one
-   decision per recording: the longest touch inside it). The per-recording batch predictions
-   (``TouchModel.predict_recordings``: one window per isolated recording, chosen by the
+   decision per recording: the touch on its true contact interval). The per-recording batch
+   predictions (``TouchModel.predict_recordings``: one window per isolated recording, chosen by the
    detector's ``select`` rule, which can merge several touches) are shown beside them for
    reference; they need not match touch by touch, since a live controller cannot know where a
    recording ends.
@@ -84,30 +84,42 @@ def assign_decisions(decisions: list, segments: np.ndarray, n_values: int,
                      offset: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
     """Decisions (eskin.link.Decision of one source) -> one per replay segment.
 
-    A decision belongs to the segment its window ``[onset, offset)`` overlaps most; when several
-    fall on one segment the one with the largest overlap is kept. Returns (labels, values,
-    dont_know, extra) with -1 / nan where a segment got no decision; ``extra`` counts the
-    decisions that were not kept (touches in the gaps, or second touches in a segment).
+    A decision belongs to the segment its window ``[onset, offset)`` overlaps most. A segment
+    keeps the decision on its touch: the one overlapping its true contact interval most (when the
+    segment has one: the simulator's ground truth), else the one overlapping the segment most;
+    a stream detector also reports the small transients where a recording meets the quiet gap,
+    which this rule leaves aside. Returns (labels, values, dont_know, extra) with -1 / nan where
+    a segment got no decision; ``extra`` counts, per segment and last for the gaps, the decisions
+    that were not kept.
     """
     n = len(segments)
     labels = np.full(n, -1, np.int64)
     values = np.full((n, n_values), np.nan)
     dk = np.zeros(n, bool)
-    best = np.zeros(n, np.int64)
+    best = [(-1, -1)] * n
     extra = [0] * (n + 1)
     starts = offset + segments["start"].astype(np.int64)
     stops = starts + segments["length"].astype(np.int64)
+    names = segments.dtype.names or ()
+    if "contact_onset" in names and "contact_offset" in names:
+        known = segments["contact_onset"] >= 0
+        c_on = np.where(known, starts + segments["contact_onset"].astype(np.int64), starts)
+        c_off = np.where(known, starts + segments["contact_offset"].astype(np.int64), stops)
+    else:
+        c_on, c_off = starts, stops
     for d in decisions:
         ov = np.minimum(stops, d.offset_sample) - np.maximum(starts, d.onset_sample)
         k = int(np.argmax(ov))
         if ov[k] <= 0:
             extra[n] += 1
             continue
-        if ov[k] > best[k]:
+        score = (int(min(c_off[k], d.offset_sample) - max(c_on[k], d.onset_sample)), int(ov[k]))
+        if score > best[k]:
             if labels[k] >= 0:
                 extra[k] += 1
-            best[k] = ov[k]
+            best[k] = score
             labels[k] = d.label_index
+            values[k] = np.nan
             v = np.asarray(d.values, float)[:n_values]
             values[k, : len(v)] = v
             dk[k] = d.dont_know
@@ -201,7 +213,7 @@ def run_demo(
     2x2x2 grid instead of the paper's 135 configurations.
     """
     from eskin.campaign import load_campaign
-    from eskin.link import Decision, LinkListener, Recorded
+    from eskin.link import Decision, LinkListener
     from eskin.replay import write_replay_file
     from eskin.simulator import simulate
 
@@ -287,6 +299,8 @@ def run_demo(
                               "--link", str(link_path), "--quiet"])
     t0 = time.perf_counter()
     decisions: list[Decision] = []
+    seg_start = rf.segments["start"].astype(np.int64)
+    seg_stop = seg_start + rf.segments["length"].astype(np.int64)
     try:
         say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
             f"{files['live']}")
@@ -300,10 +314,14 @@ def run_demo(
                         decisions.append(ev)
                         jf.write(json.dumps(ev.as_dict()) + "\n")
                         if ev.source == "controller":
-                            say(f"      {ev.onset_sample / rf.sample_rate_hz:7.2f} s  "
-                                f"controller: {ev.label}")
-                    elif isinstance(ev, Recorded):
-                        pass
+                            ov = (np.minimum(seg_stop, ev.offset_sample)
+                                  - np.maximum(seg_start, ev.onset_sample))
+                            k = int(np.argmax(ov))
+                            true_k = camp.modalities[int(rf.segments[k]["label"])]
+                            where = (f"recording {k + 1:2d} ({true_k})" if ov[k] > 0
+                                     else "between recordings")
+                            say(f"      {ev.onset_sample / rf.sample_rate_hz:7.2f} s  {where}: "
+                                f"controller says {ev.label}{' (?)' if ev.dont_know else ''}")
                 stats = link.stats
                 jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
     finally:

@@ -17,7 +17,8 @@ Events, in arrival order:
   ``source="host"`` (this host's own streaming classifier, when a model was given);
 * :class:`StatusEvent` / :class:`InfoEvent` - the controller's STATUS and INFO frames;
 * :class:`Recorded` - a recording was appended to the campaign file (``record=``);
-* :class:`Connection` - the port was opened, the peer went away, or the port was reopened;
+* :class:`Connection` - :meth:`LinkListener.events` opened the port itself ("connected"), the
+  peer went away ("disconnected"), or the port was reopened ("reconnected");
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 
 Host decisions. With ``model=`` (a ``.eskin`` file, a saved TouchModel, or a loaded
@@ -760,9 +761,8 @@ class LinkListener:
         return out
 
     def _class_name(self, index: int) -> Optional[str]:
+        """A controller label's name, from its INFO (None before INFO or out of range)."""
         names: Sequence[str] = self.info.class_names if self.info is not None else ()
-        if not names and self.classifier is not None:
-            names = self.classifier.class_names
         return str(names[index]) if 0 <= index < len(names) else None
 
     def _on_controller_decision(self, f: DecisionFrame) -> Decision:
@@ -888,8 +888,10 @@ class LinkListener:
             if c is self.classifier:
                 lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
                 latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
-                d = Decision("host", start, stop, self._class_name(t.label_index), t.label_index,
-                             t.values, t.dont_know, self._next or stop, latency, lost)
+                names = c.class_names  # the host model's classes, not the controller's
+                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
+                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
+                             self._next or stop, latency, lost)
                 self._counts["decisions_host"] += 1
                 self.decisions.append(d)
                 out.append(d)

@@ -11,28 +11,11 @@ import numpy as np
 
 def _detect_window(rec: np.ndarray, length: int, rate: float) -> tuple[tuple[int, int], str]:
     """The touch window of one recording, from eskin.preprocess.detect_windows."""
-    try:
-        from eskin.preprocess import detect_windows
-    except ImportError:  # the C++ preprocessing is not built: a plain energy threshold
-        return _crude_window(rec[..., :length], rate), "energy window (eskin.preprocess missing)"
+    from eskin.preprocess import detect_windows
 
     win = detect_windows(rec[None].astype(np.int16), lengths=np.array([length]),
                          sample_rate_hz=rate)
     return (int(win[0, 0]), int(win[0, 1])), "detected window (eskin.preprocess)"
-
-
-def _crude_window(rec: np.ndarray, rate: float) -> tuple[int, int]:
-    """Samples whose 20 ms energy summed over taxels exceeds 8x its median, padded by 50 ms."""
-    x = rec.reshape(-1, rec.shape[-1]).astype(np.float64)
-    x -= np.median(x, axis=1, keepdims=True)
-    e = (x**2).sum(axis=0)
-    w = max(1, int(0.02 * rate))
-    e = np.convolve(e, np.ones(w) / w, mode="same")
-    above = np.flatnonzero(e > 8.0 * (np.median(e) + 1e-12))
-    if above.size == 0:
-        return 0, 0
-    pad = int(0.05 * rate)
-    return max(0, int(above[0]) - pad), min(rec.shape[-1], int(above[-1]) + 1 + pad)
 
 
 def plot_recording(campaign: Any, index: int, path: str | os.PathLike[str], *,

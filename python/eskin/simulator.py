@@ -38,6 +38,9 @@ BRUSH, FINGER, WASHER = 0, 1, 2
 
 # the calibrated difficulty: the default of simulate() and SimulatorConfig
 DEFAULT_DIFFICULTY = 1.0
+# variability level at difficulty 1: the scale found by benchmarks/calibrate_simulator.py so that
+# the paper's protocol lands in the paper's error ranges (docs/simulator.md, "Calibration")
+CALIBRATED_LEVEL = 0.9
 
 
 @dataclass(frozen=True)
@@ -85,24 +88,24 @@ class SimulatorConfig:
     tremor_max: float = 0.05
     # --- finger sliding
     finger_force_n: float = 1.2
-    finger_speed_mm_s: float = 60.0
-    finger_semi_axis_mm: float = 5.0  # semi-axis at 1 N (grows as F^(1/3), Hertz)
-    finger_aspect: float = 0.75
+    finger_speed_mm_s: float = 80.0
+    finger_semi_axis_mm: float = 8.5  # pad contact semi-axis at 1 N (grows as F^(1/3), Hertz)
+    finger_aspect: float = 0.7
     ridge_pitch_mm: float = 0.5
     ridge_depth: float = 0.06  # relative normal-force modulation by the ridges
-    stick_slip_rate_hz: float = 9.0
-    stick_slip_depth: float = 0.10
+    stick_slip_rate_hz: float = 8.0  # relaxation oscillation of skin on PDMS at 60 mm/s
+    stick_slip_depth: float = 0.4  # relative normal-force swing of one stick-slip cycle
     # --- paintbrush brushing
     brush_force_n: float = 0.25
-    brush_speed_mm_s: float = 110.0
-    brush_width_mm: float = 18.0
+    brush_speed_mm_s: float = 150.0
+    brush_width_mm: float = 22.0
     brush_footprint_mm: float = 8.0
     brush_bristle_groups: int = 8
-    brush_bristle_depth: float = 0.8  # relative broadband force fluctuation per group
+    brush_bristle_depth: float = 1.0  # relative broadband force fluctuation per group
     brush_band_hz: tuple[float, float] = (15.0, 1200.0)
     # --- washer rolling (a steel washer rolled on its rim)
     washer_force_n: float = 1.5
-    washer_speed_mm_s: float = 50.0
+    washer_speed_mm_s: float = 22.0
     washer_diameter_mm: float = 20.0
     washer_thickness_mm: float = 1.6
     washer_contact_mm: float = 2.0  # Hertz half-width along the rolling direction
@@ -141,6 +144,11 @@ class SimulatorConfig:
             raise ValueError(
                 f"bpf_lowpass_hz must be below {nyq} Hz (oversample * rate / 2), "
                 f"got {self.bpf_lowpass_hz}")
+
+    @property
+    def level(self) -> float:
+        """The variability multiplier used by the model: difficulty x CALIBRATED_LEVEL."""
+        return self.difficulty * CALIBRATED_LEVEL
 
     @property
     def n_samples(self) -> int:
@@ -185,7 +193,7 @@ class ParticipantStyle:
 
 
 def _participant_style(cfg: SimulatorConfig, rng: np.random.Generator) -> ParticipantStyle:
-    d = cfg.difficulty
+    d = cfg.level
     common_f = rng.normal(0.0, cfg.style_force_sigma * d)
     common_v = rng.normal(0.0, cfg.style_speed_sigma * d)
     force = np.exp(common_f + rng.normal(0.0, 0.5 * cfg.style_force_sigma * d, 3))
@@ -205,7 +213,7 @@ def _participant_style(cfg: SimulatorConfig, rng: np.random.Generator) -> Partic
         ridge_pitch=float(cfg.ridge_pitch_mm * np.exp(rng.normal(0.0, 0.1))),
         tremor=float(rng.uniform(cfg.tremor_min, cfg.tremor_max)),
         tremor_hz=float(rng.uniform(7.0, 12.0)),
-        brush_strokes=int(rng.choice([1, 2, 3], p=[0.5, 0.35, 0.15])),
+        brush_strokes=int(rng.choice([1, 2, 3, 4], p=[0.25, 0.35, 0.25, 0.15])),
         atypical=atypical,
     )
 
@@ -230,6 +238,23 @@ def _band_noise(rng: np.random.Generator, shape: tuple[int, int], fs: float,
     sos = sps.butter(2, band, "bandpass", fs=fs, output="sos")
     x = sps.sosfilt(sos, rng.standard_normal(shape), axis=-1)
     return x / (np.std(x, axis=-1, keepdims=True) + 1e-12)
+
+
+def _stick_slip(rng: np.random.Generator, n: int, fs: float, rate_hz: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Unit sawtooth of stick-slip (load up, slip) at ~rate_hz with jittered cycles, and the
+    slip impulses (for the ringing that follows each slip)."""
+    mean_iv = fs / max(rate_hz, 0.1)
+    iv = rng.gamma(6.0, mean_iv / 6.0, int(n / mean_iv * 1.5) + 8)
+    ev = np.cumsum(iv)
+    ev = ev[ev < n]
+    bounds = np.concatenate([[0.0], ev, [float(n)]])
+    idx = np.arange(n)
+    k = np.searchsorted(ev, idx, side="right")
+    saw = (idx - bounds[k]) / np.maximum(bounds[k + 1] - bounds[k], 1.0) - 0.5
+    imp = np.zeros(n)
+    imp[ev.astype(np.int64)] = 1.0
+    return saw, imp
 
 
 def _electrode_weights(centre: np.ndarray, sigma: np.ndarray, pos: np.ndarray,
@@ -311,7 +336,7 @@ class _Chain:
         u0 = -u_lim + rng.uniform(0.0, 8.0)
         u1 = u_lim - rng.uniform(0.0, 8.0)
         forward = style.forward[direction if direction in (0, 1) else 0]
-        if rng.random() < 0.1 * max(cfg.difficulty, 0.0):
+        if rng.random() < 0.1 * cfg.level:
             forward = not forward
         if not forward:
             u0, u1 = u1, u0
@@ -321,7 +346,7 @@ class _Chain:
             base_speed *= 2.0
         speed = base_speed * style.speed[modality] * math.exp(rng.normal(0.0, jitter))
         strokes = style.brush_strokes if modality == BRUSH else 1
-        if modality != BRUSH and rng.random() < 0.05 * cfg.difficulty:
+        if modality != BRUSH and rng.random() < 0.05 * cfg.level:
             strokes = 2  # an occasional back-and-forth
         length = abs(u1 - u0)
         t_press = float(rng.uniform(0.06, 0.25))
@@ -396,15 +421,16 @@ class _Chain:
         phase = 2 * np.pi * np.cumsum(speed_fine) / fs / style.ridge_pitch
         phase += 0.3 * np.cumsum(rng.standard_normal(self.n_fine)) / math.sqrt(fs)
         ridge = ridge_depth * (0.7 + 0.3 * rng.random()) * np.sin(phase) * moving
-        # stick-slip: Poisson slip events, each a damped normal-stress oscillation
-        rate = ss_rate * (0.5 + 0.5 * min(force, 3.0)) * moving / fs
-        events = (rng.random(self.n_fine) < rate).astype(float)
-        events *= rng.uniform(0.5, 1.5, self.n_fine)
+        # stick-slip: a relaxation oscillation (slow loading, sudden slip, ringing); its rate
+        # grows with sliding speed and force
+        v_rel = max(p["speed"], 1.0) / 60.0
+        rate = ss_rate * math.sqrt(v_rel) * (0.7 + 0.3 * min(force, 3.0))
+        saw, slips = _stick_slip(rng, self.n_fine, fs, rate)
         f0 = rng.uniform(60.0, 160.0)
         r = math.exp(-1.0 / (0.008 * fs))
-        b, aa = [1.0], [1.0, -2 * r * math.cos(2 * math.pi * f0 / fs), r * r]
-        slips = sps.lfilter(b, aa, events) * (1 - r)
-        f_total = force * env * (1.0 + ridge + ss_depth * slips)
+        ring = sps.lfilter([1.0 - r], [1.0, -2 * r * math.cos(2 * math.pi * f0 / fs), r * r],
+                           slips)
+        f_total = force * env * (1.0 + ridge + ss_depth * moving * (saw + 2.0 * ring))
         return [_Contact(f_total, 0.0, 0.0, a / 2.0, cfg.finger_aspect * a / 2.0)]
 
     def _brush(self, rng: np.random.Generator, style: ParticipantStyle, p: dict[str, Any],
@@ -462,7 +488,10 @@ class _Chain:
         for ang, height in cfg.washer_defects:
             dist = np.angle(np.exp(1j * (theta - ang)))  # wrapped angular distance
             rim += height * np.exp(-0.5 * (dist / w) ** 2)
-        f_total = force * env * (mod + rim * moving)
+        # a rigid rim landing on the elastomer: a short impact at touch-down
+        t_rel = self.t_fine - p["onset"]
+        impact = np.where(t_rel >= 0, np.exp(-np.maximum(t_rel, 0.0) / 0.004), 0.0)
+        f_total = force * (env * (mod + rim * moving) + rng.uniform(0.3, 1.0) * impact)
         half_along = cfg.washer_contact_mm * max(force, 0.05) ** (1 / 3) / 1.15
         tilt = rng.normal(0.0, 0.3)  # a tilted washer touches with one edge
         return [_Contact(f_total, 0.0, tilt, half_along / 2.0,
@@ -472,7 +501,7 @@ class _Chain:
     def record(self, rng: np.random.Generator, style: ParticipantStyle, modality: int,
                direction: int, run: int) -> tuple[np.ndarray, RecordingTruth]:
         cfg = self.cfg
-        d = cfg.difficulty
+        d = cfg.level
         practice = run == 1
         jitter = cfg.gesture_jitter_sigma * d * (cfg.practice_jitter_factor if practice else 1.0)
         variant = "typical"
@@ -561,37 +590,40 @@ class _Chain:
     def _noise_and_adc(self, volts: np.ndarray, rng: np.random.Generator
                        ) -> tuple[np.ndarray, dict[str, Any]]:
         cfg = self.cfg
-        d = cfg.difficulty
+        d = cfg.level
         n_tax, n = volts.shape
         t = np.arange(n) / self.fs
         noise_scale = 0.5 + 0.5 * d
         amp = cfg.amp_noise_v * noise_scale * np.exp(rng.normal(0.0, 0.2, (n_tax, 1)))
-        v = volts + amp * rng.standard_normal((n_tax, n))
         hum = math.exp(rng.uniform(math.log(cfg.hum_v_min), math.log(cfg.hum_v_max))) * noise_scale
         ph = rng.uniform(0, 2 * np.pi)
         coupling = self.hum_coupling.reshape(-1, 1)
         mains = (np.sin(2 * np.pi * cfg.mains_hz * t + ph)
                  + 0.3 * np.sin(2 * np.pi * 3 * cfg.mains_hz * t + 3 * ph + rng.uniform(0, 1)))
-        v += hum * coupling * mains[None, :]
-        # drift: a slow random walk per channel (amplifier offset, temperature)
-        walk = np.cumsum(rng.standard_normal((n_tax, n // 300 + 2)), axis=1)
+        v = volts + hum * coupling * mains[None, :]
+        # drift: a slow random walk per channel (amplifier offset, temperature), 10 points/s
+        walk = np.cumsum(rng.standard_normal((n_tax, int(n / self.fs * 10) + 2)), axis=1)
         walk -= walk.mean(axis=1, keepdims=True)
         walk *= cfg.drift_v * noise_scale / (np.std(walk) + 1e-12)
-        v += np.array([np.interp(t, np.arange(walk.shape[1]) * 0.1, w) for w in walk])
+        pos = t * 10.0
+        i0 = np.minimum(pos.astype(np.int64), walk.shape[1] - 2)
+        frac = pos - i0
+        v += walk[:, i0] * (1.0 - frac) + walk[:, i0 + 1] * frac
         extra: dict[str, Any] = {}
         u = rng.random(2)
-        if u[0] < cfg.p_dead_taxel * max(d, 0.0):  # broken trace: only pickup and noise
+        white = np.sqrt((amp / cfg.volts_per_count) ** 2 + cfg.adc_noise_lsb**2)  # counts rms
+        if u[0] < cfg.p_dead_taxel * max(d, 0.0):  # broken trace: only pickup and ADC noise
             k = int(rng.integers(n_tax))
-            v[k] = 3 * hum * mains + amp[k] * 0.3 * rng.standard_normal(n)
+            v[k] = 3 * hum * mains
+            white[k] = cfg.adc_noise_lsb + 0.3 * amp[k, 0] / cfg.volts_per_count
             extra["dead_taxel"] = k
         if u[1] < cfg.p_noisy_taxel * max(d, 0.0):  # a bad contact: loud, crackling
             k = int(rng.integers(n_tax))
             crackle = (rng.random(n) < 0.002) * rng.normal(0.0, 0.05, n)
-            v[k] += 10 * amp[k] * rng.standard_normal(n) + sps.lfilter(
-                [1.0], [1.0, -0.95], crackle)
+            v[k] += sps.lfilter([1.0], [1.0, -0.95], crackle)
+            white[k] *= 10.0
             extra["noisy_taxel"] = k
-        counts = np.rint(v / cfg.volts_per_count
-                         + cfg.adc_noise_lsb * rng.standard_normal((n_tax, n)))
+        counts = np.rint(v / cfg.volts_per_count + white * rng.standard_normal((n_tax, n)))
         lim = 2 ** (cfg.adc_bits - 1)
         extra["clipped"] = bool(np.any(counts >= lim - 1) or np.any(counts <= -lim))
         counts = np.clip(counts, -lim, lim - 1)
@@ -609,13 +641,20 @@ def _job_list(participants: int, runs: tuple[int, ...]) -> list[tuple[int, int, 
             for m in range(len(MODALITIES)) for d in (0, 1)]
 
 
-def _simulate_one(args: tuple[SimulatorConfig, int, tuple[int, int, int, int]]
-                  ) -> tuple[np.ndarray, RecordingTruth]:
-    cfg, seed, (participant, run, modality, direction) = args
+def _simulate_one(args: tuple[Any, ...]) -> tuple[Any, RecordingTruth]:
+    """One recording: (config, seed, job[, compression level]) -> (int16 array, or the
+    EncodedRecording when a compression level is given, truth)."""
+    cfg, seed, (participant, run, modality, direction) = args[:3]
     chain = _chain_for(cfg, seed)
     style = _participant_style(cfg, np.random.default_rng([seed, participant, 0x57]))
     rng = np.random.default_rng([seed, participant, run, modality, direction, 0xA1])
-    return chain.record(rng, style, modality, direction, run)
+    rec, truth = chain.record(rng, style, modality, direction, run)
+    if len(args) > 3:
+        from eskin.campaign import encode_recording
+
+        rec = encode_recording(rec, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
+                               compression_level=args[3])
+    return rec, truth
 
 
 _CHAIN_CACHE: dict[tuple[str, int], _Chain] = {}
@@ -632,28 +671,40 @@ def _chain_for(cfg: SimulatorConfig, seed: int) -> _Chain:
 
 def iter_recordings(participants: int = 70, seed: int = 0, *,
                     config: SimulatorConfig | None = None, runs: tuple[int, ...] = (1, 2),
-                    n_jobs: int = 1) -> Iterator[tuple[tuple[int, int, int, int], np.ndarray,
-                                                      RecordingTruth]]:
+                    n_jobs: int = 1, _encode: Any = ()) -> Iterator[tuple[
+                        tuple[int, int, int, int], np.ndarray, RecordingTruth]]:
     """Yield ((participant, run, modality, direction), int16 (rows, cols, T), truth) in order.
 
-    Only a few recordings exist at a time (at most 2 * n_jobs in flight).
+    With ``n_jobs`` > 1, worker processes simulate ahead while the caller consumes; at most
+    2 * n_jobs + 1 recordings are in flight, so memory stays bounded.
     """
     cfg = config or SimulatorConfig()
     jobs = _job_list(int(participants), tuple(runs))
     if n_jobs <= 1:
         for job in jobs:
-            yield (job, *_simulate_one((cfg, seed, job)))
+            yield (job, *_simulate_one((cfg, seed, job, *_encode)))
         return
     import multiprocessing as mp
+    from collections import deque
 
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with ctx.Pool(n_jobs) as pool:
-        batch = 2 * n_jobs
-        for start in range(0, len(jobs), batch):
-            chunk = jobs[start:start + batch]
-            for job, (rec, truth) in zip(chunk, pool.map(
-                    _simulate_one, [(cfg, seed, j) for j in chunk], chunksize=1)):
-                yield job, rec, truth
+        todo = iter(jobs)
+        pending: deque[Any] = deque()
+
+        def submit() -> None:
+            job = next(todo, None)
+            if job is not None:
+                pending.append((job, pool.apply_async(_simulate_one,
+                                                      ((cfg, seed, job, *_encode),))))
+
+        for _ in range(2 * n_jobs + 1):
+            submit()
+        while pending:
+            job, result = pending.popleft()
+            rec, truth = result.get()
+            submit()
+            yield job, rec, truth
 
 
 def simulate(
@@ -692,6 +743,7 @@ def simulate(
         "simulator_seed": int(seed),
         "simulator_participants": int(participants),
         "difficulty": float(cfg.difficulty),
+        "simulator_level": float(cfg.level),
         "description": "SIMULATED campaign (eskin physics-based simulator); not recorded data",
     }
     extra_fields = {"speed_mm_s": np.float32, "force_n": np.float32, "line_mm": np.float32,
@@ -705,7 +757,8 @@ def simulate(
                         contact_interval=True, overwrite=overwrite,
                         extra_fields=extra_fields) as w:
         for k, ((participant, run, modality, direction), rec, truth) in enumerate(
-                iter_recordings(participants, seed, config=cfg, runs=runs, n_jobs=n_jobs)):
+                iter_recordings(participants, seed, config=cfg, runs=runs, n_jobs=n_jobs,
+                                _encode=(w.compression_level,))):
             w.append(rec, modality=modality, participant=participant, direction=direction,
                      run=run, contact_interval=truth.contact_interval, extra={
                          "speed_mm_s": truth.speed_mm_s, "force_n": truth.force_n,

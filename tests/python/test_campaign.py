@@ -318,3 +318,48 @@ def test_missing_file_and_directory(tmp_path):
 def test_public_names():
     assert eskin.load_campaign is load_campaign
     assert issubclass(eskin.CampaignFormatError, ValueError)
+
+
+def test_extras_round_trip_and_follow_subsets(tmp_path):
+    sig, lengths, labels = _arrays()
+    extras = {"speed": np.linspace(1, 2, 6).astype(np.float32),
+              "pair": np.arange(12, dtype=np.int8).reshape(6, 2)}
+    p = tmp_path / "x.h5"
+    write_campaign(p, sig, lengths=lengths, modalities=MODS, sample_rate_hz=100.0,
+                   volts_per_count=1.0, source="recorded", extras=extras, **labels)
+    with load_campaign(p) as c:
+        np.testing.assert_array_equal(c.extras["speed"], extras["speed"])
+        assert c.extras["pair"].dtype == np.int8
+        sub = c.subset([5, 0])
+        np.testing.assert_array_equal(sub.extras["pair"], extras["pair"][[5, 0]])
+        save_campaign(sub, tmp_path / "y.h5")
+    with load_campaign(tmp_path / "y.h5") as d:
+        np.testing.assert_array_equal(d.extras["speed"], extras["speed"][[5, 0]])
+    with h5py.File(p, "a") as f:
+        del f["recordings/extra/speed"]
+        f["recordings/extra/speed"] = np.zeros(4)
+    with pytest.raises(CampaignFormatError, match="/recordings/extra/speed: wrong shape"):
+        load_campaign(p)
+
+
+def test_encoded_and_uncompressed_recordings(tmp_path):
+    from eskin.campaign import encode_recording
+
+    rec = np.arange(2 * 3 * 40, dtype=np.int16).reshape(2, 3, 40) - 100
+    enc = encode_recording(rec, grid_shape=(2, 3), n_samples=50, length=30)
+    for level in (None, 1):
+        p = tmp_path / f"e{level}.h5"
+        with CampaignWriter(p, grid_shape=(2, 3), n_samples=50, sample_rate_hz=10.0,
+                            volts_per_count=1.0, modalities=["a"], source="recorded",
+                            compression_level=level) as w:
+            if level == 1:
+                w.append(enc, modality=0, participant=1, direction=0, run=1)
+            else:
+                with pytest.raises(ValueError, match="encoded for grid"):
+                    w.append(enc, modality=0, participant=1, direction=0, run=1)
+                w.append(rec, modality=0, participant=1, direction=0, run=1, length=30)
+        with h5py.File(p) as f:
+            assert f["recordings/signals"].compression == (None if level is None else "gzip")
+        with load_campaign(p) as c:
+            np.testing.assert_array_equal(c.recording(0), rec[..., :30])
+            assert np.all(np.asarray(c.signals)[0, ..., 30:] == 0)

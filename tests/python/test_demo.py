@@ -16,16 +16,20 @@ def _d(onset, offset, label):
     return Decision("controller", onset, offset, None, label, (0.5, -0.5, -1.0))
 
 
-def test_assign_decisions_keeps_the_longest_touch_of_each_segment():
-    seg = np.zeros(3, dtype=[("start", "<u8"), ("length", "<u8")])
+def test_assign_decisions_keeps_the_touch_on_the_contact():
+    seg = np.zeros(3, dtype=[("start", "<u8"), ("length", "<u8"), ("contact_onset", "<i8"),
+                             ("contact_offset", "<i8")])
     seg["start"], seg["length"] = [100, 1000, 2000], [500, 500, 500]
+    seg["contact_onset"], seg["contact_offset"] = [50, -1, 0], [150, -1, 500]
     ds = [_d(0, 50, 2), _d(150, 250, 1), _d(300, 590, 0), _d(1490, 1700, 2), _d(2600, 2700, 1)]
     labels, values, _, extra = assign_decisions(ds, seg, 3)
-    assert labels.tolist() == [0, 2, -1]  # segment 2: no decision
+    # segment 0: [150, 250) covers the contact [150, 250); the longer [300, 590) does not;
+    # segment 1 (contact unknown): the largest overlap; segment 2: no decision
+    assert labels.tolist() == [1, 2, -1]
     assert np.isnan(values[2]).all() and values[0].tolist() == [0.5, -0.5, -1.0]
-    assert extra == [1, 0, 0, 2]  # one shorter touch in segment 0; two outside every segment
+    assert extra == [1, 0, 0, 2]  # one other touch in segment 0; two outside every segment
     cm = confusion_matrix(np.array([0, 1, 2]), labels, 3)
-    assert cm.tolist() == [[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    assert cm.tolist() == [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
 
 
 def test_demo_end_to_end(tmp_path):

@@ -310,7 +310,9 @@ def test_window_choice_with_several_touches_matches_detect_windows(campaign, sel
 
 
 def test_stream_classifier_decides_like_the_batch_classifier(campaign):
-    cm = CompiledModel(model_to_bytes(_random_spec(campaign, 50, 3), "float64"))
+    spec = _random_spec(campaign, 50, 3)
+    spec.window_config = eskin.WindowConfig(select="energy")  # batch: one of the stream's touches
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
     sig, lengths = _signals(campaign)
     batch = cm.classify(sig[:6], lengths[:6])
     for i in range(6):
@@ -517,7 +519,7 @@ def test_train_export_classify_matches_python_labels(campaign, tmp_path):
     train = tmp_path / "train.h5"
     eskin.simulate(train, participants=3, seed=21, runs=(2,))
     model = tmp_path / "model.joblib"
-    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20", "--selection", "cv")
+    _eskin("train", train, "-o", model, "--all-classes", "--quick", "--D", "20")
     _eskin("export", model, "-o", tmp_path / "model.eskin")
     held = tmp_path / "held.h5"
     shutil.copy(campaign.path, held)
@@ -532,3 +534,49 @@ def test_train_export_classify_matches_python_labels(campaign, tmp_path):
     _eskin("predict", model, held, "--engine", "cpp", "--json", tmp_path / "cpp.json")
     cpp = json.loads((tmp_path / "cpp.json").read_text())
     assert [p["label"] for p in cpp] == python_labels
+
+
+# ----------------------------------------------------------------------------- properties
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    rows=st.integers(1, 3), cols=st.integers(1, 3), D=st.integers(2, 9),
+    n_classes=st.integers(2, 4), n_pool=st.integers(1, 6), seed=st.integers(0, 2**16),
+    dtype=st.sampled_from(["float32", "float64"]),
+)
+def test_any_valid_description_round_trips(rows, cols, D, n_classes, n_pool, seed, dtype):
+    """Any valid description (grid, D, classes, shared support vectors, per-machine alphas)
+    is written, accepted by the C++ validator, and read back with the same machines; the
+    support-vector table holds each distinct pattern once; C++ decisions equal Python's."""
+    rng = np.random.default_rng(seed)
+    shape = (rows, cols, D)
+    full = eskin.resolve_alphas(shape, "full")
+    pool = rng.normal(size=(n_pool, *shape))
+    rule = "binary" if n_classes == 2 else "one_vs_all"
+    machines = []
+    for k in range(1 if rule == "binary" else n_classes):
+        idx = rng.choice(n_pool, size=int(rng.integers(1, n_pool + 1)), replace=True)
+        alphas = tuple(int(rng.integers(1, q + 1)) for q in full)
+        machines.append(MachineSpec(1 if rule == "binary" else k, 0 if rule == "binary" else -1,
+                                    float(rng.normal()), alphas,
+                                    tuple(float(v) for v in rng.uniform(0.3, 3, 3)),
+                                    pool[idx], rng.normal(size=len(idx))))
+    spec = ModelSpec([f"class{k}" for k in range(n_classes)], rule, machines, D, (rows, cols),
+                     window="none", sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    cm = CompiledModel(model_to_bytes(spec, dtype))
+    used = {pool[i].tobytes() for m in machines for i in range(n_pool)
+            if any(np.array_equal(pool[i], sv) for sv in m.support_vectors)}
+    assert cm.n_support == len(used)
+    for m, got in zip(machines, cm.machines):
+        assert got["alphas"] == m.alphas and got["intercept"] == m.intercept
+        # repeated patterns in one machine become one term with the summed coefficient
+        assert np.isclose(sum(got["coef"]), m.dual_coef.sum(), rtol=1e-5, atol=1e-5)
+    X = rng.normal(size=(3, *shape))
+    F, scale = _python_decisions(spec, X)
+    got = cm.classify_tensors(X).decision_values
+    tol = 1e-9 if dtype == "float64" else 1e-4
+    assert np.all(np.abs(got - F) <= tol * np.maximum(scale, 1e-300) + 1e-12)

@@ -603,7 +603,7 @@ def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_mode
     pytest.importorskip("eskin.models", reason="the learning stack is not installed")
     from eskin.models import load_model
 
-    cm, path, rf, _ = small_model
+    _, path, rf, _ = small_model
     model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing
     proc, pty_path = run_fw_sim(fw_sim_path, rf.path, "--model", path, "--speed", 20,
                                 "--wait-start")
@@ -621,3 +621,23 @@ def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_mode
         assert (c.onset_sample, c.offset_sample, c.label) == (h.onset_sample, h.offset_sample,
                                                               h.label)
         np.testing.assert_allclose(c.values, h.values, atol=1e-6)
+
+
+def test_listen_live_view_renders(pty, tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    state, path = pty
+    c = Controller(names=("brush", "finger", "washer"))
+    wire = (DELIMITER + c.info() + b"".join(c.data_frames(touch_stream()))
+            + c.decision(4450, 5450, 0, (0.9, -0.5, -0.7)) + c.status(StreamState.FINISHED))
+    out = tmp_path / "d.jsonl"
+    feed_when_open(state, wire)
+    res = CliRunner().invoke(app, ["listen", path, "--view", "live", "--until-eof",
+                                   "--duration", "20", "--jsonl", str(out)])
+    assert res.exit_code == 0, res.output
+    for text in ("taxel activity", "link statistics", "decisions (latest last)", "brush",
+                 "lost samples"):
+        assert text in res.output
+    assert json.loads(out.read_text().splitlines()[0])["label"] == "brush"

@@ -3,7 +3,9 @@
 //
 // Loading allocates and throws (ModelFormatError, a std::runtime_error, whose message names the
 // field and the bad value). Classifying does neither: a Classifier allocates its workspace once,
-// at construction, and its per-decision calls return a Status.
+// at construction, and its per-decision calls return a ClassifyStatus. The StreamClassifier
+// (below) is the controller's path: one multi-taxel sample at a time, no allocation after
+// construction.
 #pragma once
 
 #include <array>

@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
         difficulty: Optional[float] = typer.Option(
             None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
-        jobs: int = typer.Option(1, "--jobs", "-j", help="worker processes"),
+        jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
     ) -> None:
@@ -53,8 +53,11 @@ def register(app: typer.Typer) -> None:
                 if not quiet and (done % step == 0 or done == total):
                     typer.echo(f"  {done}/{total} recordings", err=True)
 
+            import os
+
+            n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
             simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                     n_jobs=jobs, overwrite=force, progress=progress)
+                     n_jobs=n_jobs, overwrite=force, progress=progress)
             typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
                        f"in {time.perf_counter() - t0:.1f} s")
 
@@ -66,9 +69,8 @@ def register(app: typer.Typer) -> None:
         """Summarise a campaign file: grid, rate, counts, lengths, source."""
         from eskin.campaign import load_campaign
 
-        with _user_errors():
-            with load_campaign(file, check_data=check) as c:
-                _print_info(c)
+        with _user_errors(), load_campaign(file, check_data=check) as c:
+            _print_info(c)
 
     @app.command("plot")
     def plot_cmd(
@@ -145,7 +147,7 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"wrote {output}: {len(c)} recordings")
 
 
-def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
+def _print_info(c) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -174,9 +176,9 @@ def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
     table.add_column("modality (id)")
     runs = sorted(s["per_run"])
     dirs = sorted({int(d) for d in c.direction})
-    from eskin.campaign import DIRECTION_NAMES
-
     import numpy as np
+
+    from eskin.campaign import DIRECTION_NAMES
 
     for r in runs:
         for d in dirs:
@@ -191,6 +193,6 @@ def _print_info(c) -> None:  # noqa: ANN001 - a Campaign
     console.print(table)
     pp = s["per_participant"]
     counts = sorted(set(pp.values()))
-    console.print(f"  recordings per participant: "
+    console.print("  recordings per participant: "
                   + ", ".join(f"{sum(1 for v in pp.values() if v == n)} participants x {n}"
                               for n in counts))

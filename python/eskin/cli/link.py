@@ -163,7 +163,9 @@ def register(app: typer.Typer) -> None:
             False, "--reconnect", help="reopen the port when the controller goes away"),
         backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
         force: bool = typer.Option(False, "--force", help="replace the --record file"),
-        plain: bool = typer.Option(False, "--plain", help="plain lines even on a terminal"),
+        view: str = typer.Option(
+            "auto", help="live (rich view), plain (one line per event) or auto (live on a "
+                         "terminal)"),
     ) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
         from eskin.link import (
@@ -178,7 +180,10 @@ def register(app: typer.Typer) -> None:
         if duration is not None and duration <= 0:
             typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
             raise typer.Exit(2)
-        live_mode = sys.stdout.isatty() and not plain
+        if view not in ("auto", "live", "plain"):
+            typer.echo(f"error: --view must be auto, live or plain, got {view!r}", err=True)
+            raise typer.Exit(2)
+        live_mode = view == "live" or (view == "auto" and sys.stdout.isatty())
         with _user_errors():
             listener = LinkListener(port, model=model, backend=backend, record=record,
                                     replay=replay, reconnect=reconnect, overwrite=force,
@@ -254,8 +259,8 @@ def register(app: typer.Typer) -> None:
             try:
                 result = run_demo(out, participants=participants,
                                   test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, quick=quick, machine=machine, max_recordings=recordings,
-                                  log=lambda m: console.print(m))
+                                  n_jobs=jobs, quick=quick, machine=machine,
+                                  max_recordings=recordings, log=lambda m: console.print(m))
             except DemoError as exc:
                 console.print(f"[bold red]demo failed:[/] {exc}")
                 raise typer.Exit(1) from None
@@ -330,14 +335,19 @@ def _print_demo(console: Any, result: Any) -> None:
     console.print(Columns([matrix(f"{k} ({result.error_rates[k]:.1%} error)", cm, names)
                            for k, cm in result.confusion.items()]))
     t = Table(title="agreement (touch by touch, then per recording)")
-    for c in ("decisions", "touches", "same window + label", "recordings", "equal labels",
-              "max |value diff|"):
-        t.add_column(c)
+    t.add_column("decisions", no_wrap=True)
+    for c in ("touches", "same touches", "recs", "same labels", "max |dv|"):
+        t.add_column(c, justify="right")
     for k, row in result.agreement.items():
         diff = row["max_value_diff"]
-        t.add_row(k, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
-                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.2e}")
+        short = (k.replace(" (live)", "").replace(" (Python)", "")
+                 .replace("offline batch (per recording)", "batch").replace(" vs ", " / "))
+        t.add_row(short, str(row["touches"]), str(row["equal_touches"]), str(row["n"]),
+                  str(row["equal"]), "-" if math.isnan(diff) else f"{diff:.1e}")
     console.print(t)
+    console.print("same touches: equal window and label, touch by touch; recs: recordings "
+                  "compared (one decision each: the touch on its true contact); max |dv|: largest "
+                  "difference of the decision values (float32 export vs float64)")
     console.print(stats_table(result.stats, title="link statistics (live run)"))
     for line in result.summary:
         console.print(line)

@@ -1,0 +1,484 @@
+"""Importers: recordings from other tools -> an eskin campaign file (source="recorded").
+
+Two layouts are read (both documented in ``docs/dataset-format.md``):
+
+* :func:`import_csv_folder` - a folder of CSV files, one recording per file, one column per
+  taxel (row-major: column k is taxel (k // cols, k % cols)), plus a manifest CSV listing each
+  file with its modality label, participant, direction and run;
+* :func:`import_tdms` - LabVIEW TDMS files (read with npTDMS), one group per recording, one
+  channel per taxel, the labels in the group's (or the file's) properties.
+
+Both stream: one recording is in memory at a time. Both raise ``ValueError`` (or
+``FileNotFoundError``) with a message naming the file, the line or channel, and the problem.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eskin.campaign import (
+    DIRECTION_HORIZONTAL,
+    DIRECTION_UNKNOWN,
+    DIRECTION_VERTICAL,
+    CampaignWriter,
+)
+
+_DIRECTIONS = {
+    "0": DIRECTION_HORIZONTAL, "h": DIRECTION_HORIZONTAL, "horizontal": DIRECTION_HORIZONTAL,
+    "1": DIRECTION_VERTICAL, "v": DIRECTION_VERTICAL, "vertical": DIRECTION_VERTICAL,
+    "255": DIRECTION_UNKNOWN, "": DIRECTION_UNKNOWN, "unknown": DIRECTION_UNKNOWN,
+    "?": DIRECTION_UNKNOWN, "nan": DIRECTION_UNKNOWN,
+}
+_TIME_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds", "sample"}
+
+
+def parse_direction(value: Any, where: str) -> int:
+    """'h'/'horizontal'/0 -> 0, 'v'/'vertical'/1 -> 1, ''/'unknown'/255 -> 255."""
+    key = str(value).strip().lower()
+    key = key.removesuffix(".0")
+    if key not in _DIRECTIONS:
+        raise ValueError(
+            f"{where}: direction {value!r} not understood (use h/horizontal/0, v/vertical/1, "
+            f"or unknown/255/empty)")
+    return _DIRECTIONS[key]
+
+
+def _parse_int(value: Any, where: str, what: str, lo: int, hi: int) -> int:
+    try:
+        f = float(str(value).strip())
+    except ValueError:
+        raise ValueError(f"{where}: {what} {value!r} is not a number") from None
+    if not math.isfinite(f) or f != int(f) or not lo <= f <= hi:
+        raise ValueError(f"{where}: {what} {value!r} must be an integer in [{lo}, {hi}]")
+    return int(f)
+
+
+def _class_ids(labels: Sequence[str], modalities: Sequence[str] | None,
+               where: str) -> tuple[list[str], list[int]]:
+    if modalities is None:
+        names = sorted(set(labels))
+    else:
+        names = [str(m).strip() for m in modalities]
+        unknown = sorted(set(labels) - set(names))
+        if unknown:
+            raise ValueError(
+                f"{where}: modality labels {unknown} are not among the given modalities {names}")
+    if not names:
+        raise ValueError(f"{where}: no recordings listed")
+    return names, [names.index(lab) for lab in labels]
+
+
+def _to_counts(x: np.ndarray, volts_per_count: float | None, units: str,
+               where: str) -> np.ndarray:
+    """Samples (counts or volts) -> int16 counts, with clear errors."""
+    if not np.all(np.isfinite(x)):
+        bad = np.argwhere(~np.isfinite(x))[0]
+        raise ValueError(f"{where}: non-finite value at sample {bad[-1]}")
+    if units == "auto":
+        units = "counts" if np.all(x == np.round(x)) else "volts"
+    if units == "volts":
+        if volts_per_count is None:
+            raise ValueError(f"{where}: values are volts, so volts_per_count must be given")
+        x = np.round(x / volts_per_count)
+    elif units != "counts":
+        raise ValueError(f"units must be 'auto', 'counts' or 'volts', got {units!r}")
+    if x.size and (x.min() < -32768 or x.max() > 32767):
+        raise ValueError(
+            f"{where}: values span [{x.min():g}, {x.max():g}] counts, outside int16 "
+            f"(check units and volts_per_count)")
+    return x.astype(np.int16)
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+@dataclass
+class _CsvEntry:
+    file: Path
+    label: str
+    participant: int
+    direction: int
+    run: int
+    line: int
+
+
+def _read_manifest(manifest: Path) -> tuple[list[dict[str, str]], list[str]]:
+    try:
+        with open(manifest, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            if reader.fieldnames is None:
+                raise ValueError(f"{manifest}: empty manifest (expected a header line)")
+            fields = [f.strip().lower() for f in reader.fieldnames]
+            rows = [{(k or "").strip().lower(): (v or "").strip() for k, v in row.items()}
+                    for row in reader]
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{manifest}: not a text CSV file ({exc.reason})") from None
+    return rows, fields
+
+
+def _one_value(rows: list[dict[str, str]], column: str, manifest: Path) -> str | None:
+    vals = {r.get(column, "") for r in rows} - {""}
+    if not vals:
+        return None
+    if len(vals) > 1:
+        raise ValueError(
+            f"{manifest}: column {column!r} must hold one value for the whole campaign, "
+            f"found {sorted(vals)}")
+    return vals.pop()
+
+
+def _csv_header(path: Path) -> tuple[bool, list[str], int]:
+    """(has_header, header names, number of columns of the first line)."""
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        first = fh.readline()
+    if not first.strip():
+        return False, [], 0
+    cells = next(csv.reader([first]))
+    try:
+        [float(c) for c in cells]
+        return False, [], len(cells)
+    except ValueError:
+        return True, [c.strip() for c in cells], len(cells)
+
+
+def _read_csv_recording(path: Path, n_taxels: int) -> np.ndarray:
+    """One recording CSV -> float64 (n_taxels, length)."""
+    has_header, names, n_cols = _csv_header(path)
+    if n_cols == 0:
+        raise ValueError(f"{path}: empty file")
+    drop_time = has_header and names and names[0].lower() in _TIME_COLUMNS
+    use = n_cols - (1 if drop_time else 0)
+    if use != n_taxels:
+        raise ValueError(
+            f"{path}: {use} taxel columns"
+            f"{' (after the time column)' if drop_time else ''}, expected {n_taxels} "
+            f"(rows x cols)")
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1 if has_header else 0, ndmin=2,
+                          dtype=np.float64, encoding="utf-8-sig")
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    if data.shape[0] == 0:
+        raise ValueError(f"{path}: no samples")
+    if data.shape[1] != n_cols:
+        raise ValueError(f"{path}: rows have {data.shape[1]} columns, header has {n_cols}")
+    if drop_time:
+        data = data[:, 1:]
+    return np.ascontiguousarray(data.T)
+
+
+def _count_lines(path: Path) -> int:
+    has_header, _, _ = _csv_header(path)
+    with open(path, "rb") as fh:
+        n = sum(1 for line in fh if line.strip())
+    return n - (1 if has_header else 0)
+
+
+def import_csv_folder(
+    folder: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    manifest: str | os.PathLike[str] | None = None,
+    grid_shape: tuple[int, int] | None = None,
+    sample_rate_hz: float | None = None,
+    volts_per_count: float | None = None,
+    modalities: Sequence[str] | None = None,
+    units: str = "auto",
+    overwrite: bool = False,
+    attrs: Mapping[str, Any] | None = None,
+) -> Path:
+    """Import a folder of CSV recordings into a campaign file at ``output``.
+
+    The manifest (default ``folder/manifest.csv``) has a header and one line per recording with
+    columns ``file`` (relative to the folder), ``modality`` (a label), ``participant`` (integer),
+    ``direction`` (h/horizontal/0, v/vertical/1, or unknown/255/empty) and ``run`` (integer).
+    Optional columns, one value for the whole campaign: ``rows``, ``cols``, ``sample_rate_hz``,
+    ``volts_per_count`` (arguments override them). Each recording CSV: one column per taxel in
+    row-major order, an optional header line (a first column named time/t/timestamp is
+    dropped), one line per sample; integers are ADC counts, other numbers volts (``units``
+    forces one). Recordings may differ in length: the campaign pads them (``length`` keeps each).
+    Class ids follow ``modalities`` if given, else the sorted labels.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder")
+    man = Path(manifest) if manifest is not None else folder / "manifest.csv"
+    if not man.is_file():
+        raise FileNotFoundError(f"{man}: manifest not found (a CSV with columns file, modality, "
+                                f"participant, direction, run)")
+    rows_, fields = _read_manifest(man)
+    missing = [c for c in ("file", "modality", "participant", "direction", "run")
+               if c not in fields]
+    if missing:
+        raise ValueError(f"{man}: missing column(s) {missing} (found {fields})")
+    if not rows_:
+        raise ValueError(f"{man}: lists no recordings")
+
+    def _setting(value: Any, column: str, cast: Any) -> Any:
+        if value is not None:
+            return value
+        v = _one_value(rows_, column, man)
+        if v is None:
+            return None
+        try:
+            return cast(v)
+        except ValueError:
+            raise ValueError(f"{man}: column {column!r} value {v!r} is not a number") from None
+
+    if grid_shape is None:
+        r = _setting(None, "rows", int)
+        c = _setting(None, "cols", int)
+        if r is None or c is None:
+            raise ValueError(f"{man}: grid shape not given (arguments rows/cols, or manifest "
+                             f"columns 'rows' and 'cols')")
+        grid_shape = (r, c)
+    rate = _setting(sample_rate_hz, "sample_rate_hz", float)
+    if rate is None:
+        raise ValueError(f"{man}: sample rate not given (argument, or manifest column "
+                         f"'sample_rate_hz')")
+    vpc = _setting(volts_per_count, "volts_per_count", float)
+    if vpc is None:
+        raise ValueError(f"{man}: volts_per_count not given (argument, or manifest column "
+                         f"'volts_per_count'); it converts counts to volts")
+    n_rows, n_cols = int(grid_shape[0]), int(grid_shape[1])
+    if n_rows < 1 or n_cols < 1:
+        raise ValueError(f"grid shape must be positive, got {grid_shape}")
+
+    entries: list[_CsvEntry] = []
+    for k, row in enumerate(rows_):
+        line = k + 2
+        where = f"{man}, line {line}"
+        if not row["file"]:
+            raise ValueError(f"{where}: empty 'file'")
+        f = (folder / row["file"]).resolve()
+        if not f.is_file():
+            raise FileNotFoundError(f"{where}: recording file {row['file']!r} not found in "
+                                    f"{folder}")
+        if not row["modality"]:
+            raise ValueError(f"{where}: empty 'modality'")
+        entries.append(_CsvEntry(
+            f, row["modality"], _parse_int(row["participant"], where, "participant",
+                                           -2**31, 2**31 - 1),
+            parse_direction(row["direction"], where),
+            _parse_int(row["run"], where, "run", 0, 255), line))
+    names, ids = _class_ids([e.label for e in entries], modalities, str(man))
+    lengths = [_count_lines(e.file) for e in entries]
+    t = max(max(lengths), 1)
+    with CampaignWriter(output, grid_shape=(n_rows, n_cols), n_samples=t,
+                        sample_rate_hz=rate, volts_per_count=vpc, modalities=names,
+                        source="recorded", overwrite=overwrite,
+                        attrs={"imported_from": f"csv folder {folder.name}", **dict(attrs or {})}
+                        ) as w:
+        for e, cid in zip(entries, ids):
+            x = _read_csv_recording(e.file, n_rows * n_cols)
+            counts = _to_counts(x, vpc, units, str(e.file))
+            w.append(counts.reshape(n_rows, n_cols, -1), modality=cid,
+                     participant=e.participant, direction=e.direction, run=e.run)
+    return Path(output)
+
+
+# --------------------------------------------------------------------------- TDMS
+
+
+def _natural_key(name: str) -> list[Any]:
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
+
+
+def _prop(obj: Any, *names: str) -> Any:
+    props = getattr(obj, "properties", {}) or {}
+    lower = {str(k).lower(): v for k, v in props.items()}
+    for n in names:
+        if n.lower() in lower:
+            return lower[n.lower()]
+    return None
+
+
+def _taxel_order(channels: list[Any], n_rows: int, n_cols: int, where: str) -> list[Any]:
+    """Channels in row-major taxel order: by taxel_row/taxel_col properties when all have
+    them, else by 'r<i>c<j>' names, else by natural name order."""
+    rc = [(_prop(ch, "taxel_row", "row"), _prop(ch, "taxel_col", "col", "column"))
+          for ch in channels]
+    if all(r is not None and c is not None for r, c in rc):
+        pos = {}
+        for ch, (r, c) in zip(channels, rc):
+            r, c = int(r), int(c)
+            if not (0 <= r < n_rows and 0 <= c < n_cols) or (r, c) in pos:
+                raise ValueError(f"{where}: channel {ch.name!r} has taxel ({r}, {c}), out of the "
+                                 f"{n_rows}x{n_cols} grid or repeated")
+            pos[(r, c)] = ch
+        return [pos[(r, c)] for r in range(n_rows) for c in range(n_cols)]
+    pat = re.compile(r"^\D*r(?:ow)?[ _]?(\d+)[ _,-]*c(?:ol)?[ _]?(\d+)\D*$", re.IGNORECASE)
+    m = [pat.match(ch.name) for ch in channels]
+    if all(m):
+        pos = {(int(x.group(1)), int(x.group(2))): ch for x, ch in zip(m, channels)}
+        want = [(r, c) for r in range(n_rows) for c in range(n_cols)]
+        base = min(k[0] for k in pos), min(k[1] for k in pos)
+        if base == (1, 1):  # 1-based names
+            pos = {(r - 1, c - 1): ch for (r, c), ch in pos.items()}
+        if set(pos) == set(want):
+            return [pos[k] for k in want]
+    return sorted(channels, key=lambda ch: _natural_key(ch.name))
+
+
+def import_tdms(
+    files: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    grid_shape: tuple[int, int] | None = None,
+    sample_rate_hz: float | None = None,
+    volts_per_count: float | None = None,
+    modalities: Sequence[str] | None = None,
+    units: str = "auto",
+    overwrite: bool = False,
+    attrs: Mapping[str, Any] | None = None,
+) -> Path:
+    """Import LabVIEW TDMS files into a campaign file at ``output``.
+
+    Mapping: every group of every file is one recording; its channels are the taxels
+    (rows x cols of them, in row-major order: by channel properties ``taxel_row``/``taxel_col``
+    if present, else names like ``r0c3``, else natural name order). Labels come from the
+    group's properties, falling back to the file's: ``modality`` (a name), ``participant``,
+    ``direction`` (h/v/0/1/unknown) and ``run``. The rate comes from ``sample_rate_hz`` (argument,
+    group or file property) or the LabVIEW waveform property ``wf_increment`` (seconds per
+    sample). Integer channels are ADC counts; floating channels are volts, converted with
+    ``volts_per_count`` (argument or property; default 10/32768, a +-10 V 16-bit range).
+    The grid is ``grid_shape``, else the file properties ``rows``/``cols``, else 4x4.
+    """
+    from nptdms import TdmsFile
+
+    paths = [Path(files)] if isinstance(files, (str, os.PathLike)) else [Path(f) for f in files]
+    if not paths:
+        raise ValueError("no TDMS files given")
+    for p in paths:
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: no such TDMS file")
+
+    # pass 1: metadata only (no channel data is read)
+    recs: list[dict[str, Any]] = []
+    rate_seen: set[float] = set()
+    vpc_seen: set[float] = set()
+    grid_seen: set[tuple[int, int]] = set()
+    for p in paths:
+        try:
+            with open(p, "rb") as fh, TdmsFile.open(fh) as tf:
+                groups = tf.groups()
+                if not groups:
+                    raise ValueError(f"{p}: no groups (expected one group per recording)")
+                for g in groups:
+                    where = f"{p}, group {g.name!r}"
+                    chans = g.channels()
+                    if not chans:
+                        raise ValueError(f"{where}: no channels")
+
+                    def label(*names: str, _g: Any = g) -> Any:
+                        v = _prop(_g, *names)
+                        return v if v is not None else _prop(tf, *names)
+
+                    r = label("rows")
+                    c = label("cols", "columns")
+                    if grid_shape is not None:
+                        grid = (int(grid_shape[0]), int(grid_shape[1]))
+                    elif r is not None and c is not None:
+                        grid = (int(r), int(c))
+                    else:
+                        grid = (4, 4)
+                    grid_seen.add(grid)
+                    if len(chans) != grid[0] * grid[1]:
+                        raise ValueError(
+                            f"{where}: {len(chans)} channels, expected one per taxel "
+                            f"({grid[0]}x{grid[1]} = {grid[0] * grid[1]})")
+                    rate = sample_rate_hz if sample_rate_hz is not None else label(
+                        "sample_rate_hz", "sample_rate")
+                    if rate is None:
+                        incs = {float(ch.properties.get("wf_increment", 0) or 0) for ch in chans}
+                        if len(incs) != 1 or next(iter(incs)) <= 0:
+                            raise ValueError(
+                                f"{where}: sample rate unknown (no sample_rate_hz property and "
+                                f"no single positive wf_increment on the channels)")
+                        rate = 1.0 / incs.pop()
+                    rate_seen.add(round(float(rate), 6))
+                    vpc = volts_per_count if volts_per_count is not None else label(
+                        "volts_per_count")
+                    if vpc is not None:
+                        vpc_seen.add(float(vpc))
+                    modality = label("modality", "label", "touch")
+                    if modality is None or str(modality).strip() == "":
+                        raise ValueError(f"{where}: no 'modality' property (group or file)")
+                    part = label("participant", "subject")
+                    if part is None:
+                        raise ValueError(f"{where}: no 'participant' property (group or file)")
+                    run = label("run")
+                    lengths = {len(ch) for ch in chans}
+                    if len(lengths) != 1:
+                        raise ValueError(f"{where}: channels have different lengths "
+                                         f"{sorted(lengths)}")
+                    recs.append(dict(
+                        path=p, group=g.name, where=where, label=str(modality).strip(),
+                        participant=_parse_int(part, where, "participant", -2**31, 2**31 - 1),
+                        direction=parse_direction(
+                            label("direction") if label("direction") is not None else "",
+                            where),
+                        run=_parse_int(run if run is not None else 0, where, "run", 0, 255),
+                        length=lengths.pop(), grid=grid))
+        except (OSError, KeyError, EOFError) as exc:
+            raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
+        except ValueError as exc:
+            if str(exc).startswith(str(p)):
+                raise
+            raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
+    if len(grid_seen) != 1:
+        raise ValueError(f"recordings have different grid shapes {sorted(grid_seen)}")
+    if len(rate_seen) != 1:
+        raise ValueError(f"recordings have different sample rates {sorted(rate_seen)} Hz")
+    if len(vpc_seen) > 1:
+        raise ValueError(f"recordings have different volts_per_count {sorted(vpc_seen)}")
+    grid = grid_seen.pop()
+    rate = rate_seen.pop()
+    vpc = vpc_seen.pop() if vpc_seen else 10.0 / 32768
+    names, ids = _class_ids([r["label"] for r in recs], modalities, "TDMS files")
+    t = max(max(r["length"] for r in recs), 1)
+
+    # pass 2: one recording at a time
+    with CampaignWriter(output, grid_shape=grid, n_samples=t, sample_rate_hz=rate,
+                        volts_per_count=vpc, modalities=names, source="recorded",
+                        overwrite=overwrite,
+                        attrs={"imported_from": "tdms " + ", ".join(p.name for p in paths[:10]),
+                               **dict(attrs or {})}) as w:
+        open_file: Any = None
+        try:
+            for rec, cid in zip(recs, ids):
+                if open_file is None or open_file[0] != rec["path"]:
+                    if open_file is not None:
+                        open_file[1].close()
+                        open_file[2].close()
+                    fh = open(rec["path"], "rb")  # noqa: SIM115 - closed below
+                    open_file = (rec["path"], TdmsFile.open(fh), fh)
+                g = open_file[1][rec["group"]]
+                chans = _taxel_order(g.channels(), grid[0], grid[1], rec["where"])
+                x = np.stack([np.asarray(ch[:]) for ch in chans])
+                if x.dtype.kind == "f":
+                    counts = _to_counts(x.astype(np.float64), vpc,
+                                        "volts" if units == "auto" else units, rec["where"])
+                elif x.dtype.kind in "iu":
+                    counts = _to_counts(x.astype(np.float64), vpc,
+                                        "counts" if units == "auto" else units, rec["where"])
+                else:
+                    raise ValueError(f"{rec['where']}: channel data of type {x.dtype} "
+                                     f"(expected numbers)")
+                w.append(counts.reshape(grid[0], grid[1], -1), modality=cid,
+                         participant=rec["participant"], direction=rec["direction"],
+                         run=rec["run"])
+        finally:
+            if open_file is not None:
+                open_file[1].close()
+                open_file[2].close()
+    return Path(output)

@@ -1,0 +1,225 @@
+"""Importers: real CSV folders and real LabVIEW TDMS files written in tmp_path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+from eskin.campaign import load_campaign
+from eskin.importers import import_csv_folder, import_tdms
+
+
+def _csv_folder(tmp_path, *, n=4, grid=(4, 4), header=True, time_col=False, volts=False,
+                manifest_extra=None):
+    rng = np.random.default_rng(0)
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    truth = []
+    lines = ["file,modality,participant,direction,run" + (
+        "," + ",".join(manifest_extra) if manifest_extra else "")]
+    labels = ["finger", "brush", "washer", "finger"]
+    dirs = ["h", "vertical", "1", ""]
+    for i in range(n):
+        length = 50 + 10 * i
+        counts = rng.integers(-500, 500, (grid[0] * grid[1], length))
+        name = f"r{i:02d}.csv"
+        with open(folder / name, "w") as fh:
+            cols = [f"r{k // grid[1]}c{k % grid[1]}" for k in range(grid[0] * grid[1])]
+            if header:
+                fh.write(",".join((["time"] if time_col else []) + cols) + "\n")
+            for s in range(length):
+                vals = [f"{v * 1e-3:.6f}" if volts else str(int(v)) for v in counts[:, s]]
+                if time_col:
+                    vals = [f"{s / 1000:.4f}"] + vals
+                fh.write(",".join(vals) + "\n")
+        truth.append(counts)
+        extra = ("," + ",".join(manifest_extra.values())) if manifest_extra else ""
+        lines.append(f"{name},{labels[i % 4]},{10 + i // 2},{dirs[i % 4]},{1 + i % 2}{extra}")
+    (folder / "manifest.csv").write_text("\n".join(lines) + "\n")
+    return folder, truth
+
+
+@pytest.mark.parametrize("header,time_col", [(True, False), (False, False), (True, True)])
+def test_csv_round_trip(tmp_path, header, time_col):
+    folder, truth = _csv_folder(tmp_path, header=header, time_col=time_col)
+    out = tmp_path / "c.h5"
+    import_csv_folder(folder, out, grid_shape=(4, 4), sample_rate_hz=1000.0,
+                      volts_per_count=1e-3)
+    with load_campaign(out) as c:
+        assert c.source == "recorded" and c.sample_rate_hz == 1000.0
+        assert c.modalities == ["brush", "finger", "washer"]  # sorted labels
+        assert c.modality.tolist() == [1, 0, 2, 1]
+        assert c.participant.tolist() == [10, 10, 11, 11]
+        assert c.direction.tolist() == [0, 1, 1, 255]
+        assert c.run.tolist() == [1, 2, 1, 2]
+        assert c.lengths.tolist() == [50, 60, 70, 80] and c.n_samples == 80
+        for i, counts in enumerate(truth):
+            np.testing.assert_array_equal(c.recording(i).reshape(16, -1), counts)
+
+
+def test_csv_volts_settings_from_manifest_and_modality_order(tmp_path):
+    folder, truth = _csv_folder(
+        tmp_path, grid=(2, 3), volts=True,
+        manifest_extra={"rows": "2", "cols": "3", "sample_rate_hz": "500",
+                        "volts_per_count": "0.001"})
+    out = tmp_path / "c.h5"
+    import_csv_folder(folder, out, modalities=["washer", "finger", "brush"])
+    with load_campaign(out) as c:
+        assert c.grid_shape == (2, 3) and c.sample_rate_hz == 500.0
+        assert c.modalities == ["washer", "finger", "brush"]
+        assert c.modality.tolist() == [1, 2, 0, 1]
+        np.testing.assert_array_equal(c.recording(2).reshape(6, -1), truth[2])
+
+
+def test_csv_errors(tmp_path):
+    folder, _ = _csv_folder(tmp_path)
+    out = tmp_path / "c.h5"
+    kw = dict(grid_shape=(4, 4), sample_rate_hz=1000.0, volts_per_count=1e-3)
+    with pytest.raises(ValueError, match=r"r00\.csv: 16 taxel columns.*expected 12"):
+        import_csv_folder(folder, out, **{**kw, "grid_shape": (3, 4)})
+    with pytest.raises(ValueError, match="sample rate not given"):
+        import_csv_folder(folder, out, grid_shape=(4, 4), volts_per_count=1.0)
+    with pytest.raises(ValueError, match=r"not among the given modalities"):
+        import_csv_folder(folder, out, modalities=["finger", "brush"], **kw)
+    with pytest.raises(FileNotFoundError, match="manifest not found"):
+        import_csv_folder(tmp_path, out, **kw)
+    # a bad value in a recording names the file
+    bad = folder / "r01.csv"
+    text = bad.read_text().splitlines()
+    text[5] = text[5].replace(text[5].split(",")[3], "oops", 1)
+    bad.write_text("\n".join(text) + "\n")
+    with pytest.raises(ValueError, match=r"r01\.csv"):
+        import_csv_folder(folder, out, **kw)
+    assert not out.exists()
+    # manifest problems name the line
+    (folder / "manifest.csv").write_text(
+        "file,modality,participant,direction,run\nr00.csv,finger,1,diagonal,1\n")
+    with pytest.raises(ValueError, match=r"manifest\.csv, line 2: direction 'diagonal'"):
+        import_csv_folder(folder, out, **kw)
+    (folder / "manifest.csv").write_text(
+        "file,modality,participant,direction,run\nmissing.csv,finger,1,h,1\n")
+    with pytest.raises(FileNotFoundError, match="'missing.csv' not found"):
+        import_csv_folder(folder, out, **kw)
+    (folder / "manifest.csv").write_text("file,modality,participant\nr00.csv,finger,1\n")
+    with pytest.raises(ValueError, match=r"missing column\(s\) \['direction', 'run'\]"):
+        import_csv_folder(folder, out, **kw)
+
+
+def _tdms(path, recordings, *, float_volts=False, rate=3000.0, use_props=False,
+          root_props=None, names=None):
+    objs = [RootObject(properties=root_props or {"rows": 4, "cols": 4})]
+    for g, (counts, props) in enumerate(recordings):
+        gname = f"recording {g}"
+        objs.append(GroupObject(gname, properties=props))
+        order = list(range(counts.shape[0]))
+        rng = np.random.default_rng(g)
+        rng.shuffle(order)  # channels stored out of order: the importer must sort them
+        for k in order:
+            data = counts[k] * 1e-3 if float_volts else counts[k].astype(np.int16)
+            cprops = {"wf_increment": 1.0 / rate}
+            if use_props:
+                cprops.update(taxel_row=k // 4, taxel_col=k % 4)
+                cname = f"ai{(k * 7) % 16}"
+            else:
+                cname = names(k) if names else f"r{k // 4}c{k % 4}"
+            objs.append(ChannelObject(gname, cname, data, properties=cprops))
+    with TdmsWriter(path) as w:
+        w.write_segment(objs)
+
+
+def _recs(n=3, lengths=(300, 200, 250)):
+    rng = np.random.default_rng(1)
+    labs = ["brush", "washer", "finger"]
+    return [(rng.integers(-2000, 2000, (16, lengths[i])),
+             {"modality": labs[i % 3], "participant": 3 + i, "direction": "v" if i % 2 else "h",
+              "run": 2}) for i in range(n)]
+
+
+@pytest.mark.parametrize("mode", ["names", "props", "taxel-numbers"])
+def test_tdms_round_trip(tmp_path, mode):
+    recs = _recs()
+    p = tmp_path / "session.tdms"
+    if mode == "names":
+        _tdms(p, recs)
+    elif mode == "props":
+        _tdms(p, recs, use_props=True)
+    else:
+        _tdms(p, recs, names=lambda k: f"Taxel {k + 1}")
+    out = tmp_path / "c.h5"
+    import_tdms(p, out)
+    with load_campaign(out) as c:
+        assert len(c) == 3 and c.sample_rate_hz == 3000.0 and c.source == "recorded"
+        assert c.modalities == ["brush", "finger", "washer"]
+        assert c.modality.tolist() == [0, 2, 1]
+        assert c.participant.tolist() == [3, 4, 5] and c.direction.tolist() == [0, 1, 0]
+        assert c.lengths.tolist() == [300, 200, 250]
+        for i, (counts, _) in enumerate(recs):
+            np.testing.assert_array_equal(c.recording(i).reshape(16, -1), counts)
+
+
+def test_tdms_volts_and_several_files(tmp_path):
+    recs = _recs()
+    a, b = tmp_path / "a.tdms", tmp_path / "b.tdms"
+    _tdms(a, recs[:2], float_volts=True, rate=2000.0)
+    # labels in the file's properties, one recording in the file
+    counts, _ = recs[2]
+    _tdms(b, [(counts, {})], float_volts=True, rate=2000.0,
+          root_props={"modality": "finger", "participant": 9, "run": 1})
+    out = tmp_path / "c.h5"
+    import_tdms([a, b], out, volts_per_count=1e-3)
+    with load_campaign(out) as c:
+        assert c.sample_rate_hz == 2000.0 and c.volts_per_count == 1e-3
+        assert c.participant.tolist() == [3, 4, 9] and c.direction.tolist() == [0, 1, 255]
+        np.testing.assert_array_equal(c.recording(2).reshape(16, -1), counts)
+
+
+def test_tdms_errors(tmp_path):
+    recs = _recs()
+    p = tmp_path / "s.tdms"
+    _tdms(p, recs)
+    out = tmp_path / "c.h5"
+    with pytest.raises(ValueError, match=r"16 channels, expected one per taxel \(3x4 = 12\)"):
+        import_tdms(p, out, grid_shape=(3, 4))
+    with pytest.raises(FileNotFoundError, match="no such TDMS file"):
+        import_tdms(tmp_path / "none.tdms", out)
+    junk = tmp_path / "junk.tdms"
+    junk.write_bytes(b"TDSm" + b"\x00" * 40)
+    with pytest.raises(ValueError, match=r"junk\.tdms"):
+        import_tdms(junk, out)
+    text = tmp_path / "notes.tdms"
+    text.write_text("hello")
+    with pytest.raises(ValueError, match=r"notes\.tdms"):
+        import_tdms(text, out)
+    nolabel = tmp_path / "nolabel.tdms"
+    _tdms(nolabel, [(recs[0][0], {"participant": 1})])
+    with pytest.raises(ValueError, match=r"group 'recording 0': no 'modality' property"):
+        import_tdms(nolabel, out)
+    assert not out.exists()
+
+
+def test_cli_import_csv_and_tdms(tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    folder, truth = _csv_folder(tmp_path)
+    out = tmp_path / "csv.h5"
+    run = CliRunner().invoke
+    r = run(app, ["import-csv", str(folder), "-o", str(out), "--rows", "4", "--cols", "4",
+                  "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 0, r.output
+    assert "4 recordings" in r.output
+    r = run(app, ["import-csv", str(folder), "-o", str(out), "--rows", "4", "--cols", "4",
+                  "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 2 and "refusing to overwrite" in r.output
+    r = run(app, ["import-csv", str(folder), "-o", str(tmp_path / "x.h5"), "--rows", "3",
+                  "--cols", "4", "--rate", "1000", "--volts-per-count", "0.001"])
+    assert r.exit_code == 2 and "expected 12" in r.output
+
+    p = tmp_path / "s.tdms"
+    _tdms(p, _recs())
+    r = run(app, ["import-tdms", str(p), "-o", str(tmp_path / "t.h5"),
+                  "--modalities", "brush,finger,washer"])
+    assert r.exit_code == 0, r.output
+    assert "3 recordings" in r.output
