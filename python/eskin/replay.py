@@ -109,9 +109,11 @@ def write_replay_arrays(
     """Write recordings (each int16 (rows, cols, length)) as one replay stream.
 
     A gap of ``gap_s`` seconds of quiet noise precedes every recording (and follows the last),
-    centred on ``baseline`` (per taxel; default: estimated from the recordings' first tenth)
-    with standard deviation ``noise_counts`` (default: estimated the same way), from a
-    generator seeded with ``seed``.
+    with standard deviation ``noise_counts`` (default: estimated from the recordings' first
+    tenth), from a generator seeded with ``seed``. The gap is centred on ``baseline`` (per
+    taxel) when it is given; by default it ramps, per taxel, from the level at which the
+    previous recording ends to the level at which the next one starts (medians of 10 ms), so
+    that recording boundaries carry no step.
     """
     path = Path(path)
     recs = [np.asarray(r) for r in recordings]
@@ -162,8 +164,23 @@ def write_replay_arrays(
     gap = int(round(gap_s * sample_rate_hz))
     rng = np.random.default_rng(seed)
 
-    def quiet(length: int) -> np.ndarray:
-        z = base[None] + noise * rng.standard_normal((length, rows, cols))
+    def edge_level(r: np.ndarray, first: bool) -> np.ndarray:
+        k = max(1, min(r.shape[2], int(round(0.01 * sample_rate_hz))))
+        part = r[:, :, :k] if first else r[:, :, -k:]
+        return np.median(part.astype(np.float64), axis=2)
+
+    def quiet(length: int, prev: Optional[np.ndarray], nxt: Optional[np.ndarray]) -> np.ndarray:
+        # With a fixed baseline the gap is flat; otherwise it ramps from where the previous
+        # recording ends to where the next one starts, so that no step (which a touch
+        # detector would take for a touch) appears at a recording boundary.
+        if baseline is not None or (prev is None and nxt is None):
+            level = np.broadcast_to(base[None], (length, rows, cols))
+        else:
+            a = nxt if prev is None else prev
+            b = prev if nxt is None else nxt
+            t = np.linspace(0.0, 1.0, length)[:, None, None]
+            level = a[None] * (1.0 - t) + b[None] * t
+        z = level + noise * rng.standard_normal((length, rows, cols))
         return np.clip(np.rint(z), -32768, 32767).astype("<i2")
 
     segments = np.zeros(n, dtype=SEGMENT_DTYPE)
@@ -187,11 +204,12 @@ def write_replay_arrays(
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
         f.write(head)
-        f.write(quiet(gap).tobytes())
-        for r in recs:
+        f.write(quiet(gap, None, edge_level(recs[0], True)).tobytes())
+        for i, r in enumerate(recs):
             clipped = np.clip(r, -32768, 32767).astype("<i2")
             f.write(np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes())
-            f.write(quiet(gap).tobytes())
+            nxt = edge_level(recs[i + 1], True) if i + 1 < n else None
+            f.write(quiet(gap, edge_level(r, False), nxt).tobytes())
     return read_replay_file(path)
 
 

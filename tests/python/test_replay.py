@@ -77,3 +77,31 @@ def test_argument_errors(tmp_path):
         write_replay_arrays(tmp_path / "e.eskr", [ok.astype(float)])
     with pytest.raises(ValueError, match="labels"):
         write_replay_arrays(tmp_path / "e.eskr", [ok], labels=[3], class_names=["a"])
+
+
+def test_default_gaps_ramp_between_recording_levels_so_boundaries_are_not_touches(tmp_path):
+    # Two quiet recordings sitting at different DC levels (an amplifier offset that differs
+    # from one recording to the next): the gaps must join them without a step, which the
+    # touch detector would report as a touch.
+    from eskin.preprocess import TouchDetector
+
+    rng = np.random.default_rng(5)
+    fs = 3000.0
+    recs = [
+        (level + 8.0 * rng.standard_normal((4, 4, 3000))).astype(np.int16)
+        for level in (-15.0, 15.0)
+    ]
+    rf = write_replay_arrays(tmp_path / "r.eskr", recs, gap_s=0.5, sample_rate_hz=fs,
+                             noise_counts=8.0, seed=2)
+    s = np.asarray(rf.samples, dtype=float)
+    g = int(rf.segments["start"][1]) - 1500  # the gap between the two recordings
+    assert abs(np.median(s[g : g + 5]) - (-15.0)) < 8  # starts where recording 0 ends
+    assert abs(np.median(s[g + 1495 : g + 1500]) - 15.0) < 8  # ends where recording 1 starts
+    assert abs(np.median(s[1495:1500]) - (-15.0)) < 8  # the leading gap sits at the first level
+    det = TouchDetector((4, 4), fs)
+    assert det.push(rf.samples) + det.flush() == []
+    # with a fixed baseline the gaps stay flat
+    flat = write_replay_arrays(tmp_path / "f.eskr", recs, gap_s=0.5, sample_rate_hz=fs,
+                               noise_counts=8.0, baseline=np.zeros((4, 4)), seed=2)
+    assert abs(np.median(np.asarray(flat.samples[g : g + 1500], dtype=float))) < 2
+
