@@ -67,6 +67,20 @@ def test_fast_svm_path_equals_svc():
         np.testing.assert_array_equal(support, ref.support_)
 
 
+@pytest.mark.parametrize("label", [-1.0, 1.0])
+def test_svm_on_a_single_class_labelling_is_the_constant_machine(label):
+    # A random MD labelling of a tiny training set can hold one class only; libsvm has no
+    # dual then. The machine must be f = label everywhere, with no support vector.
+    rng = np.random.default_rng(4)
+    Z = rng.normal(size=(6, 3))
+    K = np.exp(-((Z[:, None] - Z[None]) ** 2).sum(-1))
+    beta, b, support = svm_train(K, np.full(6, label), C=1.0)
+    np.testing.assert_array_equal(beta, np.zeros(6))
+    assert b == label
+    assert support.size == 0
+    np.testing.assert_array_equal(np.sign(K @ beta + b), np.full(6, label))
+
+
 def test_tensor_rls_is_the_regularised_solve():
     X, y = _patterns(12)
     K = eskin.tensor_kernel(X, sigma=1.3, alpha=(2, 2, 4))
