@@ -11,7 +11,7 @@
 namespace eskin {
 
 namespace {
-constexpr std::size_t kMaxTouches = 4096;  // touches remembered in one recording (batch path)
+constexpr std::size_t kMaxTouches = 4096;  // touches held for the window choice of one recording
 }  // namespace
 
 const char* to_string(ClassifyStatus s) noexcept {
@@ -69,6 +69,7 @@ struct Classifier::Impl {
                  m.window_config(), /*store_samples=*/false),
         tensor(static_cast<std::size_t>(m.rows()) * m.cols() * m.D()),
         values(m.machines().size()),
+        selector(detector.params(), static_cast<std::int64_t>(kMaxTouches)),
         ov32(detail::select_overlap_f32()),
         ov64(detail::select_overlap_f64()) {
     if (m.is_float64()) xb64.resize(layout.bases_size());
@@ -111,7 +112,6 @@ struct Classifier::Impl {
       }
     }
     dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
-    touches.reserve(kMaxTouches);
   }
 
   BasisLayout layout;
@@ -125,7 +125,9 @@ struct Classifier::Impl {
   std::vector<std::size_t> machine_group;
   std::vector<double> dist;  // (group, sv, mode) squared mode distances
   std::vector<double> values;
-  std::vector<TouchWindow> touches;  // capacity kMaxTouches, reserved at construction
+  // The window choice of eskin::detect_window (WindowConfig.select), the same code as the
+  // batch preprocessing; its buffer (kMaxTouches) is allocated here, never per decision.
+  WindowSelector selector;
   detail::OverlapF32 ov32;
   detail::OverlapF64 ov64;
   detail::DotF32 dot32 = detail::select_dot_f32();
@@ -224,36 +226,6 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
   return ClassifyStatus::kOk;
 }
 
-namespace {
-
-// The window choice of eskin::detect_window (WindowConfig.select: 0 most energetic, 1 first,
-// 2 span from the first to the last touch holding span_fraction of the peak energy), on a
-// buffer allocated with the classifier: no allocation per decision.
-TouchWindow choose_window(const DetectorParams& p, const std::vector<TouchWindow>& touches) noexcept {
-  if (p.select == 1) return touches.front();
-  const TouchWindow* best = &touches.front();
-  for (const TouchWindow& w : touches)
-    if (w.energy > best->energy) best = &w;
-  if (p.select == 0) return *best;
-  const double min_energy = p.span_fraction * best->energy;
-  TouchWindow out{};
-  bool any = false;
-  for (const TouchWindow& w : touches) {
-    if (w.energy < min_energy) continue;
-    if (!any) {
-      out = w;
-      any = true;
-      continue;
-    }
-    out.energy += w.energy;
-    out.truncated = out.truncated || w.truncated || w.stop > out.start + p.max_window;
-    out.stop = std::min(w.stop, out.start + p.max_window);
-    out.offset = std::min(w.offset, out.stop);
-  }
-  return out;
-}
-}  // namespace
-
 template <typename T>
 ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
                                         std::int64_t length, Decision* out) noexcept {
@@ -270,30 +242,19 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
   if (m.window_mode() == WindowMode::kEnergy) {
     TouchDetector& det = s.detector;
     det.reset();
-    auto& touches = s.touches;
-    touches.clear();
-    const DetectorParams& p = det.params();
-    auto add = [&](const TouchWindow& tw) {
-      if (p.select == 1 && !touches.empty()) return true;
-      if (p.select == 0 && !touches.empty()) {  // only the most energetic (first on ties)
-        if (tw.energy > touches.front().energy) touches.front() = tw;
-        return true;
-      }
-      if (touches.size() == touches.capacity()) return false;
-      touches.push_back(tw);  // within the reserved capacity: no allocation
-      return true;
-    };
+    WindowSelector& sel = s.selector;
+    sel.reset();
     for (std::int64_t t = 0; t < length; ++t) {
       const Status st = det.push_strided(x + t, T_total);
       if (st == Status::kWindow) {
-        if (!add(det.last_window())) return ClassifyStatus::kOverflow;
+        sel.add(det.last_window());
       } else if (st == Status::kNonFiniteSample) {
         return ClassifyStatus::kNotFinite;
       }
     }
-    if (det.flush() == Status::kWindow && !add(det.last_window())) return ClassifyStatus::kOverflow;
-    if (!touches.empty()) {
-      w = choose_window(p, touches);
+    if (det.flush() == Status::kWindow) sel.add(det.last_window());
+    if (!sel.empty()) {
+      w = sel.result();
     } else {
       if (det.params().fallback == 1) return ClassifyStatus::kNoTouch;
       w.found = false;

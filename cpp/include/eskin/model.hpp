@@ -138,7 +138,8 @@ enum class ClassifyStatus : int {
   kTooShort = -4,    ///< the window is shorter than D and the model's short policy is "error"
   kKernel = -5,      ///< the basis computation failed (eigen-solver did not converge)
   kNullPointer = -6,
-  kOverflow = -7,    ///< more than 4096 separate touches in one recording (batch path)
+  kOverflow = -7,    ///< reserved (beyond 4096 touches in one recording the least energetic
+                     ///< are dropped, as eskin::WindowSelector does in batch preprocessing)
 };
 const char* to_string(ClassifyStatus s) noexcept;
 
