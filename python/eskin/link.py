@@ -70,6 +70,7 @@ from eskin.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
+    DecoderStats,
     FrameDecoder,
     FrameType,
     InfoFrame,
@@ -188,26 +189,15 @@ class Connection:
 
 
 @dataclass(frozen=True)
-class LinkStats:
+class LinkStats(DecoderStats):
     """Everything counted on the link (see the module docstring).
 
-    The decoder counters (``bytes`` .. ``sample_index_resets``) are this host's; the
-    ``controller_*`` ones are the controller's cumulative counters from its last STATUS.
+    The decoder counters inherited from :class:`DecoderStats` (``bytes`` ..
+    ``sample_index_resets``, and ``rejected``) are this host's; the ``controller_*`` ones are
+    the controller's cumulative counters from its last STATUS.
     """
 
     elapsed_s: float = 0.0
-    bytes: int = 0
-    skipped_bytes: int = 0
-    frames: int = 0
-    data_frames: int = 0
-    samples: int = 0
-    crc_errors: int = 0
-    malformed: int = 0
-    oversize: int = 0
-    sequence_gaps: int = 0
-    lost_frames: int = 0
-    lost_samples: int = 0
-    sample_index_resets: int = 0
     overrun_frames: int = 0
     status_frames: int = 0
     decisions_controller: int = 0
@@ -226,16 +216,11 @@ class LinkStats:
     controller_state: str = "unknown"
 
     @property
-    def rejected(self) -> int:
-        """Blocks rejected for any reason (CRC, malformed, oversize)."""
-        return self.crc_errors + self.malformed + self.oversize
-
-    @property
     def rate_samples_per_s(self) -> float:
         return self.samples / self.elapsed_s if self.elapsed_s > 0 else 0.0
 
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
+    def as_dict(self) -> dict[str, Any]:  # type: ignore[override]
+        d: dict[str, Any] = dataclasses.asdict(self)
         d["rejected"] = self.rejected
         return d
 
