@@ -12,6 +12,7 @@
 #include <thread>
 #include <utility>
 
+#include "batch_eigen.hpp"
 #include "tensor_kernel_tile.hpp"
 
 namespace eskin {
@@ -35,19 +36,12 @@ void check_dims(const std::vector<std::size_t>& dims) {
     if (d == 0) throw std::invalid_argument("tensor shape " + dims_str(dims) + " has a zero dimension");
 }
 
-// ---- symmetric eigen-decomposition (Householder tridiagonalisation + implicit QL), after the
-// public-domain JAMA/EISPACK tred2/tql2. Works on caller buffers, allocates nothing.
-// tred2: v (n x n, column-major) holds the symmetric matrix on entry and the accumulated
-// transformation on exit; read row-major, its columns are rows, which is what tql2 takes: tql2
-// leaves the eigenvectors in the rows of v (row-major), eigenvalues ascending in d; e: scratch
-// of n.
-
 // Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
 // twice (function multi-versioning: an x86-64-v3 = AVX2+FMA clone and the baseline one) and
 // the loader picks one for the CPU; no -m flag anywhere. Partial sums in a fixed order:
 // deterministic for a given clone.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define ESKIN_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#define ESKIN_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define ESKIN_CLONES
 #endif
@@ -93,169 +87,110 @@ double dot(const double* a, const double* b, std::size_t n) noexcept {
 }
 #endif
 
+#if defined(__GNUC__)
+__attribute__((always_inline)) inline eskin_v4d load4(const double* p) noexcept {
+  eskin_v4d v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+__attribute__((always_inline)) inline double hsum4(eskin_v4d v) noexcept { return (v[0] + v[1]) + (v[2] + v[3]); }
+
+// Lower triangle (k <= i < R) of G = sum_{p < P} X_p X_p^T, X_p the R x S row-major block at
+// x + p * R * S: g[i * q + k] = sum_p <x[p, i, :], x[p, k, :]>. Blocks of 4 x 4 rows keep 16
+// accumulators in registers, summed over every p before one horizontal reduction each; the
+// partial sums run in a fixed order (deterministic for a given clone).
+ESKIN_CLONES void gram_rows(const double* x, std::size_t P, std::size_t R, std::size_t S,
+                            double* g, std::size_t q) noexcept {
+  const std::size_t S4 = S & ~std::size_t(3);
+  for (std::size_t i0 = 0; i0 < R; i0 += 4)
+    for (std::size_t k0 = 0; k0 <= i0; k0 += 4) {
+      eskin_v4d acc[4][4];
+      double tail[4][4];
+      for (std::size_t a = 0; a < 4; ++a)
+        for (std::size_t b = 0; b < 4; ++b) {
+          acc[a][b] = eskin_v4d{0.0, 0.0, 0.0, 0.0};
+          tail[a][b] = 0.0;
+        }
+      for (std::size_t p = 0; p < P; ++p) {
+        const double* xi[4];
+        const double* xk[4];
+        for (std::size_t a = 0; a < 4; ++a) {  // rows past R repeat the last one (ignored)
+          xi[a] = x + (p * R + std::min(i0 + a, R - 1)) * S;
+          xk[a] = x + (p * R + std::min(k0 + a, R - 1)) * S;
+        }
+        for (std::size_t t = 0; t < S4; t += 4) {
+          const eskin_v4d b0 = load4(xk[0] + t), b1 = load4(xk[1] + t), b2 = load4(xk[2] + t),
+                          b3 = load4(xk[3] + t);
+          for (std::size_t a = 0; a < 4; ++a) {
+            const eskin_v4d va = load4(xi[a] + t);
+            acc[a][0] += va * b0;
+            acc[a][1] += va * b1;
+            acc[a][2] += va * b2;
+            acc[a][3] += va * b3;
+          }
+        }
+        for (std::size_t t = S4; t < S; ++t)
+          for (std::size_t a = 0; a < 4; ++a)
+            for (std::size_t b = 0; b < 4; ++b) tail[a][b] += xi[a][t] * xk[b][t];
+      }
+      for (std::size_t a = 0; a < 4 && i0 + a < R; ++a)
+        for (std::size_t b = 0; b < 4 && k0 + b <= i0 + a; ++b)
+          g[(i0 + a) * q + k0 + b] = hsum4(acc[a][b]) + tail[a][b];
+    }
+}
+
+// max |x[i]| over n values; *nan set when one of them is a NaN (an infinity shows in the max).
+ESKIN_CLONES double abs_max(const double* x, std::size_t n, bool* nan) noexcept {
+  typedef long long eskin_v4i __attribute__((vector_size(32)));
+  const eskin_v4i mag = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
+                         0x7fffffffffffffffLL};
+  eskin_v4d m0 = {0.0, 0.0, 0.0, 0.0}, m1 = m0;
+  eskin_v4i bad = {0, 0, 0, 0};
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const eskin_v4d a = load4(x + i), b = load4(x + i + 4);
+    const eskin_v4d fa = (eskin_v4d)((eskin_v4i)a & mag), fb = (eskin_v4d)((eskin_v4i)b & mag);
+    bad |= (a != a) | (b != b);
+    const eskin_v4i ga = fa > m0, gb = fb > m1;
+    m0 = (eskin_v4d)(((eskin_v4i)fa & ga) | ((eskin_v4i)m0 & ~ga));
+    m1 = (eskin_v4d)(((eskin_v4i)fb & gb) | ((eskin_v4i)m1 & ~gb));
+  }
+  double m = 0.0;
+  bool any = (bad[0] | bad[1] | bad[2] | bad[3]) != 0;
+  for (std::size_t k = 0; k < 4; ++k) m = std::max(m, std::max(m0[k], m1[k]));
+  for (; i < n; ++i) {
+    any |= x[i] != x[i];
+    m = std::max(m, std::fabs(x[i]));
+  }
+  *nan = any;
+  return m;
+}
+#else
+void gram_rows(const double* x, std::size_t P, std::size_t R, std::size_t S, double* g,
+               std::size_t q) noexcept {
+  for (std::size_t i = 0; i < R; ++i)
+    for (std::size_t k = 0; k <= i; ++k) {
+      double sum = 0.0;
+      for (std::size_t p = 0; p < P; ++p) sum += dot(x + (p * R + i) * S, x + (p * R + k) * S, S);
+      g[i * q + k] = sum;
+    }
+}
+
+double abs_max(const double* x, std::size_t n, bool* nan) noexcept {
+  double m = 0.0;
+  bool any = false;
+  for (std::size_t i = 0; i < n; ++i) {
+    any |= x[i] != x[i];
+    m = std::max(m, std::fabs(x[i]));
+  }
+  *nan = any;
+  return m;
+}
+#endif
+
 // y += f * x
 ESKIN_CLONES void axpy(double f, const double* x, double* y, std::size_t n) noexcept {
   for (std::size_t k = 0; k < n; ++k) y[k] += f * x[k];
-}
-
-inline double hyp(double a, double b) noexcept {
-  const double r = std::sqrt(a * a + b * b);
-  if (r > 1e-150 && r < 1e150) return r;
-  return std::hypot(a, b);
-}
-
-ESKIN_CLONES void tred2(std::size_t n, double* v, double* d, double* e) noexcept {
-  // column-major: the inner loops over k run down columns, i.e. contiguously
-  auto V = [v, n](std::size_t r, std::size_t c) -> double& { return v[c * n + r]; };
-  for (std::size_t j = 0; j < n; ++j) d[j] = V(n - 1, j);
-  for (std::size_t i = n - 1; i > 0; --i) {
-    double scale = 0.0, h = 0.0;
-    for (std::size_t k = 0; k < i; ++k) scale += std::fabs(d[k]);
-    if (scale == 0.0) {
-      e[i] = d[i - 1];
-      for (std::size_t j = 0; j < i; ++j) {
-        d[j] = V(i - 1, j);
-        V(i, j) = 0.0;
-        V(j, i) = 0.0;
-      }
-    } else {
-      for (std::size_t k = 0; k < i; ++k) {
-        d[k] /= scale;
-        h += d[k] * d[k];
-      }
-      double f = d[i - 1];
-      double g = std::sqrt(h);
-      if (f > 0) g = -g;
-      e[i] = scale * g;
-      h -= f * g;
-      d[i - 1] = f - g;
-      for (std::size_t j = 0; j < i; ++j) e[j] = 0.0;
-      for (std::size_t j = 0; j < i; ++j) {
-        f = d[j];
-        V(j, i) = f;
-        g = e[j] + V(j, j) * f;
-        for (std::size_t k = j + 1; k + 1 <= i; ++k) {
-          g += V(k, j) * d[k];
-          e[k] += V(k, j) * f;
-        }
-        e[j] = g;
-      }
-      f = 0.0;
-      for (std::size_t j = 0; j < i; ++j) {
-        e[j] /= h;
-        f += e[j] * d[j];
-      }
-      const double hh = f / (h + h);
-      for (std::size_t j = 0; j < i; ++j) e[j] -= hh * d[j];
-      for (std::size_t j = 0; j < i; ++j) {
-        f = d[j];
-        g = e[j];
-        for (std::size_t k = j; k + 1 <= i; ++k) V(k, j) -= (f * e[k] + g * d[k]);
-        d[j] = V(i - 1, j);
-        V(i, j) = 0.0;
-      }
-    }
-    d[i] = h;
-  }
-  for (std::size_t i = 0; i + 1 < n; ++i) {
-    V(n - 1, i) = V(i, i);
-    V(i, i) = 1.0;
-    const double h = d[i + 1];
-    if (h != 0.0) {
-      for (std::size_t k = 0; k <= i; ++k) d[k] = V(k, i + 1) / h;
-      for (std::size_t j = 0; j <= i; ++j) {
-        double g = 0.0;
-        for (std::size_t k = 0; k <= i; ++k) g += V(k, i + 1) * V(k, j);
-        for (std::size_t k = 0; k <= i; ++k) V(k, j) -= g * d[k];
-      }
-    }
-    for (std::size_t k = 0; k <= i; ++k) V(k, i + 1) = 0.0;
-  }
-  for (std::size_t j = 0; j < n; ++j) {
-    d[j] = V(n - 1, j);
-    V(n - 1, j) = 0.0;
-  }
-  V(n - 1, n - 1) = 1.0;
-  e[0] = 0.0;
-}
-
-ESKIN_CLONES bool tql2(std::size_t n, double* v, double* d, double* e) noexcept {
-  for (std::size_t i = 1; i < n; ++i) e[i - 1] = e[i];
-  e[n - 1] = 0.0;
-  double f = 0.0, tst1 = 0.0;
-  const double eps = std::ldexp(1.0, -52);
-  for (std::size_t l = 0; l < n; ++l) {
-    tst1 = std::max(tst1, std::fabs(d[l]) + std::fabs(e[l]));
-    std::size_t m = l;
-    while (m < n) {
-      if (std::fabs(e[m]) <= eps * tst1) break;
-      ++m;
-    }
-    if (m == n) m = n - 1;  // e[n-1] == 0, unreachable in exact arithmetic
-    if (m > l) {
-      int iter = 0;
-      do {
-        if (++iter > 100) return false;
-        double g = d[l];
-        double p = (d[l + 1] - g) / (2.0 * e[l]);
-        double r = hyp(p, 1.0);
-        if (p < 0) r = -r;
-        d[l] = e[l] / (p + r);
-        d[l + 1] = e[l] * (p + r);
-        const double dl1 = d[l + 1];
-        double h = g - d[l];
-        for (std::size_t i = l + 2; i < n; ++i) d[i] -= h;
-        f += h;
-        p = d[m];
-        double c = 1.0, c2 = 1.0, c3 = 1.0;
-        const double el1 = e[l + 1];
-        double s = 0.0, s2 = 0.0;
-        for (std::size_t ii = m; ii-- > l;) {
-          c3 = c2;
-          c2 = c;
-          s2 = s;
-          g = c * e[ii];
-          h = c * p;
-          r = hyp(p, e[ii]);
-          e[ii + 1] = s * r;
-          const double inv_r = 1.0 / r;
-          s = e[ii] * inv_r;
-          c = p * inv_r;
-          p = c * d[ii] - s * g;
-          d[ii + 1] = h + s * (c * g + s * d[ii]);
-          double* w0 = v + ii * n;
-          double* w1 = v + (ii + 1) * n;
-          for (std::size_t k = 0; k < n; ++k) {
-            const double hk = w1[k];
-            w1[k] = s * w0[k] + c * hk;
-            w0[k] = c * w0[k] - s * hk;
-          }
-        }
-        p = -s * s2 * c3 * el1 * e[l] / dl1;
-        e[l] = s * p;
-        d[l] = c * p;
-        if (!std::isfinite(d[l]) || !std::isfinite(e[l])) return false;
-      } while (std::fabs(e[l]) > eps * tst1);
-    }
-    d[l] += f;
-    e[l] = 0.0;
-  }
-  // sort ascending (selection sort: stable choice of the first minimum -> deterministic)
-  for (std::size_t i = 0; i + 1 < n; ++i) {
-    std::size_t k = i;
-    double p = d[i];
-    for (std::size_t j = i + 1; j < n; ++j)
-      if (d[j] < p) {
-        k = j;
-        p = d[j];
-      }
-    if (k != i) {
-      d[k] = d[i];
-      d[i] = p;
-      for (std::size_t j = 0; j < n; ++j) std::swap(v[i * n + j], v[k * n + j]);
-    }
-  }
-  return true;
 }
 
 template <class TA, class TB>
@@ -404,19 +339,23 @@ void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t m
 
 BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
   if (layout_.n_modes() < 2) throw std::invalid_argument("BasisWorkspace needs a layout with >= 2 modes");
-  std::size_t qmax = 1, svn = 0;
+  static_assert(kMaxBatch == kEigenLanes, "one pattern per eigen-solver lane");
+  std::size_t qmax = 1;
   sv_off_.resize(layout_.n_modes());
   for (std::size_t z = 0; z < layout_.n_modes(); ++z) {
     qmax = std::max(qmax, layout_.q(z));
-    sv_off_[z] = svn;
-    svn += layout_.q(z);
+    sv_off_[z] = sv_count_;
+    sv_count_ += layout_.q(z);
   }
+  scaled_.assign(kMaxBatch * layout_.tensor_size(), 0.0);
+  inv_scale_.assign(kMaxBatch, 0.0);
+  lanes_.assign(qmax * qmax * kEigenLanes, 0.0);
+  lane_d_.assign(qmax * kEigenLanes, 0.0);
+  lane_e_.assign(qmax * kEigenLanes, 0.0);
   unfold_.assign(layout_.tensor_size(), 0.0);
-  scaled_.assign(layout_.tensor_size(), 0.0);
   gram_.assign(qmax * qmax, 0.0);
   d_.assign(qmax, 0.0);
-  e_.assign(qmax, 0.0);
-  sv_.assign(svn, 0.0);
+  sv_.assign(sv_count_, 0.0);
   tmp_.assign(layout_.bases_size(), 0.0);
 }
 
@@ -428,68 +367,115 @@ KernelStatus BasisWorkspace::compute(const double* x, float* bases, int* ranks) 
 }
 
 KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks) noexcept {
-  const std::size_t nz = layout_.n_modes();
   if (x == nullptr || bases == nullptr || ranks == nullptr) return KernelStatus::bad_argument;
-  std::fill(bases, bases + layout_.bases_size(), 0.0);
-  std::fill(ranks, ranks + nz, 0);
+  KernelStatus st = KernelStatus::ok;
+  compute_batch(x, 1, bases, ranks, &st);
+  return st;
+}
+
+KernelStatus BasisWorkspace::compute_batch(const double* x, std::size_t count, double* bases,
+                                           int* ranks, KernelStatus* status) noexcept {
+  if (x == nullptr || bases == nullptr || ranks == nullptr || status == nullptr ||
+      count > kMaxBatch)
+    return KernelStatus::bad_argument;
+  const std::size_t nz = layout_.n_modes(), size = layout_.tensor_size(),
+                    bs = layout_.bases_size();
+  std::fill(bases, bases + count * bs, 0.0);
+  std::fill(ranks, ranks + count * nz, 0);
   std::fill(sv_.begin(), sv_.end(), 0.0);
-  // max |x| (four partial maxima) and a NaN flag, branch-free; an infinity shows in amax
-  const std::size_t size = layout_.tensor_size();
-  double m0 = 0.0, m1 = 0.0, m2 = 0.0, m3 = 0.0;
-  int nan = 0;
-  std::size_t i = 0;
-  for (; i + 4 <= size; i += 4) {
-    m0 = std::max(m0, std::fabs(x[i]));
-    m1 = std::max(m1, std::fabs(x[i + 1]));
-    m2 = std::max(m2, std::fabs(x[i + 2]));
-    m3 = std::max(m3, std::fabs(x[i + 3]));
-    nan |= int(x[i] != x[i]) | int(x[i + 1] != x[i + 1]) | int(x[i + 2] != x[i + 2]) |
-           int(x[i + 3] != x[i + 3]);
-  }
-  for (; i < size; ++i) {
-    m0 = std::max(m0, std::fabs(x[i]));
-    nan |= int(x[i] != x[i]);
-  }
-  const double amax = std::max(std::max(m0, m1), std::max(m2, m3));
-  if (nan || !(amax <= std::numeric_limits<double>::max())) return KernelStatus::not_finite;
-  if (amax == 0.0) return KernelStatus::ok;  // all-zero pattern: rank 0, zero bases
-  // scale by a power of two (exact) so that max |x| is in [0.5, 1)
-  int ex = 0;
-  std::frexp(amax, &ex);
-  const double scale = std::ldexp(1.0, -ex);
-  double* xs = scaled_.data();
-  for (std::size_t i = 0; i < layout_.tensor_size(); ++i) xs[i] = x[i] * scale;
-  for (std::size_t z = 0; z < nz; ++z) {
-    const KernelStatus st = compute_mode(z, bases + layout_.offset(z), ranks + z);
-    if (st != KernelStatus::ok) {
-      std::fill(bases, bases + layout_.bases_size(), 0.0);
-      std::fill(ranks, ranks + nz, 0);
-      return st;
+  // lanes that go through the eigen-solver: finite patterns that are not all zero
+  bool live[kMaxBatch] = {};
+  for (std::size_t b = 0; b < count; ++b) {
+    const double* xb = x + b * size;
+    status[b] = KernelStatus::ok;
+    bool nan = false;
+    const double amax = abs_max(xb, size, &nan);
+    if (nan || !(amax <= std::numeric_limits<double>::max())) {
+      status[b] = KernelStatus::not_finite;
+      continue;
     }
-    double* sv = sv_.data() + sv_off_[z];
-    for (std::size_t i = 0; i < layout_.q(z); ++i) sv[i] /= scale;
+    if (amax == 0.0) continue;  // all-zero pattern: rank 0, zero bases
+    // scale by a power of two (exact) so that max |x| is in [0.5, 1)
+    int ex = 0;
+    std::frexp(amax, &ex);
+    const double scale = std::ldexp(1.0, -ex);
+    inv_scale_[b] = std::ldexp(1.0, ex);
+    double* xs = scaled_.data() + b * size;
+    for (std::size_t k = 0; k < size; ++k) xs[k] = xb[k] * scale;
+    live[b] = true;
+  }
+  for (std::size_t z = 0; z < nz; ++z) {
+    const std::size_t q = layout_.q(z);
+    // lane-interleaved Gram matrices (dead lanes: zeros, which the solver handles)
+    double* g = gram_.data();
+    double* lanes = lanes_.data();
+    for (std::size_t b = 0; b < kMaxBatch; ++b) {
+      if (b < count && live[b]) {
+        gram(z, scaled_.data() + b * size, g);
+        for (std::size_t i = 0; i < q * q; ++i) lanes[i * kEigenLanes + b] = g[i];
+      } else {
+        for (std::size_t i = 0; i < q * q; ++i) lanes[i * kEigenLanes + b] = 0.0;
+      }
+    }
+    const unsigned failed = batch_symmetric_eigen(q, lanes, lane_d_.data(), lane_e_.data());
+    for (std::size_t b = 0; b < count; ++b) {
+      if (!live[b]) continue;
+      KernelStatus st = KernelStatus::no_convergence;
+      if (!((failed >> b) & 1u)) {
+        // this lane's eigenpairs, sorted ascending (selection sort: the first minimum is
+        // chosen, so equal eigenvalues keep the solver's order: deterministic)
+        double* d = d_.data();
+        for (std::size_t j = 0; j < q; ++j) {
+          d[j] = lane_d_[j * kEigenLanes + b];
+          for (std::size_t k = 0; k < q; ++k) g[j * q + k] = lanes[(j * q + k) * kEigenLanes + b];
+        }
+        for (std::size_t i = 0; i + 1 < q; ++i) {
+          std::size_t k = i;
+          double p = d[i];
+          for (std::size_t j = i + 1; j < q; ++j)
+            if (d[j] < p) {
+              k = j;
+              p = d[j];
+            }
+          if (k != i) {
+            d[k] = d[i];
+            d[i] = p;
+            std::swap_ranges(g + i * q, g + (i + 1) * q, g + k * q);
+          }
+        }
+        double* sv = b == 0 ? sv_.data() + sv_off_[z] : nullptr;
+        st = finish_mode(z, scaled_.data() + b * size, g, d, bases + b * bs + layout_.offset(z),
+                         ranks + b * nz + z, sv);
+        if (sv)
+          for (std::size_t i = 0; i < q; ++i) sv[i] *= inv_scale_[b];
+      }
+      if (st != KernelStatus::ok) {
+        status[b] = st;
+        live[b] = false;
+        std::fill(bases + b * bs, bases + (b + 1) * bs, 0.0);
+        std::fill(ranks + b * nz, ranks + (b + 1) * nz, 0);
+        if (b == 0) std::fill(sv_.begin(), sv_.end(), 0.0);
+      }
+    }
   }
   return KernelStatus::ok;
 }
 
-KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank) noexcept {
-  // The pattern (scaled) seen as P x M x S (C-order): P = product of the dimensions before z,
-  // M = d_z, S = product of those after. Unfolding: A[i][p * S + s] = x[(p * M + i) * S + s].
-  const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z),
-                    alpha = layout_.alpha(z);
+// Gram matrix (q x q, row-major, symmetric) of mode z's unfolding of the scaled pattern xs:
+// A A^T when M_z <= N_z, else A^T A.
+void BasisWorkspace::gram(std::size_t z, const double* xs, double* g) noexcept {
+  // The pattern seen as P x M x S (C-order): P = product of the dimensions before z, M = d_z,
+  // S = product of those after. Unfolding: A[i][p * S + s] = x[(p * M + i) * S + s].
+  const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z);
   std::size_t before = 1;
   for (std::size_t k = 0; k < z; ++k) before *= layout_.dim(k);
   const std::size_t after = n / before;
-  const double* x = scaled_.data();
-  double* g = gram_.data();  // q x q row-major
+  const double* x = xs;  // g: q x q row-major
   if (m <= n) {
     // G = A A^T: G[i][k] = sum_p <x[p, i, :], x[p, k, :]>
     std::fill(g, g + q * q, 0.0);
     if (after >= 4) {
-      for (std::size_t p = 0; p < before; ++p)
-        for (std::size_t i = 0; i < m; ++i)
-          for (std::size_t k = 0; k <= i; ++k)
-            g[i * q + k] += dot(x + (p * m + i) * after, x + (p * m + k) * after, after);
+      gram_rows(x, before, m, after, g, q);
     } else {
       // short rows: rank-one updates with the unfolding's columns x[p, :, s]
       for (std::size_t p = 0; p < before; ++p)
@@ -504,8 +490,7 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
     }
   } else if (after == 1) {
     // G = A^T A with A's columns the contiguous rows x[p, :]: G[p][p'] = <x[p, :], x[p', :]>
-    for (std::size_t i = 0; i < n; ++i)
-      for (std::size_t k = 0; k <= i; ++k) g[i * q + k] = dot(x + i * m, x + k * m, m);
+    gram_rows(x, 1, n, m, g, q);
   } else {
     // general case: materialise the unfolding, then G = A^T A by rank-one updates of its rows
     unfold_unchecked(x, layout_.dims(), z, unfold_.data());
@@ -522,14 +507,23 @@ KernelStatus BasisWorkspace::compute_mode(std::size_t z, double* out, int* rank)
   }
   for (std::size_t i = 0; i < q; ++i)
     for (std::size_t k = 0; k < i; ++k) g[k * q + i] = g[i * q + k];
-  double* d = d_.data();
-  tred2(q, g, d, e_.data());
-  // tred2 stores column-major: its transformation's columns are the rows tql2 works on
-  if (!tql2(q, g, d, e_.data())) return KernelStatus::no_convergence;
-  // eigenvalues ascending in d; eigenvector j = row j of g
+  for (std::size_t i = 0; i < q; ++i)
+    for (std::size_t k = 0; k < i; ++k) g[k * q + i] = g[i * q + k];
+}
+
+// Bases of mode z from the eigenpairs of its Gram matrix (eigenvalues ascending in d, eigenvector
+// j in row j of g): rank, V (directly, or as A^T U S^-1 re-orthonormalised), signs.
+KernelStatus BasisWorkspace::finish_mode(std::size_t z, const double* x, double* g,
+                                         const double* d, double* out, int* rank,
+                                         double* sv) noexcept {
+  const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z),
+                    alpha = layout_.alpha(z);
+  std::size_t before = 1;
+  for (std::size_t k = 0; k < z; ++k) before *= layout_.dim(k);
+  const std::size_t after = n / before;
   const double lmax = std::max(0.0, d[q - 1]);
-  double* sv = sv_.data() + sv_off_[z];
-  for (std::size_t i = 0; i < q; ++i) sv[i] = std::sqrt(std::max(0.0, d[q - 1 - i]));
+  if (sv)
+    for (std::size_t i = 0; i < q; ++i) sv[i] = std::sqrt(std::max(0.0, d[q - 1 - i]));
   const double eps = std::ldexp(1.0, -52);
   const double tau = std::max(1e-12, 16.0 * double(std::max(m, n)) * eps);
   std::size_t r = 0;
@@ -652,7 +646,7 @@ PatternBases compute_pattern_bases(const double* x, std::size_t n, const BasisLa
   pb.ranks.assign(n * layout.n_modes(), 0);
   if (n == 0) return pb;
   if (x == nullptr) throw std::invalid_argument("compute_pattern_bases: null data pointer");
-  const std::size_t chunk = 8;
+  const std::size_t chunk = BasisWorkspace::kMaxBatch;  // one eigen-solver batch per work item
   const std::size_t n_chunks = (n + chunk - 1) / chunk;
   const int nt = resolve_threads(n_threads);
   std::vector<KernelStatus> status(n, KernelStatus::ok);
@@ -663,10 +657,9 @@ PatternBases compute_pattern_bases(const double* x, std::size_t n, const BasisLa
   auto run = [&](std::size_t c, std::size_t t) {
     BasisWorkspace* mine = &ws[t];
     const std::size_t i0 = c * chunk, i1 = std::min(n, i0 + chunk);
-    for (std::size_t i = i0; i < i1; ++i)
-      status[i] = mine->compute(x + i * layout.tensor_size(),
-                                pb.bases.data() + i * layout.bases_size(),
-                                pb.ranks.data() + i * layout.n_modes());
+    mine->compute_batch(x + i0 * layout.tensor_size(), i1 - i0,
+                        pb.bases.data() + i0 * layout.bases_size(),
+                        pb.ranks.data() + i0 * layout.n_modes(), status.data() + i0);
   };
   parallel_for(n_chunks, nt, run);
   for (std::size_t i = 0; i < n; ++i) {
@@ -701,6 +694,9 @@ struct Scratch {
 thread_local Scratch g_pack_scratch, g_dist_scratch;
 
 struct ModePack {
+  // proj: the mode is packed as one vector per pattern, the packed projection matrix (below),
+  // so that a dot product of two vectors gives ||V_a^T V_b||_F^2 directly
+  bool proj = false;
   std::size_t count = 0, alpha = 0, k = 0, ppg = 0, panels = 0, groups = 0;
   double* data = nullptr;  // groups * panels * k * 8 doubles (in scratch memory)
   // local pattern index (within its group) of each of the panels * 8 vectors of a group, or -1
@@ -716,12 +712,30 @@ struct ModePack {
   }
 };
 
+// Two ways to get ||V_a^T V_b||_F^2 for all pairs of a mode (N = N_z):
+// * bases: dot products of the alpha basis vectors of a and of b (alpha^2 N multiply-adds per
+//   pair, more when alpha does not divide the tile width);
+// * projections: <P_a, P_b>_F with P = V V^T, symmetric, packed as its N(N+1)/2 upper entries,
+//   the off-diagonal ones times sqrt(2) (N(N+1)/2 multiply-adds per pair).
+// The cheaper one is taken per mode (for 4 x 4 x D patterns with alpha = Q/2: bases in modes 1
+// and 2, projections in mode 3: 136 instead of 1024 multiply-adds per pair).
+std::size_t packed_size(std::size_t n) { return n * (n + 1) / 2; }
+
+bool use_projection(std::size_t n, std::size_t alpha) {
+  const std::size_t ppg = std::max<std::size_t>(1, kTileWidth / alpha);
+  const std::size_t panels = (ppg * alpha + kTileWidth - 1) / kTileWidth;
+  const double basis_cost = double(kTileWidth * kTileWidth) * double(n) * double(panels * panels) /
+                            double(ppg * ppg);
+  return double(packed_size(n)) < basis_cost;
+}
+
 ModePack plan_mode(const PatternBases& pb, std::size_t z) {
   ModePack mp;
   const BasisLayout& L = pb.layout;
   mp.count = pb.count;
-  mp.alpha = L.alpha(z);
-  mp.k = L.cols(z);
+  mp.proj = use_projection(L.cols(z), L.alpha(z));
+  mp.alpha = mp.proj ? 1 : L.alpha(z);
+  mp.k = mp.proj ? packed_size(L.cols(z)) : L.cols(z);
   mp.ppg = std::max<std::size_t>(1, kTileWidth / mp.alpha);
   mp.panels = (mp.ppg * mp.alpha + kTileWidth - 1) / kTileWidth;
   mp.groups = (pb.count + mp.ppg - 1) / mp.ppg;
@@ -742,6 +756,38 @@ void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_
   const BasisLayout& L = pb.layout;
   const std::size_t off = L.offset(z), bs = L.bases_size();
   static const double kZeros[1] = {0.0};
+  if (mp.proj) {
+    // one panel per group, column c = pattern g * 8 + c: its packed projection matrix
+    const std::size_t n = L.cols(z), alpha = L.alpha(z);
+    const double r2 = std::sqrt(2.0);
+    std::vector<double> prow_buf(n);
+    double* prow = prow_buf.data();
+    for (std::size_t g = g0; g < g1; ++g) {
+      double* dst = mp.data + g * mp.k * kTileWidth;
+      const std::size_t used = mp.group_count(g);
+      for (std::size_t c = 0; c < kTileWidth; ++c) {
+        if (c >= used) {
+          for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth + c] = 0.0;
+          continue;
+        }
+        const double* v = pb.bases.data() + (g * kTileWidth + c) * bs + off;  // n x alpha, col-major
+        std::size_t kk = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+          // row i of P = V V^T, entries j >= i: sum of the alpha rank-one terms
+          double* row = prow;
+          std::fill(row, row + (n - i), 0.0);
+          for (std::size_t a = 0; a < alpha; ++a) {
+            const double f = v[a * n + i];
+            const double* va = v + a * n;
+            for (std::size_t j = i; j < n; ++j) row[j - i] += f * va[j];
+          }
+          dst[kk++ * kTileWidth + c] = row[0];
+          for (std::size_t j = i + 1; j < n; ++j) dst[kk++ * kTileWidth + c] = r2 * row[j - i];
+        }
+      }
+    }
+    return;
+  }
   for (std::size_t g = g0; g < g1; ++g) {
     const std::size_t used = mp.group_count(g) * mp.alpha;
     for (std::size_t p = 0; p < mp.panels; ++p) {
@@ -822,7 +868,8 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
     const PackItem& it = pack_items[i];
     pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
   });
-  const TileFn tile = select_tile_kernel();
+  const TileFn tile_sq = select_tile_kernel();
+  const TileDotFn tile_dot = select_tile_dot_kernel();
   const TileSumFn tile_sum = select_tile_sum_kernel();
   // work items: row blocks, biggest first (in X-vs-X the first blocks have the most pairs)
   const std::size_t n_blocks = (n + kRowBlock - 1) / kRowBlock;
@@ -835,6 +882,7 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
       const ModePack& PA = pa[z];
       const ModePack& PB = self ? pa[z] : pbk[z];
       const std::size_t ppg = PA.ppg;
+      const TileFn tile = PA.proj ? tile_dot : tile_sq;  // projections: plain dot products
       const std::size_t g_begin = r0 / ppg, g_end = (r1 + ppg - 1) / ppg;
       for (std::size_t gi = g_begin; gi < g_end; ++gi) {
         const std::size_t na = PA.group_count(gi);

@@ -27,6 +27,21 @@ void tile_generic(const double* a, const double* b, std::size_t k, double* c) no
   for (int i = 0; i < 64; ++i) c[i] = acc[i] * acc[i];
 }
 
+void tile_dot_generic(const double* a, const double* b, std::size_t k, double* c) noexcept {
+  double acc[64];
+  for (int i = 0; i < 64; ++i) acc[i] = 0.0;
+  for (std::size_t kk = 0; kk < k; ++kk) {
+    const double* ar = a + kk * 8;
+    const double* br = b + kk * 8;
+    for (int r = 0; r < 8; ++r) {
+      const double x = ar[r];
+      double* cr = acc + r * 8;
+      for (int s = 0; s < 8; ++s) cr[s] += x * br[s];
+    }
+  }
+  for (int i = 0; i < 64; ++i) c[i] = acc[i];
+}
+
 namespace {
 double tile_sum_generic(const double* a, const double* b, std::size_t k) noexcept {
   double c[64];
@@ -76,8 +91,8 @@ __attribute__((target("avx2,fma"))) inline void rows4_avx2(const double* a, cons
   _mm256_storeu_pd(c + 28, _mm256_add_pd(_mm256_loadu_pd(c + 28), c31));
 }
 
-__attribute__((target("avx2,fma"))) void tile_avx2(const double* a, const double* b,
-                                                   std::size_t k, double* c) noexcept {
+__attribute__((target("avx2,fma"))) void tile_dot_avx2(const double* a, const double* b,
+                                                       std::size_t k, double* c) noexcept {
   for (int i = 0; i < 64; ++i) c[i] = 0.0;
   // k in chunks so that both halves of the tile reuse the chunk of b from L1
   const std::size_t kc = 128;
@@ -86,6 +101,11 @@ __attribute__((target("avx2,fma"))) void tile_avx2(const double* a, const double
     rows4_avx2(a, b, k0, k1, c);
     rows4_avx2(a + 4, b, k0, k1, c + 32);
   }
+}
+
+__attribute__((target("avx2,fma"))) void tile_avx2(const double* a, const double* b,
+                                                   std::size_t k, double* c) noexcept {
+  tile_dot_avx2(a, b, k, c);
   for (int i = 0; i < 64; i += 4) {
     const __m256d v = _mm256_loadu_pd(c + i);
     _mm256_storeu_pd(c + i, _mm256_mul_pd(v, v));
@@ -179,6 +199,19 @@ __attribute__((target("avx512f"))) void tile_avx512(const double* a, const doubl
   _mm512_storeu_pd(c + 56, _mm512_mul_pd(c7, c7));
 }
 
+__attribute__((target("avx512f"))) void tile_dot_avx512(const double* a, const double* b,
+                                                        std::size_t k, double* c) noexcept {
+  ESKIN_TILE512_BODY
+  _mm512_storeu_pd(c + 0, c0);
+  _mm512_storeu_pd(c + 8, c1);
+  _mm512_storeu_pd(c + 16, c2);
+  _mm512_storeu_pd(c + 24, c3);
+  _mm512_storeu_pd(c + 32, c4);
+  _mm512_storeu_pd(c + 40, c5);
+  _mm512_storeu_pd(c + 48, c6);
+  _mm512_storeu_pd(c + 56, c7);
+}
+
 __attribute__((target("avx512f"))) double tile_sum_avx512(const double* a, const double* b,
                                                          std::size_t k) noexcept {
   ESKIN_TILE512_BODY
@@ -239,6 +272,17 @@ TileFn select_tile_kernel() noexcept {
   }
 #endif
   return &tile_generic;
+}
+
+TileFn select_tile_dot_kernel() noexcept {
+#ifdef ESKIN_HAVE_X86_DISPATCH
+  switch (isa_level()) {
+    case 2: return &tile_dot_avx512;
+    case 1: return &tile_dot_avx2;
+    default: break;
+  }
+#endif
+  return &tile_dot_generic;
 }
 
 TileSumFn select_tile_sum_kernel() noexcept {

@@ -14,16 +14,22 @@ constexpr std::size_t kTileWidth = 8;
 /// squared entries of the 8 x 8 block A^T B.
 using TileFn = void (*)(const double* a, const double* b, std::size_t k, double* c);
 
+/// C[r * 8 + s] = sum_k A[k * 8 + r] * B[k * 8 + s]: the 8 x 8 block A^T B itself (same
+/// signature as TileFn, not squared).
+using TileDotFn = TileFn;
+
 /// Sum of the 64 squared entries of A^T B (the whole tile belongs to one pattern pair).
 using TileSumFn = double (*)(const double* a, const double* b, std::size_t k);
 
-/// Portable version (any CPU).
+/// Portable versions (any CPU).
 void tile_generic(const double* a, const double* b, std::size_t k, double* c) noexcept;
+void tile_dot_generic(const double* a, const double* b, std::size_t k, double* c) noexcept;
 
 /// Best version for this CPU (x86 with GCC/Clang): AVX-512F, else AVX2+FMA, else generic.
 /// The environment variable ESKIN_KERNEL_ISA=generic|avx2 caps the choice (read at each call).
 TileFn select_tile_kernel() noexcept;
 TileSumFn select_tile_sum_kernel() noexcept;
+TileDotFn select_tile_dot_kernel() noexcept;
 
 /// Name of the variant select_tile_kernel() returns ("avx512", "avx2-fma" or "generic").
 const char* tile_kernel_name() noexcept;

@@ -246,6 +246,55 @@ TEST(Workspace, DegeneratePatterns) {
   EXPECT_STREQ(eskin::to_string(KernelStatus::not_finite), "not_finite");
 }
 
+TEST(Workspace, BatchEqualsOnePatternAtATimeWhateverItsBatchMates) {
+  const std::vector<std::size_t> dims{4, 4, 24};
+  const BasisLayout layout(dims, {2, 3, 8});
+  const std::size_t size = layout.tensor_size(), bs = layout.bases_size();
+  auto x = random_tensors(BasisWorkspace::kMaxBatch, dims, 21);
+  // batch mates of every kind: all zero, NaN, infinite, rank one, huge
+  std::fill(x.begin() + 1 * size, x.begin() + 2 * size, 0.0);
+  x[2 * size + 5] = std::nan("");
+  x[3 * size + 11] = -INFINITY;
+  for (std::size_t i = 0; i < 4; ++i)
+    for (std::size_t j = 0; j < 4; ++j)
+      for (std::size_t k = 0; k < 24; ++k)
+        x[4 * size + (i * 4 + j) * 24 + k] = double(i + 1) * double(j) * std::cos(0.2 * double(k));
+  for (std::size_t i = 0; i < size; ++i) x[6 * size + i] *= 1e250;
+  BasisWorkspace ws(layout);
+  for (std::size_t count : {std::size_t(1), std::size_t(5), BasisWorkspace::kMaxBatch}) {
+    SCOPED_TRACE(count);
+    std::vector<double> bases(count * bs, 9.0);
+    std::vector<int> ranks(count * 3, 9);
+    std::vector<KernelStatus> status(count, KernelStatus::bad_argument);
+    ASSERT_EQ(ws.compute_batch(x.data(), count, bases.data(), ranks.data(), status.data()),
+              KernelStatus::ok);
+    for (std::size_t b = 0; b < count; ++b) {
+      std::vector<double> one(bs, 7.0);
+      std::vector<int> r(3, 7);
+      const KernelStatus st = ws.compute(x.data() + b * size, one.data(), r.data());
+      EXPECT_EQ(status[b], st) << "pattern " << b;
+      EXPECT_EQ(std::vector<double>(bases.begin() + b * bs, bases.begin() + (b + 1) * bs), one)
+          << "pattern " << b;
+      EXPECT_EQ(std::vector<int>(ranks.begin() + b * 3, ranks.begin() + (b + 1) * 3), r);
+    }
+    if (count > 4) {
+      EXPECT_EQ(status[1], KernelStatus::ok);  // all zero: rank 0
+      EXPECT_EQ(ranks[3], 0);
+      EXPECT_EQ(status[2], KernelStatus::not_finite);
+      EXPECT_EQ(status[3], KernelStatus::not_finite);
+      EXPECT_EQ(ranks[4 * 3 + 0], 1);  // rank one in every mode
+      EXPECT_EQ(ranks[4 * 3 + 2], 1);
+    }
+  }
+  std::vector<double> bases(9 * bs);
+  std::vector<int> ranks(9 * 3);
+  std::vector<KernelStatus> status(9);
+  EXPECT_EQ(ws.compute_batch(x.data(), 9, bases.data(), ranks.data(), status.data()),
+            KernelStatus::bad_argument);
+  EXPECT_EQ(ws.compute_batch(x.data(), 2, bases.data(), ranks.data(), nullptr),
+            KernelStatus::bad_argument);
+}
+
 TEST(HeapFree, ComputeAndDistancesDoNotAllocate) {
 #ifndef ESKIN_COUNT_MALLOC
   GTEST_SKIP() << "malloc counting not available in this build";
@@ -258,11 +307,15 @@ TEST(HeapFree, ComputeAndDistancesDoNotAllocate) {
   std::vector<float> bf(layout.bases_size());
   std::vector<int> ra(3), rb(3), rf(3);
   const double sigmas[3] = {1.0, 1.0, 0.5};
+  std::vector<double> bbatch(2 * layout.bases_size());
+  std::vector<int> rbatch(6);
+  KernelStatus sb[2];
   g_mallocs = 0;
   g_count_mallocs = true;
   const KernelStatus s1 = ws.compute(x.data(), ba.data(), ra.data());
   const KernelStatus s2 = ws.compute(x.data() + layout.tensor_size(), bb.data(), rb.data());
   const KernelStatus s3 = ws.compute(x.data() + layout.tensor_size(), bf.data(), rf.data());
+  const KernelStatus s4 = ws.compute_batch(x.data(), 2, bbatch.data(), rbatch.data(), sb);
   const double k1 = eskin::kernel_value(layout, ba.data(), ra.data(), bb.data(), rb.data(), sigmas);
   const double k2 = eskin::kernel_value(layout, ba.data(), ra.data(), bf.data(), rf.data(), sigmas);
   g_count_mallocs = false;
@@ -270,6 +323,8 @@ TEST(HeapFree, ComputeAndDistancesDoNotAllocate) {
   EXPECT_EQ(s1, KernelStatus::ok);
   EXPECT_EQ(s2, KernelStatus::ok);
   EXPECT_EQ(s3, KernelStatus::ok);
+  EXPECT_EQ(s4, KernelStatus::ok);
+  EXPECT_EQ(sb[1], KernelStatus::ok);
   EXPECT_NEAR(k1, k2, 1e-6);
   EXPECT_GT(k1, 0.0);
   // the counter works: a vector allocation is seen

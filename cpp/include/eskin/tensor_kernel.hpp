@@ -91,11 +91,17 @@ void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t m
 // ---------------------------------------------------------------------------------------------
 // Heap-free layer
 
-/// Everything needed to compute one pattern's bases, allocated once for a given layout.
-/// compute() performs no heap allocation and throws nothing. Not thread-safe: use one
-/// workspace per thread.
+/// Everything needed to compute the bases of up to kMaxBatch patterns at once, allocated once
+/// for a given layout. compute() and compute_batch() perform no heap allocation and throw
+/// nothing. Not thread-safe: use one workspace per thread.
+///
+/// The eigen-solves of a batch run side by side, one pattern per SIMD lane; a pattern's bases do
+/// not depend on the other patterns of its batch (compute() and compute_batch() give the same
+/// bits).
 class BasisWorkspace {
  public:
+  static constexpr std::size_t kMaxBatch = 8;  ///< patterns per compute_batch() call
+
   explicit BasisWorkspace(const BasisLayout& layout);  // allocates; may throw
   const BasisLayout& layout() const noexcept { return layout_; }
 
@@ -106,14 +112,26 @@ class BasisWorkspace {
   /// Same, with the bases rounded to float (for float32 models).
   KernelStatus compute(const double* x, float* bases, int* ranks) noexcept;
 
-  /// Singular values of mode z from the last successful compute() (descending, Q_z of them,
-  /// in the units of x).
+  /// Bases of `count` <= kMaxBatch patterns stored one after another in `x`: pattern i's bases
+  /// at bases + i * bases_size(), its ranks at ranks + i * n_modes(), its status in status[i]
+  /// (a failed pattern's outputs are zero-filled; the others are unaffected). Returns
+  /// bad_argument (and touches nothing) for null pointers or count > kMaxBatch, else ok.
+  KernelStatus compute_batch(const double* x, std::size_t count, double* bases, int* ranks,
+                             KernelStatus* status) noexcept;
+
+  /// Singular values of mode z of the first pattern of the last compute() / compute_batch()
+  /// (descending, Q_z of them, in the units of x; zeros if that pattern failed).
   const double* singular_values(std::size_t z) const noexcept { return sv_.data() + sv_off_[z]; }
 
  private:
-  KernelStatus compute_mode(std::size_t z, double* out, int* rank) noexcept;
+  void gram(std::size_t z, const double* xs, double* g) noexcept;
+  KernelStatus finish_mode(std::size_t z, const double* xs, double* g, const double* d,
+                           double* out, int* rank, double* sv) noexcept;
   BasisLayout layout_;
-  std::vector<double> scaled_, unfold_, gram_, d_, e_, sv_, tmp_;
+  std::size_t sv_count_ = 0;
+  // per lane: scaled pattern, 1/scale; lane-interleaved matrices, eigenvalues, scratch
+  std::vector<double> scaled_, inv_scale_, lanes_, lane_d_, lane_e_;
+  std::vector<double> unfold_, gram_, d_, sv_, tmp_;
   std::vector<std::size_t> sv_off_;
 };
 
