@@ -120,7 +120,22 @@ ESKIN_INLINE void tred2(std::size_t n, double* a, double* d, double* e) noexcept
     const vm nz = h != zero;
     const vd hs = sel(nz, h, one);
     for (std::size_t k = 0; k <= i; ++k) st(d + k * L, sel(nz, ld(V(k, i + 1)) / hs, zero));
-    for (std::size_t j = 0; j <= i; ++j) {
+    // columns j two at a time: two independent dot-product chains
+    std::size_t j = 0;
+    for (; j + 2 <= i + 1; j += 2) {
+      vd g0 = zero, g1 = zero;
+      for (std::size_t k = 0; k <= i; ++k) {
+        const vd u = ld(V(k, i + 1));
+        g0 += u * ld(V(k, j));
+        g1 += u * ld(V(k, j + 1));
+      }
+      for (std::size_t k = 0; k <= i; ++k) {
+        const vd dk = ld(d + k * L);
+        st(V(k, j), ld(V(k, j)) - g0 * dk);
+        st(V(k, j + 1), ld(V(k, j + 1)) - g1 * dk);
+      }
+    }
+    for (; j <= i; ++j) {
       vd g = zero;
       for (std::size_t k = 0; k <= i; ++k) g += ld(V(k, i + 1)) * ld(V(k, j));
       for (std::size_t k = 0; k <= i; ++k) st(V(k, j), ld(V(k, j)) - g * ld(d + k * L));
@@ -135,9 +150,57 @@ ESKIN_INLINE void tred2(std::size_t n, double* a, double* d, double* e) noexcept
   st(e, zero);
 }
 
+// Apply the rotations of one QL sweep, (c[ii], s[ii]) for ii = n-2 down to l acting on rows ii
+// and ii+1 of `a` (row-major, n x n per lane), in that order. Component by component, four at
+// a time, the row being rotated stays in registers from one rotation to the next: every entry is
+// loaded and stored once per sweep (rotating whole rows instead reloads each row right after
+// storing it).
+ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const double* rc,
+                              const double* rs) noexcept {
+  const std::size_t m = n - 1;
+  std::size_t k = 0;
+  for (; k + 4 <= n; k += 4) {
+    double* col = a + k * L;
+    vd y0 = ld(col + m * n * L), y1 = ld(col + (m * n + 1) * L), y2 = ld(col + (m * n + 2) * L),
+       y3 = ld(col + (m * n + 3) * L);
+    for (std::size_t ii = m; ii-- > l;) {
+      const vd c = ld(rc + ii * L), s = ld(rs + ii * L);
+      double* r0 = col + ii * n * L;
+      double* r1 = r0 + n * L;
+      const vd x0 = ld(r0), x1 = ld(r0 + L), x2 = ld(r0 + 2 * L), x3 = ld(r0 + 3 * L);
+      st(r1, s * x0 + c * y0);
+      st(r1 + L, s * x1 + c * y1);
+      st(r1 + 2 * L, s * x2 + c * y2);
+      st(r1 + 3 * L, s * x3 + c * y3);
+      y0 = c * x0 - s * y0;
+      y1 = c * x1 - s * y1;
+      y2 = c * x2 - s * y2;
+      y3 = c * x3 - s * y3;
+    }
+    double* rl = col + l * n * L;
+    st(rl, y0);
+    st(rl + L, y1);
+    st(rl + 2 * L, y2);
+    st(rl + 3 * L, y3);
+  }
+  for (; k < n; ++k) {
+    double* col = a + k * L;
+    vd y = ld(col + m * n * L);
+    for (std::size_t ii = m; ii-- > l;) {
+      const vd c = ld(rc + ii * L), s = ld(rs + ii * L);
+      const vd x = ld(col + ii * n * L);
+      st(col + (ii + 1) * n * L, s * x + c * y);
+      y = c * x - s * y;
+    }
+    st(col + l * n * L, y);
+  }
+}
+
 // Implicit QL on the tridiagonal (d, e) of tred2, rotating the rows of `a` (row-major view of
-// tred2's column-major transformation). Returns the mask of failed lanes.
-ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e) noexcept {
+// tred2's column-major transformation). Returns the mask of failed lanes. rc, rs_: scratch of
+// n * L each (a sweep's rotations).
+ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, double* rc,
+                           double* rs_) noexcept {
   const vd one = splat(1.0), zero = splat(0.0), two = splat(2.0);
   const vd eps = splat(std::ldexp(1.0, -52));
   for (std::size_t i = 1; i < n; ++i) st(e + (i - 1) * L, ld(e + i * L));
@@ -181,19 +244,15 @@ ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e) noexc
           r = vsqrt(p * p + ei * ei);
           st(e + (ii + 1) * L, sel(act, s * r, ld(e + (ii + 1) * L)));
           const vm keep = act & (r != zero);  // r == 0: p = e = 0, identity rotation
-          const vd rs = sel(keep, r, one);
-          s = sel(keep, ei / rs, zero);
-          c = sel(keep, p / rs, one);
+          const vd inv = one / sel(keep, r, one);
+          s = sel(keep, ei * inv, zero);
+          c = sel(keep, p * inv, one);
           p = c * di - s * g;
           st(d + (ii + 1) * L, sel(act, h + s * (c * g + s * di), ld(d + (ii + 1) * L)));
-          double* w0 = a + ii * n * L;
-          double* w1 = w0 + n * L;
-          for (std::size_t k = 0; k < n; ++k) {
-            const vd x0 = ld(w0 + k * L), x1 = ld(w1 + k * L);
-            st(w1 + k * L, s * x0 + c * x1);
-            st(w0 + k * L, c * x0 - s * x1);
-          }
+          st(rc + ii * L, c);
+          st(rs_ + ii * L, s);
         }
+        rotate_rows(n, l, a, rc, rs_);
         p = -s * s2 * c3 * el1 * ld(e + l * L) / sel(act, dl1, one);
         const vd new_e = sel(act, s * p, ld(e + l * L));
         const vd new_d = sel(act, c * p, ld(d + l * L));
@@ -216,7 +275,7 @@ ESKIN_EIGEN_CLONES unsigned batch_symmetric_eigen(std::size_t n, double* a, doub
                                                   double* e) noexcept {
   if (n == 0) return 0;
   tred2(n, a, d, e);
-  unsigned failed = tql2(n, a, d, e);
+  unsigned failed = tql2(n, a, d, e, e + n * L, e + 2 * n * L);
   // a NaN never looks converged nor failing to converge: check the results themselves
   vm ok = finite(ld(d));
   for (std::size_t j = 1; j < n; ++j) ok &= finite(ld(d + j * L));

@@ -27,7 +27,7 @@ constexpr std::size_t kEigenLanes = 8;
 /// + l]. On entry `a` holds kEigenLanes symmetric matrices (unused lanes: any finite symmetric
 /// matrix, e.g. zeros). On exit row j of lane l's matrix (entries (j, 0..n-1)) is the unit
 /// eigenvector of eigenvalue d[j * kEigenLanes + l]; eigenvalues are in no particular order.
-/// `e` is scratch of n * kEigenLanes doubles. Returns a bit mask of the lanes whose QL
+/// `e` is scratch of 3 * n * kEigenLanes doubles. Returns a bit mask of the lanes whose QL
 /// iteration did not converge or met a non-finite value (0 on success).
 unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e) noexcept;
 

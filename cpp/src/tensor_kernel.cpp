@@ -351,7 +351,7 @@ BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
   inv_scale_.assign(kMaxBatch, 0.0);
   lanes_.assign(qmax * qmax * kEigenLanes, 0.0);
   lane_d_.assign(qmax * kEigenLanes, 0.0);
-  lane_e_.assign(qmax * kEigenLanes, 0.0);
+  lane_e_.assign(3 * qmax * kEigenLanes, 0.0);
   unfold_.assign(layout_.tensor_size(), 0.0);
   gram_.assign(qmax * qmax, 0.0);
   d_.assign(qmax, 0.0);
@@ -373,7 +373,7 @@ KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks)
   return st;
 }
 
-KernelStatus BasisWorkspace::compute_batch(const double* x, std::size_t count, double* bases,
+ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::size_t count, double* bases,
                                            int* ranks, KernelStatus* status) noexcept {
   if (x == nullptr || bases == nullptr || ranks == nullptr || status == nullptr ||
       count > kMaxBatch)
@@ -513,7 +513,7 @@ void BasisWorkspace::gram(std::size_t z, const double* xs, double* g) noexcept {
 
 // Bases of mode z from the eigenpairs of its Gram matrix (eigenvalues ascending in d, eigenvector
 // j in row j of g): rank, V (directly, or as A^T U S^-1 re-orthonormalised), signs.
-KernelStatus BasisWorkspace::finish_mode(std::size_t z, const double* x, double* g,
+ESKIN_CLONES KernelStatus BasisWorkspace::finish_mode(std::size_t z, const double* x, double* g,
                                          const double* d, double* out, int* rank,
                                          double* sv) noexcept {
   const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z),
@@ -751,7 +751,7 @@ ModePack plan_mode(const PatternBases& pb, std::size_t z) {
 }
 
 // Fill groups [g0, g1) of mp.data (already pointing at mp.size() doubles) from the bases of mode z.
-void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
+ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& mp, std::size_t g0,
                  std::size_t g1) {
   const BasisLayout& L = pb.layout;
   const std::size_t off = L.offset(z), bs = L.bases_size();
@@ -898,6 +898,23 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
               for (std::size_t pj = 0; pj < PB.panels; ++pj)
                 sum += tile_sum(PA.panel(gi, pi), PB.panel(gj, pj), PA.k);
             acc[0] = sum;
+          } else if (PA.panels == 1 && ppg * PA.alpha == kTileWidth) {
+            // alpha divides the tile width: one tile, pattern x's vectors are rows
+            // x*alpha..x*alpha+alpha-1 (padding vectors are zero and land on absent patterns)
+            tile(PA.panel(gi, 0), PB.panel(gj, 0), PA.k, tilebuf);
+            const std::size_t al = PA.alpha;
+            if (al == 1) {
+              std::copy(tilebuf, tilebuf + kTileWidth * kTileWidth, acc);
+            } else {
+              for (std::size_t x = 0; x < ppg; ++x)
+                for (std::size_t y = 0; y < ppg; ++y) {
+                  double sum = 0.0;
+                  for (std::size_t r = x * al; r < (x + 1) * al; ++r)
+                    for (std::size_t c = y * al; c < (y + 1) * al; ++c)
+                      sum += tilebuf[r * kTileWidth + c];
+                  acc[x * ppg + y] = sum;
+                }
+            }
           } else {
             std::fill(acc, acc + ppg * ppg, 0.0);
             const int* cmap_g = PB.map(gj);

@@ -34,7 +34,7 @@ Solved solve(const std::vector<Matrix>& mats, std::size_t n) {
   Solved s;
   s.a.assign(n * n * L, 0.0);
   s.d.assign(n * L, 0.0);
-  s.e.assign(n * L, 0.0);
+  s.e.assign(3 * n * L, 0.0);
   for (std::size_t l = 0; l < mats.size(); ++l)
     for (std::size_t r = 0; r < n; ++r)
       for (std::size_t c = 0; c < n; ++c) s.a[(r * n + c) * L + l] = mats[l](r, c);
