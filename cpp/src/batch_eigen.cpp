@@ -2,18 +2,17 @@
 #include "batch_eigen.hpp"
 
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
 #include <limits>
 
-// The lane type is a GCC/Clang vector of kEigenLanes doubles; each operation acts on all lanes.
-// On x86-64 Linux with GCC the solver is compiled three times (function multi-versioning: an
-// x86-64-v4 = AVX-512 clone, where a lane group is one register, an x86-64-v3 = AVX2+FMA clone
-// and the baseline one), and the loader picks one for the CPU; no -m flag anywhere. Within one clone every lane runs the same instructions, so lanes agree bit for
-// bit with each other.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define ESKIN_EIGEN_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
-#else
-#define ESKIN_EIGEN_CLONES
-#endif
+// The solver is written once for a GCC/Clang vector type V of W doubles (W lanes side by side)
+// and instantiated for the widest registers the CPU has: W = 8 (one AVX-512 register), 4 (AVX2:
+// the 8 lanes as two groups of 4) or 2 (SSE2 baseline: four groups). The memory layout is the
+// same for all (lane stride kEigenLanes). Run-time dispatch, as for the pairwise tile kernels:
+// function-level target attributes, no -m flag. A lane's arithmetic does not depend on the
+// other lanes of its group (a converged lane is frozen by masks), so grouping does not change
+// results; different instruction sets may round differently.
 
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic ignored "-Wpsabi"  // vector arguments of inlined helpers: no ABI crosses
@@ -23,130 +22,174 @@ namespace eskin {
 
 namespace {
 
-constexpr std::size_t L = kEigenLanes;
-static_assert(L == 8, "the lane type below holds 8 doubles");
+constexpr std::size_t L = kEigenLanes;  // lane stride in memory
 
-typedef double vd __attribute__((vector_size(L * sizeof(double))));
-typedef long long vm __attribute__((vector_size(L * sizeof(long long))));
+typedef double v8d __attribute__((vector_size(64)));
+typedef double v4d __attribute__((vector_size(32)));
+typedef double v2d __attribute__((vector_size(16)));
+// the same vectors, aligned like a double and allowed to alias doubles: loads and stores of lane
+// groups straight from the caller's double arrays
+typedef double v8d_mem __attribute__((vector_size(64), aligned(8), may_alias));
+typedef double v4d_mem __attribute__((vector_size(32), aligned(8), may_alias));
+typedef double v2d_mem __attribute__((vector_size(16), aligned(8), may_alias));
+template <class V>
+struct Mem;
+template <>
+struct Mem<v8d> {
+  using type = v8d_mem;
+};
+template <>
+struct Mem<v4d> {
+  using type = v4d_mem;
+};
+template <>
+struct Mem<v2d> {
+  using type = v2d_mem;
+};
+
+template <class V>
+using mask_t = decltype(V{} < V{});
+template <class V>
+constexpr std::size_t width = sizeof(V) / sizeof(double);
 
 #define ESKIN_INLINE inline __attribute__((always_inline))
 
-// the same vector, aligned like a double and allowed to alias doubles: loads and stores of lane
-// groups straight from the caller's double arrays
-typedef double vd_mem __attribute__((vector_size(L * sizeof(double)), aligned(8), may_alias));
-
-ESKIN_INLINE vd ld(const double* p) noexcept { return *reinterpret_cast<const vd_mem*>(p); }
-ESKIN_INLINE void st(double* p, vd v) noexcept { *reinterpret_cast<vd_mem*>(p) = v; }
-ESKIN_INLINE vd splat(double x) noexcept { return vd{} + x; }
-// m ? a : b, lane by lane (m: all ones or all zeros per lane)
-ESKIN_INLINE vd sel(vm m, vd a, vd b) noexcept { return (vd)(((vm)a & m) | ((vm)b & ~m)); }
-ESKIN_INLINE vd vabs(vd v) noexcept {
-  return (vd)((vm)v & (vm{} + std::numeric_limits<long long>::max()));
+template <class V>
+ESKIN_INLINE V ld(const double* p) noexcept {
+  return *reinterpret_cast<const typename Mem<V>::type*>(p);
 }
-ESKIN_INLINE vd vmax(vd a, vd b) noexcept { return sel(a > b, a, b); }
-ESKIN_INLINE vd vsqrt(vd v) noexcept {
-  vd r;
-  for (std::size_t i = 0; i < L; ++i) r[i] = __builtin_sqrt(v[i]);
+template <class V>
+ESKIN_INLINE void st(double* p, V v) noexcept {
+  *reinterpret_cast<typename Mem<V>::type*>(p) = v;
+}
+template <class V>
+ESKIN_INLINE V splat(double x) noexcept {
+  return V{} + x;
+}
+// m ? a : b, lane by lane (m: all ones or all zeros per lane)
+template <class V>
+ESKIN_INLINE V sel(mask_t<V> m, V a, V b) noexcept {
+  using M = mask_t<V>;
+  return (V)(((M)a & m) | ((M)b & ~m));
+}
+template <class V>
+ESKIN_INLINE V vabs(V v) noexcept {
+  using M = mask_t<V>;
+  return (V)((M)v & (M{} + std::numeric_limits<long long>::max()));
+}
+template <class V>
+ESKIN_INLINE V vmax(V a, V b) noexcept {
+  return sel<V>(a > b, a, b);
+}
+template <class V>
+ESKIN_INLINE V vsqrt(V v) noexcept {
+  V r;
+  for (std::size_t i = 0; i < width<V>; ++i) r[i] = __builtin_sqrt(v[i]);
   return r;
 }
-ESKIN_INLINE unsigned bits(vm m) noexcept {
+template <class M>
+ESKIN_INLINE unsigned bits(M m) noexcept {
   unsigned b = 0;
-  for (std::size_t i = 0; i < L; ++i) b |= unsigned(m[i] != 0) << i;
+  for (std::size_t i = 0; i < sizeof(M) / sizeof(long long); ++i) b |= unsigned(m[i] != 0) << i;
   return b;
 }
-ESKIN_INLINE vm finite(vd v) noexcept { return vabs(v) <= splat(std::numeric_limits<double>::max()); }
+template <class V>
+ESKIN_INLINE mask_t<V> finite(V v) noexcept {
+  return vabs(v) <= splat<V>(std::numeric_limits<double>::max());
+}
 
 // Householder reduction to tridiagonal form. `a` (n x n per lane, COLUMN-major: entry (r, c) at
 // (c * n + r) * L) holds the symmetric matrices; on exit the accumulated transformation, d the
 // diagonal, e the subdiagonal (e[0] = 0). A lane whose remaining column is zero takes the
 // EISPACK "scale == 0" branch; here the same values come out of the general branch with the
 // divisors replaced by 1 on that lane.
+template <class V>
 ESKIN_INLINE void tred2(std::size_t n, double* a, double* d, double* e) noexcept {
-  auto V = [a, n](std::size_t r, std::size_t c) { return a + (c * n + r) * L; };
-  const vd one = splat(1.0), zero = splat(0.0);
-  for (std::size_t j = 0; j < n; ++j) st(d + j * L, ld(V(n - 1, j)));
+  auto at = [a, n](std::size_t r, std::size_t c) { return a + (c * n + r) * L; };
+  const V one = splat<V>(1.0), zero = splat<V>(0.0);
+  for (std::size_t j = 0; j < n; ++j) st(d + j * L, ld<V>(at(n - 1, j)));
   for (std::size_t i = n - 1; i > 0; --i) {
-    vd scale = zero, h = zero;
-    for (std::size_t k = 0; k < i; ++k) scale += vabs(ld(d + k * L));
-    const vm null = scale == zero;
+    V scale = zero, h = zero;
+    for (std::size_t k = 0; k < i; ++k) scale += vabs(ld<V>(d + k * L));
+    const mask_t<V> null = scale == zero;
     scale = sel(null, one, scale);
     for (std::size_t k = 0; k < i; ++k) {
-      const vd dk = ld(d + k * L) / scale;
+      const V dk = ld<V>(d + k * L) / scale;
       st(d + k * L, dk);
       h += dk * dk;
     }
-    vd f = ld(d + (i - 1) * L);
-    vd g = vsqrt(h);
+    V f = ld<V>(d + (i - 1) * L);
+    V g = vsqrt(h);
     g = sel(f > zero, -g, g);
     st(e + i * L, scale * g);
     h -= f * g;
     st(d + (i - 1) * L, f - g);
-    const vd hs = sel(null, one, h);
+    const V hs = sel(null, one, h);
     for (std::size_t j = 0; j < i; ++j) st(e + j * L, zero);
     for (std::size_t j = 0; j < i; ++j) {
-      f = ld(d + j * L);
-      st(V(j, i), f);
-      g = ld(e + j * L) + ld(V(j, j)) * f;
+      f = ld<V>(d + j * L);
+      st(at(j, i), f);
+      g = ld<V>(e + j * L) + ld<V>(at(j, j)) * f;
       for (std::size_t k = j + 1; k < i; ++k) {
-        const vd vkj = ld(V(k, j));
-        g += vkj * ld(d + k * L);
-        st(e + k * L, ld(e + k * L) + vkj * f);
+        const V vkj = ld<V>(at(k, j));
+        g += vkj * ld<V>(d + k * L);
+        st(e + k * L, ld<V>(e + k * L) + vkj * f);
       }
       st(e + j * L, g);
     }
     f = zero;
     for (std::size_t j = 0; j < i; ++j) {
-      const vd ej = ld(e + j * L) / hs;
+      const V ej = ld<V>(e + j * L) / hs;
       st(e + j * L, ej);
-      f += ej * ld(d + j * L);
+      f += ej * ld<V>(d + j * L);
     }
-    const vd hh = f / (hs + hs);
-    for (std::size_t j = 0; j < i; ++j) st(e + j * L, ld(e + j * L) - hh * ld(d + j * L));
+    const V hh = f / (hs + hs);
+    for (std::size_t j = 0; j < i; ++j) st(e + j * L, ld<V>(e + j * L) - hh * ld<V>(d + j * L));
     for (std::size_t j = 0; j < i; ++j) {
-      f = ld(d + j * L);
-      g = ld(e + j * L);
+      f = ld<V>(d + j * L);
+      g = ld<V>(e + j * L);
       for (std::size_t k = j; k < i; ++k)
-        st(V(k, j), ld(V(k, j)) - (f * ld(e + k * L) + g * ld(d + k * L)));
-      st(d + j * L, ld(V(i - 1, j)));
-      st(V(i, j), zero);
+        st(at(k, j), ld<V>(at(k, j)) - (f * ld<V>(e + k * L) + g * ld<V>(d + k * L)));
+      st(d + j * L, ld<V>(at(i - 1, j)));
+      st(at(i, j), zero);
     }
     st(d + i * L, h);
   }
   // accumulate the transformations
   for (std::size_t i = 0; i + 1 < n; ++i) {
-    st(V(n - 1, i), ld(V(i, i)));
-    st(V(i, i), one);
-    const vd h = ld(d + (i + 1) * L);
-    const vm nz = h != zero;
-    const vd hs = sel(nz, h, one);
-    for (std::size_t k = 0; k <= i; ++k) st(d + k * L, sel(nz, ld(V(k, i + 1)) / hs, zero));
+    st(at(n - 1, i), ld<V>(at(i, i)));
+    st(at(i, i), one);
+    const V h = ld<V>(d + (i + 1) * L);
+    const mask_t<V> nz = h != zero;
+    const V hs = sel(nz, h, one);
+    for (std::size_t k = 0; k <= i; ++k) st(d + k * L, sel(nz, ld<V>(at(k, i + 1)) / hs, zero));
     // columns j two at a time: two independent dot-product chains
     std::size_t j = 0;
     for (; j + 2 <= i + 1; j += 2) {
-      vd g0 = zero, g1 = zero;
+      V g0 = zero, g1 = zero;
       for (std::size_t k = 0; k <= i; ++k) {
-        const vd u = ld(V(k, i + 1));
-        g0 += u * ld(V(k, j));
-        g1 += u * ld(V(k, j + 1));
+        const V u = ld<V>(at(k, i + 1));
+        g0 += u * ld<V>(at(k, j));
+        g1 += u * ld<V>(at(k, j + 1));
       }
       for (std::size_t k = 0; k <= i; ++k) {
-        const vd dk = ld(d + k * L);
-        st(V(k, j), ld(V(k, j)) - g0 * dk);
-        st(V(k, j + 1), ld(V(k, j + 1)) - g1 * dk);
+        const V dk = ld<V>(d + k * L);
+        st(at(k, j), ld<V>(at(k, j)) - g0 * dk);
+        st(at(k, j + 1), ld<V>(at(k, j + 1)) - g1 * dk);
       }
     }
     for (; j <= i; ++j) {
-      vd g = zero;
-      for (std::size_t k = 0; k <= i; ++k) g += ld(V(k, i + 1)) * ld(V(k, j));
-      for (std::size_t k = 0; k <= i; ++k) st(V(k, j), ld(V(k, j)) - g * ld(d + k * L));
+      V g = zero;
+      for (std::size_t k = 0; k <= i; ++k) g += ld<V>(at(k, i + 1)) * ld<V>(at(k, j));
+      for (std::size_t k = 0; k <= i; ++k) st(at(k, j), ld<V>(at(k, j)) - g * ld<V>(d + k * L));
     }
-    for (std::size_t k = 0; k <= i; ++k) st(V(k, i + 1), zero);
+    for (std::size_t k = 0; k <= i; ++k) st(at(k, i + 1), zero);
   }
   for (std::size_t j = 0; j < n; ++j) {
-    st(d + j * L, ld(V(n - 1, j)));
-    st(V(n - 1, j), zero);
+    st(d + j * L, ld<V>(at(n - 1, j)));
+    st(at(n - 1, j), zero);
   }
-  st(V(n - 1, n - 1), one);
+  st(at(n - 1, n - 1), one);
   st(e, zero);
 }
 
@@ -155,19 +198,20 @@ ESKIN_INLINE void tred2(std::size_t n, double* a, double* d, double* e) noexcept
 // a time, the row being rotated stays in registers from one rotation to the next: every entry is
 // loaded and stored once per sweep (rotating whole rows instead reloads each row right after
 // storing it).
+template <class V>
 ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const double* rc,
                               const double* rs) noexcept {
   const std::size_t m = n - 1;
   std::size_t k = 0;
   for (; k + 4 <= n; k += 4) {
     double* col = a + k * L;
-    vd y0 = ld(col + m * n * L), y1 = ld(col + (m * n + 1) * L), y2 = ld(col + (m * n + 2) * L),
-       y3 = ld(col + (m * n + 3) * L);
+    V y0 = ld<V>(col + m * n * L), y1 = ld<V>(col + (m * n + 1) * L), y2 = ld<V>(col + (m * n + 2) * L),
+       y3 = ld<V>(col + (m * n + 3) * L);
     for (std::size_t ii = m; ii-- > l;) {
-      const vd c = ld(rc + ii * L), s = ld(rs + ii * L);
+      const V c = ld<V>(rc + ii * L), s = ld<V>(rs + ii * L);
       double* r0 = col + ii * n * L;
       double* r1 = r0 + n * L;
-      const vd x0 = ld(r0), x1 = ld(r0 + L), x2 = ld(r0 + 2 * L), x3 = ld(r0 + 3 * L);
+      const V x0 = ld<V>(r0), x1 = ld<V>(r0 + L), x2 = ld<V>(r0 + 2 * L), x3 = ld<V>(r0 + 3 * L);
       st(r1, s * x0 + c * y0);
       st(r1 + L, s * x1 + c * y1);
       st(r1 + 2 * L, s * x2 + c * y2);
@@ -185,10 +229,10 @@ ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const dou
   }
   for (; k < n; ++k) {
     double* col = a + k * L;
-    vd y = ld(col + m * n * L);
+    V y = ld<V>(col + m * n * L);
     for (std::size_t ii = m; ii-- > l;) {
-      const vd c = ld(rc + ii * L), s = ld(rs + ii * L);
-      const vd x = ld(col + ii * n * L);
+      const V c = ld<V>(rc + ii * L), s = ld<V>(rs + ii * L);
+      const V x = ld<V>(col + ii * n * L);
       st(col + (ii + 1) * n * L, s * x + c * y);
       y = c * x - s * y;
     }
@@ -199,18 +243,19 @@ ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const dou
 // Implicit QL on the tridiagonal (d, e) of tred2, rotating the rows of `a` (row-major view of
 // tred2's column-major transformation). Returns the mask of failed lanes. rc, rs_: scratch of
 // n * L each (a sweep's rotations).
+template <class V>
 ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, double* rc,
                            double* rs_) noexcept {
-  const vd one = splat(1.0), zero = splat(0.0), two = splat(2.0);
-  const vd eps = splat(std::ldexp(1.0, -52));
-  for (std::size_t i = 1; i < n; ++i) st(e + (i - 1) * L, ld(e + i * L));
+  const V one = splat<V>(1.0), zero = splat<V>(0.0), two = splat<V>(2.0);
+  const V eps = splat<V>(std::ldexp(1.0, -52));
+  for (std::size_t i = 1; i < n; ++i) st(e + (i - 1) * L, ld<V>(e + i * L));
   st(e + (n - 1) * L, zero);
-  vd f = zero, tst1 = zero;
+  V f = zero, tst1 = zero;
   unsigned failed = 0;
   for (std::size_t l = 0; l < n; ++l) {
-    tst1 = vmax(tst1, vabs(ld(d + l * L)) + vabs(ld(e + l * L)));
+    tst1 = vmax(tst1, vabs(ld<V>(d + l * L)) + vabs(ld<V>(e + l * L)));
     if (l + 1 < n) {
-      vm act = vabs(ld(e + l * L)) > eps * tst1;
+      mask_t<V> act = vabs(ld<V>(e + l * L)) > eps * tst1;
       int iter = 0;
       while (bits(act)) {
         if (++iter > 100) {
@@ -218,69 +263,122 @@ ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, doubl
           break;
         }
         // shift from the leading 2 x 2 block
-        const vd g0 = ld(d + l * L), el = ld(e + l * L);
-        const vd els = sel(act, el, one);
-        vd p = (ld(d + (l + 1) * L) - g0) / (two * els);
-        vd r = vsqrt(p * p + one);
+        const V g0 = ld<V>(d + l * L), el = ld<V>(e + l * L);
+        const V els = sel(act, el, one);
+        V p = (ld<V>(d + (l + 1) * L) - g0) / (two * els);
+        V r = vsqrt(p * p + one);
         r = sel(p < zero, -r, r);
-        const vd dl = sel(act, el / (p + r), g0);
-        const vd dl1 = sel(act, el * (p + r), ld(d + (l + 1) * L));
+        const V dl = sel(act, el / (p + r), g0);
+        const V dl1 = sel(act, el * (p + r), ld<V>(d + (l + 1) * L));
         st(d + l * L, dl);
         st(d + (l + 1) * L, dl1);
-        vd h = sel(act, g0 - dl, zero);
-        for (std::size_t i = l + 2; i < n; ++i) st(d + i * L, ld(d + i * L) - h);
+        V h = sel(act, g0 - dl, zero);
+        for (std::size_t i = l + 2; i < n; ++i) st(d + i * L, ld<V>(d + i * L) - h);
         f += h;
         // chase from the bottom (no split search: see batch_eigen.hpp)
-        p = ld(d + (n - 1) * L);
-        vd c = one, c2 = one, c3 = one, s = zero, s2 = zero;
-        const vd el1 = ld(e + (l + 1) * L);
+        p = ld<V>(d + (n - 1) * L);
+        V c = one, c2 = one, c3 = one, s = zero, s2 = zero;
+        const V el1 = ld<V>(e + (l + 1) * L);
         for (std::size_t ii = n - 1; ii-- > l;) {
           c3 = c2;
           c2 = c;
           s2 = s;
-          const vd ei = ld(e + ii * L), di = ld(d + ii * L);
-          const vd g = c * ei;
+          const V ei = ld<V>(e + ii * L), di = ld<V>(d + ii * L);
+          const V g = c * ei;
           h = c * p;
           r = vsqrt(p * p + ei * ei);
-          st(e + (ii + 1) * L, sel(act, s * r, ld(e + (ii + 1) * L)));
-          const vm keep = act & (r != zero);  // r == 0: p = e = 0, identity rotation
-          const vd inv = one / sel(keep, r, one);
+          st(e + (ii + 1) * L, sel(act, s * r, ld<V>(e + (ii + 1) * L)));
+          const mask_t<V> keep = act & (r != zero);  // r == 0: p = e = 0, identity rotation
+          const V inv = one / sel(keep, r, one);
           s = sel(keep, ei * inv, zero);
           c = sel(keep, p * inv, one);
           p = c * di - s * g;
-          st(d + (ii + 1) * L, sel(act, h + s * (c * g + s * di), ld(d + (ii + 1) * L)));
+          st(d + (ii + 1) * L, sel(act, h + s * (c * g + s * di), ld<V>(d + (ii + 1) * L)));
           st(rc + ii * L, c);
           st(rs_ + ii * L, s);
         }
-        rotate_rows(n, l, a, rc, rs_);
-        p = -s * s2 * c3 * el1 * ld(e + l * L) / sel(act, dl1, one);
-        const vd new_e = sel(act, s * p, ld(e + l * L));
-        const vd new_d = sel(act, c * p, ld(d + l * L));
+        rotate_rows<V>(n, l, a, rc, rs_);
+        p = -s * s2 * c3 * el1 * ld<V>(e + l * L) / sel(act, dl1, one);
+        const V new_e = sel(act, s * p, ld<V>(e + l * L));
+        const V new_d = sel(act, c * p, ld<V>(d + l * L));
         st(e + l * L, new_e);
         st(d + l * L, new_d);
-        const vm bad = act & ~(finite(new_e) & finite(new_d));
+        const mask_t<V> bad = act & ~(finite(new_e) & finite(new_d));
         failed |= bits(bad);
         act = act & ~bad & (vabs(new_e) > eps * tst1);
       }
     }
-    st(d + l * L, ld(d + l * L) + f);
+    st(d + l * L, ld<V>(d + l * L) + f);
     st(e + l * L, zero);
   }
   return failed;
 }
 
+// One group of width<V> lanes starting at lane `o`; returns its failure bits shifted to o.
+template <class V>
+ESKIN_INLINE unsigned solve_group(std::size_t n, double* a, double* d, double* e,
+                                  std::size_t o) noexcept {
+  a += o;
+  d += o;
+  e += o;
+  tred2<V>(n, a, d, e);
+  unsigned failed = tql2<V>(n, a, d, e, e + n * L, e + 2 * n * L);
+  // a NaN never looks converged nor failing to converge: check the results themselves
+  mask_t<V> ok = finite(ld<V>(d));
+  for (std::size_t j = 1; j < n; ++j) ok &= finite(ld<V>(d + j * L));
+  for (std::size_t i = 0; i < n * n; ++i) ok &= finite(ld<V>(a + i * L));
+  failed |= bits(~ok) & ((1u << width<V>) - 1u);
+  return failed << o;
+}
+
+unsigned solve_sse2(std::size_t n, double* a, double* d, double* e) noexcept {
+  unsigned f = 0;
+  for (std::size_t o = 0; o < L; o += 2) f |= solve_group<v2d>(n, a, d, e, o);
+  return f;
+}
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#define ESKIN_EIGEN_DISPATCH 1
+__attribute__((target("arch=x86-64-v3"))) unsigned solve_avx2(std::size_t n, double* a,
+                                                              double* d, double* e) noexcept {
+  return solve_group<v4d>(n, a, d, e, 0) | solve_group<v4d>(n, a, d, e, 4);
+}
+
+__attribute__((target("arch=x86-64-v4"))) unsigned solve_avx512(std::size_t n, double* a,
+                                                                double* d, double* e) noexcept {
+  return solve_group<v8d>(n, a, d, e, 0);
+}
+
+// 2 AVX-512, 1 AVX2+FMA, 0 baseline: what the CPU has, capped by ESKIN_KERNEL_ISA
+int best_level() noexcept {
+  __builtin_cpu_init();
+  int cpu = 0;
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) cpu = 1;
+  if (cpu == 1 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw"))
+    cpu = 2;
+  if (const char* env = std::getenv("ESKIN_KERNEL_ISA")) {
+    if (std::strcmp(env, "generic") == 0) cpu = 0;
+    if (std::strcmp(env, "avx2") == 0 && cpu > 1) cpu = 1;
+  }
+  return cpu;
+}
+#endif
+
 }  // namespace
 
-ESKIN_EIGEN_CLONES unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d,
-                                                  double* e) noexcept {
+unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e,
+                               int level) noexcept {
   if (n == 0) return 0;
-  tred2(n, a, d, e);
-  unsigned failed = tql2(n, a, d, e, e + n * L, e + 2 * n * L);
-  // a NaN never looks converged nor failing to converge: check the results themselves
-  vm ok = finite(ld(d));
-  for (std::size_t j = 1; j < n; ++j) ok &= finite(ld(d + j * L));
-  for (std::size_t i = 0; i < n * n; ++i) ok &= finite(ld(a + i * L));
-  return failed | (bits(~ok) & ((1u << L) - 1u));
+#ifdef ESKIN_EIGEN_DISPATCH
+  static const int best = best_level();
+  if (level < 0 || level > best) level = best;
+  if (level == 2) return solve_avx512(n, a, d, e);
+  if (level == 1) return solve_avx2(n, a, d, e);
+#else
+  (void)level;
+#endif
+  return solve_sse2(n, a, d, e);
 }
 
 }  // namespace eskin

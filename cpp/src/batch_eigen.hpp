@@ -29,6 +29,9 @@ constexpr std::size_t kEigenLanes = 8;
 /// eigenvector of eigenvalue d[j * kEigenLanes + l]; eigenvalues are in no particular order.
 /// `e` is scratch of 3 * n * kEigenLanes doubles. Returns a bit mask of the lanes whose QL
 /// iteration did not converge or met a non-finite value (0 on success).
-unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e) noexcept;
+/// `level` picks the instruction set (2 AVX-512, 1 AVX2+FMA, 0 baseline), capped by what the CPU
+/// has and by ESKIN_KERNEL_ISA=generic|avx2 (read once); -1: the best one.
+unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e,
+                               int level = -1) noexcept;
 
 }  // namespace eskin

@@ -642,7 +642,7 @@ PatternBases compute_pattern_bases(const double* x, std::size_t n, const BasisLa
   PatternBases pb;
   pb.layout = layout;
   pb.count = n;
-  pb.bases.assign(n * layout.bases_size(), 0.0);
+  pb.bases.resize(n * layout.bases_size());  // uninitialised: compute_batch writes every entry
   pb.ranks.assign(n * layout.n_modes(), 0);
   if (n == 0) return pb;
   if (x == nullptr) throw std::invalid_argument("compute_pattern_bases: null data pointer");
@@ -806,7 +806,31 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
         }
       }
       double* dst = mp.data + (g * mp.panels + p) * mp.k * kTileWidth;
-      for (std::size_t kk = 0; kk < mp.k; ++kk, dst += kTileWidth)
+      std::size_t kk = 0;
+#if defined(__GNUC__) && !defined(__clang__)
+      if (used >= (p + 1) * kTileWidth) {
+        // eight real columns: 4 x 4 register transposes, four rows of the panel at a time
+        typedef long long v4i __attribute__((vector_size(32)));
+        for (; kk + 4 <= mp.k; kk += 4, dst += 4 * kTileWidth)
+          for (std::size_t h = 0; h < kTileWidth; h += 4) {
+            const eskin_v4d a0 = load4(col[h] + kk), a1 = load4(col[h + 1] + kk),
+                            a2 = load4(col[h + 2] + kk), a3 = load4(col[h + 3] + kk);
+            const eskin_v4d t0 = __builtin_shuffle(a0, a1, v4i{0, 4, 2, 6});
+            const eskin_v4d t1 = __builtin_shuffle(a0, a1, v4i{1, 5, 3, 7});
+            const eskin_v4d t2 = __builtin_shuffle(a2, a3, v4i{0, 4, 2, 6});
+            const eskin_v4d t3 = __builtin_shuffle(a2, a3, v4i{1, 5, 3, 7});
+            const eskin_v4d r0 = __builtin_shuffle(t0, t2, v4i{0, 1, 4, 5});
+            const eskin_v4d r1 = __builtin_shuffle(t1, t3, v4i{0, 1, 4, 5});
+            const eskin_v4d r2 = __builtin_shuffle(t0, t2, v4i{2, 3, 6, 7});
+            const eskin_v4d r3 = __builtin_shuffle(t1, t3, v4i{2, 3, 6, 7});
+            std::memcpy(dst + h, &r0, sizeof r0);
+            std::memcpy(dst + kTileWidth + h, &r1, sizeof r1);
+            std::memcpy(dst + 2 * kTileWidth + h, &r2, sizeof r2);
+            std::memcpy(dst + 3 * kTileWidth + h, &r3, sizeof r3);
+          }
+      }
+#endif
+      for (; kk < mp.k; ++kk, dst += kTileWidth)
         for (std::size_t c = 0; c < kTileWidth; ++c) dst[c] = col[c][kk * stride[c]];
     }
   }

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <random>
+#include <tuple>
 #include <vector>
 
 #include "../../cpp/src/batch_eigen.hpp"
@@ -29,8 +30,9 @@ struct Solved {
   unsigned failed = 0;
 };
 
-// Solve the matrices given per lane (missing lanes: zero matrices).
-Solved solve(const std::vector<Matrix>& mats, std::size_t n) {
+// Solve the matrices given per lane (missing lanes: zero matrices) with the instruction set
+// `level` (2 AVX-512, 1 AVX2, 0 baseline; capped by the CPU; -1 best).
+Solved solve(const std::vector<Matrix>& mats, std::size_t n, int level = -1) {
   Solved s;
   s.a.assign(n * n * L, 0.0);
   s.d.assign(n * L, 0.0);
@@ -38,7 +40,7 @@ Solved solve(const std::vector<Matrix>& mats, std::size_t n) {
   for (std::size_t l = 0; l < mats.size(); ++l)
     for (std::size_t r = 0; r < n; ++r)
       for (std::size_t c = 0; c < n; ++c) s.a[(r * n + c) * L + l] = mats[l](r, c);
-  s.failed = eskin::batch_symmetric_eigen(n, s.a.data(), s.d.data(), s.e.data());
+  s.failed = eskin::batch_symmetric_eigen(n, s.a.data(), s.d.data(), s.e.data(), level);
   return s;
 }
 
@@ -68,21 +70,28 @@ void expect_decomposition(const Matrix& a, const Solved& s, std::size_t n, std::
   EXPECT_LT((sorted - ref).cwiseAbs().maxCoeff(), 1e-12 * scale);
 }
 
-class BatchEigenSizes : public ::testing::TestWithParam<std::size_t> {};
+class BatchEigenSizes : public ::testing::TestWithParam<std::tuple<std::size_t, int>> {};
 
 TEST_P(BatchEigenSizes, EveryLaneIsAnOrthonormalEigenDecomposition) {
-  const std::size_t n = GetParam();
+  const std::size_t n = std::get<0>(GetParam());
+  const int level = std::get<1>(GetParam());
   std::mt19937_64 gen(n);
   std::vector<Matrix> mats;
   for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
-  const Solved s = solve(mats, n);
+  const Solved s = solve(mats, n, level);
   EXPECT_EQ(s.failed, 0u);
   for (std::size_t l = 0; l < L; ++l) expect_decomposition(mats[l], s, n, l);
 }
 
-INSTANTIATE_TEST_SUITE_P(Sizes, BatchEigenSizes, ::testing::Values(1, 2, 3, 4, 5, 8, 16, 17, 33));
+// every instruction-set variant (levels above what the CPU has fall back to the best it has)
+INSTANTIATE_TEST_SUITE_P(Sizes, BatchEigenSizes,
+                         ::testing::Combine(::testing::Values(1, 2, 3, 4, 5, 8, 16, 17, 33),
+                                            ::testing::Values(0, 1, 2)));
 
-TEST(BatchEigen, DegenerateMatricesBesideOrdinaryOnes) {
+class BatchEigenLevels : public ::testing::TestWithParam<int> {};
+
+TEST_P(BatchEigenLevels, DegenerateMatricesBesideOrdinaryOnes) {
+  const int level = GetParam();
   const std::size_t n = 16;
   std::mt19937_64 gen(7);
   std::vector<Matrix> mats(L, Matrix::Zero(n, n));
@@ -100,7 +109,7 @@ TEST(BatchEigen, DegenerateMatricesBesideOrdinaryOnes) {
   for (std::size_t i = 0; i < n; ++i) mats[5](i, i) = double(i % 3);
   mats[6] = random_symmetric(n, gen) * 1e-150;      // tiny
   mats[7] = random_symmetric(n, gen) * 1e150;       // huge
-  const Solved s = solve(mats, n);
+  const Solved s = solve(mats, n, level);
   EXPECT_EQ(s.failed, 0u);
   for (std::size_t l = 0; l < L; ++l) {
     SCOPED_TRACE(l);
@@ -119,17 +128,18 @@ TEST(BatchEigen, DegenerateMatricesBesideOrdinaryOnes) {
   EXPECT_EQ(vectors(s, n, 1), Matrix::Identity(n, n));
 }
 
-TEST(BatchEigen, ALaneDoesNotDependOnItsBatchMatesOrItsPosition) {
+TEST_P(BatchEigenLevels, ALaneDoesNotDependOnItsBatchMatesOrItsPosition) {
+  const int level = GetParam();
   const std::size_t n = 16;
   std::mt19937_64 gen(11);
   const Matrix target = random_symmetric(n, gen);
   std::vector<Matrix> alone(1, target);
-  const Solved ref = solve(alone, n);
+  const Solved ref = solve(alone, n, level);
   for (std::size_t pos : {0u, 3u, 7u}) {
     std::vector<Matrix> mats;
     for (std::size_t l = 0; l < L; ++l)
       mats.push_back(l == pos ? target : random_symmetric(n, gen) * double(l + 1));
-    const Solved s = solve(mats, n);
+    const Solved s = solve(mats, n, level);
     EXPECT_EQ(s.failed, 0u);
     for (std::size_t i = 0; i < n * n; ++i)
       ASSERT_EQ(s.a[i * L + pos], ref.a[i * L]) << "eigenvector entry " << i << ", lane " << pos;
@@ -137,16 +147,19 @@ TEST(BatchEigen, ALaneDoesNotDependOnItsBatchMatesOrItsPosition) {
   }
 }
 
-TEST(BatchEigen, NonFiniteInputIsReportedPerLane) {
+TEST_P(BatchEigenLevels, NonFiniteInputIsReportedPerLane) {
+  const int level = GetParam();
   const std::size_t n = 6;
   std::mt19937_64 gen(3);
   std::vector<Matrix> mats;
   for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
   mats[2](1, 4) = mats[2](4, 1) = std::nan("");
   mats[5](0, 0) = INFINITY;
-  const Solved s = solve(mats, n);
+  const Solved s = solve(mats, n, level);
   EXPECT_EQ(s.failed, (1u << 2) | (1u << 5));
   for (std::size_t l : {0u, 1u, 3u, 4u, 6u, 7u}) expect_decomposition(mats[l], s, n, l);
 }
+
+INSTANTIATE_TEST_SUITE_P(Isa, BatchEigenLevels, ::testing::Values(0, 1, 2));
 
 }  // namespace

@@ -34,6 +34,8 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
+#include <utility>
 #include <vector>
 
 namespace eskin {
@@ -158,12 +160,33 @@ double kernel_value(const BasisLayout& layout, const double* bases_a, const int*
 // ---------------------------------------------------------------------------------------------
 // Batch layer (host)
 
+/// std::allocator, except that resize() leaves new elements uninitialised (every element of
+/// PatternBases::bases is written by the threads that compute it: no serial zero-fill first).
+template <class T>
+struct UninitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = UninitAllocator<U>;
+  };
+  UninitAllocator() = default;
+  template <class U>
+  UninitAllocator(const UninitAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+
 /// The bases of n patterns: pattern i's bases at bases.data() + i * layout.bases_size(),
 /// its ranks at ranks.data() + i * layout.n_modes().
 struct PatternBases {
   BasisLayout layout;
   std::size_t count = 0;
-  std::vector<double> bases;
+  std::vector<double, UninitAllocator<double>> bases;
   std::vector<int> ranks;
 };
 
