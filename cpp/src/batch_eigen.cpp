@@ -243,73 +243,135 @@ ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const dou
 // Implicit QL on the tridiagonal (d, e) of tred2, rotating the rows of `a` (row-major view of
 // tred2's column-major transformation). Returns the mask of failed lanes. rc, rs_: scratch of
 // n * L each (a sweep's rotations).
+//
+// Each lane deflates at its own pace: lane w works on its own index l_w (EISPACK's l), and a
+// sweep runs from the bottom up to the smallest l_w of the lanes still iterating; above its own
+// l_w a lane's rotations are identities and its values are left alone. So a lane does exactly
+// the sweeps it would do alone (no waiting for slower lanes at every l).
 template <class V>
 ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, double* rc,
                            double* rs_) noexcept {
+  constexpr std::size_t W = width<V>;
+  using M = mask_t<V>;
   const V one = splat<V>(1.0), zero = splat<V>(0.0), two = splat<V>(2.0);
-  const V eps = splat<V>(std::ldexp(1.0, -52));
+  const double eps = std::ldexp(1.0, -52);
   for (std::size_t i = 1; i < n; ++i) st(e + (i - 1) * L, ld<V>(e + i * L));
   st(e + (n - 1) * L, zero);
-  V f = zero, tst1 = zero;
+  // per-lane bookkeeping (scalar): deflation index, shift sum, EISPACK's tst1, iterations
+  std::size_t lw[W];
+  double f[W], tst1[W];
+  int iters[W];
+  bool done[W];
   unsigned failed = 0;
-  for (std::size_t l = 0; l < n; ++l) {
-    tst1 = vmax(tst1, vabs(ld<V>(d + l * L)) + vabs(ld<V>(e + l * L)));
-    if (l + 1 < n) {
-      mask_t<V> act = vabs(ld<V>(e + l * L)) > eps * tst1;
-      int iter = 0;
-      while (bits(act)) {
-        if (++iter > 100) {
-          failed |= bits(act);
-          break;
-        }
-        // shift from the leading 2 x 2 block
-        const V g0 = ld<V>(d + l * L), el = ld<V>(e + l * L);
-        const V els = sel(act, el, one);
-        V p = (ld<V>(d + (l + 1) * L) - g0) / (two * els);
-        V r = vsqrt(p * p + one);
-        r = sel(p < zero, -r, r);
-        const V dl = sel(act, el / (p + r), g0);
-        const V dl1 = sel(act, el * (p + r), ld<V>(d + (l + 1) * L));
-        st(d + l * L, dl);
-        st(d + (l + 1) * L, dl1);
-        V h = sel(act, g0 - dl, zero);
-        for (std::size_t i = l + 2; i < n; ++i) st(d + i * L, ld<V>(d + i * L) - h);
-        f += h;
-        // chase from the bottom (no split search: see batch_eigen.hpp)
-        p = ld<V>(d + (n - 1) * L);
-        V c = one, c2 = one, c3 = one, s = zero, s2 = zero;
-        const V el1 = ld<V>(e + (l + 1) * L);
-        for (std::size_t ii = n - 1; ii-- > l;) {
-          c3 = c2;
-          c2 = c;
-          s2 = s;
-          const V ei = ld<V>(e + ii * L), di = ld<V>(d + ii * L);
-          const V g = c * ei;
-          h = c * p;
-          r = vsqrt(p * p + ei * ei);
-          st(e + (ii + 1) * L, sel(act, s * r, ld<V>(e + (ii + 1) * L)));
-          const mask_t<V> keep = act & (r != zero);  // r == 0: p = e = 0, identity rotation
-          const V inv = one / sel(keep, r, one);
-          s = sel(keep, ei * inv, zero);
-          c = sel(keep, p * inv, one);
-          p = c * di - s * g;
-          st(d + (ii + 1) * L, sel(act, h + s * (c * g + s * di), ld<V>(d + (ii + 1) * L)));
-          st(rc + ii * L, c);
-          st(rs_ + ii * L, s);
-        }
-        rotate_rows<V>(n, l, a, rc, rs_);
-        p = -s * s2 * c3 * el1 * ld<V>(e + l * L) / sel(act, dl1, one);
-        const V new_e = sel(act, s * p, ld<V>(e + l * L));
-        const V new_d = sel(act, c * p, ld<V>(d + l * L));
-        st(e + l * L, new_e);
-        st(d + l * L, new_d);
-        const mask_t<V> bad = act & ~(finite(new_e) & finite(new_d));
-        failed |= bits(bad);
-        act = act & ~bad & (vabs(new_e) > eps * tst1);
+  for (std::size_t w = 0; w < W; ++w) {
+    lw[w] = 0;
+    f[w] = 0.0;
+    tst1[w] = std::fabs(d[w]) + std::fabs(e[w]);
+    iters[w] = 0;
+    done[w] = false;
+  }
+  for (;;) {
+    // lanes whose e[l] is negligible move on (d[l] += f, as EISPACK does when it leaves l)
+    std::size_t lmin = n;
+    V lv = zero, fv = zero;
+    M act{};
+    for (std::size_t w = 0; w < W; ++w) {
+      if (done[w]) continue;
+      std::size_t l = lw[w];
+      while (l + 1 < n && std::fabs(e[l * L + w]) <= eps * tst1[w]) {
+        d[l * L + w] += f[w];
+        e[l * L + w] = 0.0;
+        ++l;
+        tst1[w] = std::max(tst1[w], std::fabs(d[l * L + w]) + std::fabs(e[l * L + w]));
+        iters[w] = 0;
       }
+      lw[w] = l;
+      if (l + 1 == n) {
+        d[l * L + w] += f[w];
+        e[l * L + w] = 0.0;
+        done[w] = true;
+        continue;
+      }
+      if (++iters[w] > 100) {  // EISPACK's limit, per eigenvalue
+        failed |= 1u << w;
+        done[w] = true;
+        continue;
+      }
+      act[w] = -1;
+      lv[w] = double(l);
+      fv[w] = f[w];
+      lmin = std::min(lmin, l);
     }
-    st(d + l * L, ld<V>(d + l * L) + f);
-    st(e + l * L, zero);
+    if (lmin == n) break;
+    // one QL sweep for the active lanes: shift from the leading 2 x 2 block of each lane
+    V g0 = zero, el = one, dl1_old = zero, el1 = zero;
+    for (std::size_t w = 0; w < W; ++w)
+      if (act[w]) {
+        const std::size_t l = lw[w];
+        g0[w] = d[l * L + w];
+        el[w] = e[l * L + w];
+        dl1_old[w] = d[(l + 1) * L + w];
+        el1[w] = e[(l + 1) * L + w];
+      }
+    V p = (dl1_old - g0) / (two * el);
+    V r = vsqrt(p * p + one);
+    r = sel(p < zero, -r, r);
+    const V dl = sel(act, el / (p + r), g0);
+    const V dl1 = sel(act, el * (p + r), dl1_old);
+    const V h0 = sel(act, g0 - dl, zero);
+    for (std::size_t w = 0; w < W; ++w)
+      if (act[w]) {
+        const std::size_t l = lw[w];
+        d[l * L + w] = dl[w];
+        d[(l + 1) * L + w] = dl1[w];
+      }
+    for (std::size_t i = lmin + 2; i < n; ++i) {
+      const M below = act & (splat<V>(double(i)) >= lv + two);  // i >= l + 2
+      st(d + i * L, sel(below, ld<V>(d + i * L) - h0, ld<V>(d + i * L)));
+    }
+    fv += h0;
+    for (std::size_t w = 0; w < W; ++w)
+      if (act[w]) f[w] = fv[w];
+    // chase from the bottom (no split search: see batch_eigen.hpp)
+    p = ld<V>(d + (n - 1) * L);
+    V c = one, c2 = one, c3 = one, s = zero, s2 = zero;
+    for (std::size_t ii = n - 1; ii-- > lmin;) {
+      const M on = act & (splat<V>(double(ii)) >= lv);  // this lane still rotates at ii
+      c3 = sel(on, c2, c3);
+      c2 = sel(on, c, c2);
+      s2 = sel(on, s, s2);
+      const V ei = ld<V>(e + ii * L), di = ld<V>(d + ii * L);
+      const V g = c * ei;
+      const V h = c * p;
+      r = vsqrt(p * p + ei * ei);
+      st(e + (ii + 1) * L, sel(on, s * r, ld<V>(e + (ii + 1) * L)));
+      const M keep = on & (r != zero);  // r == 0: p = e = 0, identity rotation
+      const V inv = one / sel(keep, r, one);
+      const V sn = sel(keep, ei * inv, zero), cn = sel(keep, p * inv, one);
+      s = sel(on, sn, s);
+      c = sel(on, cn, c);
+      p = sel(on, cn * di - sn * g, p);
+      st(d + (ii + 1) * L, sel(on, h + sn * (cn * g + sn * di), ld<V>(d + (ii + 1) * L)));
+      st(rc + ii * L, cn);
+      st(rs_ + ii * L, sn);
+    }
+    rotate_rows<V>(n, lmin, a, rc, rs_);
+    V el_now = one;
+    for (std::size_t w = 0; w < W; ++w)
+      if (act[w]) el_now[w] = e[lw[w] * L + w];
+    p = -s * s2 * c3 * el1 * el_now / sel(act, dl1, one);
+    const V new_e = s * p, new_d = c * p;
+    const M bad = act & ~(finite(new_e) & finite(new_d));
+    for (std::size_t w = 0; w < W; ++w)
+      if (act[w]) {
+        const std::size_t l = lw[w];
+        e[l * L + w] = new_e[w];
+        d[l * L + w] = new_d[w];
+        if (bad[w]) {
+          failed |= 1u << w;
+          done[w] = true;
+        }
+      }
   }
   return failed;
 }

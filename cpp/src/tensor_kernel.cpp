@@ -188,6 +188,95 @@ double abs_max(const double* x, std::size_t n, bool* nan) noexcept {
 }
 #endif
 
+#if defined(__GNUC__)
+// out[t] = sum_{i < m} w[i] * x[i * S + t] for t < S (the rows of x combined; one pass)
+ESKIN_CLONES void combine_rows(const double* x, std::size_t m, std::size_t S, const double* w,
+                               double* out) noexcept {
+  std::size_t t = 0;
+  for (; t + 4 <= S; t += 4) {
+    eskin_v4d acc = w[0] * load4(x + t);
+    for (std::size_t i = 1; i < m; ++i) acc += w[i] * load4(x + i * S + t);
+    std::memcpy(out + t, &acc, sizeof acc);
+  }
+  for (; t < S; ++t) {
+    double acc = w[0] * x[t];
+    for (std::size_t i = 1; i < m; ++i) acc += w[i] * x[i * S + t];
+    out[t] = acc;
+  }
+}
+
+// Index of the entry of largest magnitude (the first one on ties); n >= 1.
+ESKIN_CLONES std::size_t argmax_abs(const double* v, std::size_t n) noexcept {
+  typedef long long eskin_v4i __attribute__((vector_size(32)));
+  const eskin_v4i mag = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
+                         0x7fffffffffffffffLL};
+  eskin_v4d best = {-1.0, -1.0, -1.0, -1.0};
+  eskin_v4i idx = {0, 0, 0, 0}, cur = {0, 1, 2, 3};
+  const eskin_v4i step = {4, 4, 4, 4};
+  std::size_t j = 0;
+  for (; j + 4 <= n; j += 4, cur += step) {
+    const eskin_v4d a = (eskin_v4d)((eskin_v4i)load4(v + j) & mag);
+    const eskin_v4i gt = a > best;  // strict: the first index wins within a lane
+    best = (eskin_v4d)(((eskin_v4i)a & gt) | ((eskin_v4i)best & ~gt));
+    idx = (cur & gt) | (idx & ~gt);
+  }
+  double top = -1.0;
+  std::size_t at = 0;
+  for (std::size_t k = 0; k < 4; ++k)  // lanes: the largest value, then the smallest index
+    if (best[k] > top || (best[k] == top && std::size_t(idx[k]) < at)) {
+      top = best[k];
+      at = std::size_t(idx[k]);
+    }
+  for (; j < n; ++j)
+    if (std::fabs(v[j]) > top) {
+      top = std::fabs(v[j]);
+      at = j;
+    }
+  return at;
+}
+
+// out = f * x
+ESKIN_CLONES void scale_copy(const double* x, std::size_t n, double f, double* out) noexcept {
+  std::size_t j = 0;
+  for (; j + 4 <= n; j += 4) {
+    const eskin_v4d a = f * load4(x + j);
+    std::memcpy(out + j, &a, sizeof a);
+  }
+  for (; j < n; ++j) out[j] = f * x[j];
+}
+
+// v *= f
+ESKIN_CLONES void scale_in_place(double* v, std::size_t n, double f) noexcept {
+  std::size_t j = 0;
+  for (; j + 4 <= n; j += 4) {
+    const eskin_v4d a = f * load4(v + j);
+    std::memcpy(v + j, &a, sizeof a);
+  }
+  for (; j < n; ++j) v[j] *= f;
+}
+#else
+void combine_rows(const double* x, std::size_t m, std::size_t S, const double* w,
+                  double* out) noexcept {
+  for (std::size_t t = 0; t < S; ++t) {
+    double acc = w[0] * x[t];
+    for (std::size_t i = 1; i < m; ++i) acc += w[i] * x[i * S + t];
+    out[t] = acc;
+  }
+}
+std::size_t argmax_abs(const double* v, std::size_t n) noexcept {
+  std::size_t at = 0;
+  for (std::size_t j = 1; j < n; ++j)
+    if (std::fabs(v[j]) > std::fabs(v[at])) at = j;
+  return at;
+}
+void scale_in_place(double* v, std::size_t n, double f) noexcept {
+  for (std::size_t j = 0; j < n; ++j) v[j] *= f;
+}
+void scale_copy(const double* x, std::size_t n, double f, double* out) noexcept {
+  for (std::size_t j = 0; j < n; ++j) out[j] = f * x[j];
+}
+#endif
+
 // y += f * x
 ESKIN_CLONES void axpy(double f, const double* x, double* y, std::size_t n) noexcept {
   for (std::size_t k = 0; k < n; ++k) y[k] += f * x[k];
@@ -354,7 +443,7 @@ BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
   lane_e_.assign(3 * qmax * kEigenLanes, 0.0);
   unfold_.assign(layout_.tensor_size(), 0.0);
   gram_.assign(qmax * qmax, 0.0);
-  d_.assign(qmax, 0.0);
+  d_.assign(2 * qmax, 0.0);  // eigenvalues, then combination weights
   sv_.assign(sv_count_, 0.0);
   tmp_.assign(layout_.bases_size(), 0.0);
 }
@@ -380,8 +469,6 @@ ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::si
     return KernelStatus::bad_argument;
   const std::size_t nz = layout_.n_modes(), size = layout_.tensor_size(),
                     bs = layout_.bases_size();
-  std::fill(bases, bases + count * bs, 0.0);
-  std::fill(ranks, ranks + count * nz, 0);
   std::fill(sv_.begin(), sv_.end(), 0.0);
   // lanes that go through the eigen-solver: finite patterns that are not all zero
   bool live[kMaxBatch] = {};
@@ -401,9 +488,16 @@ ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::si
     const double scale = std::ldexp(1.0, -ex);
     inv_scale_[b] = std::ldexp(1.0, ex);
     double* xs = scaled_.data() + b * size;
-    for (std::size_t k = 0; k < size; ++k) xs[k] = xb[k] * scale;
+    scale_copy(xb, size, scale, xs);
     live[b] = true;
   }
+  // the patterns that skip the solver (all zero, non-finite) get zero bases and ranks; the others
+  // have every entry written mode by mode below
+  for (std::size_t b = 0; b < count; ++b)
+    if (!live[b]) {
+      std::fill(bases + b * bs, bases + (b + 1) * bs, 0.0);
+      std::fill(ranks + b * nz, ranks + (b + 1) * nz, 0);
+    }
   for (std::size_t z = 0; z < nz; ++z) {
     const std::size_t q = layout_.q(z);
     // lane-interleaved Gram matrices (dead lanes: zeros, which the solver handles)
@@ -533,19 +627,14 @@ ESKIN_CLONES KernelStatus BasisWorkspace::finish_mode(std::size_t z, const doubl
     for (std::size_t c = 0; c < k; ++c) std::copy(g + (q - 1 - c) * q, g + (q - c) * q, out + c * n);
   } else {
     // v_c = A^T u_c / s_c: v_c[p * S + s] = sum_i u_c[i] x[p, i, s] / s_c
+    double* w = d_.data() + q;  // m <= q scratch values after the eigenvalues
     for (std::size_t c = 0; c < k; ++c) {
       const double* u = g + (q - 1 - c) * q;
       const double inv = 1.0 / std::sqrt(d[q - 1 - c]);
+      for (std::size_t i = 0; i < m; ++i) w[i] = u[i] * inv;
       double* v = out + c * n;
-      std::fill(v, v + n, 0.0);
-      for (std::size_t p = 0; p < before; ++p) {
-        double* vp = v + p * after;
-        for (std::size_t i = 0; i < m; ++i) {
-          const double ui = u[i] * inv;
-          const double* xi = x + (p * m + i) * after;
-          axpy(ui, xi, vp, after);
-        }
-      }
+      for (std::size_t p = 0; p < before; ++p)
+        combine_rows(x + p * m * after, m, after, w, v + p * after);
     }
     // re-orthonormalise (modified Gram-Schmidt, two passes): V = A^T U S^-1 loses
     // orthogonality in proportion to s_1 / s_k.
@@ -563,8 +652,7 @@ ESKIN_CLONES KernelStatus BasisWorkspace::finish_mode(std::size_t z, const doubl
         }
         const double nrm = std::sqrt(dot(v, v, n));
         if (!(nrm > 0.0)) return KernelStatus::no_convergence;
-        const double inv = 1.0 / nrm;
-        for (std::size_t j = 0; j < n; ++j) v[j] *= inv;
+        scale_in_place(v, n, 1.0 / nrm);
         if (std::fabs(nrm - 1.0) > 1e-8) again = true;
       }
     }
@@ -572,20 +660,7 @@ ESKIN_CLONES KernelStatus BasisWorkspace::finish_mode(std::size_t z, const doubl
   // sign: largest-magnitude entry (first on ties) positive
   for (std::size_t c = 0; c < k; ++c) {
     double* v = out + c * n;
-    double t0 = 0.0, t1 = 0.0, t2 = 0.0, t3 = 0.0;  // four partial maxima
-    std::size_t j = 0;
-    for (; j + 4 <= n; j += 4) {
-      t0 = std::max(t0, std::fabs(v[j]));
-      t1 = std::max(t1, std::fabs(v[j + 1]));
-      t2 = std::max(t2, std::fabs(v[j + 2]));
-      t3 = std::max(t3, std::fabs(v[j + 3]));
-    }
-    for (; j < n; ++j) t0 = std::max(t0, std::fabs(v[j]));
-    const double top = std::max(std::max(t0, t1), std::max(t2, t3));
-    std::size_t best = 0;
-    while (best + 1 < n && std::fabs(v[best]) != top) ++best;
-    if (v[best] < 0)
-      for (std::size_t j = 0; j < n; ++j) v[j] = -v[j];
+    if (v[argmax_abs(v, n)] < 0) scale_in_place(v, n, -1.0);
   }
   std::fill(out + k * n, out + alpha * n, 0.0);
   *rank = static_cast<int>(k);
