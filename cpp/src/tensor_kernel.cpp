@@ -235,6 +235,25 @@ ESKIN_CLONES std::size_t argmax_abs(const double* v, std::size_t n) noexcept {
   return at;
 }
 
+// P = V V^T (n x n, row-major) for V n x alpha, column-major
+ESKIN_CLONES void projection_matrix(const double* v, std::size_t n, std::size_t alpha,
+                                    double* P) noexcept {
+  for (std::size_t i = 0; i < n; ++i) {
+    double* row = P + i * n;
+    std::size_t j = 0;
+    for (; j + 4 <= n; j += 4) {
+      eskin_v4d acc = v[i] * load4(v + j);
+      for (std::size_t a = 1; a < alpha; ++a) acc += v[a * n + i] * load4(v + a * n + j);
+      std::memcpy(row + j, &acc, sizeof acc);
+    }
+    for (; j < n; ++j) {
+      double acc = v[i] * v[j];
+      for (std::size_t a = 1; a < alpha; ++a) acc += v[a * n + i] * v[a * n + j];
+      row[j] = acc;
+    }
+  }
+}
+
 // out = f * x
 ESKIN_CLONES void scale_copy(const double* x, std::size_t n, double f, double* out) noexcept {
   std::size_t j = 0;
@@ -274,6 +293,14 @@ void scale_in_place(double* v, std::size_t n, double f) noexcept {
 }
 void scale_copy(const double* x, std::size_t n, double f, double* out) noexcept {
   for (std::size_t j = 0; j < n; ++j) out[j] = f * x[j];
+}
+void projection_matrix(const double* v, std::size_t n, std::size_t alpha, double* P) noexcept {
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t j = 0; j < n; ++j) {
+      double acc = v[i] * v[j];
+      for (std::size_t a = 1; a < alpha; ++a) acc += v[a * n + i] * v[a * n + j];
+      P[i * n + j] = acc;
+    }
 }
 #endif
 
@@ -835,7 +862,7 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
     // one panel per group, column c = pattern g * 8 + c: its packed projection matrix
     const std::size_t n = L.cols(z), alpha = L.alpha(z);
     const double r2 = std::sqrt(2.0);
-    std::vector<double> prow_buf(n);
+    std::vector<double> prow_buf(n * n);
     double* prow = prow_buf.data();
     for (std::size_t g = g0; g < g1; ++g) {
       double* dst = mp.data + g * mp.k * kTileWidth;
@@ -846,18 +873,12 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
           continue;
         }
         const double* v = pb.bases.data() + (g * kTileWidth + c) * bs + off;  // n x alpha, col-major
+        projection_matrix(v, n, alpha, prow);
         std::size_t kk = 0;
         for (std::size_t i = 0; i < n; ++i) {
-          // row i of P = V V^T, entries j >= i: sum of the alpha rank-one terms
-          double* row = prow;
-          std::fill(row, row + (n - i), 0.0);
-          for (std::size_t a = 0; a < alpha; ++a) {
-            const double f = v[a * n + i];
-            const double* va = v + a * n;
-            for (std::size_t j = i; j < n; ++j) row[j - i] += f * va[j];
-          }
-          dst[kk++ * kTileWidth + c] = row[0];
-          for (std::size_t j = i + 1; j < n; ++j) dst[kk++ * kTileWidth + c] = r2 * row[j - i];
+          const double* row = prow + i * n;
+          dst[kk++ * kTileWidth + c] = row[i];
+          for (std::size_t j = i + 1; j < n; ++j) dst[kk++ * kTileWidth + c] = r2 * row[j];
         }
       }
     }
@@ -921,7 +942,9 @@ namespace {
 constexpr std::size_t kRowBlock = 8;
 
 // The pairwise engine shared by mode_distances and tensor_kernel. For every row block (a work
-// item, run on some thread t) it calls sink.begin(t, r0, r1), then sink.pair(t, z, ia, ib, d)
+// item, run on some thread t) it calls sink.begin(t, r0, r1), then
+// sink.row(t, z, ia, ib0, count, ra, rb, ov) for runs of pairs (ia, ib0 + k), k < count, with
+// ranks ra and rb[k] and overlaps ||V_a^T V_b||^2 = ov[k] (distance max(0, ra + rb - 2 ov))
 // for every mode z and pair (ia in [r0, r1), ib in B; ib > ia when self), then sink.end(t, r0, r1).
 template <class Sink>
 void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_threads, Sink& sink) {
@@ -932,6 +955,14 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
   const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
   if (n == 0 || m == 0) return;
   const int nt = resolve_threads(n_threads);
+  // ranks as doubles, mode-major (contiguous per mode for the row updates)
+  std::vector<double> rank_a(nz * n), rank_b(self ? 0 : nz * m);
+  for (std::size_t z = 0; z < nz; ++z) {
+    for (std::size_t i = 0; i < n; ++i) rank_a[z * n + i] = a.ranks[i * nz + z];
+    if (!self)
+      for (std::size_t i = 0; i < m; ++i) rank_b[z * m + i] = B.ranks[i * nz + z];
+  }
+  const double* rk_b = self ? rank_a.data() : rank_b.data();
   std::vector<ModePack> pa(nz), pbk(self ? 0 : nz);
   std::size_t total = 0;
   for (std::size_t z = 0; z < nz; ++z) {
@@ -1004,6 +1035,13 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
             const std::size_t al = PA.alpha;
             if (al == 1) {
               std::copy(tilebuf, tilebuf + kTileWidth * kTileWidth, acc);
+            } else if (al == 2) {  // 2 x 2 blocks: pairs of rows, then pairs of columns
+              double rs[4][kTileWidth];
+              for (std::size_t x = 0; x < 4; ++x)
+                for (std::size_t c = 0; c < kTileWidth; ++c)
+                  rs[x][c] = tilebuf[2 * x * kTileWidth + c] + tilebuf[(2 * x + 1) * kTileWidth + c];
+              for (std::size_t x = 0; x < 4; ++x)
+                for (std::size_t y = 0; y < 4; ++y) acc[x * 4 + y] = rs[x][2 * y] + rs[x][2 * y + 1];
             } else {
               for (std::size_t x = 0; x < ppg; ++x)
                 for (std::size_t y = 0; y < ppg; ++y) {
@@ -1048,12 +1086,10 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
           }
           for (std::size_t x = 0; x < na; ++x) {
             const std::size_t ia = gi * ppg + x;
-            const double ra = a.ranks[ia * nz + z];
-            for (std::size_t y = diag ? x + 1 : 0; y < nb; ++y) {
-              const std::size_t ib = gj * ppg + y;
-              const double rbk = B.ranks[ib * nz + z];
-              sink.pair(t, z, ia, ib, std::max(0.0, ra + rbk - 2.0 * acc[x * ppg + y]));
-            }
+            const std::size_t y0 = diag ? x + 1 : 0;
+            if (y0 < nb)
+              sink.row(t, z, ia, gj * ppg + y0, nb - y0, rank_a[z * n + ia],
+                       rk_b + z * m + gj * ppg + y0, acc + x * ppg + y0);
           }
         }
       }
@@ -1073,9 +1109,14 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
     std::size_t m, zs;
     bool self;
     void begin(std::size_t, std::size_t, std::size_t) {}
-    void pair(std::size_t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
-      out[z * zs + ia * m + ib] = d;
-      if (self) out[z * zs + ib * m + ia] = d;
+    void row(std::size_t, std::size_t z, std::size_t ia, std::size_t ib0, std::size_t count,
+             double ra, const double* rb, const double* ov) {
+      double* o = out + z * zs + ia * m + ib0;
+      for (std::size_t k = 0; k < count; ++k) {
+        const double d = std::max(0.0, ra + rb[k] - 2.0 * ov[k]);
+        o[k] = d;
+        if (self) out[z * zs + (ib0 + k) * m + ia] = d;
+      }
     }
     void end(std::size_t, std::size_t, std::size_t) {}
   } sink{out, m, zs, self};
@@ -1115,8 +1156,11 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
     void begin(std::size_t t, std::size_t r0_, std::size_t r1) {
       std::fill(rows(t), rows(t) + (r1 - r0_) * m, 0.0);
     }
-    void pair(std::size_t t, std::size_t z, std::size_t ia, std::size_t ib, double d) {
-      rows(t)[(ia % kRowBlock) * m + ib] += coef[z] * d;
+    void row(std::size_t t, std::size_t z, std::size_t ia, std::size_t ib0, std::size_t count,
+             double ra, const double* rb, const double* ov) {
+      double* r = rows(t) + (ia % kRowBlock) * m + ib0;
+      const double cz = coef[z];
+      for (std::size_t k = 0; k < count; ++k) r[k] += cz * std::max(0.0, ra + rb[k] - 2.0 * ov[k]);
     }
     void end(std::size_t t, std::size_t r0_, std::size_t r1) {
       for (std::size_t ia = r0_; ia < r1; ++ia) {
