@@ -19,7 +19,7 @@ B) one thread each, timed with the CPU time of the calling thread (``time.thread
    other processes competing for the cores do not inflate.
 The paper-literal baseline runs with BLAS limited to one thread (numpy runs its per-pair
 element-wise work on one core anyway), and both clocks are read around it.
-Usage: python benchmarks/bench_kernel.py [--n 180] [--repeats 7] [--subset 12] [--threads N]
+Usage: python benchmarks/bench_kernel.py [--n 180] [--repeats 7] [--subset 20] [--threads N]
 Needs threadpoolctl (installed with scikit-learn).
 """
 
@@ -117,8 +117,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--n", type=int, default=180)
     ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--subset", type=int, default=12, help="patterns timed for paper-literal")
-    ap.add_argument("--literal-repeats", type=int, default=3, help="paper-literal runs (fastest)")
+    ap.add_argument("--subset", type=int, default=20, help="patterns timed for paper-literal")
+    ap.add_argument("--literal-repeats", type=int, default=5, help="paper-literal runs (fastest)")
     ap.add_argument("--threads", type=int, default=None, help="eskin threads (default: all cores)")
     ap.add_argument("--D", type=int, nargs="*", default=[20, 50, 100])
     args = ap.parse_args()
