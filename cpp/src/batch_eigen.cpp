@@ -8,7 +8,8 @@
 
 // The solver is written once for a GCC/Clang vector type V of W doubles (W lanes side by side)
 // and instantiated for the widest registers the CPU has: W = 8 (one AVX-512 register), 4 (AVX2:
-// the 8 lanes as two groups of 4) or 2 (SSE2 baseline: four groups). The memory layout is the
+// the 8 lanes as two groups of 4) or 2 (SSE2 baseline: four groups); fewer matrices than
+// lanes take narrower groups. The memory layout is the
 // same for all (lane stride kEigenLanes). Run-time dispatch, as for the pairwise tile kernels:
 // function-level target attributes, no -m flag. A lane's arithmetic does not depend on the
 // other lanes of its group (a converged lane is frozen by masks), so grouping does not change
@@ -47,6 +48,7 @@ struct Mem<v2d> {
   using type = v2d_mem;
 };
 
+
 template <class V>
 using mask_t = decltype(V{} < V{});
 template <class V>
@@ -69,8 +71,7 @@ ESKIN_INLINE V splat(double x) noexcept {
 // m ? a : b, lane by lane (m: all ones or all zeros per lane)
 template <class V>
 ESKIN_INLINE V sel(mask_t<V> m, V a, V b) noexcept {
-  using M = mask_t<V>;
-  return (V)(((M)a & m) | ((M)b & ~m));
+  return m ? a : b;  // GCC/Clang vector conditional: one blend
 }
 template <class V>
 ESKIN_INLINE V vabs(V v) noexcept {
@@ -393,21 +394,30 @@ ESKIN_INLINE unsigned solve_group(std::size_t n, double* a, double* d, double* e
   return failed << o;
 }
 
-unsigned solve_sse2(std::size_t n, double* a, double* d, double* e) noexcept {
+// `used`: lanes 0..used-1 hold matrices; the groups past them are skipped (a single pattern
+// costs one narrow group, not eight lanes' work).
+unsigned solve_sse2(std::size_t n, double* a, double* d, double* e, std::size_t used) noexcept {
   unsigned f = 0;
-  for (std::size_t o = 0; o < L; o += 2) f |= solve_group<v2d>(n, a, d, e, o);
+  for (std::size_t o = 0; o < used; o += 2) f |= solve_group<v2d>(n, a, d, e, o);
   return f;
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define ESKIN_EIGEN_DISPATCH 1
 __attribute__((target("arch=x86-64-v3"))) unsigned solve_avx2(std::size_t n, double* a,
-                                                              double* d, double* e) noexcept {
-  return solve_group<v4d>(n, a, d, e, 0) | solve_group<v4d>(n, a, d, e, 4);
+                                                              double* d, double* e,
+                                                              std::size_t used) noexcept {
+  if (used <= 2) return solve_group<v2d>(n, a, d, e, 0);
+  unsigned f = solve_group<v4d>(n, a, d, e, 0);
+  if (used > 4) f |= solve_group<v4d>(n, a, d, e, 4);
+  return f;
 }
 
 __attribute__((target("arch=x86-64-v4"))) unsigned solve_avx512(std::size_t n, double* a,
-                                                                double* d, double* e) noexcept {
+                                                                double* d, double* e,
+                                                                std::size_t used) noexcept {
+  if (used <= 2) return solve_group<v2d>(n, a, d, e, 0);
+  if (used <= 4) return solve_group<v4d>(n, a, d, e, 0);
   return solve_group<v8d>(n, a, d, e, 0);
 }
 
@@ -429,18 +439,19 @@ int best_level() noexcept {
 
 }  // namespace
 
-unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e,
-                               int level) noexcept {
-  if (n == 0) return 0;
+unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e, int level,
+                               std::size_t used) noexcept {
+  if (n == 0 || used == 0) return 0;
+  if (used > L) used = L;
 #ifdef ESKIN_EIGEN_DISPATCH
   static const int best = best_level();
   if (level < 0 || level > best) level = best;
-  if (level == 2) return solve_avx512(n, a, d, e);
-  if (level == 1) return solve_avx2(n, a, d, e);
+  if (level == 2) return solve_avx512(n, a, d, e, used);
+  if (level == 1) return solve_avx2(n, a, d, e, used);
 #else
   (void)level;
 #endif
-  return solve_sse2(n, a, d, e);
+  return solve_sse2(n, a, d, e, used);
 }
 
 }  // namespace eskin

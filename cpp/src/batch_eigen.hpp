@@ -30,8 +30,10 @@ constexpr std::size_t kEigenLanes = 8;
 /// `e` is scratch of 3 * n * kEigenLanes doubles. Returns a bit mask of the lanes whose QL
 /// iteration did not converge or met a non-finite value (0 on success).
 /// `level` picks the instruction set (2 AVX-512, 1 AVX2+FMA, 0 baseline), capped by what the CPU
-/// has and by ESKIN_KERNEL_ISA=generic|avx2 (read once); -1: the best one.
-unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e,
-                               int level = -1) noexcept;
+/// has and by ESKIN_KERNEL_ISA=generic|avx2 (read once); -1: the best one. Only lanes
+/// 0..used-1 are solved (the others are left as they are and reported as not failed): a single
+/// matrix takes a narrow lane group. A lane's result does not depend on `used` either.
+unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e, int level = -1,
+                               std::size_t used = kEigenLanes) noexcept;
 
 }  // namespace eskin

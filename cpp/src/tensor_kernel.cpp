@@ -530,7 +530,10 @@ ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::si
     // lane-interleaved Gram matrices (dead lanes: zeros, which the solver handles)
     double* g = gram_.data();
     double* lanes = lanes_.data();
-    for (std::size_t b = 0; b < kMaxBatch; ++b) {
+    // lanes past `count` in the solver's last lane group (groups of 2, 4 or 8 lanes) get zeros
+    std::size_t span = 2;
+    while (span < count) span *= 2;
+    for (std::size_t b = 0; b < span; ++b) {
       if (b < count && live[b]) {
         gram(z, scaled_.data() + b * size, g);
         for (std::size_t i = 0; i < q * q; ++i) lanes[i * kEigenLanes + b] = g[i];
@@ -538,7 +541,8 @@ ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::si
         for (std::size_t i = 0; i < q * q; ++i) lanes[i * kEigenLanes + b] = 0.0;
       }
     }
-    const unsigned failed = batch_symmetric_eigen(q, lanes, lane_d_.data(), lane_e_.data());
+    const unsigned failed =
+        batch_symmetric_eigen(q, lanes, lane_d_.data(), lane_e_.data(), -1, count);
     for (std::size_t b = 0; b < count; ++b) {
       if (!live[b]) continue;
       KernelStatus st = KernelStatus::no_convergence;

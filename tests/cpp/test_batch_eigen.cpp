@@ -147,6 +147,30 @@ TEST_P(BatchEigenLevels, ALaneDoesNotDependOnItsBatchMatesOrItsPosition) {
   }
 }
 
+TEST_P(BatchEigenLevels, FewerMatricesThanLanesGiveTheSameBits) {
+  const int level = GetParam();
+  const std::size_t n = 16;
+  std::mt19937_64 gen(13);
+  std::vector<Matrix> mats;
+  for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
+  const Solved all = solve(mats, n, level);
+  for (std::size_t used : {1u, 2u, 3u, 4u, 5u}) {
+    Solved s;
+    s.a.assign(n * n * L, 0.0);
+    s.d.assign(n * L, 0.0);
+    s.e.assign(3 * n * L, 0.0);
+    for (std::size_t l = 0; l < used; ++l)
+      for (std::size_t r = 0; r < n; ++r)
+        for (std::size_t c = 0; c < n; ++c) s.a[(r * n + c) * L + l] = mats[l](r, c);
+    EXPECT_EQ(eskin::batch_symmetric_eigen(n, s.a.data(), s.d.data(), s.e.data(), level, used), 0u);
+    for (std::size_t l = 0; l < used; ++l) {
+      for (std::size_t i = 0; i < n * n; ++i)
+        ASSERT_EQ(s.a[i * L + l], all.a[i * L + l]) << "used " << used << ", lane " << l;
+      for (std::size_t j = 0; j < n; ++j) ASSERT_EQ(s.d[j * L + l], all.d[j * L + l]);
+    }
+  }
+}
+
 TEST_P(BatchEigenLevels, NonFiniteInputIsReportedPerLane) {
   const int level = GetParam();
   const std::size_t n = 6;
