@@ -160,6 +160,10 @@ def callgrind_instructions(exe: str, model_path: Path, windows: np.ndarray, tmp:
     if res.returncode != 0 or m is None:
         print(res.stderr[-2000:])
         return None
+    if int(m.group(1)) == 0:  # no symbol matched: a stripped binary (e.g. the pip-installed one)
+        print(f"callgrind: no instructions under {function!r} in {exe} (stripped?); "
+              "set ESKIN_BIN_DIR to a CMake build (make bench does)")
+        return None
     return int(m.group(1)) / min(10, len(windows))
 
 
