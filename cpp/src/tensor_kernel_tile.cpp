@@ -13,18 +13,8 @@
 namespace eskin {
 
 void tile_generic(const double* a, const double* b, std::size_t k, double* c) noexcept {
-  double acc[64];
-  for (int i = 0; i < 64; ++i) acc[i] = 0.0;
-  for (std::size_t kk = 0; kk < k; ++kk) {
-    const double* ar = a + kk * 8;
-    const double* br = b + kk * 8;
-    for (int r = 0; r < 8; ++r) {
-      const double x = ar[r];
-      double* cr = acc + r * 8;
-      for (int s = 0; s < 8; ++s) cr[s] += x * br[s];
-    }
-  }
-  for (int i = 0; i < 64; ++i) c[i] = acc[i] * acc[i];
+  tile_dot_generic(a, b, k, c);
+  for (int i = 0; i < 64; ++i) c[i] *= c[i];
 }
 
 void tile_dot_generic(const double* a, const double* b, std::size_t k, double* c) noexcept {

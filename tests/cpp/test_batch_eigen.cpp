@@ -25,21 +25,35 @@ Matrix random_symmetric(std::size_t n, std::mt19937_64& gen) {
   return a + a.transpose();
 }
 
+// kEigenLanes random symmetric n x n matrices
+std::vector<Matrix> random_batch(std::size_t n, unsigned seed) {
+  std::mt19937_64 gen(seed);
+  std::vector<Matrix> mats;
+  for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
+  return mats;
+}
+
 struct Solved {
   std::vector<double> a, d, e;
   unsigned failed = 0;
 };
 
-// Solve the matrices given per lane (missing lanes: zero matrices) with the instruction set
-// `level` (2 AVX-512, 1 AVX2, 0 baseline; capped by the CPU; -1 best).
-Solved solve(const std::vector<Matrix>& mats, std::size_t n, int level = -1) {
+// The first `count` matrices in their lanes (the other lanes: zero matrices), outputs zeroed.
+Solved lanes_of(const std::vector<Matrix>& mats, std::size_t n, std::size_t count) {
   Solved s;
   s.a.assign(n * n * L, 0.0);
   s.d.assign(n * L, 0.0);
   s.e.assign(3 * n * L, 0.0);
-  for (std::size_t l = 0; l < mats.size(); ++l)
+  for (std::size_t l = 0; l < count; ++l)
     for (std::size_t r = 0; r < n; ++r)
       for (std::size_t c = 0; c < n; ++c) s.a[(r * n + c) * L + l] = mats[l](r, c);
+  return s;
+}
+
+// Solve the matrices given per lane (missing lanes: zero matrices) with the instruction set
+// `level` (2 AVX-512, 1 AVX2, 0 baseline; capped by the CPU; -1 best).
+Solved solve(const std::vector<Matrix>& mats, std::size_t n, int level = -1) {
+  Solved s = lanes_of(mats, n, mats.size());
   s.failed = eskin::batch_symmetric_eigen(n, s.a.data(), s.d.data(), s.e.data(), level);
   return s;
 }
@@ -75,9 +89,7 @@ class BatchEigenSizes : public ::testing::TestWithParam<std::tuple<std::size_t, 
 TEST_P(BatchEigenSizes, EveryLaneIsAnOrthonormalEigenDecomposition) {
   const std::size_t n = std::get<0>(GetParam());
   const int level = std::get<1>(GetParam());
-  std::mt19937_64 gen(n);
-  std::vector<Matrix> mats;
-  for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
+  const std::vector<Matrix> mats = random_batch(n, unsigned(n));
   const Solved s = solve(mats, n, level);
   EXPECT_EQ(s.failed, 0u);
   for (std::size_t l = 0; l < L; ++l) expect_decomposition(mats[l], s, n, l);
@@ -150,18 +162,10 @@ TEST_P(BatchEigenLevels, ALaneDoesNotDependOnItsBatchMatesOrItsPosition) {
 TEST_P(BatchEigenLevels, FewerMatricesThanLanesGiveTheSameBits) {
   const int level = GetParam();
   const std::size_t n = 16;
-  std::mt19937_64 gen(13);
-  std::vector<Matrix> mats;
-  for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
+  const std::vector<Matrix> mats = random_batch(n, 13);
   const Solved all = solve(mats, n, level);
   for (std::size_t used : {1u, 2u, 3u, 4u, 5u}) {
-    Solved s;
-    s.a.assign(n * n * L, 0.0);
-    s.d.assign(n * L, 0.0);
-    s.e.assign(3 * n * L, 0.0);
-    for (std::size_t l = 0; l < used; ++l)
-      for (std::size_t r = 0; r < n; ++r)
-        for (std::size_t c = 0; c < n; ++c) s.a[(r * n + c) * L + l] = mats[l](r, c);
+    Solved s = lanes_of(mats, n, used);
     EXPECT_EQ(eskin::batch_symmetric_eigen(n, s.a.data(), s.d.data(), s.e.data(), level, used), 0u);
     for (std::size_t l = 0; l < used; ++l) {
       for (std::size_t i = 0; i < n * n; ++i)
@@ -174,9 +178,7 @@ TEST_P(BatchEigenLevels, FewerMatricesThanLanesGiveTheSameBits) {
 TEST_P(BatchEigenLevels, NonFiniteInputIsReportedPerLane) {
   const int level = GetParam();
   const std::size_t n = 6;
-  std::mt19937_64 gen(3);
-  std::vector<Matrix> mats;
-  for (std::size_t l = 0; l < L; ++l) mats.push_back(random_symmetric(n, gen));
+  std::vector<Matrix> mats = random_batch(n, 3);
   mats[2](1, 4) = mats[2](4, 1) = std::nan("");
   mats[5](0, 0) = INFINITY;
   const Solved s = solve(mats, n, level);
