@@ -8,12 +8,13 @@
 
 // The solver is written once for a GCC/Clang vector type V of W doubles (W lanes side by side)
 // and instantiated for the widest registers the CPU has: W = 8 (one AVX-512 register), 4 (AVX2:
-// the 8 lanes as two groups of 4) or 2 (SSE2 baseline: four groups); fewer matrices than
-// lanes take narrower groups. The memory layout is the
-// same for all (lane stride kEigenLanes). Run-time dispatch, as for the pairwise tile kernels:
-// function-level target attributes, no -m flag. A lane's arithmetic does not depend on the
-// other lanes of its group (a converged lane is frozen by masks), so grouping does not change
-// results; different instruction sets may round differently.
+// the 8 lanes as two groups of 4) or 2 (SSE2 baseline: four groups); fewer matrices than lanes
+// take narrower groups. The memory layout is the same for all (lane stride kEigenLanes).
+// Run-time dispatch, as for the pairwise tile kernels: function-level target attributes, no -m
+// flag. A lane's arithmetic does not depend on the other lanes of its group (a converged lane is
+// frozen by masks), and this file is compiled without FMA contraction (-ffp-contract=off, see
+// CMakeLists.txt): every lane operation is one correctly rounded IEEE operation, so the results
+// are the same bits whatever the grouping and the instruction set.
 
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic ignored "-Wpsabi"  // vector arguments of inlined helpers: no ABI crosses

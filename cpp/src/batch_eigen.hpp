@@ -10,9 +10,10 @@
 // mates or on its lane: the single-pattern path and the batch path give identical bits.
 //
 // Differences from the scalar EISPACK tql2: no search for a split point (every sweep runs from
-// the bottom of the matrix; an exactly zero subdiagonal entry gives an identity rotation) and a
-// lane stops iterating (its rotations become identities) as soon as its own subdiagonal entry
-// is negligible. Eigenvalues are not sorted; the caller sorts each lane.
+// the bottom of the matrix; an exactly zero subdiagonal entry gives an identity rotation), and
+// each lane deflates at its own index l: a sweep runs up to the smallest l of the lanes still
+// iterating, and a lane's rotations above its own l are identities. Eigenvalues are not sorted;
+// the caller sorts each lane.
 // No allocation, no exception.
 #pragma once
 

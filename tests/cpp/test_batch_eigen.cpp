@@ -175,6 +175,19 @@ TEST_P(BatchEigenLevels, FewerMatricesThanLanesGiveTheSameBits) {
   }
 }
 
+TEST(BatchEigen, EveryInstructionSetGivesTheSameBits) {
+  // no FMA contraction in the solver: each lane operation is one IEEE operation on every ISA
+  for (std::size_t n : {4u, 16u, 17u}) {
+    const std::vector<Matrix> mats = random_batch(n, unsigned(100 + n));
+    const Solved base = solve(mats, n, 0);
+    for (int level : {1, 2}) {
+      const Solved s = solve(mats, n, level);
+      EXPECT_EQ(s.a, base.a) << "n " << n << ", level " << level;
+      EXPECT_EQ(s.d, base.d) << "n " << n << ", level " << level;
+    }
+  }
+}
+
 TEST_P(BatchEigenLevels, NonFiniteInputIsReportedPerLane) {
   const int level = GetParam();
   const std::size_t n = 6;
