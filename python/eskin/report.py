@@ -186,6 +186,23 @@ def _f(x: float | None, nd: int = 1) -> str:
     return f"{x:.{nd}f}"
 
 
+def _binary_row(
+    summary: dict[str, Any], machine: str, selection: str, problem: str, D: int
+) -> dict[str, Any] | None:
+    """The summary row of one binary cell (machine, selection, problem, D), or None."""
+    return next(
+        (
+            x
+            for x in summary["binary"]
+            if x["machine"] == machine
+            and x["selection"] == selection
+            and x["problem"] == problem
+            and x["D"] == D
+        ),
+        None,
+    )
+
+
 def _binary_table(results: dict[str, Any], machine: str, problem: str) -> list[str]:
     cells = {
         (d["run"], int(d["D"])): d
@@ -259,17 +276,7 @@ def _summary_lines(results: dict[str, Any]) -> list[str]:
         for prob in results["problems"]:
             row = [MACHINE_NAME[m], prob]
             for D in p["Ds"]:
-                r = next(
-                    (
-                        x
-                        for x in s["binary"]
-                        if x["machine"] == m
-                        and x["problem"] == prob
-                        and x["D"] == D
-                        and x["selection"] == "md"
-                    ),
-                    None,
-                )
+                r = _binary_row(s, m, "md", prob, D)
                 row.append(f"{r['mean']:.1f} ± {r['sd']:.1f}" if r else "-")
             pms = [paper.paper_mean(m, prob, D) for D in paper.PAPER_DS]
             pms = [x for x in pms if x is not None]
@@ -453,28 +460,10 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
         L.append("| problem | D | vector SVM (CV) % | tensor-SVM (CV) % | tensor-SVM (MD) % |")
         L.append("|---|---|---|---|---|")
         for r in s["baseline"]:
-            t_cv = next(
-                (
-                    x["mean"]
-                    for x in s["binary"]
-                    if x["machine"] == "svm"
-                    and x["selection"] == "cv"
-                    and x["problem"] == r["problem"]
-                    and x["D"] == r["D"]
-                ),
-                None,
-            )
-            t_md = next(
-                (
-                    x["mean"]
-                    for x in s["binary"]
-                    if x["machine"] == "svm"
-                    and x["selection"] == "md"
-                    and x["problem"] == r["problem"]
-                    and x["D"] == r["D"]
-                ),
-                None,
-            )
+            cv = _binary_row(s, "svm", "cv", r["problem"], r["D"])
+            md = _binary_row(s, "svm", "md", r["problem"], r["D"])
+            t_cv = cv["mean"] if cv else None
+            t_md = md["mean"] if md else None
             L.append(
                 f"| {r['problem']} | {r['D']} | {r['mean']:.1f} ± {r['sd']:.1f} | "
                 f"{_f(t_cv)} | {_f(t_md)} |"
