@@ -1,9 +1,10 @@
 // Symmetric eigen-decomposition of kEigenLanes matrices at once (see batch_eigen.hpp).
 #include "batch_eigen.hpp"
 
+#include "tensor_kernel_tile.hpp"
+
+#include <algorithm>
 #include <cmath>
-#include <cstdlib>
-#include <cstring>
 #include <limits>
 
 // The solver is written once for a GCC/Clang vector type V of W doubles (W lanes side by side)
@@ -244,7 +245,7 @@ ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const dou
 
 // Implicit QL on the tridiagonal (d, e) of tred2, rotating the rows of `a` (row-major view of
 // tred2's column-major transformation). Returns the mask of failed lanes. rc, rs_: scratch of
-// n * L each (a sweep's rotations).
+// n * L each (a sweep's rotations). Lanes from `live` on are left alone.
 //
 // Each lane deflates at its own pace: lane w works on its own index l_w (EISPACK's l), and a
 // sweep runs from the bottom up to the smallest l_w of the lanes still iterating; above its own
@@ -252,7 +253,7 @@ ESKIN_INLINE void rotate_rows(std::size_t n, std::size_t l, double* a, const dou
 // the sweeps it would do alone (no waiting for slower lanes at every l).
 template <class V>
 ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, double* rc,
-                           double* rs_) noexcept {
+                           double* rs_, std::size_t live) noexcept {
   constexpr std::size_t W = width<V>;
   using M = mask_t<V>;
   const V one = splat<V>(1.0), zero = splat<V>(0.0), two = splat<V>(2.0);
@@ -270,7 +271,7 @@ ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, doubl
     f[w] = 0.0;
     tst1[w] = std::fabs(d[w]) + std::fabs(e[w]);
     iters[w] = 0;
-    done[w] = false;
+    done[w] = w >= live;  // lanes past the live ones are never iterated
   }
   for (;;) {
     // lanes whose e[l] is negligible move on (d[l] += f, as EISPACK does when it leaves l)
@@ -378,28 +379,37 @@ ESKIN_INLINE unsigned tql2(std::size_t n, double* a, double* d, double* e, doubl
   return failed;
 }
 
-// One group of width<V> lanes starting at lane `o`; returns its failure bits shifted to o.
+// One group of width<V> lanes starting at lane `o`, of which the first `live` hold matrices
+// (the others hold anything and are never iterated); returns the live lanes' failure bits
+// shifted to o.
 template <class V>
-ESKIN_INLINE unsigned solve_group(std::size_t n, double* a, double* d, double* e,
-                                  std::size_t o) noexcept {
+ESKIN_INLINE unsigned solve_group(std::size_t n, double* a, double* d, double* e, std::size_t o,
+                                  std::size_t live) noexcept {
   a += o;
   d += o;
   e += o;
   tred2<V>(n, a, d, e);
-  unsigned failed = tql2<V>(n, a, d, e, e + n * L, e + 2 * n * L);
+  unsigned failed = tql2<V>(n, a, d, e, e + n * L, e + 2 * n * L, live);
   // a NaN never looks converged nor failing to converge: check the results themselves
   mask_t<V> ok = finite(ld<V>(d));
   for (std::size_t j = 1; j < n; ++j) ok &= finite(ld<V>(d + j * L));
   for (std::size_t i = 0; i < n * n; ++i) ok &= finite(ld<V>(a + i * L));
-  failed |= bits(~ok) & ((1u << width<V>) - 1u);
-  return failed << o;
+  failed |= bits(~ok);
+  return (failed & ((1u << live) - 1u)) << o;
+}
+
+// The group of lanes [o, o + W) with the lanes from `used` on left out.
+template <class V>
+ESKIN_INLINE unsigned solve_group_of(std::size_t n, double* a, double* d, double* e,
+                                     std::size_t o, std::size_t used) noexcept {
+  return solve_group<V>(n, a, d, e, o, std::min(width<V>, used - o));
 }
 
 // `used`: lanes 0..used-1 hold matrices; the groups past them are skipped (a single pattern
 // costs one narrow group, not eight lanes' work).
 unsigned solve_sse2(std::size_t n, double* a, double* d, double* e, std::size_t used) noexcept {
   unsigned f = 0;
-  for (std::size_t o = 0; o < used; o += 2) f |= solve_group<v2d>(n, a, d, e, o);
+  for (std::size_t o = 0; o < used; o += 2) f |= solve_group_of<v2d>(n, a, d, e, o, used);
   return f;
 }
 
@@ -408,34 +418,20 @@ unsigned solve_sse2(std::size_t n, double* a, double* d, double* e, std::size_t 
 __attribute__((target("arch=x86-64-v3"))) unsigned solve_avx2(std::size_t n, double* a,
                                                               double* d, double* e,
                                                               std::size_t used) noexcept {
-  if (used <= 2) return solve_group<v2d>(n, a, d, e, 0);
-  unsigned f = solve_group<v4d>(n, a, d, e, 0);
-  if (used > 4) f |= solve_group<v4d>(n, a, d, e, 4);
+  if (used <= 2) return solve_group_of<v2d>(n, a, d, e, 0, used);
+  unsigned f = solve_group_of<v4d>(n, a, d, e, 0, used);
+  if (used > 4) f |= solve_group_of<v4d>(n, a, d, e, 4, used);
   return f;
 }
 
 __attribute__((target("arch=x86-64-v4"))) unsigned solve_avx512(std::size_t n, double* a,
                                                                 double* d, double* e,
                                                                 std::size_t used) noexcept {
-  if (used <= 2) return solve_group<v2d>(n, a, d, e, 0);
-  if (used <= 4) return solve_group<v4d>(n, a, d, e, 0);
-  return solve_group<v8d>(n, a, d, e, 0);
+  if (used <= 2) return solve_group_of<v2d>(n, a, d, e, 0, used);
+  if (used <= 4) return solve_group_of<v4d>(n, a, d, e, 0, used);
+  return solve_group_of<v8d>(n, a, d, e, 0, used);
 }
 
-// 2 AVX-512, 1 AVX2+FMA, 0 baseline: what the CPU has, capped by ESKIN_KERNEL_ISA
-int best_level() noexcept {
-  __builtin_cpu_init();
-  int cpu = 0;
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) cpu = 1;
-  if (cpu == 1 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
-      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw"))
-    cpu = 2;
-  if (const char* env = std::getenv("ESKIN_KERNEL_ISA")) {
-    if (std::strcmp(env, "generic") == 0) cpu = 0;
-    if (std::strcmp(env, "avx2") == 0 && cpu > 1) cpu = 1;
-  }
-  return cpu;
-}
 #endif
 
 }  // namespace
@@ -445,7 +441,7 @@ unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e, i
   if (n == 0 || used == 0) return 0;
   if (used > L) used = L;
 #ifdef ESKIN_EIGEN_DISPATCH
-  static const int best = best_level();
+  const int best = isa_level();
   if (level < 0 || level > best) level = best;
   if (level == 2) return solve_avx512(n, a, d, e, used);
   if (level == 1) return solve_avx2(n, a, d, e, used);

@@ -25,15 +25,16 @@ namespace eskin {
 constexpr std::size_t kEigenLanes = 8;
 
 /// Lane-interleaved layout: entry (r, c) of lane l's n x n matrix at a[(r * n + c) * kEigenLanes
-/// + l]. On entry `a` holds kEigenLanes symmetric matrices (unused lanes: any finite symmetric
-/// matrix, e.g. zeros). On exit row j of lane l's matrix (entries (j, 0..n-1)) is the unit
+/// + l]. On entry lanes 0..used-1 of `a` hold symmetric matrices; the other lanes may hold
+/// anything (they are not solved, and cost nothing when they are NaN). On exit row j of lane l's matrix (entries (j, 0..n-1)) is the unit
 /// eigenvector of eigenvalue d[j * kEigenLanes + l]; eigenvalues are in no particular order.
 /// `e` is scratch of 3 * n * kEigenLanes doubles. Returns a bit mask of the lanes whose QL
 /// iteration did not converge or met a non-finite value (0 on success).
 /// `level` picks the instruction set (2 AVX-512, 1 AVX2+FMA, 0 baseline), capped by what the CPU
-/// has and by ESKIN_KERNEL_ISA=generic|avx2 (read once); -1: the best one. Only lanes
-/// 0..used-1 are solved (the others are left as they are and reported as not failed): a single
-/// matrix takes a narrow lane group. A lane's result does not depend on `used` either.
+/// has and by ESKIN_KERNEL_ISA=generic|avx2 (isa_level(), tensor_kernel_tile.hpp); -1: the best
+/// one. Only lanes 0..used-1 are solved (the others are reported as not failed; their contents
+/// on exit are unspecified): a single matrix takes a narrow lane group. A lane's result does not
+/// depend on `used` either.
 unsigned batch_symmetric_eigen(std::size_t n, double* a, double* d, double* e, int level = -1,
                                std::size_t used = kEigenLanes) noexcept;
 

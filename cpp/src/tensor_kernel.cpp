@@ -527,14 +527,12 @@ ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::si
     }
   for (std::size_t z = 0; z < nz; ++z) {
     const std::size_t q = layout_.q(z);
-    // lane-interleaved Gram matrices (dead lanes: zeros, which the solver handles)
+    // lane-interleaved Gram matrices of the batch (patterns that skip the solver: zeros; the
+    // lanes past `count` are not solved)
     double* g = gram_.data();
     double* lanes = lanes_.data();
-    // lanes past `count` in the solver's last lane group (groups of 2, 4 or 8 lanes) get zeros
-    std::size_t span = 2;
-    while (span < count) span *= 2;
-    for (std::size_t b = 0; b < span; ++b) {
-      if (b < count && live[b]) {
+    for (std::size_t b = 0; b < count; ++b) {
+      if (live[b]) {
         gram(z, scaled_.data() + b * size, g);
         for (std::size_t i = 0; i < q * q; ++i) lanes[i * kEigenLanes + b] = g[i];
       } else {

@@ -218,9 +218,12 @@ __attribute__((target("avx512f"))) double tile_sum_avx512(const double* a, const
 }
 #undef ESKIN_TILE512_BODY
 
+// the x86-64-v4 set (what the eigen-solver's AVX-512 variant is compiled for; the tiles need
+// only AVX-512F of it)
 bool cpu_has_avx512() noexcept {
   __builtin_cpu_init();
-  return __builtin_cpu_supports("avx512f");
+  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+         __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw");
 }
 
 bool cpu_has_avx2_fma() noexcept {
@@ -241,7 +244,8 @@ namespace {
   return 2;
 }
 
-// 0 generic, 1 avx2+fma, 2 avx512f: what this CPU can run, capped by the environment.
+}  // namespace
+
 int isa_level() noexcept {
 #ifdef ESKIN_HAVE_X86_DISPATCH
   static const int cpu = cpu_has_avx512() && cpu_has_avx2_fma() ? 2 : (cpu_has_avx2_fma() ? 1 : 0);
@@ -251,7 +255,6 @@ int isa_level() noexcept {
   return 0;
 #endif
 }
-}  // namespace
 
 TileFn select_tile_kernel() noexcept {
 #ifdef ESKIN_HAVE_X86_DISPATCH

@@ -25,6 +25,11 @@ using TileSumFn = double (*)(const double* a, const double* b, std::size_t k);
 void tile_generic(const double* a, const double* b, std::size_t k, double* c) noexcept;
 void tile_dot_generic(const double* a, const double* b, std::size_t k, double* c) noexcept;
 
+/// Instruction set the kernel's run-time dispatch may use: 2 AVX-512 (the x86-64-v4 set),
+/// 1 AVX2+FMA, 0 baseline; what this CPU has, capped by ESKIN_KERNEL_ISA=generic|avx2 (read at
+/// each call). Shared by the tile micro-kernels and the eigen-solver.
+int isa_level() noexcept;
+
 /// Best version for this CPU (x86 with GCC/Clang): AVX-512F, else AVX2+FMA, else generic.
 /// The environment variable ESKIN_KERNEL_ISA=generic|avx2 caps the choice (read at each call).
 TileFn select_tile_kernel() noexcept;
