@@ -46,10 +46,14 @@ double tile_sum_generic(const double* a, const double* b, std::size_t k) noexcep
 #ifdef ESKIN_HAVE_X86_DISPATCH
 namespace {
 
-// Four rows (r0..r0+3) of the tile over k in [k0, k1), added into c.
-__attribute__((target("avx2,fma"))) inline void rows4_avx2(const double* a, const double* b,
-                                                           std::size_t k0, std::size_t k1,
-                                                           double* c) {
+// Four rows (r0..r0+3) of the tile, A^T B over k in [k0, k1): eight ymm accumulators, c[2 r + h]
+// holding columns 4h..4h+3 of row r.
+struct Rows4 {
+  __m256d c[8];
+};
+
+__attribute__((target("avx2,fma"))) inline Rows4 rows4_dot_avx2(const double* a, const double* b,
+                                                                std::size_t k0, std::size_t k1) {
   __m256d c00 = _mm256_setzero_pd(), c01 = _mm256_setzero_pd();
   __m256d c10 = _mm256_setzero_pd(), c11 = _mm256_setzero_pd();
   __m256d c20 = _mm256_setzero_pd(), c21 = _mm256_setzero_pd();
@@ -71,14 +75,16 @@ __attribute__((target("avx2,fma"))) inline void rows4_avx2(const double* a, cons
     c30 = _mm256_fmadd_pd(x, b0, c30);
     c31 = _mm256_fmadd_pd(x, b1, c31);
   }
-  _mm256_storeu_pd(c + 0, _mm256_add_pd(_mm256_loadu_pd(c + 0), c00));
-  _mm256_storeu_pd(c + 4, _mm256_add_pd(_mm256_loadu_pd(c + 4), c01));
-  _mm256_storeu_pd(c + 8, _mm256_add_pd(_mm256_loadu_pd(c + 8), c10));
-  _mm256_storeu_pd(c + 12, _mm256_add_pd(_mm256_loadu_pd(c + 12), c11));
-  _mm256_storeu_pd(c + 16, _mm256_add_pd(_mm256_loadu_pd(c + 16), c20));
-  _mm256_storeu_pd(c + 20, _mm256_add_pd(_mm256_loadu_pd(c + 20), c21));
-  _mm256_storeu_pd(c + 24, _mm256_add_pd(_mm256_loadu_pd(c + 24), c30));
-  _mm256_storeu_pd(c + 28, _mm256_add_pd(_mm256_loadu_pd(c + 28), c31));
+  return Rows4{{c00, c01, c10, c11, c20, c21, c30, c31}};
+}
+
+// Four rows of the tile over k in [k0, k1), added into c (row-major, 8 per row).
+__attribute__((target("avx2,fma"))) inline void rows4_avx2(const double* a, const double* b,
+                                                           std::size_t k0, std::size_t k1,
+                                                           double* c) {
+  const Rows4 r = rows4_dot_avx2(a, b, k0, k1);
+  for (int i = 0; i < 8; ++i)
+    _mm256_storeu_pd(c + 4 * i, _mm256_add_pd(_mm256_loadu_pd(c + 4 * i), r.c[i]));
 }
 
 __attribute__((target("avx2,fma"))) void tile_dot_avx2(const double* a, const double* b,
@@ -106,34 +112,14 @@ __attribute__((target("avx2,fma"))) void tile_avx2(const double* a, const double
 __attribute__((target("avx2,fma"))) inline __m256d rows4_sumsq_avx2(const double* a,
                                                                     const double* b,
                                                                     std::size_t k) {
-  __m256d c00 = _mm256_setzero_pd(), c01 = _mm256_setzero_pd();
-  __m256d c10 = _mm256_setzero_pd(), c11 = _mm256_setzero_pd();
-  __m256d c20 = _mm256_setzero_pd(), c21 = _mm256_setzero_pd();
-  __m256d c30 = _mm256_setzero_pd(), c31 = _mm256_setzero_pd();
-  for (std::size_t kk = 0; kk < k; ++kk) {
-    const __m256d b0 = _mm256_loadu_pd(b + kk * 8);
-    const __m256d b1 = _mm256_loadu_pd(b + kk * 8 + 4);
-    const double* ak = a + kk * 8;
-    __m256d x = _mm256_broadcast_sd(ak + 0);
-    c00 = _mm256_fmadd_pd(x, b0, c00);
-    c01 = _mm256_fmadd_pd(x, b1, c01);
-    x = _mm256_broadcast_sd(ak + 1);
-    c10 = _mm256_fmadd_pd(x, b0, c10);
-    c11 = _mm256_fmadd_pd(x, b1, c11);
-    x = _mm256_broadcast_sd(ak + 2);
-    c20 = _mm256_fmadd_pd(x, b0, c20);
-    c21 = _mm256_fmadd_pd(x, b1, c21);
-    x = _mm256_broadcast_sd(ak + 3);
-    c30 = _mm256_fmadd_pd(x, b0, c30);
-    c31 = _mm256_fmadd_pd(x, b1, c31);
-  }
-  __m256d s0 = _mm256_mul_pd(c00, c00), s1 = _mm256_mul_pd(c01, c01);
-  s0 = _mm256_fmadd_pd(c10, c10, s0);
-  s1 = _mm256_fmadd_pd(c11, c11, s1);
-  s0 = _mm256_fmadd_pd(c20, c20, s0);
-  s1 = _mm256_fmadd_pd(c21, c21, s1);
-  s0 = _mm256_fmadd_pd(c30, c30, s0);
-  s1 = _mm256_fmadd_pd(c31, c31, s1);
+  const Rows4 r = rows4_dot_avx2(a, b, 0, k);
+  __m256d s0 = _mm256_mul_pd(r.c[0], r.c[0]), s1 = _mm256_mul_pd(r.c[1], r.c[1]);
+  s0 = _mm256_fmadd_pd(r.c[2], r.c[2], s0);
+  s1 = _mm256_fmadd_pd(r.c[3], r.c[3], s1);
+  s0 = _mm256_fmadd_pd(r.c[4], r.c[4], s0);
+  s1 = _mm256_fmadd_pd(r.c[5], r.c[5], s1);
+  s0 = _mm256_fmadd_pd(r.c[6], r.c[6], s0);
+  s1 = _mm256_fmadd_pd(r.c[7], r.c[7], s1);
   return _mm256_add_pd(s0, s1);
 }
 
