@@ -390,7 +390,8 @@ ESKIN_INLINE unsigned solve_group(std::size_t n, double* a, double* d, double* e
   e += o;
   tred2<V>(n, a, d, e);
   unsigned failed = tql2<V>(n, a, d, e, e + n * L, e + 2 * n * L, live);
-  // a NaN never looks converged nor failing to converge: check the results themselves
+  // a non-finite value the QL iteration never meets (n = 1, or an infinity that makes every
+  // off-diagonal entry look negligible) must still fail its lane: check the results themselves
   mask_t<V> ok = finite(ld<V>(d));
   for (std::size_t j = 1; j < n; ++j) ok &= finite(ld<V>(d + j * L));
   for (std::size_t i = 0; i < n * n; ++i) ok &= finite(ld<V>(a + i * L));

@@ -199,6 +199,13 @@ TEST_P(BatchEigenLevels, NonFiniteInputIsReportedPerLane) {
   const Solved s = solve(mats, n, level);
   EXPECT_EQ(s.failed, (1u << 2) | (1u << 5));
   for (std::size_t l : {0u, 1u, 3u, 4u, 6u, 7u}) expect_decomposition(mats[l], s, n, l);
+  // 1 x 1: no QL iteration at all, only the check of the results can see them
+  std::vector<Matrix> ones = random_batch(1, 4);
+  ones[1](0, 0) = std::nan("");
+  ones[6](0, 0) = -INFINITY;
+  const Solved s1 = solve(ones, 1, level);
+  EXPECT_EQ(s1.failed, (1u << 1) | (1u << 6));
+  EXPECT_EQ(s1.d[0], ones[0](0, 0));
 }
 
 INSTANTIATE_TEST_SUITE_P(Isa, BatchEigenLevels, ::testing::Values(0, 1, 2));
