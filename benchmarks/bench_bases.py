@@ -68,10 +68,14 @@ def main() -> None:
         for i in range(n_single):
             ws.compute(X[i])
 
-    print(f"bases of {args.n} random 4x4x{args.D} patterns, alpha={tuple(ALPHA)}, one thread, "
-          f"load average {os.getloadavg()[0]:.1f}; fastest of {args.repeats} runs")
-    print("| ISA | eskin batch (us/pattern) | numpy batched SVD | ratio | eskin single "
-          "(us/pattern) | numpy SVD of one pattern | ratio |")
+    print(
+        f"bases of {args.n} random 4x4x{args.D} patterns, alpha={tuple(ALPHA)}, one thread, "
+        f"load average {os.getloadavg()[0]:.1f}; fastest of {args.repeats} runs"
+    )
+    print(
+        "| ISA | eskin batch (us/pattern) | numpy batched SVD | ratio | eskin single "
+        "(us/pattern) | numpy SVD of one pattern | ratio |"
+    )
     print("|---|---|---|---|---|---|---|")
     saved = os.environ.get("ESKIN_KERNEL_ISA")
     with threadpool_limits(limits=1):
@@ -87,9 +91,11 @@ def main() -> None:
                 tn = min(tn, best(numpy_batch, 1))
                 ts = min(ts, best(eskin_single, 1))
                 tns = min(tns, best(numpy_single, 1))
-            print(f"| {isa} ({name}) | {tb / args.n * 1e6:.1f} | {tn / args.n * 1e6:.1f} | "
-                  f"{tn / tb:.1f}x | {ts / n_single * 1e6:.1f} | {tns / n_single * 1e6:.1f} | "
-                  f"{tns / ts:.1f}x |")
+            print(
+                f"| {isa} ({name}) | {tb / args.n * 1e6:.1f} | {tn / args.n * 1e6:.1f} | "
+                f"{tn / tb:.1f}x | {ts / n_single * 1e6:.1f} | {tns / n_single * 1e6:.1f} | "
+                f"{tns / ts:.1f}x |"
+            )
         if saved is None:
             os.environ.pop("ESKIN_KERNEL_ISA", None)
         else:
@@ -98,9 +104,11 @@ def main() -> None:
         t_bases = best(lambda: _core.compute_pattern_bases(X, ALPHA, 1), args.repeats)
         t_pairs = best(lambda: _core.tensor_kernel(pb, None, [1.0], 1), args.repeats)
     print()
-    print(f"Gram matrix K(X, X), one thread ({_core.tensor_kernel_isa()}): bases "
-          f"{t_bases * 1e3:.2f} ms + pairwise part {t_pairs * 1e3:.2f} ms = "
-          f"{(t_bases + t_pairs) * 1e3:.2f} ms")
+    print(
+        f"Gram matrix K(X, X), one thread ({_core.tensor_kernel_isa()}): bases "
+        f"{t_bases * 1e3:.2f} ms + pairwise part {t_pairs * 1e3:.2f} ms = "
+        f"{(t_bases + t_pairs) * 1e3:.2f} ms"
+    )
 
 
 if __name__ == "__main__":
