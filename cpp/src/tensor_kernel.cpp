@@ -864,8 +864,8 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
     // one panel per group, column c = pattern g * 8 + c: its packed projection matrix
     const std::size_t n = L.cols(z), alpha = L.alpha(z);
     const double r2 = std::sqrt(2.0);
-    std::vector<double> prow_buf(n * n);
-    double* prow = prow_buf.data();
+    std::vector<double> proj_buf(n * n);  // one pattern's P = V V^T
+    double* proj = proj_buf.data();
     for (std::size_t g = g0; g < g1; ++g) {
       double* dst = mp.data + g * mp.k * kTileWidth;
       const std::size_t used = mp.group_count(g);
@@ -875,10 +875,10 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
           continue;
         }
         const double* v = pb.bases.data() + (g * kTileWidth + c) * bs + off;  // n x alpha, col-major
-        projection_matrix(v, n, alpha, prow);
+        projection_matrix(v, n, alpha, proj);
         std::size_t kk = 0;
         for (std::size_t i = 0; i < n; ++i) {
-          const double* row = prow + i * n;
+          const double* row = proj + i * n;
           dst[kk++ * kTileWidth + c] = row[i];
           for (std::size_t j = i + 1; j < n; ++j) dst[kk++ * kTileWidth + c] = r2 * row[j];
         }
