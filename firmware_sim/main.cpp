@@ -62,7 +62,8 @@ little-endian int16 array (n_samples, rows, cols) / (n_samples, taxels) with --g
 
 options:
   --link PATH          also publish the port as a symlink PATH (replaced if it is a symlink)
-  --speed X            replay speed (1 = real time, 0 = unpaced: as fast as the host reads)
+  --speed X            replay speed (1 = real time, 0 = unpaced: as fast as the host reads,
+                       waiting while no host has the port open)
   --rate HZ            sample rate (default: the file's, else 3000)
   --samples-per-frame N  samples per DATA frame (default 10)
   --tick N             wake up every N samples (default: 1 with --model, else samples-per-frame)
@@ -80,7 +81,8 @@ options:
   --truncate-rate P    fault injection: cut each frame short with probability P
   --seed N             fault-injection seed (default 1)
   --realtime           ask for SCHED_FIFO scheduling (steadier pacing on a busy machine; the
-                       simulator sleeps between samples, so it does not hog a core)
+                       simulator sleeps between samples and while it waits for a host or for
+                       START, so it does not hog a core)
   --quiet              no progress on stderr
 
 On exit it prints "STATS {json}" on stdout (pacing, drops, decisions, latencies).
@@ -233,7 +235,8 @@ class Simulator {
     if (streaming_) start_stream(false);
     std::int64_t finished_at = 0;
     while (!g_stop) {
-      if (streaming_ && !finished_) {
+      // Unpaced (--speed 0), the replay runs as fast as the host reads: with no host, it waits.
+      if (streaming_ && !finished_ && (o_.speed > 0 || link_.host_connected())) {
         step();
         if (finished_) {
           finished_at = now_ns();
@@ -301,7 +304,9 @@ class Simulator {
       } else {
         finished_ = true;
 #if ESKIN_FWSIM_HAS_MODEL
-        if (stream_ && stream_->flush() == ClassifyStatus::kDecision) send_decision(now_ns());
+        // The replay ended inside a touch: decide on it now. Its decided sample is the last one,
+        // so the latency runs from that sample's acquisition and includes this classification.
+        if (stream_ && stream_->flush() == ClassifyStatus::kDecision) send_decision(acquired);
 #endif
       }
     }

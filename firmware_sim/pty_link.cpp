@@ -178,6 +178,14 @@ bool PtyLink::flush_tx() {
 }
 
 void PtyLink::wait_io(int timeout_ms, bool want_output) {
+  if (!host_connected_) {
+    // No host: the master reports a hang-up (POLLHUP) on every poll, so poll would return at
+    // once and the caller would spin. Sleep instead; a host that opens the port is seen at the
+    // next update_host().
+    const timespec nap{timeout_ms / 1000, static_cast<long>(timeout_ms % 1000) * 1000000L};
+    nanosleep(&nap, nullptr);
+    return;
+  }
   pollfd p{port_.fd(), static_cast<short>(POLLIN | (want_output ? POLLOUT : 0)), 0};
   ::poll(&p, 1, timeout_ms);
 }

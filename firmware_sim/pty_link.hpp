@@ -66,6 +66,7 @@ class PtyLink {
   std::size_t queued() const { return size_; }
   void clear_tx() { begin_ = size_ = 0; }
   /// Waits (poll) until the pty can take more output, input arrives, or timeout_ms passes.
+  /// While no host is connected it sleeps timeout_ms (a hung-up pty would wake poll at once).
   void wait_io(int timeout_ms, bool want_output);
   /// Waits (poll) until the pty can take more output, or timeout_ms passes.
   void wait_writable(int timeout_ms);

@@ -349,19 +349,20 @@ def test_npy_input(sim, tmp_path):
     np.testing.assert_array_equal(got.reshape(-1, 16), arr)
 
 
-def small_model(path: Path) -> Path:
+def small_model(path: Path, D: int = 8, n_support: int = 5) -> Path:
     """A 3-class one-vs-all model (random support tensors, real bases) in a .eskin file."""
     from eskin.export import MachineSpec, ModelSpec, model_to_bytes
 
     rng = np.random.default_rng(0)
-    pool = rng.standard_normal((9, 4, 4, 8))
+    pool = rng.standard_normal((2 * n_support - 1, 4, 4, D))
     machines = [
         MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0),
-                    pool[np.sort(rng.choice(9, 5, replace=False))], rng.standard_normal(5))
+                    pool[np.sort(rng.choice(len(pool), n_support, replace=False))],
+                    rng.standard_normal(n_support))
         for k in range(3)
     ]
     spec = ModelSpec(class_names=["brush", "finger", "washer"], rule="one_vs_all",
-                     machines=machines, D=8, grid_shape=(4, 4))
+                     machines=machines, D=D, grid_shape=(4, 4))
     path.write_bytes(model_to_bytes(spec, "float64"))
     return path
 
@@ -391,3 +392,61 @@ def test_on_board_decisions_equal_offline_decisions(sim, replay, tmp_path):
         assert d.decided_sample == e["sample"] - 1
         np.testing.assert_allclose(d.values, e["values"], rtol=0, atol=1e-12)
     assert check_samples(frames, rf.samples) == rf.n_samples
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a running process so far (utime, stime of /proc/<pid>/stat)."""
+    after_name = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(after_name[11]) + int(after_name[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_no_host_means_no_busy_waiting(sim, replay):
+    """With nobody on the pty (a hung-up master wakes poll at once), the simulator sleeps: waiting
+    for START, replaying paced, or unpaced (which waits for a host), each < 5 % of a core."""
+    waiting = sim(replay, "--wait-start")
+    paced = sim(replay, "--loop")
+    unpaced = sim(replay, "--speed", "0", "--loop")
+    procs = {"--wait-start": waiting.proc, "paced --loop": paced.proc, "--speed 0 --loop": unpaced.proc}
+    time.sleep(0.3)  # past start-up
+    before = {k: cpu_seconds(p.pid) for k, p in procs.items()}
+    t0 = time.monotonic()
+    time.sleep(5.0)
+    elapsed = time.monotonic() - t0
+    share = {k: (cpu_seconds(p.pid) - before[k]) / elapsed for k, p in procs.items()}
+    assert all(p.poll() is None for p in procs.values())
+    assert max(share.values()) < 0.05, share
+    # the unpaced replay waited for a host instead of running through (and dropping) the samples
+    with SerialPort(unpaced.path) as port:
+        dec = FrameDecoder()
+        frames: list = []
+        end = time.monotonic() + 10
+        while not any(isinstance(f, DataFrame) for f in frames) and time.monotonic() < end:
+            frames += dec.feed(port.read(65536, timeout=0.2))
+    first = next(f for f in frames if isinstance(f, DataFrame))
+    assert first.first_sample == 0
+
+
+def test_forced_end_of_replay_decision_counts_its_classification_time(sim, tmp_path):
+    """A replay that ends inside a touch gets its decision when the replay ends; its latency_us
+    runs from the last sample's acquisition, so it includes that classification."""
+    rng = np.random.default_rng(5)
+    quiet = rng.normal(0, 30, size=(900, 16))
+    loud = rng.normal(0, 3000, size=(600, 16))
+    arr = np.clip(np.concatenate([quiet, loud]), -32768, 32767).astype("<i2")
+    np.save(tmp_path / "ends_in_a_touch.npy", arr)
+    model = small_model(tmp_path / "m.eskin", D=100, n_support=40)
+    s = sim(tmp_path / "ends_in_a_touch.npy", "--grid", "4x4", "--speed", "0", "--wait-start",
+            "--model", model)
+    with SerialPort(s.path) as port:
+        dec = FrameDecoder()
+        port.write(START)
+        frames = read_until_closed(port, dec)
+    s.stats()
+    decisions = [f for f in frames if isinstance(f, DecisionFrame)]
+    assert len(decisions) == 1
+    d = decisions[0]
+    assert d.decided_sample == len(arr) - 1 and d.offset_sample == len(arr)
+    # classifying a 4x4x100 touch against up to 79 support tensors takes well over 20 us; a latency
+    # measured from after the classification would be 0-2 us
+    assert d.latency_us >= 20
+    assert d.timestamp_us >= d.latency_us
