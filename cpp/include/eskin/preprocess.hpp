@@ -1,6 +1,6 @@
 // Preprocessing of Section 5.1 of Gastaldo et al. (Sensors 2014): find the touch window of a
-// recording with an energy detector (NOTES.md point 19), then shrink its time axis to D samples
-// with Algorithm 2 (point 18) or an evenly spaced alternative.
+// recording with an energy detector (docs/paper-readings.md, R19), then shrink its time axis to D
+// samples with Algorithm 2 or an evenly spaced alternative (R18).
 //
 // Layout conventions
 // - A recording has n_taxels = rows*cols taxels; the batch functions take it taxel-major, as
