@@ -370,15 +370,72 @@ def _kkm_single_moves(K, diag, labels, n_clusters, max_moves):
     return labels
 
 
-def kernel_kmeans(K, n_clusters=2, n_init=10, max_iter=100, random_state=None):
+def _kkm_random_labels(n, n_clusters, rng):
+    """Every point to a uniformly random cluster (each cluster keeps at least one point)."""
+    labels = rng.integers(n_clusters, size=n)
+    labels[rng.permutation(n)[:n_clusters]] = np.arange(n_clusters)
+    return labels
+
+
+def _kkm_balanced(K, diag, rng, max_iter):
+    """Size-constrained 2-means: halves of floor(n/2) and ceil(n/2) points.
+
+    Starts from a random balanced split; each step computes both centroid distances and gives
+    cluster 0 the floor(n/2) points with the smallest ``d(x, m_0) - d(x, m_1)`` (the optimal
+    assignment for fixed centroids under the size constraint; stable sort, so deterministic),
+    until no label changes. The inertia never increases, so it stops at a fixed point.
+    """
+    n = K.shape[0]
+    half = n // 2
+    labels = np.ones(n, dtype=np.intp)
+    labels[rng.permutation(n)[:half]] = 0
+    for _ in range(int(max_iter)):
+        dist = _kkm_distances(K, diag, labels, 2)
+        order = np.argsort(dist[:, 0] - dist[:, 1], kind="stable")
+        new = np.ones(n, dtype=np.intp)
+        new[order[:half]] = 0
+        if np.array_equal(new, labels):
+            break
+        labels = new
+    return labels
+
+
+#: The kernel k-means readings (NOTES 17 leaves the seeding and the local search open).
+KMEANS_METHODS = ("kmeans++", "lloyd", "lloyd-hartigan", "balanced")
+
+
+def _kkm_restart(K, diag, n_clusters, max_iter, rng, method):
+    n = K.shape[0]
+    if method == "balanced":
+        return _kkm_balanced(K, diag, rng, max_iter), 0
+    if method == "kmeans++":
+        labels = _kkm_plus_plus(K, diag, n_clusters, rng)
+    else:
+        labels = _kkm_random_labels(n, n_clusters, rng)
+    labels, n_iter = _kkm_lloyd(K, diag, labels, n_clusters, max_iter)
+    if method in ("kmeans++", "lloyd-hartigan"):
+        labels = _kkm_single_moves(K, diag, labels, n_clusters, max_moves=n)
+    return labels, n_iter
+
+
+def kernel_kmeans(
+    K, n_clusters=2, n_init=10, max_iter=100, random_state=None, method="kmeans++"
+):
     """Kernel k-means on a Gram matrix: the exact feature-space algorithm, seeded restarts.
 
-    Each restart seeds with k-means++ in feature space, runs Lloyd iterations (assignment to
-    the nearest centroid; distances include the centroid-norm term) until no label changes,
-    then single-point (Hartigan) moves while one lowers the inertia, which escapes the poor
-    fixed points Lloyd can stop at. An emptied cluster takes the point farthest from its own
-    centroid. The restart with the lowest inertia (sum of squared feature-space distances to
-    the own centroid) wins; ties keep the earlier restart.
+    ``method`` says how each restart runs:
+
+    - "kmeans++": k-means++ seeding in feature space, Lloyd iterations (assignment to the
+      nearest centroid; distances include the centroid-norm term) until no label changes, then
+      single-point (Hartigan) moves while one lowers the inertia, which escapes the poor fixed
+      points Lloyd can stop at. An emptied cluster takes the point farthest from its centroid.
+    - "lloyd": plain Lloyd iterations from uniformly random labels.
+    - "lloyd-hartigan": random labels, Lloyd, then the Hartigan moves.
+    - "balanced": two clusters of floor(n/2) and ceil(n/2) points (size-constrained Lloyd from a
+      random balanced split, see :func:`_kkm_balanced`); ``n_clusters`` must be 2.
+
+    The restart with the lowest inertia (sum of squared feature-space distances to the own
+    centroid) wins; ties keep the earlier restart.
 
     Returns ``(labels, inertia, n_iter)`` (n_iter: Lloyd iterations of the winning restart).
     """
@@ -388,13 +445,15 @@ def kernel_kmeans(K, n_clusters=2, n_init=10, max_iter=100, random_state=None):
         raise ValueError(f"K must be a square Gram matrix, got shape {K.shape}")
     if not 1 <= n_clusters <= n:
         raise ValueError(f"n_clusters={n_clusters} must be between 1 and n_samples={n}")
+    if method not in KMEANS_METHODS:
+        raise ValueError(f"method must be one of {KMEANS_METHODS}, got {method!r}")
+    if method == "balanced" and n_clusters != 2:
+        raise ValueError(f"method='balanced' makes 2 clusters, got n_clusters={n_clusters}")
     rng = np.random.default_rng(random_state)
     diag = np.diag(K).copy()
     best = (None, np.inf, 0)
     for _ in range(int(n_init)):
-        labels = _kkm_plus_plus(K, diag, n_clusters, rng)
-        labels, n_iter = _kkm_lloyd(K, diag, labels, n_clusters, max_iter)
-        labels = _kkm_single_moves(K, diag, labels, n_clusters, max_moves=n)
+        labels, n_iter = _kkm_restart(K, diag, n_clusters, max_iter, rng, method)
         dist = _kkm_distances(K, diag, labels, n_clusters)
         inertia = float(np.maximum(dist[np.arange(n), labels], 0.0).sum())
         if best[0] is None or inertia < best[1] - 1e-12 * max(1.0, abs(best[1])):
@@ -410,9 +469,13 @@ class KernelKMeans(ClusterMixin, BaseEstimator):
     n_clusters : int
         Number of clusters (2 in Algorithm 1).
     n_init : int
-        Restarts (k-means++ seeding in feature space); the lowest inertia wins.
+        Restarts; the lowest inertia wins.
     max_iter : int
         Lloyd iterations per restart.
+    method : "kmeans++", "lloyd", "lloyd-hartigan" or "balanced"
+        How a restart runs (see :func:`kernel_kmeans`): k-means++ seeding, Lloyd and Hartigan
+        moves (default); Lloyd from random labels; the same followed by Hartigan moves; or two
+        equal halves (size-constrained, 2 clusters only).
     kernel : "tensor" or "precomputed"
         "tensor": X holds tensor patterns and the tensor kernel with ``sigma``/``alpha`` is
         used; "precomputed": X is the Gram matrix (fit) or the cross-kernel K(X_new, X_fit)
@@ -433,10 +496,12 @@ class KernelKMeans(ClusterMixin, BaseEstimator):
         alpha="half",
         tensor_shape=None,
         random_state=None,
+        method="kmeans++",
     ):
         self.n_clusters = n_clusters
         self.n_init = n_init
         self.max_iter = max_iter
+        self.method = method
         self.kernel = kernel
         self.sigma = sigma
         self.alpha = alpha
@@ -480,7 +545,7 @@ class KernelKMeans(ClusterMixin, BaseEstimator):
                 f"n_samples={K.shape[0]} should be >= n_clusters={self.n_clusters}"
             )
         labels, inertia, n_iter = kernel_kmeans(
-            K, self.n_clusters, self.n_init, self.max_iter, self._seed()
+            K, self.n_clusters, self.n_init, self.max_iter, self._seed(), method=self.method
         )
         self.labels_ = labels
         self.inertia_ = inertia

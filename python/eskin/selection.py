@@ -37,6 +37,7 @@ from sklearn.utils.validation import check_is_fitted, check_random_state, valida
 from threadpoolctl import ThreadpoolController
 
 from .estimators import (
+    KMEANS_METHODS,
     TensorRLS,
     TensorSVC,
     as_tensors,
@@ -49,11 +50,13 @@ from .estimators import (
 from .kernel import mode_distances, resolve_alphas
 
 __all__ = [
-    "MaximalDiscrepancySearch",
+    "MD_READINGS",
+    "PAPER_GRID",
     "CrossValidationSearch",
+    "MaximalDiscrepancySearch",
+    "md_reading",
     "md_tau",
     "rls_eig_solve",
-    "PAPER_GRID",
 ]
 
 #: The paper's grid (Section 5.2, NOTES 21), in lambda for both machines.
@@ -64,6 +67,58 @@ PAPER_GRID = {
 }
 
 _SEARCHABLE = ("lam", "C", "sigma", "alpha")
+
+#: Named readings of Algorithm 1: name -> (MaximalDiscrepancySearch options, what it means).
+#: Each option is documented in the class and in docs/learning.md; docs/selection-study.md
+#: measures them against each other and against cross-validation.
+MD_READINGS: dict[str, tuple[dict, str]] = {
+    "kmeans++": (
+        {"clustering": "kmeans++", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
+        (
+            "Algorithm 1 with the clustering reference; kernel k-means by k-means++ seeding, "
+            "Lloyd and Hartigan moves (lowest inertia over restarts); Gamma_0 of the nearer of "
+            "beta(+)/beta(-); chi averaged over the random labellings"
+        ),
+    ),
+    "lloyd": (
+        {"clustering": "lloyd", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
+        (
+            "Algorithm 1 with the clustering reference; plain Lloyd kernel k-means from random "
+            "labels (lowest inertia over restarts); Gamma_0 of the nearer of beta(+)/beta(-); "
+            "chi averaged over the random labellings"
+        ),
+    ),
+    "balanced": (
+        {"clustering": "balanced", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
+        (
+            "Algorithm 1 with the clustering reference; size-constrained kernel 2-means (two "
+            "equal halves); Gamma_0 of the nearer of beta(+)/beta(-); chi averaged"
+        ),
+    ),
+    "true-norm": (
+        {"reference": "true-norm", "chi": "mean"},
+        (
+            "Anguita et al.'s hypothesis space: each random labelling is trained under the norm "
+            "of the machine trained on the true labels (Gamma_0 = Gamma(RKM), no clustering); "
+            "chi averaged"
+        ),
+    ),
+    "same-lambda": (
+        {"reference": "same-lambda", "chi": "mean"},
+        (
+            "Anguita et al. in Tikhonov form: each random labelling is trained with the same "
+            "lambda as the true labels (no norm constraint, no clustering); chi averaged"
+        ),
+    ),
+}
+
+
+def md_reading(name: str) -> dict:
+    """The MaximalDiscrepancySearch options of a named reading (see :data:`MD_READINGS`)."""
+    if name not in MD_READINGS:
+        known = sorted(MD_READINGS)
+        raise ValueError(f"unknown Maximal Discrepancy reading {name!r}; known: {known}")
+    return dict(MD_READINGS[name][0])
 
 
 def md_tau(n: int, delta: float) -> float:
@@ -210,7 +265,17 @@ class _MDSettings:
     n_init: int
     max_iter: int
     flip: str = "uniform"
+    clustering: str = "kmeans++"
+    gamma0: str = "nearer"
+    reference: str = "clustering"
 
+
+_MD_CHOICES = {
+    "clustering": KMEANS_METHODS,
+    "gamma0": ("nearer", "larger"),
+    "reference": ("clustering", "true-norm", "same-lambda"),
+    "chi": ("mean", "max"),
+}
 
 _CONTROLLER: list = []
 
@@ -229,11 +294,14 @@ def _md_block(kind, dists, sigmas, y, configs, settings, seed, block_index):
     """
     with _single_threaded_blas():
         K = kernel_from_distances(dists, sigmas)  # I. the kernel
-        # II. two clusters by kernel k-means; X(a) is cluster 0
-        labels, _, _ = kernel_kmeans(
-            K, 2, settings.n_init, settings.max_iter, _rng(seed, _KEY_KMEANS, block_index)
-        )
-        y_cl = np.where(labels == 0, 1.0, -1.0)
+        y_cl = None
+        if settings.reference == "clustering":
+            # II. two clusters by kernel k-means; X(a) is cluster 0
+            labels, _, _ = kernel_kmeans(
+                K, 2, settings.n_init, settings.max_iter, _rng(seed, _KEY_KMEANS, block_index),
+                method=settings.clustering,
+            )
+            y_cl = np.where(labels == 0, 1.0, -1.0)
         if kind == "rls":
             return _md_block_rls(K, y, y_cl, configs, settings, seed)
         return _md_block_svm(K, y, y_cl, configs, settings, seed)
@@ -246,10 +314,18 @@ def _nearer(beta_plus, beta_minus, beta_rkm):
     return beta_plus if dp <= dm else beta_minus
 
 
+def _gamma_0(K, beta_plus, beta_minus, beta_rkm, how):
+    """Step VI: Gamma_0 of the nearer ("nearer", NOTES 12) or the larger of beta(+)/beta(-)."""
+    if how == "larger":
+        return max(float(beta_plus @ K @ beta_plus), float(beta_minus @ K @ beta_minus))
+    ref = _nearer(beta_plus, beta_minus, beta_rkm)
+    return float(ref @ K @ ref)
+
+
 def _md_block_rls(K, y, y_cl, configs, settings, seed):
     w, Q = np.linalg.eigh(K)  # one eigendecomposition per (sigma, alpha)
     qy = Q.T @ y
-    qa = Q.T @ y_cl
+    qa = None if y_cl is None else Q.T @ y_cl
     steps_grid = np.arange(settings.max_lambda_steps + 1)
     out = []
     for cfg in configs:
@@ -259,12 +335,13 @@ def _md_block_rls(K, y, y_cl, configs, settings, seed):
         c_rkm = qy * s
         beta_rkm = Q @ c_rkm
         v = float(_errors(Q @ (w * c_rkm), y))
-        # IV./V. the cluster labelling and its swap (NOTES 11)
-        c_plus = qa * s
-        c_minus = -qa * s
-        beta_ref = _nearer(Q @ c_plus, Q @ c_minus, beta_rkm)
-        c_ref = Q.T @ beta_ref
-        gamma0 = float(np.sum(w * c_ref * c_ref))  # VI. Gamma_0 = beta^T K beta
+        if settings.reference == "clustering":
+            # IV./V. the cluster labelling and its swap (NOTES 11); VI. Gamma_0 = beta^T K beta
+            gamma0 = _rls_gamma_0(w, Q, qa * s, -qa * s, beta_rkm, settings.gamma0)
+        elif settings.reference == "true-norm":
+            gamma0 = float(np.sum(w * c_rkm * c_rkm))
+        else:  # "same-lambda": no constraint, every labelling keeps lambda
+            gamma0 = np.inf
         # VII. N random labellings, one projection C = Q^T Y*
         Ystar = _random_labellings(y, settings.n_labelings, seed, cfg.index, settings.flip)
         C = Q.T @ Ystar
@@ -288,6 +365,15 @@ def _md_block_rls(K, y, y_cl, configs, settings, seed):
             )
         )
     return out
+
+
+def _rls_gamma_0(w, Q, c_plus, c_minus, beta_rkm, how):
+    """Step VI for RLS from eigen-coordinates (``Gamma = sum_i w_i c_i^2``)."""
+    g_plus, g_minus = float(np.sum(w * c_plus**2)), float(np.sum(w * c_minus**2))
+    if how == "larger":
+        return max(g_plus, g_minus)
+    beta_plus, beta_minus = Q @ c_plus, Q @ c_minus
+    return g_plus if _nearer(beta_plus, beta_minus, beta_rkm) is beta_plus else g_minus
 
 
 def _svm_fit_gamma(K, y, C):
@@ -366,12 +452,16 @@ def _md_block_svm(K, y, y_cl, configs, settings, seed, strategy="search"):
     out = []
     for cfg in configs:
         C = 1.0 / cfg.lam
-        beta_rkm, b, _, support = _svm_fit_gamma(K, y, C)  # III.
+        beta_rkm, b, gamma_rkm, support = _svm_fit_gamma(K, y, C)  # III.
         v = float(_errors(K @ beta_rkm + b, y))
-        beta_plus = _svm_fit_gamma(K, y_cl, C)[0]  # IV.
-        beta_minus = _svm_fit_gamma(K, -y_cl, C)[0]  # V. (swapped, NOTES 11)
-        beta_ref = _nearer(beta_plus, beta_minus, beta_rkm)
-        gamma0 = float(beta_ref @ K @ beta_ref)  # VI.
+        if settings.reference == "clustering":
+            beta_plus = _svm_fit_gamma(K, y_cl, C)[0]  # IV.
+            beta_minus = _svm_fit_gamma(K, -y_cl, C)[0]  # V. (swapped, NOTES 11)
+            gamma0 = _gamma_0(K, beta_plus, beta_minus, beta_rkm, settings.gamma0)  # VI.
+        elif settings.reference == "true-norm":
+            gamma0 = gamma_rkm
+        else:  # "same-lambda"
+            gamma0 = np.inf
         Ystar = _random_labellings(y, settings.n_labelings, seed, cfg.index, settings.flip)
         errs = np.empty(settings.n_labelings)
         steps = np.empty(settings.n_labelings, dtype=np.intp)
@@ -455,6 +545,24 @@ class _SearchBase(ClassifierMixin, BaseEstimator):
                 dists[cfg.alphas] = mode_distances(Xt, alpha=cfg.alphas)
         return X, y, y_pm, kind, configs, dists
 
+    def _prepare_distances(self, distances, y, pattern_shape):
+        """As :meth:`_prepare`, from per-mode distances given per resolved alpha tuple."""
+        y = np.asarray(y)
+        self.classes_, y_pm = binary_targets(y, type(self).__name__)
+        kind, configs = _configurations(self._estimator(), self._grid(), tuple(pattern_shape))
+        dists = {}
+        for cfg in configs:
+            if cfg.alphas not in distances:
+                raise ValueError(f"no distances given for alphas {cfg.alphas}")
+            d = np.asarray(distances[cfg.alphas], dtype=np.float64)
+            if d.shape != (len(pattern_shape), y_pm.size, y_pm.size):
+                raise ValueError(
+                    f"distances for alphas {cfg.alphas} have shape {d.shape}, expected "
+                    f"{(len(pattern_shape), y_pm.size, y_pm.size)}"
+                )
+            dists[cfg.alphas] = d
+        return None, y, y_pm, kind, configs, dists
+
     def _base_results(self, configs):
         res = {
             "params": [dict(c.est_params) for c in configs],
@@ -473,7 +581,7 @@ class _SearchBase(ClassifierMixin, BaseEstimator):
         self.best_params_ = dict(configs[self.best_index_].est_params)
         self.best_criterion_ = float(np.asarray(criterion)[self.best_index_])
         self.n_configurations_ = len(configs)
-        if self.refit:
+        if self.refit and X is not None:
             self.best_estimator_ = clone(self._estimator()).set_params(**self.best_params_)
             self.best_estimator_.fit(X, y)
         return self
@@ -531,6 +639,21 @@ class MaximalDiscrepancySearch(_SearchBase):
         NOTES 13) or half of each class (keeps the class counts; see docs/learning.md).
     n_init, max_iter : int
         Kernel k-means restarts and Lloyd iterations (defaults 10, 100).
+    clustering : "kmeans++", "lloyd", "lloyd-hartigan" or "balanced"
+        Step II's kernel k-means (:func:`~eskin.estimators.kernel_kmeans`): k-means++ seeding,
+        Lloyd and Hartigan moves (default); plain Lloyd from random labels; Lloyd then Hartigan
+        from random labels; or two equal halves (size-constrained).
+    gamma0 : "nearer" or "larger"
+        Step VI: Gamma_0 of whichever of beta(+)/beta(-) is nearer to beta(RKM) (default,
+        NOTES 12), or the larger of their two norms.
+    reference : "clustering", "true-norm" or "same-lambda"
+        What bounds the random-label machines: the clustering reference Gamma_0 of steps II-VI
+        (default, Algorithm 1); the norm of the machine trained on the true labels (Anguita et
+        al.'s "same hypothesis space", Gamma_0 = Gamma(RKM), no clustering); or nothing - each
+        labelling is trained with the configuration's own lambda (Tikhonov form).
+    chi : "mean" or "max"
+        chi = 1 - 2 mean(v*) (default, NOTES 15) or 1 - 2 min(v*) (the maximal discrepancy over
+        the N labellings).
     n_jobs : int, optional
         joblib workers over (alpha, sigma) blocks; results do not depend on it.
     random_state : int, RandomState or None
@@ -563,6 +686,10 @@ class MaximalDiscrepancySearch(_SearchBase):
         n_jobs=None,
         random_state=None,
         refit=True,
+        clustering="kmeans++",
+        gamma0="nearer",
+        reference="clustering",
+        chi="mean",
     ):
         self.estimator = estimator
         self.param_grid = param_grid
@@ -573,6 +700,10 @@ class MaximalDiscrepancySearch(_SearchBase):
         self.flip = flip
         self.n_init = n_init
         self.max_iter = max_iter
+        self.clustering = clustering
+        self.gamma0 = gamma0
+        self.reference = reference
+        self.chi = chi
         self.n_jobs = n_jobs
         self.random_state = random_state
         self.refit = refit
@@ -580,6 +711,11 @@ class MaximalDiscrepancySearch(_SearchBase):
     def _check_params(self):
         if self.flip not in ("uniform", "stratified"):
             raise ValueError(f"flip must be 'uniform' or 'stratified', got {self.flip!r}")
+        for name, allowed in _MD_CHOICES.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if not (isinstance(self.n_init, numbers.Integral) and self.n_init >= 1):
+            raise ValueError(f"n_init must be a positive int, got {self.n_init!r}")
         if not (isinstance(self.n_labelings, numbers.Integral) and self.n_labelings >= 1):
             raise ValueError(f"n_labelings must be a positive int, got {self.n_labelings!r}")
         if not (np.isfinite(self.eps) and self.eps > 1):
@@ -592,15 +728,43 @@ class MaximalDiscrepancySearch(_SearchBase):
                 f"max_lambda_steps must be an int >= 0, got {self.max_lambda_steps!r}"
             )
 
+    def describe_reading(self) -> str:
+        """The reading of Algorithm 1 these options run, in words (for reports)."""
+        opts = {
+            "clustering": self.clustering,
+            "gamma0": self.gamma0,
+            "reference": self.reference,
+            "chi": self.chi,
+        }
+        name = next((k for k, (o, _) in MD_READINGS.items()
+                     if all(opts[key] == val for key, val in o.items())), None)
+        parts = [f"{k}={v}" for k, v in opts.items()]
+        parts += [f"flip={self.flip}", f"n_labelings={self.n_labelings}", f"n_init={self.n_init}"]
+        head = f"reading {name!r}: {MD_READINGS[name][1]}" if name else "a custom reading"
+        return f"{head} ({', '.join(parts)})"
+
     def fit(self, X, y):
         """Run Algorithm 1 for every configuration, select by the bound, refit the best."""
         self._check_params()
-        X, y, y_pm, kind, configs, dists = self._prepare(X, y)
+        return self._fit_prepared(*self._prepare(X, y))
+
+    def fit_distances(self, distances, y, pattern_shape):
+        """As :meth:`fit` from precomputed per-mode distances, without refitting.
+
+        ``distances`` maps each resolved alpha tuple of the grid (e.g. ``(1, 1, 1)``) to the
+        ``(n_modes, n, n)`` array of :func:`eskin.mode_distances`; used by studies that reuse
+        one distance computation for many searches. ``best_estimator_`` is not set.
+        """
+        self._check_params()
+        return self._fit_prepared(*self._prepare_distances(distances, y, pattern_shape))
+
+    def _fit_prepared(self, X, y, y_pm, kind, configs, dists):
         n = y_pm.size
         self.random_state_ = _resolve_seed(self.random_state)
         settings = _MDSettings(
             int(self.n_labelings), float(self.eps), int(self.max_lambda_steps),
-            int(self.n_init), int(self.max_iter), self.flip,
+            int(self.n_init), int(self.max_iter), self.flip, self.clustering, self.gamma0,
+            self.reference,
         )
         blocks = _blocks(configs)
         # BLAS on one thread here too: with a threading backend the blocks' limits are
@@ -620,7 +784,7 @@ class MaximalDiscrepancySearch(_SearchBase):
         tau = md_tau(n, self.delta)
         v = np.array([r["v"] for r in rows])
         errors = np.vstack([r["errors"] for r in rows])
-        chi = 1.0 - 2.0 * errors.mean(axis=1)
+        chi = 1.0 - 2.0 * (errors.mean(axis=1) if self.chi == "mean" else errors.min(axis=1))
         bound = v + chi + tau
         res = self._base_results(configs)
         steps = np.vstack([r["steps"] for r in rows])
@@ -701,9 +865,20 @@ class CrossValidationSearch(_SearchBase):
 
     def fit(self, X, y, groups=None):
         """Score every configuration on the same random splits, select, refit the best."""
+        self._check_splits()
+        return self._fit_prepared(*self._prepare(X, y), groups)
+
+    def fit_distances(self, distances, y, pattern_shape, groups=None):
+        """As :meth:`fit` from precomputed per-mode distances (see
+        :meth:`MaximalDiscrepancySearch.fit_distances`), without refitting."""
+        self._check_splits()
+        return self._fit_prepared(*self._prepare_distances(distances, y, pattern_shape), groups)
+
+    def _check_splits(self):
         if not (isinstance(self.n_splits, numbers.Integral) and self.n_splits >= 1):
             raise ValueError(f"n_splits must be a positive int, got {self.n_splits!r}")
-        X, y, y_pm, kind, configs, dists = self._prepare(X, y)
+
+    def _fit_prepared(self, X, y, y_pm, kind, configs, dists, groups):
         self.random_state_ = _resolve_seed(self.random_state)
         split_seed = int(_rng(self.random_state_, _KEY_SPLITS).integers(np.iinfo(np.int32).max))
         idx = np.zeros(y_pm.size)

@@ -284,3 +284,70 @@ def _expected_failed(estimator):
 )
 def test_sklearn_estimator_checks(estimator, check):
     check(estimator)
+
+
+# ------------------------------------------------------------------ kernel k-means readings
+def _two_groups(n_small, n_large, seed=0):
+    """A tight small group and a tight large group, far apart in feature space."""
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(2, 3, 3, 5))
+    X = np.concatenate(
+        [centres[0] + 0.05 * rng.normal(size=(n_small, 3, 3, 5)),
+         centres[1] + 0.05 * rng.normal(size=(n_large, 3, 3, 5))]
+    )
+    return eskin.tensor_kernel(X, sigma=0.5, alpha="half")
+
+
+@pytest.mark.parametrize("n", [11, 12])
+@pytest.mark.parametrize("seed", range(3))
+def test_balanced_kernel_kmeans_returns_equal_halves(n, seed):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, 3, 3, 5))
+    K = eskin.tensor_kernel(X, sigma=0.6, alpha="half")
+    labels, inertia, _ = kernel_kmeans(K, 2, n_init=4, random_state=seed, method="balanced")
+    assert sorted(np.bincount(labels, minlength=2).tolist()) == [n // 2, n - n // 2]
+    assert inertia > 0
+
+
+def test_balanced_kernel_kmeans_keeps_a_small_group_together():
+    K = _two_groups(6, 14)
+    labels, _, _ = kernel_kmeans(K, 2, n_init=5, random_state=0, method="balanced")
+    assert np.bincount(labels).tolist() == [10, 10]
+    assert len(set(labels[:6])) == 1  # the 6-point group is inside one half
+
+
+@pytest.mark.parametrize("method", ["kmeans++", "lloyd", "lloyd-hartigan"])
+def test_unconstrained_kernel_kmeans_finds_two_clean_groups(method):
+    K = _two_groups(6, 14)
+    labels, _, _ = kernel_kmeans(K, 2, n_init=5, random_state=1, method=method)
+    assert len(set(labels[:6])) == 1 and len(set(labels[6:])) == 1
+    assert labels[0] != labels[6]
+
+
+@pytest.mark.parametrize("method", ["kmeans++", "lloyd", "lloyd-hartigan", "balanced"])
+def test_kernel_kmeans_same_seed_same_labels(method):
+    rng = np.random.default_rng(5)
+    K = eskin.tensor_kernel(rng.normal(size=(30, 3, 3, 5)), sigma=0.8, alpha="half")
+    a = kernel_kmeans(K, 2, n_init=3, random_state=7, method=method)
+    b = kernel_kmeans(K, 2, n_init=3, random_state=7, method=method)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert a[1] == b[1]
+    km = KernelKMeans(kernel="precomputed", n_init=3, random_state=7, method=method).fit(K)
+    np.testing.assert_array_equal(km.labels_, a[0])
+
+
+def test_hartigan_moves_never_raise_the_inertia_of_lloyd():
+    rng = np.random.default_rng(2)
+    K = eskin.tensor_kernel(rng.normal(size=(40, 3, 3, 5)), sigma=0.7, alpha="half")
+    for seed in range(5):  # the same random starts: Hartigan only moves when it lowers it
+        lloyd = kernel_kmeans(K, 2, n_init=1, random_state=seed, method="lloyd")
+        both = kernel_kmeans(K, 2, n_init=1, random_state=seed, method="lloyd-hartigan")
+        assert both[1] <= lloyd[1] + 1e-12
+
+
+def test_kernel_kmeans_rejects_unknown_methods():
+    K = np.eye(4)
+    with pytest.raises(ValueError, match="method must be one of"):
+        kernel_kmeans(K, 2, method="spectral")
+    with pytest.raises(ValueError, match="makes 2 clusters"):
+        kernel_kmeans(K, 3, method="balanced")

@@ -271,3 +271,100 @@ def test_search_rejects_bad_settings():
         from sklearn.svm import SVC
 
         _md(SVC(), {"C": [1.0]}, X.reshape(len(X), -1), y)
+
+
+# ---------------------------------------------------------------- readings of Algorithm 1
+from eskin.selection import MD_READINGS, md_reading
+
+_GRID = {"lam": [1e-2, 1.0], "sigma": [0.5, 2.0], "alpha": [1, "half"]}
+
+
+@pytest.mark.parametrize("name", sorted(MD_READINGS))
+@pytest.mark.parametrize("est", [TensorRLS(), TensorSVC()], ids=["rls", "svm"])
+def test_every_named_reading_is_reproducible_and_says_what_it_ran(name, est):
+    X, y = _separable(10, noise=0.6)
+    a = _md(est, _GRID, X, y, random_state=4, **md_reading(name))
+    b = _md(est, _GRID, X, y, random_state=4, **md_reading(name))
+    _assert_same_results(a, b)
+    assert a.describe_reading().startswith(f"reading {name!r}: ")
+
+
+def test_unknown_reading_and_options_are_rejected():
+    X, y = _separable(4)
+    with pytest.raises(ValueError, match="unknown Maximal Discrepancy reading"):
+        md_reading("paper-ish")
+    for key, bad in (("clustering", "spectral"), ("gamma0", "smaller"), ("reference", "x"),
+                     ("chi", "median"), ("n_init", 0)):
+        with pytest.raises(ValueError, match=key):
+            _md(TensorRLS(), {"lam": [1.0]}, X, y, **{key: bad})
+    custom = MaximalDiscrepancySearch(TensorRLS(), clustering="lloyd", chi="max")
+    assert custom.describe_reading().startswith("a custom reading (clustering=lloyd")
+
+
+def test_same_lambda_reference_trains_every_labelling_with_lambda():
+    X, y = _separable(10, noise=0.8)
+    grid = {"lam": [1e-1, 1.0], "sigma": [1.0], "alpha": ["half"]}
+    s = _md(TensorRLS(), grid, X, y, reference="same-lambda", n_labelings=4)
+    r = s.cv_results_
+    assert np.all(r["mean_lambda_steps"] == 0) and np.all(np.isinf(r["gamma_0"]))
+    # the same labellings through a plain RLS solve with the configuration's own lambda
+    from eskin.selection import _random_labellings
+
+    y_pm = np.where(y == s.classes_[1], 1.0, -1.0)
+    K = eskin.tensor_kernel(X, sigma=1.0, alpha="half")
+    for i, lam in enumerate(r["lam"]):
+        Ystar = _random_labellings(y_pm, 4, s.random_state_, i)
+        F = K @ np.linalg.solve(K + lam * np.eye(len(y)), Ystar)
+        errs = np.mean(np.where(F > 0, 1.0, -1.0) != Ystar, axis=0)
+        np.testing.assert_allclose(r["random_errors"][i], errs)
+
+
+def test_true_norm_reference_bounds_labellings_by_the_true_label_machine():
+    X, y = _separable(10, noise=0.8)
+    grid = {"lam": [1e-2, 1.0], "sigma": [1.0], "alpha": ["half"]}
+    s = _md(TensorRLS(), grid, X, y, reference="true-norm")
+    y_pm = np.where(y == s.classes_[1], 1.0, -1.0)
+    K = eskin.tensor_kernel(X, sigma=1.0, alpha="half")
+    for i, lam in enumerate(s.cv_results_["lam"]):
+        beta = np.linalg.solve(K + lam * np.eye(len(y)), y_pm)
+        assert s.cv_results_["gamma_0"][i] == pytest.approx(beta @ K @ beta, rel=1e-9)
+
+
+@pytest.mark.parametrize("est", [TensorRLS(), TensorSVC()], ids=["rls", "svm"])
+def test_larger_gamma0_is_never_below_the_nearer(est):
+    X, y = _separable(10, noise=0.8)
+    near = _md(est, _GRID, X, y, gamma0="nearer").cv_results_
+    large = _md(est, _GRID, X, y, gamma0="larger").cv_results_
+    assert np.all(large["gamma_0"] >= near["gamma_0"] * (1 - 1e-9))
+    # a looser norm bound needs no more lambda steps
+    assert np.all(large["mean_lambda_steps"] <= near["mean_lambda_steps"])
+
+
+def test_chi_max_is_the_largest_discrepancy_over_the_labellings():
+    X, y = _noise(30, seed=2)
+    mean = _md(TensorRLS(), _GRID, X, y, chi="mean").cv_results_
+    top = _md(TensorRLS(), _GRID, X, y, chi="max").cv_results_
+    np.testing.assert_array_equal(mean["random_errors"], top["random_errors"])
+    np.testing.assert_allclose(top["chi"], 1 - 2 * top["random_errors"].min(axis=1))
+    assert np.all(top["chi"] >= mean["chi"])
+
+
+@pytest.mark.parametrize("est", [TensorRLS(), TensorSVC()], ids=["rls", "svm"])
+def test_fit_distances_gives_the_results_of_fit(est):
+    X, y = _separable(8, noise=0.6)
+    groups = np.repeat(np.arange(8), 2)
+    dists = {}
+    for a in (1, "half"):
+        alphas = tuple(int(v) for v in eskin.resolve_alphas(SHAPE, a))
+        dists[alphas] = eskin.mode_distances(X, alpha=alphas)
+    md = _md(est, _GRID, X, y, clustering="lloyd")
+    md_d = MaximalDiscrepancySearch(
+        est, _GRID, n_labelings=8, random_state=0, clustering="lloyd"
+    ).fit_distances(dists, y, SHAPE)
+    _assert_same_results(md, md_d)
+    assert not hasattr(md_d, "best_estimator_")
+    cv = CrossValidationSearch(est, _GRID, n_splits=3, random_state=0).fit(X, y, groups=groups)
+    cv_d = CrossValidationSearch(est, _GRID, n_splits=3, random_state=0).fit_distances(
+        dists, y, SHAPE, groups=groups
+    )
+    _assert_same_results(cv, cv_d)
