@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 JOBS ?= $(shell nproc)
-APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind
+APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind pkg-config
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 CMAKE := $(VENV)/bin/cmake
 BUILD_CPP := build/cpp

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "eskin/protocol.hpp"
+#include "eskin/version.hpp"
 #include "pty_link.hpp"
 #include "replay_source.hpp"
 
@@ -84,6 +85,7 @@ options:
                        simulator sleeps between samples and while it waits for a host or for
                        START, so it does not hog a core)
   --quiet              no progress on stderr
+  --version            print the version and exit
 
 On exit it prints "STATS {json}" on stdout (pacing, drops, decisions, latencies).
 )";
@@ -131,6 +133,9 @@ Options parse(int argc, char** argv) {
     };
     if (a == "-h" || a == "--help") {
       std::fputs(kUsage, stdout);
+      std::exit(0);
+    } else if (a == "--version") {
+      std::printf("eskin-fw-sim %s\n", eskin::kVersion);
       std::exit(0);
     } else if (a == "--link") o.link = val();
     else if (a == "--model") o.model = val();

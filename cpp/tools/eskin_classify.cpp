@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "eskin/model.hpp"
+#include "eskin/version.hpp"
 
 namespace {
 
@@ -34,6 +35,7 @@ struct InputError : std::runtime_error {
 
 const char* kUsage =
     "usage: eskin-classify MODEL [FILE|-]\n"
+    "       eskin-classify --version\n"
     "  Classify the recordings in FILE (or standard input) with the .eskin model MODEL.\n"
     "  FILE: .npy int16/float32/float64 of shape (rows, cols, T) or (n, rows, cols, T), or raw\n"
     "  records ('ESKR' u16 rows u16 cols u32 T u32 0, then rows*cols*T int16, little-endian).\n"
@@ -246,6 +248,16 @@ int main(int argc, char** argv) {
   if (!args.empty() && (args[0] == "-h" || args[0] == "--help")) {
     std::fputs(kUsage, stdout);
     return 0;
+  }
+  if (!args.empty() && args[0] == "--version") {
+    std::printf("eskin-classify %s\n", eskin::kVersion);
+    return 0;
+  }
+  for (const auto& a : args) {
+    if (a.size() > 1 && a[0] == '-') {
+      std::fprintf(stderr, "eskin-classify: unknown option %s\n%s", a.c_str(), kUsage);
+      return 2;
+    }
   }
   if (args.empty() || args.size() > 2) {
     std::fputs(kUsage, stderr);

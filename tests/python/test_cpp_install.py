@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import eskin
 from eskin.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
 
 REPO = next(p for p in Path(__file__).resolve().parents if (p / "README.md").is_file())
@@ -121,7 +122,17 @@ def test_install_gives_headers_library_cmake_package_pkgconfig_and_tools(prefix)
     assert "add_library(eskin::core STATIC IMPORTED)" in targets
     assert len(list(prefix.glob("lib*/pkgconfig/eskin.pc"))) == 1
     for exe in ("eskin-classify", "eskin-fw-sim"):
-        assert os.access(prefix / "bin" / exe, os.X_OK)
+        out = subprocess.run(
+            [str(prefix / "bin" / exe), "--version"], check=True, capture_output=True, text=True
+        )
+        assert out.stdout == f"{exe} {eskin.__version__}\n"
+    bad = subprocess.run(
+        [str(prefix / "bin/eskin-classify"), "--versio"],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2 and "unknown option --versio" in bad.stderr
     # nothing of the build tree leaks into the installed package
     assert str(REPO) not in targets and str(build_tree()) not in targets
 
