@@ -14,13 +14,15 @@ The format is described in ``docs/dataset-format.md``. In short::
 
 :func:`load_campaign` validates every field and raises :class:`CampaignFormatError` (a
 ``ValueError``) naming the file, the field and the problem. :class:`CampaignWriter` appends one
-recording at a time, so that a campaign never has to fit in memory; it writes to a temporary file
-next to the target and renames it only when complete, and it never replaces an existing file
-unless ``overwrite=True``.
+recording at a time, so that a campaign never has to fit in memory; each append is durable (a
+journal next to the target, flushed to the disk), the campaign file appears under its name only
+when complete, and it never replaces an existing file unless ``overwrite=True``.
+:func:`recover_campaign` salvages the recordings of a writer that died.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -58,6 +60,7 @@ _LABEL_FIELDS: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
 _OPTIONAL_FIELDS: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
     "contact_interval": (np.dtype(np.int32), (2,)),
 }
+_MAX_EXTRA_BYTES = 1 << 30  # all of one /recordings/extra field
 
 
 class CampaignFormatError(ValueError):
@@ -533,7 +536,13 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
     path = Path(path)
     where = str(path)
     if not path.exists():
-        raise FileNotFoundError(f"{where}: no such campaign file")
+        from eskin.data.journal import journal_path
+
+        hint = ""
+        if journal_path(path).exists():
+            hint = (f" (a writer was interrupted while writing it: `eskin recover {where}` "
+                    f"salvages its recordings)")
+        raise FileNotFoundError(f"{where}: no such campaign file{hint}")
     if path.is_dir():
         raise CampaignFormatError(where, "<file>", "is a directory, not a campaign file")
     try:
@@ -557,6 +566,13 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
             for i in range(len(campaign)):
                 campaign.signals[i]
         if in_memory:
+            from eskin.data.limits import memory_problem
+
+            n, rows, cols, t = campaign.signals.shape
+            problem = memory_problem(n * rows * cols * t * 2, "reading every recording")
+            if problem:
+                raise CampaignFormatError(where, "/recordings/signals",
+                                          f"in_memory=True: {problem}")
             loaded = campaign.load()
             f.close()
             loaded._file = None
@@ -599,17 +615,23 @@ def _load_open(f: Any, where: str) -> Campaign:
     if n > 0 and (rows < 1 or cols < 1):
         raise CampaignFormatError(
             where, "/recordings/signals", f"empty taxel grid {rows}x{cols}")
+    check_sizes(where, n, rows, cols, t)
     arrays: dict[str, Any] = {}
     for name in (*_LABEL_FIELDS, *_OPTIONAL_FIELDS):
         if name in grp:
             ds = grp[name]
             if not isinstance(ds, h5py.Dataset):
                 raise CampaignFormatError(where, f"/recordings/{name}", "must be a dataset")
-            expected = {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}[name][0]
+            expected, tail = {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}[name]
             if ds.dtype != expected:
                 raise CampaignFormatError(
                     where, f"/recordings/{name}",
                     f"wrong dtype {ds.dtype} (expected {expected.name})")
+            if ds.shape != (n, *tail):  # before reading it: the shape may be huge
+                raise CampaignFormatError(
+                    where, f"/recordings/{name}", f"wrong shape {ds.shape} (expected "
+                    f"{(n, *tail)}: one entry per recording, {n} recordings in "
+                    f"/recordings/signals)")
             arrays[name] = ds[()]
     labels = _check_labels(where, n, arrays, strict_dtype=True)
     _check_contents(where, labels, len(attrs["modalities"]), t)
@@ -618,6 +640,11 @@ def _load_open(f: Any, where: str) -> Campaign:
         for k, ds in grp["extra"].items():
             if not isinstance(ds, h5py.Dataset):
                 continue
+            if ds.ndim < 1 or ds.shape[0] != n or ds.size * ds.dtype.itemsize > _MAX_EXTRA_BYTES:
+                raise CampaignFormatError(
+                    where, f"/recordings/extra/{k}",
+                    f"wrong shape {ds.shape} (expected one entry per recording, n={n}, at most "
+                    f"{_MAX_EXTRA_BYTES // max(n, 1)} bytes each)")
             v = ds[()]
             if not isinstance(v, np.ndarray) or v.ndim < 1 or v.shape[0] != n:
                 raise CampaignFormatError(
@@ -632,6 +659,27 @@ def _load_open(f: Any, where: str) -> Campaign:
         sample_rate_hz=attrs["sample_rate_hz"], volts_per_count=attrs["volts_per_count"],
         source=attrs["source"], attrs=attrs, extras=extras, path=where, _file=f,
         _validated=True)
+
+
+def check_sizes(where: str | None, n: int, rows: int, cols: int, t: int) -> None:
+    """Refuse declared sizes over the documented limits or the memory available (one
+    recording must fit), before anything of that size is read or allocated."""
+    from eskin.data import limits
+
+    checks = ((n, limits.MAX_RECORDINGS, "recordings n"),
+              (rows, limits.MAX_GRID_SIDE, "grid rows"), (cols, limits.MAX_GRID_SIDE, "grid cols"),
+              (rows * cols, limits.MAX_TAXELS, f"taxels ({rows} x {cols})"),
+              (t, limits.MAX_SAMPLES, "samples per recording T"),
+              (rows * cols * t * 2, limits.MAX_RECORDING_BYTES, "bytes per recording"))
+    for value, limit, what in checks:
+        problem = limits.size_problem(value, limit, what)
+        if problem:
+            raise CampaignFormatError(
+                where, "/recordings/signals", f"shape {(n, rows, cols, t)}: {problem}")
+    problem = limits.memory_problem(rows * cols * t * 2, "one recording")
+    if problem:
+        raise CampaignFormatError(
+            where, "/recordings/signals", f"shape {(n, rows, cols, t)}: {problem}")
 
 
 # --------------------------------------------------------------------------- writing
@@ -705,8 +753,13 @@ class CampaignWriter:
                             source="recorded") as w:
             w.append(signals_i, modality=1, participant=7, direction=0, run=2)
 
-    Data goes to a temporary file next to ``path`` which replaces ``path`` only when the writer
-    closes without error; an existing ``path`` is replaced only with ``overwrite=True``.
+    Crash-safe: each ``append`` writes its recording to a journal next to ``path``
+    (``.NAME.partial``, see :mod:`eskin.data.journal`) and flushes it to the disk before it
+    returns; if the process dies (kill -9, power loss), :func:`recover_campaign` (``eskin recover
+    NAME``) salvages every recording whose ``append`` had returned. ``close`` builds the campaign
+    file from the journal and moves it into place; it never replaces a file that exists (even one
+    that appeared while recording) unless ``overwrite=True``. A second writer on the same
+    ``path`` fails at open (the journal is created exclusively and locked).
     ``signals`` of one recording: integer (rows, cols, length) with length <= n_samples, padded
     with zeros. ``contact_interval=True`` adds the optional ground-truth field (then every append
     must give one). Extra root attributes go in ``attrs`` (dicts are stored as JSON text).
@@ -732,7 +785,7 @@ class CampaignWriter:
         compression_level: int | None = 1,
         extra_fields: Mapping[str, Any] | None = None,
     ):
-        import h5py
+        from eskin.data.journal import JournalWriter
 
         self.path = Path(path)
         rows, cols = (int(v) for v in grid_shape)
@@ -740,63 +793,46 @@ class CampaignWriter:
             raise ValueError(f"grid_shape must be positive, got {tuple(grid_shape)}")
         if int(n_samples) < 1:
             raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        check_sizes(str(self.path), 0, rows, cols, int(n_samples))
         dec = _check_attrs(str(self.path), {
             **{k: v for k, v in dict(attrs or {}).items()},
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "sample_rate_hz": sample_rate_hz, "volts_per_count": volts_per_count,
             "modalities": list(modalities), "source": source})
-        if self.path.exists() and not overwrite:
-            raise FileExistsError(
-                f"{self.path}: file exists; refusing to overwrite recorded data "
-                f"(pass overwrite=True, or --force on the command line)")
-        if self.path.is_dir():
-            raise IsADirectoryError(f"{self.path}: is a directory")
-        if not self.path.parent.exists():
-            raise FileNotFoundError(f"{self.path.parent}: output folder does not exist")
+        _check_target(self.path, overwrite)
         if compression_level is not None and not 0 <= int(compression_level) <= 9:
             raise ValueError(f"compression_level must be None or 0..9, got {compression_level}")
         self.grid_shape = (rows, cols)
         self.n_samples = int(n_samples)
         self.compression_level = None if compression_level is None else int(compression_level)
         self.modalities = dec["modalities"]
-        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
-        self._f = h5py.File(self._tmp, "w")
-        try:
-            for k, v in dict(attrs or {}).items():
-                self._f.attrs[k] = _attr_value(v)
-            self._f.attrs["format"] = FORMAT
-            self._f.attrs["format_version"] = np.int64(FORMAT_VERSION)
-            self._f.attrs["sample_rate_hz"] = float(dec["sample_rate_hz"])
-            self._f.attrs["volts_per_count"] = float(dec["volts_per_count"])
-            self._f.attrs["modalities"] = _attr_value(list(dec["modalities"]))
-            self._f.attrs["source"] = dec["source"]
-            grp = self._f.create_group("recordings")
-            self._signals = grp.create_dataset(
-                "signals", shape=(0, rows, cols, self.n_samples),
-                maxshape=(None, rows, cols, self.n_samples), dtype=np.int16,
-                chunks=(1, rows, cols, self.n_samples),
-                compression=None if compression_level is None else "gzip",
-                compression_opts=self.compression_level,
-                shuffle=compression_level is not None)
-        except BaseException:
-            self._abort()
-            raise
-        self._labels: dict[str, list[Any]] = {k: [] for k in _LABEL_FIELDS}
+        self.overwrite = bool(overwrite)
         self._with_ci = bool(contact_interval)
-        self._ci: list[tuple[int, int]] = []
         self._extra_types = {str(k): np.dtype(v) for k, v in dict(extra_fields or {}).items()}
-        self._extra: dict[str, list[Any]] = {k: [] for k in self._extra_types}
+        for k, dt in self._extra_types.items():
+            if dt.hasobject:
+                raise ValueError(f"extra field {k!r}: dtype {dt} cannot be stored (use a "
+                                 f"numeric or fixed-size dtype)")
+        self._journal = JournalWriter(self.path, _journal_settings(
+            dict(attrs or {}), dec, self.grid_shape, self.n_samples, self.compression_level,
+            self._with_ci, self._extra_types))
         self._n = 0
         self._closed = False
 
     def __len__(self) -> int:
         return self._n
 
+    @property
+    def journal(self) -> Path:
+        """The journal file holding the recordings appended so far."""
+        return self._journal.path
+
     def append(self, signals: Any, *, modality: int | str, participant: int, direction: int,
                run: int, length: int | None = None,
                contact_interval: tuple[int, int] | None = None,
                extra: Mapping[str, Any] | None = None) -> int:
-        """Append one recording; return its index."""
+        """Append one recording; return its index. When this returns, the recording is on the
+        disk (it survives a crash of this process or of the machine)."""
         if self._closed:
             raise ValueError(f"{self.path}: writer is closed")
         where = f"recording {self._n}"
@@ -815,83 +851,66 @@ class CampaignWriter:
             enc = encode_recording(signals, grid_shape=self.grid_shape, n_samples=self.n_samples,
                                    length=length, compression_level=self.compression_level,
                                    where=where)
-        n_valid = enc.length
-        if isinstance(modality, str):
-            if modality not in self.modalities:
-                raise ValueError(
-                    f"recording {self._n}: unknown modality {modality!r} "
-                    f"(campaign modalities: {self.modalities})")
-            modality = self.modalities.index(modality)
-        if not 0 <= int(modality) < len(self.modalities):
-            raise ValueError(f"recording {self._n}: modality id {modality} out of range")
-        if int(direction) not in DIRECTION_NAMES:
-            raise ValueError(
-                f"recording {self._n}: direction {direction} (0 horizontal, 1 vertical, "
-                f"255 unknown)")
-        if not 0 <= int(run) <= 255:
-            raise ValueError(f"recording {self._n}: run {run} outside [0, 255]")
+        meta = self._check_labels(where, enc.length, modality, participant, direction, run,
+                                  contact_interval)
         extra = dict(extra or {})
         if set(extra) != set(self._extra_types):
             raise ValueError(
-                f"recording {self._n}: extra fields {sorted(extra)} do not match the declared "
+                f"{where}: extra fields {sorted(extra)} do not match the declared "
                 f"extra_fields {sorted(self._extra_types)}")
-        if self._with_ci:
-            if contact_interval is None:
-                raise ValueError(f"recording {self._n}: contact_interval required")
-            on, off = (int(v) for v in contact_interval)
-            if not 0 <= on <= off <= n_valid:
-                raise ValueError(
-                    f"recording {self._n}: contact interval [{on}, {off}) not within "
-                    f"[0, {n_valid}]")
-            self._ci.append((on, off))
-        for k, v in extra.items():
-            self._extra[k].append(v)
-        self._signals.resize(self._n + 1, axis=0)
-        self._signals.id.write_direct_chunk((self._n, 0, 0, 0), enc.chunk, filter_mask=0)
-        for k, v in (("length", n_valid), ("modality", int(modality)),
-                     ("participant", int(participant)), ("direction", int(direction)),
-                     ("run", int(run))):
-            self._labels[k].append(v)
+        typed = {k: (extra[k], dt) for k, dt in self._extra_types.items()}
+        self._journal.append(meta, typed, enc.chunk)
         self._n += 1
         return self._n - 1
 
+    def _check_labels(self, where: str, n_valid: int, modality: int | str, participant: int,
+                      direction: int, run: int,
+                      contact_interval: tuple[int, int] | None) -> dict[str, Any]:
+        """Validate one recording's labels; return them as the journal stores them."""
+        if isinstance(modality, str):
+            if modality not in self.modalities:
+                raise ValueError(
+                    f"{where}: unknown modality {modality!r} "
+                    f"(campaign modalities: {self.modalities})")
+            modality = self.modalities.index(modality)
+        if not 0 <= int(modality) < len(self.modalities):
+            raise ValueError(f"{where}: modality id {modality} out of range")
+        if int(direction) not in DIRECTION_NAMES:
+            raise ValueError(f"{where}: direction {direction} (0 horizontal, 1 vertical, "
+                             f"255 unknown)")
+        if not 0 <= int(run) <= 255:
+            raise ValueError(f"{where}: run {run} outside [0, 255]")
+        info = np.iinfo(np.int32)
+        if not info.min <= int(participant) <= info.max:
+            raise ValueError(f"{where}: participant {participant} outside the int32 range")
+        meta = {"length": int(n_valid), "modality": int(modality),
+                "participant": int(participant), "direction": int(direction), "run": int(run)}
+        if self._with_ci:
+            if contact_interval is None:
+                raise ValueError(f"{where}: contact_interval required")
+            on, off = (int(v) for v in contact_interval)
+            if not 0 <= on <= off <= n_valid:
+                raise ValueError(f"{where}: contact interval [{on}, {off}) not within "
+                                 f"[0, {n_valid}]")
+            meta["contact_interval"] = [on, off]
+        return meta
+
     def close(self) -> None:
-        """Write the label arrays and move the finished file into place."""
+        """Build the campaign file from the journal and move it into place.
+
+        Raises ``FileExistsError`` if ``path`` appeared meanwhile (and ``overwrite`` is False);
+        then, as after any failure here, the journal is kept and ``eskin recover`` can write
+        the campaign elsewhere.
+        """
         if self._closed:
             return
-        try:
-            grp = self._f["recordings"]
-            for name, (dtype, _) in _LABEL_FIELDS.items():
-                grp.create_dataset(name, data=np.asarray(self._labels[name], dtype=dtype)
-                                   .reshape(self._n))
-            if self._with_ci:
-                grp.create_dataset("contact_interval",
-                                   data=np.asarray(self._ci, dtype=np.int32).reshape(self._n, 2))
-            if self._extra_types:
-                eg = grp.create_group("extra")
-                for k, dt in self._extra_types.items():
-                    eg.create_dataset(k, data=np.asarray(self._extra[k], dtype=dt))
-            self._f.close()
-            os.replace(self._tmp, self.path)
-        except BaseException:
-            self._abort()
-            raise
         self._closed = True
-
-    def _abort(self) -> None:
-        try:
-            self._f.close()
-        except Exception:  # noqa: BLE001
-            pass
-        try:
-            self._tmp.unlink()
-        except FileNotFoundError:
-            pass
-        self._closed = True
+        _finish_journal(self._journal.path, self.path, self.overwrite, held=self._journal)
 
     def abort(self) -> None:
         """Discard everything written so far (the target file is left untouched)."""
-        self._abort()
+        self._closed = True
+        self._journal.discard()
 
     def __enter__(self) -> CampaignWriter:
         return self
@@ -900,7 +919,173 @@ class CampaignWriter:
         if exc_type is None:
             self.close()
         else:
-            self._abort()
+            self.abort()
+
+
+def _check_target(path: Path, overwrite: bool) -> None:
+    """Refuse an output path that holds data (unless ``overwrite``) or cannot be written."""
+    if path.exists() and not overwrite:
+        raise FileExistsError(
+            f"{path}: file exists; refusing to overwrite recorded data "
+            f"(pass overwrite=True, or --force on the command line)")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a directory")
+    if not path.parent.exists():
+        raise FileNotFoundError(f"{path.parent}: output folder does not exist")
+
+
+def _journal_settings(attrs: dict[str, Any], dec: Mapping[str, Any], grid: tuple[int, int],
+                      n_samples: int, level: int | None, with_ci: bool,
+                      extra_types: Mapping[str, np.dtype]) -> dict[str, Any]:
+    """What the journal must remember to build the campaign file without the writer."""
+    from eskin.data.journal import encode_attr
+
+    values = {**attrs, "format": FORMAT, "format_version": np.int64(FORMAT_VERSION),
+              "sample_rate_hz": float(dec["sample_rate_hz"]),
+              "volts_per_count": float(dec["volts_per_count"]),
+              "modalities": list(dec["modalities"]), "source": dec["source"]}
+    return {"grid_shape": list(grid), "n_samples": n_samples, "compression_level": level,
+            "contact_interval": with_ci,
+            "extra_fields": [[k, dt.str] for k, dt in extra_types.items()],
+            "attrs": [[k, encode_attr(_attr_value(v))] for k, v in values.items()]}
+
+
+def _build_from_journal(contents: Any, out: Path) -> int:
+    """Write the campaign file ``out`` from a journal's settings and complete records;
+    return the number of recordings."""
+    import h5py
+
+    from eskin.data.journal import decode_attr
+
+    s = contents.settings
+    rows, cols = s["grid_shape"]
+    t, level = int(s["n_samples"]), s["compression_level"]
+    labels: dict[str, list[Any]] = {k: [] for k in (*_LABEL_FIELDS, "contact_interval")}
+    extra_types = {k: np.dtype(v) for k, v in s["extra_fields"]}
+    extras: dict[str, list[Any]] = {k: [] for k in extra_types}
+    with h5py.File(out, "w") as f:
+        for k, v in s["attrs"]:
+            f.attrs[k] = decode_attr(v)
+        grp = f.create_group("recordings")
+        sig = grp.create_dataset(
+            "signals", shape=(0, rows, cols, t), maxshape=(None, rows, cols, t), dtype=np.int16,
+            chunks=(1, rows, cols, t), compression=None if level is None else "gzip",
+            compression_opts=level, shuffle=level is not None)
+        n = 0
+        for rec in contents.records:
+            sig.resize(n + 1, axis=0)
+            sig.id.write_direct_chunk((n, 0, 0, 0), rec.chunk, filter_mask=0)
+            for k, values in labels.items():
+                if k in rec.meta:
+                    values.append(rec.meta[k])
+            for k, values in extras.items():
+                values.append(rec.extras[k])
+            n += 1
+        for name, (dtype, _) in _LABEL_FIELDS.items():
+            grp.create_dataset(name, data=np.asarray(labels[name], dtype=dtype).reshape(n))
+        if s["contact_interval"]:
+            grp.create_dataset("contact_interval", data=np.asarray(
+                labels["contact_interval"], dtype=np.int32).reshape(n, 2))
+        if extra_types:
+            eg = grp.create_group("extra")
+            for k, dt in extra_types.items():
+                eg.create_dataset(k, data=np.asarray(extras[k], dtype=dt))
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    return n
+
+
+def _place(tmp: Path, target: Path, overwrite: bool) -> None:
+    """Move the finished file ``tmp`` to ``target``; without ``overwrite`` this is exclusive:
+    a ``target`` that exists now (even one created a moment ago) is never replaced."""
+    if overwrite:
+        os.replace(tmp, target)
+        return
+    try:
+        os.link(tmp, target)  # fails if target exists, atomically
+    except FileExistsError:
+        raise FileExistsError(
+            f"{target}: file exists (it appeared while recording); refusing to overwrite "
+            f"it") from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
+            raise
+        # a file system without hard links (FAT on a memory card): check, then rename
+        if target.exists():
+            raise FileExistsError(f"{target}: file exists; refusing to overwrite it") from None
+        os.rename(tmp, target)
+        return
+    tmp.unlink()
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What :func:`recover_campaign` salvaged."""
+
+    output: Path
+    recordings: int
+    dropped_bytes: int
+    dropped_reason: str
+
+    def message(self) -> str:
+        """One line for the user: what was recovered and what was not."""
+        text = f"recovered {self.recordings} complete recordings into {self.output}"
+        if self.dropped_bytes:
+            text += (f"; dropped the last {self.dropped_bytes} bytes of the journal "
+                     f"({self.dropped_reason})")
+        return text
+
+
+def _finish_journal(journal: Path, output: Path, overwrite: bool,
+                    held: Any = None) -> Recovery:
+    """Build ``output`` from ``journal`` (locked by us: ``held`` is the writer holding it, or
+    None to lock it here), place it, then delete the journal."""
+    from eskin.data.journal import LockedJournal, fsync_dir
+
+    tmp = output.with_name(f".{output.name}.{os.getpid()}.building")
+    try:
+        with LockedJournal(journal, lock=held is None) as reader:
+            contents = reader.read()
+            try:
+                n = _build_from_journal(contents, tmp)
+                _place(tmp, output, overwrite)
+            finally:
+                tmp.unlink(missing_ok=True)
+            fsync_dir(output.parent)
+            journal.unlink()
+            fsync_dir(journal.parent)
+    finally:
+        if held is not None:
+            held.release()
+    return Recovery(output, n, contents.dropped_bytes, contents.dropped_reason)
+
+
+def recover_campaign(path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
+                     *, overwrite: bool = False) -> Recovery:
+    """Salvage the recordings of a writer that died (kill -9, power loss, a crash).
+
+    ``path`` is the campaign file the writer was writing (or its journal ``.NAME.partial``).
+    Every recording whose ``append`` had returned is written to ``output`` (default: ``path``),
+    a normal campaign file; the torn recording that was in flight, if any, is dropped. The
+    journal is deleted once the campaign file is in place. Refuses while the writer is still
+    alive, and never replaces an existing file unless ``overwrite=True``.
+    """
+    from eskin.data.journal import journal_path, target_of
+
+    p = Path(path)
+    if p.name.startswith(".") and p.name.endswith(".partial"):
+        journal, target = p, target_of(p)
+    else:
+        journal, target = journal_path(p), p
+    if not journal.exists():
+        raise FileNotFoundError(f"{target}: nothing to recover (no journal {journal.name} "
+                                f"next to it)")
+    out = Path(output) if output is not None else target
+    _check_target(out, overwrite)
+    return _finish_journal(journal, out, overwrite)
 
 
 def write_campaign(

@@ -146,6 +146,20 @@ def register(app: typer.Typer) -> None:
             with load_campaign(output) as c:
                 typer.echo(f"wrote {output}: {len(c)} recordings")
 
+    @app.command("recover")
+    def recover_cmd(
+        file: Path = typer.Argument(
+            ..., help="the campaign file an interrupted writer was writing (or its journal)"),
+        output: Optional[Path] = typer.Option(
+            None, "-o", "--output", help="campaign file to write (default: FILE)"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    ) -> None:
+        """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
+        from eskin.campaign import recover_campaign
+
+        with _user_errors():
+            typer.echo(recover_campaign(file, output, overwrite=force).message())
+
 
 def _print_info(c) -> None:
     from rich.console import Console

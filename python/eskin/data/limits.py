@@ -1,0 +1,74 @@
+"""Size limits of what eskin reads, checked before any large read or allocation.
+
+A file declares its sizes (recordings, grid, samples) before its data; a damaged or hostile file
+can declare sizes that no real campaign has and that would exhaust the memory. Readers compare
+each declared size with these limits (documented in ``docs/dataset-format.md``) and with the
+memory available, and name the field that is too large.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+MAX_RECORDINGS = 100_000
+"""Recordings in one campaign (the paper's campaign has 840)."""
+MAX_GRID_SIDE = 256
+"""Taxel rows, and taxel columns, of a grid."""
+MAX_TAXELS = 4096
+"""Taxels of a grid (rows x cols; a 64 x 64 skin)."""
+MAX_SAMPLES = 1 << 24
+"""Samples of one recording, T (16,777,216: 93 minutes at 3 kHz); also the largest D."""
+MAX_RECORDING_BYTES = 1 << 30
+"""Bytes of one recording as int16 (rows x cols x T x 2): a recording is read whole."""
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this process can still use (MemAvailable, capped by the cgroup limit);
+    None where unknown."""
+    avail = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                avail = int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError, AttributeError):
+            avail = None
+    room = _cgroup_room()
+    if room is not None:
+        avail = room if avail is None else min(avail, room)
+    return avail
+
+
+def _cgroup_room() -> int | None:
+    """Memory left under this process's cgroup (v2) limit, if it has one."""
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+        return max(0, int(limit) - used)
+    except (OSError, ValueError):
+        return None
+
+
+def gib(nbytes: float) -> str:
+    """A byte count for a message ("3.2 GiB")."""
+    return f"{nbytes / (1 << 30):.3g} GiB"
+
+
+def memory_problem(nbytes: int, what: str) -> str | None:
+    """Why ``nbytes`` for ``what`` cannot be allocated now, or None if they fit."""
+    avail = available_memory()
+    if avail is not None and nbytes > avail:
+        return f"{what} would take {gib(nbytes)}, more than the {gib(avail)} of memory available"
+    return None
+
+
+def size_problem(value: int, limit: int, what: str) -> str | None:
+    """Why a declared size is refused, or None if it is within ``limit``."""
+    if value > limit:
+        return f"{what} {value:,} is over the limit of {limit:,} (docs/dataset-format.md)"
+    return None
