@@ -763,6 +763,8 @@ class CampaignWriter:
     ``signals`` of one recording: integer (rows, cols, length) with length <= n_samples, padded
     with zeros. ``contact_interval=True`` adds the optional ground-truth field (then every append
     must give one). Extra root attributes go in ``attrs`` (dicts are stored as JSON text).
+    ``durable=False`` skips the per-append ``fsync`` (appends still survive a crash of the
+    process, not a power loss; for data that can be made again, such as simulated campaigns).
     ``append`` also takes an :class:`EncodedRecording` (from :func:`encode_recording` with this
     writer's ``grid_shape``, ``n_samples`` and ``compression_level``), which lets worker
     processes do the compression. Compression: gzip (deflate) at ``compression_level`` with the
@@ -784,6 +786,7 @@ class CampaignWriter:
         overwrite: bool = False,
         compression_level: int | None = 1,
         extra_fields: Mapping[str, Any] | None = None,
+        durable: bool = True,
     ):
         from eskin.data.journal import JournalWriter
 
@@ -815,7 +818,7 @@ class CampaignWriter:
                                  f"numeric or fixed-size dtype)")
         self._journal = JournalWriter(self.path, _journal_settings(
             dict(attrs or {}), dec, self.grid_shape, self.n_samples, self.compression_level,
-            self._with_ci, self._extra_types))
+            self._with_ci, self._extra_types), durable=durable)
         self._n = 0
         self._closed = False
 

@@ -149,10 +149,13 @@ def decode_attr(value: Any) -> Any:
 
 
 class JournalWriter:
-    """Create, lock and append to a journal; every append is durable when it returns."""
+    """Create, lock and append to a journal. Every append has reached the operating system when
+    it returns (it survives the death of the process) and, if ``durable``, the disk (it survives
+    a power loss)."""
 
-    def __init__(self, target: Path, settings: Mapping[str, Any]):
+    def __init__(self, target: Path, settings: Mapping[str, Any], *, durable: bool = True):
         self.target = Path(target)
+        self.durable = durable
         self.path = journal_path(self.target)
         try:
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
@@ -186,7 +189,8 @@ class JournalWriter:
         head = _RECORD_HEAD.pack(RECORD_MAGIC, self.n, len(text), len(body))
         crc = zlib.crc32(body, zlib.crc32(text, zlib.crc32(head[4:])))
         _write_all(self._fd, head + text + body + _CRC.pack(crc))
-        os.fsync(self._fd)
+        if self.durable:
+            os.fdatasync(self._fd)
         self.n += 1
 
     def release(self) -> None:
