@@ -102,7 +102,10 @@ py::tuple preprocess_py(const py::array& signals, const py::object& lengths, int
   opt.n_threads = n_threads;
   I64 len_arr;
   const Batch b = batch_shape(signals, lengths, len_arr);
-  if (D < 1) throw std::invalid_argument("D = " + std::to_string(D) + ": must be >= 1");
+  if (D < 1 || D > kMaxD) {  // before the output is allocated
+    throw std::invalid_argument("D = " + std::to_string(D) + ": must be in [1, " +
+                                std::to_string(kMaxD) + "]");
+  }
   I64 given_arr;
   const int64_t* given_ptr = nullptr;
   if (!given.is_none()) {
@@ -141,6 +144,10 @@ class PyTouchDetector {
     if (method < 0 || method > 1) throw std::invalid_argument("subsample method out of range");
     if (short_policy < 0 || short_policy > 1) {
       throw std::invalid_argument("short policy out of range");
+    }
+    if (D < 0 || D > kMaxD) {  // 0: no tensors
+      throw std::invalid_argument("D = " + std::to_string(D) + ": must be in [0, " +
+                                  std::to_string(kMaxD) + "]");
     }
   }
 

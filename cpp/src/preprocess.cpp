@@ -98,6 +98,14 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   for (std::size_t i = 0; i < kWindowConfigSize; ++i) {
     if (!std::isfinite(arr[i])) bad(window_config_field_names()[i], arr[i], "must be finite");
   }
+  // times become sample counts: bounded first, so that no conversion or later sum overflows
+  static constexpr std::size_t kTimeFields[] = {0, 3, 5, 10, 11, 12, 13, 14, 15};
+  for (const std::size_t i : kTimeFields) {
+    if (!(std::fabs(arr[i]) * rate <= kMaxFieldSamples)) {
+      bad(window_config_field_names()[i], arr[i],
+          "out of range (more than 1e13 samples at " + fmt(rate) + " Hz)");
+    }
+  }
   auto choice = [](const char* name, double v, int n) {
     if (v != std::floor(v) || v < 0 || v >= n) {
       bad(name, v, "must be an integer in [0, " + std::to_string(n - 1) + "]");
@@ -114,6 +122,11 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   p.combine = choice("combine", c.combine, 3);
   if (!(c.noise_window_s > 0)) bad("noise_window_s", c.noise_window_s, "must be > 0");
   p.noise_frames = std::max<int64_t>(1, to_samples(c.noise_window_s, rate) / p.frame_len);
+  if (p.noise_frames > kMaxNoiseFrames) {
+    bad("noise_window_s", c.noise_window_s,
+        "too large: " + std::to_string(p.noise_frames) + " frames of frame_s = " + fmt(c.frame_s) +
+            " s, the limit is " + std::to_string(kMaxNoiseFrames));
+  }
   if (c.noise_quantile < 0 || c.noise_quantile > 1) {
     bad("noise_quantile", c.noise_quantile, "must be in [0, 1]");
   }
@@ -137,6 +150,11 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   p.release_fraction = c.release_fraction;
   if (c.lookback_s < 0) bad("lookback_s", c.lookback_s, "must be >= 0");
   p.lookback_frames = to_samples(c.lookback_s, rate) / p.frame_len;
+  if (p.lookback_frames > kMaxLookbackFrames) {
+    bad("lookback_s", c.lookback_s,
+        "too large: " + std::to_string(p.lookback_frames) + " frames of frame_s = " +
+            fmt(c.frame_s) + " s, the limit is " + std::to_string(kMaxLookbackFrames));
+  }
   if (c.hold_s < 0) bad("hold_s", c.hold_s, "must be >= 0");
   p.hold_frames = std::max<int64_t>(1, ceil_div(to_samples(c.hold_s, rate), p.frame_len));
   if (c.min_duration_s < 0) bad("min_duration_s", c.min_duration_s, "must be >= 0");
@@ -152,7 +170,11 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
         "must leave room for pad_before_s, lookback_s and two frames (" +
             fmt(static_cast<double>(room) / rate) + " s)");
   }
-  if (p.max_window > (int64_t{1} << 34)) bad("max_window_s", c.max_window_s, "is too large");
+  if (p.max_window > kMaxWindowSamples) {
+    bad("max_window_s", c.max_window_s,
+        "too large: " + std::to_string(p.max_window) + " samples at " + fmt(rate) +
+            " Hz, the limit is " + std::to_string(kMaxWindowSamples));
+  }
   p.select = choice("select", c.select, 3);
   if (c.span_fraction < 0 || c.span_fraction > 1) {
     bad("span_fraction", c.span_fraction, "must be in [0, 1]");
@@ -160,6 +182,25 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   p.span_fraction = c.span_fraction;
   p.fallback = choice("fallback", c.fallback, 2);
   return p;
+}
+
+int64_t detector_stored_values(const DetectorParams& p, int64_t n_taxels) noexcept {
+  const int64_t ring = p.pad_before + (p.lookback_frames + 1) * p.frame_len;
+  return (ring + p.max_window) * std::max<int64_t>(n_taxels, 0);
+}
+
+void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, int64_t n_taxels) {
+  if (n_taxels > kMaxStoredValues) {
+    throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": more than " +
+                                std::to_string(kMaxStoredValues));
+  }
+  const int64_t values = detector_stored_values(p, n_taxels);
+  if (values > kMaxStoredValues) {
+    bad("max_window_s", cfg.max_window_s,
+        "too large for " + std::to_string(n_taxels) + " taxels: a stream detector would store " +
+            std::to_string(values) + " samples (pre-pad ring and window), the limit is " +
+            std::to_string(kMaxStoredValues));
+  }
 }
 
 const char* status_name(Status s) noexcept {
@@ -266,6 +307,7 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   noise_sorted_.assign(static_cast<std::size_t>(p_.noise_frames), 0.0);
   frame_ring_.assign(static_cast<std::size_t>(std::max<int64_t>(1, p_.lookback_frames)), 0.0);
   if (store_) {
+    check_detector_buffers(p_, cfg_, n_taxels);
     ring_cap_ = p_.pad_before + (p_.lookback_frames + 1) * p_.frame_len;
     ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), 0.0);
     window_.assign(static_cast<std::size_t>(p_.max_window * n_taxels), 0.0);
@@ -736,7 +778,10 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
                 const int64_t* lengths, const PreprocessOptions& opt, double* out,
                 TouchWindow* windows_out, const int64_t* given) {
   check_batch(n, n_taxels, T_total, lengths);
-  if (opt.D < 1) throw std::invalid_argument("D = " + std::to_string(opt.D) + ": must be >= 1");
+  if (opt.D < 1 || opt.D > kMaxD) {
+    throw std::invalid_argument("D = " + std::to_string(opt.D) + ": must be in [1, " +
+                                std::to_string(kMaxD) + "]");
+  }
   if (opt.window == WindowMode::kGiven && given == nullptr) {
     throw std::invalid_argument("window = given but no windows were passed");
   }

@@ -254,6 +254,83 @@ TEST(WindowConfig, RejectsBadValuesNamingTheField) {
   EXPECT_THROW(TouchDetector(0, kRate, WindowConfig{}), std::invalid_argument);
 }
 
+// The resource limits: a configuration whose buffers would be unbounded is refused by the
+// validation (std::invalid_argument naming the field and its value), before any allocation.
+TEST(WindowConfig, RefusesUnboundedBuffersNamingTheFieldAndValue) {
+  auto message = [](WindowConfig c, double rate = kRate) -> std::string {
+    try {
+      eskin::resolve_window_config(c, rate);
+    } catch (const std::invalid_argument& e) {
+      return e.what();
+    }
+    return "";
+  };
+  WindowConfig c;
+  c.noise_window_s = 1e6;  // 1e8 frames of 10 ms
+  std::string m = message(c);
+  EXPECT_NE(m.find("noise_window_s = 1e+06"), std::string::npos) << m;
+  EXPECT_NE(m.find("limit is 1048576"), std::string::npos) << m;
+  c.noise_window_s = 1e12;
+  EXPECT_NE(message(c).find("noise_window_s = 1e+12"), std::string::npos);
+  c = WindowConfig{};
+  c.noise_window_s = 10485.76;  // exactly kMaxNoiseFrames frames at 3 kHz: still accepted
+  EXPECT_EQ(eskin::resolve_window_config(c, kRate).noise_frames, eskin::kMaxNoiseFrames);
+  c.noise_window_s = 10485.78;
+  EXPECT_NE(message(c).find("noise_window_s"), std::string::npos);
+  c = WindowConfig{};
+  c.max_window_s = 1e6;
+  m = message(c);
+  EXPECT_NE(m.find("max_window_s = 1e+06"), std::string::npos) << m;
+  EXPECT_NE(m.find("limit is 16777216"), std::string::npos) << m;
+  c = WindowConfig{};
+  c.max_window_s = 2000;  // 6e6 samples: a lookback of 1e6 frames fits inside it
+  c.frame_s = 1.0 / kRate;
+  c.lookback_s = 1000;  // 3e6 one-sample frames
+  EXPECT_NE(message(c).find("lookback_s = 1000"), std::string::npos);
+}
+
+// A finite but huge time is out of range (its conversion to samples would overflow), not
+// "non-finite"; every time field is checked.
+TEST(WindowConfig, HugeFiniteTimesAreOutOfRange) {
+  const auto names = eskin::window_config_field_names();
+  for (const std::size_t i : {0u, 3u, 5u, 10u, 11u, 12u, 13u, 14u, 15u}) {
+    for (const double v : {1e308, -1e308, 1e10}) {
+      auto a = eskin::window_config_to_array(WindowConfig{});
+      a[i] = v;
+      try {
+        eskin::resolve_window_config(eskin::window_config_from_array(a.data(), a.size()), kRate);
+        ADD_FAILURE() << names[i] << " = " << v << " accepted";
+      } catch (const std::invalid_argument& e) {
+        const std::string m = e.what();
+        EXPECT_NE(m.find(std::string("WindowConfig.") + names[i] + " = "), std::string::npos) << m;
+        EXPECT_NE(m.find("out of range"), std::string::npos) << m;
+        EXPECT_EQ(m.find("finite"), std::string::npos) << m;
+      }
+    }
+  }
+}
+
+// The samples a storing detector keeps grow with the grid: bounded by kMaxStoredValues, checked
+// by the constructor (a non-storing detector, as in batch preprocessing, keeps no samples).
+TEST(WindowConfig, StoredSamplesAreBoundedPerGrid) {
+  const WindowConfig c;  // 7 s at 3 kHz, and a pre-pad ring of 150 + 31 frames of 30
+  const auto p = eskin::resolve_window_config(c, kRate);
+  EXPECT_EQ(eskin::detector_stored_values(p, 16), 16 * (150 + 31 * 30 + 21000));
+  const int64_t most = eskin::kMaxStoredValues / eskin::detector_stored_values(p, 1);
+  EXPECT_NO_THROW(TouchDetector(most, kRate, c, /*store_samples=*/false));
+  EXPECT_NO_THROW(eskin::check_detector_buffers(p, c, most));
+  try {
+    TouchDetector(most + 1, kRate, c, /*store_samples=*/true);
+    ADD_FAILURE() << "no error for " << most + 1 << " taxels";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("WindowConfig.max_window_s = 7: too large for " +
+                                         std::to_string(most + 1) + " taxels"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_NO_THROW(TouchDetector(most + 1, kRate, c, /*store_samples=*/false));
+}
+
 // ------------------------------------------------------------------ detector
 
 TEST(Detector, FindsBurstsWithKnownOnsetAndOffset) {

@@ -83,6 +83,21 @@ struct DetectorParams {
 };
 DetectorParams resolve_window_config(const WindowConfig& cfg, double sample_rate_hz);
 
+// Resource limits of the detector (docs/preprocessing.md, "Limits"): resolve_window_config
+// refuses a configuration beyond them with a std::invalid_argument naming the field and value,
+// before anything is allocated.
+inline constexpr double kMaxFieldSamples = 1e13;               // |seconds * rate| of a time field
+inline constexpr int64_t kMaxNoiseFrames = int64_t{1} << 20;     // noise_window_s in frames
+inline constexpr int64_t kMaxLookbackFrames = int64_t{1} << 20;  // lookback_s in frames
+inline constexpr int64_t kMaxWindowSamples = int64_t{1} << 24;   // max_window_s in samples
+// Samples (doubles) a TouchDetector with store_samples keeps: (pre-pad ring + max window) *
+// n_taxels, 256 MiB at the limit. The constructor, and the model loader for its grid, check it.
+inline constexpr int64_t kMaxStoredValues = int64_t{1} << 25;
+// The doubles a storing TouchDetector over n_taxels taxels allocates for its samples.
+int64_t detector_stored_values(const DetectorParams& p, int64_t n_taxels) noexcept;
+// Throws std::invalid_argument naming max_window_s when detector_stored_values > kMaxStoredValues.
+void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, int64_t n_taxels);
+
 // One detected touch. onset/offset delimit where the energy was above threshold (frame
 // resolution); start/stop add the padding and are clipped to the stream and to max_window.
 struct TouchWindow {
@@ -271,6 +286,9 @@ enum class WindowMode : int32_t {
   kNone = 1,    // the whole valid recording [0, length)
   kGiven = 2,   // windows given by the caller
 };
+
+// The largest D (samples per window after subsampling) preprocess and the models accept.
+inline constexpr int64_t kMaxD = 100000;
 
 struct PreprocessOptions {
   int64_t D = 100;
