@@ -38,7 +38,16 @@ namespace {
 
 // Limits that keep every product of sizes far from overflow and every allocation sane.
 constexpr std::uint32_t kMaxGrid = 256;      // rows, cols
-constexpr std::uint32_t kMaxD = 100000;      // subsampled length
+// rows * cols * D: the classifier's workspace (8 input copies for the batched eigen-solver, the
+// mode Gram matrices) grows with the tensor; this bounds it to about 150 MB.
+constexpr std::uint64_t kMaxTensor = 1u << 20;
+// sigma of every mode: 1 / (2 sigma^2) stays a normal, finite double, so that no decision value
+// can be NaN (a zero distance times an infinite weight) whatever the distances.
+constexpr double kMinSigma = 1e-6;
+constexpr double kMaxSigma = 1e6;
+// sum_t |coef_t| + |intercept| of a machine: bounds every decision value (the kernel is <= 1),
+// so that no sum can overflow to inf (and inf - inf to NaN).
+constexpr double kMaxDecisionBound = 1e300;
 constexpr std::uint32_t kMaxClasses = 1024;
 constexpr std::uint32_t kMaxFields = 256;
 constexpr std::uint64_t kMaxFileBytes = 1ull << 31;
@@ -51,6 +60,38 @@ std::string fmt_double(double v) {
 }
 
 [[noreturn]] void fail(ModelError code, const std::string& msg) { throw ModelFormatError(code, msg); }
+
+// Index of the first byte of s[0, n) that does not start a well-formed UTF-8 sequence (RFC 3629:
+// no overlong forms, no surrogates, nothing above U+10FFFF), or n when all of it is valid.
+std::size_t utf8_error_at(const char* s, std::size_t n) {
+  const auto* u = reinterpret_cast<const unsigned char*>(s);
+  std::size_t i = 0;
+  while (i < n) {
+    const unsigned c = u[i];
+    std::size_t len;
+    unsigned lo = 0x80, hi = 0xBF;  // allowed range of the second byte
+    if (c < 0x80) len = 1;
+    else if (c >= 0xC2 && c <= 0xDF) len = 2;
+    else if (c >= 0xE0 && c <= 0xEF) {
+      len = 3;
+      if (c == 0xE0) lo = 0xA0;       // overlong
+      else if (c == 0xED) hi = 0x9F;  // surrogates
+    } else if (c >= 0xF0 && c <= 0xF4) {
+      len = 4;
+      if (c == 0xF0) lo = 0x90;       // overlong
+      else if (c == 0xF4) hi = 0x8F;  // above U+10FFFF
+    } else {
+      return i;
+    }
+    if (len > n - i) return i;
+    for (std::size_t k = 1; k < len; ++k) {
+      const unsigned b = u[i + k];
+      if (k == 1 ? (b < lo || b > hi) : (b < 0x80 || b > 0xBF)) return i;
+    }
+    i += len;
+  }
+  return n;
+}
 
 // Little-endian reads from a bounded byte range.
 class Reader {
@@ -112,6 +153,10 @@ class Reader {
       if (c < 0x20 || c == 0x7F)
         fail(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
     }
+    const std::size_t bad = utf8_error_at(s, len);
+    if (bad != len)
+      fail(ModelError::kValue, what_ + ": field '" + field + "' is not valid UTF-8 (byte " +
+                                   std::to_string(bad) + ")");
     std::string out(s, len);
     pos_ += model_format::kNameBytes;
     return out;
@@ -191,6 +236,11 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
                                  std::to_string(cols) + " out of range [1, 256]");
   if (D < 2 || D > kMaxD)
     fail(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
+  if (std::uint64_t{rows} * cols * D > kMaxTensor)
+    fail(ModelError::kValue, w + ": rows*cols*D = " + std::to_string(rows) + "*" +
+                                 std::to_string(cols) + "*" + std::to_string(D) + " = " +
+                                 std::to_string(std::uint64_t{rows} * cols * D) +
+                                 " exceeds the limit " + std::to_string(kMaxTensor));
   if (window > 1)
     fail(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 energy, 1 none)");
   if (sub > 1)
@@ -230,7 +280,9 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   r.expect_end();
   const WindowConfig cfg = window_config_from_array(values.data(), values.size());
   try {
-    (void)resolve_window_config(cfg, rate);  // the detector's own validation
+    // the detector's own validation, and the sample buffers of a stream classifier
+    const DetectorParams p = resolve_window_config(cfg, rate);
+    check_detector_buffers(p, cfg, std::int64_t{rows} * cols);
   } catch (const std::exception& e) {
     fail(ModelError::kValue, w + ": " + e.what());
   }
@@ -391,13 +443,13 @@ void ModelParser::parse_mach(Reader& r, Model& m) {
       const std::uint32_t a = r.u32("alpha");
       r.zero_u32("reserved");
       const double s = r.f64("sigma");
-      if (a < 1 || static_cast<int>(a) > m.alpha_store_[z])
+      if (a < 1 || a > static_cast<std::uint32_t>(m.alpha_store_[z]))
         fail(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
                                      " out of range [1, alpha_store=" +
                                      std::to_string(m.alpha_store_[z]) + "]");
-      if (!(std::isfinite(s) && s > 0))
+      if (!(s >= kMinSigma && s <= kMaxSigma))
         fail(ModelError::kValue, mw + ": sigma[" + std::to_string(z) + "]=" + fmt_double(s) +
-                                     " must be finite and > 0");
+                                     " out of range [1e-06, 1e+06]");
       mm.alpha[static_cast<std::size_t>(z)] = static_cast<int>(a);
       mm.sigma[static_cast<std::size_t>(z)] = s;
     }
@@ -424,6 +476,11 @@ void ModelParser::parse_mach(Reader& r, Model& m) {
         fail(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
       mm.coef[t] = c;
     }
+    double bound = std::fabs(mm.intercept);
+    for (const double c : mm.coef) bound += std::fabs(c);
+    if (!(bound <= kMaxDecisionBound))
+      fail(ModelError::kValue, mw + ": |intercept| + sum |coef| = " + fmt_double(bound) +
+                                   " exceeds 1e+300 (decision values would overflow)");
     r.pad8("coef");
     m.machines_.push_back(std::move(mm));
   }

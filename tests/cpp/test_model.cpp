@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <new>
 #include <fstream>
 #include <iterator>
@@ -233,6 +234,142 @@ TEST(ModelLoad, InconsistentSizes) {
     fix_crc(b);
     EXPECT_EQ(load_error(b), ModelError::kLayout);
     EXPECT_NE(load_message(b).find("unexpected section 'XREP'"), std::string::npos);
+  }
+}
+
+namespace {
+
+void put_f64(Bytes& b, std::size_t off, double v) {
+  std::uint64_t u;
+  std::memcpy(&u, &v, 8);
+  for (int i = 0; i < 8; ++i) b[off + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(u >> (8 * i));
+}
+
+// Offset of the f64 value of a named PREP window field (40 bytes of fixed fields, then
+// {name[32], f64} pairs).
+std::size_t window_field_offset(const Bytes& b, const std::string& name) {
+  const std::size_t prep = section_offset(b, "PREP");
+  for (std::size_t k = 0; k < eskin::kWindowConfigSize; ++k) {
+    const std::size_t at = prep + 40 + k * 40;
+    if (name == reinterpret_cast<const char*>(&b[at])) return at + 32;
+  }
+  ADD_FAILURE() << "window field " << name << " not found";
+  return 0;
+}
+
+// Offsets in machine 0 of MACH: its per-mode alpha and sigma, and its first coefficient.
+std::size_t machine0_alpha(const Bytes& b, int z) { return section_offset(b, "MACH") + 8 + 24 + 16 * z; }
+std::size_t machine0_sigma(const Bytes& b, int z) { return machine0_alpha(b, z) + 8; }
+std::size_t machine0_coef(const Bytes& b) {
+  const std::size_t m0 = section_offset(b, "MACH") + 8;
+  const std::uint32_t n_terms = get_u32(b, m0 + 8);
+  return m0 + 72 + (std::size_t{n_terms} * 4 + 7) / 8 * 8;
+}
+
+// The error a one-field edit gives (CRC recomputed so the edit reaches the value checks).
+std::string edited_message(const char* dtype, void (*edit)(Bytes&)) {
+  Bytes b = fixture(dtype);
+  edit(b);
+  fix_crc(b);
+  EXPECT_EQ(load_error(b), ModelError::kValue);
+  return load_message(b);
+}
+
+}  // namespace
+
+// A machine alpha >= 2^31 once passed as a negative int and crashed every consumer.
+TEST(ModelLimits, AlphaAtOrAbove2To31IsRefused) {
+  for (const std::uint32_t a : {0x80000000u, 0xFFFFFFFFu, 0x7FFFFFFFu}) {
+    Bytes b = fixture("float32");
+    put_u32(b, machine0_alpha(b, 1), a);
+    fix_crc(b);
+    EXPECT_EQ(load_error(b), ModelError::kValue);
+    const std::string m = load_message(b);
+    EXPECT_NE(m.find("machine 0: alpha[1]=" + std::to_string(a) + " out of range"), std::string::npos) << m;
+  }
+}
+
+// sigma so small that 1 / (2 sigma^2) is inf makes 0 * inf = NaN decision values; so large or
+// non-positive ones are nonsense: the range is [1e-6, 1e6].
+TEST(ModelLimits, SigmaOutsideItsRangeIsRefused) {
+  for (const double s : {1e-300, 0.0, -1.0, 9.9e-7, 1.01e6, 1e300, std::nan("")}) {
+    Bytes b = fixture("float64");
+    put_f64(b, machine0_sigma(b, 2), s);
+    fix_crc(b);
+    EXPECT_EQ(load_error(b), ModelError::kValue) << s;
+    const std::string m = load_message(b);
+    EXPECT_NE(m.find("machine 0: sigma[2]="), std::string::npos) << m;
+    EXPECT_NE(m.find("out of range [1e-06, 1e+06]"), std::string::npos) << m;
+  }
+  for (const double s : {1e-6, 1e6}) {  // the bounds themselves load
+    Bytes b = fixture("float64");
+    put_f64(b, machine0_sigma(b, 2), s);
+    fix_crc(b);
+    EXPECT_EQ(Model::from_bytes(b.data(), b.size()).machines()[0].sigma[2], s);
+  }
+}
+
+// Coefficients whose sum overflows would give inf - inf = NaN decision values.
+TEST(ModelLimits, CoefficientsThatCouldOverflowAreRefused) {
+  const std::string m = edited_message("float64", [](Bytes& b) {
+    put_f64(b, machine0_coef(b), 1e300);
+    put_f64(b, machine0_coef(b) + 8, -1e300);
+  });
+  EXPECT_NE(m.find("machine 0: |intercept| + sum |coef| = 2"), std::string::npos) << m;
+  EXPECT_NE(m.find("exceeds 1e+300"), std::string::npos) << m;
+}
+
+// Window settings inside the old [-1e6, 1e6] s range whose buffers are unbounded: a 1e6 s
+// noise window (an idle-frame history of 1e8 frames) or a 1e6 s max window (3e9 samples per
+// taxel) are refused at load, naming the field and the value.
+TEST(ModelLimits, WindowFieldsWithUnboundedBuffersAreRefused) {
+  std::string m = edited_message("float32", [](Bytes& b) {
+    put_f64(b, window_field_offset(b, "noise_window_s"), 1e6);
+  });
+  EXPECT_NE(m.find("section PREP: WindowConfig.noise_window_s = 1e+06: too large"), std::string::npos) << m;
+  m = edited_message("float32", [](Bytes& b) {
+    put_f64(b, window_field_offset(b, "max_window_s"), 1e6);
+  });
+  EXPECT_NE(m.find("WindowConfig.max_window_s = 1e+06: too large"), std::string::npos) << m;
+  // 1000 s at 3 kHz is within the per-taxel limit, but a stream classifier over the 16 taxels
+  // of the model would store 4.8e7 samples
+  m = edited_message("float32", [](Bytes& b) {
+    put_f64(b, window_field_offset(b, "max_window_s"), 1000);
+  });
+  EXPECT_NE(m.find("WindowConfig.max_window_s = 1000: too large for 16 taxels"), std::string::npos) << m;
+}
+
+// A grid and D whose tensor would make the classifier's workspace huge.
+TEST(ModelLimits, TensorSizeIsBounded) {
+  const std::string m = edited_message("float32", [](Bytes& b) {
+    const std::size_t prep = section_offset(b, "PREP");
+    put_u32(b, prep, 256);
+    put_u32(b, prep + 4, 256);
+    put_u32(b, prep + 8, 100);
+  });
+  EXPECT_NE(m.find("rows*cols*D = 256*256*100 = 6553600 exceeds the limit 1048576"), std::string::npos) << m;
+}
+
+// Class names are UTF-8 (the Python side decodes them): malformed sequences are refused.
+TEST(ModelLimits, ClassNamesMustBeValidUtf8) {
+  const auto with_name = [](const std::string& name) {
+    Bytes b = fixture("float32");
+    const std::size_t at = section_offset(b, "CLAS") + 8;  // class 0
+    std::fill(b.begin() + static_cast<std::ptrdiff_t>(at), b.begin() + static_cast<std::ptrdiff_t>(at + 32), 0);
+    std::copy(name.begin(), name.end(), b.begin() + static_cast<std::ptrdiff_t>(at));
+    fix_crc(b);
+    return b;
+  };
+  for (const std::string bad : {"\xff\xfe", "a\x80", "\xc0\xaf", "\xe0\x80\xaf", "\xed\xa0\x80",
+                                "\xf4\x90\x80\x80", "\xf5\x80\x80\x80", "ok\xe2\x82"}) {
+    const Bytes b = with_name(bad);
+    EXPECT_EQ(load_error(b), ModelError::kValue);
+    const std::string m = load_message(b);
+    EXPECT_NE(m.find("field 'class name' is not valid UTF-8"), std::string::npos) << m;
+  }
+  for (const std::string good : {"caf\xc3\xa9", "\xe2\x82\xac", "\xf0\x9f\x91\x86 tap", "\xed\x9f\xbf"}) {
+    const Bytes b = with_name(good);
+    EXPECT_EQ(Model::from_bytes(b.data(), b.size()).class_names()[0], good);
   }
 }
 
