@@ -13,7 +13,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <memory>
+#include <new>
 #include <string>
 #include <vector>
 
@@ -659,4 +661,15 @@ int main_impl(int argc, char** argv) {
 }  // namespace
 }  // namespace eskin::fwsim
 
-int main(int argc, char** argv) { return eskin::fwsim::main_impl(argc, argv); }
+// Whatever escapes (an allocation that fails, an unexpected error) ends in one line on stderr
+// and exit status 1, never in an abort.
+int main(int argc, char** argv) {
+  try {
+    return eskin::fwsim::main_impl(argc, argv);
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "eskin-fw-sim: out of memory\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "eskin-fw-sim: %s\n", e.what());
+  }
+  return 1;
+}
