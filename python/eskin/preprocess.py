@@ -26,6 +26,8 @@ from typing import Any, Iterable, Optional, Sequence, Union
 import numpy as np
 
 from eskin import _core
+from eskin.data import limits
+from eskin.data.limits import MAX_SAMPLES
 
 __all__ = [
     "WindowConfig",
@@ -208,6 +210,8 @@ def _check_D(D: Any) -> int:
         raise ValueError(f"D = {D!r}: must be an integer >= 1")
     if int(D) < 1:
         raise ValueError(f"D = {D!r}: must be an integer >= 1")
+    if int(D) > MAX_SAMPLES:
+        raise ValueError(f"D = {D!r}: over the limit of {MAX_SAMPLES:,} samples per window")
     return int(D)
 
 
@@ -404,6 +408,11 @@ def preprocess(
     short_policy = _choice("short", short, _SHORT)
     nt = _threads(n_threads)
     b = _Batch(signals, lengths)
+    problem = limits.memory_problem(
+        b.n * b.rows * b.cols * D * 8, f"the output ({b.n}, {b.rows}, {b.cols}, D={D}) float64"
+    )
+    if problem:
+        raise ValueError(f"D = {D!r}: {problem}")
     given: Optional[np.ndarray] = None
     if isinstance(window, str):
         mode = _choice("window", window, _WINDOW_MODES)

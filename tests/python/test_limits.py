@@ -94,3 +94,17 @@ def test_cli_info_on_a_huge_declaration_is_one_line(tmp_path):
     assert r.output == (f"error: {p}: /recordings/signals: shape (3, 4, 4, 2000000000): samples "
                         f"per recording T 2,000,000,000 is over the limit of 16,777,216 "
                         f"(docs/dataset-format.md)\n")
+
+
+def test_preprocess_huge_D_is_a_value_error_not_a_memory_error(monkeypatch):
+    from eskin import preprocess
+
+    x = np.zeros((2, 4, 4, 3000), np.int16)
+    with pytest.raises(ValueError, match=r"^D = 1000000000000: over the limit of 16,777,216 "):
+        preprocess(x, D=10**12)
+    monkeypatch.setattr(limits, "available_memory", lambda: 10_000)
+    with pytest.raises(ValueError, match=r"^D = 100: the output \(2, 4, 4, D=100\) float64 would "
+                       r"take 2.38e-05 GiB, more than the 9.31e-06 GiB of memory available"):
+        preprocess(x, D=100)
+    monkeypatch.setattr(limits, "available_memory", lambda: 30_000)
+    assert preprocess(x, D=100, window="none").shape == (2, 4, 4, 100)
