@@ -12,6 +12,7 @@ what arrives over the link with the source::
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import zlib
@@ -151,8 +152,10 @@ def write_replay_arrays(
     rec_idx = np.arange(n) if recording_indices is None else np.asarray(recording_indices)
     if rec_idx.shape != (n,):
         raise ValueError(f"recording_indices must have {n} entries, got {rec_idx.shape}")
-    if not (sample_rate_hz > 0):
-        raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
+    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise ValueError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+    if not (math.isfinite(volts_per_count) and volts_per_count > 0):
+        raise ValueError(f"volts_per_count must be finite and > 0, got {volts_per_count}")
     if gap_s < 0:
         raise ValueError(f"gap_s must be >= 0, got {gap_s}")
 
@@ -268,13 +271,52 @@ def read_replay_file(path: str | os.PathLike[str]) -> ReplayFile:
     head = raw[:52] + b"\0\0\0\0" + rest
     if zlib.crc32(head) != crc:
         raise ReplayFormatError(f"{path}: header checksum mismatch")
-    if rows < 1 or cols < 1:
-        raise ReplayFormatError(f"{path}: bad grid {rows}x{cols}")
+    _check_header(path, rows, cols, rate, vpc)
     expected = data_offset + total * rows * cols * 2
     if size != expected:
         raise ReplayFormatError(f"{path}: size {size} bytes, expected {expected}")
     segments = np.frombuffer(rest[: n_seg * _SEGMENT.size], dtype=SEGMENT_DTYPE).copy()
     names_b = rest[n_seg * _SEGMENT.size : n_seg * _SEGMENT.size + names_len]
-    names = tuple(names_b.decode("utf-8").split("\n")) if names_len else ()
+    try:
+        names = tuple(names_b.decode("utf-8").split("\n")) if names_len else ()
+    except UnicodeDecodeError as exc:
+        raise ReplayFormatError(f"{path}: class names: not valid UTF-8 ({exc.reason} at byte "
+                                f"{exc.start})") from None
+    if len(names) > 255:
+        raise ReplayFormatError(f"{path}: class names: {len(names)} names, at most 255")
+    _check_segments(path, segments, total, len(names))
     samples = np.memmap(path, dtype="<i2", mode="r", offset=data_offset, shape=(total, rows, cols))
     return ReplayFile(path, samples, segments, float(rate), float(vpc), names)
+
+
+def _check_header(path: Path, rows: int, cols: int, rate: float, vpc: float) -> None:
+    """The header's grid and scales: what the writer accepts, nothing else."""
+    if not (1 <= rows <= 255 and 1 <= cols <= 255):
+        raise ReplayFormatError(f"{path}: grid: {rows}x{cols} is not within 1..255 x 1..255")
+    if not (math.isfinite(rate) and rate > 0):
+        raise ReplayFormatError(f"{path}: sample_rate_hz: {rate!r} is not a finite number > 0")
+    if not (math.isfinite(vpc) and vpc > 0):
+        raise ReplayFormatError(f"{path}: volts_per_count: {vpc!r} is not a finite number > 0")
+
+
+def _check_segments(path: Path, seg: np.ndarray, total: int, n_names: int) -> None:
+    """Every segment inside the stream, with a known label and a contact inside it."""
+    start, length = seg["start"], seg["length"]
+    on, off, label = seg["contact_onset"], seg["contact_offset"], seg["label"]
+    unknown_contact = (on == -1) & (off == -1)
+    problems = (
+        (length == 0, lambda i: f"length {int(length[i])} is 0"),
+        ((start > total) | (length > total - np.minimum(start, total)),
+         lambda i: f"start {int(start[i])} + length {int(length[i])} runs past the end of the "
+                   f"stream ({total} samples)"),
+        ((label < -1) | (label >= n_names),
+         lambda i: f"label {int(label[i])} is neither -1 nor a class index (< {n_names})"),
+        (~unknown_contact & ((on < 0) | (off < on) | (off.astype(np.float64) > length)),
+         lambda i: f"contact interval [{int(on[i])}, {int(off[i])}) is neither -1/-1 nor "
+                   f"within [0, length {int(length[i])}] with onset <= offset"),
+    )
+    for bad, what in problems:
+        idx = np.flatnonzero(bad)
+        if idx.size:
+            i = int(idx[0])
+            raise ReplayFormatError(f"{path}: segment {i}: {what(i)} ({idx.size} bad segments)")

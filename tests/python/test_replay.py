@@ -105,3 +105,71 @@ def test_default_gaps_ramp_between_recording_levels_so_boundaries_are_not_touche
                                noise_counts=8.0, baseline=np.zeros((4, 4)), seed=2)
     assert abs(np.median(np.asarray(flat.samples[g : g + 1500], dtype=float))) < 2
 
+
+
+def _patched(tmp_path, name, edits):
+    """A valid replay file with header/segment bytes replaced and the header CRC recomputed,
+    so that only the edited field is wrong."""
+    import struct
+    import zlib
+
+    rng = np.random.default_rng(0)
+    recs = [rng.integers(-5, 5, size=(2, 3, n)).astype(np.int16) for n in (40, 60)]
+    p = tmp_path / name
+    write_replay_arrays(p, recs, labels=[0, 1], class_names=["a", "b"], gap_s=0.01,
+                        contact_intervals=[[1, 30], [0, 60]])
+    raw = bytearray(p.read_bytes())
+    for offset, fmt, value in edits:
+        struct.pack_into(fmt, raw, offset, value)
+    data_offset = struct.unpack_from("<I", raw, 12)[0]
+    struct.pack_into("<I", raw, 52, 0)
+    struct.pack_into("<I", raw, 52, zlib.crc32(bytes(raw[:data_offset])))
+    p.write_bytes(bytes(raw))
+    return p
+
+
+SEG1 = 56 + 48  # the second segment: start u64, length u64, onset i64, offset i64, label i32
+BAD_REPLAYS = {
+    "rate inf": ([(32, "<d", float("inf"))], "sample_rate_hz: inf is not a finite number > 0"),
+    "rate 0": ([(32, "<d", 0.0)], "sample_rate_hz: 0.0 is not a finite number > 0"),
+    "volts NaN": ([(40, "<d", float("nan"))], "volts_per_count: nan is not a finite number > 0"),
+    "grid 4096": ([(24, "<H", 4096)], "grid: 4096x3 is not within 1..255 x 1..255"),
+    "segment past the end": ([(SEG1, "<Q", 2**63)], "segment 1: start 9223372036854775808 + "
+                             "length 60 runs past the end of the stream"),
+    "huge length": ([(SEG1 + 8, "<Q", 2**64 - 1)], "segment 1: start 100 + length "
+                    "18446744073709551615 runs past the end"),
+    "empty segment": ([(SEG1 + 8, "<Q", 0)], "segment 1: length 0 is 0"),
+    "label 7": ([(SEG1 + 32, "<i", 7)], "segment 1: label 7 is neither -1 nor a class index (< 2)"),
+    "contact past length": ([(SEG1 + 24, "<q", 61)], "segment 1: contact interval [0, 61) is "
+                            "neither -1/-1 nor within [0, length 60]"),
+    "names not UTF-8": ([(56 + 2 * 48, "<B", 0xFF)], "class names: not valid UTF-8"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_REPLAYS))
+def test_bad_header_fields_and_segments_are_named(tmp_path, case):
+    edits, message = BAD_REPLAYS[case]
+    p = _patched(tmp_path, "bad.eskr", edits)
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value).startswith(f"{p}: {message}"), str(info.value)
+
+
+def test_listen_with_a_bad_replay_is_a_one_line_error(tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    p = _patched(tmp_path, "bad.eskr", BAD_REPLAYS["segment past the end"][0])
+    r = CliRunner().invoke(app, ["listen", str(tmp_path / "no-port"), "--replay", str(p)])
+    assert r.exit_code == 2
+    assert r.output.startswith(f"error: {p}: segment 1: start 9223372036854775808")
+    assert r.output.count("\n") == 1 and "Traceback" not in r.output
+
+
+def test_writer_refuses_non_finite_scales(tmp_path):
+    ok = [np.zeros((2, 2, 10), np.int16)]
+    with pytest.raises(ValueError, match="sample_rate_hz must be finite"):
+        write_replay_arrays(tmp_path / "e.eskr", ok, sample_rate_hz=float("inf"))
+    with pytest.raises(ValueError, match="volts_per_count must be finite"):
+        write_replay_arrays(tmp_path / "e.eskr", ok, volts_per_count=float("nan"))
