@@ -21,6 +21,7 @@ subsample method) in chunks.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -587,6 +588,16 @@ def _load_data(
     return rec, ids, names, None, info
 
 
+def _require_touches(X: np.ndarray, data: Any) -> None:
+    """Refuse training data in which no recording holds any signal (no touch anywhere)."""
+    flat = X.reshape(len(X), -1)
+    if len(flat) and np.all(flat.max(axis=1) == flat.min(axis=1)):
+        where = f"{data}: " if isinstance(data, (str, os.PathLike)) else ""
+        raise TrainingError(
+            f"{where}no touch anywhere: each of the {len(flat)} training recordings is flat "
+            f"(its preprocessed tensor is constant), so there is nothing to learn")
+
+
 def train_model(
     data: Any,
     labels: Any = None,
@@ -677,6 +688,7 @@ def train_model(
         rec, idx, [(int(D), subsample)], window=window, config=window_config, sample_rate_hz=rate
     )
     X = prep.X[(int(D), subsample)]
+    _require_touches(X, data)
     shape = X.shape[1:]
     grid = param_grid(lambdas, sigmas, alphas)
     search = make_search(

@@ -229,3 +229,31 @@ def test_model_rejects_other_grid(binary_model, user_path):
 
     with pytest.raises(TrainingError, match="3x5 taxel grid.*4x4"):
         binary_model.predict_recordings(load_campaign(user_path))
+
+
+def test_train_on_a_campaign_without_any_touch_fails_clearly(tmp_path):
+    from eskin.campaign import write_campaign
+
+    n = 12
+    path = tmp_path / "zero.h5"
+    write_campaign(path, np.zeros((n, 4, 4, 2000), np.int16), modality=np.arange(n) % 3,
+                   participant=np.arange(n) // 3, direction=np.arange(n) % 2, run=np.full(n, 2),
+                   modalities=["brush", "finger", "washer"], sample_rate_hz=3000.0,
+                   volts_per_count=1e-3, source="recorded")
+    r = CliRunner().invoke(app, ["train", str(path), "-o", str(tmp_path / "m.eskin"),
+                                 "--all-classes", "--quick"])
+    assert r.exit_code == 2
+    assert r.output == (f"error: {path}: no touch anywhere: each of the 12 training recordings "
+                        f"is flat (its preprocessed tensor is constant), so there is nothing to "
+                        f"learn\n")
+    assert not (tmp_path / "m.eskin").exists()
+    # one recording with a touch is enough to train (the check is not over-eager)
+    sig = np.zeros((n, 4, 4, 2000), np.int16)
+    sig[:, :, :, 800:900] = (np.arange(n) * 50 + 300)[:, None, None, None]
+    write_campaign(path, sig, modality=np.arange(n) % 3, participant=np.arange(n) // 3,
+                   direction=np.arange(n) % 2, run=np.full(n, 2),
+                   modalities=["brush", "finger", "washer"], sample_rate_hz=3000.0,
+                   volts_per_count=1e-3, source="recorded", overwrite=True)
+    r = CliRunner().invoke(app, ["train", str(path), "-o", str(tmp_path / "m.eskin"),
+                                 "--all-classes", "--quick"])
+    assert r.exit_code == 0, r.output
