@@ -27,7 +27,7 @@ import numpy as np
 
 from eskin import _core
 from eskin.data import limits
-from eskin.data.limits import MAX_SAMPLES
+from eskin.data.limits import MAX_D
 
 __all__ = [
     "WindowConfig",
@@ -210,8 +210,8 @@ def _check_D(D: Any) -> int:
         raise ValueError(f"D = {D!r}: must be an integer >= 1")
     if int(D) < 1:
         raise ValueError(f"D = {D!r}: must be an integer >= 1")
-    if int(D) > MAX_SAMPLES:
-        raise ValueError(f"D = {D!r}: over the limit of {MAX_SAMPLES:,} samples per window")
+    if int(D) > MAX_D:
+        raise ValueError(f"D = {D!r}: over the limit of {MAX_D:,} samples per window")
     return int(D)
 
 

@@ -100,7 +100,7 @@ def test_preprocess_huge_D_is_a_value_error_not_a_memory_error(monkeypatch):
     from eskin import preprocess
 
     x = np.zeros((2, 4, 4, 3000), np.int16)
-    with pytest.raises(ValueError, match=r"^D = 1000000000000: over the limit of 16,777,216 "):
+    with pytest.raises(ValueError, match=r"^D = 1000000000000: over the limit of 100,000 "):
         preprocess(x, D=10**12)
     monkeypatch.setattr(limits, "available_memory", lambda: 10_000)
     with pytest.raises(ValueError, match=r"^D = 100: the output \(2, 4, 4, D=100\) float64 would "

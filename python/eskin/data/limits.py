@@ -18,7 +18,9 @@ MAX_GRID_SIDE = 256
 MAX_TAXELS = 4096
 """Taxels of a grid (rows x cols; a 64 x 64 skin)."""
 MAX_SAMPLES = 1 << 24
-"""Samples of one recording, T (16,777,216: 93 minutes at 3 kHz); also the largest D."""
+"""Samples of one recording, T (16,777,216: 93 minutes at 3 kHz)."""
+MAX_D = 100_000
+"""Samples of a subsampled window, D (the core's ``kMaxD``)."""
 MAX_RECORDING_BYTES = 1 << 30
 """Bytes of one recording as int16 (rows x cols x T x 2): a recording is read whole."""
 
