@@ -303,8 +303,14 @@ def _md_block(kind, dists, sigmas, y, configs, settings, seed, block_index):
             )
             y_cl = np.where(labels == 0, 1.0, -1.0)
         if kind == "rls":
-            return _md_block_rls(K, y, y_cl, configs, settings, seed)
-        return _md_block_svm(K, y, y_cl, configs, settings, seed)
+            rows = _md_block_rls(K, y, y_cl, configs, settings, seed)
+        else:
+            rows = _md_block_svm(K, y, y_cl, configs, settings, seed)
+        # the smaller cluster's share of the patterns (0.5: equal halves; NaN: no clustering)
+        minority = np.nan if y_cl is None else float(min(np.mean(y_cl > 0), np.mean(y_cl < 0)))
+        for r in rows:
+            r["minority"] = minority
+        return rows
 
 
 def _nearer(beta_plus, beta_minus, beta_rkm):
@@ -667,7 +673,9 @@ class MaximalDiscrepancySearch(_SearchBase):
         ``params``, ``param_<key>``, ``lam``, ``C``, ``alphas``, ``sigmas``, ``train_error``
         (v), ``mean_random_error`` (mean v*), ``random_errors`` (n_configs, N), ``chi``,
         ``tau``, ``bound``, ``criterion`` (= bound), ``rank_bound``, ``gamma_0``,
-        ``mean_lambda_steps``, ``max_lambda_steps_used``, ``cap_hits``, ``n_support``.
+        ``mean_lambda_steps``, ``max_lambda_steps_used``, ``cap_hits``, ``n_support``,
+        ``cluster_minority_share`` (the smaller k-means cluster's share of the patterns; NaN
+        without the clustering reference).
     best_index_, best_params_, best_estimator_, best_criterion_ (the best bound), tau_,
     cap_hits_ (total over the grid), classes_, random_state_ (the seed used).
     """
@@ -802,6 +810,7 @@ class MaximalDiscrepancySearch(_SearchBase):
             max_lambda_steps_used=steps.max(axis=1),
             cap_hits=np.array([r["cap_hits"] for r in rows], dtype=np.intp),
             n_support=np.array([r["n_support"] for r in rows], dtype=np.intp),
+            cluster_minority_share=np.array([r["minority"] for r in rows]),
         )
         self.cv_results_ = res
         self.tau_ = tau

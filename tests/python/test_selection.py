@@ -368,3 +368,13 @@ def test_fit_distances_gives_the_results_of_fit(est):
         dists, y, SHAPE, groups=groups
     )
     _assert_same_results(cv, cv_d)
+
+
+def test_cluster_minority_share_reports_the_reference_partition():
+    X, y = _separable(10, noise=0.8)  # n = 20
+    bal = _md(TensorRLS(), _GRID, X, y, clustering="balanced").cv_results_
+    np.testing.assert_array_equal(bal["cluster_minority_share"], 0.5)
+    pp = _md(TensorRLS(), _GRID, X, y).cv_results_["cluster_minority_share"]
+    assert np.all((pp > 0) & (pp <= 0.5))
+    free = _md(TensorRLS(), _GRID, X, y, reference="true-norm").cv_results_
+    assert np.all(np.isnan(free["cluster_minority_share"]))
