@@ -1,0 +1,681 @@
+"""Which model selection picks models that work on people eskin has never seen?
+
+For many simulated campaigns (eskin's simulator at several difficulties, other grids, another
+sample rate, fewer participants, cut recordings with ``window="none"``), the patterns of each
+binary problem (A brush/washer, B brush/finger, C washer/finger) are split by participant
+(70 % of the participants train, the rest test; several seeded splits). On the training part
+every selection method picks one configuration of the grid; the held-out error of that
+configuration, trained on the whole training part, is what counts. Methods:
+
+- every named reading of Maximal Discrepancy (``eskin.selection.MD_READINGS``), plus variants
+  that need no extra run: chi as the maximum over the labellings instead of the mean
+  (``<reading>/chi-max``), N = 5 instead of 10 labellings (``<reading>/N5``), and Gamma_0 of the
+  larger of beta(+)/beta(-) (``lloyd/larger``, its own run);
+- ``cv``: ``CrossValidationSearch`` with participant groups (10 splits, 30 % of the participants
+  held out);
+- ``oracle``: the configuration with the lowest held-out error (what no method can beat).
+
+Recipes (``--part recipes``): machine x selection (CV and the best MD reading) x D x
+subsampling x window, plus two kernels beyond the paper, selected by grouped CV: the tensor
+kernel times an RBF on the log energy of the pattern (``amplitude``), and separate sigmas for
+the two space modes and the time mode (``per-mode-sigma``).
+
+Cost: the per-mode distances are computed once per (campaign, problem, split, D, alpha) for all
+patterns of the problem and every search reuses them (``fit_distances``); the held-out error of a
+configuration is computed from the same matrices. Campaigns, patterns and results are cached
+under ``--cache`` (default /tmp/eskin_selection_study): a rerun only computes what is missing.
+
+    python benchmarks/selection_study.py [--quick] [--part readings|recipes|all] [--jobs 2]
+
+writes ``results.jsonl``, ``tables.md`` and ``selection_study.png`` to ``--out`` (default: the
+cache directory). ``docs/selection-study.md`` quotes the tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("ESKIN_NUM_THREADS", "1")
+
+import numpy as np
+from joblib import Parallel, delayed
+
+import eskin
+from eskin.estimators import TensorRLS, TensorSVC, kernel_from_distances, svm_train
+from eskin.selection import (
+    MD_READINGS,
+    PAPER_GRID,
+    CrossValidationSearch,
+    MaximalDiscrepancySearch,
+    md_reading,
+)
+
+PROBLEMS = {"A": ("brush", "washer"), "B": ("brush", "finger"), "C": ("washer", "finger")}
+TRAIN_SHARE = 45 / 65  # the paper's participant split (45 train / 20 validation)
+N_LABELINGS = 10
+
+#: name -> (campaign file, simulate() arguments, SimulatorConfig overrides, window)
+CAMPAIGNS = {
+    "d0": ("d0", {"difficulty": 0.0, "participants": 70}, {}, "energy"),
+    "d1": ("d1", {"difficulty": 1.0, "participants": 70}, {}, "energy"),
+    "d2": ("d2", {"difficulty": 2.0, "participants": 70}, {}, "energy"),
+    "d3": ("d3", {"difficulty": 3.0, "participants": 70}, {}, "energy"),
+    "d1-none": ("d1", {"difficulty": 1.0, "participants": 70}, {}, "none"),
+    "d1-3x5": ("d1-3x5", {"difficulty": 1.0, "participants": 70}, {"rows": 3, "cols": 5}, "energy"),
+    "d1-1kHz": (
+        "d1-1kHz",
+        {"difficulty": 1.0, "participants": 70},
+        {"sample_rate_hz": 1000.0, "bpf_lowpass_hz": 450.0, "brush_band_hz": (15.0, 450.0)},
+        "energy",
+    ),
+    "d1-30p": ("d1-30p", {"difficulty": 1.0, "participants": 30}, {}, "energy"),
+}
+QUICK_CAMPAIGNS = {
+    "q-d1": ("q-d1", {"difficulty": 1.0, "participants": 16}, {"duration_s": 4.0}, "energy"),
+    "q-d2-none": ("q-d2", {"difficulty": 2.0, "participants": 16}, {"duration_s": 4.0}, "none"),
+}
+QUICK_GRID = {"lam": [1e-2, 1.0], "sigma": [0.5, 2.0, 8.0], "alpha": [1, "full"]}
+
+
+# --------------------------------------------------------------------------------------------
+# data: campaigns, patterns, distances (cached)
+def campaign_path(cache: Path, name: str, spec) -> Path:
+    """Simulate run 2 of the campaign once; later runs reuse the file."""
+    key, sim_args, overrides, _ = spec
+    path = cache / "campaigns" / f"{key}.h5"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cfg = dataclasses.replace(eskin.SimulatorConfig(), **overrides)
+        tmp = path.with_suffix(".part.h5")
+        eskin.simulate(tmp, seed=11, runs=(2,), config=cfg, overwrite=True, **sim_args)
+        tmp.rename(path)
+    return path
+
+
+def patterns(cache: Path, name: str, spec, D: int, subsample: str):
+    """(X, modality, participant, class names) of the whole campaign at (D, subsample)."""
+    window = spec[3]
+    path = cache / "patterns" / f"{name}-D{D}-{subsample}-{window}.npz"
+    if not path.exists():
+        from eskin.models import preprocess_campaign
+
+        camp = eskin.load_campaign(campaign_path(cache, name, spec))
+        idx = np.arange(len(camp.modality))
+        prep = preprocess_campaign(camp, idx, [(D, subsample)], window=window)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            path,
+            X=prep.X[(D, subsample)],
+            modality=np.asarray(camp.modality),
+            participant=np.asarray(camp.participant),
+            names=np.array(camp.modalities),
+        )
+    z = np.load(path)
+    return z["X"], z["modality"], z["participant"], [str(v) for v in z["names"]]
+
+
+def problem_split(modality, participant, names, problem, split):
+    """Indices of the problem's patterns, their 0/1 labels, groups, train/test positions."""
+    a, b = (names.index(c) for c in PROBLEMS[problem])
+    idx = np.flatnonzero(np.isin(modality, [a, b]))
+    y = (modality[idx] == b).astype(int)
+    groups = participant[idx]
+    ids = np.unique(groups)
+    rng = np.random.default_rng([split, ord(problem)])
+    train_ids = rng.permutation(ids)[: round(len(ids) * TRAIN_SHARE)]
+    train = np.flatnonzero(np.isin(groups, train_ids))
+    test = np.flatnonzero(~np.isin(groups, train_ids))
+    return idx, y, groups, train, test
+
+
+def all_distances(X):
+    """Per-mode distances of all patterns for the grid's three alphas: {alphas: array}."""
+    out = {}
+    for a in (1, "half", "full"):
+        alphas = tuple(int(v) for v in eskin.resolve_alphas(X.shape[1:], a))
+        if alphas not in out:
+            out[alphas] = eskin.mode_distances(X, alpha=alphas, n_threads=1)
+    return out
+
+
+def log_energy(X):
+    """Log of the mean squared value of each pattern (its touch's amplitude)."""
+    return np.log(np.mean(X.reshape(len(X), -1) ** 2, axis=1) + 1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# held-out error of configurations
+def _sub(dists, rows, cols):
+    return {k: v[:, rows][:, :, cols] for k, v in dists.items()}
+
+
+def heldout_error(kind, K, y_pm, train, test, lam):
+    """Train on ``train`` with regulariser lam (C = 1/lam), error on ``test``."""
+    Ktr = K[np.ix_(train, train)]
+    Kte = K[np.ix_(test, train)]
+    if kind == "rls":
+        beta = np.linalg.solve(Ktr + lam * np.eye(len(train)), y_pm[train])
+        f = Kte @ beta
+    else:
+        beta, b, _ = svm_train(Ktr, y_pm[train], 1.0 / lam)
+        f = Kte @ beta + b
+    return float(np.mean(np.where(f > 0, 1.0, -1.0) != y_pm[test]))
+
+
+class HeldOut:
+    """Memoised held-out error per configuration index of a search's ``cv_results_``."""
+
+    def __init__(self, kind, dists, y_pm, train, test):
+        self.kind, self.dists, self.y_pm = kind, dists, y_pm
+        self.train, self.test = train, test
+        self.memo: dict = {}
+
+    def error(self, alphas, sigmas, lam):
+        key = (alphas, sigmas, lam)
+        if key not in self.memo:
+            K = kernel_from_distances(self.dists[alphas], sigmas)
+            self.memo[key] = heldout_error(self.kind, K, self.y_pm, self.train, self.test, lam)
+        return self.memo[key]
+
+    def of(self, search, i):
+        r = search.cv_results_
+        return self.error(tuple(r["alphas"][i]), tuple(r["sigmas"][i]), float(r["lam"][i]))
+
+
+def oracle(search, held):
+    """The lowest held-out error over the grid (the configurations of ``search``)."""
+    n = len(search.cv_results_["lam"])
+    return min(held.of(search, i) for i in range(n))
+
+
+# --------------------------------------------------------------------------------------------
+# selection methods on one split
+def select(results, criterion):
+    """The searches' rule: lowest criterion, ties to the larger lambda, then the larger sigma."""
+    crit = np.asarray(criterion, dtype=float)
+    cand = np.flatnonzero(crit <= np.nanmin(crit) + 1e-12)
+    return int(
+        min(cand, key=lambda i: (-results["lam"][i], -float(np.mean(results["sigmas"][i])), i))
+    )
+
+
+def md_variants(name, search):
+    """{method: chosen index} for one MD run and the variants its table gives for free."""
+    r = search.cv_results_
+    out = {f"md:{name}": int(search.best_index_)}
+    if "/" in name:
+        return out
+    errs = r["random_errors"]
+    out[f"md:{name}/chi-max"] = select(r, r["train_error"] + 1 - 2 * errs.min(axis=1) + r["tau"])
+    out[f"md:{name}/N5"] = select(r, r["train_error"] + 1 - 2 * errs[:, :5].mean(axis=1) + r["tau"])
+    return out
+
+
+def md_runs(readings):
+    """(label, options) of the MD runs: each named reading, and lloyd with the larger Gamma_0."""
+    runs = [(name, md_reading(name)) for name in readings]
+    if "lloyd" in readings:
+        lloyd = md_reading("lloyd")
+        runs += [
+            ("lloyd-hartigan", {**lloyd, "clustering": "lloyd-hartigan"}),
+            ("lloyd/larger", {**lloyd, "gamma0": "larger"}),
+            ("lloyd/stratified", {**lloyd, "flip": "stratified"}),
+            ("lloyd/n_init=1", {**lloyd, "n_init": 1}),
+        ]
+    if "same-lambda" in readings:
+        runs.append(("same-lambda/stratified", {**md_reading("same-lambda"), "flip": "stratified"}))
+    return runs
+
+
+def describe(search, i):
+    r = search.cv_results_
+    return {
+        "lam": float(r["lam"][i]),
+        "sigma": [float(v) for v in r["sigmas"][i]],
+        "alphas": [int(v) for v in r["alphas"][i]],
+    }
+
+
+def readings_unit(kind, dists_tr, y_tr, groups_tr, shape, held, grid, readings, seed):
+    """Rows {method, test_error, chosen} for every MD reading, CV and the oracle."""
+    est = TensorSVC() if kind == "svm" else TensorRLS()
+    rows = []
+    for label, opts in md_runs(readings):
+        t0 = time.perf_counter()
+        s = MaximalDiscrepancySearch(
+            est, grid, n_labelings=N_LABELINGS, random_state=seed, refit=False, **opts
+        ).fit_distances(dists_tr, y_tr, shape)
+        dt = time.perf_counter() - t0
+        for method, i in md_variants(label, s).items():
+            rows.append(
+                {
+                    "method": method,
+                    "test_error": held.of(s, i),
+                    "seconds": dt,
+                    "chosen": describe(s, i),
+                    "chi": float(s.cv_results_["chi"][i]),
+                    "gamma_0": float(s.cv_results_["gamma_0"][i]),
+                    "minority_median": float(np.median(s.cv_results_["cluster_minority_share"])),
+                    "chi_median": float(np.median(s.cv_results_["chi"])),
+                }
+            )
+    t0 = time.perf_counter()
+    cv = CrossValidationSearch(
+        est, grid, n_splits=10, test_size=0.3, random_state=seed, refit=False
+    ).fit_distances(dists_tr, y_tr, shape, groups_tr)
+    rows.append(
+        {
+            "method": "cv",
+            "test_error": held.of(cv, cv.best_index_),
+            "seconds": time.perf_counter() - t0,
+            "chosen": describe(cv, cv.best_index_),
+            "cv_estimate": float(cv.best_criterion_),
+        }
+    )
+    rows.append({"method": "oracle", "test_error": oracle(cv, held)})
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# recipes: D, subsampling, window, machine, selection, kernels beyond the paper
+def with_energy_mode(dists, X, train):
+    """Distances with a 4th "mode": squared log-energy differences in units of the training
+    patterns' standard deviation, so K = tensor kernel x exp(-d_e / (2 sigma_e^2))."""
+    e = log_energy(X)
+    de = (e[:, None] - e[None, :]) ** 2 / max(float(np.var(e[train])), 1e-12)
+    return {k + (1,): np.concatenate([v, de[None]], axis=0) for k, v in dists.items()}
+
+
+def amplitude_grid(grid):
+    return {**grid, "sigma": [(s, s, s, se) for s in grid["sigma"] for se in (1.0, 4.0)]}
+
+
+def per_mode_grid(grid):
+    return {**grid, "sigma": [(s, s, s * f) for s in grid["sigma"] for f in (0.25, 1.0, 4.0)]}
+
+
+def cv_rows(kind, dists, y, groups, train, test, shape, grid, seed, recipe):
+    est = TensorSVC() if kind == "svm" else TensorRLS()
+    y_pm = np.where(y == 1, 1.0, -1.0)
+    held = HeldOut(kind, dists, y_pm, train, test)
+    cv = CrossValidationSearch(
+        est, grid, n_splits=10, test_size=0.3, random_state=seed, refit=False
+    ).fit_distances(_sub(dists, train, train), y[train], shape, groups[train])
+    return {
+        "recipe": recipe,
+        "machine": kind,
+        "test_error": held.of(cv, cv.best_index_),
+        "cv_estimate": float(cv.best_criterion_),
+        "chosen": describe(cv, cv.best_index_),
+    }
+
+
+def md_row(kind, dists, y, train, test, shape, grid, seed, reading, recipe):
+    est = TensorSVC() if kind == "svm" else TensorRLS()
+    y_pm = np.where(y == 1, 1.0, -1.0)
+    held = HeldOut(kind, dists, y_pm, train, test)
+    s = MaximalDiscrepancySearch(
+        est, grid, n_labelings=N_LABELINGS, random_state=seed, refit=False, **md_reading(reading)
+    )
+    s.fit_distances(_sub(dists, train, train), y[train], shape)
+    return {
+        "recipe": recipe,
+        "machine": kind,
+        "test_error": held.of(s, s.best_index_),
+        "chosen": describe(s, s.best_index_),
+    }
+
+
+def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d, seed):
+    """Rows for every recipe of one (campaign, problem, split)."""
+    rows = []
+    for D in ds:
+        for subsample in ("algorithm2", "even"):
+            X, mod, part, names = patterns(cache, name, spec, D, subsample)
+            idx, y, groups, train, test = problem_split(mod, part, names, problem, split)
+            dists = all_distances(X[idx])
+            shape = X.shape[1:]
+            for kind in ("svm", "rls"):
+                tag = f"D{D}/{subsample}"
+                rows.append(
+                    cv_rows(kind, dists, y, groups, train, test, shape, grid, seed, f"cv/{tag}")
+                )
+                if subsample == "algorithm2":
+                    rows.append(
+                        md_row(
+                            kind,
+                            dists,
+                            y,
+                            train,
+                            test,
+                            shape,
+                            grid,
+                            seed,
+                            reading,
+                            f"md:{reading}/{tag}",
+                        )
+                    )
+                if D == beyond_d and subsample == "algorithm2":
+                    amp = with_energy_mode(dists, X[idx], train)
+                    rows.append(
+                        cv_rows(
+                            kind,
+                            amp,
+                            y,
+                            groups,
+                            train,
+                            test,
+                            shape + (1,),
+                            amplitude_grid(grid),
+                            seed,
+                            f"cv/{tag}/amplitude",
+                        )
+                    )
+                    rows.append(
+                        cv_rows(
+                            kind,
+                            dists,
+                            y,
+                            groups,
+                            train,
+                            test,
+                            shape,
+                            per_mode_grid(grid),
+                            seed,
+                            f"cv/{tag}/per-mode-sigma",
+                        )
+                    )
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# units of work, run in parallel, cached line by line
+def reading_task(cache, name, spec, problem, split, D, grid, readings, seed):
+    X, mod, part, names = patterns(cache, name, spec, D, "algorithm2")
+    idx, y, groups, train, test = problem_split(mod, part, names, problem, split)
+    dists = all_distances(X[idx])
+    y_pm = np.where(y == 1, 1.0, -1.0)
+    rows = []
+    for kind in ("svm", "rls"):
+        held = HeldOut(kind, dists, y_pm, train, test)
+        for r in readings_unit(
+            kind,
+            _sub(dists, train, train),
+            y[train],
+            groups[train],
+            X.shape[1:],
+            held,
+            grid,
+            readings,
+            seed,
+        ):
+            rows.append({"machine": kind, **r})
+    return rows
+
+
+def run_units(tasks, out_file, jobs):
+    """Run the (key, function, args) tasks not yet in ``out_file``; append their rows."""
+    done = set()
+    if out_file.exists():
+        done = {json.loads(line)["unit"] for line in out_file.read_text().splitlines() if line}
+    todo = [t for t in tasks if t[0] not in done]
+    print(f"{len(tasks) - len(todo)} of {len(tasks)} units cached, {len(todo)} to run", flush=True)
+    t0 = time.perf_counter()
+    results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
+        delayed(_run_one)(key, fn, args) for key, fn, args in todo
+    )
+    for k, (key, rows, dt) in enumerate(results, 1):
+        with out_file.open("a") as f:
+            for r in rows:
+                f.write(json.dumps({"unit": key, **r}) + "\n")
+        print(
+            f"[{k}/{len(todo)}] {key}: {dt:.0f} s (elapsed {time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
+
+
+def _run_one(key, fn, args):
+    t0 = time.perf_counter()
+    rows = fn(*args)
+    return key, rows, time.perf_counter() - t0
+
+
+def prepare(cache, campaigns, variants, jobs):
+    """Simulate the campaigns, then preprocess them (both in parallel, each file once)."""
+    files = {}
+    for name, spec in campaigns.items():
+        files.setdefault(spec[0], (name, spec))
+    Parallel(n_jobs=jobs)(delayed(campaign_path)(cache, n, sp) for n, sp in files.values())
+    Parallel(n_jobs=jobs)(
+        delayed(patterns)(cache, n, sp, D, sub)
+        for n, sp in campaigns.items()
+        for D, sub in variants
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# tables and figure
+def load_rows(path):
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line]
+    for r in rows:
+        r["campaign"], r["problem"], r["split"] = r["unit"].split("|")[1:4]
+    return rows
+
+
+def _stats(values):
+    v = np.asarray(values, dtype=float) * 100
+    return f"{v.mean():.1f} ± {v.std():.1f}" if len(v) else "-"
+
+
+def _paired(rows, key, a, b, machine):
+    """(mean a - b, wins a < b, ties, losses) over the units that have both."""
+    by = {}
+    for r in rows:
+        if r["machine"] == machine and r[key] in (a, b):
+            by.setdefault(r["unit"], {})[r[key]] = r["test_error"]
+    d = np.array([u[a] - u[b] for u in by.values() if a in u and b in u]) * 100
+    if not len(d):
+        return "-"
+    return f"{d.mean():+.1f} ({int((d < 0).sum())}/{int((d == 0).sum())}/{int((d > 0).sum())})"
+
+
+def method_table(rows, key, reference, campaigns=None):
+    """Markdown: per method, mean ± sd of the held-out error (%) per machine, and vs reference."""
+    sel = [r for r in rows if campaigns is None or r["campaign"] in campaigns]
+    methods = sorted({r[key] for r in sel})
+    lines = [
+        f"| {key} | tensor-SVM | vs {reference} (w/t/l) | tensor-RLS | vs {reference} (w/t/l) "
+        + "| units |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for m in methods:
+        cells = []
+        for kind in ("svm", "rls"):
+            errs = [r["test_error"] for r in sel if r[key] == m and r["machine"] == kind]
+            cells += [_stats(errs), _paired(sel, key, m, reference, kind)]
+        n = len({r["unit"] for r in sel if r[key] == m})
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {n} |")
+    return "\n".join(lines)
+
+
+def campaign_table(rows, key, methods, machine):
+    camps = sorted({r["campaign"] for r in rows})
+    lines = ["| " + key + " | " + " | ".join(camps) + " |", "| --- |" + " ---: |" * len(camps)]
+    for m in methods:
+        cells = []
+        for c in camps:
+            e = [
+                r["test_error"]
+                for r in rows
+                if r[key] == m and r["machine"] == machine and r["campaign"] == c
+            ]
+            cells.append(f"{100 * np.mean(e):.1f}" if e else "-")
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def figure(rows, methods, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    camps = sorted({r["campaign"] for r in rows})
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharey=True)
+    for ax, kind in zip(axes, ("svm", "rls")):
+        for k, m in enumerate(methods):
+            mean, sd = [], []
+            for c in camps:
+                e = [
+                    r["test_error"] * 100
+                    for r in rows
+                    if r["method"] == m and r["machine"] == kind and r["campaign"] == c
+                ]
+                mean.append(np.mean(e) if e else np.nan)
+                sd.append(np.std(e) if e else np.nan)
+            x = np.arange(len(camps)) + (k - len(methods) / 2) * 0.08
+            ax.errorbar(
+                x,
+                mean,
+                yerr=sd,
+                fmt="o-" if m in ("cv", "oracle") else "o:",
+                capsize=2,
+                label=m,
+                lw=1,
+            )
+        ax.set_xticks(range(len(camps)), camps)
+        ax.set_title(f"tensor-{kind.upper()}: held-out error of the selected model")
+        ax.set_xlabel("campaign")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("error on unseen participants (%)")
+    axes[1].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def write_tables(out, readings_file, recipes_file, command, default="d1", ref="D100"):
+    parts = [f"Command: `{command}`\n"]
+    if readings_file.exists():
+        rows = load_rows(readings_file)
+        base = sorted({r["method"] for r in rows if "/" not in r["method"]})
+        parts += [
+            "## Selection methods, all campaigns (held-out error %, mean ± sd over units; "
+            + "vs cv: mean difference in points, wins/ties/losses)\n",
+            method_table(rows, "method", "cv"),
+            f"\n## The default campaign only ({default})\n",
+            method_table(rows, "method", "cv", campaigns={default}),
+        ]
+        for kind in ("svm", "rls"):
+            parts += [
+                f"\n## Per campaign, tensor-{kind.upper()} (mean held-out error %)\n",
+                campaign_table(rows, "method", base, kind),
+            ]
+        figure(rows, base, out / "selection_study.png")
+    if recipes_file.exists():
+        rows = load_rows(recipes_file)
+        parts += [
+            f"\n## Recipes (held-out error %, mean ± sd over units; vs cv/{ref}/algorithm2)\n",
+            method_table(rows, "recipe", f"cv/{ref}/algorithm2"),
+        ]
+        recipes = sorted({r["recipe"] for r in rows})
+        for kind in ("svm", "rls"):
+            parts += [
+                f"\n## Recipes per campaign, tensor-{kind.upper()}\n",
+                campaign_table(rows, "recipe", recipes, kind),
+            ]
+    (out / "tables.md").write_text("\n".join(parts) + "\n")
+    print((out / "tables.md").read_text())
+
+
+# --------------------------------------------------------------------------------------------
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="two small campaigns, a small grid")
+    ap.add_argument("--part", choices=("readings", "recipes", "all"), default="all")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--splits", type=int, default=3, help="participant splits per problem")
+    ap.add_argument("--recipe-splits", type=int, default=2, help="the same for the recipes")
+    ap.add_argument("--campaigns", default=None, help="comma-separated subset")
+    ap.add_argument("--reading", default="lloyd", help="the MD reading the recipes use")
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_selection_study"))
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--tables-only", action="store_true")
+    args = ap.parse_args(argv)
+    campaigns = QUICK_CAMPAIGNS if args.quick else CAMPAIGNS
+    if args.campaigns:
+        campaigns = {k: campaigns[k] for k in args.campaigns.split(",")}
+    grid = QUICK_GRID if args.quick else PAPER_GRID
+    cache = args.cache / ("quick" if args.quick else "full")
+    out = args.out or cache
+    out.mkdir(parents=True, exist_ok=True)
+    d_read, ds = (10, (10, 20)) if args.quick else (20, (20, 50, 100))
+    readings = sorted(MD_READINGS)
+    readings_file, recipes_file = out / "results_readings.jsonl", out / "results_recipes.jsonl"
+    if not args.tables_only:
+        variants = [(d_read, "algorithm2")]
+        if args.part in ("recipes", "all"):
+            variants += [(D, s) for D in ds for s in ("algorithm2", "even")]
+        prepare(cache, campaigns, sorted(set(variants)), args.jobs)
+        tasks = []
+        for name, spec in campaigns.items():
+            for problem in PROBLEMS:
+                for split in range(args.splits):
+                    key = f"{d_read}|{name}|{problem}|{split}"
+                    seed = 1000 * split + ord(problem)
+                    if args.part in ("readings", "all"):
+                        tasks.append(
+                            (
+                                "R" + key,
+                                reading_task,
+                                (cache, name, spec, problem, split, d_read, grid, readings, seed),
+                            )
+                        )
+        run_units(tasks, readings_file, args.jobs)
+        tasks = []
+        for name, spec in campaigns.items():
+            for problem in PROBLEMS:
+                for split in range(args.recipe_splits):
+                    key = f"P|{name}|{problem}|{split}"
+                    seed = 1000 * split + ord(problem)
+                    if args.part in ("recipes", "all"):
+                        tasks.append(
+                            (
+                                key,
+                                recipes_unit,
+                                (
+                                    cache,
+                                    name,
+                                    spec,
+                                    problem,
+                                    split,
+                                    ds,
+                                    grid,
+                                    args.reading,
+                                    ds[1],
+                                    seed,
+                                ),
+                            )
+                        )
+        run_units(tasks, recipes_file, args.jobs)
+    command = "python benchmarks/selection_study.py " + " ".join(argv or [])
+    write_tables(
+        out,
+        readings_file,
+        recipes_file,
+        command.strip(),
+        default="q-d1" if args.quick else "d1",
+        ref=f"D{ds[-1]}",
+    )
+
+
+if __name__ == "__main__":
+    import sys
+
+    main(sys.argv[1:])
