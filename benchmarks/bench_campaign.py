@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eskin.campaign import CampaignWriter, load_campaign
-from eskin.simulator import MODALITIES, SimulatorConfig, simulate
+from eskin.data.campaign import CampaignWriter, load_campaign
+from eskin.data.simulator import MODALITIES, SimulatorConfig, simulate
 
 
 def _cpu() -> float:

@@ -36,9 +36,9 @@ import numpy as np
 
 import eskin
 from eskin import _core
-from eskin.estimators import OneVsAllTouchClassifier, TensorSVC
-from eskin.export import CompiledModel, export_model
-from eskin.models import TouchModel
+from eskin.learn.estimators import OneVsAllTouchClassifier, TensorSVC
+from eskin.deploy.export import CompiledModel, export_model
+from eskin.learn.models import TouchModel
 
 PARTICIPANTS_TRAIN = 45
 PARTICIPANTS_TEST = 5
@@ -85,7 +85,7 @@ class NumpyBaseline:
     """The same decision in numpy, from the same stored bases (those the C++ model holds)."""
 
     def __init__(self, cm: CompiledModel, model: TouchModel) -> None:
-        from eskin.export import pattern_bases, spec_from_model
+        from eskin.deploy.export import pattern_bases, spec_from_model
 
         self.D = cm.D
         self.machines = cm.machines

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from eskin._paths import find_executable
-from eskin.protocol import (
+from eskin.link.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
@@ -33,8 +33,8 @@ from eskin.protocol import (
     FrameType,
     encode_frame,
 )
-from eskin.replay import write_replay_arrays
-from eskin.serial_port import PeerClosedError, SerialPort
+from eskin.data.replay import write_replay_arrays
+from eskin.link.serial_port import PeerClosedError, SerialPort
 
 RATE = 3000.0
 
@@ -86,7 +86,7 @@ def run_link(replay: Path, *args: str) -> tuple[list, FrameDecoder, dict, list[i
 
 def model_file(path: Path, D: int, n_sv: int, seed: int = 0) -> Path:
     """A 3-class one-vs-all model of realistic size (random support tensors, real bases)."""
-    from eskin.export import MachineSpec, ModelSpec, model_to_bytes
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
 
     rng = np.random.default_rng(seed)
     pool = rng.standard_normal((2 * n_sv, 4, 4, D))

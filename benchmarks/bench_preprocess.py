@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from eskin import _preprocess_numpy as ref
-from eskin.preprocess import TouchDetector, WindowConfig, preprocess
-from eskin.simulator import iter_recordings
+from eskin.signal import _preprocess_numpy as ref
+from eskin.signal.preprocess import TouchDetector, WindowConfig, preprocess
+from eskin.data.simulator import iter_recordings
 
 
 CPU = {}

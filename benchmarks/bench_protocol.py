@@ -34,8 +34,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
-    from eskin.experiments import run_experiment
-    from eskin.simulator import simulate
+    from eskin.experiments.paper_protocol import run_experiment
+    from eskin.data.simulator import simulate
 
     tmp = Path(tempfile.mkdtemp(prefix="eskin-bench-"))
     campaign = args.campaign

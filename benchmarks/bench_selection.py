@@ -30,8 +30,8 @@ from sklearn.svm import SVC
 from threadpoolctl import threadpool_limits
 
 import eskin
-from eskin.estimators import TensorRLS, TensorSVC, kernel_kmeans
-from eskin.selection import (
+from eskin.learn.estimators import TensorRLS, TensorSVC, kernel_kmeans
+from eskin.learn.selection import (
     _KEY_KMEANS,
     PAPER_GRID,
     MaximalDiscrepancySearch,

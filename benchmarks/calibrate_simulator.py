@@ -33,8 +33,8 @@ import numpy as np
 from sklearn.svm import SVC
 
 import eskin
-from eskin.campaign import load_campaign
-from eskin.simulator import simulate
+from eskin.data.campaign import load_campaign
+from eskin.data.simulator import simulate
 
 SIGMAS = [2.0**k for k in range(-3, 4)]
 CS = [0.1, 1.0, 10.0, 100.0]
@@ -127,7 +127,7 @@ def calibrate(difficulty: float, participants: int, jobs: int, seed: int, runs: 
               Ds: list[int], workdir: Path) -> dict[str, dict[int, list[float]]]:
     import hashlib
 
-    from eskin.simulator import CALIBRATED_LEVEL, SimulatorConfig
+    from eskin.data.simulator import CALIBRATED_LEVEL, SimulatorConfig
 
     text = SimulatorConfig(difficulty=difficulty).to_json() + repr(CALIBRATED_LEVEL)
     key = hashlib.sha1(text.encode()).hexdigest()[:8]

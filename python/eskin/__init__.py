@@ -1,8 +1,9 @@
 """eskin: recognise how a person touches a piezoelectric electronic skin.
 
-The public API is re-exported here. Submodules are imported on first use, so that
-``import eskin`` stays fast and a command that needs only the campaign reader does not
-load the learning stack.
+The public API is re-exported here. The package's folders are its layers, each importing only
+the ones below it: data -> signal -> learn -> deploy -> link -> experiments -> cli (see
+docs/architecture.md). The layers are imported on first use, so that ``import eskin`` stays
+fast and a command that needs only the campaign reader does not load the learning stack.
 
 Data takes one road through the package:
 simulator or recording -> campaign file -> preprocessing -> tensor kernel -> model selection
@@ -16,69 +17,68 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-# public name -> submodule that defines it
+# public name -> the layer (subpackage) that exports it
 _EXPORTS: dict[str, str] = {
     # tensor kernel (issue 2)
-    "tensor_kernel": "kernel",
-    "mode_distances": "kernel",
-    "resolve_alphas": "kernel",
-    "pattern_bases": "kernel",
-    "PatternBases": "kernel",
-    "bases_mode_distances": "kernel",
-    "bases_tensor_kernel": "kernel",
-    "kernel_from_distances": "kernel",
+    "tensor_kernel": "learn",
+    "mode_distances": "learn",
+    "resolve_alphas": "learn",
+    "pattern_bases": "learn",
+    "PatternBases": "learn",
+    "bases_mode_distances": "learn",
+    "bases_tensor_kernel": "learn",
+    "kernel_from_distances": "learn",
     # preprocessing (issue 3)
-    "preprocess": "preprocess",
-    "WindowConfig": "preprocess",
-    "TouchDetector": "preprocess",
-    "detect_windows": "preprocess",
-    "subsample": "preprocess",
+    "preprocess": "signal",
+    "WindowConfig": "signal",
+    "TouchDetector": "signal",
+    "detect_windows": "signal",
+    "subsample": "signal",
     # campaign format, importers, simulator (issue 3)
-    "Campaign": "campaign",
-    "CampaignFormatError": "campaign",
-    "load_campaign": "campaign",
-    "write_campaign": "campaign",
-    "CampaignWriter": "campaign",
-    "import_csv_folder": "importers",
-    "import_tdms": "importers",
-    "simulate": "simulator",
-    "SimulatorConfig": "simulator",
+    "Campaign": "data",
+    "CampaignFormatError": "data",
+    "load_campaign": "data",
+    "write_campaign": "data",
+    "CampaignWriter": "data",
+    "import_csv_folder": "data",
+    "import_tdms": "data",
+    "simulate": "data",
+    "SimulatorConfig": "data",
     # learning and model selection (issue 4)
-    "TensorSVC": "estimators",
-    "TensorRLS": "estimators",
-    "KernelKMeans": "estimators",
-    "OneVsAllTouchClassifier": "estimators",
-    "MaximalDiscrepancySearch": "selection",
-    "CrossValidationSearch": "selection",
+    "TensorSVC": "learn",
+    "TensorRLS": "learn",
+    "KernelKMeans": "learn",
+    "OneVsAllTouchClassifier": "learn",
+    "MaximalDiscrepancySearch": "learn",
+    "CrossValidationSearch": "learn",
     "run_experiment": "experiments",
-    "TouchModel": "models",
-    "train_model": "models",
-    "save_model": "models",
-    "load_model": "models",
+    "TouchModel": "learn",
+    "train_model": "learn",
+    "save_model": "deploy",  # through eskin.deploy, which adds the .eskin format
+    "load_model": "deploy",
     # deployment (issue 5)
-    "export_model": "export",
-    "write_c_header": "export",
-    "CompiledModel": "export",
+    "export_model": "deploy",
+    "write_c_header": "deploy",
+    "CompiledModel": "deploy",
     # serial link (issue 6)
-    "FrameDecoder": "protocol",
-    "encode_frame": "protocol",
+    "FrameDecoder": "link",
+    "encode_frame": "link",
     "LinkListener": "link",
-    "SerialPort": "serial_port",
-    "write_replay_file": "replay",
-    "read_replay_file": "replay",
+    "SerialPort": "link",
+    "write_replay_file": "data",
+    "read_replay_file": "data",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
+    layer = _EXPORTS.get(name)
+    if layer is None:
         raise AttributeError(f"module 'eskin' has no attribute {name!r}")
-    submodule = importlib.import_module(f"eskin.{module}")
-    # a name that is also its submodule's name (eskin.preprocess) resolves to the submodule,
-    # which is then callable, so that `import eskin.preprocess as m` keeps working
-    value = submodule if name == module else getattr(submodule, name)
+    # eskin.preprocess is the callable module eskin.signal.preprocess (so that
+    # `import eskin.signal.preprocess as m` and `eskin.preprocess(x)` are the same object)
+    value = getattr(importlib.import_module(f"eskin.{layer}"), name)
     globals()[name] = value
     return value
 

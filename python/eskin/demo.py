@@ -132,7 +132,7 @@ def offline_stream_decisions(model: Any, samples: np.ndarray) -> list:
     """The TouchModel's Python decisions over a stream (n, rows, cols), touch by touch, as
     :class:`eskin.link.Decision` objects with ``source="offline"``: the detector the controller
     runs (``eskin.preprocess.TouchDetector``, the model's settings) and the model's own machines."""
-    from eskin.link import Decision, load_host_classifier
+    from eskin.link.listener import Decision, load_host_classifier
 
     clf = load_host_classifier(model, backend="python")
     x = np.asarray(samples).reshape(len(samples), -1)
@@ -212,14 +212,15 @@ def run_demo(
     real time; ``machine`` is "svm" (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a
     2x2x2 grid instead of the paper's 135 configurations.
     """
-    from eskin.campaign import load_campaign
-    from eskin.link import Decision, LinkListener
-    from eskin.replay import write_replay_file
-    from eskin.simulator import simulate
+    from eskin.data.campaign import load_campaign
+    from eskin.data.replay import write_replay_file
+    from eskin.data.simulator import simulate
+    from eskin.link.listener import Decision, LinkListener
 
     try:
-        from eskin.export import CompiledModel, export_model
-        from eskin.models import save_model, train_model
+        from eskin.deploy import save_model
+        from eskin.deploy.export import CompiledModel, export_model
+        from eskin.learn.models import train_model
     except ImportError as exc:
         raise DemoError(
             f"a part of the pipeline is missing from this installation ({exc})") from None

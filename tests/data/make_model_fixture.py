@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eskin.export import MachineSpec, ModelSpec, model_to_bytes
-from eskin.preprocess import WindowConfig
+from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+from eskin.signal.preprocess import WindowConfig
 
 
 def qr_bases(tensors, alphas):

@@ -19,7 +19,7 @@ USER_CLASSES = ["tap", "stroke", "press", "pinch"]
 
 def small_simulated(base: Path) -> Path:
     if "sim" not in _CACHE:
-        from eskin.simulator import simulate
+        from eskin.data.simulator import simulate
 
         path = base / "small_sim.h5"
         simulate(path, participants=6, seed=3, runs=(2,))
@@ -30,7 +30,7 @@ def small_simulated(base: Path) -> Path:
 def user_campaign(base: Path) -> Path:
     """4 participants x 4 classes x 3 repetitions, 3x5 taxels, 1000 Hz, cut recordings."""
     if "user" not in _CACHE:
-        from eskin.campaign import write_campaign
+        from eskin.data.campaign import write_campaign
 
         rng = np.random.default_rng(11)
         rows, cols, rate, T = 3, 5, 1000.0, 400

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from eskin.demo import assign_decisions, confusion_matrix
-from eskin.link import Decision
+from eskin.link.listener import Decision
 
 
 def _d(onset, offset, label):
@@ -33,7 +33,7 @@ def test_assign_decisions_keeps_the_touch_on_the_contact():
 
 
 def test_demo_end_to_end(tmp_path):
-    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
+    pytest.importorskip("eskin.learn.models", reason="the learning stack is not installed")
     from eskin.demo import run_demo
 
     lines: list[str] = []
@@ -49,8 +49,8 @@ def test_demo_end_to_end(tmp_path):
     assert report["agree"] and report["source"] == "simulated"
     jl = [json.loads(x) for x in r.files["decisions"].read_text().splitlines()]
     assert jl[-1]["type"] == "stats" and {d["source"] for d in jl[:-1]} == {"controller", "host"}
-    from eskin.campaign import load_campaign
-    from eskin.replay import read_replay_file
+    from eskin.data.campaign import load_campaign
+    from eskin.data.replay import read_replay_file
 
     live = load_campaign(r.files["live"])
     src = load_campaign(r.files["campaign"])

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from eskin._paths import find_executable
-from eskin.protocol import (
+from eskin.data.replay import read_replay_file, write_replay_arrays
+from eskin.link.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
@@ -27,8 +28,7 @@ from eskin.protocol import (
     StreamState,
     encode_frame,
 )
-from eskin.replay import read_replay_file, write_replay_arrays
-from eskin.serial_port import PeerClosedError, SerialPort
+from eskin.link.serial_port import PeerClosedError, SerialPort
 
 START = encode_frame(CommandFrame(FrameType.START))
 # Paced tests that expect no drops give the simulator a queue that outlasts a host stalled by a
@@ -351,7 +351,7 @@ def test_npy_input(sim, tmp_path):
 
 def small_model(path: Path, D: int = 8, n_support: int = 5) -> Path:
     """A 3-class one-vs-all model (random support tensors, real bases) in a .eskin file."""
-    from eskin.export import MachineSpec, ModelSpec, model_to_bytes
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
 
     rng = np.random.default_rng(0)
     pool = rng.standard_normal((2 * n_support - 1, 4, 4, D))
@@ -368,7 +368,7 @@ def small_model(path: Path, D: int = 8, n_support: int = 5) -> Path:
 
 
 def test_on_board_decisions_equal_offline_decisions(sim, replay, tmp_path):
-    from eskin.export import CompiledModel
+    from eskin.deploy.export import CompiledModel
 
     rf = read_replay_file(replay)
     model = small_model(tmp_path / "m.eskin")

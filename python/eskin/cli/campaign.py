@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
         """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
         import time
 
-        from eskin.simulator import simulate
+        from eskin.data.simulator import simulate
 
         with _user_errors():
             t0 = time.perf_counter()
@@ -67,7 +67,7 @@ def register(app: typer.Typer) -> None:
         check: bool = typer.Option(False, "--check", help="also read every recording's data"),
     ) -> None:
         """Summarise a campaign file: grid, rate, counts, lengths, source."""
-        from eskin.campaign import load_campaign
+        from eskin.data.campaign import load_campaign
 
         with _user_errors(), load_campaign(file, check_data=check) as c:
             _print_info(c)
@@ -80,8 +80,8 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     ) -> None:
         """Plot one recording: the taxel traces, the detected touch window, an energy heat map."""
-        from eskin.campaign import load_campaign
-        from eskin.plotting import plot_recording
+        from eskin.data.campaign import load_campaign
+        from eskin.signal.plotting import plot_recording
 
         with _user_errors():
             if output.exists() and not force:
@@ -107,8 +107,8 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     ) -> None:
         """Import a folder of CSV recordings (one column per taxel) into a campaign file."""
-        from eskin.campaign import load_campaign
-        from eskin.importers import import_csv_folder
+        from eskin.data.campaign import load_campaign
+        from eskin.data.importers import import_csv_folder
 
         with _user_errors():
             import_csv_folder(
@@ -134,8 +134,8 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     ) -> None:
         """Import LabVIEW TDMS recordings (one group per recording) into a campaign file."""
-        from eskin.campaign import load_campaign
-        from eskin.importers import import_tdms
+        from eskin.data.campaign import load_campaign
+        from eskin.data.importers import import_tdms
 
         with _user_errors():
             import_tdms(
@@ -192,7 +192,7 @@ def _print_info(c) -> None:
     dirs = sorted({int(d) for d in c.direction})
     import numpy as np
 
-    from eskin.campaign import DIRECTION_NAMES
+    from eskin.data.campaign import DIRECTION_NAMES
 
     for r in runs:
         for d in dirs:

@@ -27,8 +27,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Export a trained model for the controller: a .eskin file (docs/model-format.md)
         that eskin-classify and the C++ library load, and optionally a C header."""
-        from eskin.export import CompiledModel, export_model, write_c_header
-        from eskin.models import load_model
+        from eskin.deploy import load_model
+        from eskin.deploy.export import CompiledModel, export_model, write_c_header
 
         try:
             model = load_model(model_path)

@@ -87,7 +87,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
         and figures into OUT."""
-        from eskin.experiments import run_experiment
+        from eskin.experiments.paper_protocol import run_experiment
 
         try:
             res = run_experiment(
@@ -135,7 +135,8 @@ def register(app: typer.Typer) -> None:
         n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
     ) -> None:
         """Select, fit on all the given recordings and save a model."""
-        from eskin.models import save_model, train_model
+        from eskin.deploy import save_model
+        from eskin.learn.models import train_model
 
         if (classes is None) == (not all_classes):
             _fail("give exactly one of --classes a,b,... or --all-classes")
@@ -179,14 +180,15 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Classify every recording of a campaign; print labels, decision values, error rate."""
-        from eskin.campaign import load_campaign
-        from eskin.models import error_rate, load_model
+        from eskin.data.campaign import load_campaign
+        from eskin.deploy import load_model
+        from eskin.learn.models import error_rate
 
         try:
             model = load_model(model_path)
             camp = load_campaign(campaign)
             if engine is Engine.cpp:
-                from eskin.export import compiled_engine
+                from eskin.deploy.export import compiled_engine
 
                 preds = compiled_engine(model).predict_recordings(camp)
             else:

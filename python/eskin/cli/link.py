@@ -24,7 +24,7 @@ import typer
 @contextlib.contextmanager
 def _user_errors() -> Iterator[None]:
     """Turn the errors a user can cause into a clear message and exit code 2."""
-    from eskin.serial_port import SerialPortError
+    from eskin.link.serial_port import SerialPortError
 
     try:
         yield
@@ -168,7 +168,7 @@ def register(app: typer.Typer) -> None:
                          "terminal)"),
     ) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
-        from eskin.link import (
+        from eskin.link.listener import (
             Connection,
             Decision,
             InfoEvent,
@@ -280,7 +280,7 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
     from rich.panel import Panel
     from rich.table import Table
 
-    from eskin.link import Decision, InfoEvent, Stats
+    from eskin.link.listener import Decision, InfoEvent, Stats
 
     rate = 3000.0
     last_stats = listener.stats

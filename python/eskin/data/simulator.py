@@ -650,7 +650,7 @@ def _simulate_one(args: tuple[Any, ...]) -> tuple[Any, RecordingTruth]:
     rng = np.random.default_rng([seed, participant, run, modality, direction, 0xA1])
     rec, truth = chain.record(rng, style, modality, direction, run)
     if len(args) > 3:
-        from eskin.campaign import encode_recording
+        from eskin.data.campaign import encode_recording
 
         rec = encode_recording(rec, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
                                compression_level=args[3])
@@ -728,7 +728,7 @@ def simulate(
     Writes the true contact interval of each recording and the simulator settings
     (``simulator_config`` JSON attribute).
     """
-    from eskin.campaign import CampaignWriter
+    from eskin.data.campaign import CampaignWriter
 
     if int(participants) < 1:
         raise ValueError(f"participants must be >= 1, got {participants}")

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 import eskin
 from eskin import _core
-from eskin.kernel import (
+from eskin.learn.kernel import (
     bases_mode_distances,
     bases_tensor_kernel,
     kernel_from_distances,
@@ -59,7 +59,7 @@ def literal_kernel(X, Y, alphas, sigma):
 
 def _vector_cases():
     data = np.load(
-        __import__("pathlib").Path(__file__).resolve().parents[1]
+        __import__("pathlib").Path(__file__).resolve().parents[2]
         / "data"
         / "tensor_kernel_vectors.npz"
     )

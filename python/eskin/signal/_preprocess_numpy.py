@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-from eskin.preprocess import WindowConfig
+from eskin.signal.preprocess import WindowConfig
 
 
 def frame_energies(x: np.ndarray, p: dict, dc_alpha: float, combine: str) -> np.ndarray:

@@ -14,7 +14,7 @@ from sklearn.svm import SVC
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 import eskin
-from eskin.estimators import (
+from eskin.learn.estimators import (
     KernelKMeans,
     OneVsAllTouchClassifier,
     TensorRLS,
@@ -23,7 +23,7 @@ from eskin.estimators import (
     one_vs_all_rule,
     svm_train,
 )
-from eskin.selection import MaximalDiscrepancySearch
+from eskin.learn.selection import MaximalDiscrepancySearch
 
 SHAPE = (3, 3, 8)
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
-from eskin.campaign import load_campaign
-from eskin.importers import import_csv_folder, import_tdms
+from eskin.data.campaign import load_campaign
+from eskin.data.importers import import_csv_folder, import_tdms
 
 
 def _csv_folder(tmp_path, *, n=4, grid=(4, 4), header=True, time_col=False, volts=False,

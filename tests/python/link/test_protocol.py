@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from eskin.protocol import (
+from eskin.link.protocol import (
     DELIMITER,
     CommandFrame,
     DataFrame,

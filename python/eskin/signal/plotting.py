@@ -11,7 +11,7 @@ import numpy as np
 
 def _detect_window(rec: np.ndarray, length: int, rate: float) -> tuple[tuple[int, int], str]:
     """The touch window of one recording, from eskin.preprocess.detect_windows."""
-    from eskin.preprocess import detect_windows
+    from eskin.signal.preprocess import detect_windows
 
     win = detect_windows(rec[None].astype(np.int16), lengths=np.array([length]),
                          sample_rate_hz=rate)
@@ -65,7 +65,7 @@ def plot_recording(campaign: Any, index: int, path: str | os.PathLike[str], *,
         ax.axvline(a / rate, color="k", ls="--", lw=0.8, label="true contact interval")
         ax.axvline(b / rate, color="k", ls="--", lw=0.8)
     mod = campaign.modalities[int(campaign.modality[index])]
-    from eskin.campaign import DIRECTION_NAMES
+    from eskin.data.campaign import DIRECTION_NAMES
 
     direction = DIRECTION_NAMES.get(int(campaign.direction[index]), "?")
     src = "SIMULATED" if campaign.source == "simulated" else campaign.source

@@ -13,7 +13,7 @@ from learn_data import USER_CLASSES, small_simulated, user_campaign
 from typer.testing import CliRunner
 
 from eskin.cli import app
-from eskin.models import (
+from eskin.learn.models import (
     ModelFormatError,
     TouchModel,
     TrainingError,
@@ -50,7 +50,7 @@ def binary_model(sim_path) -> TouchModel:
 
 
 def test_binary_model_round_trip(binary_model, sim_path, tmp_path):
-    from eskin.campaign import load_campaign
+    from eskin.data.campaign import load_campaign
 
     m = binary_model
     assert m.classes == ["brush", "washer"] and m.is_binary
@@ -150,7 +150,7 @@ def test_user_campaign_end_to_end(user_path, tmp_path):
     assert n == 48
     assert err < 0.5  # the classes are well separated; chance is 0.75
     # a binary model from arrays, labels as names
-    from eskin.campaign import load_campaign
+    from eskin.data.campaign import load_campaign
 
     c = load_campaign(user_path)
     sig = np.stack(
@@ -225,7 +225,7 @@ def test_bad_model_files(tmp_path, binary_model, sim_path):
 
 
 def test_model_rejects_other_grid(binary_model, user_path):
-    from eskin.campaign import load_campaign
+    from eskin.data.campaign import load_campaign
 
     with pytest.raises(TrainingError, match="3x5 taxel grid.*4x4"):
         binary_model.predict_recordings(load_campaign(user_path))

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from eskin.serial_port import PeerClosedError, SerialPort, SerialPortError
+from eskin.link.serial_port import PeerClosedError, SerialPort, SerialPortError
 
 
 @pytest.fixture

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 import eskin
 from eskin import _core
-from eskin import _preprocess_numpy as _ref
-from eskin.preprocess import (
+from eskin.signal import _preprocess_numpy as _ref
+from eskin.signal.preprocess import (
     TouchDetector,
     WindowConfig,
     detect_touches,
@@ -442,7 +442,7 @@ def test_nan_names_recording_taxel_and_sample():
 
 
 def test_eskin_preprocess_is_both_the_function_and_the_module():
-    import eskin.preprocess as module  # noqa: PLC0415
+    import eskin.signal.preprocess as module  # noqa: PLC0415
 
     assert callable(eskin.preprocess) and eskin.preprocess.WindowConfig is WindowConfig
     assert module.preprocess is preprocess
@@ -463,8 +463,8 @@ def test_windows_against_the_simulators_true_contact_interval(tmp_path, capsys):
     physics, highest for the washer. The bounds leave a margin over what the defaults give on
     240 simulated recordings (docs/preprocessing.md); the distribution is printed.
     """
-    from eskin.campaign import load_campaign
-    from eskin.simulator import simulate
+    from eskin.data.campaign import load_campaign
+    from eskin.data.simulator import simulate
 
     path = simulate(tmp_path / "c.h5", participants=4, seed=7)
     with load_campaign(path) as c:

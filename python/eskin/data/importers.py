@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin.campaign import (
+from eskin.data.campaign import (
     DIRECTION_HORIZONTAL,
     DIRECTION_UNKNOWN,
     DIRECTION_VERTICAL,

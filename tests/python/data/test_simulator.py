@@ -8,8 +8,8 @@ import h5py
 import numpy as np
 import pytest
 
-from eskin.campaign import load_campaign
-from eskin.simulator import MODALITIES, SimulatorConfig, simulate
+from eskin.data.campaign import load_campaign
+from eskin.data.simulator import MODALITIES, SimulatorConfig, simulate
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import eskin
-from eskin.campaign import (
+from eskin.data.campaign import (
     FORMAT,
     Campaign,
     CampaignFormatError,
@@ -343,7 +343,7 @@ def test_extras_round_trip_and_follow_subsets(tmp_path):
 
 
 def test_encoded_and_uncompressed_recordings(tmp_path):
-    from eskin.campaign import encode_recording
+    from eskin.data.campaign import encode_recording
 
     rec = np.arange(2 * 3 * 40, dtype=np.int16).reshape(2, 3, 40) - 100
     enc = encode_recording(rec, grid_shape=(2, 3), n_samples=50, length=30)

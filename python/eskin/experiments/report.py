@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin import paper_tables as paper
+from eskin.experiments import paper_tables as paper
 
 MACHINE_NAME = {"svm": "tensor-SVM", "rls": "tensor-RLS"}
 

@@ -21,7 +21,7 @@ import pytest
 
 import eskin
 from eskin._paths import find_executable
-from eskin.export import (
+from eskin.deploy.export import (
     CompiledModel,
     MachineSpec,
     ModelFormatError,
@@ -31,7 +31,7 @@ from eskin.export import (
     write_c_header,
 )
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -225,7 +225,7 @@ def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
 
 def _fit(campaign, D, machine, n_classes, alpha):
     """A real machine trained on the first 3 participants (simulated data)."""
-    from eskin.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
 
     X = _patterns(campaign, D)
     y = np.asarray(campaign.modality).astype(np.int64)
@@ -247,7 +247,7 @@ def _fit(campaign, D, machine, n_classes, alpha):
 def test_parity_with_trained_estimators(campaign, D, machine, n_classes, dtype):
     """Trained TensorSVC / TensorRLS / OneVsAllTouchClassifier: C++ on the raw recordings of
     the whole campaign (held-out participant included) against Python on eskin.preprocess."""
-    from eskin.export import spec_from_estimator
+    from eskin.deploy.export import spec_from_estimator
 
     alpha = "half" if machine == "svm" else "full"
     est, X = _fit(campaign, D, machine, n_classes, alpha)
@@ -462,7 +462,7 @@ def test_eskin_classify_errors(campaign, tmp_path, which, message):
 
 
 def test_cli_export_writes_model_and_header(campaign, tmp_path):
-    from eskin.models import TouchModel, save_model
+    from eskin.learn.models import TouchModel, save_model
 
     est, _ = _fit(campaign, 20, "svm", 2, "half")
     model = TouchModel(
@@ -482,7 +482,7 @@ def test_cli_export_writes_model_and_header(campaign, tmp_path):
     np.testing.assert_allclose(cm.classify(*_signals(campaign)).decision_values[:, 0],
                                est.decision_function(X), rtol=0, atol=1e-9)
     # a .eskin file loads back as a TouchModel (Python preprocessing, C++ machines)
-    from eskin.models import load_model
+    from eskin.deploy import load_model
 
     back = load_model(out)
     np.testing.assert_allclose(back.decision_function(X), est.decision_function(X), atol=1e-9)

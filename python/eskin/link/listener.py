@@ -66,7 +66,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from eskin.protocol import (
+from eskin.link.protocol import (
     CommandFrame,
     DataFrame,
     DecisionFrame,
@@ -79,7 +79,7 @@ from eskin.protocol import (
     StreamState,
     encode_frame,
 )
-from eskin.serial_port import PeerClosedError, SerialPort, SerialPortError
+from eskin.link.serial_port import PeerClosedError, SerialPort, SerialPortError
 
 __all__ = [
     "Connection",
@@ -259,7 +259,7 @@ class HostClassifier:
 
     def __init__(self, grid: tuple[int, int], sample_rate_hz: float = 3000.0,
                  config: Any = None) -> None:
-        from eskin.preprocess import TouchDetector
+        from eskin.signal.preprocess import TouchDetector
 
         self.grid = (int(grid[0]), int(grid[1]))
         self.class_names: list[str] = []
@@ -282,7 +282,7 @@ class _PythonModelClassifier(HostClassifier):
     kind = "python"
 
     def __init__(self, model: Any) -> None:
-        from eskin.preprocess import TouchDetector
+        from eskin.signal.preprocess import TouchDetector
 
         self.model = model
         self.grid = (int(model.grid_shape[0]), int(model.grid_shape[1]))
@@ -353,7 +353,7 @@ def load_host_classifier(model: Any, backend: str = "auto") -> HostClassifier:
     if isinstance(model, HostClassifier):
         return model
     try:
-        from eskin.export import CompiledModel
+        from eskin.deploy.export import CompiledModel
     except ImportError:
         CompiledModel = None  # type: ignore[assignment,misc]
     if isinstance(model, (str, os.PathLike)):
@@ -362,7 +362,7 @@ def load_host_classifier(model: Any, backend: str = "auto") -> HostClassifier:
             raise FileNotFoundError(f"model file {path} does not exist")
         if path.suffix.lower() == ".eskin" and CompiledModel is not None and backend != "python":
             return _CompiledClassifier(CompiledModel(path))
-        from eskin.models import load_model
+        from eskin.deploy import load_model
 
         model = load_model(path)
     if CompiledModel is not None and isinstance(model, CompiledModel):
@@ -491,7 +491,7 @@ class LinkListener:
             self._port = None
             self.path = os.fspath(port)
         if replay is not None and not hasattr(replay, "segments"):
-            from eskin.replay import read_replay_file
+            from eskin.data.replay import read_replay_file
 
             replay = read_replay_file(replay)
         self.replay = replay
@@ -893,7 +893,7 @@ class LinkListener:
 
     # -- recording -------------------------------------------------------------------------
     def _open_writer(self) -> None:
-        from eskin.campaign import CampaignWriter
+        from eskin.data.campaign import CampaignWriter
 
         assert self.record_path is not None and self._grid is not None
         info = self.info

@@ -69,7 +69,7 @@ def alpha_value(label: str, shape: Sequence[int]) -> tuple[int, ...]:
     Q_z = min(d_z, product of the other dimensions) is the rank bound of the mode-z unfolding
     (4, 4 and 16 for a 4x4xD pattern with D >= 16); Q_z/2 is rounded down and at least 1.
     """
-    from eskin.kernel import resolve_alphas
+    from eskin.learn.kernel import resolve_alphas
 
     if label not in ALPHA_SPEC:
         raise TrainingError(f"alpha label must be one of '1', 'Q/2', 'Q', got {label!r}")
@@ -118,8 +118,8 @@ def make_search(
     CV searches are fitted with ``groups`` (participants) when known (:func:`fit_search`), so
     that no participant is on both sides of a split.
     """
-    from eskin.estimators import TensorRLS, TensorSVC
-    from eskin.selection import CrossValidationSearch, MaximalDiscrepancySearch
+    from eskin.learn.estimators import TensorRLS, TensorSVC
+    from eskin.learn.selection import CrossValidationSearch, MaximalDiscrepancySearch
 
     if machine not in MACHINES:
         raise TrainingError(f"machine must be 'svm' or 'rls', got {machine!r}")
@@ -137,7 +137,7 @@ def make_search(
 
 def fit_search(search: Any, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> Any:
     """Fit a search; CV searches get the participant groups (when there are at least 2)."""
-    from eskin.selection import CrossValidationSearch
+    from eskin.learn.selection import CrossValidationSearch
 
     if (
         isinstance(search, CrossValidationSearch)
@@ -317,7 +317,7 @@ def preprocess_campaign(
     ("interpolate" or "error", see :func:`eskin.preprocess`). ``stats`` also computes the per-recording bad-taxel
     counts and window SNR used to rank outlier participants.
     """
-    from eskin.preprocess import detect_windows, preprocess
+    from eskin.signal.preprocess import detect_windows, preprocess
 
     if window not in ("energy", "none"):
         raise TrainingError(f"window must be 'energy' or 'none', got {window!r}")
@@ -544,7 +544,7 @@ def _load_data(
 ) -> tuple[Any, np.ndarray, list[str], np.ndarray | None, dict[str, Any]]:
     """(recordings, label ids, class names, participant ids or None, source info)."""
     if isinstance(data, (str, Path)):
-        from eskin.campaign import load_campaign
+        from eskin.data.campaign import load_campaign
 
         path = Path(data)
         data = load_campaign(path)
@@ -681,7 +681,7 @@ def train_model(
 
     rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
     if window == "energy" and window_config is None:
-        from eskin.preprocess import WindowConfig
+        from eskin.signal.preprocess import WindowConfig
 
         window_config = WindowConfig()  # the defaults, written into the model explicitly
     prep = preprocess_campaign(
@@ -715,7 +715,7 @@ def train_model(
         estimator = search.best_estimator_
         selected = [report(search, y_all)]
     else:
-        from eskin.estimators import OneVsAllTouchClassifier
+        from eskin.learn.estimators import OneVsAllTouchClassifier
 
         rng = np.random.default_rng(seed)
         machine_indices = []
@@ -783,11 +783,7 @@ def register_model_format(suffix: str, saver: Saver, loader: Loader) -> None:
 
 
 def _format_for(path: Path) -> tuple[Saver, Loader] | None:
-    if not _FORMATS:
-        try:  # let the deployment module register its formats, if it is there
-            import eskin.export  # noqa: F401
-        except ImportError:
-            pass
+    # eskin.deploy registers ".eskin" when it is imported (this layer does not import it)
     return _FORMATS.get(path.suffix.lower())
 
 

@@ -52,7 +52,8 @@ from typing import Any
 
 import numpy as np
 
-from eskin.models import (
+from eskin.experiments.paper_tables import PAPER_PROBLEMS
+from eskin.learn.models import (
     MACHINES,
     PAPER_ALPHAS,
     PAPER_LAMBDAS,
@@ -68,7 +69,6 @@ from eskin.models import (
     selected_row,
     selection_table,
 )
-from eskin.paper_tables import PAPER_PROBLEMS
 
 SCHEMA = "eskin.experiment/1"
 
@@ -469,7 +469,7 @@ def multiclass_task(
 ) -> dict[str, Any]:
     """Table 7: one MD-selected machine per class (each on its own balanced training set),
     combined by the paper's 1-vs-all rule."""
-    from eskin.estimators import OneVsAllTouchClassifier
+    from eskin.learn.estimators import OneVsAllTouchClassifier
 
     t0, c0 = time.perf_counter(), time.process_time()
     machine = key["machine"]
@@ -572,7 +572,7 @@ def baseline_task(
     feature standing in for the alpha axis), selected by cross-validation with the same scheme
     and number of participant-grouped random splits as the tensor machines' CV selection.
     """
-    from eskin.estimators import svm_train
+    from eskin.learn.estimators import svm_train
 
     t0, c0 = time.perf_counter(), time.process_time()
     grid = _baseline_grid(cfg)
@@ -725,7 +725,7 @@ def run_experiment(
 
     Returns the results dictionary also written to ``out_dir/results.json``.
     """
-    from eskin.campaign import load_campaign
+    from eskin.data.campaign import load_campaign
 
     t_start = time.perf_counter()
     campaign_path = Path(campaign_path)
@@ -785,7 +785,7 @@ def run_experiment(
     results["seconds_total"] = time.perf_counter() - t_start
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
-    from eskin.report import write_report
+    from eskin.experiments.report import write_report
 
     write_report(results, out_dir, figures=figures)
     return results
@@ -1024,7 +1024,7 @@ def _protocol(
             }
         )
 
-    from eskin.report import summarise
+    from eskin.experiments.report import summarise
 
     results: dict[str, Any] = {
         "schema": SCHEMA,

@@ -176,7 +176,7 @@ def _validate_spec(spec: ModelSpec) -> None:
 def _window_fields(cfg: Any) -> dict[str, float]:
     """The detector settings as name -> float (an eskin.WindowConfig or a plain mapping)."""
     if cfg is None:
-        from eskin.preprocess import WindowConfig
+        from eskin.signal.preprocess import WindowConfig
 
         cfg = WindowConfig()
     if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):
@@ -734,11 +734,11 @@ def _save_eskin(model: Any, path: Path) -> None:
 
 
 def _load_eskin(path: Path) -> Any:
-    from eskin.models import TouchModel
+    from eskin.learn.models import TouchModel
 
     cm = CompiledModel(path)
     try:
-        from eskin.preprocess import WindowConfig
+        from eskin.signal.preprocess import WindowConfig
 
         cfg = WindowConfig.from_array(np.array(list(cm.window_config.values())))
     except Exception:  # noqa: BLE001 - keep the mapping if the dataclass cannot take it
@@ -760,7 +760,7 @@ def _load_eskin(path: Path) -> Any:
 
 def _register() -> None:
     try:
-        from eskin.models import register_model_format
+        from eskin.learn.models import register_model_format
     except ImportError:  # the learning stack is not there: export works without it
         return
     register_model_format(".eskin", _save_eskin, _load_eskin)

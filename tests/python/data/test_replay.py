@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eskin.replay import ReplayFormatError, read_replay_file, write_replay_arrays, write_replay_file
+from eskin.data.replay import (
+    ReplayFormatError,
+    read_replay_file,
+    write_replay_arrays,
+    write_replay_file,
+)
 
 
 def test_arrays_round_trip_with_gaps(tmp_path):
@@ -32,8 +37,8 @@ def test_arrays_round_trip_with_gaps(tmp_path):
 
 
 def test_from_a_simulated_campaign(tmp_path):
-    from eskin.campaign import load_campaign
-    from eskin.simulator import simulate
+    from eskin.data.campaign import load_campaign
+    from eskin.data.simulator import simulate
 
     path = simulate(tmp_path / "c.h5", participants=1, seed=3, runs=(2,))
     camp = load_campaign(path)
@@ -83,7 +88,7 @@ def test_default_gaps_ramp_between_recording_levels_so_boundaries_are_not_touche
     # Two quiet recordings sitting at different DC levels (an amplifier offset that differs
     # from one recording to the next): the gaps must join them without a step, which the
     # touch detector would report as a touch.
-    from eskin.preprocess import TouchDetector
+    from eskin.signal.preprocess import TouchDetector
 
     rng = np.random.default_rng(5)
     fs = 3000.0

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eskin.campaign import load_campaign
-from eskin.link import (
+from eskin.data.campaign import load_campaign
+from eskin.data.replay import write_replay_arrays
+from eskin.link.listener import (
     Connection,
     DataBlock,
     Decision,
@@ -26,7 +27,7 @@ from eskin.link import (
     Stats,
     StatusEvent,
 )
-from eskin.protocol import (
+from eskin.link.protocol import (
     DELIMITER,
     DataFrame,
     DecisionFrame,
@@ -38,7 +39,6 @@ from eskin.protocol import (
     StreamState,
     encode_frame,
 )
-from eskin.replay import write_replay_arrays
 
 SPF = 10  # samples per DATA frame
 
@@ -473,8 +473,8 @@ def fw_sim_path():
 def small_model(tmp_path_factory):
     """A real compiled 3-class model (support patterns = preprocessed synthetic touches) and a
     replay file of 9 other synthetic touches."""
-    from eskin.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
-    from eskin.preprocess import preprocess
+    from eskin.deploy.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+    from eskin.signal.preprocess import preprocess
 
     d = tmp_path_factory.mktemp("model")
     D = 20
@@ -600,8 +600,8 @@ def test_host_reconnect_to_the_fw_sim_counts_what_it_missed(fw_sim_path, small_m
 
 def test_python_host_backend_decides_like_the_controller(fw_sim_path, small_model):
     """The host's Python path (TouchDetector + a TouchModel's machines) on the live stream."""
-    pytest.importorskip("eskin.models", reason="the learning stack is not installed")
-    from eskin.models import load_model
+    pytest.importorskip("eskin.learn.models", reason="the learning stack is not installed")
+    from eskin.deploy import load_model
 
     _, path, rf, _ = small_model
     model = load_model(path)  # a .eskin file as a TouchModel: Python preprocessing

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from learn_data import USER_CLASSES, small_simulated, user_campaign
 from typer.testing import CliRunner
 
-from eskin import paper_tables
-from eskin.experiments import (
+from eskin.experiments import paper_tables
+from eskin.experiments.paper_protocol import (
     ExperimentError,
     binary_split,
     n_train_participants,
@@ -22,7 +22,7 @@ from eskin.experiments import (
     run_experiment,
     split_participants,
 )
-from eskin.report import render_markdown, write_report
+from eskin.experiments.report import render_markdown, write_report
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import eskin
-from eskin.estimators import TensorRLS, TensorSVC, kernel_from_distances
-from eskin.selection import (
+from eskin.learn.estimators import TensorRLS, TensorSVC, kernel_from_distances
+from eskin.learn.selection import (
     CrossValidationSearch,
     MaximalDiscrepancySearch,
     _Config,

@@ -1,0 +1,63 @@
+"""The data layer: the campaign file format, importers of recorded data, the simulated
+campaign and the firmware simulator's replay files. It imports no other eskin layer.
+"""
+
+from .campaign import (
+    Campaign,
+    CampaignFormatError,
+    CampaignSignals,
+    CampaignWriter,
+    EncodedRecording,
+    encode_recording,
+    load_campaign,
+    save_campaign,
+    write_campaign,
+)
+from .importers import (
+    import_csv_folder,
+    import_tdms,
+    parse_direction,
+)
+from .replay import (
+    REPLAY_MAGIC,
+    REPLAY_VERSION,
+    ReplayFile,
+    ReplayFormatError,
+    read_replay_file,
+    write_replay_arrays,
+    write_replay_file,
+)
+from .simulator import (
+    ParticipantStyle,
+    RecordingTruth,
+    SimulatorConfig,
+    iter_recordings,
+    simulate,
+)
+
+__all__ = [
+    "REPLAY_MAGIC",
+    "REPLAY_VERSION",
+    "Campaign",
+    "CampaignFormatError",
+    "CampaignSignals",
+    "CampaignWriter",
+    "EncodedRecording",
+    "ParticipantStyle",
+    "RecordingTruth",
+    "ReplayFile",
+    "ReplayFormatError",
+    "SimulatorConfig",
+    "encode_recording",
+    "import_csv_folder",
+    "import_tdms",
+    "iter_recordings",
+    "load_campaign",
+    "parse_direction",
+    "read_replay_file",
+    "save_campaign",
+    "simulate",
+    "write_campaign",
+    "write_replay_arrays",
+    "write_replay_file",
+]

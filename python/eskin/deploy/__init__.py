@@ -1,0 +1,43 @@
+"""The deployment layer: the ``.eskin`` model file and the C header for the controller, and
+the compiled model (the C++ stream classifier) that runs them. Builds on eskin.learn.
+
+Importing this package registers the ``.eskin`` suffix with the model files of
+:mod:`eskin.learn.models`, so that :func:`save_model` / :func:`load_model` (re-exported here)
+read and write both the joblib container and the ``.eskin`` file.
+"""
+
+from eskin.learn.models import load_model, save_model
+
+from .export import (
+    FORMAT_VERSION,
+    MAGIC,
+    CompiledDecisions,
+    CompiledModel,
+    MachineSpec,
+    ModelFormatError,
+    ModelSpec,
+    compiled_engine,
+    export_model,
+    model_to_bytes,
+    spec_from_estimator,
+    spec_from_model,
+    write_c_header,
+)
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MAGIC",
+    "CompiledDecisions",
+    "CompiledModel",
+    "MachineSpec",
+    "ModelFormatError",
+    "ModelSpec",
+    "compiled_engine",
+    "export_model",
+    "load_model",
+    "model_to_bytes",
+    "save_model",
+    "spec_from_estimator",
+    "spec_from_model",
+    "write_c_header",
+]

@@ -1,0 +1,76 @@
+"""The learning layer: the tensor kernel, the tensor machines, model selection (maximal
+discrepancy, cross-validation) and the touch model's recipe (train, save, load). Builds on
+eskin.data and eskin.signal.
+"""
+
+from .estimators import (
+    KernelKMeans,
+    OneVsAllTouchClassifier,
+    TensorRLS,
+    TensorSVC,
+    TouchDecision,
+    kernel_kmeans,
+)
+from .kernel import (
+    PatternBases,
+    bases_mode_distances,
+    bases_tensor_kernel,
+    kernel_from_distances,
+    mode_distances,
+    pattern_bases,
+    resolve_alphas,
+    tensor_kernel,
+)
+from .models import (
+    ArrayRecordings,
+    ModelFormatError,
+    Prepared,
+    TouchModel,
+    TrainingError,
+    error_rate,
+    load_model,
+    preprocess_campaign,
+    register_model_format,
+    save_model,
+    train_model,
+)
+from .selection import (
+    PAPER_GRID,
+    CrossValidationSearch,
+    MaximalDiscrepancySearch,
+    md_tau,
+    rls_eig_solve,
+)
+
+__all__ = [
+    "PAPER_GRID",
+    "ArrayRecordings",
+    "CrossValidationSearch",
+    "KernelKMeans",
+    "MaximalDiscrepancySearch",
+    "ModelFormatError",
+    "OneVsAllTouchClassifier",
+    "PatternBases",
+    "Prepared",
+    "TensorRLS",
+    "TensorSVC",
+    "TouchDecision",
+    "TouchModel",
+    "TrainingError",
+    "bases_mode_distances",
+    "bases_tensor_kernel",
+    "error_rate",
+    "kernel_from_distances",
+    "kernel_kmeans",
+    "load_model",
+    "md_tau",
+    "mode_distances",
+    "pattern_bases",
+    "preprocess_campaign",
+    "register_model_format",
+    "resolve_alphas",
+    "rls_eig_solve",
+    "save_model",
+    "tensor_kernel",
+    "train_model",
+]
