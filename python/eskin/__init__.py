@@ -40,6 +40,7 @@ _EXPORTS: dict[str, str] = {
     "load_campaign": "data",
     "write_campaign": "data",
     "CampaignWriter": "data",
+    "recover_campaign": "data",
     "import_csv_folder": "data",
     "import_tdms": "data",
     "simulate": "data",

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import eskin
-from eskin.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+from eskin.deploy.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
 
 REPO = next(p for p in Path(__file__).resolve().parents if (p / "README.md").is_file())
 

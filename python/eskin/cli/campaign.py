@@ -155,7 +155,7 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     ) -> None:
         """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
-        from eskin.campaign import recover_campaign
+        from eskin.data.campaign import recover_campaign
 
         with _user_errors():
             typer.echo(recover_campaign(file, output, overwrite=force).message())

@@ -35,14 +35,17 @@ from .models import (
     train_model,
 )
 from .selection import (
+    MD_READINGS,
     PAPER_GRID,
     CrossValidationSearch,
     MaximalDiscrepancySearch,
+    md_reading,
     md_tau,
     rls_eig_solve,
 )
 
 __all__ = [
+    "MD_READINGS",
     "PAPER_GRID",
     "ArrayRecordings",
     "CrossValidationSearch",
@@ -63,6 +66,7 @@ __all__ = [
     "kernel_from_distances",
     "kernel_kmeans",
     "load_model",
+    "md_reading",
     "md_tau",
     "mode_distances",
     "pattern_bases",

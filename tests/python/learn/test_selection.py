@@ -274,7 +274,7 @@ def test_search_rejects_bad_settings():
 
 
 # ---------------------------------------------------------------- readings of Algorithm 1
-from eskin.selection import MD_READINGS, md_reading
+from eskin.learn.selection import MD_READINGS, md_reading
 
 _GRID = {"lam": [1e-2, 1.0], "sigma": [0.5, 2.0], "alpha": [1, "half"]}
 
@@ -308,7 +308,7 @@ def test_same_lambda_reference_trains_every_labelling_with_lambda():
     r = s.cv_results_
     assert np.all(r["mean_lambda_steps"] == 0) and np.all(np.isinf(r["gamma_0"]))
     # the same labellings through a plain RLS solve with the configuration's own lambda
-    from eskin.selection import _random_labellings
+    from eskin.learn.selection import _random_labellings
 
     y_pm = np.where(y == s.classes_[1], 1.0, -1.0)
     K = eskin.tensor_kernel(X, sigma=1.0, alpha="half")

@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from eskin.campaign import CampaignFormatError, CampaignWriter, load_campaign
+from eskin.data.campaign import CampaignFormatError, CampaignWriter, load_campaign
 from eskin.data import limits
 
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from eskin.campaign import CampaignWriter, load_campaign, recover_campaign
+from eskin.data.campaign import CampaignWriter, load_campaign, recover_campaign
 from eskin.data.journal import journal_path
 
 GRID, T = (2, 3), 64
