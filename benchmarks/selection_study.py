@@ -48,8 +48,8 @@ import numpy as np
 from joblib import Parallel, delayed
 
 import eskin
-from eskin.estimators import TensorRLS, TensorSVC, kernel_from_distances, svm_train
-from eskin.selection import (
+from eskin.learn.estimators import TensorRLS, TensorSVC, kernel_from_distances, svm_train
+from eskin.learn.selection import (
     MD_READINGS,
     PAPER_GRID,
     CrossValidationSearch,
@@ -104,7 +104,7 @@ def patterns(cache: Path, name: str, spec, D: int, subsample: str):
     window = spec[3]
     path = cache / "patterns" / f"{name}-D{D}-{subsample}-{window}.npz"
     if not path.exists():
-        from eskin.models import preprocess_campaign
+        from eskin.learn.models import preprocess_campaign
 
         camp = eskin.load_campaign(campaign_path(cache, name, spec))
         idx = np.arange(len(camp.modality))

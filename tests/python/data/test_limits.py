@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from eskin.data.campaign import CampaignFormatError, CampaignWriter, load_campaign
 from eskin.data import limits
+from eskin.data.campaign import CampaignFormatError, CampaignWriter, load_campaign
 
 
 def _declared(path, shape, *, label_n=None):

@@ -232,7 +232,7 @@ def test_model_rejects_other_grid(binary_model, user_path):
 
 
 def test_train_on_a_campaign_without_any_touch_fails_clearly(tmp_path):
-    from eskin.campaign import write_campaign
+    from eskin.data.campaign import write_campaign
 
     n = 12
     path = tmp_path / "zero.h5"
