@@ -14,6 +14,9 @@
 // as the label ("error:<status>").
 //
 // Exit status: 0 all recordings classified, 1 some could not be, 2 bad usage, model or input.
+#include <sys/stat.h>
+
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
@@ -25,6 +28,7 @@
 #include <vector>
 
 #include "eskin/model.hpp"
+#include "eskin/npy.hpp"
 #include "eskin/version.hpp"
 
 namespace {
@@ -42,14 +46,30 @@ const char* kUsage =
     "  Prints one tab-separated line per recording: index, label, dont_know, window_start,\n"
     "  window_stop, and the decision value of each machine.\n";
 
-std::vector<std::uint8_t> read_all(std::istream& in) {
-  std::vector<std::uint8_t> out;
-  std::vector<char> chunk(1 << 16);
-  while (in) {
-    in.read(chunk.data(), static_cast<std::streamsize>(chunk.size()));
-    out.insert(out.end(), chunk.begin(), chunk.begin() + in.gcount());
+// Reads up to `count` elements, growing `out` as the bytes arrive: a size declared by the input
+// never allocates more than the input really holds. Returns the number of whole elements read.
+template <typename T>
+std::size_t read_elements(std::istream& in, std::size_t count, std::vector<T>& out) {
+  constexpr std::size_t kChunk = (std::size_t{1} << 20) / sizeof(T);
+  out.clear();
+  while (out.size() < count) {
+    const std::size_t old = out.size(), want = std::min(kChunk, count - old);
+    out.resize(old + want);
+    in.read(reinterpret_cast<char*>(out.data() + old), static_cast<std::streamsize>(want * sizeof(T)));
+    const std::size_t got = static_cast<std::size_t>(in.gcount()) / sizeof(T);
+    if (got < want) {
+      out.resize(old + got);
+      break;
+    }
   }
-  return out;
+  return out.size();
+}
+
+// Size of a regular file, or -1 (a pipe, a terminal, a device).
+std::int64_t regular_file_size(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return -1;
+  return static_cast<std::int64_t>(st.st_size);
 }
 
 class Printer {
@@ -111,98 +131,60 @@ std::uint16_t le16(const std::uint8_t* p) {
   return static_cast<std::uint16_t>(p[0] | (p[1] << 8));
 }
 
-template <typename T>
-std::vector<T> decode(const std::uint8_t* p, std::size_t count) {
-  std::vector<T> out(count);
-  std::memcpy(out.data(), p, count * sizeof(T));  // little-endian host (x86, ARM)
-  return out;
+template <typename Item>
+void classify_recordings(std::istream& in, const eskin::NpyHeader& h, std::int64_t n, int rows,
+                         int cols, std::int64_t T, const std::string& what, Printer& pr) {
+  const std::size_t per = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) *
+                          static_cast<std::size_t>(T);
+  std::vector<Item> x;
+  for (std::int64_t i = 0; i < n; ++i) {
+    if (read_elements(in, per, x) != per)  // only reached on a pipe: a file's size was checked
+      throw InputError(what + ": .npy data truncated in recording " + std::to_string(i) +
+                       " (shape " + eskin::npy_shape_string(h.shape) + ")");
+    pr.classify(x.data(), rows, cols, T);  // little-endian host (x86, ARM)
+  }
 }
 
-// ---- .npy
-void classify_npy(const std::vector<std::uint8_t>& buf, const std::string& what, Printer& pr,
-                  const eskin::Model& m) {
-  if (buf.size() < 10) throw InputError(what + ": truncated .npy header");
-  const int major = buf[6];
-  std::size_t hlen, hstart;
-  if (major == 1) {
-    hlen = le16(&buf[8]);
-    hstart = 10;
-  } else if (major == 2 || major == 3) {
-    if (buf.size() < 12) throw InputError(what + ": truncated .npy header");
-    hlen = le32(&buf[8]);
-    hstart = 12;
-  } else {
-    throw InputError(what + ": unsupported .npy version " + std::to_string(major));
+// ---- .npy (eskin/npy.hpp): the header is checked, and a file's size against it, before any
+// data is read; recordings are then read and classified one at a time.
+void classify_npy(std::istream& in, const std::uint8_t* magic, std::int64_t file_bytes,
+                  const std::string& what, Printer& pr, const eskin::Model& m) {
+  std::vector<std::uint8_t> head(magic, magic + 6), more;
+  read_elements(in, eskin::kNpyPreambleBytes - head.size(), more);
+  head.insert(head.end(), more.begin(), more.end());
+  const std::size_t data_offset = eskin::npy_data_offset(head.data(), head.size(), what);
+  if (data_offset > head.size()) {
+    read_elements(in, data_offset - head.size(), more);
+    head.insert(head.end(), more.begin(), more.end());
   }
-  if (hstart + hlen > buf.size()) throw InputError(what + ": truncated .npy header");
-  const std::string h(reinterpret_cast<const char*>(&buf[hstart]), hlen);
-  auto field = [&](const std::string& key) -> std::string {
-    const std::size_t k = h.find("'" + key + "'");
-    if (k == std::string::npos) throw InputError(what + ": .npy header has no '" + key + "'");
-    std::size_t v = h.find(':', k);
-    if (v == std::string::npos) throw InputError(what + ": malformed .npy header");
-    ++v;
-    while (v < h.size() && h[v] == ' ') ++v;
-    std::size_t e = v;
-    if (h[v] == '(') e = h.find(')', v) + 1;
-    else if (h[v] == '\'') e = h.find('\'', v + 1) + 1;
-    else e = h.find_first_of(",}", v);
-    if (e == std::string::npos || e == 0 || e > h.size()) throw InputError(what + ": malformed .npy header");
-    return h.substr(v, e - v);
-  };
-  const std::string descr = field("descr"), fortran = field("fortran_order"), shape_s = field("shape");
-  if (fortran != "False") throw InputError(what + ": .npy array must be C order (fortran_order False)");
-  std::vector<std::int64_t> shape;
-  {
-    std::size_t i = 1;
-    while (i < shape_s.size()) {
-      while (i < shape_s.size() && (shape_s[i] == ' ' || shape_s[i] == ',')) ++i;
-      if (i >= shape_s.size() || shape_s[i] == ')') break;
-      std::size_t used = 0;
-      long long v = 0;
-      try {
-        v = std::stoll(shape_s.substr(i), &used);
-      } catch (const std::exception&) {
-        throw InputError(what + ": malformed .npy shape " + shape_s);
-      }
-      if (v < 0) throw InputError(what + ": negative .npy dimension");
-      shape.push_back(v);
-      i += used;
-    }
-  }
-  std::int64_t n = 1, rows, cols, T;
-  if (shape.size() == 3) {
-    rows = shape[0];
-    cols = shape[1];
-    T = shape[2];
-  } else if (shape.size() == 4) {
-    n = shape[0];
-    rows = shape[1];
-    cols = shape[2];
-    T = shape[3];
-  } else {
-    throw InputError(what + ": .npy shape " + shape_s + ", expected (rows, cols, T) or (n, rows, cols, T)");
-  }
-  if (rows != m.rows() || cols != m.cols())
+  const eskin::NpyHeader h = eskin::parse_npy_header(head.data(), head.size(), what);
+  if (file_bytes >= 0) eskin::check_npy_file_size(h, static_cast<std::uint64_t>(file_bytes), what);
+  const auto& shape = h.shape;
+  if (shape.size() != 3 && shape.size() != 4)
+    throw InputError(what + ": .npy shape " + eskin::npy_shape_string(shape) +
+                     ", expected (rows, cols, T) or (n, rows, cols, T)");
+  const std::size_t k = shape.size() - 3;
+  const std::uint64_t n = k ? shape[0] : 1, rows = shape[k], cols = shape[k + 1], T = shape[k + 2];
+  if (rows != static_cast<std::uint64_t>(m.rows()) || cols != static_cast<std::uint64_t>(m.cols()))
     throw InputError(what + ": recordings are " + std::to_string(rows) + "x" + std::to_string(cols) +
                      " taxels, the model expects " + std::to_string(m.rows()) + "x" + std::to_string(m.cols()));
   if (T < 1) throw InputError(what + ": recordings have no samples (T = 0)");
-  std::size_t item;
-  if (descr == "'<i2'") item = 2;
-  else if (descr == "'<f4'") item = 4;
-  else if (descr == "'<f8'") item = 8;
-  else throw InputError(what + ": .npy dtype " + descr + " not supported (int16, float32, float64 little-endian)");
-  const std::size_t per = static_cast<std::size_t>(rows * cols * T);
-  const std::size_t data_start = hstart + hlen;
-  if (per > (buf.size() - data_start) / item || static_cast<std::size_t>(n) * per > (buf.size() - data_start) / item)
-    throw InputError(what + ": .npy data truncated (" + std::to_string(buf.size() - data_start) +
-                     " bytes for shape " + shape_s + ")");
-  for (std::int64_t i = 0; i < n; ++i) {
-    const std::uint8_t* p = &buf[data_start + static_cast<std::size_t>(i) * per * item];
-    if (item == 2) pr.classify(decode<std::int16_t>(p, per).data(), static_cast<int>(rows), static_cast<int>(cols), T);
-    else if (item == 4) pr.classify(decode<float>(p, per).data(), static_cast<int>(rows), static_cast<int>(cols), T);
-    else pr.classify(decode<double>(p, per).data(), static_cast<int>(rows), static_cast<int>(cols), T);
+  // shape entries are bounded by the header check (n * rows * cols * T * item <= 1 TiB)
+  const auto ni = static_cast<std::int64_t>(n), Ti = static_cast<std::int64_t>(T);
+  switch (h.dtype) {
+    case eskin::NpyDtype::kInt16:
+      classify_recordings<std::int16_t>(in, h, ni, m.rows(), m.cols(), Ti, what, pr);
+      break;
+    case eskin::NpyDtype::kFloat32:
+      classify_recordings<float>(in, h, ni, m.rows(), m.cols(), Ti, what, pr);
+      break;
+    case eskin::NpyDtype::kFloat64:
+      classify_recordings<double>(in, h, ni, m.rows(), m.cols(), Ti, what, pr);
+      break;
   }
+  if (file_bytes < 0 && in.peek() != std::char_traits<char>::eof())
+    throw InputError(what + ": unexpected bytes after the .npy data (shape " +
+                     eskin::npy_shape_string(shape) + ")");
 }
 
 // ---- raw records, read one at a time (works on an endless pipe)
@@ -229,10 +211,9 @@ void classify_raw(std::istream& in, const std::uint8_t* first, std::size_t n_fir
                        " taxels, the model expects " + std::to_string(m.rows()) + "x" + std::to_string(m.cols()));
     if (T < 1 || T > (1u << 28)) throw InputError(rec + ": T = " + std::to_string(T) + " out of range");
     const std::size_t count = static_cast<std::size_t>(rows) * cols * T;
-    data.resize(count);
-    in.read(reinterpret_cast<char*>(data.data()), static_cast<std::streamsize>(count * 2));
-    if (static_cast<std::size_t>(in.gcount()) != count * 2)
-      throw InputError(rec + ": truncated samples (" + std::to_string(in.gcount()) + " of " +
+    const std::size_t got = read_elements(in, count, data);  // grows only as samples arrive
+    if (got != count)
+      throw InputError(rec + ": truncated samples (" + std::to_string(got * 2) + " of " +
                        std::to_string(count * 2) + " bytes)");
     pr.classify(data.data(), rows, cols, static_cast<std::int64_t>(T));
     std::fflush(stdout);
@@ -271,21 +252,20 @@ int main(int argc, char** argv) {
     std::ifstream file;
     std::istream* in = &std::cin;
     std::string what = "<stdin>";
+    std::int64_t file_bytes = -1;
     if (input != "-") {
       file.open(input, std::ios::binary);
       if (!file) throw InputError(input + ": cannot open");
       in = &file;
       what = input;
+      file_bytes = regular_file_size(input);
     }
     std::uint8_t magic[6];
     in->read(reinterpret_cast<char*>(magic), 6);
     const std::size_t got = static_cast<std::size_t>(in->gcount());
     pr.header(model_path);
-    if (got == 6 && std::memcmp(magic, "\x93NUMPY", 6) == 0) {
-      std::vector<std::uint8_t> buf(magic, magic + 6);
-      const auto rest = read_all(*in);
-      buf.insert(buf.end(), rest.begin(), rest.end());
-      classify_npy(buf, what, pr, model);
+    if (got == 6 && eskin::is_npy(magic, got)) {
+      classify_npy(*in, magic, file_bytes, what, pr, model);
     } else if (got == 0) {
       throw InputError(what + ": empty input");
     } else if (got >= 4 && std::memcmp(magic, "ESKR", 4) == 0) {
