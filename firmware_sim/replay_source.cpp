@@ -7,8 +7,10 @@
 
 #include <cerrno>
 #include <cstring>
-#include <regex>
+#include <cmath>
+#include <sstream>
 
+#include "eskin/npy.hpp"
 #include "eskin/protocol.hpp"
 
 namespace eskin::fwsim {
@@ -26,6 +28,15 @@ double rd_f64(const std::uint8_t* p) {
   double v;
   std::memcpy(&v, &bits, sizeof v);
   return v;
+}
+
+constexpr double kMaxSampleRate = 1e7;
+
+std::string fmt_double(double v) {
+  std::ostringstream os;
+  os.precision(17);
+  os << v;
+  return os.str();
 }
 
 bool host_is_little_endian() {
@@ -65,18 +76,27 @@ bool ReplaySource::open(const std::string& path, int grid_rows, int grid_cols, s
     error = path + ": mmap failed: " + std::strerror(errno);
     return false;
   }
-  const auto* p = static_cast<const std::uint8_t*>(map_);
-  bool ok;
-  if (map_size_ >= 8 && std::memcmp(p, "ESKREPLY", 8) == 0) {
-    ok = open_eskr(p, map_size_, error);
-  } else if (map_size_ >= 6 && std::memcmp(p, "\x93NUMPY", 6) == 0) {
-    ok = open_npy(p, map_size_, grid_rows, grid_cols, error);
-  } else {
-    error = "not an eskin replay file (magic ESKREPLY) nor a .npy file";
-    ok = false;
-  }
+  const bool ok = open_bytes(static_cast<const std::uint8_t*>(map_), map_size_, grid_rows,
+                             grid_cols, error);
   if (!ok) error = path + ": " + error;
   return ok;
+}
+
+bool ReplaySource::open_bytes(const std::uint8_t* p, std::size_t size, int grid_rows,
+                              int grid_cols, std::string& error) {
+  data_ = nullptr;
+  n_samples_ = 0;
+  rows_ = cols_ = 0;
+  class_names_.clear();
+  segments_.clear();
+  if (p == nullptr || size == 0) {
+    error = "empty input";
+    return false;
+  }
+  if (size >= 8 && std::memcmp(p, "ESKREPLY", 8) == 0) return open_eskr(p, size, error);
+  if (is_npy(p, size)) return open_npy(p, size, grid_rows, grid_cols, error);
+  error = "not an eskin replay file (magic ESKREPLY) nor a .npy file";
+  return false;
 }
 
 bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::string& error) {
@@ -99,7 +119,9 @@ bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::strin
   }
   if (data_offset % 8 != 0 || data_offset > size ||
       data_offset < kHeader + n_seg * kSegment + names_len) {
-    error = "bad data offset " + std::to_string(data_offset);
+    error = "bad data_offset " + std::to_string(data_offset) + " (n_segments " +
+            std::to_string(n_seg) + ", names_len " + std::to_string(names_len) + ", file of " +
+            std::to_string(size) + " bytes)";
     return false;
   }
   std::uint32_t c = protocol::crc32(p, 52);
@@ -111,16 +133,24 @@ bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::strin
     return false;
   }
   if (rows < 1 || rows > 255 || cols < 1 || cols > 255) {
-    error = "bad grid " + std::to_string(rows) + "x" + std::to_string(cols);
+    error = "bad grid " + std::to_string(rows) + "x" + std::to_string(cols) + " (1..255 each)";
     return false;
   }
-  if (!(rate > 0.0)) {
-    error = "bad sample rate";
+  if (!(std::isfinite(rate) && rate > 0.0 && rate <= kMaxSampleRate)) {
+    error = "sample_rate_hz = " + fmt_double(rate) + " must be in (0, 1e7]";
     return false;
   }
-  const std::uint64_t expected = data_offset + total * rows * cols * 2;
-  if (expected != size) {
-    error = "size " + std::to_string(size) + " bytes, expected " + std::to_string(expected);
+  if (!(std::isfinite(vpc) && vpc > 0.0)) {
+    error = "volts_per_count = " + fmt_double(vpc) + " must be finite and > 0";
+    return false;
+  }
+  // n_samples against the bytes present before any product (which could wrap around)
+  const std::uint64_t bytes_per_sample = rows * cols * 2;
+  if (total > (size - data_offset) / bytes_per_sample ||
+      data_offset + total * bytes_per_sample != size) {
+    error = "n_samples = " + std::to_string(total) + " of " + std::to_string(rows) + "x" +
+            std::to_string(cols) + " taxels does not match the " + std::to_string(size - data_offset) +
+            " bytes of samples in the file";
     return false;
   }
   rows_ = static_cast<int>(rows);
@@ -134,6 +164,12 @@ bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::strin
     seg.start = rd_u(s, 8);
     seg.length = rd_u(s + 8, 8);
     seg.label = static_cast<std::int32_t>(rd_u(s + 32, 4));
+    if (seg.start > total || seg.length > total - seg.start) {
+      error = "segment " + std::to_string(i) + ": start " + std::to_string(seg.start) +
+              " + length " + std::to_string(seg.length) + " runs past n_samples = " +
+              std::to_string(total);
+      return false;
+    }
     segments_.push_back(seg);
   }
   const char* names = reinterpret_cast<const char*>(p + kHeader + n_seg * kSegment);
@@ -159,87 +195,53 @@ bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::strin
 
 bool ReplaySource::open_npy(const std::uint8_t* p, std::size_t size, int grid_rows, int grid_cols,
                             std::string& error) {
-  if (size < 10) {
-    error = "truncated .npy header";
+  NpyHeader h;
+  try {
+    h = parse_npy_header(p, size, ".npy");
+    check_npy_file_size(h, size, ".npy");
+  } catch (const NpyError& e) {
+    error = e.what();
     return false;
   }
-  const int major = p[6];
-  std::size_t header_len, start;
-  if (major == 1) {
-    header_len = rd_u(p + 8, 2);
-    start = 10;
-  } else if (major == 2 || major == 3) {
-    if (size < 12) {
-      error = "truncated .npy header";
+  if (h.dtype != NpyDtype::kInt16) {
+    error = ".npy must hold little-endian int16 ('<i2'), not '" + std::string(npy_descr(h.dtype)) + "'";
+    return false;
+  }
+  const auto& dims = h.shape;
+  if (dims.size() == 3) {
+    if (dims[1] < 1 || dims[1] > 255 || dims[2] < 1 || dims[2] > 255) {
+      error = ".npy shape " + npy_shape_string(dims) + ": bad grid (1..255 each)";
       return false;
     }
-    header_len = rd_u(p + 8, 4);
-    start = 12;
-  } else {
-    error = ".npy version " + std::to_string(major) + " not supported";
-    return false;
-  }
-  if (start + header_len > size) {
-    error = "truncated .npy header";
-    return false;
-  }
-  const std::string h(reinterpret_cast<const char*>(p + start), header_len);
-  std::smatch m;
-  if (!std::regex_search(h, m, std::regex("'descr':\\s*'([<>|=]?)i2'")) ||
-      m[1].str() == ">") {
-    error = ".npy must hold little-endian int16 ('<i2'), header: " + h;
-    return false;
-  }
-  if (h.find("'fortran_order': False") == std::string::npos) {
-    error = ".npy must be C-ordered (fortran_order False)";
-    return false;
-  }
-  if (!std::regex_search(h, m, std::regex("'shape':\\s*\\(([^)]*)\\)"))) {
-    error = ".npy header has no shape";
-    return false;
-  }
-  std::vector<std::uint64_t> dims;
-  const std::string shape = m[1].str();
-  const std::regex num("\\d+");
-  for (auto it = std::sregex_iterator(shape.begin(), shape.end(), num); it != std::sregex_iterator();
-       ++it)
-    dims.push_back(std::stoull(it->str()));
-  if (dims.size() == 3) {
     rows_ = static_cast<int>(dims[1]);
     cols_ = static_cast<int>(dims[2]);
   } else if (dims.size() == 2) {
-    if (static_cast<std::uint64_t>(grid_rows) * grid_cols != dims[1]) {
-      error = ".npy shape (" + std::to_string(dims[0]) + ", " + std::to_string(dims[1]) +
-              ") does not match --grid " + std::to_string(grid_rows) + "x" +
-              std::to_string(grid_cols);
+    if (static_cast<std::uint64_t>(grid_rows) * static_cast<std::uint64_t>(grid_cols) != dims[1]) {
+      error = ".npy shape " + npy_shape_string(dims) + " does not match --grid " +
+              std::to_string(grid_rows) + "x" + std::to_string(grid_cols);
+      return false;
+    }
+    if (grid_rows < 1 || grid_rows > 255 || grid_cols < 1 || grid_cols > 255) {
+      error = "bad grid " + std::to_string(grid_rows) + "x" + std::to_string(grid_cols) + " (1..255 each)";
       return false;
     }
     rows_ = grid_rows;
     cols_ = grid_cols;
   } else {
-    error = ".npy must be (n_samples, rows, cols) or (n_samples, taxels), got " +
-            std::to_string(dims.size()) + " dimensions";
+    error = ".npy must be (n_samples, rows, cols) or (n_samples, taxels), got shape " +
+            npy_shape_string(dims);
     return false;
   }
-  if (rows_ < 1 || rows_ > 255 || cols_ < 1 || cols_ > 255) {
-    error = "bad grid " + std::to_string(rows_) + "x" + std::to_string(cols_);
-    return false;
-  }
-  n_samples_ = dims[0];
-  const std::size_t data_start = start + header_len;
-  if (data_start + n_samples_ * taxels() * 2 != size) {
-    error = ".npy data size does not match its shape";
-    return false;
-  }
-  if (data_start % 2 != 0) {
+  if (h.data_offset % 2 != 0) {
     error = ".npy data is not 2-byte aligned";
     return false;
   }
-  if (n_samples_ == 0) {
+  if (dims[0] == 0) {
     error = "no samples";
     return false;
   }
-  data_ = reinterpret_cast<const std::int16_t*>(p + data_start);
+  n_samples_ = dims[0];
+  data_ = reinterpret_cast<const std::int16_t*>(p + h.data_offset);
   return true;
 }
 

@@ -26,6 +26,11 @@ class ReplaySource {
   /// grid given). Returns false with `error` naming the file and the problem.
   bool open(const std::string& path, int grid_rows, int grid_cols, std::string& error);
 
+  /// The same from bytes in memory (they must outlive the source): a replay image or a .npy
+  /// image. Every declared size is checked against `size` first.
+  bool open_bytes(const std::uint8_t* p, std::size_t size, int grid_rows, int grid_cols,
+                  std::string& error);
+
   /// Sample i (rows * cols codes, taxel (r, c) at r * cols + c).
   const std::int16_t* sample(std::uint64_t i) const { return data_ + i * taxels(); }
   std::uint64_t n_samples() const { return n_samples_; }
