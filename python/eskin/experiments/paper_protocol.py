@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from eskin._progress import progress_bar
 from eskin.experiments.paper_tables import PAPER_PROBLEMS
 from eskin.learn.models import (
     MACHINES,
@@ -678,14 +679,13 @@ def _run_tasks(
     from joblib import Parallel, delayed
 
     results: list[dict[str, Any]] = []
-    task_id = progress.add_task(label, total=len(tasks)) if progress is not None else None
+    task_id = progress.add_task(label, total=len(tasks))
     gen = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
         delayed(fn)(*args) for fn, args in tasks
     )
     for res in gen:
         results.append(res)
-        if progress is not None:
-            progress.update(task_id, advance=1)
+        progress.update(task_id, advance=1)
     return results
 
 
@@ -726,10 +726,38 @@ def run_experiment(
     Returns the results dictionary also written to ``out_dir/results.json``.
     """
     from eskin.data.campaign import load_campaign
+    from eskin.experiments.report import write_report
 
     t_start = time.perf_counter()
     campaign_path = Path(campaign_path)
     out_dir = Path(out_dir)
+    cfg = _protocol_config(quick, runs, Ds, seed, window, subsample, options)
+    campaign = load_campaign(campaign_path)
+    if len(campaign) == 0:
+        raise ExperimentError(f"{campaign_path}: the campaign holds no recordings")
+    names = [str(m) for m in campaign.modalities]
+    cfg.problems = resolve_problems(problems, names)
+
+    with progress_bar(progress) as prog:
+        results = _protocol(campaign, campaign_path, cfg, names, n_jobs, prog)
+    results["seconds_total"] = time.perf_counter() - t_start
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
+    write_report(results, out_dir, figures=figures)
+    return results
+
+
+def _protocol_config(
+    quick: bool,
+    runs: int | None,
+    Ds: Sequence[int] | None,
+    seed: int,
+    window: str,
+    subsample: str,
+    options: dict[str, Any],
+) -> ProtocolConfig:
+    """The protocol's settings: the paper's (or the quick ones) with the caller's changes,
+    checked."""
     cfg = quick_config() if quick else ProtocolConfig()
     if runs is not None:
         cfg.runs = int(runs)
@@ -750,45 +778,7 @@ def run_experiment(
         raise ExperimentError(f"Ds must be positive integers, got {cfg.Ds}")
     if subsample not in ("algorithm2", "even"):
         raise ExperimentError(f"subsample must be 'algorithm2' or 'even', got {subsample!r}")
-
-    campaign = load_campaign(campaign_path)
-    if len(campaign) == 0:
-        raise ExperimentError(f"{campaign_path}: the campaign holds no recordings")
-    names = [str(m) for m in campaign.modalities]
-    cfg.problems = resolve_problems(problems, names)
-
-    prog = None
-    if progress:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        prog = Progress(
-            TextColumn("{task.description:<28}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            transient=False,
-        )
-        prog.start()
-    try:
-        results = _protocol(campaign, campaign_path, cfg, names, n_jobs, prog)
-    finally:
-        if prog is not None:
-            prog.stop()
-    results["seconds_total"] = time.perf_counter() - t_start
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
-    from eskin.experiments.report import write_report
-
-    write_report(results, out_dir, figures=figures)
-    return results
+    return cfg
 
 
 def _protocol(
@@ -799,19 +789,83 @@ def _protocol(
     n_jobs: int,
     prog: Any,
 ) -> dict[str, Any]:
+    other = "even" if cfg.subsample == "algorithm2" else "algorithm2"
+    analysis, X, prep, keep = _prepare_analysis_set(campaign, cfg, names, other, prog)
+    parts = analysis.participants
+    n_parts = len(np.unique(parts))
+    n_tr = n_train_participants(n_parts, cfg.train_share)
+    if n_parts != 65:
+        analysis.notes.append(
+            f"{n_parts} participants in the analysis set (the paper had 65): "
+            f"{n_tr} train / {n_parts - n_tr} validate per run"
+        )
+    splits = _participant_splits(cfg, parts, n_tr)
+    tasks_bin, tasks_base, problem_info = _binary_tasks(cfg, names, analysis, X, splits, other)
+    tasks_mc, mc_info = _multiclass_tasks(cfg, names, analysis, X, splits)
+
+    # heaviest first: multiclass (several searches each), then the tensor searches, baselines
+    out = _run_tasks(tasks_mc + tasks_bin + tasks_base, n_jobs, prog, "selection + fitting")
+    binary, subs, base, mc = _sorted_task_results(out, cfg)
+
+    from eskin.experiments.report import summarise
+
+    results: dict[str, Any] = {
+        "schema": SCHEMA,
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "versions": _versions(),
+        "campaign": _campaign_info(campaign, campaign_path),
+        "protocol": {
+            **asdict(cfg),
+            "n_configurations": cfg.n_configurations,
+            "train_participants_per_run": n_tr,
+            "validation_participants_per_run": n_parts - n_tr,
+            "machines": list(MACHINES),
+            "parameter_note": "lambda is reported for both machines; the SVM is "
+            "trained with C = 1/lambda (NOTES 9)",
+        },
+        "analysis_set": analysis.summary(),
+        "preprocessing": {
+            "seconds": prep.seconds,
+            "window": cfg.window,
+            "windows": prep.windows[keep],
+            "recordings": analysis.indices,
+        },
+        "problems": problem_info,
+        "splits": splits,
+        "binary": binary,
+        "baseline": base,
+        "subsampling": {
+            "main": cfg.subsample,
+            "other": other,
+            "D": cfg.compare_D,
+            "machine": cfg.compare_machine,
+            "rows": _subsampling_rows(subs, binary, cfg.subsample, other),
+        }
+        if cfg.compare_subsampling
+        else None,
+        "multiclass": {**mc_info, "runs": mc},
+    }
+    results["summary"] = summarise(results)
+    return results
+
+
+def _prepare_analysis_set(
+    campaign: Any, cfg: ProtocolConfig, names: list[str], other: str, prog: Any
+) -> tuple[AnalysisSet, dict[tuple[int, str], np.ndarray], Any, np.ndarray]:
+    """Preprocess the candidate recordings once per (D, subsampling) variant and drop the
+    excluded participants: the analysis set, its tensors by variant, the preprocessing
+    result and the mask of kept candidates."""
     cand, used_run, notes = choose_analysis_set(campaign, run=cfg.analysis_run)
     if len(cand) == 0:
         raise ExperimentError("no recording left in the analysis set")
 
-    other = "even" if cfg.subsample == "algorithm2" else "algorithm2"
     variants = [(D, cfg.subsample) for D in cfg.Ds]
     if cfg.compare_subsampling:
         variants.append((cfg.compare_D, other))
-    task_pp = prog.add_task("preprocessing", total=len(cand)) if prog is not None else None
+    task_pp = prog.add_task("preprocessing", total=len(cand))
 
     def on_chunk(k: int) -> None:
-        if prog is not None:
-            prog.update(task_pp, advance=k)
+        prog.update(task_pp, advance=k)
 
     prep = preprocess_campaign(
         campaign, cand, variants, window=cfg.window, stats=True, on_chunk=on_chunk
@@ -833,24 +887,35 @@ def _protocol(
         scores=scores,
     )
     X = {k: v[keep] for k, v in prep.X.items()}
-    labels, parts = analysis.labels, analysis.participants
-    n_parts = len(np.unique(parts))
-    n_tr = n_train_participants(n_parts, cfg.train_share)
-    if n_parts != 65:
-        analysis.notes.append(
-            f"{n_parts} participants in the analysis set (the paper had 65): "
-            f"{n_tr} train / {n_parts - n_tr} validate per run"
-        )
+    return analysis, X, prep, keep
 
+
+def _participant_splits(cfg: ProtocolConfig, parts: np.ndarray, n_tr: int) -> list[dict]:
+    """One random train/validation split of the participants per run."""
     splits = []
     for r in range(cfg.runs):
         tr_p, te_p = split_participants(parts, n_tr, task_seed(cfg.seed, "split", r))
         splits.append({"run": r + 1, "train_participants": tr_p, "test_participants": te_p})
+    return splits
 
-    tasks_bin: list[tuple[Any, tuple[Any, ...]]] = []
-    tasks_base: list[tuple[Any, tuple[Any, ...]]] = []
-    tasks_mc: list[tuple[Any, tuple[Any, ...]]] = []
+
+Tasks = list[tuple[Any, tuple[Any, ...]]]
+
+
+def _binary_tasks(
+    cfg: ProtocolConfig,
+    names: list[str],
+    analysis: AnalysisSet,
+    X: dict[tuple[int, str], np.ndarray],
+    splits: list[dict],
+    other: str,
+) -> tuple[Tasks, Tasks, dict[str, Any]]:
+    """The binary problems' tasks (tensor machines, and the vector baseline): one per problem,
+    run, D, machine and selection method; records each split's recordings in ``splits``."""
+    tasks_bin: Tasks = []
+    tasks_base: Tasks = []
     problem_info = {}
+    labels, parts = analysis.labels, analysis.participants
     for pname, cls in cfg.problems.items():
         ids = [names.index(c) for c in cls]
         problem_info[pname] = {"classes": list(cls), "class_ids": ids}
@@ -875,49 +940,76 @@ def _protocol(
                 "train": analysis.indices[tr],
                 "val": analysis.indices[va],
             }
-            for D in cfg.Ds:
-                XD = X[(D, cfg.subsample)]
-                for machine in MACHINES:
-                    for selection in ("md", "cv"):
-                        key = {
-                            "problem": pname,
-                            "run": r,
-                            "D": D,
-                            "machine": machine,
-                            "selection": selection,
-                            "subsample": cfg.subsample,
-                        }
-                        s = task_seed(cfg.seed, pname, r, D, machine, selection)
-                        tasks_bin.append(
-                            (binary_task, (key, XD[tr], ytr, parts[tr], XD[va], yva, cfg, s))
-                        )
-                if cfg.baseline:
-                    key = {
-                        "problem": pname,
-                        "run": r,
-                        "D": D,
-                        "machine": "vector-rbf-svm",
-                        "selection": "cv",
-                        "subsample": cfg.subsample,
-                    }
-                    s = task_seed(cfg.seed, pname, r, D, "baseline")
-                    tasks_base.append(
-                        (baseline_task, (key, XD[tr], ytr, parts[tr], XD[va], yva, cfg, s))
-                    )
-            if cfg.compare_subsampling:
-                XD = X[(cfg.compare_D, other)]
+            data = (tr, ytr, va, yva)
+            _add_cell_tasks(tasks_bin, tasks_base, cfg, X, pname, r, data, parts, other)
+    return tasks_bin, tasks_base, problem_info
+
+
+def _add_cell_tasks(
+    tasks_bin: Tasks,
+    tasks_base: Tasks,
+    cfg: ProtocolConfig,
+    X: dict[tuple[int, str], np.ndarray],
+    pname: str,
+    r: int,
+    data: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    parts: np.ndarray,
+    other: str,
+) -> None:
+    """The tasks of one problem and run: every D x machine x selection method, the baseline
+    per D, and the subsampling comparison."""
+    tr, ytr, va, yva = data
+    for D in cfg.Ds:
+        XD = X[(D, cfg.subsample)]
+        for machine in MACHINES:
+            for selection in ("md", "cv"):
                 key = {
                     "problem": pname,
                     "run": r,
-                    "D": cfg.compare_D,
-                    "machine": cfg.compare_machine,
-                    "selection": "md",
-                    "subsample": other,
+                    "D": D,
+                    "machine": machine,
+                    "selection": selection,
+                    "subsample": cfg.subsample,
                 }
-                # same seed as the main run of this cell: only the subsampling differs
-                s = task_seed(cfg.seed, pname, r, cfg.compare_D, cfg.compare_machine, "md")
+                s = task_seed(cfg.seed, pname, r, D, machine, selection)
                 tasks_bin.append((binary_task, (key, XD[tr], ytr, parts[tr], XD[va], yva, cfg, s)))
+        if cfg.baseline:
+            key = {
+                "problem": pname,
+                "run": r,
+                "D": D,
+                "machine": "vector-rbf-svm",
+                "selection": "cv",
+                "subsample": cfg.subsample,
+            }
+            s = task_seed(cfg.seed, pname, r, D, "baseline")
+            tasks_base.append((baseline_task, (key, XD[tr], ytr, parts[tr], XD[va], yva, cfg, s)))
+    if cfg.compare_subsampling:
+        XD = X[(cfg.compare_D, other)]
+        key = {
+            "problem": pname,
+            "run": r,
+            "D": cfg.compare_D,
+            "machine": cfg.compare_machine,
+            "selection": "md",
+            "subsample": other,
+        }
+        # same seed as the main run of this cell: only the subsampling differs
+        s = task_seed(cfg.seed, pname, r, cfg.compare_D, cfg.compare_machine, "md")
+        tasks_bin.append((binary_task, (key, XD[tr], ytr, parts[tr], XD[va], yva, cfg, s)))
 
+
+def _multiclass_tasks(
+    cfg: ProtocolConfig,
+    names: list[str],
+    analysis: AnalysisSet,
+    X: dict[tuple[int, str], np.ndarray],
+    splits: list[dict],
+) -> tuple[Tasks, dict[str, Any]]:
+    """The 1-vs-all tasks (one per run and machine) when the analysis set has 3 or more
+    classes; records each split's recordings in ``splits``."""
+    tasks_mc: Tasks = []
+    labels, parts = analysis.labels, analysis.participants
     mc_info: dict[str, Any] = {"ran": False}
     present = sorted(set(labels.tolist()))
     if cfg.multiclass and len(present) >= 3:
@@ -960,11 +1052,14 @@ def _protocol(
             "reason": f"the analysis set has {len(present)} class(es); "
             "the 1-vs-all experiment needs 3 or more",
         }
+    return tasks_mc, mc_info
 
-    # heaviest first: multiclass (several searches each), then the tensor searches, baselines
-    all_tasks = tasks_mc + tasks_bin + tasks_base
-    out = _run_tasks(all_tasks, n_jobs, prog, "selection + fitting")
 
+def _sorted_task_results(
+    out: list[dict[str, Any]], cfg: ProtocolConfig
+) -> tuple[list[dict], list[dict], list[dict], list[dict]]:
+    """The tasks' results in table order: binary (main subsampling), binary with the other
+    subsampling, baselines, multiclass."""
     pnames = list(cfg.problems)
 
     def sort_key(d: dict[str, Any]) -> tuple[Any, ...]:
@@ -997,8 +1092,13 @@ def _protocol(
     )
     base = sorted([d for d in out if d.get("machine") == "vector-rbf-svm"], key=sort_key)
     mc = sorted([d for d in out if "problem" not in d], key=sort_key)
+    return binary, subs, base, mc
 
-    # subsampling comparison: pair the "other" method with the main one on the same cells
+
+def _subsampling_rows(
+    subs: list[dict], binary: list[dict], main_method: str, other: str
+) -> list[dict[str, Any]]:
+    """The subsampling comparison: each cell of the other method beside the main one."""
     sub_rows = []
     for d in subs:
         main = next(
@@ -1016,51 +1116,11 @@ def _protocol(
                 "run": d["run"],
                 "D": d["D"],
                 "machine": d["machine"],
-                f"error_{cfg.subsample}": main["error"],
+                f"error_{main_method}": main["error"],
                 f"error_{other}": d["error"],
                 f"selected_{other}": d["selected"],
                 "seconds": d["seconds"],
                 "cpu_seconds": d["cpu_seconds"],
             }
         )
-
-    from eskin.experiments.report import summarise
-
-    results: dict[str, Any] = {
-        "schema": SCHEMA,
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "versions": _versions(),
-        "campaign": _campaign_info(campaign, campaign_path),
-        "protocol": {
-            **asdict(cfg),
-            "n_configurations": cfg.n_configurations,
-            "train_participants_per_run": n_tr,
-            "validation_participants_per_run": n_parts - n_tr,
-            "machines": list(MACHINES),
-            "parameter_note": "lambda is reported for both machines; the SVM is "
-            "trained with C = 1/lambda (NOTES 9)",
-        },
-        "analysis_set": analysis.summary(),
-        "preprocessing": {
-            "seconds": prep.seconds,
-            "window": cfg.window,
-            "windows": prep.windows[keep],
-            "recordings": analysis.indices,
-        },
-        "problems": problem_info,
-        "splits": splits,
-        "binary": binary,
-        "baseline": base,
-        "subsampling": {
-            "main": cfg.subsample,
-            "other": other,
-            "D": cfg.compare_D,
-            "machine": cfg.compare_machine,
-            "rows": sub_rows,
-        }
-        if cfg.compare_subsampling
-        else None,
-        "multiclass": {**mc_info, "runs": mc},
-    }
-    results["summary"] = summarise(results)
-    return results
+    return sub_rows
