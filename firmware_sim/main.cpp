@@ -111,6 +111,12 @@ struct Options {
   bool realtime = false;
 };
 
+// A bad input or model file (not a usage mistake): one line, exit status 2.
+[[noreturn]] void input_error(const std::string& msg) {
+  std::fprintf(stderr, "eskin-fw-sim: %s\n", msg.c_str());
+  std::exit(2);
+}
+
 [[noreturn]] void usage_error(const std::string& msg) {
   std::fprintf(stderr, "eskin-fw-sim: %s\n(see eskin-fw-sim --help)\n", msg.c_str());
   std::exit(2);
@@ -610,7 +616,7 @@ int main_impl(int argc, char** argv) {
   const Options o = parse(argc, argv);
   ReplaySource src;
   std::string error;
-  if (!src.open(o.input, o.grid_rows, o.grid_cols, error)) usage_error(error);
+  if (!src.open(o.input, o.grid_rows, o.grid_cols, error)) input_error(error);
 
 #if ESKIN_FWSIM_HAS_MODEL
   std::unique_ptr<Model> model;
@@ -618,7 +624,7 @@ int main_impl(int argc, char** argv) {
     try {
       model = std::make_unique<Model>(Model::load(o.model));
     } catch (const std::exception& e) {
-      usage_error(std::string("--model: ") + e.what());
+      input_error(std::string("--model: ") + e.what());
     }
     if (model->rows() != src.rows() || model->cols() != src.cols())
       usage_error("--model " + o.model + " expects a " + std::to_string(model->rows()) + "x" +
