@@ -48,11 +48,51 @@ def _mean_sd(values: Sequence[float]) -> dict[str, float]:
     }
 
 
+Cell = tuple[str, str, str, int]  # machine, selection, problem, D
+
+
 def summarise(results: dict[str, Any]) -> dict[str, Any]:
     """Means over runs (in %) of every cell, MD vs CV, baseline, 3-class and subsampling."""
-    groups: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
-    sigmas: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
-    lambdas: dict[tuple[str, str, str, int], list[float]] = defaultdict(list)
+    groups, sigmas, lambdas, keys = _binary_cells(results)
+    binary = [
+        {"machine": m, "selection": s, "problem": p, "D": D, **_mean_sd(groups[(m, s, p, D)])}
+        for (m, s, p, D) in keys
+    ]
+    md_vs_cv = _md_vs_cv(keys, groups, sigmas, lambdas)
+    overall = {}
+    for m in ("svm", "rls"):
+        rows = [r for r in md_vs_cv if r["machine"] == m]
+        if rows:
+            overall[m] = {
+                "md_mean": float(np.mean([r["md_mean"] for r in rows])),
+                "cv_mean": float(np.mean([r["cv_mean"] for r in rows])),
+            }
+    worse = [r for r in md_vs_cv if r["md_minus_cv"] > 1e-9]
+    bgroups: dict[tuple[str, int], list[float]] = defaultdict(list)
+    for d in results.get("baseline") or []:
+        bgroups[(d["problem"], int(d["D"]))].append(d["error"])
+    baseline = [{"problem": p, "D": D, **_mean_sd(v)} for (p, D), v in sorted(bgroups.items())]
+    md_means = [r["mean"] for r in binary if r["selection"] == "md"]
+    return {
+        "binary": binary,
+        "md_vs_cv": md_vs_cv,
+        "md_vs_cv_overall": overall,
+        "md_worse_than_cv": worse,
+        "baseline": baseline,
+        "multiclass": _multiclass_summary(results),
+        "subsampling": _subsampling_summary(results),
+        "binary_md_range_pct": [float(min(md_means)), float(max(md_means))] if md_means else None,
+    }
+
+
+def _binary_cells(
+    results: dict[str, Any],
+) -> tuple[dict[Cell, list[float]], dict[Cell, list[float]], dict[Cell, list[float]], list[Cell]]:
+    """The binary runs grouped by cell: errors, selected sigmas and lambdas, and the cells in
+    table order (SVM before RLS, MD before CV, the problems' order, D)."""
+    groups: dict[Cell, list[float]] = defaultdict(list)
+    sigmas: dict[Cell, list[float]] = defaultdict(list)
+    lambdas: dict[Cell, list[float]] = defaultdict(list)
     for d in results["binary"]:
         key = (d["machine"], d["selection"], d["problem"], int(d["D"]))
         groups[key].append(d["error"])
@@ -60,7 +100,7 @@ def summarise(results: dict[str, Any]) -> dict[str, Any]:
         lambdas[key].append(d["selected"]["lambda"])
     problems = list(results.get("problems") or sorted({k[2] for k in groups}))
 
-    def order(k: tuple[str, str, str, int]) -> tuple[int, int, int, int]:
+    def order(k: Cell) -> tuple[int, int, int, int]:
         m, s, p, D = k
         return (
             ("svm", "rls").index(m) if m in ("svm", "rls") else 9,
@@ -69,11 +109,16 @@ def summarise(results: dict[str, Any]) -> dict[str, Any]:
             D,
         )
 
-    keys = sorted(groups, key=order)
-    binary = [
-        {"machine": m, "selection": s, "problem": p, "D": D, **_mean_sd(groups[(m, s, p, D)])}
-        for (m, s, p, D) in keys
-    ]
+    return groups, sigmas, lambdas, sorted(groups, key=order)
+
+
+def _md_vs_cv(
+    keys: list[Cell],
+    groups: dict[Cell, list[float]],
+    sigmas: dict[Cell, list[float]],
+    lambdas: dict[Cell, list[float]],
+) -> list[dict[str, Any]]:
+    """One row per cell that ran both selections: mean errors and median selected values."""
     md_vs_cv = []
     for m, s, p, D in keys:
         v = groups[(m, s, p, D)]
@@ -95,19 +140,11 @@ def summarise(results: dict[str, Any]) -> dict[str, Any]:
                 "cv_median_lambda": float(np.median(lambdas[(m, "cv", p, D)])),
             }
         )
-    overall = {}
-    for m in ("svm", "rls"):
-        rows = [r for r in md_vs_cv if r["machine"] == m]
-        if rows:
-            overall[m] = {
-                "md_mean": float(np.mean([r["md_mean"] for r in rows])),
-                "cv_mean": float(np.mean([r["cv_mean"] for r in rows])),
-            }
-    worse = [r for r in md_vs_cv if r["md_minus_cv"] > 1e-9]
-    bgroups: dict[tuple[str, int], list[float]] = defaultdict(list)
-    for d in results.get("baseline") or []:
-        bgroups[(d["problem"], int(d["D"]))].append(d["error"])
-    baseline = [{"problem": p, "D": D, **_mean_sd(v)} for (p, D), v in sorted(bgroups.items())]
+    return md_vs_cv
+
+
+def _multiclass_summary(results: dict[str, Any]) -> dict[str, Any]:
+    """Best, mean and average 3-class error per machine."""
     mc = results.get("multiclass") or {}
     multiclass = {}
     for m in ("svm", "rls"):
@@ -118,39 +155,29 @@ def summarise(results: dict[str, Any]) -> dict[str, Any]:
                 **_mean_sd(errs),
                 "average": 100 * float(np.mean(errs)),
             }
+    return multiclass
+
+
+def _subsampling_summary(results: dict[str, Any]) -> dict[str, Any] | None:
+    """Mean errors of the two subsampling methods, per problem and overall."""
     sub = results.get("subsampling") or None
-    subsampling = None
-    if sub and sub.get("rows"):
-        a, b = sub["main"], sub["other"]
-        subsampling = {
-            "D": sub["D"],
-            "machine": sub["machine"],
-            "main": a,
-            "other": b,
-            "per_problem": {
-                p: {
-                    a: _mean_sd([r[f"error_{a}"] for r in sub["rows"] if r["problem"] == p])[
-                        "mean"
-                    ],
-                    b: _mean_sd([r[f"error_{b}"] for r in sub["rows"] if r["problem"] == p])[
-                        "mean"
-                    ],
-                }
-                for p in sorted({r["problem"] for r in sub["rows"]})
-            },
-            a: _mean_sd([r[f"error_{a}"] for r in sub["rows"]])["mean"],
-            b: _mean_sd([r[f"error_{b}"] for r in sub["rows"]])["mean"],
-        }
-    md_means = [r["mean"] for r in binary if r["selection"] == "md"]
+    if not (sub and sub.get("rows")):
+        return None
+    a, b = sub["main"], sub["other"]
     return {
-        "binary": binary,
-        "md_vs_cv": md_vs_cv,
-        "md_vs_cv_overall": overall,
-        "md_worse_than_cv": worse,
-        "baseline": baseline,
-        "multiclass": multiclass,
-        "subsampling": subsampling,
-        "binary_md_range_pct": [float(min(md_means)), float(max(md_means))] if md_means else None,
+        "D": sub["D"],
+        "machine": sub["machine"],
+        "main": a,
+        "other": b,
+        "per_problem": {
+            p: {
+                a: _mean_sd([r[f"error_{a}"] for r in sub["rows"] if r["problem"] == p])["mean"],
+                b: _mean_sd([r[f"error_{b}"] for r in sub["rows"] if r["problem"] == p])["mean"],
+            }
+            for p in sorted({r["problem"] for r in sub["rows"]})
+        },
+        a: _mean_sd([r[f"error_{a}"] for r in sub["rows"]])["mean"],
+        b: _mean_sd([r[f"error_{b}"] for r in sub["rows"]])["mean"],
     }
 
 
@@ -331,9 +358,23 @@ def _md_cv_statement(results: dict[str, Any]) -> list[str]:
 
 def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str:
     """report.md as a string."""
-    s = results["summary"]
-    p = results["protocol"]
     L: list[str] = ["# eskin experiment report", ""]
+    L += _header_section(results)
+    L += _binary_section(results, figures)
+    L += _md_vs_cv_section(results, figures)
+    L += _multiclass_section(results, figures)
+    L += _baseline_section(results)
+    L += _subsampling_section(results)
+    if "confusion_binary.png" in figures:
+        L += ["## Confusion matrices", "", "![Binary confusion matrices](confusion_binary.png)", ""]
+    L += _notes_section(results)
+    return "\n".join(L)
+
+
+def _header_section(results: dict[str, Any]) -> list[str]:
+    """The generation line and the summary."""
+    p = results["protocol"]
+    L: list[str] = []
     L.append(
         f"Generated {results['created_utc']} by eskin {results['versions']['eskin']} "
         f"(numpy {results['versions']['numpy']}, scikit-learn "
@@ -345,7 +386,12 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
     L.append("")
     L.extend(_summary_lines(results))
     L.append("")
+    return L
 
+
+def _binary_section(results: dict[str, Any], figures: Sequence[str]) -> list[str]:
+    """Tables 1-6: one table per machine and binary problem."""
+    L: list[str] = []
     L.append("## Binary problems (Tables 1-6)")
     L.append("")
     L.append(
@@ -368,7 +414,14 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
             L.append("")
     if "figure6.png" in figures:
         L += ["![Figure 6: validation error per run](figure6.png)", ""]
+    return L
 
+
+def _md_vs_cv_section(results: dict[str, Any], figures: Sequence[str]) -> list[str]:
+    """Figures 7 and 8: Maximal Discrepancy against cross-validation."""
+    s = results["summary"]
+    p = results["protocol"]
+    L: list[str] = []
     L.append("## Model selection: Maximal Discrepancy vs cross-validation (Figures 7, 8)")
     L.append("")
     cvo = {"n_splits": 10, "test_size": 0.3, **(p.get("cv") or {})}
@@ -396,7 +449,13 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
     L.append("")
     if "figure7.png" in figures:
         L += ["![Figure 7: MD vs CV](figure7.png)", ""]
+    return L
 
+
+def _multiclass_section(results: dict[str, Any], figures: Sequence[str]) -> list[str]:
+    """Table 7: the three-class 1-vs-all experiment."""
+    s = results["summary"]
+    L: list[str] = []
     mc = results.get("multiclass") or {}
     L.append("## Three classes, 1-vs-all (Table 7)")
     L.append("")
@@ -446,7 +505,14 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
     else:
         L.append(f"Not run: {mc.get('reason', 'disabled')}.")
         L.append("")
+    return L
 
+
+def _baseline_section(results: dict[str, Any]) -> list[str]:
+    """The vector RBF-SVM baseline beside the tensor-SVM."""
+    s = results["summary"]
+    p = results["protocol"]
+    L: list[str] = []
     if s.get("baseline"):
         L.append("## Vector baseline: RBF SVM on the flattened window")
         L.append("")
@@ -469,7 +535,13 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
                 f"{_f(t_cv)} | {_f(t_md)} |"
             )
         L.append("")
+    return L
 
+
+def _subsampling_section(results: dict[str, Any]) -> list[str]:
+    """Algorithm 2 against even subsampling."""
+    s = results["summary"]
+    L: list[str] = []
     sub = s.get("subsampling")
     if sub:
         a, b = sub["main"], sub["other"]
@@ -488,10 +560,13 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
             L.append(f"| {prob} | {v[a]:.1f} | {v[b]:.1f} |")
         L.append(f"| **all** | **{sub[a]:.1f}** | **{sub[b]:.1f}** |")
         L.append("")
+    return L
 
-    if "confusion_binary.png" in figures:
-        L += ["## Confusion matrices", "", "![Binary confusion matrices](confusion_binary.png)", ""]
 
+def _notes_section(results: dict[str, Any]) -> list[str]:
+    """The protocol's notes: analysis set, exclusion, options."""
+    p = results["protocol"]
+    L: list[str] = []
     a = results["analysis_set"]
     L.append("## Protocol notes")
     L.append("")
@@ -524,7 +599,7 @@ def render_markdown(results: dict[str, Any], figures: Sequence[str] = ()) -> str
     for n in paper.NOTES:
         L.append(f"- Paper: {n}")
     L.append("")
-    return "\n".join(L)
+    return L
 
 
 # --------------------------------------------------------------------------------------------
