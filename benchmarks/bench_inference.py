@@ -1,4 +1,4 @@
-"""Footprint and speed of the deployed classifier (issue 5).
+"""Footprint and speed of the deployed classifier.
 
 For D in {20, 50, 100}: a 3-class one-vs-all tensor-SVM trained on the paper's 180-pattern sets
 (45 simulated participants, run 2; each machine: 90 patterns of its modality + 90 drawn from the

@@ -1,6 +1,6 @@
 """Tensor-kernel Gram matrix: eskin against two numpy baselines, measured in the same run.
 
-Workload (issue 2): the Gram matrix K(X, X) of n = 180 random 4 x 4 x D patterns, D in
+Workload: the Gram matrix K(X, X) of n = 180 random 4 x 4 x D patterns, D in
 {20, 50, 100}, alpha = (2, 2, 8), sigma = 1.
 
 Baselines, both written here:

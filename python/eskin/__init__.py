@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 
 # public name -> the layer (subpackage) that exports it
 _EXPORTS: dict[str, str] = {
-    # tensor kernel (issue 2)
+    # tensor kernel
     "tensor_kernel": "learn",
     "mode_distances": "learn",
     "resolve_alphas": "learn",
@@ -28,13 +28,13 @@ _EXPORTS: dict[str, str] = {
     "bases_mode_distances": "learn",
     "bases_tensor_kernel": "learn",
     "kernel_from_distances": "learn",
-    # preprocessing (issue 3)
+    # preprocessing
     "preprocess": "signal",
     "WindowConfig": "signal",
     "TouchDetector": "signal",
     "detect_windows": "signal",
     "subsample": "signal",
-    # campaign format, importers, simulator (issue 3)
+    # campaign format, importers, simulator
     "Campaign": "data",
     "CampaignFormatError": "data",
     "load_campaign": "data",
@@ -45,7 +45,7 @@ _EXPORTS: dict[str, str] = {
     "import_tdms": "data",
     "simulate": "data",
     "SimulatorConfig": "data",
-    # learning and model selection (issue 4)
+    # learning and model selection
     "TensorSVC": "learn",
     "TensorRLS": "learn",
     "KernelKMeans": "learn",
@@ -57,11 +57,11 @@ _EXPORTS: dict[str, str] = {
     "train_model": "learn",
     "save_model": "deploy",  # through eskin.deploy, which adds the .eskin format
     "load_model": "deploy",
-    # deployment (issue 5)
+    # deployment
     "export_model": "deploy",
     "write_c_header": "deploy",
     "CompiledModel": "deploy",
-    # serial link (issue 6)
+    # serial link
     "FrameDecoder": "link",
     "encode_frame": "link",
     "LinkListener": "link",

@@ -1,4 +1,4 @@
-"""Campaign files shared by test_experiments.py and test_models.py (written once per session).
+"""Campaign files shared by test_experiments.py and test_models.py (written once per test run).
 
 - ``small_simulated``: eskin's simulator, 6 participants, run 2 only, the paper's 4x4 grid at
   3000 Hz and its three modalities.

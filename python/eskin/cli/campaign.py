@@ -1,4 +1,4 @@
-"""CLI commands: simulate, info, plot, import-csv, import-tdms (issue 3).
+"""CLI commands: simulate, info, plot, import-csv, import-tdms.
 
 They parse arguments, call the package and print; errors for users exit with code 2 and a
 one-line message naming the file, field or value.

@@ -1,4 +1,4 @@
-"""CLI commands: export (issue 5)."""
+"""CLI commands: export."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""CLI commands: train, predict, experiment (issue 4)."""
+"""CLI commands: train, predict, experiment."""
 
 from __future__ import annotations
 

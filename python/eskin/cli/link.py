@@ -1,4 +1,4 @@
-"""CLI commands: listen, demo (issue 6).
+"""CLI commands: listen, demo.
 
 ``eskin listen PORT`` shows the controller's live stream (decisions, link statistics, taxel
 activity) with rich.live on a terminal and as plain lines otherwise; ``eskin demo`` runs the whole

@@ -1,4 +1,5 @@
-"""The paper's experimental protocol (Section 5 of Gastaldo et al. 2014; NOTES 18-23).
+"""The paper's experimental protocol (Section 5 of Gastaldo et al. 2014; readings R18-R23 of
+``docs/paper-readings.md``).
 
 :func:`run_experiment` runs, on one campaign file:
 
@@ -11,7 +12,7 @@
 - the three-class 1-vs-all experiment (Table 7);
 - a vector baseline: an RBF SVM on the flattened subsampled window, same splits, same number of
   configurations, selected by the same cross-validation scheme;
-- Algorithm 2 against evenly spaced subsampling (NOTES 18) on one D, all problems, one machine.
+- Algorithm 2 against evenly spaced subsampling (reading R18) on one D, all problems, one machine.
 
 Everything is written to ``out_dir``: ``results.json`` (every number), ``report.md`` and PNG
 figures (see :mod:`eskin.report`).
@@ -273,7 +274,7 @@ def one_vs_all_training_set(
     train_participants: np.ndarray,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Table 7's training set of the machine for class ``positive`` (NOTES 23).
+    """Table 7's training set of the machine for class ``positive`` (reading R23).
 
     All patterns of ``positive`` from the training participants (90 on the paper's campaign),
     plus as many patterns drawn at random from the training participants' other classes (or all
@@ -718,7 +719,7 @@ def run_experiment(
     seed : every random choice (splits, negatives, MD labellings) derives from it.
     n_jobs : worker processes (joblib; -1 = all cores). Tasks are whole selections.
     window : "energy" (the touch-window detector) or "none" (recordings already cut).
-    subsample : "algorithm2" (the paper's, default) or "even" (NOTES 18).
+    subsample : "algorithm2" (the paper's, default) or "even" (reading R18).
     problems : binary problems (see :func:`resolve_problems`); default the paper's A, B, C.
     options : any :class:`ProtocolConfig` field (e.g. ``md={"n_labelings": 10}``,
         ``multiclass=False``, ``baseline=False``, ``exclude=[...]``, ``cv={"n_splits": 10}``).
@@ -821,7 +822,7 @@ def _protocol(
             "validation_participants_per_run": n_parts - n_tr,
             "machines": list(MACHINES),
             "parameter_note": "lambda is reported for both machines; the SVM is "
-            "trained with C = 1/lambda (NOTES 9)",
+            "trained with C = 1/lambda (docs/paper-readings.md, R9)",
         },
         "analysis_set": analysis.summary(),
         "preprocessing": {

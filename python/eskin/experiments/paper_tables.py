@@ -3,14 +3,15 @@
 These numbers are printed beside ours in the experiment report. They are transcribed as printed,
 misprints included, with a note where a value cannot be right:
 
-- Tables 1-6 print ``alpha = 0`` in some cells, which is not a valid value (NOTES 8). It is kept
+- Tables 1-6 print ``alpha = 0`` in some cells, which is not a valid value
+  (``docs/paper-readings.md``, R8). It is kept
   here as ``"0"`` (the report shows it as printed).
 - Table 2, run 2, D = 50 prints 7.0 %; with 80 validation patterns the error is a multiple of
   1.25 %, so 7.5 % was probably meant.
 - Table 6, run 5 prints lambda = 100 and 1000, outside the grid the paper declares
   (1e-3 .. 1e1).
 - Tables 1-6 print lambda for both machines (for the SVM, C = 1/lambda); Table 7 prints C for
-  both, although the RLS has no C (NOTES 9).
+  both, although the RLS has no C (reading R9).
 
 Each binary cell is ``(error_percent, lambda, sigma, alpha)`` with alpha one of ``"1"``,
 ``"Q/2"``, ``"Q"`` or ``"0"`` (misprint).
@@ -198,7 +199,7 @@ MULTICLASS: Final[dict[str, dict[str, object]]] = {
     "rls": {"best": 22.7, "average": 26.3, "sigma": 2**-1, "C": 100.0, "alpha": _H, "D": 100},
 }
 
-NOTES: Final[tuple[str, ...]] = (
+MISPRINTS: Final[tuple[str, ...]] = (
     "alpha printed as 0 in some cells of Tables 1-6 is a misprint (alpha >= 1); shown as printed.",
     "Table 2, run 2, D = 50 prints 7.0 %, not a multiple of 1.25 % (80 patterns): 7.5 % likely.",
     "Table 6, run 5 prints lambda = 100 and 1000, outside the declared grid 1e-3..1e1.",

@@ -397,7 +397,7 @@ def _binary_section(results: dict[str, Any], figures: Sequence[str]) -> list[str
     L.append(
         "Each cell: validation error % (lambda, sigma, alpha) of the setting chosen by "
         "Maximal Discrepancy. **Both machines show lambda**, as the paper's Tables 1-6 do; "
-        "the SVM is trained with C = 1/lambda (NOTES 9). alpha is the grid label "
+        "the SVM is trained with C = 1/lambda (docs/paper-readings.md, R9). alpha is the grid label "
         "(1, Q/2, Q per mode; Q = rank bound of the mode unfolding). The paper's cells are "
         "transcribed as printed (its alpha = 0 is a misprint)."
     )
@@ -545,7 +545,7 @@ def _subsampling_section(results: dict[str, Any]) -> list[str]:
     sub = s.get("subsampling")
     if sub:
         a, b = sub["main"], sub["other"]
-        L.append(f"## Subsampling: {a} vs {b} (NOTES 18)")
+        L.append(f"## Subsampling: {a} vs {b} (docs/paper-readings.md, R18)")
         L.append("")
         L.append(
             f"{MACHINE_NAME[sub['machine']]}, MD selection, D = {sub['D']}, same splits and "
@@ -596,7 +596,7 @@ def _notes_section(results: dict[str, Any]) -> list[str]:
         "- One participant split per run is shared by every problem, D, machine and "
         "selection method, so comparisons are paired."
     )
-    for n in paper.NOTES:
+    for n in paper.MISPRINTS:
         L.append(f"- Paper: {n}")
     L.append("")
     return L

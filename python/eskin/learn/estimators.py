@@ -9,8 +9,8 @@ tensor view, which lets scikit-learn's estimator checks run (see ``docs/learning
 
 The kernel is the paper's tensor kernel (``eskin.tensor_kernel``): per mode z a Gaussian of the
 squared distance between the pattern subspaces, ``K = exp(-sum_z d_z / (2 sigma_z^2))``; see
-``docs/learning.md`` for the whole learning side and ``NOTES.md`` points 9-17, 23 for how the
-paper is read.
+``docs/learning.md`` for the whole learning side and readings R9-R17 and R23 of
+``docs/paper-readings.md`` for how the paper is read.
 
 Every fitted binary machine exposes the same attributes, the contract that deployment builds on:
 ``support_vectors_`` (n_sv, *tensor shape), ``dual_coef_`` (n_sv,) (alpha_i*y_i for the SVM,
@@ -209,7 +209,7 @@ class TensorSVC(_TensorKernelMachine):
     Parameters
     ----------
     C : float
-        Box constraint; the paper's grid is in lambda with ``C = 1/lambda`` (NOTES 9).
+        Box constraint; the paper's grid is in lambda with ``C = 1/lambda`` (reading R9).
     sigma : float or sequence of float
         Kernel width, one for all modes or one per mode.
     alpha : int, "half", "full" or sequence of int
@@ -237,7 +237,7 @@ class TensorSVC(_TensorKernelMachine):
 
 
 class TensorRLS(_TensorKernelMachine):
-    """Tensor-RLS (paper Section 3.1, NOTES 9): ``beta = (K + lam I)^-1 y``, labels -1/+1.
+    """Tensor-RLS (paper Section 3.1, reading R9): ``beta = (K + lam I)^-1 y``, labels -1/+1.
 
     The machine has no bias (``intercept_ = 0``) and every training pattern is a support vector.
 
@@ -400,7 +400,7 @@ def _kkm_balanced(K, diag, rng, max_iter):
     return labels
 
 
-#: The kernel k-means readings (NOTES 17 leaves the seeding and the local search open).
+#: The kernel k-means readings (reading R17 leaves the seeding and the local search open).
 KMEANS_METHODS = ("kmeans++", "lloyd", "lloyd-hartigan", "balanced")
 
 
@@ -462,7 +462,7 @@ def kernel_kmeans(
 
 
 class KernelKMeans(ClusterMixin, BaseEstimator):
-    """Kernel k-means (the exact feature-space algorithm, NOTES 17), seeded restarts.
+    """Kernel k-means (the exact feature-space algorithm, reading R17), seeded restarts.
 
     Parameters
     ----------
@@ -596,7 +596,7 @@ class TouchDecision:
 
 
 def one_vs_all_rule(decision_values: np.ndarray):
-    """The paper's rule (Section 5.3, NOTES 23) on an (n, n_classes) array of f values.
+    """The paper's rule (Section 5.3, reading R23) on an (n, n_classes) array of f values.
 
     Returns ``(class index, n_claims, dont_know)``: if exactly one machine claims the pattern
     (f > 0), its class; otherwise the machine with the largest f (first on ties), flagged
@@ -648,7 +648,7 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
 
         ``machine_indices``: optional sequence (one per class, in ``np.unique(y)`` order) of
         index arrays into ``X``: machine k trains only on those patterns (the paper's 3-class
-        protocol gives each machine its own balanced 180-pattern set, NOTES 23).
+        protocol gives each machine its own balanced 180-pattern set, reading R23).
         """
         X, y = validate_data(self, X, y, allow_nd=True, dtype=np.float64)
         check_classification_targets(y)

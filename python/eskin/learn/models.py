@@ -64,7 +64,8 @@ ALPHA_SPEC: dict[str, Any] = {"1": 1, "Q/2": "half", "Q": "full"}
 
 
 def alpha_value(label: str, shape: Sequence[int]) -> tuple[int, ...]:
-    """Per-mode alpha of the grid labels "1", "Q/2", "Q" on patterns of ``shape`` (NOTES 8).
+    """Per-mode alpha of the grid labels "1", "Q/2", "Q" on patterns of ``shape``
+    (``docs/paper-readings.md``, R8).
 
     Q_z = min(d_z, product of the other dimensions) is the rank bound of the mode-z unfolding
     (4, 4 and 16 for a 4x4xD pattern with D >= 16); Q_z/2 is rounded down and at least 1.
@@ -90,7 +91,7 @@ def param_grid(
     alphas: Sequence[str] = PAPER_ALPHAS,
 ) -> dict[str, list[Any]]:
     """The search grid in lambda for both machines (the searches train the SVM with C =
-    1/lambda, NOTES 9), sigma, and alpha in the estimators' terms (1, "half", "full")."""
+    1/lambda, reading R9), sigma, and alpha in the estimators' terms (1, "half", "full")."""
     for a in alphas:
         if a not in ALPHA_SPEC:
             raise TrainingError(f"alpha label must be one of '1', 'Q/2', 'Q', got {a!r}")

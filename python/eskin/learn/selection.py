@@ -2,12 +2,13 @@
 
 :class:`MaximalDiscrepancySearch` picks the (lambda, sigma, alpha) that minimises the bound of
 Eq. (6), ``pi_hat = v + chi + tau``, with the complexity ``chi`` estimated by the paper's
-Algorithm 1 (read as ``NOTES.md`` points 10-17 say; every reading is in ``docs/learning.md``).
+Algorithm 1 (read as readings R10-R17 of ``docs/paper-readings.md`` say; how the code follows
+each is in ``docs/learning.md``).
 :class:`CrossValidationSearch` is the conventional selection it is compared with (Section 4.2,
 Figure 7): repeated random splits of the training set, optionally grouped by participant.
 
 Both take a grid over ``lam`` (or ``C``), ``sigma`` and ``alpha``, for either machine: a grid in
-``lam`` given to a :class:`~eskin.estimators.TensorSVC` means ``C = 1/lam`` (NOTES 9), and a grid
+``lam`` given to a :class:`~eskin.estimators.TensorSVC` means ``C = 1/lam`` (reading R9), and a grid
 in ``C`` given to a :class:`~eskin.estimators.TensorRLS` means ``lam = 1/C``. Every
 configuration's numbers are in ``cv_results_`` (a dict of arrays, one entry per configuration);
 ``best_params_`` are the estimator's own parameters (``C`` for the SVM, ``lam`` for RLS) and
@@ -59,7 +60,7 @@ __all__ = [
     "rls_eig_solve",
 ]
 
-#: The paper's grid (Section 5.2, NOTES 21), in lambda for both machines.
+#: The paper's grid (Section 5.2, reading R21), in lambda for both machines.
 PAPER_GRID = {
     "lam": [1e-3, 1e-2, 1e-1, 1e0, 1e1],
     "sigma": [2.0**k for k in range(-4, 5)],
@@ -122,7 +123,7 @@ def md_reading(name: str) -> dict:
 
 
 def md_tau(n: int, delta: float) -> float:
-    """Finite-sample term of Eq. (6): ``tau = 3 sqrt(ln(2/delta) / (2n))`` (NOTES 16)."""
+    """Finite-sample term of Eq. (6): ``tau = 3 sqrt(ln(2/delta) / (2n))`` (reading R16)."""
     return 3.0 * math.sqrt(math.log(2.0 / delta) / (2.0 * n))
 
 
@@ -227,9 +228,9 @@ _KEY_SPLITS = 2
 
 
 def _random_labellings(y_pm, n_labelings, seed, config_index, flip="uniform"):
-    """(n, N) labellings, each flipping the sign of a random half of ``y`` (NOTES 13).
+    """(n, N) labellings, each flipping the sign of a random half of ``y`` (reading R13).
 
-    "uniform": a uniformly random half of all labels (NOTES 13; the class balance of the
+    "uniform": a uniformly random half of all labels (reading R13; the class balance of the
     labelling varies). "stratified": half of each class, so every labelling keeps the class
     counts of ``y`` (a variant, see docs/learning.md).
     """
@@ -314,14 +315,14 @@ def _md_block(kind, dists, sigmas, y, configs, settings, seed, block_index):
 
 
 def _nearer(beta_plus, beta_minus, beta_rkm):
-    """Step VI (NOTES 12): whichever of beta(+), beta(-) is nearer to beta(RKM)."""
+    """Step VI (reading R12): whichever of beta(+), beta(-) is nearer to beta(RKM)."""
     dp = np.linalg.norm(beta_plus - beta_rkm)
     dm = np.linalg.norm(beta_minus - beta_rkm)
     return beta_plus if dp <= dm else beta_minus
 
 
 def _gamma_0(K, beta_plus, beta_minus, beta_rkm, how):
-    """Step VI: Gamma_0 of the nearer ("nearer", NOTES 12) or the larger of beta(+)/beta(-)."""
+    """Step VI: Gamma_0 of the nearer ("nearer", reading R12) or the larger of beta(+)/beta(-)."""
     if how == "larger":
         return max(float(beta_plus @ K @ beta_plus), float(beta_minus @ K @ beta_minus))
     ref = _nearer(beta_plus, beta_minus, beta_rkm)
@@ -342,7 +343,7 @@ def _md_block_rls(K, y, y_cl, configs, settings, seed):
         beta_rkm = Q @ c_rkm
         v = float(_errors(Q @ (w * c_rkm), y))
         if settings.reference == "clustering":
-            # IV./V. the cluster labelling and its swap (NOTES 11); VI. Gamma_0 = beta^T K beta
+            # IV./V. the cluster labelling and its swap (reading R11); VI. Gamma_0 = beta^T K beta
             gamma0 = _rls_gamma_0(w, Q, qa * s, -qa * s, beta_rkm, settings.gamma0)
         elif settings.reference == "true-norm":
             gamma0 = float(np.sum(w * c_rkm * c_rkm))
@@ -351,7 +352,7 @@ def _md_block_rls(K, y, y_cl, configs, settings, seed):
         # VII. N random labellings, one projection C = Q^T Y*
         Ystar = _random_labellings(y, settings.n_labelings, seed, cfg.index, settings.flip)
         C = Q.T @ Ystar
-        lams = lam * settings.eps**steps_grid  # lambda_hat <- eps * lambda_hat (NOTES 14)
+        lams = lam * settings.eps**steps_grid  # lambda_hat <- eps * lambda_hat (reading R14)
         ratio = w[:, None] / (w[:, None] + lams[None, :]) ** 2  # (n, steps+1)
         gammas = ratio.T @ (C * C)  # Gamma*(lambda_hat) for every step and labelling
         ok = gammas <= gamma0
@@ -462,7 +463,7 @@ def _md_block_svm(K, y, y_cl, configs, settings, seed, strategy="search"):
         v = float(_errors(K @ beta_rkm + b, y))
         if settings.reference == "clustering":
             beta_plus = _svm_fit_gamma(K, y_cl, C)[0]  # IV.
-            beta_minus = _svm_fit_gamma(K, -y_cl, C)[0]  # V. (swapped, NOTES 11)
+            beta_minus = _svm_fit_gamma(K, -y_cl, C)[0]  # V. (swapped, reading R11)
             gamma0 = _gamma_0(K, beta_plus, beta_minus, beta_rkm, settings.gamma0)  # VI.
         elif settings.reference == "true-norm":
             gamma0 = gamma_rkm
@@ -642,7 +643,7 @@ class MaximalDiscrepancySearch(_SearchBase):
         Cap on the lambda_hat multiplications per labelling (default 30, i.e. up to 2^30 lambda).
     flip : "uniform" or "stratified"
         Which half of the labels a random labelling flips: a uniformly random half (default,
-        NOTES 13) or half of each class (keeps the class counts; see docs/learning.md).
+        reading R13) or half of each class (keeps the class counts; see docs/learning.md).
     n_init, max_iter : int
         Kernel k-means restarts and Lloyd iterations (defaults 10, 100).
     clustering : "kmeans++", "lloyd", "lloyd-hartigan" or "balanced"
@@ -651,14 +652,14 @@ class MaximalDiscrepancySearch(_SearchBase):
         from random labels; or two equal halves (size-constrained).
     gamma0 : "nearer" or "larger"
         Step VI: Gamma_0 of whichever of beta(+)/beta(-) is nearer to beta(RKM) (default,
-        NOTES 12), or the larger of their two norms.
+        reading R12), or the larger of their two norms.
     reference : "clustering", "true-norm" or "same-lambda"
         What bounds the random-label machines: the clustering reference Gamma_0 of steps II-VI
         (default, Algorithm 1); the norm of the machine trained on the true labels (Anguita et
         al.'s "same hypothesis space", Gamma_0 = Gamma(RKM), no clustering); or nothing - each
         labelling is trained with the configuration's own lambda (Tikhonov form).
     chi : "mean" or "max"
-        chi = 1 - 2 mean(v*) (default, NOTES 15) or 1 - 2 min(v*) (the maximal discrepancy over
+        chi = 1 - 2 mean(v*) (default, reading R15) or 1 - 2 min(v*) (the maximal discrepancy over
         the N labellings).
     n_jobs : int, optional
         joblib workers over (alpha, sigma) blocks; results do not depend on it.

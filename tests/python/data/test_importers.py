@@ -139,7 +139,7 @@ def _recs(n=3, lengths=(300, 200, 250)):
 @pytest.mark.parametrize("mode", ["names", "props", "taxel-numbers"])
 def test_tdms_round_trip(tmp_path, mode):
     recs = _recs()
-    p = tmp_path / "session.tdms"
+    p = tmp_path / "acquisition.tdms"
     if mode == "names":
         _tdms(p, recs)
     elif mode == "props":

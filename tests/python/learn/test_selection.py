@@ -127,7 +127,7 @@ def test_md_results_table_and_refit():
     assert s.best_index_ == int(np.argmin(r["bound"])) or r["bound"][s.best_index_] == r[
         "bound"
     ].min()
-    # grid in lambda, machine in C = 1/lambda (NOTES 9)
+    # grid in lambda, machine in C = 1/lambda (reading R9)
     np.testing.assert_allclose(r["C"], 1 / r["lam"])
     assert all(set(p) == {"C", "sigma", "alpha"} for p in r["params"])
     assert s.best_params_["C"] == pytest.approx(1 / r["lam"][s.best_index_])

@@ -75,7 +75,7 @@ def test_algorithm2_matches_the_paper_transcription(S, D):
 
 
 def test_algorithm2_remainder_keeps_only_the_first_D_samples():
-    # D <= S < 2D: interval 1, the rest of the touch is dropped (NOTES point 18)
+    # D <= S < 2D: interval 1, the rest of the touch is dropped (docs/paper-readings.md, R18)
     x = np.arange(150, dtype=float).reshape(1, 1, 150)
     np.testing.assert_array_equal(subsample(x, 100)[0, 0], np.arange(100))
     # the even alternative spans the whole window
