@@ -215,28 +215,12 @@ def run_demo(
     from eskin.data.campaign import load_campaign
     from eskin.data.replay import write_replay_file
     from eskin.data.simulator import simulate
-    from eskin.link.listener import Decision, LinkListener
-
-    try:
-        from eskin.deploy import save_model
-        from eskin.deploy.export import CompiledModel, export_model
-        from eskin.learn.models import train_model
-    except ImportError as exc:
-        raise DemoError(
-            f"a part of the pipeline is missing from this installation ({exc})") from None
 
     say = log or (lambda m: None)
-    if participants < 2 or not 1 <= test_participants < participants:
-        raise ValueError(f"need participants >= 2 and 1 <= test_participants < participants, got "
-                         f"{participants} and {test_participants}")
-    if not speed > 0:
-        raise ValueError(f"speed must be > 0, got {speed}")
+    _check_demo_args(participants, test_participants, speed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    files = {"campaign": out / "campaign.h5", "model": out / "model.joblib",
-             "eskin": out / "model.eskin", "replay": out / "test.eskr",
-             "live": out / "live.h5", "decisions": out / "decisions.jsonl",
-             "report": out / "report.json"}
+    files = demo_files(out)
     timings: dict[str, float] = {}
 
     # 1. simulate
@@ -247,61 +231,142 @@ def run_demo(
              overwrite=True)
     timings["simulate"] = time.perf_counter() - t0
     camp = load_campaign(files["campaign"])
+    train_idx, test_idx = _held_out_split(camp, test_participants, max_recordings)
+
+    # 2. train, save, export
+    t0 = time.perf_counter()
+    n_train_parts = len(np.unique(camp.participant)) - test_participants
+    say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} with MD selection on "
+        f"{n_train_parts} participants ({len(train_idx)} recordings"
+        f"{', quick grid' if quick else ''})")
+    model, compiled = _train_and_export(camp.subset(train_idx), files, machine, quick, seed, say)
+    timings["train"] = time.perf_counter() - t0
+    names = list(model.classes)
+
+    # 4. stream them through the firmware simulator and listen
+    rf = write_replay_file(camp, test_idx, files["replay"], gap_s=gap_s, seed=seed)
+    if list(rf.class_names) != list(camp.modalities):
+        raise DemoError("replay class names differ from the campaign's")
+    t0 = time.perf_counter()
+    offline = _offline_reference(model, camp, rf, test_idx)
+    timings["offline"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
+    timings["live"] = time.perf_counter() - t0
+
+    # 5. compare
+    per_source = {SOURCES[0]: [d for d in decisions if d.source == "controller"],
+                  SOURCES[1]: [d for d in decisions if d.source == "host"],
+                  SOURCES[2]: offline.touches}
+    cmp = compare_sources(per_source, offline, rf.segments, len(names), len(test_idx))
+    timings["total"] = sum(timings.values())
+    summary = _summary(camp, train_idx, test_idx, speed, stats, fw_stats, len(offline.touches),
+                       cmp.extras[SOURCES[0]], timings, files)
+    result = DemoResult(
+        class_names=names, true_labels=offline.true, labels=cmp.labels, values=cmp.values,
+        confusion=cmp.confusion, error_rates=cmp.error_rates, agreement=cmp.agreement,
+        stats=stats, fw_stats=fw_stats, files=files, timings=timings, agree=not cmp.problems,
+        disagreement="; ".join(cmp.problems), summary=summary,
+    )
+    _write_report(files["report"], result)
+    say("[bold]5/5[/] comparing live and offline decisions")
+    return result
+
+
+def _check_demo_args(participants: int, test_participants: int, speed: float) -> None:
+    if participants < 2 or not 1 <= test_participants < participants:
+        raise ValueError(f"need participants >= 2 and 1 <= test_participants < participants, got "
+                         f"{participants} and {test_participants}")
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed}")
+
+
+def demo_files(out: Path) -> dict[str, Path]:
+    """Every file the demo writes into ``out``, by role."""
+    return {"campaign": out / "campaign.h5", "model": out / "model.joblib",
+            "eskin": out / "model.eskin", "replay": out / "test.eskr",
+            "live": out / "live.h5", "decisions": out / "decisions.jsonl",
+            "report": out / "report.json"}
+
+
+def _held_out_split(camp: Any, test_participants: int,
+                    max_recordings: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out recordings: the last ``test_participants`` are held out (every
+    k-th of their recordings when ``max_recordings`` asks for a shorter live run)."""
     parts = np.unique(camp.participant)
-    test_parts = parts[-test_participants:]
-    is_test = np.isin(camp.participant, test_parts)
+    is_test = np.isin(camp.participant, parts[-test_participants:])
     train_idx, test_idx = np.flatnonzero(~is_test), np.flatnonzero(is_test)
     if max_recordings is not None:  # a shorter live run: every k-th held-out recording
         if max_recordings < 1:
             raise ValueError(f"max_recordings must be >= 1, got {max_recordings}")
         step = max(1, len(test_idx) // max_recordings)
         test_idx = test_idx[::step][:max_recordings]
+    return train_idx, test_idx
 
-    # 2. train, save, export
-    t0 = time.perf_counter()
-    say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} with MD selection on "
-        f"{len(parts) - test_participants} participants ({len(train_idx)} recordings"
-        f"{', quick grid' if quick else ''})")
-    model = train_model(camp.subset(train_idx), selection="md", machine=machine, quick=quick,
-                        seed=seed, n_jobs=1)
+
+def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: bool,
+                      seed: int, say: Callable[[str], None]) -> tuple[Any, Any]:
+    """Train the model with MD selection, save it, export the .eskin file and load that back
+    as the compiled model the host runs."""
+    try:
+        from eskin.deploy import save_model
+        from eskin.deploy.export import CompiledModel, export_model
+        from eskin.learn.models import train_model
+    except ImportError as exc:
+        raise DemoError(
+            f"a part of the pipeline is missing from this installation ({exc})") from None
+    model = train_model(train, selection="md", machine=machine, quick=quick, seed=seed,
+                        n_jobs=1)
     save_model(model, files["model"])
     export_model(model, files["eskin"])
     compiled = CompiledModel(files["eskin"])
-    timings["train"] = time.perf_counter() - t0
+    say(f"      classes {list(model.classes)}; exported {files['eskin']} "
+        f"({files['eskin'].stat().st_size} bytes, {compiled.n_support} support patterns)")
+    return model, compiled
+
+
+@dataclass
+class OfflineReference:
+    """The Python model's decisions on the streamed recordings, and their true classes."""
+
+    touches: list  # touch by touch over the replay stream (Decision, source "offline")
+    batch_labels: np.ndarray  # per isolated recording (batch windows)
+    batch_values: np.ndarray
+    true: np.ndarray  # true class per replay segment, as an index into the model's classes
+    n_values: int
+
+
+def _offline_reference(model: Any, camp: Any, rf: Any, test_idx: np.ndarray) -> OfflineReference:
+    """Offline predictions on the same recordings (Python): touch by touch over the replay
+    stream, and per isolated recording (batch windows), for reference."""
     names = list(model.classes)
-    say(f"      classes {names}; exported {files['eskin']} ({files['eskin'].stat().st_size} "
-        f"bytes, {compiled.n_support} support patterns)")
-
-    # 4. stream them through the firmware simulator and listen
-    rf = write_replay_file(camp, test_idx, files["replay"], gap_s=gap_s, seed=seed)
     n_values = 1 if len(names) == 2 else len(names)
-
-    # offline predictions on the same recordings (Python): touch by touch over the replay
-    # stream, and per isolated recording (batch windows), for reference
-    t0 = time.perf_counter()
-    offline_touches = offline_stream_decisions(model, np.asarray(rf.samples))
+    touches = offline_stream_decisions(model, np.asarray(rf.samples))
     batch = model.predict_recordings(camp, test_idx)
-    timings["offline"] = time.perf_counter() - t0
     batch_labels = np.array([names.index(p["label"]) for p in batch], np.int64)
     batch_values = np.array([p["decision_values"] for p in batch], float).reshape(-1, n_values)
-    true = np.asarray(rf.segments["label"], np.int64)
-    if list(rf.class_names) != list(camp.modalities):
-        raise DemoError("replay class names differ from the campaign's")
     # model classes are names; map the campaign's modality ids onto them
-    true = np.array([names.index(camp.modalities[t]) for t in true], np.int64)
+    true = np.array([names.index(camp.modalities[t]) for t in rf.segments["label"]], np.int64)
+    return OfflineReference(touches, batch_labels, batch_values, true, n_values)
+
+
+def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
+                       speed: float, say: Callable[[str], None]) -> tuple[list, Any, dict]:
+    """Stream the replay file through ``eskin-fw-sim`` (the model on board) and listen on its
+    pseudo-terminal with the compiled model, recording the stream and the decisions. Returns
+    the live decisions, the link statistics and the simulator's final statistics."""
+    from eskin.link.listener import Decision, LinkListener
+
     stream_s = rf.n_samples / rf.sample_rate_hz
-    say(f"[bold]3/5[/] eskin-fw-sim streams {len(test_idx)} held-out recordings "
+    say(f"[bold]3/5[/] eskin-fw-sim streams {len(rf.segments)} held-out recordings "
         f"({stream_s:.0f} s of signal at {speed:g}x: ~{stream_s / speed:.0f} s) with the model "
         f"on board")
-    link_path = out / "skin.tty"
+    link_path = files["campaign"].parent / "skin.tty"
     proc, pty = start_fw_sim([str(files["replay"]), "--model", str(files["eskin"]),
                               "--speed", f"{speed:g}", "--tick", "10", "--wait-start",
                               "--hold", "1", "--tx-buffer", str(1 << 20),
                               "--link", str(link_path), "--quiet"])
-    t0 = time.perf_counter()
     decisions: list[Decision] = []
-    seg_start = rf.segments["start"].astype(np.int64)
-    seg_stop = seg_start + rf.segments["length"].astype(np.int64)
     try:
         say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
             f"{files['live']}")
@@ -315,73 +380,106 @@ def run_demo(
                         decisions.append(ev)
                         jf.write(json.dumps(ev.as_dict()) + "\n")
                         if ev.source == "controller":
-                            ov = (np.minimum(seg_stop, ev.offset_sample)
-                                  - np.maximum(seg_start, ev.onset_sample))
-                            k = int(np.argmax(ov))
-                            true_k = camp.modalities[int(rf.segments[k]["label"])]
-                            where = (f"recording {k + 1:2d} ({true_k})" if ov[k] > 0
-                                     else "between recordings")
-                            say(f"      {ev.onset_sample / rf.sample_rate_hz:7.2f} s  {where}: "
-                                f"controller says {ev.label}{' (?)' if ev.dont_know else ''}")
+                            say(_decision_line(ev, camp, rf))
                 stats = link.stats
                 jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
     finally:
         fw_stats = finish_fw_sim(proc)
-    timings["live"] = time.perf_counter() - t0
+    return decisions, stats, fw_stats
 
-    # 5. compare
-    per_source = {SOURCES[0]: [d for d in decisions if d.source == "controller"],
-                  SOURCES[1]: [d for d in decisions if d.source == "host"],
-                  SOURCES[2]: offline_touches}
+
+def _decision_line(ev: Any, camp: Any, rf: Any) -> str:
+    """One controller decision as the demo prints it: time, replay segment, label."""
+    seg_start = rf.segments["start"].astype(np.int64)
+    seg_stop = seg_start + rf.segments["length"].astype(np.int64)
+    ov = np.minimum(seg_stop, ev.offset_sample) - np.maximum(seg_start, ev.onset_sample)
+    k = int(np.argmax(ov))
+    true_k = camp.modalities[int(rf.segments[k]["label"])]
+    where = f"recording {k + 1:2d} ({true_k})" if ov[k] > 0 else "between recordings"
+    return (f"      {ev.onset_sample / rf.sample_rate_hz:7.2f} s  {where}: "
+            f"controller says {ev.label}{' (?)' if ev.dont_know else ''}")
+
+
+@dataclass
+class Comparison:
+    """The sources' decisions per replay segment and how far they agree."""
+
+    labels: dict[str, np.ndarray]
+    values: dict[str, np.ndarray]
+    extras: dict[str, int]  # decisions not kept (other touches), per source
+    confusion: dict[str, np.ndarray]
+    error_rates: dict[str, float]
+    agreement: dict[str, dict[str, Any]]
+    problems: list[str]
+
+
+def compare_sources(per_source: dict[str, list], offline: OfflineReference, segments: np.ndarray,
+                    n_classes: int, n_streamed: int) -> Comparison:
+    """Assign every source's decisions to the replay segments; confusion matrices, error rates
+    and the pairwise agreement of the controller, the host and the offline Python model."""
     labels: dict[str, np.ndarray] = {}
     values: dict[str, np.ndarray] = {}
     extras: dict[str, int] = {}
     for key, ds in per_source.items():
-        lab, val, _, extra = assign_decisions(ds, rf.segments, n_values)
+        lab, val, _, extra = assign_decisions(ds, segments, offline.n_values)
         labels[key], values[key], extras[key] = lab, val, sum(extra)
-    labels[BATCH], values[BATCH] = batch_labels, batch_values
-    k = len(names)
-    confusion = {s2: confusion_matrix(true, labels[s2], k) for s2 in (*SOURCES, BATCH)}
+    labels[BATCH], values[BATCH] = offline.batch_labels, offline.batch_values
+    true = offline.true
+    confusion = {s2: confusion_matrix(true, labels[s2], n_classes) for s2 in (*SOURCES, BATCH)}
     error_rates = {s2: float(np.mean(labels[s2] != true)) for s2 in (*SOURCES, BATCH)}
     agreement: dict[str, dict[str, Any]] = {}
     problems: list[str] = []
     for a, b in ((SOURCES[0], SOURCES[2]), (SOURCES[1], SOURCES[2]), (SOURCES[0], SOURCES[1])):
-        ta, tb = per_source[a], per_source[b]
-        same_touches = [(d.onset_sample, d.offset_sample) for d in ta] == [
-            (d.onset_sample, d.offset_sample) for d in tb]
-        touch_eq = sum(1 for x, y in zip(ta, tb) if (x.onset_sample, x.offset_sample,
-                                                    x.label_index) == (y.onset_sample,
-                                                                       y.offset_sample,
-                                                                       y.label_index))
-        diffs = [np.max(np.abs(np.subtract(x.values, y.values))) for x, y in zip(ta, tb)
-                 if len(x.values) == len(y.values) and x.values]
-        eq = labels[a] == labels[b]
-        agreement[f"{a} vs {b}"] = {
-            "touches": f"{len(ta)} / {len(tb)}", "equal_touches": touch_eq,
-            "n": len(eq), "equal": int(eq.sum()),
-            "max_value_diff": float(max(diffs)) if diffs else 0.0}
-        if not same_touches or touch_eq != len(ta):
-            problems.append(f"{a} vs {b}: {len(ta)} and {len(tb)} touches, {touch_eq} with "
-                            f"the same window and label")
-        if not eq.all():
-            bad = np.flatnonzero(~eq)
-            problems.append(f"{a} vs {b}: {len(bad)} of {len(eq)} recordings differ (replay "
-                            f"segments {bad.tolist()[:10]})")
+        agreement[f"{a} vs {b}"] = _pair_agreement(a, b, per_source, labels, problems)
     for s2 in SOURCES[:2]:
         if not np.array_equal(confusion[s2], confusion[SOURCES[2]]):
             problems.append(f"the {s2} and offline confusion matrices differ")
     eqb = labels[SOURCES[0]] == labels[BATCH]
     agreement[f"{SOURCES[0]} vs {BATCH}"] = {
-        "touches": f"{len(per_source[SOURCES[0]])} / {len(test_idx)}", "equal_touches": "-",
+        "touches": f"{len(per_source[SOURCES[0]])} / {n_streamed}", "equal_touches": "-",
         "n": len(eqb), "equal": int(eqb.sum()), "max_value_diff": float("nan")}
+    return Comparison(labels, values, extras, confusion, error_rates, agreement, problems)
+
+
+def _pair_agreement(a: str, b: str, per_source: dict[str, list],
+                    labels: dict[str, np.ndarray], problems: list[str]) -> dict[str, Any]:
+    """How far sources ``a`` and ``b`` agree, touch by touch and per segment; appends what
+    differs to ``problems``."""
+    ta, tb = per_source[a], per_source[b]
+    same_touches = [(d.onset_sample, d.offset_sample) for d in ta] == [
+        (d.onset_sample, d.offset_sample) for d in tb]
+    touch_eq = sum(1 for x, y in zip(ta, tb) if (x.onset_sample, x.offset_sample,
+                                                x.label_index) == (y.onset_sample,
+                                                                   y.offset_sample,
+                                                                   y.label_index))
+    diffs = [np.max(np.abs(np.subtract(x.values, y.values))) for x, y in zip(ta, tb)
+             if len(x.values) == len(y.values) and x.values]
+    eq = labels[a] == labels[b]
+    if not same_touches or touch_eq != len(ta):
+        problems.append(f"{a} vs {b}: {len(ta)} and {len(tb)} touches, {touch_eq} with "
+                        f"the same window and label")
+    if not eq.all():
+        bad = np.flatnonzero(~eq)
+        problems.append(f"{a} vs {b}: {len(bad)} of {len(eq)} recordings differ (replay "
+                        f"segments {bad.tolist()[:10]})")
+    return {"touches": f"{len(ta)} / {len(tb)}", "equal_touches": touch_eq,
+            "n": len(eq), "equal": int(eq.sum()),
+            "max_value_diff": float(max(diffs)) if diffs else 0.0}
+
+
+def _summary(camp: Any, train_idx: np.ndarray, test_idx: np.ndarray, speed: float, stats: Any,
+             fw_stats: dict[str, Any], n_offline: int, extra: int, timings: dict[str, float],
+             files: dict[str, Path]) -> list[str]:
+    """The demo's closing lines: what ran, the decisions and losses, latency, timings.
+    ``extra``: the controller's decisions on other touches than a recording's own."""
     lost = stats.lost_samples + stats.rejected
     summary = [
         f"SIMULATED campaign: {len(camp)} recordings; trained on {len(train_idx)}, streamed "
         f"{len(test_idx)} held-out recordings over a real pseudo-terminal at {speed:g}x.",
         f"live decisions: {stats.decisions_controller} from the controller, "
-        f"{stats.decisions_host} from the host, {len(offline_touches)} offline: "
-        f"{stats.decisions_controller - extras[SOURCES[0]]} recordings decided, "
-        f"{extras[SOURCES[0]]} other touches (a recording can hold several); link losses: {lost} "
+        f"{stats.decisions_host} from the host, {n_offline} offline: "
+        f"{stats.decisions_controller - extra} recordings decided, "
+        f"{extra} other touches (a recording can hold several); link losses: {lost} "
         f"(lost samples {stats.lost_samples}, of which the controller dropped "
         f"{stats.controller_dropped_samples}; rejected frames {stats.rejected}).",
     ]
@@ -390,26 +488,24 @@ def run_demo(
         if isinstance(lat, dict) and lat:
             summary.append("controller decision latency (us): " + ", ".join(
                 f"{k2} {v}" for k2, v in lat.items()))
-    timings["total"] = sum(timings.values())
     summary.append("timings (s): " + ", ".join(f"{k2} {v:.1f}" for k2, v in timings.items()))
-    summary.append(f"files in {out}: " + ", ".join(p.name for p in files.values()))
-    result = DemoResult(
-        class_names=names, true_labels=true, labels=labels, values=values, confusion=confusion,
-        error_rates=error_rates, agreement=agreement, stats=stats, fw_stats=fw_stats,
-        files=files, timings=timings, agree=not problems, disagreement="; ".join(problems),
-        summary=summary,
-    )
-    files["report"].write_text(json.dumps({
-        "class_names": names,
+    summary.append(f"files in {files['campaign'].parent}: "
+                   + ", ".join(p.name for p in files.values()))
+    return summary
+
+
+def _write_report(path: Path, result: DemoResult) -> None:
+    """report.json: confusion matrices, error rates, agreement, link and simulator statistics,
+    timings."""
+    path.write_text(json.dumps({
+        "class_names": result.class_names,
         "source": "simulated",
-        "confusion": {s2: c.tolist() for s2, c in confusion.items()},
-        "error_rates": error_rates,
-        "agreement": agreement,
+        "confusion": {s2: c.tolist() for s2, c in result.confusion.items()},
+        "error_rates": result.error_rates,
+        "agreement": result.agreement,
         "agree": result.agree,
         "disagreement": result.disagreement,
-        "link_stats": stats.as_dict(),
-        "fw_sim_stats": fw_stats,
-        "timings_s": timings,
+        "link_stats": result.stats.as_dict(),
+        "fw_sim_stats": result.fw_stats,
+        "timings_s": result.timings,
     }, indent=2, default=str))
-    say("[bold]5/5[/] comparing live and offline decisions")
-    return result
