@@ -477,6 +477,7 @@ class Simulator {
               : streaming_ ? proto::StreamState::streaming
                            : proto::StreamState::stopped;
     s.host_connected = link_.host_connected() ? 1 : 0;
+    s.connections = static_cast<std::uint16_t>(std::min<std::uint32_t>(connections_, 65535));
     f.flags = dropped_since_status_ ? proto::flags::kOverrun : 0;
     if (queue(f)) dropped_since_status_ = false;
     last_status_ns_ = t;

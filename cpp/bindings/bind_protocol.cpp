@@ -104,6 +104,7 @@ py::dict frame_to_dict(const Frame& f) {
       d["pacing_max_ns"] = p.pacing_max_ns;
       d["state"] = static_cast<int>(p.state);
       d["host_connected"] = p.host_connected != 0;
+      d["connections"] = p.connections;
       break;
     }
     case FrameType::info: {
@@ -214,6 +215,7 @@ py::bytes encode_dict(const py::dict& d) {
       p.pacing_max_ns = get_checked<std::uint32_t>(d, "pacing_max_ns", 0, 0, kU32);
       p.state = static_cast<protocol::StreamState>(get_checked<std::uint8_t>(d, "state", 0, 0, 2));
       p.host_connected = get(d, "host_connected", false) ? 1 : 0;
+      p.connections = get_checked<std::uint16_t>(d, "connections", 0, 0, 65535);
       break;
     }
     case FrameType::info: {

@@ -267,7 +267,7 @@ std::size_t serialize_frame(const Frame& f, std::uint8_t* raw, std::size_t cap,
       w.u32(s.pacing_max_ns);
       w.u8(static_cast<std::uint8_t>(s.state));
       w.u8(s.host_connected);
-      w.u16(s.reserved);
+      w.u16(s.connections);
       break;
     }
     case FrameType::info: {
@@ -478,7 +478,7 @@ bool FrameDecoder::parse(std::size_t len) {
       if (state > static_cast<std::uint8_t>(StreamState::finished)) return false;
       s.state = static_cast<StreamState>(state);
       s.host_connected = r.u8();
-      s.reserved = r.u16();
+      s.connections = r.u16();
       return true;
     }
     case FrameType::info: {

@@ -108,7 +108,7 @@ struct StatusPayload {
   std::uint32_t pacing_max_ns = 0;
   StreamState state = StreamState::stopped;
   std::uint8_t host_connected = 0;
-  std::uint16_t reserved = 0;
+  std::uint16_t connections = 0;     // host connections so far, this one included (0: unknown)
 };
 
 struct InfoPayload {

@@ -167,6 +167,7 @@ class StatusFrame:
     pacing_max_ns: int = 0
     state: StreamState = StreamState.STOPPED
     host_connected: bool = False
+    connections: int = 0
     seq: int = 0
     flags: int = 0
 

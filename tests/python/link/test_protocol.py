@@ -67,7 +67,8 @@ def make_frames(seed: int = 0, n: int = 40) -> list:
         elif k == 4:
             frames.append(
                 StatusFrame(uptime_us=i, next_sample=sample, dropped_samples=2,
-                            state=StreamState.STREAMING, host_connected=True, seq=i)
+                            state=StreamState.STREAMING, host_connected=True,
+                            connections=1 + i % 3, seq=i)
             )
         else:
             frames.append(
