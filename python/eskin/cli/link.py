@@ -137,6 +137,50 @@ def decisions_table(decisions: Any, rate: float) -> Any:
     return t
 
 
+def _sigterm_interrupts() -> Any:
+    """Make SIGTERM end `eskin listen` like Ctrl-C (so it finishes its files); returns the
+    function that puts the previous handler back."""
+    import signal
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: leave SIGTERM alone
+        return lambda: None
+    return lambda: signal.signal(signal.SIGTERM, previous)
+
+
+def _run_plain(events: Any, out: Any) -> None:
+    """Print one line per event; decisions also go to the JSON-lines file ``out``."""
+    from eskin.link.listener import Connection, Decision, InfoEvent, Recorded, Stats
+
+    rate = 3000.0
+    last_info = None
+    for ev in events:
+        if isinstance(ev, InfoEvent):
+            rate = ev.info.sample_rate_hz
+            names = ", ".join(ev.info.class_names) or "-"
+            key = (ev.info.rows, ev.info.cols, rate, names, ev.info.speed)
+            if key == last_info:
+                continue  # sent again at every (re)start: print it once
+            last_info = key
+            typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
+                       f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
+        elif isinstance(ev, Decision):
+            typer.echo(decision_line(ev, rate))
+            if out is not None:
+                out.write(json.dumps(ev.as_dict()) + "\n")
+                out.flush()
+        elif isinstance(ev, Connection):
+            typer.echo(f"{ev.state} {ev.path} {ev.reason}".rstrip())
+        elif isinstance(ev, Recorded):
+            typer.echo(f"recorded #{ev.index} [{ev.start}, {ev.stop}) {ev.label}")
+        elif isinstance(ev, Stats):
+            typer.echo(stats_line(ev.stats))
+
+
 # --------------------------------------------------------------------------- commands
 
 
@@ -168,14 +212,7 @@ def register(app: typer.Typer) -> None:
                          "terminal)"),
     ) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
-        from eskin.link.listener import (
-            Connection,
-            Decision,
-            InfoEvent,
-            LinkListener,
-            Recorded,
-            Stats,
-        )
+        from eskin.link.listener import LinkListener
 
         if duration is not None and duration <= 0:
             typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
@@ -189,50 +226,29 @@ def register(app: typer.Typer) -> None:
                                     replay=replay, reconnect=reconnect, overwrite=force,
                                     stats_interval=0.25 if live_mode else 5.0)
         out = None
+        restore = _sigterm_interrupts()
         try:
             with _user_errors():
                 listener.open()
                 out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
             typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
                                                  if listener.classifier is not None else ""))
-            rate = 3000.0
-            recent: deque = deque(maxlen=12)
-            last_stats = None
-            last_info = None
             events = listener.events(duration=duration, until_eof=until_eof)
             if live_mode:
-                last_stats = _run_live(listener, events, recent, out)
+                _run_live(listener, events, deque(maxlen=12), out)
             else:
-                for ev in events:
-                    if isinstance(ev, InfoEvent):
-                        rate = ev.info.sample_rate_hz
-                        names = ", ".join(ev.info.class_names) or "-"
-                        key = (ev.info.rows, ev.info.cols, rate, names, ev.info.speed)
-                        if key == last_info:
-                            continue  # sent again at every (re)start: print it once
-                        last_info = key
-                        typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
-                                   f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
-                    elif isinstance(ev, Decision):
-                        typer.echo(decision_line(ev, rate))
-                        if out is not None:
-                            out.write(json.dumps(ev.as_dict()) + "\n")
-                            out.flush()
-                    elif isinstance(ev, Connection):
-                        typer.echo(f"{ev.state} {ev.path} {ev.reason}".rstrip())
-                    elif isinstance(ev, Recorded):
-                        typer.echo(f"recorded #{ev.index} [{ev.start}, {ev.stop}) {ev.label}")
-                    elif isinstance(ev, Stats):
-                        last_stats = ev.stats
-                        typer.echo(stats_line(ev.stats))
-            if out is not None and last_stats is not None:
-                out.write(json.dumps({"type": "stats", **last_stats.as_dict()}) + "\n")
+                _run_plain(events, out)
         except KeyboardInterrupt:
             typer.echo("interrupted")
         finally:
-            if out is not None:
-                out.close()
-            listener.close()
+            restore()
+            try:
+                with _user_errors():
+                    listener.close()  # finishes the recording, if any
+            finally:
+                if out is not None:  # the final statistics, also after SIGINT or SIGTERM
+                    out.write(json.dumps({"type": "stats", **listener.stats.as_dict()}) + "\n")
+                    out.close()
         if record is not None:
             typer.echo(f"wrote {record}")
 
