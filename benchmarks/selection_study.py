@@ -333,8 +333,9 @@ def md_row(kind, dists, y, train, test, shape, grid, seed, reading, recipe):
     }
 
 
-def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d, seed):
-    """Rows for every recipe of one (campaign, problem, split)."""
+def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d, seed, d_read):
+    """Rows for every recipe of one (campaign, problem, split); MD at ``d_read`` is left to
+    the readings part (the same split and seed: :func:`merge_recipes` takes it from there)."""
     rows = []
     for D in ds:
         for subsample in ("algorithm2", "even"):
@@ -347,7 +348,7 @@ def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d,
                 rows.append(
                     cv_rows(kind, dists, y, groups, train, test, shape, grid, seed, f"cv/{tag}")
                 )
-                if subsample == "algorithm2":
+                if subsample == "algorithm2" and D != d_read:
                     rows.append(
                         md_row(
                             kind,
@@ -420,19 +421,23 @@ def reading_task(cache, name, spec, problem, split, D, grid, readings, seed):
     return rows
 
 
-def run_units(tasks, out_file, jobs):
-    """Run the (key, function, args) tasks not yet in ``out_file``; append their rows."""
+def run_units(tasks, jobs):
+    """Run the (key, function, args, file) tasks whose key is not in their file yet; append
+    their rows to the file."""
     done = set()
-    if out_file.exists():
-        done = {json.loads(line)["unit"] for line in out_file.read_text().splitlines() if line}
+    for out_file in {t[3] for t in tasks}:
+        if out_file.exists():
+            lines = out_file.read_text().splitlines()
+            done |= {json.loads(line)["unit"] for line in lines if line}
     todo = [t for t in tasks if t[0] not in done]
+    files = {t[0]: t[3] for t in todo}
     print(f"{len(tasks) - len(todo)} of {len(tasks)} units cached, {len(todo)} to run", flush=True)
     t0 = time.perf_counter()
     results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
-        delayed(_run_one)(key, fn, args) for key, fn, args in todo
+        delayed(_run_one)(key, fn, args) for key, fn, args, _ in todo
     )
     for k, (key, rows, dt) in enumerate(results, 1):
-        with out_file.open("a") as f:
+        with files[key].open("a") as f:
             for r in rows:
                 f.write(json.dumps({"unit": key, **r}) + "\n")
         print(
@@ -560,7 +565,27 @@ def figure(rows, methods, path):
     fig.savefig(path, dpi=110)
 
 
-def write_tables(out, readings_file, recipes_file, command, default="d1", ref="D100"):
+def merge_recipes(rows, readings_file, reading, d_read):
+    """Add the readings part's MD rows at ``d_read`` as recipe rows of the same units."""
+    units = {r["unit"] for r in rows}
+    if readings_file.exists():
+        for r in load_rows(readings_file):
+            unit = "P|" + "|".join(r["unit"].split("|")[1:])
+            if unit in units and r["method"] == f"md:{reading}":
+                rows.append({**r, "unit": unit, "recipe": f"md:{reading}/D{d_read}/algorithm2"})
+    return rows
+
+
+def write_tables(
+    out,
+    readings_file,
+    recipes_file,
+    command,
+    default="d1",
+    ref="D100",
+    reading="lloyd",
+    ref_read=20,
+):
     parts = [f"Command: `{command}`\n"]
     if readings_file.exists():
         rows = load_rows(readings_file)
@@ -579,7 +604,7 @@ def write_tables(out, readings_file, recipes_file, command, default="d1", ref="D
             ]
         figure(rows, base, out / "selection_study.png")
     if recipes_file.exists():
-        rows = load_rows(recipes_file)
+        rows = merge_recipes(load_rows(recipes_file), readings_file, reading, ref_read)
         parts += [
             f"\n## Recipes (held-out error %, mean ± sd over units; vs cv/{ref}/algorithm2)\n",
             method_table(rows, "recipe", f"cv/{ref}/algorithm2"),
@@ -600,8 +625,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="two small campaigns, a small grid")
     ap.add_argument("--part", choices=("readings", "recipes", "all"), default="all")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--splits", type=int, default=3, help="participant splits per problem")
-    ap.add_argument("--recipe-splits", type=int, default=2, help="the same for the recipes")
+    ap.add_argument(
+        "--splits", type=int, default=2, help="participant splits per problem (d0-d3; 1 else)"
+    )
     ap.add_argument("--campaigns", default=None, help="comma-separated subset")
     ap.add_argument("--reading", default="lloyd", help="the MD reading the recipes use")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_selection_study"))
@@ -617,53 +643,40 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     d_read, ds = (10, (10, 20)) if args.quick else (20, (20, 50, 100))
     readings = sorted(MD_READINGS)
+    core = {"d0", "d1", "d2", "d3", "q-d1"}
     readings_file, recipes_file = out / "results_readings.jsonl", out / "results_recipes.jsonl"
     if not args.tables_only:
         variants = [(d_read, "algorithm2")]
         if args.part in ("recipes", "all"):
-            variants += [(D, s) for D in ds for s in ("algorithm2", "even")]
+            variants += [(D, sub) for D in ds for sub in ("algorithm2", "even")]
         prepare(cache, campaigns, sorted(set(variants)), args.jobs)
         tasks = []
-        for name, spec in campaigns.items():
-            for problem in PROBLEMS:
-                for split in range(args.splits):
-                    key = f"{d_read}|{name}|{problem}|{split}"
+        for split in range(args.splits):  # every campaign's first split first
+            for name, spec in campaigns.items():
+                if split > 0 and name not in core:
+                    continue
+                for problem in PROBLEMS:
+                    unit = f"{name}|{problem}|{split}"
                     seed = 1000 * split + ord(problem)
                     if args.part in ("readings", "all"):
-                        tasks.append(
-                            (
-                                "R" + key,
-                                reading_task,
-                                (cache, name, spec, problem, split, d_read, grid, readings, seed),
-                            )
-                        )
-        run_units(tasks, readings_file, args.jobs)
-        tasks = []
-        for name, spec in campaigns.items():
-            for problem in PROBLEMS:
-                for split in range(args.recipe_splits):
-                    key = f"P|{name}|{problem}|{split}"
-                    seed = 1000 * split + ord(problem)
+                        args_r = (cache, name, spec, problem, split, d_read, grid, readings, seed)
+                        tasks.append((f"R{d_read}|{unit}", reading_task, args_r, readings_file))
                     if args.part in ("recipes", "all"):
-                        tasks.append(
-                            (
-                                key,
-                                recipes_unit,
-                                (
-                                    cache,
-                                    name,
-                                    spec,
-                                    problem,
-                                    split,
-                                    ds,
-                                    grid,
-                                    args.reading,
-                                    ds[1],
-                                    seed,
-                                ),
-                            )
+                        args_p = (
+                            cache,
+                            name,
+                            spec,
+                            problem,
+                            split,
+                            ds,
+                            grid,
+                            args.reading,
+                            ds[1],
+                            seed,
+                            d_read,
                         )
-        run_units(tasks, recipes_file, args.jobs)
+                        tasks.append((f"P|{unit}", recipes_unit, args_p, recipes_file))
+        run_units(tasks, args.jobs)
     command = "python benchmarks/selection_study.py " + " ".join(argv or [])
     write_tables(
         out,
@@ -672,6 +685,8 @@ def main(argv=None):
         command.strip(),
         default="q-d1" if args.quick else "d1",
         ref=f"D{ds[-1]}",
+        reading=args.reading,
+        ref_read=d_read,
     )
 
 
