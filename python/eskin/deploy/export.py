@@ -227,10 +227,32 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
         raise ModelFormatError(f"dtype={dtype!r}: expected 'float32' or 'float64'")
     _validate_spec(spec)
     real = np.dtype("<f8") if dtype == "float64" else np.dtype("<f4")
-    rows, cols = (int(v) for v in spec.grid_shape)
-    D = int(spec.D)
+    unique, machine_terms = _unique_support_vectors(spec)
+    alpha_store = tuple(max(int(m.alphas[z]) for m in spec.machines) for z in range(3))
+    ranks, bases = bases_fn(np.stack(unique), alpha_store)
 
-    # one table of unique support vectors, in order of first appearance
+    meta = json.dumps(
+        {"format": "eskin-model", "dtype": dtype, **spec.meta}, sort_keys=True, default=str
+    ).encode("utf-8")
+    sections = [
+        _section(b"PREP", _prep_section(spec)),
+        _section(b"CLAS", _clas_section(spec)),
+        _section(b"SVBS", _svbs_section(spec, len(unique), alpha_store, ranks, bases, real)),
+        _section(b"MACH", _mach_section(spec, machine_terms, real)),
+        _section(b"meta", meta),
+    ]
+    body_len = HEADER_BYTES + sum(len(s) for s in sections)
+    flags = FLAG_FLOAT64 if dtype == "float64" else 0
+    header = MAGIC + struct.pack(
+        "<HHIIIII", FORMAT_VERSION, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
+    )
+    body = header + b"".join(sections)
+    return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+
+
+def _unique_support_vectors(spec: ModelSpec) -> tuple[list[np.ndarray], list[dict[int, float]]]:
+    """One table of unique support vectors, in order of first appearance, and each machine's
+    terms as {table index: summed dual coefficient}."""
     table: dict[bytes, int] = {}
     unique: list[np.ndarray] = []
     machine_terms: list[dict[int, float]] = []
@@ -245,14 +267,17 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
                 unique.append(x)
             terms[idx] = terms.get(idx, 0.0) + float(c)  # a repeated pattern: one term
         machine_terms.append(terms)
-    alpha_store = tuple(max(int(m.alphas[z]) for m in spec.machines) for z in range(3))
-    ranks, bases = bases_fn(np.stack(unique), alpha_store)
+    return unique, machine_terms
 
+
+def _prep_section(spec: ModelSpec) -> bytes:
+    """PREP: grid, D, window/subsampling/short modes, sample rate, window_config fields."""
+    rows, cols = (int(v) for v in spec.grid_shape)
     prep = struct.pack(
         "<IIIIIIII d",
         rows,
         cols,
-        D,
+        int(spec.D),
         _WINDOW_MODES[spec.window],
         _SUBSAMPLE[spec.subsample],
         _SHORT[spec.short],
@@ -265,17 +290,30 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
         if not np.isfinite(v):
             raise ModelFormatError(f"window_config[{name!r}]={value!r} is not finite")
         prep += _check_name("window_config field", name) + struct.pack("<d", v)
+    return prep
 
+
+def _clas_section(spec: ModelSpec) -> bytes:
+    """CLAS: the class names and the decision rule."""
     clas = struct.pack("<II", len(spec.class_names), _RULES[spec.rule])
-    clas += b"".join(_check_name("class name", n) for n in spec.class_names)
+    return clas + b"".join(_check_name("class name", n) for n in spec.class_names)
 
-    n_sv = len(unique)
-    svbs = struct.pack("<II", 3, n_sv) + struct.pack("<3I", rows, cols, D)
+
+def _svbs_section(
+    spec: ModelSpec, n_sv: int, alpha_store: tuple[int, ...], ranks: Any, bases: Any, real: Any
+) -> bytes:
+    """SVBS: the support patterns' per-mode bases (rank and basis per pattern and mode)."""
+    rows, cols = (int(v) for v in spec.grid_shape)
+    svbs = struct.pack("<II", 3, n_sv) + struct.pack("<3I", rows, cols, int(spec.D))
     svbs += struct.pack("<3I", *alpha_store)
     svbs += _pad8(np.ascontiguousarray(ranks, dtype="<u4").tobytes())
     for z in range(3):
         svbs += np.ascontiguousarray(bases[z], dtype=real).tobytes()
+    return svbs
 
+
+def _mach_section(spec: ModelSpec, machine_terms: list[dict[int, float]], real: Any) -> bytes:
+    """MACH: per machine its classes, intercept, per-mode alpha and sigma, and its terms."""
     mach = struct.pack("<II", len(spec.machines), 0)
     for m, terms in zip(spec.machines, machine_terms):
         idx = sorted(terms)
@@ -284,24 +322,7 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
             mach += struct.pack("<II d", int(m.alphas[z]), 0, float(m.sigmas[z]))
         mach += _pad8(np.asarray(idx, dtype="<u4").tobytes())
         mach += _pad8(np.asarray([terms[i] for i in idx], dtype=real).tobytes())
-
-    meta = json.dumps(
-        {"format": "eskin-model", "dtype": dtype, **spec.meta}, sort_keys=True, default=str
-    ).encode("utf-8")
-    sections = [
-        _section(b"PREP", prep),
-        _section(b"CLAS", clas),
-        _section(b"SVBS", svbs),
-        _section(b"MACH", mach),
-        _section(b"meta", meta),
-    ]
-    body_len = HEADER_BYTES + sum(len(s) for s in sections)
-    flags = FLAG_FLOAT64 if dtype == "float64" else 0
-    header = MAGIC + struct.pack(
-        "<HHIIIII", FORMAT_VERSION, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
-    )
-    body = header + b"".join(sections)
-    return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+    return mach
 
 
 # ----------------------------------------------------------------------------- from a TouchModel
