@@ -7,11 +7,27 @@
 
 #include "eskin/model.hpp"
 #include "model_overlap.hpp"
+#if defined(ESKIN_DEVICE)
+#include "scalar_bases.hpp"
+#endif
 
 namespace eskin {
 
 namespace {
-constexpr std::size_t kMaxTouches = 4096;  // touches held for the window choice of one recording
+// touches held for the window choice of one recording (Classifier::classify; a controller,
+// which classifies a stream touch by touch, keeps a few: the buffer is allocated at construction)
+#if defined(ESKIN_DEVICE)
+constexpr std::size_t kMaxTouches = 16;
+#else
+constexpr std::size_t kMaxTouches = 4096;
+#endif
+// The support vectors' projection matrices (below) trade n_sv * N^2 values of RAM for speed; a
+// controller's RAM is the scarcer (they would double a small model's RAM).
+#if defined(ESKIN_DEVICE)
+constexpr bool kProjectionCache = false;
+#else
+constexpr bool kProjectionCache = true;
+#endif
 }  // namespace
 
 const char* to_string(ClassifyStatus s) noexcept {
@@ -95,7 +111,7 @@ struct Classifier::Impl {
         const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
         const std::size_t a = static_cast<std::size_t>(g.alpha[static_cast<std::size_t>(z)]);
         const auto zz = static_cast<std::size_t>(z);
-        g.proj[zz] = N <= 64 && N < a * a;
+        g.proj[zz] = kProjectionCache && N <= 64 && N < a * a;
         if (!g.proj[zz]) continue;
         g.px[zz].resize(N * N);
         if (m.is_float64()) g.p64[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
@@ -105,9 +121,9 @@ struct Classifier::Impl {
         }
         for (const std::uint32_t i : g.svs) {
           if (m.is_float64())
-            projection(m.bases_f64(z).data() + i * A * N, N, a, g.p64[zz].data() + i * N * N);
+            projection(m.bases_f64(z) + i * A * N, N, a, g.p64[zz].data() + i * N * N);
           else
-            projection(m.bases_f32(z).data() + i * A * N, N, a, g.p32[zz].data() + i * N * N);
+            projection(m.bases_f32(z) + i * A * N, N, a, g.p32[zz].data() + i * N * N);
         }
       }
     }
@@ -115,7 +131,11 @@ struct Classifier::Impl {
   }
 
   BasisLayout layout;
+#if defined(ESKIN_DEVICE)
+  detail::ScalarBases<float> ws;  // the controller computes the input's bases in float32
+#else
   BasisWorkspace ws;
+#endif
   TouchDetector detector;
   std::vector<double> tensor;
   std::vector<double> xb64;
@@ -176,8 +196,8 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
         continue;
       }
       for (const std::uint32_t i : grp.svs) {
-        const double ov = f64 ? s.ov64(m.bases_f64(z).data() + i * A * N, s.xb64.data() + xoff, N, a)
-                              : s.ov32(m.bases_f32(z).data() + i * A * N, s.xb32.data() + xoff, N, a);
+        const double ov = f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
+                              : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a);
         const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
         s.dist[(g * n_sv + i) * 3 + static_cast<std::size_t>(z)] =
             std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov);

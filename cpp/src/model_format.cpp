@@ -2,13 +2,16 @@
 // implies, and every value is validated before a Model is returned (docs/model-format.md).
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+#if !defined(ESKIN_DEVICE)
 #include <fstream>
+#endif
 #include <iterator>
 #include <limits>
-#include <sstream>
 
 #include "eskin/model.hpp"
+#include "raise.hpp"
 
 namespace eskin {
 
@@ -52,14 +55,21 @@ constexpr std::uint32_t kMaxClasses = 1024;
 constexpr std::uint32_t kMaxFields = 256;
 constexpr std::uint64_t kMaxFileBytes = 1ull << 31;
 
+// As `std::ostream << std::setprecision(17) << v`, without iostreams (not in a controller build).
 std::string fmt_double(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
 }
 
-[[noreturn]] void fail(ModelError code, const std::string& msg) { throw ModelFormatError(code, msg); }
+[[noreturn]] void fail(ModelError code, const std::string& msg) {
+#if defined(__cpp_exceptions)
+  throw ModelFormatError(code, msg);
+#else
+  (void)code;
+  detail::fatal_error(msg.c_str());
+#endif
+}
 
 // Index of the first byte of s[0, n) that does not start a well-formed UTF-8 sequence (RFC 3629:
 // no overlong forms, no surrogates, nothing above U+10FFFF), or n when all of it is valid.
@@ -211,9 +221,19 @@ constexpr std::uint32_t tag_of(const char (&s)[5]) {
 }  // namespace
 
 // Friend of Model: fills its private fields.
+namespace {
+#if defined(__BYTE_ORDER__) && defined(__ORDER_LITTLE_ENDIAN__)
+constexpr bool kLittleEndian = __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__;
+#else
+constexpr bool kLittleEndian = false;  // unknown: always copy
+#endif
+}  // namespace
+
 class ModelParser {
  public:
-  static Model parse(const std::uint8_t* data, std::size_t size, const std::string& origin);
+  /// borrow: keep the bases in `data` instead of copying them (see Model::view_bytes).
+  static Model parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
+                     bool borrow = false);
 
  private:
   static void parse_prep(Reader& r, Model& m);
@@ -279,6 +299,7 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   }
   r.expect_end();
   const WindowConfig cfg = window_config_from_array(values.data(), values.size());
+#if defined(__cpp_exceptions)
   try {
     // the detector's own validation, and the sample buffers of a stream classifier
     const DetectorParams p = resolve_window_config(cfg, rate);
@@ -286,6 +307,9 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   } catch (const std::exception& e) {
     fail(ModelError::kValue, w + ": " + e.what());
   }
+#else
+  (void)resolve_window_config(cfg, rate);
+#endif
   m.rows_ = static_cast<int>(rows);
   m.cols_ = static_cast<int>(cols);
   m.D_ = static_cast<int>(D);
@@ -371,21 +395,31 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
     const std::size_t A = static_cast<std::size_t>(astore[z]);
     const std::size_t count = static_cast<std::size_t>(n_sv) * A * N;
     const std::uint8_t* p = r.raw(count * real_bytes, "bases");
-    if (m.float64_) m.bases64_[z].resize(count);
-    else m.bases32_[z].resize(count);
+    // Borrowed (Model::view_bytes): used in place when the bytes are the machine's own floats
+    // (little-endian) and aligned for them; copied otherwise.
+    const bool in_place = m.borrow_ && kLittleEndian &&
+                          reinterpret_cast<std::uintptr_t>(p) % real_bytes == 0;
+    if (in_place) {
+      if (m.float64_) m.b64_[z] = reinterpret_cast<const double*>(p);
+      else m.b32_[z] = reinterpret_cast<const float*>(p);
+    } else if (m.float64_) {
+      m.bases64_[z].resize(count);
+    } else {
+      m.bases32_[z].resize(count);
+    }
     for (std::size_t j = 0; j < count; ++j) {
       double v;
       if (m.float64_) {
         std::uint64_t u = 0;
         for (int b = 7; b >= 0; --b) u = (u << 8) | p[j * 8 + static_cast<std::size_t>(b)];
         std::memcpy(&v, &u, 8);
-        m.bases64_[z][j] = v;
+        if (!in_place) m.bases64_[z][j] = v;
       } else {
         std::uint32_t u = 0;
         for (int b = 3; b >= 0; --b) u = (u << 8) | p[j * 4 + static_cast<std::size_t>(b)];
         float f;
         std::memcpy(&f, &u, 4);
-        m.bases32_[z][j] = f;
+        if (!in_place) m.bases32_[z][j] = f;
         v = f;
       }
       if (!std::isfinite(v) || std::fabs(v) > 1.0 + 1e-5)
@@ -402,8 +436,8 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
           double dot = 0;
           for (std::size_t n = 0; n < N; ++n) {
             const std::size_t a = (i * A + k) * N + n, b = (i * A + l) * N + n;
-            dot += m.float64_ ? m.bases64_[z][a] * m.bases64_[z][b]
-                              : double{m.bases32_[z][a]} * double{m.bases32_[z][b]};
+            dot += m.float64_ ? m.bases_f64(z)[a] * m.bases_f64(z)[b]
+                              : double{m.bases_f32(z)[a]} * double{m.bases_f32(z)[b]};
           }
           const double want = (k == l && static_cast<int>(k) < rk) ? 1.0 : 0.0;
           if (std::fabs(dot - want) > tol)
@@ -517,7 +551,8 @@ void ModelParser::check_machines(Model& m, const std::string& origin) {
                                    " is used by no machine");
 }
 
-Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin) {
+Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
+                         bool borrow) {
   namespace mf = model_format;
   if (data == nullptr && size > 0) fail(ModelError::kIo, origin + ": null data");
   if (size < 8 || std::memcmp(data, mf::kMagic, 8) != 0)
@@ -551,10 +586,11 @@ Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::
   for (int i = 3; i >= 0; --i) stored_crc = (stored_crc << 8) | data[file_bytes - 4 + static_cast<std::uint32_t>(i)];
   const std::uint32_t crc = mf::crc32(data, file_bytes - 4);
   if (crc != stored_crc) {
-    std::ostringstream os;
-    os << origin << ": checksum mismatch (stored CRC-32 0x" << std::hex << stored_crc
-       << ", computed 0x" << crc << "): the file is corrupted";
-    fail(ModelError::kChecksum, os.str());
+    char buf[96];
+    std::snprintf(buf, sizeof buf, ": checksum mismatch (stored CRC-32 0x%lx, computed 0x%lx): the "
+                  "file is corrupted", static_cast<unsigned long>(stored_crc),
+                  static_cast<unsigned long>(crc));
+    fail(ModelError::kChecksum, origin + buf);
   }
   // Checksum good: now the structure.
   if (flags & ~mf::kFlagFloat64)
@@ -562,6 +598,7 @@ Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::
   h.zero_u32("reserved");
   h.zero_u32("reserved");
   Model m;
+  m.borrow_ = borrow;
   m.float64_ = (flags & mf::kFlagFloat64) != 0;
   m.file_bytes_ = file_bytes;
   static constexpr std::uint32_t kOrder[4] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
@@ -613,6 +650,11 @@ Model Model::from_bytes(const std::uint8_t* data, std::size_t size) {
   return ModelParser::parse(data, size, "model");
 }
 
+Model Model::view_bytes(const std::uint8_t* data, std::size_t size) {
+  return ModelParser::parse(data, size, "model", /*borrow=*/true);
+}
+
+#if !defined(ESKIN_DEVICE)  // a controller has no file system (and no iostreams)
 Model Model::load(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   if (!f) fail(ModelError::kIo, path + ": cannot open the model file");
@@ -627,5 +669,7 @@ Model Model::load(const std::string& path) {
     fail(ModelError::kIo, path + ": cannot read the model file");
   return ModelParser::parse(buf.data(), buf.size(), path);
 }
+
+#endif  // !ESKIN_DEVICE
 
 }  // namespace eskin

@@ -3,16 +3,20 @@
 #include "eskin/preprocess.hpp"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <exception>
 #include <limits>
-#include <mutex>
-#include <sstream>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <type_traits>
+#if !defined(ESKIN_DEVICE)  // the batch functions only: the device build has no threads
+#include <atomic>
+#include <exception>
+#include <mutex>
+#include <thread>
+#endif
+
+#include "raise.hpp"
 
 namespace eskin {
 
@@ -20,14 +24,15 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
+// As `std::ostream << v` (%g, 6 digits), without iostreams (which a controller build leaves out).
 std::string fmt(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
 }
 
 [[noreturn]] void bad(const std::string& field, double value, const std::string& why) {
-  throw std::invalid_argument("WindowConfig." + field + " = " + fmt(value) + ": " + why);
+  detail::raise<std::invalid_argument>("WindowConfig." + field + " = " + fmt(value) + ": " + why);
 }
 
 int64_t to_samples(double seconds, double rate) {
@@ -38,6 +43,18 @@ int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
 
 template <class T>
 constexpr bool kIsFloat = std::is_floating_point_v<T>;
+
+// A sample value as the detector stores it (StoredSample): unchanged on the host; on a
+// controller, whose buffers hold int16 ADC codes, a floating-point value is rounded and clamped.
+template <class T>
+StoredSample to_stored(T v) noexcept {
+  if constexpr (std::is_integral_v<StoredSample> && !std::is_same_v<T, StoredSample>) {
+    const double r = std::nearbyint(static_cast<double>(v));
+    return static_cast<StoredSample>(std::min(32767.0, std::max(-32768.0, r)));
+  } else {
+    return static_cast<StoredSample>(v);
+  }
+}
 
 }  // namespace
 
@@ -63,7 +80,7 @@ std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig&
 
 WindowConfig window_config_from_array(const double* v, std::size_t n) {
   if (v == nullptr || n != kWindowConfigSize) {
-    throw std::invalid_argument("WindowConfig array: expected " +
+    detail::raise<std::invalid_argument>("WindowConfig array: expected " +
                                 std::to_string(kWindowConfigSize) + " values, got " +
                                 std::to_string(v == nullptr ? 0 : n));
   }
@@ -92,7 +109,7 @@ WindowConfig window_config_from_array(const double* v, std::size_t n) {
 
 DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   if (!(std::isfinite(rate) && rate > 0)) {
-    throw std::invalid_argument("sample_rate_hz = " + fmt(rate) + ": must be finite and > 0");
+    detail::raise<std::invalid_argument>("sample_rate_hz = " + fmt(rate) + ": must be finite and > 0");
   }
   const auto arr = window_config_to_array(c);
   for (std::size_t i = 0; i < kWindowConfigSize; ++i) {
@@ -292,7 +309,7 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
     : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels),
       store_(store_samples) {
   if (n_taxels < 1) {
-    throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
+    detail::raise<std::invalid_argument>("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
   }
   if (p_.dc_alpha > 0) {
     // the number of first samples n for which 1/(n+1) >= dc_alpha
@@ -342,8 +359,8 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
   }
   const int64_t K = n_taxels_;
   if (store_) {
-    double* r = ring_.data() + (now_ % ring_cap_) * K;
-    for (int64_t k = 0; k < K; ++k) r[k] = static_cast<double>(x[k * taxel_stride]);
+    StoredSample* r = ring_.data() + (now_ % ring_cap_) * K;
+    for (int64_t k = 0; k < K; ++k) r[k] = to_stored(x[k * taxel_stride]);
     if (state_ == State::kActive) {
       std::copy(r, r + K, window_.data() + window_len_ * K);
       ++window_len_;
@@ -470,7 +487,7 @@ Status TouchDetector::on_frame() noexcept {
           if (store_) {
             window_len_ = now_ - start_;
             for (int64_t t = start_; t < now_; ++t) {
-              const double* r = ring_.data() + (t % ring_cap_) * n_taxels_;
+              const StoredSample* r = ring_.data() + (t % ring_cap_) * n_taxels_;
               std::copy(r, r + n_taxels_, window_.data() + (t - start_) * n_taxels_);
             }
           }
@@ -528,7 +545,7 @@ Status TouchDetector::flush() noexcept {
   return finalise(false);
 }
 
-const double* TouchDetector::last_window_data() const noexcept {
+const StoredSample* TouchDetector::last_window_data() const noexcept {
   return (store_ && window_valid_) ? window_.data() : nullptr;
 }
 
@@ -538,7 +555,7 @@ int64_t TouchDetector::last_window_length() const noexcept {
 
 Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
                                             ShortPolicy short_policy, double* out) const noexcept {
-  const double* data = last_window_data();
+  const StoredSample* data = last_window_data();
   if (data == nullptr) return Status::kNoWindow;
   return subsample_window(data, n_taxels_, 1, n_taxels_, last_window_length(), D, method,
                           short_policy, out);
@@ -616,6 +633,7 @@ TouchWindow WindowSelector::result() const noexcept {
 }
 
 // ---------------------------------------------------------------- batch
+#if !defined(ESKIN_DEVICE)  // the device build (ESKIN_DEVICE) streams: no batch functions
 
 namespace {
 
@@ -845,5 +863,7 @@ ESKIN_INSTANTIATE(int16_t)
 ESKIN_INSTANTIATE(float)
 ESKIN_INSTANTIATE(double)
 #undef ESKIN_INSTANTIATE
+
+#endif  // !ESKIN_DEVICE
 
 }  // namespace eskin

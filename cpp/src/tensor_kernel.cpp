@@ -9,10 +9,13 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <utility>
+#if !defined(ESKIN_DEVICE)
+#include <thread>  // the batch layer only: the device build has no threads
+#endif
 
 #include "batch_eigen.hpp"
+#include "raise.hpp"
 #include "tensor_kernel_tile.hpp"
 
 namespace eskin {
@@ -30,10 +33,10 @@ std::string dims_str(const std::vector<std::size_t>& v) {
 
 void check_dims(const std::vector<std::size_t>& dims) {
   if (dims.size() < 2)
-    throw std::invalid_argument("tensor shape " + dims_str(dims) +
+    detail::raise<std::invalid_argument>("tensor shape " + dims_str(dims) +
                                 " has fewer than 2 modes; the tensor kernel needs order >= 2");
   for (std::size_t d : dims)
-    if (d == 0) throw std::invalid_argument("tensor shape " + dims_str(dims) + " has a zero dimension");
+    if (d == 0) detail::raise<std::invalid_argument>("tensor shape " + dims_str(dims) + " has a zero dimension");
 }
 
 // Dot product and axpy used by the basis computation. On x86-64 with GCC they are compiled
@@ -345,6 +348,7 @@ double kernel_value_impl(const BasisLayout& layout, const TA* ba, const int* ra,
   return std::exp(-e);
 }
 
+#if !defined(ESKIN_DEVICE)  // the device build (ESKIN_DEVICE) has no batch layer
 // Number of threads parallel_for will use for n_items.
 std::size_t team_size(std::size_t n_items, int n_threads) {
   return std::max<std::size_t>(1, std::min<std::size_t>(n_threads > 0 ? std::size_t(n_threads) : 1, n_items));
@@ -376,6 +380,7 @@ void parallel_for(std::size_t n_items, int n_threads, const F& f) {
 }
 
 int resolve_threads(int n_threads) { return n_threads > 0 ? n_threads : default_threads(); }
+#endif
 
 }  // namespace
 
@@ -395,7 +400,7 @@ BasisLayout::BasisLayout(std::vector<std::size_t> dims, std::vector<std::size_t>
     : dims_(std::move(dims)), alphas_(std::move(alphas)) {
   check_dims(dims_);
   if (alphas_.size() != dims_.size())
-    throw std::invalid_argument("alpha has " + std::to_string(alphas_.size()) +
+    detail::raise<std::invalid_argument>("alpha has " + std::to_string(alphas_.size()) +
                                 " values but the tensor shape " + dims_str(dims_) + " has " +
                                 std::to_string(dims_.size()) + " modes");
   size_ = 1;
@@ -404,7 +409,7 @@ BasisLayout::BasisLayout(std::vector<std::size_t> dims, std::vector<std::size_t>
   bases_size_ = 0;
   for (std::size_t z = 0; z < dims_.size(); ++z) {
     if (alphas_[z] < 1 || alphas_[z] > q(z))
-      throw std::invalid_argument("alpha " + std::to_string(alphas_[z]) + " for mode " +
+      detail::raise<std::invalid_argument>("alpha " + std::to_string(alphas_[z]) + " for mode " +
                                   std::to_string(z) + " is outside [1, Q=" + std::to_string(q(z)) +
                                   "] (tensor shape " + dims_str(dims_) + ")");
     offsets_[z] = bases_size_;
@@ -446,7 +451,7 @@ void unfold_unchecked(const double* x, const std::vector<std::size_t>& dims, std
 void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t mode, double* out) {
   check_dims(dims);
   if (mode >= dims.size())
-    throw std::invalid_argument("mode " + std::to_string(mode) + " out of range for tensor shape " +
+    detail::raise<std::invalid_argument>("mode " + std::to_string(mode) + " out of range for tensor shape " +
                                 dims_str(dims));
   unfold_unchecked(x, dims, mode, out);
 }
@@ -454,7 +459,7 @@ void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t m
 // ---- heap-free workspace --------------------------------------------------------------------
 
 BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
-  if (layout_.n_modes() < 2) throw std::invalid_argument("BasisWorkspace needs a layout with >= 2 modes");
+  if (layout_.n_modes() < 2) detail::raise<std::invalid_argument>("BasisWorkspace needs a layout with >= 2 modes");
   static_assert(kMaxBatch == kEigenLanes, "one pattern per eigen-solver lane");
   std::size_t qmax = 1;
   sv_off_.resize(layout_.n_modes());
@@ -728,6 +733,7 @@ double kernel_value(const BasisLayout& layout, const double* ba, const int* ra, 
   return kernel_value_impl(layout, ba, ra, bb, rb, sigmas);
 }
 
+#if !defined(ESKIN_DEVICE)  // the device build (ESKIN_DEVICE): no batch layer, no threads
 // ---- batch layer ----------------------------------------------------------------------------
 
 const char* tensor_kernel_isa() noexcept { return tile_kernel_name(); }
@@ -1180,5 +1186,7 @@ void tensor_kernel(const PatternBases& a, const PatternBases* b, const std::vect
   pairwise_distances(a, b, n_threads, sink);
   g_dist_scratch.trim();
 }
+
+#endif  // !ESKIN_DEVICE
 
 }  // namespace eskin

@@ -74,8 +74,14 @@ class Model {
  public:
   /// Parse and validate a model held in memory (e.g. a C header's byte array).
   static Model from_bytes(const std::uint8_t* data, std::size_t size);
+  /// Same, but the support-vector bases stay where they are in `data` (not copied) when they are
+  /// aligned for their type on a little-endian machine: a controller's model stays in flash
+  /// and only its small tables take RAM. `data` must outlive the model (and its copies).
+  static Model view_bytes(const std::uint8_t* data, std::size_t size);
+#if !defined(ESKIN_DEVICE)
   /// Read and validate a `.eskin` file. Errors name the path.
   static Model load(const std::string& path);
+#endif
 
   // preprocessing settings
   int rows() const noexcept { return rows_; }
@@ -101,9 +107,14 @@ class Model {
   /// Numerical rank of support vector i in mode z (its nonzero basis columns).
   int rank(int i, int z) const noexcept { return ranks_[static_cast<std::size_t>(i) * 3 + z]; }
   /// Mode-z bases of all support vectors: SV i, column k, row n at
-  /// ((i * alpha_store(z) + k) * basis_rows(z) + n). Exactly one of the two is non-empty.
-  const std::vector<float>& bases_f32(int z) const noexcept { return bases32_[z]; }
-  const std::vector<double>& bases_f64(int z) const noexcept { return bases64_[z]; }
+  /// ((i * alpha_store(z) + k) * basis_rows(z) + n). Exactly one of the two is non-null: the
+  /// model's own copy, or the caller's bytes (view_bytes).
+  const float* bases_f32(int z) const noexcept {
+    return bases32_[z].empty() ? b32_[z] : bases32_[z].data();
+  }
+  const double* bases_f64(int z) const noexcept {
+    return bases64_[z].empty() ? b64_[z] : bases64_[z].data();
+  }
   std::size_t file_bytes() const noexcept { return file_bytes_; }
 
  private:
@@ -123,6 +134,9 @@ class Model {
   std::vector<int> ranks_;
   std::array<std::vector<float>, 3> bases32_;
   std::array<std::vector<double>, 3> bases64_;
+  std::array<const float*, 3> b32_{};   // borrowed bases (view_bytes), else null
+  std::array<const double*, 3> b64_{};
+  bool borrow_ = false;
   std::size_t file_bytes_ = 0;
 
   friend class ModelParser;

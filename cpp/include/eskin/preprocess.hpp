@@ -110,6 +110,16 @@ struct TouchWindow {
   bool found = true;       // batch result only: false when no touch was found (fallback window)
 };
 
+// The raw samples a streaming detector keeps of the touch in progress (store_samples): double
+// on the host; on a controller (the device build, ESKIN_DEVICE) the ADC codes themselves, int16
+// (a quarter of the RAM: these buffers are the largest of the device path; a float or double
+// sample pushed there is rounded to the nearest code in [-32768, 32767]).
+#if defined(ESKIN_DEVICE)
+using StoredSample = int16_t;
+#else
+using StoredSample = double;
+#endif
+
 enum class Status : int32_t {
   kOk = 0,                // sample consumed, nothing to report
   kWindow = 1,            // sample consumed and a touch window completed: see last_window()
@@ -175,7 +185,7 @@ class TouchDetector {
   const TouchWindow& last_window() const noexcept { return last_; }
   // The raw samples of the last window (sample-major, last_window_length() x n_taxels), or
   // nullptr when none is stored (store_samples off, or overwritten by a newer touch's onset).
-  const double* last_window_data() const noexcept;
+  const StoredSample* last_window_data() const noexcept;
   int64_t last_window_length() const noexcept;
   // The (n_taxels x D) tensor of the last window. No allocation, no exceptions.
   Status subsample_last_window(int64_t D, SubsampleMethod method, ShortPolicy short_policy,
@@ -216,9 +226,9 @@ class TouchDetector {
   int64_t noise_count_ = 0;
   int64_t noise_pos_ = 0;
   // raw samples: pre-pad ring (capacity pad_before + frame_len) and the window buffer
-  std::vector<double> ring_;
+  std::vector<StoredSample> ring_;
   int64_t ring_cap_ = 0;
-  std::vector<double> window_;
+  std::vector<StoredSample> window_;
   int64_t window_len_ = 0;
   bool window_valid_ = false;
 

@@ -1,0 +1,173 @@
+// The eskin MCU test program (bare metal, Cortex-M4F, QEMU mps2-an386; docs/mcu.md).
+//
+// The model is compiled in (a header from tools/mcu_case.py: the .eskin bytes as a const,
+// 8-byte aligned array, so in flash) and loaded with Model::view_bytes (its bases stay in flash).
+// The held-out recordings stream from a file on the host through semihosting, one multi-taxel
+// int16 sample at a time, into a StreamClassifier; every decision is checked against the host's
+// float64 decision for the same model and samples (same window, same label, decision values
+// within the stated tolerance), and the instructions of the push that made it are counted
+// (SysTick at the processor clock under QEMU -icount shift=0: one tick = 40 instructions).
+// malloc is wrapped (-Wl,--wrap=malloc): an allocation inside a push() or flush() fails the run.
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <unistd.h>
+
+#include "eskin/model.hpp"
+#include "mcu_board.h"
+
+#ifdef ESKIN_MCU_MODEL_HEADER
+#include ESKIN_MCU_MODEL_HEADER
+#else
+#error "configure with -DESKIN_MCU_MODEL_HEADER=<header from tools/mcu_case.py>"
+#endif
+
+extern "C" {
+extern char end;  // linker script: the heap starts here
+void* __real_malloc(std::size_t n);
+static volatile bool g_counting = false;
+static volatile unsigned g_late_mallocs = 0;
+void* __wrap_malloc(std::size_t n) {
+  if (g_counting) ++g_late_mallocs;
+  return __real_malloc(n);
+}
+}
+
+namespace eskin::detail {
+// Builds without exceptions report construction errors here (cpp/src/raise.hpp).
+[[noreturn]] void fatal_error(const char* what) noexcept {
+  std::printf("FATAL: %s\n", what);
+  std::exit(2);
+}
+}  // namespace eskin::detail
+
+namespace {
+
+constexpr std::uint64_t kInstrPerTick = 40;  // 1 ns per instruction, SysTick at 25 MHz
+constexpr int kChunk = 64;                   // samples read from the host per semihosting call
+std::int16_t g_chunk[kChunk * MCU_CASE_TAXELS];
+std::uint32_t g_decision_ticks[MCU_CASE_MAX_DECISIONS];
+
+std::uint32_t median(std::uint32_t* v, int n) {
+  for (int i = 1; i < n; ++i)  // insertion sort (n is small)
+    for (int j = i; j > 0 && v[j - 1] > v[j]; --j) {
+      const std::uint32_t t = v[j];
+      v[j] = v[j - 1];
+      v[j - 1] = t;
+    }
+  return n == 0 ? 0 : v[n / 2];
+}
+
+}  // namespace
+
+int main() {
+  std::setvbuf(stdout, nullptr, _IONBF, 0);
+  const std::uint64_t c0 = mcu_ticks();
+  const eskin::Model model = eskin::Model::view_bytes(mcu_case_model, sizeof(mcu_case_model));
+  eskin::StreamClassifier sc(model);
+  const std::uint64_t c1 = mcu_ticks();
+  const std::size_t heap = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
+  std::printf("model: %d support vectors, %d machines, D=%d, %u bytes in flash; "
+              "load + construction %" PRIu32 " instructions, heap %u bytes\n",
+              model.n_support(), static_cast<int>(model.machines().size()), model.D(),
+              static_cast<unsigned>(sizeof(mcu_case_model)),
+              static_cast<std::uint32_t>((c1 - c0) * kInstrPerTick), static_cast<unsigned>(heap));
+
+  std::FILE* f = std::fopen(MCU_CASE_STREAM, "rb");
+  if (f == nullptr) {
+    std::printf("cannot open %s\n", MCU_CASE_STREAM);
+    return 1;
+  }
+  int n_dec = 0, bad = 0;
+  double worst = 0.0;
+  std::uint64_t other_ticks = 0, samples = 0;
+  auto check = [&](eskin::ClassifyStatus st, std::uint64_t ticks) {
+    if (st != eskin::ClassifyStatus::kDecision) {
+      if (st != eskin::ClassifyStatus::kOk) {
+        std::printf("sample %" PRIu32 ": status %s\n", static_cast<std::uint32_t>(samples),
+                    eskin::to_string(st));
+        ++bad;
+      }
+      other_ticks += ticks;
+      return;
+    }
+    const eskin::Decision& d = sc.decision();
+    const int k = n_dec++;
+    if (k >= MCU_CASE_N_DECISIONS) {
+      std::printf("decision %d: the host made only %d\n", k, MCU_CASE_N_DECISIONS);
+      ++bad;
+      return;
+    }
+    g_decision_ticks[k] = static_cast<std::uint32_t>(ticks);
+    const McuCaseDecision& want = mcu_case_decisions[k];
+    double diff = 0.0;
+    for (int m = 0; m < d.n_machines; ++m) diff = std::fmax(diff, std::fabs(d.values[m] - want.values[m]));
+    worst = std::fmax(worst, diff);
+    const bool ok = d.window_start == want.start && d.window_stop == want.stop &&
+                    d.label == want.label && diff <= MCU_CASE_TOLERANCE;
+    if (!ok) ++bad;
+    std::printf("decision %2d: window [%ld, %ld) label %d (host %d) max |value - host| %.2e "
+                "%" PRIu32 " instructions%s\n",
+                k, static_cast<long>(d.window_start), static_cast<long>(d.window_stop), d.label,
+                want.label, diff, static_cast<std::uint32_t>(ticks * kInstrPerTick),
+                ok ? "" : "  MISMATCH");
+  };
+  for (;;) {
+    const std::size_t n = std::fread(g_chunk, sizeof(std::int16_t) * MCU_CASE_TAXELS, kChunk, f);
+    if (n == 0) break;
+    for (std::size_t i = 0; i < n; ++i) {
+      g_counting = true;
+      const std::uint64_t t0 = mcu_ticks();
+      const eskin::ClassifyStatus st = sc.push(g_chunk + i * MCU_CASE_TAXELS);
+      const std::uint64_t t1 = mcu_ticks();
+      g_counting = false;
+      ++samples;
+      check(st, t1 - t0);
+    }
+  }
+  std::fclose(f);
+  {
+    g_counting = true;
+    const std::uint64_t t0 = mcu_ticks();
+    const eskin::ClassifyStatus st = sc.flush();
+    const std::uint64_t t1 = mcu_ticks();
+    g_counting = false;
+    check(st, t1 - t0);
+  }
+  if (samples != MCU_CASE_N_SAMPLES) {
+    std::printf("read %" PRIu32 " samples, expected %d\n", static_cast<std::uint32_t>(samples),
+                MCU_CASE_N_SAMPLES);
+    ++bad;
+  }
+  if (n_dec != MCU_CASE_N_DECISIONS) {
+    std::printf("%d decisions, the host made %d\n", n_dec, MCU_CASE_N_DECISIONS);
+    ++bad;
+  }
+  if (g_late_mallocs != 0) {
+    std::printf("%u heap allocations after construction\n", static_cast<unsigned>(g_late_mallocs));
+    ++bad;
+  }
+  extern std::uint32_t _sidata[], _sdata[], _edata[], _ebss[];
+  const std::size_t flash = reinterpret_cast<std::uintptr_t>(_sidata) +
+                            (reinterpret_cast<std::uintptr_t>(_edata) - reinterpret_cast<std::uintptr_t>(_sdata));
+  const std::size_t statics = reinterpret_cast<std::uintptr_t>(_ebss) - reinterpret_cast<std::uintptr_t>(_sdata);
+  const std::size_t heap_total = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
+  const std::size_t stack = mcu_stack_used();
+  const std::size_t ram = statics + heap_total + stack;
+  const int n_med = n_dec < MCU_CASE_MAX_DECISIONS ? n_dec : MCU_CASE_MAX_DECISIONS;
+  const std::uint64_t med = std::uint64_t{median(g_decision_ticks, n_med)} * kInstrPerTick;
+  std::printf("other samples: %" PRIu32 " instructions per sample on average (detector)\n",
+              static_cast<std::uint32_t>(samples ? other_ticks * kInstrPerTick / samples : 0));
+  std::printf("largest |decision value - host| %.3g (tolerance %.3g); RAM: static %u + heap %u "
+              "+ stack %u bytes; heap allocations after construction: %u\n",
+              worst, MCU_CASE_TOLERANCE, static_cast<unsigned>(statics),
+              static_cast<unsigned>(heap_total), static_cast<unsigned>(stack),
+              static_cast<unsigned>(g_late_mallocs));
+  std::printf("MCU: board=mps2-an386 decisions=%d parity=%s instr_per_decision=%" PRIu32
+              " flash=%u ram=%u\n",
+              n_dec, bad == 0 ? "ok" : "FAIL", static_cast<std::uint32_t>(med),
+              static_cast<unsigned>(flash), static_cast<unsigned>(ram));
+  return bad == 0 ? 0 : 1;
+}
