@@ -7,12 +7,17 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 JOBS ?= $(shell nproc)
 APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind pkg-config
+# The Cortex-M4F cross toolchain and the board emulator of `make mcu` (a separate list: the rest of
+# the build does not need them).
+APT_MCU_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib \
+  qemu-system-arm
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 CMAKE := $(VENV)/bin/cmake
 BUILD_CPP := build/cpp
 BUILD_DEV := build/dev
+BUILD_MCU := build/mcu
 
-.PHONY: all deps venv install cpp ctest pytest test demo dev devtest bench clean stubs
+.PHONY: all deps mcu-deps mcu venv install cpp ctest pytest test demo dev devtest bench clean stubs
 
 all: install cpp
 
@@ -20,6 +25,15 @@ all: install cpp
 deps: build/.deps-ok
 build/.deps-ok:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:$$missing"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
+	fi
+	@mkdir -p build && touch $@
+
+mcu-deps: build/.mcu-deps-ok
+build/.mcu-deps-ok:
+	@missing=""; for p in $(APT_MCU_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing Debian packages:$$missing"; \
 	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
@@ -51,6 +65,22 @@ pytest: install
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
 
 test: ctest pytest
+
+# The inference core on a Cortex-M4F (docs/mcu.md): a small model of the demo campaign and a few
+# held-out recordings (tools/mcu_case.py), the device build (cmake/arm-none-eabi.cmake,
+# ESKIN_DEVICE=ON) with the model compiled in, the check of its program (no exceptions, RTTI,
+# threads, or allocation on the decision path), and the run on QEMU's mps2-an386 board, which
+# ends with the line "MCU: board=... parity=ok ...".
+MCU_CASE := $(BUILD_MCU)/case
+mcu: mcu-deps install
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE)
+	$(CMAKE) -S . -B $(BUILD_MCU) -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
+	  -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
+	  -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/mcu_case.h >/dev/null
+	$(CMAKE) --build $(BUILD_MCU)
+	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-mcu.elf
+	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log
+	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok ' || { echo "make mcu: no 'MCU: ... parity=ok' line"; exit 1; }
 
 demo: install cpp
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m eskin demo --out demo_out

@@ -1,0 +1,118 @@
+"""Build the test case of `make mcu`: a small model of the demo campaign and held-out samples.
+
+Simulates a small demo campaign (SIMULATED data), trains the MCU preset of the demo model on all
+participants but the last (tensor-RLS, Maximal Discrepancy selection on the quick grid, D and the
+detector's longest window cut to fit a Cortex-M4F: see docs/mcu.md), exports it as a float32
+``.eskin`` model and streams a few held-out recordings of the last participant through the
+host's C++ stream classifier (float64 arithmetic) for the reference decisions. Writes into OUT:
+
+* ``model.eskin``: the model;
+* ``stream.i16``: the held-out samples, int16 little-endian, sample-major (n_samples x taxels),
+  read by the device program through semihosting;
+* ``mcu_case.h``: the model bytes as a const, 8-byte aligned array (placed in flash), the
+  stream's path and size, and the host's decisions (window, label, values) with the tolerance.
+
+    python tools/mcu_case.py OUT [--D 20] [--max-window-s 0.4] [--per-class 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+# Decision values of the float32 device path may differ from the host's float64 ones by this
+# much (absolute; the values are O(1) RLS outputs); the labels and windows must be identical.
+TOLERANCE = 2e-3
+
+
+def build_case(out: Path, *, D: int, max_window_s: float, participants: int, per_class: int,
+               seed: int) -> dict:
+    import eskin
+    from eskin import WindowConfig
+
+    out.mkdir(parents=True, exist_ok=True)
+    camp_path = eskin.simulate(out / "campaign.h5", participants=participants, seed=seed,
+                               overwrite=True)
+    camp = eskin.load_campaign(camp_path)
+    parts = np.unique(camp.participant)
+    is_test = camp.participant == parts[-1]
+    train_idx = np.flatnonzero(~is_test)
+    test_idx = np.flatnonzero(is_test)
+    # a few held-out recordings per class, spread over the participant's recordings
+    chosen = []
+    for c in np.unique(camp.modality[test_idx]):
+        chosen.extend(test_idx[camp.modality[test_idx] == c][:per_class].tolist())
+    chosen = sorted(chosen)
+    model = eskin.train_model(camp.subset(train_idx), machine="rls", selection="md", quick=True,
+                              D=D, window_config=WindowConfig(max_window_s=max_window_s),
+                              seed=seed, n_jobs=1)
+    data = eskin.export_model(model, out / "model.eskin", dtype="float32").read_bytes()
+    compiled = eskin.CompiledModel(data)
+
+    rf = eskin.write_replay_file(camp, chosen, out / "stream.eskr", gap_s=0.5, seed=seed)
+    samples = np.ascontiguousarray(np.asarray(rf.samples, dtype="<i2").reshape(rf.n_samples, -1))
+    samples.tofile(out / "stream.i16")
+    events = compiled.stream(samples)
+    names = list(compiled.class_names)
+    decisions = [e for e in events if "label" in e]
+    bad = [e for e in events if e.get("status_name") not in ("ok", "decision")]
+    if bad:
+        raise SystemExit(f"the host's stream classifier reported {bad[0]}")
+    n_values = len(decisions[0]["values"]) if decisions else 1
+    lines = [
+        "/* The test case of `make mcu` (tools/mcu_case.py; SIMULATED demo campaign). Generated:",
+        " * do not edit. */",
+        "#pragma once",
+        "#include <stdint.h>",
+        "",
+        f"#define MCU_CASE_TAXELS {samples.shape[1]}",
+        f"#define MCU_CASE_N_SAMPLES {samples.shape[0]}",
+        f"#define MCU_CASE_N_DECISIONS {len(decisions)}",
+        f"#define MCU_CASE_MAX_DECISIONS {max(1, len(decisions)) + 8}",
+        f"#define MCU_CASE_N_VALUES {n_values}",
+        f"#define MCU_CASE_TOLERANCE {TOLERANCE!r}",
+        f"#define MCU_CASE_STREAM {json.dumps(str((out / 'stream.i16').resolve()))}",
+        "",
+        "/* the model: the .eskin bytes, in flash (const), aligned for its float32 bases */",
+        f"alignas(8) static const unsigned char mcu_case_model[{len(data)}] = {{",
+    ]
+    for i in range(0, len(data), 24):
+        lines.append("  " + ",".join(str(b) for b in data[i : i + 24]) + ",")
+    lines += ["};", "",
+              "struct McuCaseDecision { long start, stop; int label; double values[MCU_CASE_N_VALUES]; };",
+              "/* the host's decisions (float64 arithmetic, same model, same samples) */",
+              f"static const McuCaseDecision mcu_case_decisions[{max(1, len(decisions))}] = {{"]
+    for e in decisions:
+        vals = ", ".join(repr(float(v)) for v in e["values"])
+        lines.append(f"  {{{int(e['window'][0])}, {int(e['window'][1])}, "
+                     f"{names.index(e['label'])}, {{{vals}}}}},")
+    if not decisions:
+        lines.append("  {0, 0, -1, {0}},")
+    lines += ["};", ""]
+    (out / "mcu_case.h").write_text("\n".join(lines))
+    return {"model_bytes": len(data), "n_support": compiled.n_support, "D": D,
+            "recordings": len(chosen), "samples": int(samples.shape[0]),
+            "decisions": len(decisions), "classes": names}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--D", type=int, default=20)
+    ap.add_argument("--max-window-s", type=float, default=0.5)
+    ap.add_argument("--participants", type=int, default=4)
+    ap.add_argument("--per-class", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    info = build_case(a.out, D=a.D, max_window_s=a.max_window_s, participants=a.participants,
+                      per_class=a.per_class, seed=a.seed)
+    print("mcu case: " + ", ".join(f"{k}={v}" for k, v in info.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
