@@ -208,7 +208,7 @@ int64_t detector_stored_values(const DetectorParams& p, int64_t n_taxels) noexce
 
 void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, int64_t n_taxels) {
   if (n_taxels > kMaxStoredValues) {
-    throw std::invalid_argument("n_taxels = " + std::to_string(n_taxels) + ": more than " +
+    detail::raise<std::invalid_argument>("n_taxels = " + std::to_string(n_taxels) + ": more than " +
                                 std::to_string(kMaxStoredValues));
   }
   const int64_t values = detector_stored_values(p, n_taxels);

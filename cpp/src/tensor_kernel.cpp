@@ -239,7 +239,7 @@ ESKIN_CLONES std::size_t argmax_abs(const double* v, std::size_t n) noexcept {
 }
 
 // P = V V^T (n x n, row-major) for V n x alpha, column-major
-ESKIN_CLONES void projection_matrix(const double* v, std::size_t n, std::size_t alpha,
+[[maybe_unused]] ESKIN_CLONES void projection_matrix(const double* v, std::size_t n, std::size_t alpha,
                                     double* P) noexcept {
   for (std::size_t i = 0; i < n; ++i) {
     double* row = P + i * n;
