@@ -4,11 +4,13 @@ Prints absolute times and ratios against baselines measured in the same process 
 shared, so ratios are the stable numbers):
 
 * baseline W: writing the same number of int16 recordings of white noise through
-  CampaignWriter (the cost of the file format alone: compression + HDF5);
+  CampaignWriter (the cost of the file format alone: compression, the crash-safe journal with
+  one fsync per recording, HDF5); W without fsync (``durable=False``, as the simulator writes)
+  gives the price of the fsync;
 * simulate, 1 and N worker processes: the whole physics chain plus writing;
 * read: load_campaign + reading every recording back (lazy, one chunk per recording).
 
-Usage: python benchmarks/bench_campaign.py [--participants 70] [--jobs 2]
+Usage: python benchmarks/bench_campaign.py [--participants 70] [--jobs 2] [--writer-only]
 The full campaign (70 participants, 840 recordings) is the issue's target: under a minute on
 2 cores. Data are SIMULATED.
 """
@@ -35,15 +37,20 @@ def _cpu() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def _write_noise(path: Path, n: int, cfg: SimulatorConfig) -> float:
+def _write_noise(path: Path, n: int, cfg: SimulatorConfig, durable: bool = True,
+                 close_time: list | None = None) -> float:
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()
-    with CampaignWriter(path, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
-                        sample_rate_hz=cfg.sample_rate_hz, volts_per_count=cfg.volts_per_count,
-                        modalities=list(MODALITIES), source="simulated") as w:
-        for i in range(n):
-            rec = rng.normal(0.0, 30.0, (cfg.rows, cfg.cols, cfg.n_samples)).astype(np.int16)
-            w.append(rec, modality=i % 3, participant=i // 12, direction=i % 2, run=1)
+    w = CampaignWriter(path, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
+                       sample_rate_hz=cfg.sample_rate_hz, volts_per_count=cfg.volts_per_count,
+                       modalities=list(MODALITIES), source="simulated", durable=durable)
+    for i in range(n):
+        rec = rng.normal(0.0, 30.0, (cfg.rows, cfg.cols, cfg.n_samples)).astype(np.int16)
+        w.append(rec, modality=i % 3, participant=i // 12, direction=i % 2, run=1)
+    t1 = time.perf_counter()
+    w.close()  # builds the campaign file from the journal
+    if close_time is not None:
+        close_time.append(time.perf_counter() - t1)
     return time.perf_counter() - t0
 
 
@@ -51,6 +58,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--participants", type=int, default=70)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--writer-only", action="store_true", help="only the two W rows")
     args = ap.parse_args()
     cfg = SimulatorConfig()
     n = args.participants * 12
@@ -58,9 +66,16 @@ def main() -> None:
           f"({cfg.rows}x{cfg.cols} taxels, {cfg.n_samples} samples), {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        t_w = _write_noise(tmp / "noise.h5", n, cfg)
+        closing: list = []
+        t_w = _write_noise(tmp / "noise.h5", n, cfg, close_time=closing)
         print(f"baseline W  write {n} noise recordings      {t_w:7.1f} s  "
-              f"{n / t_w:7.1f} rec/s")
+              f"{n / t_w:7.1f} rec/s   (close, the file from the journal: {closing[0]:.1f} s "
+              f"= {closing[0] / t_w:.2f} x W)")
+        t_nd = _write_noise(tmp / "noise_nd.h5", n, cfg, durable=False)
+        print(f"W, durable=False (no fsync)             {t_nd:7.1f} s  {n / t_nd:7.1f} rec/s  "
+              f"= {t_nd / t_w:5.2f} x W   (fsync: {1000 * (t_w - t_nd) / n:.1f} ms/recording)")
+        if args.writer_only:
+            return
         t0, c0 = time.perf_counter(), _cpu()
         simulate(tmp / "sim1.h5", participants=args.participants, seed=0, n_jobs=1)
         t_1, c_1 = time.perf_counter() - t0, _cpu() - c0
