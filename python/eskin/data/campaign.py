@@ -1087,6 +1087,8 @@ def recover_campaign(path: str | os.PathLike[str], output: str | os.PathLike[str
         raise FileNotFoundError(f"{target}: nothing to recover (no journal {journal.name} "
                                 f"next to it)")
     out = Path(output) if output is not None else target
+    if out.exists() and os.path.samefile(out, journal):
+        raise ValueError(f"{out}: is the journal being recovered; choose another output file")
     _check_target(out, overwrite)
     return _finish_journal(journal, out, overwrite)
 

@@ -240,6 +240,17 @@ def test_overwrite_replaces_a_file_that_appeared(tmp_path):
     _check_recordings(path, 1)
 
 
+def test_recovery_never_writes_onto_its_journal(tmp_path):
+    path = tmp_path / "c.h5"
+    data, _ = _journal_bytes(tmp_path, 2)
+    journal_path(path).write_bytes(data)
+    for force in (False, True):
+        with pytest.raises(ValueError, match="is the journal being recovered"):
+            recover_campaign(path, journal_path(path), overwrite=force)
+    assert journal_path(path).read_bytes() == data
+    assert recover_campaign(path).recordings == 2
+
+
 def test_nothing_to_recover(tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing to recover"):
         recover_campaign(tmp_path / "none.h5")
