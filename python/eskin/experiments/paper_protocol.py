@@ -809,6 +809,7 @@ def _protocol(
     binary, subs, base, mc = _sorted_task_results(out, cfg)
 
     from eskin.experiments.report import summarise
+    from eskin.learn.selection import MaximalDiscrepancySearch
 
     results: dict[str, Any] = {
         "schema": SCHEMA,
@@ -821,6 +822,7 @@ def _protocol(
             "train_participants_per_run": n_tr,
             "validation_participants_per_run": n_parts - n_tr,
             "machines": list(MACHINES),
+            "md_reading": MaximalDiscrepancySearch().set_params(**cfg.md).describe_reading(),
             "parameter_note": "lambda is reported for both machines; the SVM is "
             "trained with C = 1/lambda (docs/paper-readings.md, R9)",
         },

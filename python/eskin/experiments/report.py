@@ -592,6 +592,8 @@ def _notes_section(results: dict[str, Any]) -> list[str]:
         + (", ".join(f"{k}={v}" for k, v in md.items()) if md else "eskin defaults")
         + "."
     )
+    if "md_reading" in p:  # which reading of Algorithm 1 ran (docs/learning.md)
+        L.append(f"- Algorithm 1 as run: {p['md_reading']}.")
     L.append(
         "- One participant split per run is shared by every problem, D, machine and "
         "selection method, so comparisons are paired."

@@ -203,6 +203,9 @@ def test_report_layout(quick_out):
     assert "algorithm2" in text and "even" in text
     assert "D=20 ours" in text
     assert "Both machines show lambda" in text
+    # which reading of Algorithm 1 ran, by name and in words (quick: N = 3 labellings)
+    line = next(t for t in text.splitlines() if t.startswith("- Algorithm 1 as run: "))
+    assert "reading 'kmeans++'" in line and "n_labelings=3" in line and "Lloyd" in line
     # the report can be rebuilt from results.json alone
     res = json.loads((quick_out / "results.json").read_text())
     assert render_markdown(res, []).startswith("# eskin experiment report")
