@@ -397,6 +397,91 @@ def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d,
 
 
 # --------------------------------------------------------------------------------------------
+# why: how well each criterion ranks the grid by held-out error
+DIAGNOSED = {
+    "md:lloyd": md_reading("lloyd"),
+    "md:lloyd/stratified": {**md_reading("lloyd"), "flip": "stratified"},
+    "md:true-norm": md_reading("true-norm"),
+}
+
+
+def _criterion_row(method, search, errors):
+    from scipy.stats import spearmanr
+
+    r = search.cv_results_
+    crit = np.asarray(r["criterion"], dtype=float)
+    best, chosen = int(np.argmin(errors)), int(search.best_index_)
+    row = {
+        "method": method,
+        "spearman": float(spearmanr(crit, errors).statistic),
+        "chosen_error": float(errors[chosen]),
+        "oracle_error": float(errors[best]),
+        "chosen_criterion": float(crit[chosen]),
+        "oracle_criterion": float(crit[best]),
+    }
+    if "chi" in r:
+        row.update(
+            chosen_v=float(r["train_error"][chosen]),
+            chosen_chi=float(r["chi"][chosen]),
+            oracle_v=float(r["train_error"][best]),
+            oracle_chi=float(r["chi"][best]),
+            share_chi_above_0_9=float(np.mean(r["chi"] > 0.9)),
+            share_bound_above_1=float(np.mean(r["bound"] > 1.0)),
+        )
+    return row
+
+
+def diagnose_task(cache, name, spec, problem, split, D, grid, seed):
+    """Per machine: each criterion's rank correlation with the held-out error over the grid,
+    and the terms of the bound at the chosen and at the best configuration."""
+    X, mod, part, names = patterns(cache, name, spec, D, "algorithm2")
+    idx, y, groups, train, test = problem_split(mod, part, names, problem, split)
+    dists = all_distances(X[idx])
+    dtr, y_pm = _sub(dists, train, train), np.where(y == 1, 1.0, -1.0)
+    rows = []
+    for kind in ("svm", "rls"):
+        est = TensorSVC() if kind == "svm" else TensorRLS()
+        held = HeldOut(kind, dists, y_pm, train, test)
+        cv = CrossValidationSearch(
+            est, grid, n_splits=10, test_size=0.3, random_state=seed, refit=False
+        ).fit_distances(dtr, y[train], X.shape[1:], groups[train])
+        errors = np.array([held.of(cv, i) for i in range(len(cv.cv_results_["lam"]))])
+        rows.append({"machine": kind, **_criterion_row("cv", cv, errors)})
+        for method, opts in DIAGNOSED.items():
+            md = MaximalDiscrepancySearch(
+                est, grid, n_labelings=N_LABELINGS, random_state=seed, refit=False, **opts
+            ).fit_distances(dtr, y[train], X.shape[1:])
+            rows.append({"machine": kind, **_criterion_row(method, md, errors)})
+    return rows
+
+
+def diagnose_table(rows):
+    keys = [
+        "spearman",
+        "chosen_error",
+        "oracle_error",
+        "chosen_v",
+        "chosen_chi",
+        "oracle_v",
+        "oracle_chi",
+        "share_chi_above_0_9",
+        "share_bound_above_1",
+    ]
+    lines = [
+        "| machine | criterion | " + " | ".join(keys) + " |",
+        "| --- | --- |" + " ---: |" * len(keys),
+    ]
+    for kind in ("svm", "rls"):
+        for m in ["cv", *DIAGNOSED]:
+            sel = [r for r in rows if r["machine"] == kind and r["method"] == m]
+            if not sel:
+                continue
+            cells = [f"{np.mean([r[k] for r in sel]):.2f}" if k in sel[0] else "-" for k in keys]
+            lines.append(f"| {kind} | {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
 # units of work, run in parallel, cached line by line
 def reading_task(cache, name, spec, problem, split, D, grid, readings, seed):
     X, mod, part, names = patterns(cache, name, spec, D, "algorithm2")
@@ -615,6 +700,12 @@ def write_tables(
                 f"\n## Recipes per campaign, tensor-{kind.upper()}\n",
                 campaign_table(rows, "recipe", recipes, kind),
             ]
+    diagnose_file = out / "results_diagnose.jsonl"
+    if diagnose_file.exists():
+        parts += [
+            "\n## How each criterion ranks the grid (d1, d2; first split; means over units)\n",
+            diagnose_table(load_rows(diagnose_file)),
+        ]
     (out / "tables.md").write_text("\n".join(parts) + "\n")
     print((out / "tables.md").read_text())
 
@@ -623,7 +714,7 @@ def write_tables(
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="two small campaigns, a small grid")
-    ap.add_argument("--part", choices=("readings", "recipes", "all"), default="all")
+    ap.add_argument("--part", choices=("readings", "recipes", "all", "diagnose"), default="all")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
         "--splits", type=int, default=2, help="participant splits per problem (d0-d3; 1 else)"
@@ -645,7 +736,22 @@ def main(argv=None):
     readings = sorted(MD_READINGS)
     core = {"d0", "d1", "d2", "d3", "q-d1"}
     readings_file, recipes_file = out / "results_readings.jsonl", out / "results_recipes.jsonl"
-    if not args.tables_only:
+    diagnose_file = out / "results_diagnose.jsonl"
+    if args.part == "diagnose" and not args.tables_only:
+        prepare(cache, campaigns, [(d_read, "algorithm2")], args.jobs)
+        tasks = [
+            (
+                f"D{d_read}|{name}|{problem}|0",
+                diagnose_task,
+                (cache, name, spec, problem, 0, d_read, grid, 1000 * 0 + ord(problem)),
+                diagnose_file,
+            )
+            for name, spec in campaigns.items()
+            if name in {"d1", "d2", "q-d1"}
+            for problem in PROBLEMS
+        ]
+        run_units(tasks, args.jobs)
+    elif not args.tables_only:
         variants = [(d_read, "algorithm2")]
         if args.part in ("recipes", "all"):
             variants += [(D, sub) for D in ds for sub in ("algorithm2", "even")]
