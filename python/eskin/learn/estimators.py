@@ -21,6 +21,7 @@ beta_i for RLS), ``intercept_`` (float, 0 for RLS), ``alphas_`` and ``sigmas_`` 
 
 from __future__ import annotations
 
+import inspect
 import numbers
 from dataclasses import dataclass
 
@@ -609,8 +610,11 @@ def one_vs_all_rule(decision_values: np.ndarray):
     return index, n_claims, n_claims != 1
 
 
-def _fit_machine(estimator, X, y_pm):
-    return clone(estimator).fit(X, y_pm)
+def _fit_machine(estimator, X, y_pm, groups=None):
+    est = clone(estimator)
+    if groups is not None and "groups" in inspect.signature(est.fit).parameters:
+        return est.fit(X, y_pm, groups=groups)  # a search that splits by group
+    return est.fit(X, y_pm)
 
 
 class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
@@ -643,12 +647,15 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
         tags.input_tags.three_d_array = True
         return tags
 
-    def fit(self, X, y, *, machine_indices=None):
+    def fit(self, X, y, *, machine_indices=None, groups=None):
         """Train one machine per class.
 
         ``machine_indices``: optional sequence (one per class, in ``np.unique(y)`` order) of
         index arrays into ``X``: machine k trains only on those patterns (the paper's 3-class
         protocol gives each machine its own balanced 180-pattern set, reading R23).
+        ``groups``: optional group label per pattern (e.g. participant), handed (restricted to
+        each machine's patterns) to an estimator whose ``fit`` takes ``groups``, such as
+        :class:`~eskin.CrossValidationSearch`, so that its splits keep groups apart.
         """
         X, y = validate_data(self, X, y, allow_nd=True, dtype=np.float64)
         check_classification_targets(y)
@@ -667,8 +674,15 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
                     f"({self.classes_.size}) is needed"
                 )
             subsets = [np.asarray(ix, dtype=np.intp) for ix in machine_indices]
+        if groups is not None and len(groups) != len(y):
+            raise ValueError(f"groups has {len(groups)} entries for {len(y)} patterns")
         fitted = Parallel(n_jobs=self.n_jobs)(
-            delayed(_fit_machine)(estimator, X[ix], np.where(y[ix] == c, 1, -1))
+            delayed(_fit_machine)(
+                estimator,
+                X[ix],
+                np.where(y[ix] == c, 1, -1),
+                None if groups is None else np.asarray(groups)[ix],
+            )
             for c, ix in zip(self.classes_, subsets)
         )
         self.estimators_ = [getattr(m, "best_estimator_", m) for m in fitted]

@@ -251,6 +251,26 @@ def test_one_vs_all_with_own_training_sets_and_selection():
     assert clf.predict(X).shape == (len(X),)
 
 
+def test_one_vs_all_hands_groups_to_grouped_searches():
+    from eskin.learn.selection import CrossValidationSearch
+
+    X, y = _patterns(8, n_classes=3, noise=0.2)
+    groups = np.arange(len(y)) % 6  # 6 participants
+    search = CrossValidationSearch(
+        TensorRLS(), {"lam": [0.01, 1.0], "sigma": [1.0]}, n_splits=3, random_state=0
+    )
+    clf = OneVsAllTouchClassifier(search).fit(X, y, groups=groups)
+    for s in clf.searches_:  # every machine's splits keep the participants apart
+        for tr, te in s.splits_:
+            assert not set(groups[tr]) & set(groups[te])
+    plain = OneVsAllTouchClassifier(search).fit(X, y)
+    assert any(set(groups[tr]) & set(groups[te]) for tr, te in plain.searches_[0].splits_)
+    # an estimator without groups in its fit trains as before
+    OneVsAllTouchClassifier(TensorRLS()).fit(X, y, groups=groups)
+    with pytest.raises(ValueError, match="groups has 3 entries"):
+        OneVsAllTouchClassifier(search).fit(X, y, groups=groups[:3])
+
+
 # ---------------------------------------------------------------------- scikit-learn's checks
 # Checks that cannot pass, and why (also in docs/learning.md).
 _OVA_XFAIL = {
