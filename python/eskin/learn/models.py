@@ -230,6 +230,7 @@ class Prepared:
     bad_taxels: np.ndarray  # (n,) dead or noisy taxels per recording (with stats=True)
     snr_db: np.ndarray  # (n,) power inside the window over power outside, dB (nan if undefined)
     seconds: float
+    notes: list[str] = field(default_factory=list)  # detector settings adapted to the rate
 
 
 class ArrayRecordings:
@@ -324,6 +325,7 @@ def preprocess_campaign(
         raise TrainingError(f"window must be 'energy' or 'none', got {window!r}")
     t0 = time.perf_counter()
     rate = float(sample_rate_hz if sample_rate_hz is not None else campaign.sample_rate_hz)
+    config, notes = window_config_for_rate(config, rate)
     indices = np.asarray(indices, dtype=np.int64)
     lengths = np.asarray(campaign.lengths)
     n = len(indices)
@@ -375,7 +377,7 @@ def preprocess_campaign(
                 )
         if on_chunk is not None:
             on_chunk(len(sel))
-    return Prepared(out, windows, bad, snr, time.perf_counter() - t0)
+    return Prepared(out, windows, bad, snr, time.perf_counter() - t0, notes)
 
 
 # --------------------------------------------------------------------------------------------
@@ -540,6 +542,59 @@ def error_rate(
 # training
 
 
+#: classes with fewer recordings than this get a warning note
+MIN_CLASS_RECORDINGS = 5
+#: labels of every campaign that can group recordings (integer extra fields can too)
+GROUP_FIELDS: tuple[str, ...] = ("participant", "run", "direction")
+
+
+def group_labels(campaign: Any, name: str) -> np.ndarray:
+    """The per-recording integer label ``name`` of a campaign: participant, run, direction, or
+    an integer extra field (``/recordings/extra/<name>``)."""
+    if name in GROUP_FIELDS:
+        values = np.asarray(getattr(campaign, name))
+    elif name in getattr(campaign, "extras", {}):
+        values = np.asarray(campaign.extras[name])
+    else:
+        extras = sorted(getattr(campaign, "extras", {}))
+        raise TrainingError(
+            f"--groups {name!r}: no such label; the campaign has {', '.join(GROUP_FIELDS)}"
+            + (f" and the extra fields {', '.join(extras)}" if extras else "")
+        )
+    if values.ndim != 1 or values.dtype.kind not in "iub":
+        raise TrainingError(
+            f"--groups {name!r}: must be one integer per recording, got dtype {values.dtype} "
+            f"shape {values.shape}"
+        )
+    return values.astype(np.int64)
+
+
+def window_config_for_rate(config: Any, rate: float) -> tuple[Any, list[str]]:
+    """The detector configuration (default: eskin's) made valid at ``rate``, with notes on what
+    was adapted (see :meth:`eskin.WindowConfig.for_rate`)."""
+    from eskin.signal.preprocess import WindowConfig
+
+    if config is None:
+        config = WindowConfig()
+    elif isinstance(config, Mapping):
+        config = WindowConfig.from_dict(dict(config))
+    return config.for_rate(rate)
+
+
+def small_class_notes(classes: Sequence[str], y: np.ndarray) -> list[str]:
+    """A warning for every class with fewer than :data:`MIN_CLASS_RECORDINGS` recordings."""
+    notes = []
+    for k, name in enumerate(classes):
+        n = int(np.sum(y == k))
+        if n < MIN_CLASS_RECORDINGS:
+            notes.append(
+                f"class {name} has only {n} recording{'s' if n != 1 else ''} (fewer than "
+                f"{MIN_CLASS_RECORDINGS}): its machine rests on very few examples, and the "
+                "selection's estimates and this class's accuracy are unreliable"
+            )
+    return notes
+
+
 def _load_data(
     data: Any, labels: Any, class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float
 ) -> tuple[Any, np.ndarray, list[str], np.ndarray | None, dict[str, Any]]:
@@ -623,6 +678,7 @@ def train_model(
     sample_rate_hz: float = 3000.0,
     seed: int = 0,
     n_jobs: int = 1,
+    group_by: str = "participant",
 ) -> TouchModel:
     """Select hyperparameters, fit on all the given data and return a :class:`TouchModel`.
 
@@ -644,6 +700,8 @@ def train_model(
     negatives : for 1-vs-all machines, "balanced" (the paper: as many random patterns of the
         other classes as positives, seeded) or "all".
     runs : only recordings of these runs (default: every recording).
+    group_by : the campaign label that groups recordings in the CV selection's splits (no group
+        on both sides): "participant" (default), "run", "direction" or an integer extra field.
     """
     if machine not in MACHINES:
         raise TrainingError(f"machine must be 'svm' or 'rls', got {machine!r}")
@@ -658,6 +716,8 @@ def train_model(
         md_options = {"n_labelings": 3, **dict(md_options or {})}
         cv_options = {"n_splits": 3, **dict(cv_options or {})}
     rec, ids, names, parts, info = _load_data(data, labels, class_names, lengths, sample_rate_hz)
+    if group_by != "participant" and hasattr(rec, "modalities"):
+        parts = group_labels(rec, group_by)
     present = [names[k] for k in sorted(set(ids.tolist())) if 0 <= k < len(names)]
     if classes is None:
         classes = present
@@ -681,10 +741,10 @@ def train_model(
     groups = parts[idx] if parts is not None else None
 
     rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
-    if window == "energy" and window_config is None:
-        from eskin.signal.preprocess import WindowConfig
-
-        window_config = WindowConfig()  # the defaults, written into the model explicitly
+    # the detector settings valid at this rate, written into the model explicitly (also with
+    # window="none": the compiled classifier builds its detector from them)
+    window_config, notes = window_config_for_rate(window_config, rate)
+    notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
     prep = preprocess_campaign(
         rec, idx, [(int(D), subsample)], window=window, config=window_config, sample_rate_hz=rate
     )
@@ -748,6 +808,7 @@ def train_model(
         "cv_options": dict(cv_options or {}),
         "negatives": negatives,
         "seed": seed,
+        "notes": notes,
         "seconds": time.perf_counter() - t0 + prep.seconds,
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "eskin_version": eskin.__version__,

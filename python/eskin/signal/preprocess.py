@@ -20,7 +20,7 @@ import math
 import numbers
 import sys
 import types
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Iterable, Optional, Sequence, Union
 
 import numpy as np
@@ -49,6 +49,8 @@ _SELECT = ("energy", "first", "span")
 _FALLBACK = ("whole", "error")
 # recordings read at a time from a lazy (h5py) dataset
 _CHUNK = 32
+# at rates where the DC blocker's cutoff is not below Nyquist, it moves to rate / this
+DC_CUTOFF_RATE_DIVISOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,29 @@ class WindowConfig:
         if unknown:
             raise ValueError(f"WindowConfig: unknown fields {sorted(unknown)}")
         return cls(**d)
+
+    def for_rate(self, sample_rate_hz: float) -> tuple["WindowConfig", list[str]]:
+        """This configuration made valid at ``sample_rate_hz``, and a note for each change.
+
+        Times convert to samples at any rate (a frame is at least one sample), so the one
+        setting a rate can rule out is the DC blocker's cutoff, which must stay below half the
+        rate: where ``dc_cutoff_hz >= sample_rate_hz / 2`` (the default 5 Hz at 10 Hz or
+        less) it becomes a tenth of the rate (1 Hz at 10 Hz), which still removes the offset
+        and the slow drift of a low-rate sensor. Any other invalid value is the caller's and
+        raises ValueError naming the field.
+        """
+        rate = _rate(sample_rate_hz)
+        notes = []
+        cfg = self
+        if cfg.dc_cutoff_hz >= rate / 2:
+            new = rate / DC_CUTOFF_RATE_DIVISOR
+            notes.append(
+                f"WindowConfig.dc_cutoff_hz = {cfg.dc_cutoff_hz:g} Hz is not below half the "
+                f"sample rate {rate:g} Hz: using {new:g} Hz (a tenth of the rate)"
+            )
+            cfg = replace(cfg, dc_cutoff_hz=new)
+        cfg.resolve(rate)
+        return cfg, notes
 
     def resolve(self, sample_rate_hz: float = 3000.0) -> dict[str, Any]:
         """The parameters in samples/frames at a rate (validates the configuration)."""
