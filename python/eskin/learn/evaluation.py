@@ -1,0 +1,451 @@
+"""Nested, group-disjoint evaluation of a training recipe: how well will it work on a new person?
+
+The campaign's recordings are cut into outer folds by a group label (participant by default,
+or any integer label: run, direction, an integer extra field such as a sitting). Every fold
+trains the recipe with :func:`eskin.train_model` on the other groups only - its whole model
+selection included, so the selection never sees the test groups (nested evaluation) - and
+predicts the held-out groups. The predictions of all folds are pooled into accuracy, balanced
+accuracy (the mean per-class recall), per-class recall and the confusion matrix, with a 95 %
+confidence interval from a bootstrap over groups (:func:`group_bootstrap_ci`).
+
+Baselines (:mod:`eskin.learn.baselines`) run in the same folds on the same subsampled patterns.
+Folds are independent tasks run through joblib, so any joblib backend runs them (Dask
+included, see :mod:`eskin.learn.parallel`); every random choice is seeded by the fold, so the
+results do not depend on where or in which order the folds run.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: bootstrap resamples of the confidence interval
+N_BOOTSTRAP = 2000
+CI_METHOD = (
+    "percentile bootstrap over groups ({n} resamples of the test groups with replacement, "
+    "predictions of a group kept together); widened to include the point estimate if needed"
+)
+
+
+class EvaluationError(ValueError):
+    """Evaluation options or data that cannot give a group-disjoint evaluation."""
+
+
+# --------------------------------------------------------------------------------------------
+# folds
+
+
+def make_folds(
+    groups: np.ndarray, y: np.ndarray, n_folds: int | None = None, seed: int = 0
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Outer folds ``(train indices, test indices)``; no group is on both sides of a fold.
+
+    ``n_folds=None`` is leave-one-group-out (one fold per group, in group order). Otherwise
+    ``n_folds`` folds of whole groups, balanced by class where the groups allow it
+    (scikit-learn's StratifiedGroupKFold, shuffled with ``seed``); when that cannot make
+    ``n_folds`` non-empty folds (too few recordings per class), the groups are dealt to the
+    folds largest first, each to the fold with the fewest recordings (:func:`_dealt_folds`).
+    Every recording is tested exactly once.
+    """
+    from sklearn.model_selection import LeaveOneGroupOut, StratifiedGroupKFold
+
+    groups = np.asarray(groups)
+    y = np.asarray(y)
+    n_groups = len(np.unique(groups))
+    if n_groups < 2:
+        raise EvaluationError(
+            f"a group-disjoint evaluation needs at least 2 groups, the data has {n_groups}"
+        )
+    if n_folds is None:
+        tests = [te for _, te in LeaveOneGroupOut().split(y, y, groups)]
+    else:
+        if not 2 <= int(n_folds) <= n_groups:
+            raise EvaluationError(
+                f"--folds {n_folds}: must be in [2, {n_groups}] (the number of groups)"
+            )
+        splitter = StratifiedGroupKFold(n_splits=int(n_folds), shuffle=True, random_state=seed)
+        try:
+            with warnings.catch_warnings():  # "the least populated class has fewer members"
+                warnings.simplefilter("ignore", UserWarning)
+                tests = [te for _, te in splitter.split(y, y, groups)]
+        except ValueError:
+            tests = []
+        if len(tests) != int(n_folds) or any(len(te) == 0 for te in tests):
+            tests = _dealt_folds(groups, int(n_folds), seed)
+    everything = np.arange(len(y))
+    return [(np.setdiff1d(everything, te), np.sort(te)) for te in tests]
+
+
+def _dealt_folds(groups: np.ndarray, n_folds: int, seed: int) -> list[np.ndarray]:
+    """Test indices of ``n_folds`` folds: the groups, in a seeded random order and then
+    largest first, each go to the fold with the fewest recordings so far."""
+    uniq, inv, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    order = np.random.default_rng(seed).permutation(len(uniq))
+    order = order[np.argsort(-counts[order], kind="stable")]
+    load = np.zeros(n_folds, np.int64)
+    fold_of = np.empty(len(uniq), np.int64)
+    for g in order:
+        f = int(np.argmin(load))
+        fold_of[g] = f
+        load[f] += counts[g]
+    return [np.flatnonzero(fold_of[inv] == f) for f in range(n_folds)]
+
+
+# --------------------------------------------------------------------------------------------
+# scores and their interval
+
+
+def confusion_matrix(y_true: np.ndarray, y_pred: np.ndarray, n_classes: int) -> np.ndarray:
+    """(n_classes, n_classes) counts: row = true class, column = predicted class."""
+    cm = np.zeros((n_classes, n_classes), np.int64)
+    np.add.at(cm, (np.asarray(y_true, np.int64), np.asarray(y_pred, np.int64)), 1)
+    return cm
+
+
+def scores_from_confusion(cm: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(accuracy, balanced accuracy, per-class recall) of a confusion matrix; the balanced
+    accuracy averages the recall of the classes that have test recordings (nan recall for the
+    others)."""
+    cm = np.asarray(cm, dtype=np.float64)
+    support = cm.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        recall = np.where(support > 0, np.diag(cm) / support, np.nan)
+    total = cm.sum()
+    acc = float(np.trace(cm) / total) if total else float("nan")
+    present = support > 0
+    bal = float(np.mean(recall[present])) if present.any() else float("nan")
+    return acc, bal, recall
+
+
+def group_bootstrap_ci(
+    y_true: np.ndarray,
+    y_pred: np.ndarray,
+    groups: np.ndarray,
+    n_classes: int,
+    *,
+    n_boot: int = N_BOOTSTRAP,
+    level: float = 0.95,
+    seed: int = 0,
+) -> dict[str, list[float]]:
+    """Percentile bootstrap intervals of accuracy and balanced accuracy over groups.
+
+    Recordings of one group (one person) are not independent, so the unit resampled is the
+    group: each resample draws as many groups as there are, with replacement, and pools their
+    predictions. An interval that misses the point estimate (possible with very few groups)
+    is widened to include it. Returns ``{"accuracy": [low, high], "balanced_accuracy": [...]}``.
+    """
+    y_true = np.asarray(y_true, np.int64)
+    y_pred = np.asarray(y_pred, np.int64)
+    uniq, inv = np.unique(np.asarray(groups), return_inverse=True)
+    G, k = len(uniq), int(n_classes)
+    per_group = np.zeros((G, k * k))
+    np.add.at(per_group, (inv, y_true * k + y_pred), 1.0)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    draws = rng.integers(0, G, size=(int(n_boot), G))
+    weights = np.zeros((int(n_boot), G))
+    np.add.at(weights, (np.repeat(np.arange(int(n_boot)), G), draws.ravel()), 1.0)
+    cms = (weights @ per_group).reshape(-1, k, k)
+    diag = np.einsum("bii->bi", cms)
+    support = cms.sum(axis=2)
+    acc = diag.sum(axis=1) / cms.sum(axis=(1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rec = np.where(support > 0, diag / np.maximum(support, 1), np.nan)
+    bal = np.nanmean(rec, axis=1)
+    point_acc, point_bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, k))
+    q = [(1 - level) / 2 * 100, (1 + level) / 2 * 100]
+    out = {}
+    for name, values, point in (
+        ("accuracy", acc, point_acc),
+        ("balanced_accuracy", bal, point_bal),
+    ):
+        low, high = np.percentile(values, q)
+        out[name] = [float(min(low, point)), float(max(high, point))]
+    return out
+
+
+def summarise(
+    y_true: np.ndarray,
+    y_pred: np.ndarray,
+    groups: np.ndarray,
+    classes: Sequence[str],
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Pooled scores of out-of-fold predictions: accuracy, balanced accuracy, their 95 %
+    intervals, per-class recall and the confusion matrix (rows true, columns predicted)."""
+    cm = confusion_matrix(y_true, y_pred, len(classes))
+    acc, bal, recall = scores_from_confusion(cm)
+    ci = group_bootstrap_ci(y_true, y_pred, groups, len(classes), seed=seed)
+    return {
+        "accuracy": acc,
+        "balanced_accuracy": bal,
+        "ci95": ci["accuracy"],
+        "ci95_balanced_accuracy": ci["balanced_accuracy"],
+        "per_class_recall": {
+            c: (None if np.isnan(r) else float(r)) for c, r in zip(classes, recall)
+        },
+        "confusion": cm.tolist(),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# one fold
+
+
+@dataclass(frozen=True)
+class FoldTask:
+    """Everything one outer fold needs; picklable, so a fold can run on another machine."""
+
+    number: int
+    source: Any  # a campaign path (str) or an in-memory Campaign
+    train_idx: np.ndarray
+    test_idx: np.ndarray
+    classes: tuple[str, ...]
+    recipe: dict[str, Any]
+    group_name: str
+    baselines: tuple[str, ...]
+    seed: int
+    n_jobs: int = 1
+
+
+def _open(source: Any) -> Any:
+    if isinstance(source, (str, Path)):
+        from eskin.data.campaign import load_campaign
+
+        return load_campaign(source)
+    return source
+
+
+def _class_ids(campaign: Any, idx: np.ndarray, classes: Sequence[str]) -> np.ndarray:
+    names = [str(m) for m in campaign.modalities]
+    lookup = np.array([classes.index(n) if n in classes else -1 for n in names])
+    return lookup[np.asarray(campaign.modality)[idx].astype(np.int64)]
+
+
+def _inner_estimate(selected: Sequence[Mapping[str, Any]]) -> float | None:
+    """Mean over the fold's machines of the inner CV error of the selected setting (None when
+    the selection is not cross-validation)."""
+    errs = [s.get("selection_terms", {}).get("mean_test_error") for s in selected]
+    errs = [float(e) for e in errs if e is not None]
+    return float(np.mean(errs)) if errs else None
+
+
+def run_fold(task: FoldTask) -> dict[str, Any]:
+    """Train the recipe on the fold's training groups, predict its test groups (and run the
+    baselines on the same patterns). Returns the fold's record (predictions included)."""
+    from eskin.learn.models import group_labels, train_model
+
+    t0 = time.perf_counter()
+    camp = _open(task.source)
+    groups = group_labels(camp, task.group_name)
+    train, test = camp.subset(task.train_idx), camp.subset(task.test_idx)
+    model = train_model(
+        train,
+        classes=list(task.classes),
+        seed=task.seed,
+        n_jobs=task.n_jobs,
+        group_by=task.group_name,
+        **task.recipe,
+    )
+    X_test = model.preprocess(test)
+    pred, _, _ = model.predict_indices(X_test)
+    y_test = _class_ids(camp, task.test_idx, task.classes)
+    record = {
+        "fold": task.number,
+        "train_groups": sorted(int(g) for g in np.unique(groups[task.train_idx])),
+        "test_groups": sorted(int(g) for g in np.unique(groups[task.test_idx])),
+        "n_train": len(task.train_idx),
+        "n_test": len(task.test_idx),
+        "accuracy": float(np.mean(pred == y_test)),
+        "selected": _plain(model.selected),
+        "inner_cv_error": _inner_estimate(model.selected),
+        "notes": list(model.training.get("notes", [])),
+        "y_true": y_test.tolist(),
+        "y_pred": pred.astype(np.int64).tolist(),
+        "baselines": {},
+    }
+    if task.baselines:
+        from eskin.learn.baselines import run_baseline
+
+        X_train = model.preprocess(train)
+        y_train = _class_ids(camp, task.train_idx, task.classes)
+        for name in task.baselines:
+            b_pred, settings = run_baseline(
+                name, X_train, y_train, groups[task.train_idx], X_test, seed=task.seed
+            )
+            record["baselines"][name] = {
+                "accuracy": float(np.mean(b_pred == y_test)),
+                "selected": _plain(settings),
+                "y_pred": np.asarray(b_pred, np.int64).tolist(),
+            }
+    record["seconds"] = time.perf_counter() - t0
+    return record
+
+
+def _plain(v: Any) -> Any:
+    """JSON-friendly copy (numpy scalars and arrays to Python numbers and lists)."""
+    if isinstance(v, Mapping):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.integer,)) and not isinstance(v, bool):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return None if np.isnan(v) else float(v)
+    return v
+
+
+# --------------------------------------------------------------------------------------------
+# the whole evaluation
+
+
+def _recordings(
+    camp: Any, classes: Sequence[str] | None, runs: Sequence[int] | None
+) -> tuple[np.ndarray, list[str]]:
+    """Indices of the recordings to evaluate on and the class names (campaign order)."""
+    names = [str(m) for m in camp.modalities]
+    present = [names[k] for k in sorted(set(np.asarray(camp.modality).tolist()))]
+    chosen = list(present if classes is None else [str(c) for c in classes])
+    unknown = [c for c in chosen if c not in names]
+    if unknown:
+        raise EvaluationError(f"unknown class(es) {unknown}; the campaign has {names}")
+    if len(set(chosen)) < 2:
+        raise EvaluationError(f"at least 2 classes are needed, got {chosen}")
+    mask = np.isin(np.asarray(camp.modality), [names.index(c) for c in chosen])
+    if runs is not None:
+        mask &= np.isin(np.asarray(camp.run), list(runs))
+    return np.flatnonzero(mask), chosen
+
+
+def plan_folds(
+    campaign: Any,
+    *,
+    groups: str = "participant",
+    n_folds: int | None = None,
+    classes: Sequence[str] | None = None,
+    runs: Sequence[int] | None = None,
+    seed: int = 0,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[str], np.ndarray]:
+    """(folds as campaign indices, class names, group label of every recording)."""
+    from eskin.learn.models import group_labels
+
+    idx, names = _recordings(campaign, classes, runs)
+    labels = group_labels(campaign, groups)
+    y = _class_ids(campaign, idx, names)
+    local = make_folds(labels[idx], y, n_folds, seed)
+    folds = [(idx[tr], idx[te]) for tr, te in local]
+    for k, (tr, _) in enumerate(folds):
+        missing = [
+            c for j, c in enumerate(names) if not np.any(_class_ids(campaign, tr, names) == j)
+        ]
+        if missing:
+            raise EvaluationError(
+                f"fold {k + 1}: no training recording of class(es) {missing} once its test "
+                f"{groups} group(s) are held out; every class needs recordings from at least "
+                f"2 {groups} groups (or use fewer --folds)"
+            )
+    return folds, names, labels
+
+
+def evaluate_recipe(
+    campaign: Any,
+    *,
+    recipe: Mapping[str, Any] | None = None,
+    groups: str = "participant",
+    n_folds: int | None = None,
+    classes: Sequence[str] | None = None,
+    runs: Sequence[int] | None = None,
+    baselines: Sequence[str] = (),
+    seed: int = 0,
+    n_jobs: int = 1,
+    inner_jobs: int = 1,
+) -> dict[str, Any]:
+    """Nested group-disjoint evaluation of ``recipe`` (keyword arguments of
+    :func:`eskin.train_model`) on ``campaign`` (a path or a loaded campaign).
+
+    ``groups`` names the label that makes the folds (default participant); ``n_folds=None``
+    is leave-one-group-out. Folds run as joblib tasks (``n_jobs``; the active joblib backend,
+    e.g. Dask, decides where), each training with ``inner_jobs`` workers. Returns the result
+    written by :func:`eskin.learn.evaluation_report.write_evaluation`.
+    """
+    from eskin.learn.baselines import check_baselines
+
+    t0 = time.perf_counter()
+    baselines = check_baselines(baselines)
+    camp = _open(campaign)
+    source = str(campaign) if isinstance(campaign, (str, Path)) else camp
+    folds, names, labels = plan_folds(
+        camp, groups=groups, n_folds=n_folds, classes=classes, runs=runs, seed=seed
+    )
+    recipe = {
+        k: v
+        for k, v in dict(recipe or {}).items()
+        if k not in ("classes", "seed", "n_jobs", "group_by")
+    }
+    tasks = [
+        FoldTask(
+            k, source, tr, te, tuple(names), recipe, groups, tuple(baselines), seed, inner_jobs
+        )
+        for k, (tr, te) in enumerate(folds)
+    ]
+    records = _run_folds(tasks, n_jobs)
+    result = _pooled(records, folds, labels, names, baselines, seed)
+    result.update(
+        {
+            "campaign": str(campaign) if isinstance(campaign, (str, Path)) else camp.path,
+            "groups": groups,
+            "scheme": "leave-one-group-out" if n_folds is None else f"{n_folds} grouped folds",
+            "n_groups": len(np.unique(labels[np.concatenate([te for _, te in folds])])),
+            "recipe": _plain(recipe),
+            "seed": int(seed),
+            "seconds": time.perf_counter() - t0,
+        }
+    )
+    return result
+
+
+def _run_folds(tasks: list[FoldTask], n_jobs: int) -> list[dict[str, Any]]:
+    from joblib import Parallel, delayed
+
+    if n_jobs == 1:
+        return [run_fold(t) for t in tasks]
+    return list(Parallel(n_jobs=n_jobs)(delayed(run_fold)(t) for t in tasks))
+
+
+def _pooled(
+    records: list[dict[str, Any]],
+    folds: list[tuple[np.ndarray, np.ndarray]],
+    labels: np.ndarray,
+    names: list[str],
+    baselines: Sequence[str],
+    seed: int,
+) -> dict[str, Any]:
+    """Scores of the pooled out-of-fold predictions, per fold records, baselines."""
+    records = sorted(records, key=lambda r: r["fold"])
+    test_idx = np.concatenate([folds[r["fold"]][1] for r in records])
+    y_true = np.concatenate([r.pop("y_true") for r in records]).astype(np.int64)
+    y_pred = np.concatenate([r.pop("y_pred") for r in records]).astype(np.int64)
+    g = labels[test_idx]
+    result: dict[str, Any] = {
+        "classes": list(names),
+        "n_recordings": len(test_idx),
+        **summarise(y_true, y_pred, g, names, seed),
+        "ci_method": CI_METHOD.format(n=N_BOOTSTRAP),
+    }
+    result["baselines"] = {}
+    for name in baselines:
+        b_pred = np.concatenate([r["baselines"][name].pop("y_pred") for r in records])
+        result["baselines"][name] = summarise(y_true, b_pred.astype(np.int64), g, names, seed)
+    result["folds"] = records
+    result["predictions"] = {
+        "index": test_idx.tolist(),
+        "group": g.tolist(),
+        "true": y_true.tolist(),
+        "predicted": y_pred.tolist(),
+    }
+    return result

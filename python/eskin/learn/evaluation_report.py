@@ -1,0 +1,216 @@
+"""Writing an evaluation (:func:`eskin.learn.evaluation.evaluate_recipe`): evaluation.json,
+evaluation.md, evaluation.png, and the lines the command line prints."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _pct(v: float | None) -> str:
+    return "n/a" if v is None or np.isnan(v) else f"{100 * v:.1f} %"
+
+
+def _ci(ci: Any) -> str:
+    return f"[{100 * ci[0]:.1f}, {100 * ci[1]:.1f}] %"
+
+
+def _setting(selected: Any) -> str:
+    """One machine's selected setting, short: 'C=10 sigma=2 alpha=Q'."""
+    if not isinstance(selected, Mapping):
+        return str(selected)
+    if "lambda" not in selected:
+        return " ".join(
+            f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in selected.items()
+        )
+    head = f"C={selected['C']:g}" if "C" in selected else f"lambda={selected['lambda']:g}"
+    alpha = selected.get("alpha") or selected.get("alphas")
+    text = f"{head} sigma={selected['sigma']:g} alpha={alpha}"
+    return f"{selected['class']}: {text}" if "class" in selected else text
+
+
+def fold_settings(record: Mapping[str, Any]) -> str:
+    """The settings a fold selected (every machine), on one line."""
+    return "; ".join(_setting(s) for s in record.get("selected", []))
+
+
+def summary_lines(result: Mapping[str, Any]) -> list[str]:
+    """What ``eskin evaluate`` prints: overall scores with their interval, per-class recall,
+    the confusion matrix, the per-fold accuracy and settings, and the baselines."""
+    classes = list(result["classes"])
+    lines = [
+        (
+            f"{result['scheme']} by {result['groups']} ({result['n_groups']} groups, "
+            f"{len(result['folds'])} folds, {result['n_recordings']} recordings)"
+        ),
+        f"accuracy          {_pct(result['accuracy'])}  95 % CI {_ci(result['ci95'])}",
+        (
+            f"balanced accuracy {_pct(result['balanced_accuracy'])}  95 % CI "
+            f"{_ci(result['ci95_balanced_accuracy'])}"
+        ),
+        "  (interval: bootstrap over groups"
+        + (f"; rough with only {result['n_groups']} groups)" if result["n_groups"] < 10 else ")"),
+        "per-class recall: "
+        + ", ".join(f"{c} {_pct(r)}" for c, r in result["per_class_recall"].items()),
+        "confusion (rows true, columns predicted):",
+    ]
+    width = max(len(c) for c in classes) + 1
+    lines.append(" " * width + " ".join(f"{c[:8]:>8}" for c in classes))
+    for c, row in zip(classes, result["confusion"]):
+        lines.append(f"{c:<{width}}" + " ".join(f"{v:>8d}" for v in row))
+    lines.append("folds:")
+    for r in result["folds"]:
+        base = "".join(f", {b} {_pct(v['accuracy'])}" for b, v in r.get("baselines", {}).items())
+        lines.append(
+            f"  {r['fold'] + 1:3d} test {result['groups']} {_groups(r['test_groups'])}: "
+            f"{_pct(r['accuracy'])} of {r['n_test']}{base} | {fold_settings(r)}"
+        )
+    for name, b in result.get("baselines", {}).items():
+        lines.append(
+            f"baseline {name}: accuracy {_pct(b['accuracy'])} {_ci(b['ci95'])}, balanced "
+            f"{_pct(b['balanced_accuracy'])} {_ci(b['ci95_balanced_accuracy'])}"
+        )
+    return lines
+
+
+def _groups(values: list[int]) -> str:
+    return ",".join(map(str, values)) if len(values) <= 6 else f"{len(values)} groups"
+
+
+def _markdown(result: Mapping[str, Any], figure: str) -> str:
+    classes = list(result["classes"])
+    rows = [
+        "# Evaluation",
+        "",
+        (
+            f"Campaign `{result.get('campaign')}`; {result['scheme']} by {result['groups']} "
+            f"({result['n_groups']} groups, {result['n_recordings']} recordings); recipe "
+            f"`{json.dumps(result['recipe'], sort_keys=True)}`; seed {result['seed']}. Each "
+            "fold's model selection saw only its training groups (nested evaluation)."
+        ),
+        "",
+        "| | accuracy | 95 % CI | balanced accuracy | 95 % CI |",
+        "| --- | ---: | ---: | ---: | ---: |",
+        (
+            f"| tensor recipe | {_pct(result['accuracy'])} | {_ci(result['ci95'])} | "
+            f"{_pct(result['balanced_accuracy'])} | {_ci(result['ci95_balanced_accuracy'])} |"
+        ),
+    ]
+    for name, b in result.get("baselines", {}).items():
+        rows.append(
+            f"| baseline {name} | {_pct(b['accuracy'])} | {_ci(b['ci95'])} | "
+            f"{_pct(b['balanced_accuracy'])} | {_ci(b['ci95_balanced_accuracy'])} |"
+        )
+    rows += ["", f"Intervals: {result['ci_method']}.", "", "## Per-class recall and confusion", ""]
+    rows.append("| true \\ predicted | " + " | ".join(classes) + " | recall |")
+    rows.append("| --- |" + " ---: |" * (len(classes) + 1))
+    for c, row in zip(classes, result["confusion"]):
+        rows.append(
+            f"| {c} | " + " | ".join(map(str, row)) + f" | {_pct(result['per_class_recall'][c])} |"
+        )
+    rows += ["", "## Folds", "", "| fold | test groups | n test | accuracy | selected |"]
+    rows.append("| ---: | --- | ---: | ---: | --- |")
+    for r in result["folds"]:
+        rows.append(
+            f"| {r['fold'] + 1} | {_groups(r['test_groups'])} | {r['n_test']} | "
+            f"{_pct(r['accuracy'])} | {fold_settings(r)} |"
+        )
+    rows += ["", f"![accuracy per fold and confusion matrix]({figure})", ""]
+    return "\n".join(rows)
+
+
+def plot_evaluation(result: Mapping[str, Any], path: Path) -> Path:
+    """Accuracy per fold (recipe and baselines) and the pooled confusion matrix (row-normalised)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    folds = result["folds"]
+    classes = list(result["classes"])
+    fig, (ax, axc) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
+    x = np.arange(len(folds))
+    series = [("tensor recipe", [r["accuracy"] for r in folds])]
+    series += [
+        (f"baseline {b}", [r["baselines"][b]["accuracy"] for r in folds])
+        for b in result.get("baselines", {})
+    ]
+    width = 0.8 / len(series)
+    for j, (label, acc) in enumerate(series):
+        ax.bar(x + (j - (len(series) - 1) / 2) * width, acc, width, label=label)
+    ax.axhline(result["accuracy"], color="k", lw=0.8, ls="--", label="pooled accuracy")
+    ax.axhspan(*result["ci95"], color="grey", alpha=0.2, label="95 % CI")
+    ax.set_xticks(x, [str(r["fold"] + 1) for r in folds], fontsize=7)
+    ax.set_xlabel(f"fold (held-out {result['groups']})")
+    ax.set_ylabel("accuracy")
+    ax.set_ylim(0, 1.02)
+    ax.legend(fontsize=7, loc="lower right")
+    cm = np.asarray(result["confusion"], float)
+    norm = cm / np.maximum(cm.sum(axis=1, keepdims=True), 1)
+    axc.imshow(norm, vmin=0, vmax=1, cmap="Blues")
+    for (i, j), v in np.ndenumerate(cm):
+        axc.text(
+            j,
+            i,
+            f"{int(v)}",
+            ha="center",
+            va="center",
+            fontsize=7,
+            color="white" if norm[i, j] > 0.5 else "black",
+        )
+    axc.set_xticks(range(len(classes)), classes, rotation=45, ha="right", fontsize=7)
+    axc.set_yticks(range(len(classes)), classes, fontsize=7)
+    axc.set_xlabel("predicted")
+    axc.set_ylabel("true")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def write_evaluation(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, Path]:
+    """Write evaluation.json, evaluation.md and evaluation.png into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "json": out / "evaluation.json",
+        "md": out / "evaluation.md",
+        "figure": out / "evaluation.png",
+    }
+    paths["json"].write_text(json.dumps(result, indent=1))
+    plot_evaluation(result, paths["figure"])
+    paths["md"].write_text(_markdown(result, paths["figure"].name))
+    return paths
+
+
+def selection_estimate_lines(model: Any) -> list[str]:
+    """What ``eskin train`` says about the held-out error its own selection expects: the inner
+    cross-validation error of the selected setting (per machine), or, for Maximal Discrepancy,
+    the bound it minimised."""
+    lines = []
+    for sel in model.selected:
+        terms = sel.get("selection_terms", {})
+        name = f"{sel['class']} vs rest" if "class" in sel else "the model"
+        if "mean_test_error" in terms:
+            lines.append(
+                f"  {name}: {_pct(terms['mean_test_error'])} "
+                f"(+- {_pct(terms.get('std_test_error'))} over the splits)"
+            )
+        elif "bound" in terms:
+            lines.append(
+                f"  {name}: bound {terms['bound']:.3f} = training error {terms['train_error']:.3f}"
+                f" + chi {terms['chi']:.3f} + tau {terms['tau']:.3f}"
+            )
+    if not lines:
+        return []
+    if model.selection == "cv":
+        head = "inner-CV estimate of the held-out error (grouped splits of the training data):"
+        tail = "  (optimistic: the best setting of the grid on these very splits)"
+    else:
+        head = "Maximal Discrepancy bound of the selected setting (no inner-CV estimate):"
+        tail = "  (an upper bound on the error rate, often above 1 on small training sets)"
+    return [head, *lines, tail, "  eskin evaluate gives a nested estimate on unseen groups"]
