@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import typer
 
-from eskin.cli import campaign, deploy, learn, link
+from eskin.cli import campaign, deploy, evaluate, learn, link
 
 app = typer.Typer(
     name="eskin",
@@ -23,7 +23,7 @@ def _root() -> None:
     """Touch-modality recognition for piezoelectric electronic skin."""
 
 
-for _module in (campaign, learn, deploy, link):
+for _module in (campaign, learn, evaluate, deploy, link):
     _module.register(app)
 
 

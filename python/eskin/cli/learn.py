@@ -35,6 +35,9 @@ class Subsample(str, Enum):
     even = "even"
 
 
+SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
+
+
 def _fail(message: str) -> NoReturn:
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(2)
@@ -84,25 +87,28 @@ def register(app: typer.Typer) -> None:
         ),
         seed: int = typer.Option(0, help="seed of every random choice"),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bar"),
+        scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
     ) -> None:
         """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
         and figures into OUT."""
         from eskin.experiments.paper_protocol import run_experiment
+        from eskin.learn.parallel import compute_backend
 
         try:
-            res = run_experiment(
-                campaign,
-                out,
-                runs=runs,
-                quick=quick,
-                Ds=_ints(Ds, "--D") if Ds else None,
-                seed=seed,
-                n_jobs=n_jobs,
-                window=window.value,
-                subsample=subsample.value,
-                problems=_problems(problems),
-                progress=progress,
-            )
+            with compute_backend(scheduler):
+                res = run_experiment(
+                    campaign,
+                    out,
+                    runs=runs,
+                    quick=quick,
+                    Ds=_ints(Ds, "--D") if Ds else None,
+                    seed=seed,
+                    n_jobs=-1 if scheduler else n_jobs,
+                    window=window.value,
+                    subsample=subsample.value,
+                    problems=_problems(problems),
+                    progress=progress,
+                )
         except (ValueError, OSError, KeyError) as exc:
             _fail(str(exc))
         s = res["summary"]
@@ -133,30 +139,36 @@ def register(app: typer.Typer) -> None:
         quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
         seed: int = typer.Option(0, help="seed of every random choice"),
         n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
+        scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
     ) -> None:
         """Select, fit on all the given recordings and save a model."""
         from eskin.deploy import save_model
+        from eskin.learn.evaluation_report import selection_estimate_lines
         from eskin.learn.models import train_model
+        from eskin.learn.parallel import compute_backend
 
         if (classes is None) == (not all_classes):
             _fail("give exactly one of --classes a,b,... or --all-classes")
         names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
         try:
-            model = train_model(
-                campaign,
-                classes=names,
-                machine=machine.value,
-                selection=selection.value,
-                D=D,
-                window=window.value,
-                subsample=subsample.value,
-                quick=quick,
-                seed=seed,
-                n_jobs=n_jobs,
-            )
+            with compute_backend(scheduler):
+                model = train_model(
+                    campaign,
+                    classes=names,
+                    machine=machine.value,
+                    selection=selection.value,
+                    D=D,
+                    window=window.value,
+                    subsample=subsample.value,
+                    quick=quick,
+                    seed=seed,
+                    n_jobs=-1 if scheduler else n_jobs,
+                )
             save_model(model, output)
         except (ValueError, OSError, KeyError) as exc:
             _fail(str(exc))
+        for note in model.training.get("notes", []):
+            typer.echo(f"note: {note}")
         typer.echo(
             f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
             f"D={model.D}, window={model.window})"
@@ -168,6 +180,8 @@ def register(app: typer.Typer) -> None:
                 f"  {name}{first}, sigma={sel['sigma']:g}, alpha={sel['alpha'] or sel['alphas']}"
                 f" ({sel['n_train']} patterns)"
             )
+        for line in selection_estimate_lines(model):
+            typer.echo(line)
         typer.echo(f"wrote {output}")
 
     @app.command("predict")
