@@ -1,0 +1,62 @@
+"""Baselines of an evaluation: the vector RBF-SVM and the optional MiniRocket."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+from eskin.learn.baselines import (
+    BaselineUnavailable,
+    _series,
+    check_baselines,
+    run_baseline,
+)
+
+
+def _two_classes(n: int, seed: int = 0):
+    """Patterns (n, 2, 3, 12): class 1 has a sine on taxel (0, 0); 6 groups."""
+    rng = np.random.default_rng(seed)
+    y = np.arange(n) % 2
+    X = rng.standard_normal((n, 2, 3, 12))
+    X[y == 1, 0, 0] += 3 * np.sin(np.linspace(0, 2 * np.pi, 12))
+    return X, y, (np.arange(n) // 2) % 6
+
+
+def test_vector_svm_learns_a_separable_problem_with_grouped_inner_cv():
+    X, y, g = _two_classes(60)
+    pred, settings = run_baseline("vector", X[:40], y[:40], g[:40], X[40:])
+    assert np.array_equal(pred, y[40:])
+    assert set(settings) == {"C", "gamma_x_n_features", "inner_cv_balanced_accuracy"}
+    assert settings["inner_cv_balanced_accuracy"] > 0.9
+
+
+def test_unknown_baseline_is_named():
+    with pytest.raises(ValueError, match="unknown baseline 'knn': choose from vector, minirocket"):
+        check_baselines(["vector", "knn"])
+    assert check_baselines(["vector", "vector"]) == ("vector",)
+
+
+def test_short_patterns_are_stretched_to_minirocket_length():
+    X = np.arange(2 * 3 * 4, dtype=float).reshape(1, 2, 3, 4)
+    S = _series(X)
+    assert S.shape == (1, 6, 9)
+    np.testing.assert_allclose(
+        S[0, 0], np.interp(np.linspace(0, 1, 9), np.linspace(0, 1, 4), X[0, 0, 0])
+    )
+    assert _series(np.ones((2, 1, 1, 1))).shape == (2, 1, 9)
+    long = np.ones((1, 1, 2, 30))
+    assert _series(long).shape == (1, 2, 30)
+
+
+def test_minirocket_runs_when_installed_and_says_how_to_install_otherwise():
+    X, y, g = _two_classes(40)
+    installed = any(importlib.util.find_spec(m) for m in ("aeon", "sktime"))
+    if not installed:
+        with pytest.raises(BaselineUnavailable, match=r"pip install 'eskin\[minirocket\]'"):
+            check_baselines(["minirocket"])
+        return
+    pred, settings = run_baseline("minirocket", X[::2], y[::2], g[::2], X[1::2])
+    assert np.mean(pred == y[1::2]) >= 0.9
+    assert settings["library"] in ("aeon", "sktime")

@@ -1,0 +1,248 @@
+"""Nested group-disjoint evaluation: folds, scores, intervals, the report and the command."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from eskin.learn.evaluation import (
+    EvaluationError,
+    confusion_matrix,
+    group_bootstrap_ci,
+    make_folds,
+    scores_from_confusion,
+)
+
+
+@st.composite
+def group_layouts(draw):
+    """Random recordings: group label (arbitrary integers), class, and a fold count."""
+    n = draw(st.integers(4, 60))
+    labels = draw(st.lists(st.integers(-5, 1000), min_size=2, max_size=12, unique=True))
+    groups = np.array(draw(st.lists(st.sampled_from(labels), min_size=n, max_size=n)))
+    groups[:2] = labels[:2]  # at least two groups
+    y = np.array(draw(st.lists(st.integers(0, 3), min_size=n, max_size=n)))
+    n_groups = len(np.unique(groups))
+    k = draw(st.one_of(st.none(), st.integers(2, n_groups)))
+    return groups, y, k, draw(st.integers(0, 2**31 - 1))
+
+
+@settings(max_examples=150, deadline=None)
+@given(group_layouts())
+def test_folds_never_share_a_group_and_test_every_recording_once(layout):
+    groups, y, k, seed = layout
+    folds = make_folds(groups, y, k, seed)
+    tested = np.concatenate([te for _, te in folds])
+    assert np.array_equal(np.sort(tested), np.arange(len(y)))  # each recording tested once
+    for tr, te in folds:
+        assert len(te) > 0
+        assert not set(groups[tr]) & set(groups[te])
+        assert np.array_equal(np.union1d(tr, te), np.arange(len(y)))
+    n_groups = len(np.unique(groups))
+    assert len(folds) == (n_groups if k is None else k)
+    if k is None:  # leave-one-group-out: one group per test set
+        assert all(len(np.unique(groups[te])) == 1 for _, te in folds)
+
+
+def test_folds_need_two_groups_and_a_possible_fold_count():
+    with pytest.raises(EvaluationError, match="at least 2 groups"):
+        make_folds(np.zeros(5, int), np.arange(5) % 2)
+    with pytest.raises(EvaluationError, match=r"--folds 4: must be in \[2, 3\]"):
+        make_folds(np.array([0, 1, 2, 0]), np.array([0, 1, 0, 1]), 4)
+
+
+def test_scores_of_a_known_confusion():
+    y_true = np.array([0, 0, 0, 0, 1, 1, 2, 2, 2, 2])
+    y_pred = np.array([0, 0, 0, 1, 1, 0, 2, 2, 2, 2])
+    cm = confusion_matrix(y_true, y_pred, 4)
+    assert cm.tolist() == [[3, 1, 0, 0], [1, 1, 0, 0], [0, 0, 4, 0], [0, 0, 0, 0]]
+    acc, bal, recall = scores_from_confusion(cm)
+    assert acc == pytest.approx(0.8)
+    assert recall[:3].tolist() == pytest.approx([0.75, 0.5, 1.0])
+    assert np.isnan(recall[3])  # no test recording of class 3: left out of the balance
+    assert bal == pytest.approx(0.75)
+    from sklearn.metrics import balanced_accuracy_score
+
+    assert bal == pytest.approx(balanced_accuracy_score(y_true, y_pred))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 40), st.integers(2, 5), st.floats(0.0, 1.0))
+def test_interval_contains_the_point_estimate(seed, n_groups, n_classes, skill):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(n_groups, 6 * n_groups + 1))
+    groups = np.concatenate([np.arange(n_groups), rng.integers(0, n_groups, n - n_groups)])
+    y_true = rng.integers(0, n_classes, n)
+    right = rng.random(n) < skill
+    y_pred = np.where(right, y_true, rng.integers(0, n_classes, n))
+    ci = group_bootstrap_ci(y_true, y_pred, groups, n_classes, n_boot=300, seed=seed)
+    acc, bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, n_classes))
+    for (low, high), point in ((ci["accuracy"], acc), (ci["balanced_accuracy"], bal)):
+        assert 0.0 <= low <= point <= high <= 1.0
+
+
+def test_interval_is_seeded_and_narrows_with_more_groups():
+    rng = np.random.default_rng(1)
+
+    def interval(n_groups: int) -> list[float]:
+        groups = np.repeat(np.arange(n_groups), 10)
+        y = rng.integers(0, 2, len(groups))
+        pred = np.where(rng.random(len(groups)) < 0.7, y, 1 - y)
+        a = group_bootstrap_ci(y, pred, groups, 2, seed=5)["accuracy"]
+        assert a == group_bootstrap_ci(y, pred, groups, 2, seed=5)["accuracy"]
+        return a
+
+    small, large = interval(5), interval(80)
+    assert large[1] - large[0] < small[1] - small[0]
+
+
+# --------------------------------------------------------------------------- the command
+
+REQUIRED = {"accuracy", "balanced_accuracy", "ci95", "confusion", "classes", "folds"}
+FOLD_KEYS = {"train_groups", "test_groups", "accuracy", "n_test", "selected"}
+
+
+def _run(args: list[str]):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    return CliRunner().invoke(app, args)
+
+
+def check_evaluation_json(path: Path, campaign: Path) -> dict:
+    """The schema of evaluation.json, checked against the campaign it evaluated."""
+    from eskin.data.campaign import load_campaign
+
+    res = json.loads(path.read_text())
+    assert REQUIRED <= set(res)
+    k = len(res["classes"])
+    cm = np.array(res["confusion"])
+    assert cm.shape == (k, k)
+    assert cm.sum() == res["n_recordings"] == sum(f["n_test"] for f in res["folds"])
+    assert res["accuracy"] == pytest.approx(np.trace(cm) / cm.sum())
+    low, high = res["ci95"]
+    assert 0 <= low <= res["accuracy"] <= high <= 1
+    with load_campaign(campaign) as camp:
+        part = np.asarray(camp.participant)
+    idx = np.array(res["predictions"]["index"])
+    assert len(np.unique(idx)) == len(idx) == res["n_recordings"]
+    for f in res["folds"]:
+        assert FOLD_KEYS <= set(f)
+        assert not set(f["train_groups"]) & set(f["test_groups"])
+        assert isinstance(f["selected"], list) and f["selected"]
+    # the groups recorded per fold are the participants of the recordings it tested
+    offsets = np.cumsum([0] + [f["n_test"] for f in res["folds"]])
+    for f, a, b in zip(res["folds"], offsets[:-1], offsets[1:]):
+        assert sorted(set(part[idx[a:b]].tolist())) == f["test_groups"]
+    return res
+
+
+@pytest.fixture(scope="module")
+def sim_campaign(tmp_path_factory) -> Path:
+    from learn_data import small_simulated
+
+    return small_simulated(tmp_path_factory.mktemp("evaluation"))
+
+
+def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
+    out = tmp_path / "ev"
+    r = _run(
+        [
+            "evaluate",
+            str(sim_campaign),
+            "--out",
+            str(out),
+            "--folds",
+            "3",
+            "--quick",
+            "--classes",
+            "brush,washer",
+            "--selection",
+            "cv",
+            "--D",
+            "20",
+            "--baselines",
+            "vector",
+        ]
+    )
+    assert r.exit_code == 0, r.output
+    res = check_evaluation_json(out / "evaluation.json", sim_campaign)
+    assert res["classes"] == ["brush", "washer"]
+    assert len(res["folds"]) == 3
+    assert "vector" in res["baselines"] and "vector" in res["folds"][0]["baselines"]
+    assert (out / "evaluation.md").read_text().startswith("# Evaluation")
+    assert (out / "evaluation.png").read_bytes()[:4] == b"\x89PNG"
+    assert "balanced accuracy" in r.output and "95 % CI" in r.output
+    assert "confusion" in r.output
+
+
+def test_evaluate_rejects_an_unknown_group_label(sim_campaign, tmp_path):
+    r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), "--groups", "sitting"])
+    assert r.exit_code == 2
+    assert "--groups 'sitting': no such label" in r.output
+
+
+def _without_times(res: dict) -> dict:
+    res = dict(res)
+    res.pop("seconds")
+    res["folds"] = [{k: v for k, v in f.items() if k != "seconds"} for f in res["folds"]]
+    return res
+
+
+@pytest.fixture(scope="module")
+def dask_scheduler():
+    """A running scheduler with two workers (threads of this process: quick to start)."""
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0"
+    ) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_evaluate_and_train_on_a_dask_cluster_match_the_serial_run(
+    sim_campaign, tmp_path, dask_scheduler
+):
+    """Folds and searches sent to a real Dask cluster give the serial results exactly."""
+    common = ["--folds", "2", "--quick", "--D", "8", "--classes", "brush,washer"]
+    for name, extra in (("a", []), ("b", ["--scheduler", dask_scheduler])):
+        r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path / name), *common, *extra])
+        assert r.exit_code == 0, r.output
+    a = json.loads((tmp_path / "a" / "evaluation.json").read_text())
+    b = json.loads((tmp_path / "b" / "evaluation.json").read_text())
+    assert _without_times(a) == _without_times(b)
+
+    classes = ["--classes", "brush,finger,washer", "--quick", "--D", "8"]
+    for name, extra in (("serial.joblib", []), ("dask.joblib", ["--scheduler", dask_scheduler])):
+        r = _run(["train", str(sim_campaign), "-o", str(tmp_path / name), *classes, *extra])
+        assert r.exit_code == 0, r.output
+    from eskin.data.campaign import load_campaign
+    from eskin.deploy import load_model
+
+    m1, m2 = load_model(tmp_path / "serial.joblib"), load_model(tmp_path / "dask.joblib")
+    assert m1.selected == m2.selected
+    with load_campaign(sim_campaign) as camp:
+        assert m1.predict_recordings(camp) == m2.predict_recordings(camp)
+
+
+def test_a_local_cluster_runs_joblib_work_and_is_closed_after():
+    import joblib
+
+    from eskin.learn.parallel import compute_backend
+
+    with compute_backend("local:2", processes=False) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        assert joblib.Parallel()(joblib.delayed(abs)(-i) for i in range(4)) == [0, 1, 2, 3]
+    assert client.status == "closed"
+
+
+def test_scheduler_address_errors_are_one_line(sim_campaign, tmp_path):
+    r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), "--scheduler", "local:x"])
+    assert r.exit_code == 2
+    assert "--scheduler 'local:x': expected local:N" in r.output
