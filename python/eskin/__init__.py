@@ -36,7 +36,6 @@ _EXPORTS: dict[str, str] = {
     "subsample": "signal",
     # campaign format, importers, simulator
     "Campaign": "data",
-    "CampaignFormatError": "data",
     "load_campaign": "data",
     "write_campaign": "data",
     "CampaignWriter": "data",
@@ -66,6 +65,14 @@ _EXPORTS: dict[str, str] = {
     "encode_frame": "link",
     "LinkListener": "link",
     "SerialPort": "link",
+    # error types (one home each: eskin.errors)
+    "CampaignFormatError": "errors",
+    "ReplayFormatError": "errors",
+    "ModelFormatError": "errors",
+    "TrainingError": "errors",
+    "ExperimentError": "errors",
+    "SerialPortError": "errors",
+    "OverwriteError": "errors",
     "write_replay_file": "data",
     "read_replay_file": "data",
 }

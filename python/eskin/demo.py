@@ -39,16 +39,14 @@ from typing import Any, Optional
 
 import numpy as np
 
+from eskin.errors import DemoError
+
 __all__ = ["DemoError", "DemoResult", "assign_decisions", "confusion_matrix",
            "offline_stream_decisions", "run_demo", "start_fw_sim"]
 
 # decisions of one source per replay segment: label index (-1: no decision), values, dont_know
 SOURCES = ("controller (live)", "host (live)", "offline (Python)")
 BATCH = "offline batch (per recording)"
-
-
-class DemoError(RuntimeError):
-    """A step of the demo failed; the message says which and why."""
 
 
 @dataclass

@@ -129,3 +129,28 @@ def test_no_import_circle():
     # other by their own names, and the __init__ imports them, never the other way round
     cycle = find_cycle(import_graph())
     assert cycle is None, "import circle: " + " -> ".join(cycle or [])
+
+
+def exception_classes() -> dict[str, list[str]]:
+    """Class name -> the modules that define a class of that name deriving from an exception
+    (a base named ``...Error`` / ``...Exception`` / ``...Warning``, or an earlier such class)."""
+    found: dict[str, list[str]] = {}
+    for module, path in MODULES.items():
+        if path.suffix != ".py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            bases = [
+                b.id if isinstance(b, ast.Name) else getattr(b, "attr", "") for b in node.bases
+            ]
+            if any(b.endswith(("Error", "Exception", "Warning")) for b in bases):
+                found.setdefault(node.name, []).append(module)
+    return found
+
+
+def test_every_error_type_has_one_home():
+    found = exception_classes()
+    assert "ModelFormatError" in found and "CampaignFormatError" in found
+    elsewhere = {name: mods for name, mods in found.items() if mods != ["eskin.errors"]}
+    assert not elsewhere, f"error types defined outside eskin.errors (or twice): {elsewhere}"

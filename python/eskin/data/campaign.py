@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from eskin.errors import CampaignFormatError
+
 FORMAT = "eskin-campaign"
 FORMAT_VERSION = 1
 SOURCES = ("simulated", "recorded")
@@ -61,19 +63,6 @@ _OPTIONAL_FIELDS: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
     "contact_interval": (np.dtype(np.int32), (2,)),
 }
 _MAX_EXTRA_BYTES = 1 << 30  # all of one /recordings/extra field
-
-
-class CampaignFormatError(ValueError):
-    """A campaign file (or in-memory campaign) breaks the format.
-
-    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message.
-    """
-
-    def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):
-        self.path = str(path) if path is not None else "<memory>"
-        self.field = field
-        self.problem = problem
-        super().__init__(f"{self.path}: {field}: {problem}")
 
 
 # --------------------------------------------------------------------------- helpers

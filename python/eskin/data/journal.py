@@ -36,16 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from eskin.errors import JournalError
+
 HEADER_MAGIC = b"ESKJRNL1"
 RECORD_MAGIC = b"REC1"
 _RECORD_HEAD = struct.Struct("<4sIIQ")  # magic, index, meta length, body length
 _CRC = struct.Struct("<I")
 _MAX_META = 1 << 20  # labels of one recording: a few hundred bytes in practice
 _MAX_HEADER = 64 << 20  # settings and root attributes
-
-
-class JournalError(ValueError):
-    """A recording journal is not one, or its header is damaged (message names the file)."""
 
 
 def journal_path(target: str | os.PathLike[str]) -> Path:

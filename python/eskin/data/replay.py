@@ -23,6 +23,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from eskin.errors import ReplayFormatError
+
 __all__ = [
     "REPLAY_MAGIC",
     "REPLAY_VERSION",
@@ -49,10 +51,6 @@ SEGMENT_DTYPE = np.dtype(
     ]
 )
 assert _HEADER.size == 56 and _SEGMENT.size == SEGMENT_DTYPE.itemsize == 48
-
-
-class ReplayFormatError(ValueError):
-    """A replay file is not valid (names the file and the problem)."""
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,8 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
+from eskin.errors import ModelFormatError
+
 __all__ = [
     "CompiledDecisions",
     "pattern_bases",
@@ -52,10 +54,6 @@ _SUBSAMPLE = {"algorithm2": 0, "even": 1}
 _RULES = {"binary": 0, "one_vs_all": 1}
 
 PathLike = Union[str, Path]
-
-
-class ModelFormatError(ValueError):
-    """A model file (or a model description) is invalid; the message names the field."""
 
 
 @dataclass

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from eskin._progress import progress_bar
+from eskin.errors import ExperimentError
 from eskin.experiments.paper_tables import PAPER_PROBLEMS
 from eskin.learn.models import (
     MACHINES,
@@ -77,10 +78,6 @@ SCHEMA = "eskin.experiment/1"
 
 #: Paper's participant counts: 45 of 65 for training.
 TRAIN_SHARE = 45 / 65
-
-
-class ExperimentError(ValueError):
-    """A campaign or an option that the protocol cannot run with."""
 
 
 # --------------------------------------------------------------------------------------------

@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from eskin.errors import ModelFormatError, TrainingError
+
 MODEL_FORMAT = "eskin.touch-model"
 MODEL_FORMAT_VERSION = 1
 
@@ -45,14 +47,6 @@ QUICK_ALPHAS: tuple[str, ...] = ("1", "Q/2")
 
 MACHINES: tuple[str, ...] = ("svm", "rls")
 SELECTIONS: tuple[str, ...] = ("md", "cv")
-
-
-class ModelFormatError(ValueError):
-    """A file that is not a readable eskin model (wrong type, version or content)."""
-
-
-class TrainingError(ValueError):
-    """Training data or options that cannot make a model (unknown class, one class, ...)."""
 
 
 # --------------------------------------------------------------------------------------------

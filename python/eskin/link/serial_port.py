@@ -17,23 +17,9 @@ import os
 from typing import Optional
 
 from eskin import _core
+from eskin.errors import PeerClosedError, SerialPortError
 
 __all__ = ["PeerClosedError", "SerialPort", "SerialPortError"]
-
-
-class SerialPortError(OSError):
-    """A serial port call failed; ``status`` is the core's status name (e.g. "open_failed")."""
-
-    def __init__(self, status: str, message: str, errno_: int = 0):
-        super().__init__(errno_ or None, message)
-        self.status = status
-
-    def __str__(self) -> str:
-        return str(self.args[1]) if len(self.args) > 1 else super().__str__()
-
-
-class PeerClosedError(SerialPortError):
-    """The other end of the link closed (the controller or simulator went away)."""
 
 
 def _timeout(timeout: Optional[float]) -> float:

@@ -1,0 +1,91 @@
+"""Every error type eskin raises, one home for each, by layer (the modules that raise them
+re-export them: ``eskin.data.campaign.CampaignFormatError`` is this one).
+
+All are ValueError or OSError subclasses, so that a caller that knows only the standard
+exceptions still catches them; each message names the file, field and value at fault.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = [
+    "CampaignFormatError",
+    "DemoError",
+    "ExperimentError",
+    "JournalError",
+    "ModelFormatError",
+    "OverwriteError",
+    "PeerClosedError",
+    "ReplayFormatError",
+    "SerialPortError",
+    "TrainingError",
+]
+
+# ------------------------------------------------------------------------------- data
+
+
+class CampaignFormatError(ValueError):
+    """A campaign file (or in-memory campaign) breaks the format.
+
+    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message.
+    """
+
+    def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):
+        self.path = str(path) if path is not None else "<memory>"
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{self.path}: {field}: {problem}")
+
+
+class JournalError(ValueError):
+    """A recording journal is not one, or its header is damaged (message names the file)."""
+
+
+class ReplayFormatError(ValueError):
+    """A replay file is not valid (names the file and the problem)."""
+
+
+class OverwriteError(FileExistsError):
+    """A command would replace a file without --force, or write onto one of its own inputs."""
+
+
+# ------------------------------------------------------------------------------- learn, deploy
+
+
+class TrainingError(ValueError):
+    """Training data or options that cannot make a model (unknown class, one class, ...)."""
+
+
+class ModelFormatError(ValueError):
+    """A model file (the joblib container or the ``.eskin`` file) or a model description that
+    is not valid: wrong type, version or content; the message names the file or field."""
+
+
+# ------------------------------------------------------------------------------- link
+
+
+class SerialPortError(OSError):
+    """A serial port call failed; ``status`` is the core's status name (e.g. "open_failed")."""
+
+    def __init__(self, status: str, message: str, errno_: int = 0):
+        super().__init__(errno_ or None, message)
+        self.status = status
+
+    def __str__(self) -> str:
+        return str(self.args[1]) if len(self.args) > 1 else super().__str__()
+
+
+class PeerClosedError(SerialPortError):
+    """The other end of the link closed (the controller or simulator went away)."""
+
+
+# ------------------------------------------------------------------------------- experiments, demo
+
+
+class ExperimentError(ValueError):
+    """A campaign or an option that the protocol cannot run with."""
+
+
+class DemoError(RuntimeError):
+    """A step of the demo failed; the message says which and why."""
