@@ -10,14 +10,17 @@ from __future__ import annotations
 import os
 
 __all__ = [
+    "BaselineUnavailable",
     "CampaignFormatError",
     "DemoError",
+    "EvaluationError",
     "ExperimentError",
     "JournalError",
     "ModelFormatError",
     "OverwriteError",
     "PeerClosedError",
     "ReplayFormatError",
+    "SchedulerError",
     "SerialPortError",
     "TrainingError",
 ]
@@ -60,6 +63,18 @@ class TrainingError(ValueError):
 class ModelFormatError(ValueError):
     """A model file (the joblib container or the ``.eskin`` file) or a model description that
     is not valid: wrong type, version or content; the message names the file or field."""
+
+
+class EvaluationError(ValueError):
+    """Evaluation options or data that cannot give a group-disjoint evaluation."""
+
+
+class BaselineUnavailable(ImportError):
+    """A requested baseline whose optional dependency is not installed."""
+
+
+class SchedulerError(ValueError):
+    """A --scheduler value that names no usable Dask scheduler."""
 
 
 # ------------------------------------------------------------------------------- link

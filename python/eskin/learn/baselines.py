@@ -21,15 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from eskin.errors import BaselineUnavailable
+
 BASELINES: tuple[str, ...] = ("vector", "minirocket")
 VECTOR_C: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
 #: gamma as multiples of 1/n_features (scikit-learn's "scale" for standardised features)
 VECTOR_GAMMA_FACTORS: tuple[float, ...] = (0.1, 1.0, 10.0)
 MINIROCKET_MIN_LENGTH = 9
-
-
-class BaselineUnavailable(ImportError):
-    """A requested baseline whose optional dependency is not installed."""
 
 
 def check_baselines(names: Sequence[str]) -> tuple[str, ...]:

@@ -25,16 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from eskin.errors import EvaluationError
+
 #: bootstrap resamples of the confidence interval
 N_BOOTSTRAP = 2000
 CI_METHOD = (
     "percentile bootstrap over groups ({n} resamples of the test groups with replacement, "
     "predictions of a group kept together); widened to include the point estimate if needed"
 )
-
-
-class EvaluationError(ValueError):
-    """Evaluation options or data that cannot give a group-disjoint evaluation."""
 
 
 # --------------------------------------------------------------------------------------------

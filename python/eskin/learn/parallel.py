@@ -14,9 +14,7 @@ import contextlib
 from collections.abc import Iterator
 from typing import Any
 
-
-class SchedulerError(ValueError):
-    """A --scheduler value that names no usable Dask scheduler."""
+from eskin.errors import SchedulerError
 
 
 def parse_scheduler(address: str) -> tuple[str, Any]:
