@@ -6,6 +6,7 @@ import multiprocessing
 import os
 import signal
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -84,14 +85,24 @@ def _writer_child(path, conn) -> None:
         i += 1
 
 
+def _fork(target, *args):
+    """Start ``target`` in a forked child (fast: nothing to import again). The child only
+    writes a journal, so Python's warning about forking a process with threads does not
+    apply to it."""
+    proc = multiprocessing.get_context("fork").Process(target=target, args=args)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        proc.start()
+    return proc
+
+
 def test_kill_9_mid_append_loses_at_most_the_recording_in_flight(tmp_path):
     ctx = multiprocessing.get_context("fork")
     rng = np.random.default_rng(20260)
     for trial in range(24):
         path = tmp_path / f"c{trial}.h5"
         parent, child = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_writer_child, args=(path, child))
-        proc.start()
+        proc = _fork(_writer_child, path, child)
         child.close()
         assert parent.recv() == "open"
         time.sleep(float(rng.uniform(0.0, 0.06)))
@@ -192,8 +203,7 @@ def test_second_writer_in_another_process_fails_cleanly(tmp_path):
         except FileExistsError as exc:
             conn.send(str(exc))
 
-    proc = ctx.Process(target=second, args=(child,))
-    proc.start()
+    proc = _fork(second, child)
     msg = parent.recv()
     proc.join()
     assert "another writer is recording to this file" in msg and proc.exitcode == 0
