@@ -20,10 +20,13 @@ subsample method) in chunks.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import math
 import os
+import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -876,7 +879,8 @@ def load_model(path: str | Path) -> TouchModel:
     if fmt is not None:
         return fmt[1](path)
     try:
-        obj = joblib.load(path)
+        with _renamed_modules():
+            obj = joblib.load(path)
     except Exception as exc:
         raise ModelFormatError(
             f"{path} is not an eskin model file (cannot be read: {type(exc).__name__}: {exc})"
@@ -901,3 +905,26 @@ def load_model(path: str | Path) -> TouchModel:
     if list(model.classes) != list(header.get("classes", [])) or int(model.D) != header.get("D"):
         raise ModelFormatError(f"{path}: the header does not match the model it holds")
     return model
+
+
+#: modules whose classes model files written before the package's layers pickled by these paths
+_RENAMED_MODULES = {
+    "eskin.models": "eskin.learn.models",
+    "eskin.estimators": "eskin.learn.estimators",
+    "eskin.selection": "eskin.learn.selection",
+    "eskin.kernel": "eskin.learn.kernel",
+    "eskin.preprocess": "eskin.signal.preprocess",
+}
+
+
+@contextlib.contextmanager
+def _renamed_modules() -> Iterator[None]:
+    """While unpickling, the old module paths name the modules that now hold the classes."""
+    added = [old for old in _RENAMED_MODULES if old not in sys.modules]
+    for old in added:
+        sys.modules[old] = importlib.import_module(_RENAMED_MODULES[old])
+    try:
+        yield
+    finally:
+        for old in added:
+            sys.modules.pop(old, None)
