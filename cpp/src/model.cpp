@@ -21,6 +21,15 @@ constexpr std::size_t kMaxTouches = 16;
 #else
 constexpr std::size_t kMaxTouches = 4096;
 #endif
+// The arithmetic of the distances and of the machines' sums: double on the host; float on a
+// controller, whose FPU is single precision (the float32 parity test of `make mcu` bounds the
+// difference, docs/mcu.md).
+#if defined(ESKIN_DEVICE)
+using DecisionReal = float;
+#else
+using DecisionReal = double;
+#endif
+
 // The support vectors' projection matrices (below) trade n_sv * N^2 values of RAM for speed; a
 // controller's RAM is the scarcer (they would double a small model's RAM).
 #if defined(ESKIN_DEVICE)
@@ -143,7 +152,7 @@ struct Classifier::Impl {
   int xr[3] = {0, 0, 0};
   std::vector<Group> groups;
   std::vector<std::size_t> machine_group;
-  std::vector<double> dist;  // (group, sv, mode) squared mode distances
+  std::vector<DecisionReal> dist;  // (group, sv, mode) squared mode distances
   std::vector<double> values;
   // The window choice of eskin::detect_window (WindowConfig.select), the same code as the
   // batch preprocessing; its buffer (kMaxTouches) is allocated here, never per decision.
@@ -190,32 +199,37 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
           const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, px, N * N)
                                 : s.dot32(grp.p32[zz].data() + i * N * N, grp.px32[zz].data(), N * N);
           const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
-          s.dist[(g * n_sv + i) * 3 + zz] =
-              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov);
+          s.dist[(g * n_sv + i) * 3 + zz] = static_cast<DecisionReal>(
+              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov));
         }
         continue;
       }
       for (const std::uint32_t i : grp.svs) {
-        const double ov = f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
-                              : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a);
+        const auto ov = static_cast<DecisionReal>(
+            f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
+                : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
         const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
         s.dist[(g * n_sv + i) * 3 + static_cast<std::size_t>(z)] =
-            std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov);
+            std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
+                                          static_cast<DecisionReal>(rx) - DecisionReal(2) * ov);
       }
     }
   }
   const auto& machines = m.machines();
   for (std::size_t k = 0; k < machines.size(); ++k) {
     const auto& mm = machines[k];
-    const double* d = s.dist.data() + s.machine_group[k] * n_sv * 3;
-    double w[3];
-    for (int z = 0; z < 3; ++z) w[z] = 1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] * mm.sigma[static_cast<std::size_t>(z)]);
-    double f = 0.0;
+    const DecisionReal* d = s.dist.data() + s.machine_group[k] * n_sv * 3;
+    DecisionReal w[3];
+    for (int z = 0; z < 3; ++z)
+      w[z] = static_cast<DecisionReal>(1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] *
+                                              mm.sigma[static_cast<std::size_t>(z)]));
+    DecisionReal f = 0;
     for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
-      const double* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
-      f += mm.coef[t] * std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
+      const DecisionReal* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
+      f += static_cast<DecisionReal>(mm.coef[t]) *
+           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
     }
-    s.values[k] = f + mm.intercept;
+    s.values[k] = static_cast<double>(f) + mm.intercept;
   }
   out->n_machines = static_cast<int>(machines.size());
   out->values = s.values.data();

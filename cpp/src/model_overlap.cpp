@@ -75,6 +75,31 @@ double dot_f64_generic(const double* a, const double* b, std::size_t n) noexcept
   return dot;
 }
 
+#if defined(ESKIN_DEVICE)
+// The controller's versions (a Cortex-M4F): single precision throughout, double being emulated
+// in software there; one accumulator per dot product (its FPU has no lanes to fill).
+double overlap_f32_single(const float* b, const float* x, std::size_t n,
+                          std::size_t alpha) noexcept {
+  float s = 0.0f;
+  for (std::size_t k = 0; k < alpha; ++k) {
+    const float* bk = b + k * n;
+    for (std::size_t l = 0; l < alpha; ++l) {
+      const float* xl = x + l * n;
+      float dot = 0.0f;
+      for (std::size_t i = 0; i < n; ++i) dot += bk[i] * xl[i];
+      s += dot * dot;
+    }
+  }
+  return s;
+}
+
+double dot_f32_single(const float* a, const float* b, std::size_t n) noexcept {
+  float dot = 0.0f;
+  for (std::size_t i = 0; i < n; ++i) dot += a[i] * b[i];
+  return dot;
+}
+#endif
+
 #ifdef ESKIN_MODEL_X86_DISPATCH
 __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   // lanes summed in double, as in the generic version
@@ -211,6 +236,9 @@ bool use_simd() noexcept {
 }  // namespace
 
 OverlapF32 select_overlap_f32() noexcept {
+#if defined(ESKIN_DEVICE)
+  return &overlap_f32_single;
+#endif
 #ifdef ESKIN_MODEL_X86_DISPATCH
   if (use_simd()) return &overlap_f32_avx2;
 #endif
@@ -225,6 +253,9 @@ OverlapF64 select_overlap_f64() noexcept {
 }
 
 DotF32 select_dot_f32() noexcept {
+#if defined(ESKIN_DEVICE)
+  return &dot_f32_single;
+#endif
 #ifdef ESKIN_MODEL_X86_DISPATCH
   if (use_simd()) return &dot_f32_avx2;
 #endif
@@ -238,6 +269,11 @@ DotF64 select_dot_f64() noexcept {
   return &dot_f64_generic;
 }
 
-const char* overlap_kernel_name() noexcept { return use_simd() ? "avx2-fma" : "generic"; }
+const char* overlap_kernel_name() noexcept {
+#if defined(ESKIN_DEVICE)
+  return "single";
+#endif
+  return use_simd() ? "avx2-fma" : "generic";
+}
 
 }  // namespace eskin::detail
