@@ -65,14 +65,14 @@ std::uint32_t median(std::uint32_t* v, int n) {
 int main() {
   std::setvbuf(stdout, nullptr, _IONBF, 0);
   const std::uint64_t c0 = mcu_ticks();
-  const eskin::Model model = eskin::Model::view_bytes(mcu_case_model, sizeof(mcu_case_model));
+  const eskin::Model model = eskin::Model::view_bytes(mcu_model_data, mcu_model_size);
   eskin::StreamClassifier sc(model);
   const std::uint64_t c1 = mcu_ticks();
   const std::size_t heap = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
   std::printf("model: %d support vectors, %d machines, D=%d, %u bytes in flash; "
               "load + construction %" PRIu32 " instructions, heap %u bytes\n",
               model.n_support(), static_cast<int>(model.machines().size()), model.D(),
-              static_cast<unsigned>(sizeof(mcu_case_model)),
+              static_cast<unsigned>(sizeof(mcu_model_data)),
               static_cast<std::uint32_t>((c1 - c0) * kInstrPerTick), static_cast<unsigned>(heap));
 
   std::FILE* f = std::fopen(MCU_CASE_STREAM, "rb");

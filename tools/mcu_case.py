@@ -9,8 +9,13 @@ host's C++ stream classifier (float64 arithmetic) for the reference decisions. W
 * ``model.eskin``: the model;
 * ``stream.i16``: the held-out samples, int16 little-endian, sample-major (n_samples x taxels),
   read by the device program through semihosting;
-* ``mcu_case.h``: the model bytes as a const, 8-byte aligned array (placed in flash), the
-  stream's path and size, and the host's decisions (window, label, values) with the tolerance.
+* ``mcu_model.h``: the model as a C header (eskin.deploy.write_c_header: the .eskin bytes as a
+  const, 8-byte aligned array, which the linker places in flash);
+* ``mcu_case.h``: the stream's path and size, and the host's decisions (window, label, values)
+  with the tolerance.
+
+The model's flash and RAM on the target are reported (eskin.deploy.target) before anything is
+written.
 
     python tools/mcu_case.py OUT [--D 20] [--max-window-s 0.4] [--per-class 2]
 """
@@ -29,14 +34,18 @@ import numpy as np
 TOLERANCE = 2e-3
 
 
-def build_case(out: Path, *, D: int, max_window_s: float, participants: int, per_class: int,
-               seed: int) -> dict:
+def build_case(
+    out: Path, *, D: int, max_window_s: float, participants: int, per_class: int, seed: int
+) -> dict:
     import eskin
     from eskin import WindowConfig
+    from eskin.deploy import write_c_header
+    from eskin.deploy.target import device_budget
 
     out.mkdir(parents=True, exist_ok=True)
-    camp_path = eskin.simulate(out / "campaign.h5", participants=participants, seed=seed,
-                               overwrite=True)
+    camp_path = eskin.simulate(
+        out / "campaign.h5", participants=participants, seed=seed, overwrite=True
+    )
     camp = eskin.load_campaign(camp_path)
     parts = np.unique(camp.participant)
     is_test = camp.participant == parts[-1]
@@ -47,11 +56,23 @@ def build_case(out: Path, *, D: int, max_window_s: float, participants: int, per
     for c in np.unique(camp.modality[test_idx]):
         chosen.extend(test_idx[camp.modality[test_idx] == c][:per_class].tolist())
     chosen = sorted(chosen)
-    model = eskin.train_model(camp.subset(train_idx), machine="rls", selection="md", quick=True,
-                              D=D, window_config=WindowConfig(max_window_s=max_window_s),
-                              seed=seed, n_jobs=1)
+    model = eskin.train_model(
+        camp.subset(train_idx),
+        machine="rls",
+        selection="md",
+        quick=True,
+        D=D,
+        window_config=WindowConfig(max_window_s=max_window_s),
+        seed=seed,
+        n_jobs=1,
+    )
     data = eskin.export_model(model, out / "model.eskin", dtype="float32").read_bytes()
     compiled = eskin.CompiledModel(data)
+    budget = device_budget(compiled, "cortex-m4")
+    print("\n".join(budget.report()))
+    if not budget.fits:
+        raise SystemExit("the MCU preset does not fit the target")
+    write_c_header(out / "model.eskin", out / "mcu_model.h", name="mcu_model")
 
     rf = eskin.write_replay_file(camp, chosen, out / "stream.eskr", gap_s=0.5, seed=seed)
     samples = np.ascontiguousarray(np.asarray(rf.samples, dtype="<i2").reshape(rf.n_samples, -1))
@@ -77,26 +98,31 @@ def build_case(out: Path, *, D: int, max_window_s: float, participants: int, per
         f"#define MCU_CASE_TOLERANCE {TOLERANCE!r}",
         f"#define MCU_CASE_STREAM {json.dumps(str((out / 'stream.i16').resolve()))}",
         "",
-        "/* the model: the .eskin bytes, in flash (const), aligned for its float32 bases */",
-        f"alignas(8) static const unsigned char mcu_case_model[{len(data)}] = {{",
+        '#include "mcu_model.h" /* the model: the .eskin bytes, const (flash), 8-byte aligned */',
+        "",
+        "struct McuCaseDecision { long start, stop; int label; double values[MCU_CASE_N_VALUES]; };",
+        "/* the host's decisions (float64 arithmetic, same model, same samples) */",
+        f"static const McuCaseDecision mcu_case_decisions[{max(1, len(decisions))}] = {{",
     ]
-    for i in range(0, len(data), 24):
-        lines.append("  " + ",".join(str(b) for b in data[i : i + 24]) + ",")
-    lines += ["};", "",
-              "struct McuCaseDecision { long start, stop; int label; double values[MCU_CASE_N_VALUES]; };",
-              "/* the host's decisions (float64 arithmetic, same model, same samples) */",
-              f"static const McuCaseDecision mcu_case_decisions[{max(1, len(decisions))}] = {{"]
     for e in decisions:
         vals = ", ".join(repr(float(v)) for v in e["values"])
-        lines.append(f"  {{{int(e['window'][0])}, {int(e['window'][1])}, "
-                     f"{names.index(e['label'])}, {{{vals}}}}},")
+        lines.append(
+            f"  {{{int(e['window'][0])}, {int(e['window'][1])}, "
+            f"{names.index(e['label'])}, {{{vals}}}}},"
+        )
     if not decisions:
         lines.append("  {0, 0, -1, {0}},")
     lines += ["};", ""]
     (out / "mcu_case.h").write_text("\n".join(lines))
-    return {"model_bytes": len(data), "n_support": compiled.n_support, "D": D,
-            "recordings": len(chosen), "samples": int(samples.shape[0]),
-            "decisions": len(decisions), "classes": names}
+    return {
+        "model_bytes": len(data),
+        "n_support": compiled.n_support,
+        "D": D,
+        "recordings": len(chosen),
+        "samples": int(samples.shape[0]),
+        "decisions": len(decisions),
+        "classes": names,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,8 +134,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-class", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
-    info = build_case(a.out, D=a.D, max_window_s=a.max_window_s, participants=a.participants,
-                      per_class=a.per_class, seed=a.seed)
+    info = build_case(
+        a.out,
+        D=a.D,
+        max_window_s=a.max_window_s,
+        participants=a.participants,
+        per_class=a.per_class,
+        seed=a.seed,
+    )
     print("mcu case: " + ", ".join(f"{k}={v}" for k, v in info.items()))
     return 0
 

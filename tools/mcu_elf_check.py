@@ -20,11 +20,33 @@ import subprocess
 import sys
 from collections import defaultdict
 
-FORBIDDEN = ("__cxa_throw", "__cxa_begin_catch", "__cxa_allocate_exception",
-             "__gxx_personality_v0", "_Unwind_RaiseException", "_Unwind_Resume",
-             "pthread_create", "pthread_mutex_lock", "_ZTI", "_ZNSt6thread")
-ALLOCATORS = ("malloc", "_malloc_r", "__wrap_malloc", "__real_malloc", "_Znwj", "_Znaj",
-              "realloc", "_realloc_r", "free", "_free_r", "_ZdlPv", "_ZdlPvj", "_ZdaPv")
+FORBIDDEN = (
+    "__cxa_throw",
+    "__cxa_begin_catch",
+    "__cxa_allocate_exception",
+    "__gxx_personality_v0",
+    "_Unwind_RaiseException",
+    "_Unwind_Resume",
+    "pthread_create",
+    "pthread_mutex_lock",
+    "_ZTI",
+    "_ZNSt6thread",
+)
+ALLOCATORS = (
+    "malloc",
+    "_malloc_r",
+    "__wrap_malloc",
+    "__real_malloc",
+    "_Znwj",
+    "_Znaj",
+    "realloc",
+    "_realloc_r",
+    "free",
+    "_free_r",
+    "_ZdlPv",
+    "_ZdlPvj",
+    "_ZdaPv",
+)
 ROOTS = ("_ZN5eskin16StreamClassifier4pushEPKs", "_ZN5eskin16StreamClassifier5flushEv")
 
 FUNC = re.compile(r"^([0-9a-f]+) <([^>]+)>:$")
@@ -33,8 +55,12 @@ INDIRECT = re.compile(r"\sblx\s+r\d+")
 
 
 def call_graph(elf: str) -> tuple[dict[str, set[str]], dict[str, int]]:
-    out = subprocess.run(["arm-none-eabi-objdump", "-d", "--no-show-raw-insn", elf],
-                         check=True, capture_output=True, text=True).stdout
+    out = subprocess.run(
+        ["arm-none-eabi-objdump", "-d", "--no-show-raw-insn", elf],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
     graph: dict[str, set[str]] = defaultdict(set)
     indirect: dict[str, int] = defaultdict(int)
     cur = None
@@ -58,8 +84,9 @@ def main(argv: list[str]) -> int:
         print(__doc__)
         return 2
     elf = argv[0]
-    syms = subprocess.run(["arm-none-eabi-nm", elf], check=True, capture_output=True,
-                          text=True).stdout.split()
+    syms = subprocess.run(
+        ["arm-none-eabi-nm", elf], check=True, capture_output=True, text=True
+    ).stdout.split()
     bad = sorted({s for s in syms if any(s.startswith(f) for f in FORBIDDEN)})
     ok = True
     if bad:
@@ -91,8 +118,10 @@ def main(argv: list[str]) -> int:
         print(f"FAIL: the decision path calls {hits[0]}: " + " <- ".join(chain))
     else:
         ind = sorted(f for f in seen if indirect.get(f))
-        print(f"ok: no allocation reachable from StreamClassifier::push/flush ({len(seen)} "
-              f"functions; indirect calls only in {', '.join(ind) or 'none'})")
+        print(
+            f"ok: no allocation reachable from StreamClassifier::push/flush ({len(seen)} "
+            f"functions; indirect calls only in {', '.join(ind) or 'none'})"
+        )
     return 0 if ok else 1
 
 

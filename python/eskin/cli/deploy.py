@@ -24,6 +24,12 @@ def register(app: typer.Typer) -> None:
         c_header: Optional[Path] = typer.Option(
             None, "--c-header", help="also write the model as a C header (static const arrays)"
         ),
+        target: Optional[str] = typer.Option(
+            None,
+            "--target",
+            help="a controller (cortex-m4): check that the model fits its flash and RAM before "
+            "writing (docs/mcu.md)",
+        ),
     ) -> None:
         """Export a trained model for the controller: a .eskin file (docs/model-format.md)
         that eskin-classify and the C++ library load, and optionally a C header."""
@@ -34,7 +40,10 @@ def register(app: typer.Typer) -> None:
             model = load_model(model_path)
             if getattr(model, "machine", None) == "compiled":
                 _fail(f"{model_path} is already an exported .eskin model")
-            path = export_model(model, output, dtype="float64" if float64 else "float32")
+            dtype = "float64" if float64 else "float32"
+            if target is not None:
+                _check_target(model, dtype, target)
+            path = export_model(model, output, dtype=dtype)
             cm = CompiledModel(path)
             if c_header is not None:
                 write_c_header(path, c_header, name=_header_name(c_header))
@@ -47,6 +56,18 @@ def register(app: typer.Typer) -> None:
         )
         if c_header is not None:
             typer.echo(f"wrote {c_header}")
+
+
+def _check_target(model: object, dtype: str, target: str) -> None:
+    """Print the model's flash and RAM on ``target``; stop (nothing written) if it does not fit."""
+    from eskin.deploy.export import CompiledModel
+    from eskin.deploy.target import device_budget
+
+    budget = device_budget(CompiledModel.from_model(model, dtype), target)
+    for line in budget.report():
+        typer.echo(line)
+    if not budget.fits:
+        _fail(f"the model does not fit {target}; nothing written")
 
 
 def _header_name(path: Path) -> str:

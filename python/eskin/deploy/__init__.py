@@ -1,5 +1,6 @@
 """The deployment layer: the ``.eskin`` model file and the C header for the controller, and
-the compiled model (the C++ stream classifier) that runs them. Builds on eskin.learn.
+the compiled model (the C++ stream classifier) that runs them, and the controller targets a model
+must fit (flash and RAM, :mod:`eskin.deploy.target`). Builds on eskin.learn.
 
 Importing this package registers the ``.eskin`` suffix with the model files of
 :mod:`eskin.learn.models`, so that :func:`save_model` / :func:`load_model` (re-exported here)
@@ -23,16 +24,21 @@ from .export import (
     spec_from_model,
     write_c_header,
 )
+from .target import TARGETS, DeviceBudget, Target, device_budget
 
 __all__ = [
     "FORMAT_VERSION",
     "MAGIC",
+    "TARGETS",
     "CompiledDecisions",
     "CompiledModel",
+    "DeviceBudget",
     "MachineSpec",
     "ModelFormatError",
     "ModelSpec",
+    "Target",
     "compiled_engine",
+    "device_budget",
     "export_model",
     "load_model",
     "model_to_bytes",

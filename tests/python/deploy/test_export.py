@@ -348,13 +348,15 @@ def test_c_header_compiles_and_classifies_identically(campaign, tmp_path):
     model_file = export_model(spec, tmp_path / "m.eskin")
     header = write_c_header(model_file, tmp_path / "model.h", name="touch_model")
     text = header.read_text()
-    assert "static const unsigned char touch_model_data[" in text
+    assert "TOUCH_MODEL_ALIGN static const unsigned char touch_model_data[" in text
     assert "#define TOUCH_MODEL_D 20" in text
     src = tmp_path / "main.cpp"
     src.write_text(
         '#include <cstdio>\n#include <vector>\n#include "eskin/model.hpp"\n#include "model.h"\n'
         "int main(int argc, char** argv) {\n"
-        "  const eskin::Model m = eskin::Model::from_bytes(touch_model_data, touch_model_size);\n"
+        "  const eskin::Model m = eskin::Model::view_bytes(touch_model_data, touch_model_size);\n"
+        "  const unsigned char* b = reinterpret_cast<const unsigned char*>(m.bases_f32(0));\n"
+        "  std::printf(\"%d\\n\", b > touch_model_data && b < touch_model_data + touch_model_size);\n"
         "  eskin::Classifier clf(m);\n"
         "  std::FILE* f = std::fopen(argv[1], \"rb\");\n"
         "  const int n = std::atoi(argv[2]), T = std::atoi(argv[3]);\n"
@@ -379,9 +381,10 @@ def test_c_header_compiles_and_classifies_identically(campaign, tmp_path):
     raw.write_bytes(sig.tobytes())
     out = subprocess.run([str(exe), str(raw), "5", str(sig.shape[-1])], check=True,
                          capture_output=True, text=True).stdout.split("\n")
+    assert out[0] == "1"  # view_bytes reads the bases in place from the aligned array
     ref = CompiledModel(model_file).classify(sig)
     for i in range(5):
-        fields = out[i].split()
+        fields = out[i + 1].split()
         assert int(fields[0]) == ref.label_indices[i]
         np.testing.assert_array_equal(np.array(fields[1:], float), ref.decision_values[i])
 

@@ -1,0 +1,115 @@
+"""Controller targets: the flash and RAM budget of a model (eskin.deploy.target) and
+`eskin export --target`, which reports it and refuses a model that does not fit."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import eskin
+from eskin.deploy.export import CompiledModel
+from eskin.deploy.target import TARGETS, Target, device_budget
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """4 participants, run 2 (simulated data)."""
+    path = tmp_path_factory.mktemp("campaign") / "sim.h5"
+    eskin.simulate(path, participants=4, seed=5, runs=(2,))
+    return eskin.load_campaign(path, in_memory=True)
+
+
+def _model(campaign, D, max_window_s):
+    """A 3-class tensor-RLS with fixed hyperparameters on the first 3 participants."""
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS
+    from eskin.learn.models import TouchModel
+
+    cfg = eskin.WindowConfig(max_window_s=max_window_s)
+    X = eskin.preprocess(
+        np.asarray(campaign.signals),
+        D,
+        lengths=np.asarray(campaign.lengths),
+        sample_rate_hz=campaign.sample_rate_hz,
+        config=cfg,
+    )
+    y = np.asarray(campaign.modality).astype(np.int64)
+    train = np.isin(campaign.participant, np.unique(campaign.participant)[:3])
+    est = OneVsAllTouchClassifier(TensorRLS(lam=0.1, sigma=0.5, alpha="half"))
+    est.fit(X[train], y[train])
+    return TouchModel(
+        classes=list(campaign.modalities),
+        estimator=est,
+        machine="rls",
+        selection="fixed",
+        D=D,
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=campaign.sample_rate_hz,
+        grid_shape=(4, 4),
+        window_config=cfg,
+    )
+
+
+def test_budget_terms_follow_the_model(campaign):
+    cm = CompiledModel.from_model(_model(campaign, 20, 0.5))
+    b = device_budget(cm, "cortex-m4")
+    assert b.target is TARGETS["cortex-m4"]
+    assert b.flash == {"model": cm.file_bytes, "program": TARGETS["cortex-m4"].program_flash_bytes}
+    # the detector keeps int16 samples of 16 taxels: the pre-onset ring (pad_before 150 +
+    # (lookback 30 frames + 1) x 30 samples) and the longest window (0.5 s = 1500 samples)
+    assert b.ram["detector samples"] == (150 + 31 * 30 + 1500) * 16 * 2
+    assert b.fits and b.flash_total < (1 << 20) and b.ram_total < (128 << 10)
+    assert b.advice == []
+    lines = b.report()
+    assert lines[1].startswith(f"flash {b.flash_total} of 1048576 bytes")
+
+
+def test_a_model_too_large_gets_advice(campaign):
+    # the default detector keeps up to 7 s of raw samples: far more than 128 KB of RAM
+    big = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0)))
+    assert not big.fits and big.ram_total > (128 << 10)
+    assert any("max_window_s" in a for a in big.advice)
+    tiny = Target("tiny", "a 64 KB part", 64 << 10, 256 << 10, 48e6, 40 << 10, 4 << 10)
+    small_flash = device_budget(CompiledModel.from_model(_model(campaign, 50, 0.5)), tiny)
+    assert not small_flash.fits and any("smaller D" in a for a in small_flash.advice)
+    with pytest.raises(ValueError, match="unknown target 'cortex-m7'"):
+        device_budget(CompiledModel.from_model(_model(campaign, 20, 0.5)), "cortex-m7")
+
+
+def _eskin(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "eskin", *map(str, args)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+
+
+def test_cli_export_target_reports_and_refuses(campaign, tmp_path):
+    from eskin.learn.models import save_model
+
+    fits = save_model(_model(campaign, 20, 0.5), tmp_path / "fits.joblib")
+    res = _eskin(
+        "export",
+        fits,
+        "-o",
+        tmp_path / "fits.eskin",
+        "--target",
+        "cortex-m4",
+        "--c-header",
+        tmp_path / "fits.h",
+    )
+    assert res.returncode == 0, res.stderr
+    assert "target cortex-m4" in res.stdout and "RAM " in res.stdout
+    header = (tmp_path / "fits.h").read_text()
+    assert "FITS_ALIGN static const unsigned char fits_data[" in header
+    assert "alignas(8)" in header and "view_bytes" in header
+    big = save_model(_model(campaign, 20, 7.0), tmp_path / "big.joblib")
+    res = _eskin("export", big, "-o", tmp_path / "big.eskin", "--target", "cortex-m4")
+    assert res.returncode == 2
+    assert "does not fit cortex-m4; nothing written" in res.stderr
+    assert "max_window_s" in res.stdout and "Traceback" not in res.stderr
+    assert not (tmp_path / "big.eskin").exists()
