@@ -16,9 +16,10 @@ results do not depend on where or in which order the folds run.
 
 from __future__ import annotations
 
+import contextlib
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -211,12 +212,16 @@ class FoldTask:
     n_jobs: int = 1
 
 
-def _open(source: Any) -> Any:
+@contextlib.contextmanager
+def _opened(source: Any) -> Iterator[Any]:
+    """The campaign of a path (closed afterwards), or the given campaign."""
     if isinstance(source, (str, Path)):
         from eskin.data.campaign import load_campaign
 
-        return load_campaign(source)
-    return source
+        with load_campaign(source) as camp:
+            yield camp
+    else:
+        yield source
 
 
 def _class_ids(campaign: Any, idx: np.ndarray, classes: Sequence[str]) -> np.ndarray:
@@ -238,9 +243,12 @@ def run_fold(task: FoldTask) -> dict[str, Any]:
     baselines on the same patterns). Returns the fold's record (predictions included)."""
     from eskin.learn.models import group_labels, train_model
 
+    with _opened(task.source) as camp:
+        return _fold_record(task, camp, group_labels(camp, task.group_name), train_model)
+
+
+def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any) -> dict:
     t0 = time.perf_counter()
-    camp = _open(task.source)
-    groups = group_labels(camp, task.group_name)
     train, test = camp.subset(task.train_idx), camp.subset(task.test_idx)
     model = train_model(
         train,
@@ -375,11 +383,12 @@ def evaluate_recipe(
 
     t0 = time.perf_counter()
     baselines = check_baselines(baselines)
-    camp = _open(campaign)
-    source = str(campaign) if isinstance(campaign, (str, Path)) else camp
-    folds, names, labels = plan_folds(
-        camp, groups=groups, n_folds=n_folds, classes=classes, runs=runs, seed=seed
-    )
+    with _opened(campaign) as camp:
+        folds, names, labels = plan_folds(
+            camp, groups=groups, n_folds=n_folds, classes=classes, runs=runs, seed=seed
+        )
+        path = camp.path
+    source = str(campaign) if isinstance(campaign, (str, Path)) else campaign
     recipe = {
         k: v
         for k, v in dict(recipe or {}).items()
@@ -395,7 +404,7 @@ def evaluate_recipe(
     result = _pooled(records, folds, labels, names, baselines, seed)
     result.update(
         {
-            "campaign": str(campaign) if isinstance(campaign, (str, Path)) else camp.path,
+            "campaign": path,
             "groups": groups,
             "scheme": "leave-one-group-out" if n_folds is None else f"{n_folds} grouped folds",
             "n_groups": len(np.unique(labels[np.concatenate([te for _, te in folds])])),
