@@ -952,6 +952,7 @@ def _build_from_journal(contents: Any, out: Path) -> int:
     s = contents.settings
     rows, cols = s["grid_shape"]
     t, level = int(s["n_samples"]), s["compression_level"]
+    check_sizes(str(contents.path), 0, rows, cols, t)
     labels: dict[str, list[Any]] = {k: [] for k in (*_LABEL_FIELDS, "contact_interval")}
     extra_types = {k: np.dtype(v) for k, v in s["extra_fields"]}
     extras: dict[str, list[Any]] = {k: [] for k in extra_types}

@@ -5,8 +5,8 @@ journal file next to the target (``.NAME.partial``), flushed to the disk (``fsyn
 ``append`` returns. The journal is not a campaign file: it is a header (the campaign's settings)
 followed by self-checking records (labels + the compressed chunk + a CRC-32). When the writer
 closes, the campaign file is built from the journal; when the writing process dies (kill -9,
-power loss, a crash), :func:`read_journal` salvages every record whose append had returned and
-stops at the first torn or damaged one (the recording in flight).
+power loss, a crash), :class:`LockedJournal` reads back every record whose append had returned
+and stops at the first torn or damaged one (the recording in flight).
 
 The journal is created exclusively (``O_EXCL``) and locked (``flock``) for as long as its writer
 lives, so a second writer on the same target fails at open and a recovery never reads a journal
@@ -232,7 +232,7 @@ class JournalRecord:
 
 @dataclass
 class JournalContents:
-    """What :func:`read_journal` found: the settings, the records (an iterator, read once)
+    """What :meth:`LockedJournal.read` found: the settings, the records (an iterator, read once)
     and, after iterating, how many bytes at the end were torn or damaged."""
 
     path: Path
@@ -269,6 +269,10 @@ class LockedJournal:
         fh.seek(pos)
         while pos < self.size:
             record, reason = _read_record(fh, index, self.size - pos)
+            if record is not None:
+                problem = _meta_problem(record.meta, record.extras, contents.settings)
+                if problem:
+                    record, reason = None, f"recording {index}: {problem}"
             if record is None:
                 contents.dropped_bytes, contents.dropped_reason = self.size - pos, reason
                 return
@@ -307,7 +311,58 @@ def _read_header(fh: Any, path: Path) -> tuple[dict[str, Any], int]:
         settings = json.loads(text.decode("utf-8"))
     except ValueError as exc:
         raise JournalError(f"{path}: header: not valid JSON ({exc})") from None
+    problem = _settings_problem(settings)
+    if problem:
+        raise JournalError(f"{path}: header: {problem}")
     return settings, fh.tell()
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _settings_problem(s: Any) -> str | None:
+    """What is wrong with a header's settings (None: nothing)."""
+    if not isinstance(s, dict):
+        return "settings are not a JSON object"
+    checks = {
+        "grid_shape": lambda v: isinstance(v, list) and len(v) == 2 and all(map(_is_int, v)),
+        "n_samples": _is_int,
+        "compression_level": lambda v: v is None or _is_int(v),
+        "contact_interval": lambda v: isinstance(v, bool),
+        "extra_fields": lambda v: (
+            isinstance(v, list)
+            and all(
+                isinstance(e, list) and len(e) == 2 and all(isinstance(x, str) for x in e)
+                for e in v
+            )
+        ),
+        "attrs": lambda v: (
+            isinstance(v, list)
+            and all(isinstance(e, list) and len(e) == 2 and isinstance(e[0], str) for e in v)
+        ),
+    }
+    for key, ok in checks.items():
+        if key not in s or not ok(s[key]):
+            return f"{key!r} missing or malformed ({s.get(key)!r})"
+    return None
+
+
+_LABELS = ("length", "modality", "participant", "direction", "run")
+
+
+def _meta_problem(meta: Any, extras: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
+    """What is wrong with one record's labels and extras ("" when nothing)."""
+    if not isinstance(meta, dict) or not all(_is_int(meta.get(k)) for k in _LABELS):
+        return f"labels {meta!r} incomplete"
+    ci = meta.get("contact_interval")
+    if settings["contact_interval"] and not (
+        isinstance(ci, list) and len(ci) == 2 and all(map(_is_int, ci))
+    ):
+        return f"contact interval {ci!r} missing"
+    if list(extras) != [k for k, _ in settings["extra_fields"]]:
+        return f"extra fields {list(extras)} differ from the header's"
+    return ""
 
 
 def _read_record(fh: Any, index: int, remaining: int) -> tuple[JournalRecord | None, str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import re
 import signal
 import time
 import warnings
@@ -163,6 +164,45 @@ def test_a_damaged_record_stops_recovery_there(tmp_path):
     assert report.recordings == 1
     assert "recording 1 fails its CRC-32" in report.message()
     _check_recordings(path, 1)
+
+
+def test_a_record_with_incomplete_labels_stops_recovery_there(tmp_path):
+    path = tmp_path / "c.h5"
+    w = _open(path)
+    _append(w, 0)
+    # a CRC-valid record whose labels lack the run (a writer of another version, a bug)
+    w._journal.append(
+        {"length": 8, "modality": 0, "participant": 0, "direction": 0},
+        {"force_n": (1.0, np.float32), "tag": (1, np.uint8)},
+        b"x",
+    )
+    w._journal.release()
+    report = recover_campaign(path)
+    assert report.recordings == 1
+    assert "recording 1: labels" in report.message() and "incomplete" in report.message()
+    _check_recordings(path, 1)
+
+
+@pytest.mark.parametrize(
+    "settings, problem",
+    [
+        ({"grid_shape": [2, 3]}, "'n_samples' missing or malformed"),
+        ({"grid_shape": [2, 3], "n_samples": "64"}, "'n_samples' missing or malformed ('64')"),
+        ([1, 2], "settings are not a JSON object"),
+    ],
+)
+def test_a_malformed_header_is_a_clear_error(tmp_path, settings, problem):
+    import json
+    import struct
+    import zlib
+
+    text = json.dumps(settings).encode()
+    path = tmp_path / "h.h5"
+    journal_path(path).write_bytes(
+        b"ESKJRNL1" + struct.pack("<I", len(text)) + text + struct.pack("<I", zlib.crc32(text))
+    )
+    with pytest.raises(ValueError, match=re.escape(f"header: {problem}")):
+        recover_campaign(path)
 
 
 def test_a_torn_header_is_a_clear_error(tmp_path):
