@@ -32,11 +32,11 @@ def register(app: typer.Typer) -> None:
             None, help="baselines in the same folds: vector, minirocket (comma-separated)"
         ),
         classes: str | None = typer.Option(None, help="classes (default: every class)"),
-        machine: Machine = typer.Option(Machine.svm, help="tensor-SVM or tensor-RLS"),
-        selection: Selection = typer.Option(Selection.md, help="Maximal Discrepancy or CV"),
-        D: int = typer.Option(100, "--D", help="subsampled window length"),
-        window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
-        subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+        machine: Machine | None = typer.Option(None, help="tensor-SVM or tensor-RLS"),
+        selection: Selection | None = typer.Option(None, help="Maximal Discrepancy or CV"),
+        D: int | None = typer.Option(None, "--D", help="subsampled window length"),
+        window: Window | None = typer.Option(None, help="touch-window detector, or none"),
+        subsample: Subsample | None = typer.Option(None, help="subsampling method"),
         quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
         seed: int = typer.Option(0, help="seed of every random choice"),
         n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -44,22 +44,25 @@ def register(app: typer.Typer) -> None:
             None, help="Dask scheduler address, or local:N for a local cluster of N workers"
         ),
     ) -> None:
-        """How well will a recipe work on a new person? Train it (same options as train) on
-        all groups but the held-out ones, fold by fold, and score the held-out predictions:
-        accuracy and balanced accuracy with 95 % intervals (bootstrap over groups), per-class
-        recall, confusion matrix, settings per fold. Writes OUT/evaluation.json, .md, .png."""
+        """How well will a recipe work on a new person? Train it (the options of train, with
+        train's defaults) on all groups but the held-out ones, fold by fold, and score the
+        held-out predictions: accuracy and balanced accuracy with 95 % intervals (bootstrap over
+        groups), per-class recall, confusion matrix, settings per fold. Writes
+        OUT/evaluation.json, .md, .png."""
         from eskin.learn.evaluation import evaluate_recipe
         from eskin.learn.evaluation_report import summary_lines, write_evaluation
         from eskin.learn.parallel import compute_backend
 
-        recipe = {
-            "machine": machine.value,
-            "selection": selection.value,
+        given = {
+            "machine": machine,
+            "selection": selection,
             "D": D,
-            "window": window.value,
-            "subsample": subsample.value,
-            "quick": quick,
+            "window": window,
+            "subsample": subsample,
         }
+        # options not given keep eskin.train_model's defaults (the recipe eskin train uses)
+        recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
+        recipe["quick"] = quick
         try:
             with compute_backend(scheduler):
                 result = evaluate_recipe(
