@@ -171,7 +171,6 @@ PENDING: dict[str, int] = {
     "eskin.cli.link.register": 103,
     "eskin.data.importers.import_csv_folder": 101,
     "eskin.data.importers.import_tdms": 153,
-    "eskin.data.replay.write_replay_arrays": 122,
     "eskin.data.simulator._Chain": 334,
     "eskin.learn.models.preprocess_campaign": 82,
     "eskin.learn.models.train_model": 174,

@@ -116,6 +116,41 @@ def write_replay_arrays(
     """
     path = Path(path)
     recs = [np.asarray(r) for r in recordings]
+    rows, cols = _check_recordings(recs)
+    n = len(recs)
+    labels_a, names, contacts, rec_idx = _segment_fields(
+        n, labels, class_names, contact_intervals, recording_indices
+    )
+    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise ValueError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+    if not (math.isfinite(volts_per_count) and volts_per_count > 0):
+        raise ValueError(f"volts_per_count must be finite and > 0, got {volts_per_count}")
+    if gap_s < 0:
+        raise ValueError(f"gap_s must be >= 0, got {gap_s}")
+    gaps = _QuietGaps(recs, sample_rate_hz, noise_counts, baseline, seed)
+    gap = int(round(gap_s * sample_rate_hz))
+
+    segments = np.zeros(n, dtype=SEGMENT_DTYPE)
+    start = gap
+    for i, r in enumerate(recs):
+        segments[i] = (start, r.shape[2], contacts[i, 0], contacts[i, 1], labels_a[i], rec_idx[i], 0)
+        start += r.shape[2] + gap
+    head = _replay_head(segments, names, start, rows, cols, sample_rate_hz, volts_per_count)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(head)
+        f.write(gaps.quiet(gap, None, gaps.edge_level(recs[0], True)).tobytes())
+        for i, r in enumerate(recs):
+            clipped = np.clip(r, -32768, 32767).astype("<i2")
+            f.write(np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes())
+            nxt = gaps.edge_level(recs[i + 1], True) if i + 1 < n else None
+            f.write(gaps.quiet(gap, gaps.edge_level(r, False), nxt).tobytes())
+    return read_replay_file(path)
+
+
+def _check_recordings(recs: list[np.ndarray]) -> tuple[int, int]:
+    """At least one recording, all integer (rows, cols, length) on one grid; the grid."""
     if not recs:
         raise ValueError("write_replay_arrays needs at least one recording")
     grid = recs[0].shape[:2]
@@ -129,7 +164,18 @@ def write_replay_arrays(
     rows, cols = int(grid[0]), int(grid[1])
     if not (1 <= rows <= 255 and 1 <= cols <= 255):
         raise ValueError(f"grid shape {grid} is not within 1..255 x 1..255")
-    n = len(recs)
+    return rows, cols
+
+
+def _segment_fields(
+    n: int,
+    labels: Optional[Sequence[int]],
+    class_names: Sequence[str],
+    contact_intervals: Optional[np.ndarray],
+    recording_indices: Optional[Sequence[int]],
+) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+    """The segment table's per-recording fields, checked: labels, class names, contact
+    intervals (-1 when unknown) and the recordings' indices in their campaign."""
     labels_a = np.full(n, -1, dtype=np.int64) if labels is None else np.asarray(labels, np.int64)
     if labels_a.shape != (n,):
         raise ValueError(f"labels must have one entry per recording ({n}), got {labels_a.shape}")
@@ -150,68 +196,76 @@ def write_replay_arrays(
     rec_idx = np.arange(n) if recording_indices is None else np.asarray(recording_indices)
     if rec_idx.shape != (n,):
         raise ValueError(f"recording_indices must have {n} entries, got {rec_idx.shape}")
-    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
-        raise ValueError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
-    if not (math.isfinite(volts_per_count) and volts_per_count > 0):
-        raise ValueError(f"volts_per_count must be finite and > 0, got {volts_per_count}")
-    if gap_s < 0:
-        raise ValueError(f"gap_s must be >= 0, got {gap_s}")
+    return labels_a, names, contacts, rec_idx
 
-    est_base, est_noise = _quiet_level(recs)
-    base = est_base if baseline is None else np.broadcast_to(np.asarray(baseline, float), grid)
-    noise = est_noise if noise_counts is None else float(noise_counts)
-    if noise < 0:
-        raise ValueError(f"noise_counts must be >= 0, got {noise}")
-    gap = int(round(gap_s * sample_rate_hz))
-    rng = np.random.default_rng(seed)
 
-    def edge_level(r: np.ndarray, first: bool) -> np.ndarray:
-        k = max(1, min(r.shape[2], int(round(0.01 * sample_rate_hz))))
+class _QuietGaps:
+    """The quiet noise between recordings, drawn in stream order from one seeded generator."""
+
+    def __init__(
+        self,
+        recs: list[np.ndarray],
+        sample_rate_hz: float,
+        noise_counts: Optional[float],
+        baseline: Optional[np.ndarray],
+        seed: int,
+    ) -> None:
+        grid = recs[0].shape[:2]
+        est_base, est_noise = _quiet_level(recs)
+        self.fixed = baseline is not None
+        given = None if baseline is None else np.asarray(baseline, float)
+        self.base = est_base if given is None else np.broadcast_to(given, grid)
+        self.noise = est_noise if noise_counts is None else float(noise_counts)
+        if self.noise < 0:
+            raise ValueError(f"noise_counts must be >= 0, got {self.noise}")
+        self.shape = (int(grid[0]), int(grid[1]))
+        self.edge = max(1, int(round(0.01 * sample_rate_hz)))
+        self.rng = np.random.default_rng(seed)
+
+    def edge_level(self, r: np.ndarray, first: bool) -> np.ndarray:
+        """Per-taxel median of the first (or last) 10 ms of a recording."""
+        k = min(r.shape[2], self.edge)
         part = r[:, :, :k] if first else r[:, :, -k:]
         return np.median(part.astype(np.float64), axis=2)
 
-    def quiet(length: int, prev: Optional[np.ndarray], nxt: Optional[np.ndarray]) -> np.ndarray:
+    def quiet(
+        self, length: int, prev: Optional[np.ndarray], nxt: Optional[np.ndarray]
+    ) -> np.ndarray:
         # With a fixed baseline the gap is flat; otherwise it ramps from where the previous
         # recording ends to where the next one starts, so that no step (which a touch
         # detector would take for a touch) appears at a recording boundary.
-        if baseline is not None or (prev is None and nxt is None):
-            level = np.broadcast_to(base[None], (length, rows, cols))
+        rows, cols = self.shape
+        if self.fixed or (prev is None and nxt is None):
+            level = np.broadcast_to(self.base[None], (length, rows, cols))
         else:
             a = nxt if prev is None else prev
             b = prev if nxt is None else nxt
             t = np.linspace(0.0, 1.0, length)[:, None, None]
             level = a[None] * (1.0 - t) + b[None] * t
-        z = level + noise * rng.standard_normal((length, rows, cols))
+        z = level + self.noise * self.rng.standard_normal((length, rows, cols))
         return np.clip(np.rint(z), -32768, 32767).astype("<i2")
 
-    segments = np.zeros(n, dtype=SEGMENT_DTYPE)
-    start = gap
-    for i, r in enumerate(recs):
-        segments[i] = (start, r.shape[2], contacts[i, 0], contacts[i, 1], labels_a[i], rec_idx[i], 0)
-        start += r.shape[2] + gap
-    total = start
 
+def _replay_head(
+    segments: np.ndarray,
+    names: list[str],
+    total: int,
+    rows: int,
+    cols: int,
+    sample_rate_hz: float,
+    volts_per_count: float,
+) -> bytes:
+    """The file's header, segment table and class names, padded to 8 bytes, with its CRC."""
     names_b = "\n".join(names).encode("utf-8")
     table = segments.tobytes() + names_b
     data_offset = (_HEADER.size + len(table) + 7) // 8 * 8
     header = _HEADER.pack(
-        REPLAY_MAGIC, REPLAY_VERSION, data_offset, total, rows, cols, n,
+        REPLAY_MAGIC, REPLAY_VERSION, data_offset, total, rows, cols, len(segments),
         float(sample_rate_hz), float(volts_per_count), len(names_b), 0,
     )
     head = header + table + b"\0" * (data_offset - _HEADER.size - len(table))
     crc = zlib.crc32(head)
-    head = head[:52] + struct.pack("<I", crc) + head[56:]
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        f.write(head)
-        f.write(quiet(gap, None, edge_level(recs[0], True)).tobytes())
-        for i, r in enumerate(recs):
-            clipped = np.clip(r, -32768, 32767).astype("<i2")
-            f.write(np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes())
-            nxt = edge_level(recs[i + 1], True) if i + 1 < n else None
-            f.write(quiet(gap, edge_level(r, False), nxt).tobytes())
-    return read_replay_file(path)
+    return head[:52] + struct.pack("<I", crc) + head[56:]
 
 
 def write_replay_file(
