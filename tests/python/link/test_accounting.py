@@ -93,3 +93,60 @@ def test_listen_writes_its_final_statistics_when_a_signal_ends_it(fw_sim, replay
     assert final["type"] == "stats"
     assert final["samples"] > 0 and final["frames"] > 0
     assert final["samples"] % 10 == 0  # whole DATA frames of 10 samples
+
+
+def test_listen_record_killed_with_sigkill_loses_no_recording_it_reported(fw_sim, tmp_path):
+    """`eskin listen --record` killed with SIGKILL: `eskin recover` salvages every recording
+    the listener had reported as recorded, equal to its source segment."""
+    from eskin.data.campaign import load_campaign
+
+    rng = np.random.default_rng(8)
+    recs = [rng.integers(-400, 400, size=(4, 4, 600)).astype(np.int16) for _ in range(30)]
+    rf = write_replay_arrays(
+        tmp_path / "segments.eskr",
+        recs,
+        labels=[k % 3 for k in range(30)],
+        class_names=["a", "b", "c"],
+        gap_s=0.05,
+        seed=1,
+    )
+    # a 1 MB transmit queue: a host slowed down by a busy machine must not lose samples
+    proc, pty_path = start_fw_sim(
+        fw_sim, rf.path, "--speed", 1, "--wait-start", "--tx-buffer", 1 << 20
+    )
+    out = tmp_path / "live.h5"
+    listen = subprocess.Popen(
+        eskin_cmd("listen", pty_path, "--record", out, "--replay", rf.path, "--view", "plain"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=child_env(),
+    )
+    reported = []
+    try:
+        for line in listen.stdout:
+            if line.startswith("recorded #"):
+                reported.append(int(line.split()[1][1:]))
+                if len(reported) == 4:
+                    break
+        listen.kill()
+    finally:
+        if listen.poll() is None:
+            listen.kill()
+        _, err = listen.communicate(timeout=10)
+        proc.send_signal(signal.SIGINT)
+        fw_sim_stats(proc)
+    assert reported == [0, 1, 2, 3], err
+    assert listen.returncode == -signal.SIGKILL
+    assert not out.exists()
+    res = subprocess.run(
+        eskin_cmd("recover", out), capture_output=True, text=True, env=child_env(), timeout=60
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("recovered ")
+    camp = load_campaign(out)
+    assert len(camp) >= 4  # the kill came after the 4th report; a 5th may have been appended
+    assert not np.any(camp.extras["lost_samples"])  # every recording arrived whole
+    for k in range(len(camp)):
+        assert np.array_equal(camp.recording(k), recs[k])
+        assert camp.modalities[camp.modality[k]] == "abc"[k % 3]
