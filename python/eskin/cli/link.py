@@ -137,6 +137,17 @@ def decisions_table(decisions: Any, rate: float) -> Any:
     return t
 
 
+def _live_mode(duration: Optional[float], view: str) -> bool:
+    """Check `eskin listen`'s --duration and --view; True for the rich live view."""
+    if duration is not None and duration <= 0:
+        typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
+        raise typer.Exit(2)
+    if view not in ("auto", "live", "plain"):
+        typer.echo(f"error: --view must be auto, live or plain, got {view!r}", err=True)
+        raise typer.Exit(2)
+    return view == "live" or (view == "auto" and sys.stdout.isatty())
+
+
 def _sigterm_interrupts() -> Any:
     """Make SIGTERM end `eskin listen` like Ctrl-C (so it finishes its files); returns the
     function that puts the previous handler back."""
@@ -214,13 +225,7 @@ def register(app: typer.Typer) -> None:
         """Listen to the skin controller: live decisions, link statistics, taxel activity."""
         from eskin.link.listener import LinkListener
 
-        if duration is not None and duration <= 0:
-            typer.echo(f"error: --duration must be > 0 seconds, got {duration}", err=True)
-            raise typer.Exit(2)
-        if view not in ("auto", "live", "plain"):
-            typer.echo(f"error: --view must be auto, live or plain, got {view!r}", err=True)
-            raise typer.Exit(2)
-        live_mode = view == "live" or (view == "auto" and sys.stdout.isatty())
+        live_mode = _live_mode(duration, view)
         with _user_errors():
             listener = LinkListener(port, model=model, backend=backend, record=record,
                                     replay=replay, reconnect=reconnect, overwrite=force,
@@ -234,10 +239,11 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
                                                  if listener.classifier is not None else ""))
             events = listener.events(duration=duration, until_eof=until_eof)
-            if live_mode:
-                _run_live(listener, events, deque(maxlen=12), out)
-            else:
-                _run_plain(events, out)
+            with _user_errors():  # e.g. the --record file, written once the first one is due
+                if live_mode:
+                    _run_live(listener, events, deque(maxlen=12), out)
+                else:
+                    _run_plain(events, out)
         except KeyboardInterrupt:
             typer.echo("interrupted")
         finally:

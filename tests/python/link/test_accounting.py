@@ -150,3 +150,42 @@ def test_listen_record_killed_with_sigkill_loses_no_recording_it_reported(fw_sim
     for k in range(len(camp)):
         assert np.array_equal(camp.recording(k), recs[k])
         assert camp.modalities[camp.modality[k]] == "abc"[k % 3]
+
+
+def test_listen_record_onto_an_existing_file_is_one_line(fw_sim, tmp_path):
+    rng = np.random.default_rng(3)
+    recs = [rng.integers(-400, 400, size=(4, 4, 300)).astype(np.int16) for _ in range(3)]
+    rf = write_replay_arrays(tmp_path / "s.eskr", recs, gap_s=0.05, seed=1)
+    out = tmp_path / "taken.h5"
+    out.write_bytes(b"someone's data")
+    proc, pty_path = start_fw_sim(fw_sim, rf.path, "--speed", 0, "--wait-start")
+    try:
+        res = subprocess.run(
+            eskin_cmd(
+                "listen",
+                pty_path,
+                "--record",
+                out,
+                "--replay",
+                rf.path,
+                "--until-eof",
+                "--view",
+                "plain",
+                "--duration",
+                30,
+            ),
+            capture_output=True,
+            text=True,
+            env=child_env(),
+            timeout=60,
+        )
+    finally:
+        proc.send_signal(signal.SIGINT)
+        fw_sim_stats(proc)
+    assert res.returncode == 2, res.stderr
+    errors = [x for x in res.stderr.splitlines() if x]
+    assert errors == [
+        f"error: {out}: file exists; refusing to overwrite recorded data (pass "
+        f"overwrite=True, or --force on the command line)"
+    ], res.stderr
+    assert out.read_bytes() == b"someone's data"
