@@ -675,8 +675,7 @@ def iter_recordings(participants: int = 70, seed: int = 0, *,
                         tuple[int, int, int, int], np.ndarray, RecordingTruth]]:
     """Yield ((participant, run, modality, direction), int16 (rows, cols, T), truth) in order.
 
-    With ``n_jobs`` > 1, worker processes simulate ahead while the caller consumes; at most
-    2 * n_jobs + 1 recordings are in flight, so memory stays bounded.
+    With ``n_jobs`` > 1, joblib worker processes simulate ahead while the caller consumes.
     """
     cfg = config or SimulatorConfig()
     jobs = _job_list(int(participants), tuple(runs))
@@ -684,27 +683,15 @@ def iter_recordings(participants: int = 70, seed: int = 0, *,
         for job in jobs:
             yield (job, *_simulate_one((cfg, seed, job, *_encode)))
         return
-    import multiprocessing as mp
-    from collections import deque
+    from joblib import Parallel, delayed
 
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    with ctx.Pool(n_jobs) as pool:
-        todo = iter(jobs)
-        pending: deque[Any] = deque()
-
-        def submit() -> None:
-            job = next(todo, None)
-            if job is not None:
-                pending.append((job, pool.apply_async(_simulate_one,
-                                                      ((cfg, seed, job, *_encode),))))
-
-        for _ in range(2 * n_jobs + 1):
-            submit()
-        while pending:
-            job, result = pending.popleft()
-            rec, truth = result.get()
-            submit()
-            yield job, rec, truth
+    # joblib is the package's one parallelism route; results come back in job order, with
+    # 2 * n_jobs + 1 recordings dispatched at a time
+    results = Parallel(n_jobs=n_jobs, return_as="generator", pre_dispatch=2 * n_jobs + 1)(
+        delayed(_simulate_one)((cfg, seed, job, *_encode)) for job in jobs
+    )
+    for job, (rec, truth) in zip(jobs, results):
+        yield job, rec, truth
 
 
 def simulate(
