@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         groups), per-class recall, confusion matrix, settings per fold. Writes
         OUT/evaluation.json, .md, .png."""
         from eskin.learn.evaluation import evaluate_recipe
-        from eskin.learn.evaluation_report import summary_lines, write_evaluation
+        from eskin.learn.evaluation_report import fold_line, summary_lines, write_evaluation
         from eskin.learn.parallel import compute_backend
 
         given = {
@@ -74,6 +74,7 @@ def register(app: typer.Typer) -> None:
                     baselines=_names(baselines) or (),
                     seed=seed,
                     n_jobs=-1 if scheduler else n_jobs,
+                    on_fold=lambda record, n: typer.echo(fold_line(record, n)),
                 )
             paths = write_evaluation(result, out)
         except (ValueError, OSError, KeyError, ImportError) as exc:

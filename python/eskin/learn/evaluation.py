@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -370,13 +370,15 @@ def evaluate_recipe(
     seed: int = 0,
     n_jobs: int = 1,
     inner_jobs: int = 1,
+    on_fold: Callable[[dict[str, Any], int], None] | None = None,
 ) -> dict[str, Any]:
     """Nested group-disjoint evaluation of ``recipe`` (keyword arguments of
     :func:`eskin.train_model`) on ``campaign`` (a path or a loaded campaign).
 
     ``groups`` names the label that makes the folds (default participant); ``n_folds=None``
     is leave-one-group-out. Folds run as joblib tasks (``n_jobs``; the active joblib backend,
-    e.g. Dask, decides where), each training with ``inner_jobs`` workers. Returns the result
+    e.g. Dask, decides where), each training with ``inner_jobs`` workers; ``on_fold(record,
+    n_folds)`` is called as each fold finishes. Returns the result
     written by :func:`eskin.learn.evaluation_report.write_evaluation`.
     """
     from eskin.learn.baselines import check_baselines
@@ -400,7 +402,7 @@ def evaluate_recipe(
         )
         for k, (tr, te) in enumerate(folds)
     ]
-    records = _run_folds(tasks, n_jobs)
+    records = _run_folds(tasks, n_jobs, on_fold)
     result = _pooled(records, folds, labels, names, baselines, seed)
     result.update(
         {
@@ -416,12 +418,24 @@ def evaluate_recipe(
     return result
 
 
-def _run_folds(tasks: list[FoldTask], n_jobs: int) -> list[dict[str, Any]]:
+def _run_folds(
+    tasks: list[FoldTask], n_jobs: int, on_fold: Callable[[dict[str, Any], int], None] | None
+) -> list[dict[str, Any]]:
+    """Every fold's record, in the order they finish; ``on_fold(record, n_folds)`` after each."""
     from joblib import Parallel, delayed
 
     if n_jobs == 1:
-        return [run_fold(t) for t in tasks]
-    return list(Parallel(n_jobs=n_jobs)(delayed(run_fold)(t) for t in tasks))
+        done: Iterable[dict[str, Any]] = (run_fold(t) for t in tasks)
+    else:
+        done = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
+            delayed(run_fold)(t) for t in tasks
+        )
+    records = []
+    for record in done:
+        records.append(record)
+        if on_fold is not None:
+            on_fold(record, len(tasks))
+    return records
 
 
 def _pooled(

@@ -77,6 +77,14 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def fold_line(record: Mapping[str, Any], n_folds: int) -> str:
+    """A fold that has just finished, on one line (printed while the evaluation runs)."""
+    return (
+        f"fold {record['fold'] + 1}/{n_folds} (test {_groups(record['test_groups'])}): "
+        f"{_pct(record['accuracy'])} of {record['n_test']} ({record['seconds']:.0f} s)"
+    )
+
+
 def _groups(values: list[int]) -> str:
     return ",".join(map(str, values)) if len(values) <= 6 else f"{len(values)} groups"
 
