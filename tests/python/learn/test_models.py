@@ -257,3 +257,52 @@ def test_train_on_a_campaign_without_any_touch_fails_clearly(tmp_path):
     r = CliRunner().invoke(app, ["train", str(path), "-o", str(tmp_path / "m.eskin"),
                                  "--all-classes", "--quick"])
     assert r.exit_code == 0, r.output
+
+
+def _two_class_campaign(path, participant, modality):
+    """4x4 taxels at 1000 Hz, cut recordings; brush and washer excite different taxels."""
+    from eskin.data.campaign import write_campaign
+
+    rng = np.random.default_rng(0)
+    n = len(modality)
+    t = np.arange(600) / 1000.0
+    sig = np.empty((n, 4, 4, 600), np.int16)
+    for i, m in enumerate(modality):
+        gain = np.zeros((4, 4))
+        gain[:, m * 2 : m * 2 + 2] = 1.0 + 0.3 * rng.random((4, 2))
+        wave = np.sin(2 * np.pi * (10 + 20 * m) * t + rng.uniform(0, 6))
+        sig[i] = np.clip(3000 * gain[..., None] * wave + 100 * rng.normal(size=(4, 4, 600)),
+                         -32000, 32000)
+    write_campaign(path, sig, modality=np.asarray(modality), participant=np.asarray(participant),
+                   direction=np.arange(n) % 2, run=np.full(n, 2),
+                   modalities=["brush", "washer"], sample_rate_hz=1000.0,
+                   volts_per_count=1e-3, source="recorded")
+    return path, sig
+
+
+def test_default_selection_is_participant_grouped_cv_with_fallbacks(tmp_path):
+    # 6 participants x 2 classes x 2 recordings: the default splits by participant
+    part = np.repeat(np.arange(6), 4)
+    mod = np.tile([0, 0, 1, 1], 6)
+    path, sig = _two_class_campaign(tmp_path / "six.h5", part, mod)
+    m = train_model(path, D=20, window="none", quick=True)
+    assert m.selection == "cv" and m.training["cv_split_by"] == "participant"
+    assert not any("cross-validation" in n for n in m.training["notes"])
+    # the same recordings as arrays carry no participants: stratified splits, with a note
+    m = train_model(sig, labels=np.array(["brush", "washer"])[mod], lengths=[600] * len(mod),
+                    sample_rate_hz=1000.0, D=20, window="none", quick=True)
+    assert m.training["cv_split_by"] == "recordings"
+    assert any(n.startswith("no participant labels") for n in m.training["notes"])
+    # every washer from one participant: a grouped split cannot keep both classes in training
+    part = np.r_[np.zeros(6, int), np.arange(1, 7)]
+    mod = np.r_[np.ones(6, int), np.zeros(6, int)]
+    path, _ = _two_class_campaign(tmp_path / "lopsided.h5", part, mod)
+    m = train_model(path, D=20, window="none", quick=True)
+    assert m.training["cv_split_by"] == "recordings"
+    assert any(n.startswith("grouped cross-validation left a class out") for n in
+               m.training["notes"])
+    # the command line's default is the same recipe
+    r = CliRunner().invoke(app, ["train", str(tmp_path / "six.h5"), "--all-classes", "--quick",
+                                 "--D", "20", "--window", "none", "-o", str(tmp_path / "m.joblib")])
+    assert r.exit_code == 0, r.output
+    assert "(svm, cv, D=20, window=none)" in r.output
