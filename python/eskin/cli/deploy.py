@@ -1,11 +1,28 @@
-"""CLI commands: export."""
+"""CLI commands: export (a trained model for the controller), replay (a campaign's recordings
+for the controller simulator and for eskin-classify)."""
 
 from __future__ import annotations
 
+from enum import Enum
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import Any, NoReturn, Optional
 
 import typer
+
+
+class ReplayFormat(str, Enum):
+    replay = "replay"
+    npy = "npy"
+    records = "records"
+
+
+#: what each output format is for, as `eskin replay` reports it
+_FORMAT_USE = {
+    "replay": "a stream for eskin-fw-sim",
+    "npy": "recordings for eskin-classify",
+    "records": "raw records for eskin-classify",
+}
+_SELECT_KEYS = ("modality", "participant", "direction", "run", "index")
 
 
 def _fail(message: str) -> NoReturn:
@@ -56,6 +73,129 @@ def register(app: typer.Typer) -> None:
         )
         if c_header is not None:
             typer.echo(f"wrote {c_header}")
+
+    register_replay(app)
+
+
+def _ints(text: str, key: str) -> list[int]:
+    """'1,3,5-8' -> [1, 3, 5, 6, 7, 8]."""
+    out: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        lo, dash, hi = part.partition("-")
+        try:
+            if dash and lo:
+                out.extend(range(int(lo), int(hi) + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            _fail(f"--select {key}={text}: {part!r} is not an integer or a range a-b")
+    return out
+
+
+def _select_mask(c: Any, item: str) -> Any:
+    """The recordings of campaign ``c`` that one ``--select KEY=VALUES`` keeps."""
+    import numpy as np
+
+    from eskin.data.importers import parse_direction
+
+    key, eq, values = item.partition("=")
+    key = key.strip()
+    if not eq or key not in _SELECT_KEYS or not values.strip():
+        _fail(f"--select {item!r}: expected KEY=VALUES with KEY one of {', '.join(_SELECT_KEYS)}")
+    if key == "modality":
+        names = [v.strip() for v in values.split(",")]
+        unknown = [v for v in names if v not in c.modalities and not v.isdigit()]
+        if unknown:
+            _fail(f"--select modality: unknown {unknown}; this campaign has "
+                  f"{', '.join(c.modalities)}")
+        ids = [int(v) if v.isdigit() else c.modalities.index(v) for v in names]
+        return np.isin(c.modality, ids)
+    if key == "direction":
+        try:
+            dirs = [parse_direction(v, "--select direction") for v in values.split(",")]
+        except ValueError as exc:
+            _fail(str(exc))
+        return np.isin(c.direction, dirs)
+    wanted = _ints(values, key)
+    if key == "index":
+        return np.isin(np.arange(len(c)), wanted)
+    return np.isin(getattr(c, key), wanted)
+
+
+def _selected(c: Any, select: list[str]) -> Any:
+    import numpy as np
+
+    mask = np.ones(len(c), dtype=bool)
+    for item in select:
+        mask &= _select_mask(c, item)
+    idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        _fail(f"no recording of {len(c)} matches --select {' '.join(select)}")
+    return idx
+
+
+def _replay_format(output: Path, fmt: Optional[ReplayFormat]) -> str:
+    if fmt is not None:
+        return fmt.value
+    by_suffix = {".eskr": "replay", ".npy": "npy"}
+    if output.suffix.lower() not in by_suffix:
+        _fail(f"{output}: say what to write with --format (replay, npy or records), or name the "
+              f"file .eskr (a replay stream for eskin-fw-sim) or .npy (for eskin-classify)")
+    return by_suffix[output.suffix.lower()]
+
+
+def register_replay(app: typer.Typer) -> None:
+    """Add `eskin replay`."""
+
+    @app.command("replay")
+    def replay(
+        campaign: Path = typer.Argument(..., metavar="CAMPAIGN", help="campaign file (.h5)"),
+        output: Path = typer.Option(
+            ..., "-o", "--output",
+            help="file to write: .eskr (a replay stream for eskin-fw-sim) or .npy (the "
+            "recordings, for eskin-classify)"),
+        select: list[str] = typer.Option(
+            [], "--select", metavar="KEY=VALUES",
+            help="keep the recordings with these values: modality=brush,washer, "
+            "participant=61-70, direction=h, run=2, index=0-9 (repeat to combine; default: "
+            "every recording)"),
+        fmt: Optional[ReplayFormat] = typer.Option(
+            None, "--format", help="replay, npy or records (raw records of any lengths for "
+            "eskin-classify); default: from the file name"),
+        gap: float = typer.Option(0.5, "--gap", help="replay: seconds of quiet noise between "
+                                  "recordings"),
+        seed: int = typer.Option(0, help="replay: seed of the quiet noise"),
+        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    ) -> None:
+        """Write a campaign's recordings for the controller: a replay stream that eskin-fw-sim
+        plays over its serial link, or the recordings for eskin-classify (.npy or raw records)."""
+        from collections import Counter
+
+        from eskin.data.campaign import load_campaign
+        from eskin.data.replay import write_raw_records, write_recordings_npy, write_replay_file
+
+        kind = _replay_format(output, fmt)
+        if not gap >= 0:
+            _fail(f"--gap must be >= 0 seconds, got {gap}")
+        if output.exists() and not force:
+            _fail(f"{output}: file exists (use --force to replace it)")
+        try:
+            with load_campaign(campaign) as c:
+                idx = _selected(c, select)
+                if kind == "replay":
+                    rf = write_replay_file(c, idx, output, gap_s=gap, seed=seed)
+                    detail = f", {rf.n_samples / rf.sample_rate_hz:.1f} s at {rf.sample_rate_hz:g} Hz"
+                elif kind == "npy":
+                    detail = f", shape {write_recordings_npy(c, idx, output)}"
+                else:
+                    write_raw_records(c, idx, output)
+                    detail = ""
+                counts = Counter(c.modalities[int(m)] for m in c.modality[idx])
+        except (ValueError, OSError) as exc:
+            _fail(str(exc))
+        per_class = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+        typer.echo(f"wrote {output}: {len(idx)} recordings ({per_class}){detail}; "
+                   f"{_FORMAT_USE[kind]}")
 
 
 def _check_target(model: object, dtype: str, target: str) -> None:

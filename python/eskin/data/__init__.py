@@ -26,6 +26,8 @@ from .replay import (
     ReplayFile,
     ReplayFormatError,
     read_replay_file,
+    write_raw_records,
+    write_recordings_npy,
     write_replay_arrays,
     write_replay_file,
 )
@@ -62,6 +64,8 @@ __all__ = [
     "save_campaign",
     "simulate",
     "write_campaign",
+    "write_raw_records",
+    "write_recordings_npy",
     "write_replay_arrays",
     "write_replay_file",
 ]

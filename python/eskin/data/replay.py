@@ -31,6 +31,8 @@ __all__ = [
     "ReplayFile",
     "ReplayFormatError",
     "read_replay_file",
+    "write_raw_records",
+    "write_recordings_npy",
     "write_replay_arrays",
     "write_replay_file",
 ]
@@ -301,6 +303,60 @@ def write_replay_file(
         noise_counts=noise_counts,
         seed=seed,
     )
+
+
+# --------------------------------------------------------------------------- batch inputs
+# eskin-classify reads recordings, not a stream: a .npy array or raw 'ESKR' records
+# (docs/model-format.md, "Raw recordings").
+
+RAW_RECORD_MAGIC = b"ESKR"
+_RAW_RECORD = struct.Struct("<4sHHII")  # magic, rows, cols, T, reserved
+
+
+def _chosen(campaign: Any, indices: Optional[Sequence[int]]) -> np.ndarray:
+    idx = np.arange(len(campaign)) if indices is None else np.asarray(indices, dtype=np.int64)
+    if idx.size == 0:
+        raise ValueError("no recordings to write")
+    return idx
+
+
+def write_recordings_npy(
+    campaign: Any, indices: Optional[Sequence[int]], path: str | os.PathLike[str]
+) -> tuple[int, ...]:
+    """Write recordings ``indices`` (all when None) as one int16 .npy array (n, rows, cols, T),
+    each cut to its valid length, which must be the same for all (else use
+    :func:`write_raw_records`). One recording is in memory at a time. Returns the shape."""
+    idx = _chosen(campaign, indices)
+    lengths = np.asarray(campaign.lengths)[idx]
+    if lengths.min() != lengths.max():
+        raise ValueError(
+            f"{path}: the {idx.size} recordings have different lengths ({lengths.min()} to "
+            f"{lengths.max()} samples) and a .npy array holds one length; write raw records "
+            f"instead (eskin replay --format records)"
+        )
+    rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0]))).shape[:2])
+    shape = (idx.size, rows, cols, int(lengths[0]))
+    out = np.lib.format.open_memmap(Path(path), mode="w+", dtype="<i2", shape=shape)
+    for k, i in enumerate(idx):
+        out[k] = campaign.recording(int(i))
+    out.flush()
+    del out
+    return shape
+
+
+def write_raw_records(
+    campaign: Any, indices: Optional[Sequence[int]], path: str | os.PathLike[str]
+) -> int:
+    """Write recordings ``indices`` (all when None) as raw records, each its own length: a
+    16-byte header ('ESKR', u16 rows, u16 cols, u32 T, u32 0) and its int16 samples in C order
+    (rows, cols, T). Returns the number of records."""
+    idx = _chosen(campaign, indices)
+    with open(path, "wb") as f:
+        for i in idx:
+            r = np.ascontiguousarray(campaign.recording(int(i)), dtype="<i2")
+            f.write(_RAW_RECORD.pack(RAW_RECORD_MAGIC, r.shape[0], r.shape[1], r.shape[2], 0))
+            f.write(r.tobytes())
+    return int(idx.size)
 
 
 def read_replay_file(path: str | os.PathLike[str]) -> ReplayFile:

@@ -178,3 +178,53 @@ def test_writer_refuses_non_finite_scales(tmp_path):
         write_replay_arrays(tmp_path / "e.eskr", ok, sample_rate_hz=float("inf"))
     with pytest.raises(ValueError, match="volts_per_count must be finite"):
         write_replay_arrays(tmp_path / "e.eskr", ok, volts_per_count=float("nan"))
+
+
+# --------------------------------------------------------------------------- eskin-classify inputs
+
+
+def _campaign_of_arrays(path, lengths):
+    from eskin.data.campaign import load_campaign, write_campaign
+
+    rng = np.random.default_rng(4)
+    sig = rng.integers(-900, 900, size=(len(lengths), 4, 4, max(lengths))).astype(np.int16)
+    for i, n in enumerate(lengths):
+        sig[i, ..., n:] = 0
+    n = len(lengths)
+    write_campaign(
+        path, sig, lengths=np.asarray(lengths), modality=np.arange(n) % 2,
+        participant=np.arange(n) // 2 + 1, direction=np.zeros(n, int), run=np.full(n, 2),
+        modalities=["tap", "slide"], sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded",
+    )
+    return load_campaign(path), sig
+
+
+def test_recordings_as_one_npy_array(tmp_path):
+    from eskin.data.replay import write_recordings_npy
+
+    camp, sig = _campaign_of_arrays(tmp_path / "same.h5", [300, 300, 300])
+    assert write_recordings_npy(camp, [2, 0], tmp_path / "r.npy") == (2, 4, 4, 300)
+    got = np.load(tmp_path / "r.npy")
+    assert got.dtype == np.dtype("<i2")
+    np.testing.assert_array_equal(got, sig[[2, 0]])
+    camp, _ = _campaign_of_arrays(tmp_path / "mixed.h5", [300, 120, 250])
+    with pytest.raises(ValueError, match=r"r2.npy: the 3 recordings have different lengths "
+                                         r"\(120 to 300 samples\).*--format records"):
+        write_recordings_npy(camp, None, tmp_path / "r2.npy")
+
+
+def test_raw_records_keep_each_length(tmp_path):
+    from eskin.data.replay import write_raw_records
+
+    camp, sig = _campaign_of_arrays(tmp_path / "mixed.h5", [300, 120, 250])
+    assert write_raw_records(camp, None, tmp_path / "r.rec") == 3
+    raw = (tmp_path / "r.rec").read_bytes()
+    pos = 0
+    for i, n in enumerate((300, 120, 250)):
+        assert raw[pos : pos + 4] == b"ESKR"
+        assert np.frombuffer(raw, "<u2", 2, pos + 4).tolist() == [4, 4]
+        assert np.frombuffer(raw, "<u4", 2, pos + 8).tolist() == [n, 0]
+        body = np.frombuffer(raw, "<i2", 16 * n, pos + 16).reshape(4, 4, n)
+        np.testing.assert_array_equal(body, sig[i, ..., :n])
+        pos += 16 + 32 * n
+    assert pos == len(raw)
