@@ -40,6 +40,7 @@ from typing import Any, Optional
 import numpy as np
 
 from eskin.errors import DemoError
+from eskin.link.scoring import assign_decisions, confusion_matrix
 
 __all__ = ["DemoError", "DemoResult", "assign_decisions", "confusion_matrix",
            "offline_stream_decisions", "run_demo", "start_fw_sim"]
@@ -68,62 +69,6 @@ class DemoResult:
 
 
 # --------------------------------------------------------------------------- pieces
-
-
-def confusion_matrix(true: np.ndarray, pred: np.ndarray, n_classes: int) -> np.ndarray:
-    """(k, k + 1) counts: row = true class, column = decided class, last column = no decision."""
-    cm = np.zeros((n_classes, n_classes + 1), np.int64)
-    for t, p in zip(np.asarray(true), np.asarray(pred)):
-        cm[int(t), int(p) if p >= 0 else n_classes] += 1
-    return cm
-
-
-def assign_decisions(decisions: list, segments: np.ndarray, n_values: int,
-                     offset: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
-    """Decisions (eskin.link.Decision of one source) -> one per replay segment.
-
-    A decision belongs to the segment its window ``[onset, offset)`` overlaps most. A segment
-    keeps the decision on its touch: the one overlapping its true contact interval most (when the
-    segment has one: the simulator's ground truth), else the one overlapping the segment most;
-    a stream detector also reports the small transients where a recording meets the quiet gap,
-    which this rule leaves aside. Returns (labels, values, dont_know, extra) with -1 / nan where
-    a segment got no decision; ``extra`` counts, per segment and last for the gaps, the decisions
-    that were not kept.
-    """
-    n = len(segments)
-    labels = np.full(n, -1, np.int64)
-    values = np.full((n, n_values), np.nan)
-    dk = np.zeros(n, bool)
-    best = [(-1, -1)] * n
-    extra = [0] * (n + 1)
-    starts = offset + segments["start"].astype(np.int64)
-    stops = starts + segments["length"].astype(np.int64)
-    names = segments.dtype.names or ()
-    if "contact_onset" in names and "contact_offset" in names:
-        known = segments["contact_onset"] >= 0
-        c_on = np.where(known, starts + segments["contact_onset"].astype(np.int64), starts)
-        c_off = np.where(known, starts + segments["contact_offset"].astype(np.int64), stops)
-    else:
-        c_on, c_off = starts, stops
-    for d in decisions:
-        ov = np.minimum(stops, d.offset_sample) - np.maximum(starts, d.onset_sample)
-        k = int(np.argmax(ov))
-        if ov[k] <= 0:
-            extra[n] += 1
-            continue
-        score = (int(min(c_off[k], d.offset_sample) - max(c_on[k], d.onset_sample)), int(ov[k]))
-        if score > best[k]:
-            if labels[k] >= 0:
-                extra[k] += 1
-            best[k] = score
-            labels[k] = d.label_index
-            values[k] = np.nan
-            v = np.asarray(d.values, float)[:n_values]
-            values[k, : len(v)] = v
-            dk[k] = d.dont_know
-        else:
-            extra[k] += 1
-    return labels, values, dk, extra
 
 
 def offline_stream_decisions(model: Any, samples: np.ndarray) -> list:

@@ -41,13 +41,53 @@ def _fmt_values(values: Any) -> str:
     return "[" + ", ".join(f"{v:+.3f}" for v in values) + "]"
 
 
-def decision_line(d: Any, rate: float) -> str:
-    """One plain line for a decision."""
+#: what the "?" after a label means, wherever a decision is shown
+DONT_KNOW_NOTE = ("? = don't know: no machine, or more than one, claimed the touch; the label is "
+                  "the machine with the largest decision value")
+
+
+def decision_line(d: Any, rate: float, truth: Any = None) -> str:
+    """One plain line for a decision; ``truth(d)`` gives the true class (with --replay)."""
     label = d.label if d.label is not None else f"#{d.label_index}"
     dk = " (don't know)" if d.dont_know else ""
     lost = f" lost={d.lost_samples}" if d.lost_samples else ""
+    true = f" true={truth(d)}" if truth is not None else ""
     return (f"decision {d.source:<10} onset={d.onset_sample} ({d.onset_sample / rate:.2f} s) "
-            f"label={label}{dk} values={_fmt_values(d.values)}{lost}")
+            f"label={label}{dk}{true} values={_fmt_values(d.values)}{lost}")
+
+
+def replay_truth(listener: Any) -> Any:
+    """The function giving a decision's true class from the listener's replay file (the class
+    of the recording its window overlaps most; "-" in a gap), or None without a replay."""
+    from eskin.link.scoring import segment_of
+
+    replay = listener.replay
+    if replay is None:
+        return None
+    names = list(replay.class_names)
+
+    def truth(d: Any) -> str:
+        k = segment_of(replay, d.onset_sample, d.offset_sample, listener.replay_offset)
+        label = int(replay.segments["label"][k]) if k >= 0 else -1
+        return names[label] if 0 <= label < len(names) else "-"
+
+    return truth
+
+
+def score_lines(score: Any) -> list[str]:
+    """Accuracy and confusion matrix of one source against the replay's labels, as text."""
+    names = list(score.class_names)
+    head = (f"{score.source}: {score.correct}/{score.recordings} recordings right "
+            f"({100 * score.accuracy:.1f} %), {score.dont_know} don't know, "
+            f"{score.no_decision} without a decision")
+    lines = [head]
+    cols = [*names, "none"]
+    first = max([len(n) for n in names] + [len("true \\ decided")])
+    width = max(len(c) for c in cols)
+    lines.append("  " + "true \\ decided".ljust(first) + "".join(f" {c:>{width}}" for c in cols))
+    for name, row in zip(names, score.confusion):
+        lines.append("  " + name.ljust(first) + "".join(f" {int(v):>{width}}" for v in row))
+    return lines
 
 
 def stats_line(s: Any) -> str:
@@ -122,17 +162,18 @@ def heat_table(activity: Any, title: str = "taxel activity (RMS counts, last 0.2
     return t
 
 
-def decisions_table(decisions: Any, rate: float) -> Any:
+def decisions_table(decisions: Any, rate: float, truth: Any = None) -> Any:
     from rich.table import Table
 
-    t = Table(title="decisions (latest last)")
-    for name in ("source", "onset s", "label", "values", "lost"):
+    t = Table(title="decisions (latest last)", caption=DONT_KNOW_NOTE)
+    for name in ("source", "onset s", "label", *(["true"] if truth else []), "values", "lost"):
         t.add_column(name)
     for d in decisions:
         label = d.label if d.label is not None else f"#{d.label_index}"
         if d.dont_know:
             label += " ?"
-        t.add_row(d.source, f"{d.onset_sample / rate:.2f}", label, _fmt_values(d.values),
+        true = [truth(d)] if truth is not None else []
+        t.add_row(d.source, f"{d.onset_sample / rate:.2f}", label, *true, _fmt_values(d.values),
                   str(d.lost_samples or ""))
     return t
 
@@ -163,7 +204,7 @@ def _sigterm_interrupts() -> Any:
     return lambda: signal.signal(signal.SIGTERM, previous)
 
 
-def _run_plain(events: Any, out: Any) -> None:
+def _run_plain(events: Any, out: Any, truth: Any = None) -> None:
     """Print one line per event; decisions also go to the JSON-lines file ``out``."""
     from eskin.link.listener import Connection, Decision, InfoEvent, Recorded, Stats
 
@@ -180,7 +221,7 @@ def _run_plain(events: Any, out: Any) -> None:
             typer.echo(f"info grid={ev.info.rows}x{ev.info.cols} "
                        f"rate={rate:g} Hz classes={names} speed={ev.info.speed:g}")
         elif isinstance(ev, Decision):
-            typer.echo(decision_line(ev, rate))
+            typer.echo(decision_line(ev, rate, truth))
             if out is not None:
                 out.write(json.dumps(ev.as_dict()) + "\n")
                 out.flush()
@@ -212,8 +253,9 @@ def register(app: typer.Typer) -> None:
         record: Optional[Path] = typer.Option(
             None, "--record", help="record the received stream to a campaign file (.h5)"),
         replay: Optional[Path] = typer.Option(
-            None, "--replay", help="the replay file the controller streams: record one "
-                                   "recording per segment, with its true label"),
+            None, "--replay", help="the replay file the controller streams: each decision shows "
+            "its recording's true class, the run ends with the accuracy and confusion matrix "
+            "against them, and --record writes one recording per segment, with its true label"),
         reconnect: bool = typer.Option(
             False, "--reconnect", help="reopen the port when the controller goes away"),
         backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
@@ -222,7 +264,10 @@ def register(app: typer.Typer) -> None:
             "auto", help="live (rich view), plain (one line per event) or auto (live on a "
                          "terminal)"),
     ) -> None:
-        """Listen to the skin controller: live decisions, link statistics, taxel activity."""
+        """Listen to the skin controller: live decisions, link statistics, taxel activity.
+
+        A label followed by "?" is a "don't know": no machine, or more than one, claimed the
+        touch (the label is the machine with the largest decision value)."""
         from eskin.link.listener import LinkListener
 
         live_mode = _live_mode(duration, view)
@@ -231,6 +276,7 @@ def register(app: typer.Typer) -> None:
                                     replay=replay, reconnect=reconnect, overwrite=force,
                                     stats_interval=0.25 if live_mode else 5.0)
         out = None
+        decisions: list[Any] = []
         restore = _sigterm_interrupts()
         try:
             with _user_errors():
@@ -238,12 +284,13 @@ def register(app: typer.Typer) -> None:
                 out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
             typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
                                                  if listener.classifier is not None else ""))
-            events = listener.events(duration=duration, until_eof=until_eof)
+            events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions)
+            truth = replay_truth(listener)
             with _user_errors():  # e.g. the --record file, written once the first one is due
                 if live_mode:
-                    _run_live(listener, events, deque(maxlen=12), out)
+                    _run_live(listener, events, deque(maxlen=12), out, truth)
                 else:
-                    _run_plain(events, out)
+                    _run_plain(events, out, truth)
         except KeyboardInterrupt:
             typer.echo("interrupted")
         finally:
@@ -252,9 +299,13 @@ def register(app: typer.Typer) -> None:
                 with _user_errors():
                     listener.close()  # finishes the recording, if any
             finally:
+                scores = _score(listener, decisions)
                 if out is not None:  # the final statistics, also after SIGINT or SIGTERM
+                    for sc in scores:
+                        out.write(json.dumps(sc.as_dict()) + "\n")
                     out.write(json.dumps({"type": "stats", **listener.stats.as_dict()}) + "\n")
                     out.close()
+        _print_scores(scores, live_mode)
         if record is not None:
             typer.echo(f"wrote {record}")
 
@@ -295,7 +346,52 @@ def register(app: typer.Typer) -> None:
                       "ones[/]")
 
 
-def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
+def _kept(events: Any, decisions: list[Any]) -> Any:
+    """Pass the events on, keeping the decisions."""
+    from eskin.link.listener import Decision
+
+    for ev in events:
+        if isinstance(ev, Decision):
+            decisions.append(ev)
+        yield ev
+
+
+def _score(listener: Any, decisions: list[Any]) -> list[Any]:
+    """The decisions scored against the replay's true classes (none without --replay)."""
+    from eskin.link.scoring import score_decisions
+
+    if listener.replay is None or not decisions:
+        return []
+    return score_decisions(decisions, listener.replay, listener.replay_offset)
+
+
+def _print_scores(scores: list[Any], live_mode: bool) -> None:
+    if not scores:
+        return
+    if live_mode:
+        from rich.console import Console
+        from rich.table import Table
+
+        console = Console()
+        for sc in scores:
+            names = list(sc.class_names)
+            t = Table(title=f"{sc.source}: {sc.correct}/{sc.recordings} right "
+                            f"({100 * sc.accuracy:.1f} %), {sc.dont_know} don't know, "
+                            f"{sc.no_decision} without a decision")
+            t.add_column("true \\ decided", style="bold")
+            for n in [*names, "none"]:
+                t.add_column(n, justify="right")
+            for name, row in zip(names, sc.confusion):
+                t.add_row(name, *[str(int(v)) for v in row])
+            console.print(t)
+        return
+    typer.echo("accuracy against the replay's true classes (one decision per recording):")
+    for sc in scores:
+        for line in score_lines(sc):
+            typer.echo(line)
+
+
+def _run_live(listener: Any, events: Any, recent: Any, out: Any, truth: Any = None) -> Any:
     """The rich.live view; returns the last statistics."""
     from rich.console import Group
     from rich.live import Live
@@ -311,7 +407,7 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any) -> Any:
     def view() -> Any:
         grid = Table.grid(padding=(0, 4))
         grid.add_row(heat_table(listener.activity()), stats_table(last_stats))
-        return Panel(Group(header, grid, decisions_table(list(recent), rate)),
+        return Panel(Group(header, grid, decisions_table(list(recent), rate, truth)),
                      title="eskin listen")
 
     # drawn from this loop, at most 5 times a second, so that rendering never competes with

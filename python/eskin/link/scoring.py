@@ -1,0 +1,145 @@
+"""How well live decisions match the truth a replay file carries: each replay segment is one
+recording with its true class, so the decisions that arrive over the link (the controller's and
+the host's) can be scored against it, recording by recording, as ``eskin listen --replay`` and
+``eskin demo`` do."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ReplayScore", "assign_decisions", "confusion_matrix", "score_decisions", "segment_of"]
+
+
+def confusion_matrix(true: np.ndarray, pred: np.ndarray, n_classes: int) -> np.ndarray:
+    """(k, k + 1) counts: row = true class, column = decided class, last column = no decision."""
+    cm = np.zeros((n_classes, n_classes + 1), np.int64)
+    for t, p in zip(np.asarray(true), np.asarray(pred)):
+        cm[int(t), int(p) if p >= 0 else n_classes] += 1
+    return cm
+
+
+def assign_decisions(
+    decisions: list, segments: np.ndarray, n_values: int, offset: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+    """Decisions (eskin.link.Decision of one source) -> one per replay segment.
+
+    A decision belongs to the segment its window ``[onset, offset)`` overlaps most. A segment
+    keeps the decision on its touch: the one overlapping its true contact interval most (when the
+    segment has one: the simulator's ground truth), else the one overlapping the segment most;
+    a stream detector also reports the small transients where a recording meets the quiet gap,
+    which this rule leaves aside. Returns (labels, values, dont_know, extra) with -1 / nan where
+    a segment got no decision; ``extra`` counts, per segment and last for the gaps, the decisions
+    that were not kept.
+    """
+    n = len(segments)
+    labels = np.full(n, -1, np.int64)
+    values = np.full((n, n_values), np.nan)
+    dk = np.zeros(n, bool)
+    best = [(-1, -1)] * n
+    extra = [0] * (n + 1)
+    starts = offset + segments["start"].astype(np.int64)
+    stops = starts + segments["length"].astype(np.int64)
+    names = segments.dtype.names or ()
+    if "contact_onset" in names and "contact_offset" in names:
+        known = segments["contact_onset"] >= 0
+        c_on = np.where(known, starts + segments["contact_onset"].astype(np.int64), starts)
+        c_off = np.where(known, starts + segments["contact_offset"].astype(np.int64), stops)
+    else:
+        c_on, c_off = starts, stops
+    for d in decisions:
+        ov = np.minimum(stops, d.offset_sample) - np.maximum(starts, d.onset_sample)
+        k = int(np.argmax(ov))
+        if ov[k] <= 0:
+            extra[n] += 1
+            continue
+        score = (int(min(c_off[k], d.offset_sample) - max(c_on[k], d.onset_sample)), int(ov[k]))
+        if score > best[k]:
+            if labels[k] >= 0:
+                extra[k] += 1
+            best[k] = score
+            labels[k] = d.label_index
+            values[k] = np.nan
+            v = np.asarray(d.values, float)[:n_values]
+            values[k, : len(v)] = v
+            dk[k] = d.dont_know
+        else:
+            extra[k] += 1
+    return labels, values, dk, extra
+
+
+@dataclass(frozen=True)
+class ReplayScore:
+    """One source's decisions (controller or host) against a replay's true labels, one decision
+    per recording (segment) as :func:`assign_decisions` keeps it."""
+
+    source: str
+    class_names: tuple[str, ...]
+    recordings: int  # segments with a known true class
+    correct: int
+    dont_know: int  # kept decisions flagged "don't know" (no machine, or several, claimed)
+    no_decision: int  # segments that got no decision at all
+    confusion: np.ndarray  # (k, k + 1): row = true class, column = decided, last = none
+
+    @property
+    def accuracy(self) -> float:
+        return self.correct / self.recordings if self.recordings else float("nan")
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object ``eskin listen --jsonl`` writes for this score."""
+        return {
+            "type": "accuracy",
+            "source": self.source,
+            "recordings": self.recordings,
+            "correct": self.correct,
+            "accuracy": self.accuracy,
+            "dont_know": self.dont_know,
+            "no_decision": self.no_decision,
+            "classes": list(self.class_names),
+            "confusion_columns": [*self.class_names, "none"],
+            "confusion": self.confusion.tolist(),
+        }
+
+
+def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0) -> list[ReplayScore]:
+    """Score the decisions (``eskin.link.Decision``) of each source against the true labels of
+    ``replay`` (an ``eskin.data.ReplayFile``) whose first sample had stream index ``offset``.
+    Labels are compared by class name (a model may order its classes unlike the replay); a
+    recording without a decision counts as wrong, and segments of unknown class are left out.
+    One score per source that made decisions, controller first."""
+    segments = replay.segments
+    known = segments["label"] >= 0
+    true = segments["label"][known].astype(np.int64)
+    names = tuple(replay.class_names)
+    index = {name: k for k, name in enumerate(names)}
+    scores = []
+    for source in sorted({d.source for d in decisions}, key=lambda s: (s != "controller", s)):
+        mine = [
+            replace(d, label_index=index.get(d.label, -1)) for d in decisions if d.source == source
+        ]
+        labels, _, dk, _ = assign_decisions(mine, segments, 0, offset)
+        labels, dk = labels[known], dk[known]
+        scores.append(
+            ReplayScore(
+                source=source,
+                class_names=names,
+                recordings=int(known.sum()),
+                correct=int(np.sum(labels == true)),
+                dont_know=int(np.sum(dk & (labels >= 0))),
+                no_decision=int(np.sum(labels < 0)),
+                confusion=confusion_matrix(true, labels, len(names)),
+            )
+        )
+    return scores
+
+
+def segment_of(replay: Any, onset: int, offset_sample: int, stream_offset: int = 0) -> int:
+    """Index of the replay segment the window ``[onset, offset_sample)`` overlaps most, or -1."""
+    starts = stream_offset + replay.segments["start"].astype(np.int64)
+    stops = starts + replay.segments["length"].astype(np.int64)
+    overlap = np.minimum(stops, offset_sample) - np.maximum(starts, onset)
+    k = int(np.argmax(overlap)) if overlap.size else -1
+    return k if k >= 0 and overlap[k] > 0 else -1
