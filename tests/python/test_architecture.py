@@ -168,7 +168,6 @@ EXEMPTION = "# long:"
 PENDING: dict[str, int] = {
     "eskin.cli.campaign.register": 133,
     "eskin.cli.learn.register": 166,
-    "eskin.cli.link.register": 103,
     "eskin.data.importers.import_csv_folder": 101,
     "eskin.data.importers.import_tdms": 153,
     "eskin.data.simulator._Chain": 334,

@@ -268,46 +268,8 @@ def register(app: typer.Typer) -> None:
 
         A label followed by "?" is a "don't know": no machine, or more than one, claimed the
         touch (the label is the machine with the largest decision value)."""
-        from eskin.link.listener import LinkListener
-
-        live_mode = _live_mode(duration, view)
-        with _user_errors():
-            listener = LinkListener(port, model=model, backend=backend, record=record,
-                                    replay=replay, reconnect=reconnect, overwrite=force,
-                                    stats_interval=0.25 if live_mode else 5.0)
-        out = None
-        decisions: list[Any] = []
-        restore = _sigterm_interrupts()
-        try:
-            with _user_errors():
-                listener.open()
-                out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
-            typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
-                                                 if listener.classifier is not None else ""))
-            events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions)
-            truth = replay_truth(listener)
-            with _user_errors():  # e.g. the --record file, written once the first one is due
-                if live_mode:
-                    _run_live(listener, events, deque(maxlen=12), out, truth)
-                else:
-                    _run_plain(events, out, truth)
-        except KeyboardInterrupt:
-            typer.echo("interrupted")
-        finally:
-            restore()
-            try:
-                with _user_errors():
-                    listener.close()  # finishes the recording, if any
-            finally:
-                scores = _score(listener, decisions)
-                if out is not None:  # the final statistics, also after SIGINT or SIGTERM
-                    for sc in scores:
-                        out.write(json.dumps(sc.as_dict()) + "\n")
-                    out.write(json.dumps({"type": "stats", **listener.stats.as_dict()}) + "\n")
-                    out.close()
-        _print_scores(scores, live_mode)
-        if record is not None:
-            typer.echo(f"wrote {record}")
+        _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
+                force, view)
 
     @app.command("demo")
     def demo_cmd(
@@ -344,6 +306,58 @@ def register(app: typer.Typer) -> None:
             raise typer.Exit(1)
         console.print("[bold green]live decisions (controller and host) equal the offline "
                       "ones[/]")
+
+
+def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, record: Any,
+            replay: Any, reconnect: bool, backend: str, force: bool, view: str) -> None:
+    """`eskin listen`: run the listener until it ends, then score and report."""
+    from eskin.link.listener import LinkListener
+
+    live_mode = _live_mode(duration, view)
+    with _user_errors():
+        listener = LinkListener(port, model=model, backend=backend, record=record,
+                                replay=replay, reconnect=reconnect, overwrite=force,
+                                stats_interval=0.25 if live_mode else 5.0)
+    out = None
+    decisions: list[Any] = []
+    restore = _sigterm_interrupts()
+    try:
+        with _user_errors():
+            listener.open()
+            out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
+        typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
+                                             if listener.classifier is not None else ""))
+        events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions)
+        truth = replay_truth(listener)
+        with _user_errors():  # e.g. the --record file, written once the first one is due
+            if live_mode:
+                _run_live(listener, events, deque(maxlen=12), out, truth)
+            else:
+                _run_plain(events, out, truth)
+    except KeyboardInterrupt:
+        typer.echo("interrupted")
+    finally:
+        restore()
+        scores = _finish(listener, decisions, out)
+    _print_scores(scores, live_mode)
+    if record is not None:
+        typer.echo(f"wrote {record}")
+
+
+def _finish(listener: Any, decisions: list[Any], out: Any) -> list[Any]:
+    """Close the listener (finishing the recording), then write the scores against the replay
+    and the final statistics to --jsonl, also after SIGINT or SIGTERM; returns the scores."""
+    try:
+        with _user_errors():
+            listener.close()
+    finally:
+        scores = _score(listener, decisions)
+        if out is not None:
+            for sc in scores:
+                out.write(json.dumps(sc.as_dict()) + "\n")
+            out.write(json.dumps({"type": "stats", **listener.stats.as_dict()}) + "\n")
+            out.close()
+    return scores
 
 
 def _kept(events: Any, decisions: list[Any]) -> Any:
