@@ -26,139 +26,145 @@ def _user_errors() -> Iterator[None]:
         raise typer.Exit(2) from None
 
 
+def simulate_cmd(
+    output: Path = typer.Option(..., "-o", "--output", help="campaign file to write (.h5)"),
+    participants: int = typer.Option(70, help="number of simulated participants"),
+    seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
+    difficulty: Optional[float] = typer.Option(
+        None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
+    jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
+) -> None:
+    """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
+    import time
+
+    from eskin.data.simulator import simulate
+
+    with _user_errors():
+        t0 = time.perf_counter()
+        step = max(1, participants * 12 // 20)
+
+        def progress(done: int, total: int) -> None:
+            if not quiet and (done % step == 0 or done == total):
+                typer.echo(f"  {done}/{total} recordings", err=True)
+
+        import os
+
+        n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
+        simulate(output, participants=participants, seed=seed, difficulty=difficulty,
+                 n_jobs=n_jobs, overwrite=force, progress=progress)
+        typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
+                   f"in {time.perf_counter() - t0:.1f} s")
+
+
+def info_cmd(
+    file: Path = typer.Argument(..., help="campaign file"),
+    check: bool = typer.Option(False, "--check", help="also read every recording's data"),
+) -> None:
+    """Summarise a campaign file: grid, rate, counts, lengths, source."""
+    from eskin.data.campaign import load_campaign
+
+    with _user_errors(), load_campaign(file, check_data=check) as c:
+        _print_info(c)
+
+
+def plot_cmd(
+    file: Path = typer.Argument(..., help="campaign file"),
+    index: int = typer.Option(0, "--index", "-i", help="recording index"),
+    output: Path = typer.Option(..., "-o", "--output", help="image to write (.png, .svg)"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+) -> None:
+    """Plot one recording: the taxel traces, the detected touch window, an energy heat map."""
+    from eskin.data.campaign import load_campaign
+    from eskin.signal.plotting import plot_recording
+
+    with _user_errors():
+        if output.exists() and not force:
+            raise FileExistsError(f"{output}: file exists (use --force to replace it)")
+        with load_campaign(file) as c:
+            plot_recording(c, index, output)
+        typer.echo(f"wrote {output}")
+
+
+def import_csv_cmd(
+    folder: Path = typer.Argument(..., help="folder with one CSV per recording"),
+    output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
+    manifest: Optional[Path] = typer.Option(
+        None, help="manifest CSV (default: FOLDER/manifest.csv)"),
+    rows: Optional[int] = typer.Option(None, help="taxel rows (or a manifest column)"),
+    cols: Optional[int] = typer.Option(None, help="taxel columns (or a manifest column)"),
+    rate: Optional[float] = typer.Option(
+        None, "--rate", help="sample rate in Hz (or a manifest column)"),
+    volts_per_count: Optional[float] = typer.Option(
+        None, help="volts per ADC count; values in the CSV are volts if given, else counts"),
+    modalities: Optional[str] = typer.Option(
+        None, help="comma-separated class names in class-id order (default: sorted labels)"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+) -> None:
+    """Import a folder of CSV recordings (one column per taxel) into a campaign file."""
+    from eskin.data.campaign import load_campaign
+    from eskin.data.importers import import_csv_folder
+
+    with _user_errors():
+        import_csv_folder(
+            folder, output, manifest=manifest,
+            grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+            sample_rate_hz=rate, volts_per_count=volts_per_count,
+            modalities=modalities.split(",") if modalities else None, overwrite=force)
+        with load_campaign(output) as c:
+            typer.echo(f"wrote {output}: {len(c)} recordings")
+
+
+def import_tdms_cmd(
+    files: list[Path] = typer.Argument(..., help="LabVIEW .tdms files"),
+    output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
+    rows: Optional[int] = typer.Option(None, help="taxel rows (default: from properties, 4)"),
+    cols: Optional[int] = typer.Option(None, help="taxel columns (default: from properties, 4)"),
+    rate: Optional[float] = typer.Option(
+        None, "--rate", help="sample rate in Hz (default: wf_increment property)"),
+    volts_per_count: Optional[float] = typer.Option(
+        None, help="volts per count for float (volt) channels (default 10/32768)"),
+    modalities: Optional[str] = typer.Option(
+        None, help="comma-separated class names in class-id order (default: sorted labels)"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+) -> None:
+    """Import LabVIEW TDMS recordings (one group per recording) into a campaign file."""
+    from eskin.data.campaign import load_campaign
+    from eskin.data.importers import import_tdms
+
+    with _user_errors():
+        import_tdms(
+            files, output,
+            grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+            sample_rate_hz=rate, volts_per_count=volts_per_count,
+            modalities=modalities.split(",") if modalities else None, overwrite=force)
+        with load_campaign(output) as c:
+            typer.echo(f"wrote {output}: {len(c)} recordings")
+
+
+def recover_cmd(
+    file: Path = typer.Argument(
+        ..., help="the campaign file an interrupted writer was writing (or its journal)"),
+    output: Optional[Path] = typer.Option(
+        None, "-o", "--output", help="campaign file to write (default: FILE)"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+) -> None:
+    """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
+    from eskin.data.campaign import recover_campaign
+
+    with _user_errors():
+        typer.echo(recover_campaign(file, output, overwrite=force).message())
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
-
-    @app.command("simulate")
-    def simulate_cmd(
-        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write (.h5)"),
-        participants: int = typer.Option(70, help="number of simulated participants"),
-        seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
-        difficulty: Optional[float] = typer.Option(
-            None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
-        jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
-    ) -> None:
-        """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
-        import time
-
-        from eskin.data.simulator import simulate
-
-        with _user_errors():
-            t0 = time.perf_counter()
-            step = max(1, participants * 12 // 20)
-
-            def progress(done: int, total: int) -> None:
-                if not quiet and (done % step == 0 or done == total):
-                    typer.echo(f"  {done}/{total} recordings", err=True)
-
-            import os
-
-            n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
-            simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                     n_jobs=n_jobs, overwrite=force, progress=progress)
-            typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
-                       f"in {time.perf_counter() - t0:.1f} s")
-
-    @app.command("info")
-    def info_cmd(
-        file: Path = typer.Argument(..., help="campaign file"),
-        check: bool = typer.Option(False, "--check", help="also read every recording's data"),
-    ) -> None:
-        """Summarise a campaign file: grid, rate, counts, lengths, source."""
-        from eskin.data.campaign import load_campaign
-
-        with _user_errors(), load_campaign(file, check_data=check) as c:
-            _print_info(c)
-
-    @app.command("plot")
-    def plot_cmd(
-        file: Path = typer.Argument(..., help="campaign file"),
-        index: int = typer.Option(0, "--index", "-i", help="recording index"),
-        output: Path = typer.Option(..., "-o", "--output", help="image to write (.png, .svg)"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-    ) -> None:
-        """Plot one recording: the taxel traces, the detected touch window, an energy heat map."""
-        from eskin.data.campaign import load_campaign
-        from eskin.signal.plotting import plot_recording
-
-        with _user_errors():
-            if output.exists() and not force:
-                raise FileExistsError(f"{output}: file exists (use --force to replace it)")
-            with load_campaign(file) as c:
-                plot_recording(c, index, output)
-            typer.echo(f"wrote {output}")
-
-    @app.command("import-csv")
-    def import_csv_cmd(
-        folder: Path = typer.Argument(..., help="folder with one CSV per recording"),
-        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
-        manifest: Optional[Path] = typer.Option(
-            None, help="manifest CSV (default: FOLDER/manifest.csv)"),
-        rows: Optional[int] = typer.Option(None, help="taxel rows (or a manifest column)"),
-        cols: Optional[int] = typer.Option(None, help="taxel columns (or a manifest column)"),
-        rate: Optional[float] = typer.Option(
-            None, "--rate", help="sample rate in Hz (or a manifest column)"),
-        volts_per_count: Optional[float] = typer.Option(
-            None, help="volts per ADC count; values in the CSV are volts if given, else counts"),
-        modalities: Optional[str] = typer.Option(
-            None, help="comma-separated class names in class-id order (default: sorted labels)"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-    ) -> None:
-        """Import a folder of CSV recordings (one column per taxel) into a campaign file."""
-        from eskin.data.campaign import load_campaign
-        from eskin.data.importers import import_csv_folder
-
-        with _user_errors():
-            import_csv_folder(
-                folder, output, manifest=manifest,
-                grid_shape=(rows, cols) if rows is not None and cols is not None else None,
-                sample_rate_hz=rate, volts_per_count=volts_per_count,
-                modalities=modalities.split(",") if modalities else None, overwrite=force)
-            with load_campaign(output) as c:
-                typer.echo(f"wrote {output}: {len(c)} recordings")
-
-    @app.command("import-tdms")
-    def import_tdms_cmd(
-        files: list[Path] = typer.Argument(..., help="LabVIEW .tdms files"),
-        output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
-        rows: Optional[int] = typer.Option(None, help="taxel rows (default: from properties, 4)"),
-        cols: Optional[int] = typer.Option(None, help="taxel columns (default: from properties, 4)"),
-        rate: Optional[float] = typer.Option(
-            None, "--rate", help="sample rate in Hz (default: wf_increment property)"),
-        volts_per_count: Optional[float] = typer.Option(
-            None, help="volts per count for float (volt) channels (default 10/32768)"),
-        modalities: Optional[str] = typer.Option(
-            None, help="comma-separated class names in class-id order (default: sorted labels)"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-    ) -> None:
-        """Import LabVIEW TDMS recordings (one group per recording) into a campaign file."""
-        from eskin.data.campaign import load_campaign
-        from eskin.data.importers import import_tdms
-
-        with _user_errors():
-            import_tdms(
-                files, output,
-                grid_shape=(rows, cols) if rows is not None and cols is not None else None,
-                sample_rate_hz=rate, volts_per_count=volts_per_count,
-                modalities=modalities.split(",") if modalities else None, overwrite=force)
-            with load_campaign(output) as c:
-                typer.echo(f"wrote {output}: {len(c)} recordings")
-
-    @app.command("recover")
-    def recover_cmd(
-        file: Path = typer.Argument(
-            ..., help="the campaign file an interrupted writer was writing (or its journal)"),
-        output: Optional[Path] = typer.Option(
-            None, "-o", "--output", help="campaign file to write (default: FILE)"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-    ) -> None:
-        """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
-        from eskin.data.campaign import recover_campaign
-
-        with _user_errors():
-            typer.echo(recover_campaign(file, output, overwrite=force).message())
+    app.command("simulate")(simulate_cmd)
+    app.command("info")(info_cmd)
+    app.command("plot")(plot_cmd)
+    app.command("import-csv")(import_csv_cmd)
+    app.command("import-tdms")(import_tdms_cmd)
+    app.command("recover")(recover_cmd)
 
 
 def _print_info(c) -> None:

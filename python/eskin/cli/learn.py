@@ -67,180 +67,183 @@ def _problems(text: Optional[str]) -> Optional[list[str]]:
     return out
 
 
+def experiment(
+    campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
+    out: Path = typer.Option(..., "--out", "-o", help="output folder"),
+    runs: Optional[int] = typer.Option(
+        None, help="independent runs (default 5; 2 with --quick)"
+    ),
+    quick: bool = typer.Option(False, "--quick", help="reduced grid and runs (smoke test)"),
+    window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
+    subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+    n_jobs: int = typer.Option(-1, "--n-jobs", help="worker processes (-1: all cores)"),
+    Ds: Optional[str] = typer.Option(None, "--D", help="D values, e.g. 20,50,100"),
+    problems: Optional[str] = typer.Option(
+        None, help="binary problems: presets 'A,B,C' or class pairs 'brush:washer;a:b'"
+    ),
+    seed: int = typer.Option(0, help="seed of every random choice"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bar"),
+    scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+) -> None:
+    """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
+    and figures into OUT."""
+    from eskin.experiments.paper_protocol import run_experiment
+    from eskin.learn.parallel import compute_backend
+
+    try:
+        with compute_backend(scheduler):
+            res = run_experiment(
+                campaign,
+                out,
+                runs=runs,
+                quick=quick,
+                Ds=_ints(Ds, "--D") if Ds else None,
+                seed=seed,
+                n_jobs=-1 if scheduler else n_jobs,
+                window=window.value,
+                subsample=subsample.value,
+                problems=_problems(problems),
+                progress=progress,
+            )
+    except (ValueError, OSError, KeyError) as exc:
+        _fail(str(exc))
+    s = res["summary"]
+    if res["campaign"].get("simulated"):
+        typer.echo("note: the campaign is simulated")
+    rng = s.get("binary_md_range_pct")
+    if rng:
+        typer.echo(f"binary problems (MD): mean validation error {rng[0]:.1f}-{rng[1]:.1f} %")
+    for m, v in (s.get("multiclass") or {}).items():
+        typer.echo(f"three classes, {m}: best {v['best']:.1f} %, average {v['average']:.1f} %")
+    for m, v in (s.get("md_vs_cv_overall") or {}).items():
+        typer.echo(f"{m}: MD {v['md_mean']:.1f} % vs CV {v['cv_mean']:.1f} %")
+    typer.echo(
+        f"wrote {out / 'results.json'} and {out / 'report.md'} ({res['seconds_total']:.0f} s)"
+    )
+
+
+def train(
+    campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="model file to write"),
+    classes: Optional[str] = typer.Option(None, help="classes to learn, e.g. brush,washer"),
+    all_classes: bool = typer.Option(False, "--all-classes", help="learn every class"),
+    machine: Machine = typer.Option(Machine.svm, help="tensor-SVM or tensor-RLS"),
+    selection: Selection = typer.Option(
+        Selection.cv,
+        help="cv: cross-validation over participant-grouped splits; md: Maximal "
+        "Discrepancy (the paper's Algorithm 1)",
+    ),
+    D: int = typer.Option(100, "--D", help="subsampled window length"),
+    window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
+    subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+    quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
+    seed: int = typer.Option(0, help="seed of every random choice"),
+    n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
+    scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+) -> None:
+    """Select, fit on all the given recordings and save a model.
+
+    The default recipe: tensor-SVM, D = 100, energy touch window, Algorithm 2 subsampling,
+    the paper's 135-setting grid chosen by cross-validation over participant-grouped splits
+    (recordings without participants: stratified splits, with a note). On unseen people of
+    simulated campaigns it was the best recipe of docs/selection-study.md, far ahead of
+    Maximal Discrepancy (--selection md).
+    """
+    from eskin.deploy import save_model
+    from eskin.learn.evaluation_report import selection_estimate_lines
+    from eskin.learn.models import train_model
+    from eskin.learn.parallel import compute_backend
+
+    if (classes is None) == (not all_classes):
+        _fail("give exactly one of --classes a,b,... or --all-classes")
+    names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
+    try:
+        with compute_backend(scheduler):
+            model = train_model(
+                campaign,
+                classes=names,
+                machine=machine.value,
+                selection=selection.value,
+                D=D,
+                window=window.value,
+                subsample=subsample.value,
+                quick=quick,
+                seed=seed,
+                n_jobs=-1 if scheduler else n_jobs,
+            )
+        save_model(model, output)
+    except (ValueError, OSError, KeyError) as exc:
+        _fail(str(exc))
+    for note in model.training.get("notes", []):
+        typer.echo(f"note: {note}")
+    typer.echo(
+        f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
+        f"D={model.D}, window={model.window})"
+    )
+    for sel in model.selected:
+        name = f"{sel['class']} vs rest: " if "class" in sel else ""
+        first = f"C={sel['C']:g}" if model.machine == "svm" else f"lambda={sel['lambda']:g}"
+        typer.echo(
+            f"  {name}{first}, sigma={sel['sigma']:g}, alpha={sel['alpha'] or sel['alphas']}"
+            f" ({sel['n_train']} patterns)"
+        )
+    for line in selection_estimate_lines(model):
+        typer.echo(line)
+    typer.echo(f"wrote {output}")
+
+
+def predict(
+    model_path: Path = typer.Argument(..., metavar="MODEL", help="model file"),
+    campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="write predictions as JSON"),
+    engine: Engine = typer.Option(
+        Engine.python, help="python: the Python model; cpp: the compiled C++ classifier"
+    ),
+) -> None:
+    """Classify every recording of a campaign; print labels, decision values, error rate."""
+    from eskin.data.campaign import load_campaign
+    from eskin.deploy import load_model
+    from eskin.learn.models import error_rate
+
+    try:
+        model = load_model(model_path)
+        camp = load_campaign(campaign)
+        if engine is Engine.cpp:
+            from eskin.deploy.export import compiled_engine
+
+            preds = compiled_engine(model).predict_recordings(camp)
+        else:
+            preds = model.predict_recordings(camp)
+    except (ValueError, OSError, KeyError) as exc:
+        _fail(str(exc))
+    if abs(float(camp.sample_rate_hz) - model.sample_rate_hz) > 1e-9:
+        typer.echo(
+            f"note: model trained at {model.sample_rate_hz:g} Hz, campaign recorded "
+            f"at {float(camp.sample_rate_hz):g} Hz",
+            err=True,
+        )
+    head = "decision" if model.is_binary else " ".join(f"f({c})" for c in model.classes)
+    typer.echo(f"index  label  true  {head}")
+    for p in preds:
+        vals = " ".join(f"{v:+.4f}" for v in p["decision_values"])
+        flag = "  (don't know)" if p.get("dont_know") else ""
+        typer.echo(f"{p['index']:5d}  {p['label']}  {p.get('true_label', '-')}  {vals}{flag}")
+    err, n = error_rate(preds, model.classes)
+    if n:
+        typer.echo(f"error rate: {100 * err:.2f} % ({n} recordings of the model's classes)")
+    else:
+        typer.echo("error rate: unknown (no labelled recording of the model's classes)")
+    if json_out is not None:
+        try:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(preds, indent=1))
+        except OSError as exc:
+            _fail(f"cannot write {json_out}: {exc}")
+        typer.echo(f"wrote {json_out}")
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
-
-    @app.command("experiment")
-    def experiment(
-        campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
-        out: Path = typer.Option(..., "--out", "-o", help="output folder"),
-        runs: Optional[int] = typer.Option(
-            None, help="independent runs (default 5; 2 with --quick)"
-        ),
-        quick: bool = typer.Option(False, "--quick", help="reduced grid and runs (smoke test)"),
-        window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
-        subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
-        n_jobs: int = typer.Option(-1, "--n-jobs", help="worker processes (-1: all cores)"),
-        Ds: Optional[str] = typer.Option(None, "--D", help="D values, e.g. 20,50,100"),
-        problems: Optional[str] = typer.Option(
-            None, help="binary problems: presets 'A,B,C' or class pairs 'brush:washer;a:b'"
-        ),
-        seed: int = typer.Option(0, help="seed of every random choice"),
-        progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bar"),
-        scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
-    ) -> None:
-        """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
-        and figures into OUT."""
-        from eskin.experiments.paper_protocol import run_experiment
-        from eskin.learn.parallel import compute_backend
-
-        try:
-            with compute_backend(scheduler):
-                res = run_experiment(
-                    campaign,
-                    out,
-                    runs=runs,
-                    quick=quick,
-                    Ds=_ints(Ds, "--D") if Ds else None,
-                    seed=seed,
-                    n_jobs=-1 if scheduler else n_jobs,
-                    window=window.value,
-                    subsample=subsample.value,
-                    problems=_problems(problems),
-                    progress=progress,
-                )
-        except (ValueError, OSError, KeyError) as exc:
-            _fail(str(exc))
-        s = res["summary"]
-        if res["campaign"].get("simulated"):
-            typer.echo("note: the campaign is simulated")
-        rng = s.get("binary_md_range_pct")
-        if rng:
-            typer.echo(f"binary problems (MD): mean validation error {rng[0]:.1f}-{rng[1]:.1f} %")
-        for m, v in (s.get("multiclass") or {}).items():
-            typer.echo(f"three classes, {m}: best {v['best']:.1f} %, average {v['average']:.1f} %")
-        for m, v in (s.get("md_vs_cv_overall") or {}).items():
-            typer.echo(f"{m}: MD {v['md_mean']:.1f} % vs CV {v['cv_mean']:.1f} %")
-        typer.echo(
-            f"wrote {out / 'results.json'} and {out / 'report.md'} ({res['seconds_total']:.0f} s)"
-        )
-
-    @app.command("train")
-    def train(
-        campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
-        output: Path = typer.Option(..., "-o", "--output", help="model file to write"),
-        classes: Optional[str] = typer.Option(None, help="classes to learn, e.g. brush,washer"),
-        all_classes: bool = typer.Option(False, "--all-classes", help="learn every class"),
-        machine: Machine = typer.Option(Machine.svm, help="tensor-SVM or tensor-RLS"),
-        selection: Selection = typer.Option(
-            Selection.cv,
-            help="cv: cross-validation over participant-grouped splits; md: Maximal "
-            "Discrepancy (the paper's Algorithm 1)",
-        ),
-        D: int = typer.Option(100, "--D", help="subsampled window length"),
-        window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
-        subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
-        quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
-        seed: int = typer.Option(0, help="seed of every random choice"),
-        n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
-        scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
-    ) -> None:
-        """Select, fit on all the given recordings and save a model.
-
-        The default recipe: tensor-SVM, D = 100, energy touch window, Algorithm 2 subsampling,
-        the paper's 135-setting grid chosen by cross-validation over participant-grouped splits
-        (recordings without participants: stratified splits, with a note). On unseen people of
-        simulated campaigns it was the best recipe of docs/selection-study.md, far ahead of
-        Maximal Discrepancy (--selection md).
-        """
-        from eskin.deploy import save_model
-        from eskin.learn.evaluation_report import selection_estimate_lines
-        from eskin.learn.models import train_model
-        from eskin.learn.parallel import compute_backend
-
-        if (classes is None) == (not all_classes):
-            _fail("give exactly one of --classes a,b,... or --all-classes")
-        names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
-        try:
-            with compute_backend(scheduler):
-                model = train_model(
-                    campaign,
-                    classes=names,
-                    machine=machine.value,
-                    selection=selection.value,
-                    D=D,
-                    window=window.value,
-                    subsample=subsample.value,
-                    quick=quick,
-                    seed=seed,
-                    n_jobs=-1 if scheduler else n_jobs,
-                )
-            save_model(model, output)
-        except (ValueError, OSError, KeyError) as exc:
-            _fail(str(exc))
-        for note in model.training.get("notes", []):
-            typer.echo(f"note: {note}")
-        typer.echo(
-            f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
-            f"D={model.D}, window={model.window})"
-        )
-        for sel in model.selected:
-            name = f"{sel['class']} vs rest: " if "class" in sel else ""
-            first = f"C={sel['C']:g}" if model.machine == "svm" else f"lambda={sel['lambda']:g}"
-            typer.echo(
-                f"  {name}{first}, sigma={sel['sigma']:g}, alpha={sel['alpha'] or sel['alphas']}"
-                f" ({sel['n_train']} patterns)"
-            )
-        for line in selection_estimate_lines(model):
-            typer.echo(line)
-        typer.echo(f"wrote {output}")
-
-    @app.command("predict")
-    def predict(
-        model_path: Path = typer.Argument(..., metavar="MODEL", help="model file"),
-        campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
-        json_out: Optional[Path] = typer.Option(None, "--json", help="write predictions as JSON"),
-        engine: Engine = typer.Option(
-            Engine.python, help="python: the Python model; cpp: the compiled C++ classifier"
-        ),
-    ) -> None:
-        """Classify every recording of a campaign; print labels, decision values, error rate."""
-        from eskin.data.campaign import load_campaign
-        from eskin.deploy import load_model
-        from eskin.learn.models import error_rate
-
-        try:
-            model = load_model(model_path)
-            camp = load_campaign(campaign)
-            if engine is Engine.cpp:
-                from eskin.deploy.export import compiled_engine
-
-                preds = compiled_engine(model).predict_recordings(camp)
-            else:
-                preds = model.predict_recordings(camp)
-        except (ValueError, OSError, KeyError) as exc:
-            _fail(str(exc))
-        if abs(float(camp.sample_rate_hz) - model.sample_rate_hz) > 1e-9:
-            typer.echo(
-                f"note: model trained at {model.sample_rate_hz:g} Hz, campaign recorded "
-                f"at {float(camp.sample_rate_hz):g} Hz",
-                err=True,
-            )
-        head = "decision" if model.is_binary else " ".join(f"f({c})" for c in model.classes)
-        typer.echo(f"index  label  true  {head}")
-        for p in preds:
-            vals = " ".join(f"{v:+.4f}" for v in p["decision_values"])
-            flag = "  (don't know)" if p.get("dont_know") else ""
-            typer.echo(f"{p['index']:5d}  {p['label']}  {p.get('true_label', '-')}  {vals}{flag}")
-        err, n = error_rate(preds, model.classes)
-        if n:
-            typer.echo(f"error rate: {100 * err:.2f} % ({n} recordings of the model's classes)")
-        else:
-            typer.echo("error rate: unknown (no labelled recording of the model's classes)")
-        if json_out is not None:
-            try:
-                json_out.parent.mkdir(parents=True, exist_ok=True)
-                json_out.write_text(json.dumps(preds, indent=1))
-            except OSError as exc:
-                _fail(f"cannot write {json_out}: {exc}")
-            typer.echo(f"wrote {json_out}")
+    app.command("experiment")(experiment)
+    app.command("train")(train)
+    app.command("predict")(predict)

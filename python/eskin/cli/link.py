@@ -236,76 +236,78 @@ def _run_plain(events: Any, out: Any, truth: Any = None) -> None:
 # --------------------------------------------------------------------------- commands
 
 
+def listen_cmd(
+    port: str = typer.Argument(..., help="serial port or pseudo-terminal (e.g. the path "
+                                          "eskin-fw-sim prints, or its --link symlink)"),
+    model: Optional[Path] = typer.Option(
+        None, "--model", help="classify on the host too (.eskin file or saved model)"),
+    jsonl: Optional[Path] = typer.Option(
+        None, "--jsonl", help="write one JSON object per decision, then the link statistics"),
+    duration: Optional[float] = typer.Option(None, "--duration", help="stop after S seconds"),
+    until_eof: bool = typer.Option(
+        False, "--until-eof", help="stop when the controller's replay is over (or it closes)"),
+    record: Optional[Path] = typer.Option(
+        None, "--record", help="record the received stream to a campaign file (.h5)"),
+    replay: Optional[Path] = typer.Option(
+        None, "--replay", help="the replay file the controller streams: each decision shows "
+        "its recording's true class, the run ends with the accuracy and confusion matrix "
+        "against them, and --record writes one recording per segment, with its true label"),
+    reconnect: bool = typer.Option(
+        False, "--reconnect", help="reopen the port when the controller goes away"),
+    backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
+    force: bool = typer.Option(False, "--force", help="replace the --record file"),
+    view: str = typer.Option(
+        "auto", help="live (rich view), plain (one line per event) or auto (live on a "
+                     "terminal)"),
+) -> None:
+    """Listen to the skin controller: live decisions, link statistics, taxel activity.
+
+    A label followed by "?" is a "don't know": no machine, or more than one, claimed the
+    touch (the label is the machine with the largest decision value)."""
+    _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
+            force, view)
+
+
+def demo_cmd(
+    out: Path = typer.Option(Path("demo_out"), "--out", help="folder for every file"),
+    participants: int = typer.Option(8, help="simulated participants"),
+    test_participants: int = typer.Option(2, help="held out, streamed over the link"),
+    speed: float = typer.Option(5.0, help="replay speed (x real time)"),
+    seed: int = typer.Option(0, help="random seed"),
+    jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
+    machine: str = typer.Option("rls", help="rls (tensor-RLS) or svm (tensor-SVM)"),
+    quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
+    recordings: Optional[int] = typer.Option(
+        None, "--recordings", help="stream only this many held-out recordings"),
+) -> None:
+    """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
+    from rich.console import Console
+
+    from eskin.demo import DemoError, run_demo
+
+    console = Console()
+    with _user_errors():
+        try:
+            result = run_demo(out, participants=participants,
+                              test_participants=test_participants, speed=speed, seed=seed,
+                              n_jobs=jobs, quick=quick, machine=machine,
+                              max_recordings=recordings, log=lambda m: console.print(m))
+        except DemoError as exc:
+            console.print(f"[bold red]demo failed:[/] {exc}")
+            raise typer.Exit(1) from None
+    _print_demo(console, result)
+    if not result.agree:
+        console.print(f"[bold red]demo failed: live and offline decisions disagree:[/] "
+                      f"{result.disagreement}")
+        raise typer.Exit(1)
+    console.print("[bold green]live decisions (controller and host) equal the offline "
+                  "ones[/]")
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
-
-    @app.command("listen")
-    def listen_cmd(
-        port: str = typer.Argument(..., help="serial port or pseudo-terminal (e.g. the path "
-                                              "eskin-fw-sim prints, or its --link symlink)"),
-        model: Optional[Path] = typer.Option(
-            None, "--model", help="classify on the host too (.eskin file or saved model)"),
-        jsonl: Optional[Path] = typer.Option(
-            None, "--jsonl", help="write one JSON object per decision, then the link statistics"),
-        duration: Optional[float] = typer.Option(None, "--duration", help="stop after S seconds"),
-        until_eof: bool = typer.Option(
-            False, "--until-eof", help="stop when the controller's replay is over (or it closes)"),
-        record: Optional[Path] = typer.Option(
-            None, "--record", help="record the received stream to a campaign file (.h5)"),
-        replay: Optional[Path] = typer.Option(
-            None, "--replay", help="the replay file the controller streams: each decision shows "
-            "its recording's true class, the run ends with the accuracy and confusion matrix "
-            "against them, and --record writes one recording per segment, with its true label"),
-        reconnect: bool = typer.Option(
-            False, "--reconnect", help="reopen the port when the controller goes away"),
-        backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
-        force: bool = typer.Option(False, "--force", help="replace the --record file"),
-        view: str = typer.Option(
-            "auto", help="live (rich view), plain (one line per event) or auto (live on a "
-                         "terminal)"),
-    ) -> None:
-        """Listen to the skin controller: live decisions, link statistics, taxel activity.
-
-        A label followed by "?" is a "don't know": no machine, or more than one, claimed the
-        touch (the label is the machine with the largest decision value)."""
-        _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
-                force, view)
-
-    @app.command("demo")
-    def demo_cmd(
-        out: Path = typer.Option(Path("demo_out"), "--out", help="folder for every file"),
-        participants: int = typer.Option(8, help="simulated participants"),
-        test_participants: int = typer.Option(2, help="held out, streamed over the link"),
-        speed: float = typer.Option(5.0, help="replay speed (x real time)"),
-        seed: int = typer.Option(0, help="random seed"),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
-        machine: str = typer.Option("rls", help="rls (tensor-RLS) or svm (tensor-SVM)"),
-        quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
-        recordings: Optional[int] = typer.Option(
-            None, "--recordings", help="stream only this many held-out recordings"),
-    ) -> None:
-        """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
-        from rich.console import Console
-
-        from eskin.demo import DemoError, run_demo
-
-        console = Console()
-        with _user_errors():
-            try:
-                result = run_demo(out, participants=participants,
-                                  test_participants=test_participants, speed=speed, seed=seed,
-                                  n_jobs=jobs, quick=quick, machine=machine,
-                                  max_recordings=recordings, log=lambda m: console.print(m))
-            except DemoError as exc:
-                console.print(f"[bold red]demo failed:[/] {exc}")
-                raise typer.Exit(1) from None
-        _print_demo(console, result)
-        if not result.agree:
-            console.print(f"[bold red]demo failed: live and offline decisions disagree:[/] "
-                          f"{result.disagreement}")
-            raise typer.Exit(1)
-        console.print("[bold green]live decisions (controller and host) equal the offline "
-                      "ones[/]")
+    app.command("listen")(listen_cmd)
+    app.command("demo")(demo_cmd)
 
 
 def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, record: Any,
