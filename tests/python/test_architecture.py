@@ -170,7 +170,7 @@ PENDING: dict[str, int] = {
     "eskin.data.importers.import_tdms": 153,
     "eskin.data.simulator._Chain": 334,
     "eskin.learn.models.preprocess_campaign": 82,
-    "eskin.learn.models.train_model": 174,
+    "eskin.learn.models.train_model": 188,
     "eskin.link.listener.LinkListener": 567,
     "eskin.link.listener.LinkListener.__init__": 88,
 }
