@@ -231,6 +231,38 @@ def test_evaluate_and_train_on_a_dask_cluster_match_the_serial_run(
         assert m1.predict_recordings(camp) == m2.predict_recordings(camp)
 
 
+def _untimed(x):
+    """A results.json without its timings (keys ending in seconds, created_utc)."""
+    if isinstance(x, dict):
+        return {
+            k: _untimed(v)
+            for k, v in x.items()
+            if not k.endswith("seconds") and k not in ("seconds_total", "created_utc")
+        }
+    return [_untimed(v) for v in x] if isinstance(x, list) else x
+
+
+def test_experiment_on_a_dask_cluster_matches_the_serial_run(
+    sim_campaign, tmp_path, dask_scheduler
+):
+    for name, extra in (("a", ["--n-jobs", "1"]), ("b", ["--scheduler", dask_scheduler])):
+        r = _run(
+            [
+                "experiment",
+                str(sim_campaign),
+                "--out",
+                str(tmp_path / name),
+                "--quick",
+                "--no-progress",
+                *extra,
+            ]
+        )
+        assert r.exit_code == 0, r.output
+    a = json.loads((tmp_path / "a" / "results.json").read_text())
+    b = json.loads((tmp_path / "b" / "results.json").read_text())
+    assert a["binary"] and _untimed(a) == _untimed(b)
+
+
 def test_a_local_cluster_runs_joblib_work_and_is_closed_after():
     import joblib
 
