@@ -73,42 +73,59 @@ _SEARCHABLE = ("lam", "C", "sigma", "alpha")
 #: Each option is documented in the class and in docs/learning.md; docs/selection-study.md
 #: measures them against each other and against cross-validation.
 MD_READINGS: dict[str, tuple[dict, str]] = {
-    "kmeans++": (
-        {"clustering": "kmeans++", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
-        (
-            "Algorithm 1 with the clustering reference; kernel k-means by k-means++ seeding, "
-            "Lloyd and Hartigan moves (lowest inertia over restarts); Gamma_0 of the nearer of "
-            "beta(+)/beta(-); chi averaged over the random labellings"
-        ),
-    ),
-    "lloyd": (
-        {"clustering": "lloyd", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
+    "default": (
+        {"clustering": "lloyd", "gamma0": "nearer", "reference": "clustering", "chi": "mean",
+         "flip": "auto"},
         (
             "Algorithm 1 with the clustering reference; plain Lloyd kernel k-means from random "
             "labels (lowest inertia over restarts); Gamma_0 of the nearer of beta(+)/beta(-); "
-            "chi averaged over the random labellings"
+            "random labellings flipping half of each class for the SVM (its bias cannot then "
+            "fit a labelling by predicting its majority class) and a uniformly random half for "
+            "RLS; chi averaged over the labellings"
+        ),
+    ),
+    "kmeans++": (
+        {"clustering": "kmeans++", "gamma0": "nearer", "reference": "clustering", "chi": "mean",
+         "flip": "uniform"},
+        (
+            "Algorithm 1 with the clustering reference; kernel k-means by k-means++ seeding, "
+            "Lloyd and Hartigan moves (lowest inertia over restarts); Gamma_0 of the nearer of "
+            "beta(+)/beta(-); labellings flipping a uniformly random half; chi averaged over "
+            "the random labellings (eskin's first reading)"
+        ),
+    ),
+    "lloyd": (
+        {"clustering": "lloyd", "gamma0": "nearer", "reference": "clustering", "chi": "mean",
+         "flip": "uniform"},
+        (
+            "Algorithm 1 with the clustering reference; plain Lloyd kernel k-means from random "
+            "labels (lowest inertia over restarts); Gamma_0 of the nearer of beta(+)/beta(-); "
+            "labellings flipping a uniformly random half; chi averaged over the labellings"
         ),
     ),
     "balanced": (
-        {"clustering": "balanced", "gamma0": "nearer", "reference": "clustering", "chi": "mean"},
+        {"clustering": "balanced", "gamma0": "nearer", "reference": "clustering", "chi": "mean",
+         "flip": "uniform"},
         (
             "Algorithm 1 with the clustering reference; size-constrained kernel 2-means (two "
-            "equal halves); Gamma_0 of the nearer of beta(+)/beta(-); chi averaged"
+            "equal halves); Gamma_0 of the nearer of beta(+)/beta(-); labellings flipping a "
+            "uniformly random half; chi averaged"
         ),
     ),
     "true-norm": (
-        {"reference": "true-norm", "chi": "mean"},
+        {"reference": "true-norm", "chi": "mean", "flip": "uniform"},
         (
-            "Anguita et al.'s hypothesis space: each random labelling is trained under the norm "
-            "of the machine trained on the true labels (Gamma_0 = Gamma(RKM), no clustering); "
-            "chi averaged"
+            "Anguita et al.'s hypothesis space: each random labelling (a uniformly random half "
+            "flipped) is trained under the norm of the machine trained on the true labels "
+            "(Gamma_0 = Gamma(RKM), no clustering); chi averaged"
         ),
     ),
     "same-lambda": (
-        {"reference": "same-lambda", "chi": "mean"},
+        {"reference": "same-lambda", "chi": "mean", "flip": "uniform"},
         (
-            "Anguita et al. in Tikhonov form: each random labelling is trained with the same "
-            "lambda as the true labels (no norm constraint, no clustering); chi averaged"
+            "Anguita et al. in Tikhonov form: each random labelling (a uniformly random half "
+            "flipped) is trained with the same lambda as the true labels (no norm constraint, "
+            "no clustering); chi averaged"
         ),
     ),
 }
@@ -641,15 +658,18 @@ class MaximalDiscrepancySearch(_SearchBase):
         Confidence of tau (default 0.05).
     max_lambda_steps : int
         Cap on the lambda_hat multiplications per labelling (default 30, i.e. up to 2^30 lambda).
-    flip : "uniform" or "stratified"
-        Which half of the labels a random labelling flips: a uniformly random half (default,
-        reading R13) or half of each class (keeps the class counts; see docs/learning.md).
+    flip : "auto", "uniform" or "stratified"
+        Which half of the labels a random labelling flips: a uniformly random half (reading
+        R13) or half of each class (keeps the class counts; see docs/learning.md); "auto"
+        (default) is "stratified" for the SVM and "uniform" for RLS, what selected best in
+        docs/selection-study.md.
     n_init, max_iter : int
         Kernel k-means restarts and Lloyd iterations (defaults 10, 100).
-    clustering : "kmeans++", "lloyd", "lloyd-hartigan" or "balanced"
-        Step II's kernel k-means (:func:`~eskin.estimators.kernel_kmeans`): k-means++ seeding,
-        Lloyd and Hartigan moves (default); plain Lloyd from random labels; Lloyd then Hartigan
-        from random labels; or two equal halves (size-constrained).
+    clustering : "lloyd", "kmeans++", "lloyd-hartigan" or "balanced"
+        Step II's kernel k-means (:func:`~eskin.learn.estimators.kernel_kmeans`): plain Lloyd
+        from random labels (default); k-means++ seeding, Lloyd and Hartigan moves (eskin's first
+        reading, whose low-inertia but unbalanced partitions give a small Gamma_0); Lloyd then
+        Hartigan from random labels; or two equal halves (size-constrained).
     gamma0 : "nearer" or "larger"
         Step VI: Gamma_0 of whichever of beta(+)/beta(-) is nearer to beta(RKM) (default,
         reading R12), or the larger of their two norms.
@@ -689,13 +709,13 @@ class MaximalDiscrepancySearch(_SearchBase):
         eps=2.0,
         delta=0.05,
         max_lambda_steps=30,
-        flip="uniform",
+        flip="auto",
         n_init=10,
         max_iter=100,
         n_jobs=None,
         random_state=None,
         refit=True,
-        clustering="kmeans++",
+        clustering="lloyd",
         gamma0="nearer",
         reference="clustering",
         chi="mean",
@@ -718,8 +738,10 @@ class MaximalDiscrepancySearch(_SearchBase):
         self.refit = refit
 
     def _check_params(self):
-        if self.flip not in ("uniform", "stratified"):
-            raise ValueError(f"flip must be 'uniform' or 'stratified', got {self.flip!r}")
+        if self.flip not in ("auto", "uniform", "stratified"):
+            raise ValueError(
+                f"flip must be 'auto', 'uniform' or 'stratified', got {self.flip!r}"
+            )
         for name, allowed in _MD_CHOICES.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
@@ -737,6 +759,11 @@ class MaximalDiscrepancySearch(_SearchBase):
                 f"max_lambda_steps must be an int >= 0, got {self.max_lambda_steps!r}"
             )
 
+    def _flip(self, kind: str) -> str:
+        if self.flip != "auto":
+            return self.flip
+        return "stratified" if kind == "svm" else "uniform"
+
     def describe_reading(self) -> str:
         """The reading of Algorithm 1 these options run, in words (for reports)."""
         opts = {
@@ -744,11 +771,12 @@ class MaximalDiscrepancySearch(_SearchBase):
             "gamma0": self.gamma0,
             "reference": self.reference,
             "chi": self.chi,
+            "flip": self.flip,
         }
         name = next((k for k, (o, _) in MD_READINGS.items()
                      if all(opts[key] == val for key, val in o.items())), None)
         parts = [f"{k}={v}" for k, v in opts.items()]
-        parts += [f"flip={self.flip}", f"n_labelings={self.n_labelings}", f"n_init={self.n_init}"]
+        parts += [f"n_labelings={self.n_labelings}", f"n_init={self.n_init}"]
         head = f"reading {name!r}: {MD_READINGS[name][1]}" if name else "a custom reading"
         return f"{head} ({', '.join(parts)})"
 
@@ -772,7 +800,7 @@ class MaximalDiscrepancySearch(_SearchBase):
         self.random_state_ = _resolve_seed(self.random_state)
         settings = _MDSettings(
             int(self.n_labelings), float(self.eps), int(self.max_lambda_steps),
-            int(self.n_init), int(self.max_iter), self.flip, self.clustering, self.gamma0,
+            int(self.n_init), int(self.max_iter), self._flip(kind), self.clustering, self.gamma0,
             self.reference,
         )
         blocks = _blocks(configs)

@@ -205,7 +205,7 @@ def test_report_layout(quick_out):
     assert "Both machines show lambda" in text
     # which reading of Algorithm 1 ran, by name and in words (quick: N = 3 labellings)
     line = next(t for t in text.splitlines() if t.startswith("- Algorithm 1 as run: "))
-    assert "reading 'kmeans++'" in line and "n_labelings=3" in line and "Lloyd" in line
+    assert "reading 'default'" in line and "n_labelings=3" in line and "plain Lloyd" in line
     # the report can be rebuilt from results.json alone
     res = json.loads((quick_out / "results.json").read_text())
     assert render_markdown(res, []).startswith("# eskin experiment report")

@@ -378,3 +378,15 @@ def test_cluster_minority_share_reports_the_reference_partition():
     assert np.all((pp > 0) & (pp <= 0.5))
     free = _md(TensorRLS(), _GRID, X, y, reference="true-norm").cv_results_
     assert np.all(np.isnan(free["cluster_minority_share"]))
+
+
+@pytest.mark.parametrize(("est", "same_as"), [(TensorSVC(), "stratified"),
+                                              (TensorRLS(), "uniform")], ids=["svm", "rls"])
+def test_default_flip_is_stratified_for_the_svm_and_uniform_for_rls(est, same_as):
+    X, y = _noise(30, seed=8)
+    auto = _md(est, _GRID, X, y)  # the defaults: the reading named "default"
+    assert auto.describe_reading().startswith("reading 'default': ")
+    _assert_same_results(auto, _md(est, _GRID, X, y, flip=same_as))
+    # eskin's first reading stays available by name
+    first = MaximalDiscrepancySearch(est, **md_reading("kmeans++"))
+    assert (first.clustering, first.flip) == ("kmeans++", "uniform")
