@@ -48,9 +48,13 @@ Either way the per-recording extra fields ``stream_start`` (stream index of samp
 one) are written, and the file is complete (renamed into place) when the listener closes.
 
 Link statistics (:class:`LinkStats`) count everything the link lost or rejected: bytes, frames,
-CRC errors, malformed and oversize blocks, sequence gaps and lost frames, lost samples (holes in
-the DATA indices), sample index resets, DATA frames flagged OVERRUN, and the controller's own
-counters from its last STATUS (dropped samples, overrun events, rx errors, injected faults).
+CRC errors, malformed and oversize blocks, sequence gaps and lost frames, lost samples, sample
+index resets, DATA frames flagged OVERRUN, and the controller's own counters from its last STATUS
+(dropped samples, overrun events, rx errors, injected faults). Lost samples are the holes in the
+DATA indices, reconciled with the controller's count at every STATUS it sends while not streaming
+(on STOP, at the end of its replay, on exit): then ``samples_sent`` minus the samples received
+are lost too, also those after the last frame that arrived (docs/wire-protocol.md, "Host
+rules").
 """
 
 from __future__ import annotations
@@ -74,7 +78,6 @@ from eskin.link.protocol import (
     FrameDecoder,
     FrameType,
     InfoFrame,
-    PongFrame,
     StatusFrame,
     StreamState,
     encode_frame,
@@ -429,6 +432,24 @@ class _History:
 # --------------------------------------------------------------------------- the listener
 
 
+def unreceived_samples(status: StatusFrame, received: int, counts: dict[str, int],
+                       known: int = 0) -> int:
+    """Samples the controller sent that never arrived, from its STATUS counters: the larger of
+    ``known`` (the count so far: it only grows) and what this STATUS shows.
+
+    ``received``: samples of the DATA frames the host processed before this STATUS;
+    ``counts["reconnects"]``: the host's reconnections. A STATUS sent while the
+    controller is not streaming (stopped, or its replay finished) follows every DATA frame it
+    sent before it, so each of its ``samples_sent`` has been received or is lost, including
+    the ones after the last frame that arrived (which no hole in the sample indices reveals).
+    This holds when every sample it sent went to this host: when its ``connections`` are at
+    most the host's connections (0: an older controller that does not say)."""
+    sessions = 1 + counts["reconnects"]
+    if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
+        return known
+    return max(known, status.samples_sent - received)
+
+
 class LinkListener:
     """The controller's live stream over a serial port, as events. See the module docstring.
 
@@ -528,7 +549,7 @@ class LinkListener:
         self._last: Optional[np.ndarray] = None  # last sample (for holding over holes)
         self._base = 0  # stream index of the host classifier's sample 0
         self._lost_ranges: list[tuple[int, int]] = []
-        self._lost_samples = 0
+        self._lost_samples = self._received = self._unseen = 0  # see unreceived_samples
         self._tail_counted = False
         self._index_resets = 0
         self._history: Optional[_History] = None
@@ -625,7 +646,7 @@ class LinkListener:
         elapsed = 0.0 if self._t0 is None else time.monotonic() - self._t0
         # sample losses are counted here rather than by the decoder, whose expectations are
         # reset when the port is reopened: a hole across a reconnect is a loss too
-        d["lost_samples"] = self._lost_samples
+        d["lost_samples"] = max(self._lost_samples, self._unseen)
         d["sample_index_resets"] = self._index_resets
         return LinkStats(elapsed_s=elapsed, **d, **self._counts, **ctrl)
 
@@ -728,6 +749,7 @@ class LinkListener:
                 j = i
                 while j < len(frames) and isinstance(frames[j], DataFrame):
                     j += 1
+                self._received += sum(int(fr.samples.shape[0]) for fr in frames[i:j])
                 out += self._on_data(frames[i:j], received)
                 i = j
                 continue
@@ -736,13 +758,12 @@ class LinkListener:
             elif isinstance(f, StatusFrame):
                 self.last_status = f
                 self._counts["status_frames"] += 1
+                self._unseen = unreceived_samples(f, self._received, self._counts, self._unseen)
                 out.append(StatusEvent(f))
             elif isinstance(f, InfoFrame):
                 self.info = f
                 out.append(InfoEvent(f))
-            elif isinstance(f, PongFrame):
-                pass
-            i += 1
+            i += 1  # PONG: nothing to do
         return out
 
     def _class_name(self, index: int) -> Optional[str]:

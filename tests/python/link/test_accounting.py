@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 from eskin.data.replay import write_replay_arrays
+from eskin.link.listener import LinkListener
+from eskin.link.protocol import DELIMITER, DataFrame, StatusFrame, StreamState, encode_frame
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -93,6 +95,106 @@ def test_listen_writes_its_final_statistics_when_a_signal_ends_it(fw_sim, replay
     assert final["type"] == "stats"
     assert final["samples"] > 0 and final["frames"] > 0
     assert final["samples"] % 10 == 0  # whole DATA frames of 10 samples
+
+
+def _controller_on_a_pty(frames: bytes):
+    """A pty whose controller end, once the host has written its START, sends ``frames`` and
+    closes; returns (path of the host end, the controller thread)."""
+    import select
+    import threading
+
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)
+
+    def run():
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            r, _, _ = select.select([master], [], [], 0.05)
+            try:
+                if r and os.read(master, 4096):
+                    break  # the host opened the port and sent START
+            except OSError:
+                time.sleep(0.02)
+        view = memoryview(frames)
+        while view:
+            view = view[os.write(master, view) :]
+        time.sleep(0.2)
+        os.close(master)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return path, t
+
+
+def _frames(status_state, connections, samples_sent=50) -> bytes:
+    rng = np.random.default_rng(0)
+    data = [
+        DataFrame(first, 0, rng.integers(-9, 9, (10, 2, 2)).astype(np.int16), seq=k)
+        for k, first in enumerate((0, 20))
+    ]  # samples 10..19 lost: a hole of 10
+    status = StatusFrame(
+        next_sample=50,
+        samples_sent=samples_sent,
+        state=status_state,
+        host_connected=True,
+        connections=connections,
+        seq=2,
+    )
+    return DELIMITER + b"".join(encode_frame(f) for f in (*data, status))
+
+
+@pytest.mark.parametrize(
+    "state, connections, lost",
+    [
+        (StreamState.FINISHED, 1, 30),  # 50 sent, 20 received: the tail 30..49 counts too
+        (StreamState.STOPPED, 1, 30),
+        (StreamState.STREAMING, 1, 10),  # frames may still be on their way: holes only
+        (StreamState.STOPPED, 2, 10),  # another host got some of the 50: holes only
+        (StreamState.STOPPED, 0, 10),  # an older controller that does not say
+        # finished: the samples after the last one received (next_sample 50) are lost anyway
+        (StreamState.FINISHED, 0, 30),
+    ],
+)
+def test_lost_samples_reconcile_with_the_controller_count(state, connections, lost):
+    path, thread = _controller_on_a_pty(_frames(state, connections))
+    with LinkListener(path, stats_interval=None) as link:
+        events = list(link.events(duration=10.0))
+    thread.join(5)
+    s = events[-1].stats
+    assert (s.samples, s.lost_samples, s.controller_samples_sent) == (20, lost, 50)
+
+
+@pytest.mark.parametrize("flip_rate, seed", [(0.05, 4), (0.002, 5)])
+def test_lost_equals_sent_minus_received_under_bit_flips(fw_sim, replay, flip_rate, seed):
+    proc, pty_path = start_fw_sim(
+        fw_sim,
+        replay.path,
+        "--speed",
+        0,
+        "--wait-start",
+        "--flip-rate",
+        flip_rate,
+        "--seed",
+        seed,
+        "--status-ms",
+        10,
+        "--hold",
+        2,
+        "--tx-buffer",
+        1 << 20,
+    )
+    try:
+        with LinkListener(pty_path, stats_interval=None) as link:
+            events = list(link.events(until_eof=True, duration=30))
+    finally:
+        stats = fw_sim_stats(proc)
+    s = events[-1].stats
+    assert stats["samples_sent"] == replay.n_samples and stats["dropped_samples"] == 0
+    assert s.controller_state == "finished" and s.controller_samples_sent == replay.n_samples
+    assert s.lost_samples == stats["samples_sent"] - s.samples
+    if flip_rate < 0.01:
+        assert 0 < s.samples < replay.n_samples  # some frames arrived, some did not
 
 
 def test_listen_record_killed_with_sigkill_loses_no_recording_it_reported(fw_sim, tmp_path):
