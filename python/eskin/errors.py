@@ -31,14 +31,16 @@ __all__ = [
 class CampaignFormatError(ValueError):
     """A campaign file (or in-memory campaign) breaks the format.
 
-    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message.
+    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message
+    (``field`` is empty when the problem is the whole file's).
     """
 
     def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):
         self.path = str(path) if path is not None else "<memory>"
         self.field = field
         self.problem = problem
-        super().__init__(f"{self.path}: {field}: {problem}")
+        # a problem of the whole file has no field: "path: problem"
+        super().__init__(f"{self.path}: {field}: {problem}" if field else f"{self.path}: {problem}")
 
 
 class JournalError(ValueError):

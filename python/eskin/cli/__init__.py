@@ -5,6 +5,8 @@ Each group of commands lives in its own module with a ``register(app)`` function
 
 from __future__ import annotations
 
+from typing import Any
+
 import typer
 
 from eskin.cli import campaign, deploy, evaluate, learn, link
@@ -18,8 +20,20 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        import eskin
+
+        typer.echo(f"eskin {eskin.__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True,
+        help="print the version and exit"),
+) -> None:
     """Touch-modality recognition for piezoelectric electronic skin."""
 
 
@@ -35,5 +49,26 @@ def version() -> None:
     typer.echo(eskin.__version__)
 
 
+def _flags_without_value(command: Any) -> None:
+    """On/off options take no value: the help shows ``--force``, not ``--force <bool>`` (the
+    type column typer gives every option), for every command and its --help."""
+    for param in command.params:
+        if getattr(param, "is_flag", False):
+            param.metavar = ""
+    get_help_option = command.get_help_option
+
+    def help_option(ctx: Any) -> Any:
+        option = get_help_option(ctx)
+        if option is not None:
+            option.metavar = ""
+        return option
+
+    command.get_help_option = help_option
+    for sub in getattr(command, "commands", {}).values():
+        _flags_without_value(sub)
+
+
 def main() -> None:
-    app()
+    command = typer.main.get_command(app)
+    _flags_without_value(command)
+    command(prog_name="eskin")

@@ -37,23 +37,19 @@ def simulate_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
 ) -> None:
     """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
+    import os
     import time
 
+    from eskin._progress import progress_bar
     from eskin.data.simulator import simulate
 
-    with _user_errors():
+    with _user_errors(), progress_bar(enabled=not quiet) as bar:
         t0 = time.perf_counter()
-        step = max(1, participants * 12 // 20)
-
-        def progress(done: int, total: int) -> None:
-            if not quiet and (done % step == 0 or done == total):
-                typer.echo(f"  {done}/{total} recordings", err=True)
-
-        import os
-
+        task = bar.add_task("simulating recordings", total=participants * 12)
         n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
         simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                 n_jobs=n_jobs, overwrite=force, progress=progress)
+                 n_jobs=n_jobs, overwrite=force,
+                 progress=lambda done, total: bar.update(task, completed=done, total=total))
         typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
                    f"in {time.perf_counter() - t0:.1f} s")
 
@@ -67,6 +63,8 @@ def info_cmd(
 
     with _user_errors(), load_campaign(file, check_data=check) as c:
         _print_info(c)
+        if check:
+            typer.echo(f"check: OK, the data of all {len(c)} recordings read back intact")
 
 
 def plot_cmd(

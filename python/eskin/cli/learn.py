@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from enum import Enum
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import Any, NoReturn, Optional
 
 import typer
 
@@ -36,6 +36,22 @@ class Subsample(str, Enum):
 
 
 SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
+
+
+def _prediction_table(model: Any, preds: list[dict[str, Any]]) -> list[str]:
+    """`eskin predict`'s table, columns aligned: index, label, true label, decision value(s)."""
+    heads = ["decision"] if model.is_binary else [f"f({c})" for c in model.classes]
+    names = [str(p["label"]) for p in preds] + [str(p.get("true_label", "-")) for p in preds]
+    w_label = max([len(n) for n in names] + [len("label")])
+    w_value = max([len(h) for h in heads] + [len("+0.0000")])
+    lines = ["index  " + "label".ljust(w_label) + "  " + "true".ljust(w_label) + "  "
+             + "  ".join(h.rjust(w_value) for h in heads)]
+    for p in preds:
+        vals = "  ".join(f"{v:+.4f}".rjust(w_value) for v in p["decision_values"])
+        flag = "  (don't know)" if p.get("dont_know") else ""
+        lines.append(f"{p['index']:5d}  {str(p['label']).ljust(w_label)}  "
+                     f"{str(p.get('true_label', '-')).ljust(w_label)}  {vals}{flag}")
+    return lines
 
 
 def _fail(message: str) -> NoReturn:
@@ -222,12 +238,8 @@ def predict(
             f"at {float(camp.sample_rate_hz):g} Hz",
             err=True,
         )
-    head = "decision" if model.is_binary else " ".join(f"f({c})" for c in model.classes)
-    typer.echo(f"index  label  true  {head}")
-    for p in preds:
-        vals = " ".join(f"{v:+.4f}" for v in p["decision_values"])
-        flag = "  (don't know)" if p.get("dont_know") else ""
-        typer.echo(f"{p['index']:5d}  {p['label']}  {p.get('true_label', '-')}  {vals}{flag}")
+    for line in _prediction_table(model, preds):
+        typer.echo(line)
     err, n = error_rate(preds, model.classes)
     if n:
         typer.echo(f"error rate: {100 * err:.2f} % ({n} recordings of the model's classes)")

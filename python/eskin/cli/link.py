@@ -37,6 +37,19 @@ def _user_errors() -> Iterator[None]:
 # --------------------------------------------------------------------------- rendering
 
 
+def report_console() -> Any:
+    """A rich console for tables and lines that end up in a terminal or in a file: on a
+    terminal, its width; otherwise (a pipe, a log) 200 columns and no wrapping of long lines,
+    instead of rich's 80 columns (the COLUMNS variable still wins)."""
+    import os
+
+    from rich.console import Console
+
+    if sys.stdout.isatty() or os.environ.get("COLUMNS"):
+        return Console()
+    return Console(width=200, soft_wrap=True)
+
+
 def _fmt_values(values: Any) -> str:
     return "[" + ", ".join(f"{v:+.3f}" for v in values) + "]"
 
@@ -281,11 +294,9 @@ def demo_cmd(
         None, "--recordings", help="stream only this many held-out recordings"),
 ) -> None:
     """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
-    from rich.console import Console
-
     from eskin.demo import DemoError, run_demo
 
-    console = Console()
+    console = report_console()
     with _user_errors():
         try:
             result = run_demo(out, participants=participants,
@@ -385,10 +396,9 @@ def _print_scores(scores: list[Any], live_mode: bool) -> None:
     if not scores:
         return
     if live_mode:
-        from rich.console import Console
         from rich.table import Table
 
-        console = Console()
+        console = report_console()
         for sc in scores:
             names = list(sc.class_names)
             t = Table(title=f"{sc.source}: {sc.correct}/{sc.recordings} right "

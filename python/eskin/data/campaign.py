@@ -533,22 +533,24 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
                     f"salvages its recordings)")
         raise FileNotFoundError(f"{where}: no such campaign file{hint}")
     if path.is_dir():
-        raise CampaignFormatError(where, "<file>", "is a directory, not a campaign file")
+        raise CampaignFormatError(where, "", "is a directory, not a campaign file")
     try:
         is_hdf5 = h5py.is_hdf5(where)
     except OSError as exc:
-        raise CampaignFormatError(where, "<file>", f"cannot be read ({exc})") from exc
+        raise CampaignFormatError(where, "", f"cannot be read ({exc})") from exc
     if not is_hdf5:
-        raise CampaignFormatError(where, "<file>", "not an HDF5 file (no HDF5 signature)")
+        raise CampaignFormatError(
+            where, "", "not an HDF5 file (no HDF5 signature), so not an eskin campaign (a campaign "
+            "is an HDF5 file: docs/dataset-format.md)")
     try:
         f = h5py.File(where, "r")
     except OSError as exc:
         msg = str(exc)
         if "truncated" in msg:
             raise CampaignFormatError(
-                where, "<file>", f"truncated HDF5 file (incomplete copy or interrupted "
+                where, "", f"truncated HDF5 file (incomplete copy or interrupted "
                 f"write): {msg}") from exc
-        raise CampaignFormatError(where, "<file>", f"damaged HDF5 file: {msg}") from exc
+        raise CampaignFormatError(where, "", f"damaged HDF5 file: {msg}") from exc
     try:
         campaign = _load_open(f, where)
         if check_data:
@@ -572,7 +574,7 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
         raise
     except (OSError, RuntimeError, KeyError, TypeError) as exc:
         f.close()
-        raise CampaignFormatError(where, "<file>", f"damaged HDF5 file: {exc}") from exc
+        raise CampaignFormatError(where, "", f"damaged HDF5 file: {exc}") from exc
 
 
 def _load_open(f: Any, where: str) -> Campaign:

@@ -100,7 +100,34 @@ def _validate_fit(est, X, y):
     return as_tensors(X, est.tensor_shape), y
 
 
+def _check_pattern_order(est, X, name: str | None = None) -> None:
+    """A clear error for patterns of another order than the fitted ones (typically flattened
+    rows, or one pattern without its batch axis), before scikit-learn's feature count check
+    words it in features."""
+    fitted = getattr(est, "tensor_shape_", None)
+    if fitted is None or est.tensor_shape is not None:
+        return
+    fitted = tuple(fitted)
+    if fitted == (1, getattr(est, "n_features_in_", None)):
+        return  # fitted on 2-D rows (the (1, n_features) view): scikit-learn's checks apply
+    shape = tuple(np.shape(X))
+    if len(shape) == len(fitted) + 1:
+        return
+    dims = ", ".join(map(str, fitted))
+    if shape == fitted:
+        hint = f"one pattern needs the batch axis: X[np.newaxis], shape (1, {dims})"
+    elif len(shape) == 2 and shape[1] == int(np.prod(fitted)):
+        hint = f"its rows look flattened: X.reshape(-1, {dims}) undoes it"
+    else:
+        hint = f"expected (n, {dims})"
+    raise ValueError(
+        f"X has shape {shape}, but {name or type(est).__name__} was fitted on patterns of shape "
+        f"{fitted}: {hint}"
+    )
+
+
 def _validate_predict(est, X):
+    _check_pattern_order(est, X)
     X = validate_data(est, X, reset=False, allow_nd=True, dtype=np.float64)
     X = as_tensors(X, est.tensor_shape)
     if tuple(X.shape[1:]) != tuple(est.tensor_shape_):
@@ -693,6 +720,7 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
     def decision_function(self, X):
         """Decision values of every machine, shape (n, n_classes); column k > 0 claims class k."""
         check_is_fitted(self)
+        _check_pattern_order(self.estimators_[0], X, type(self).__name__)
         X = validate_data(self, X, reset=False, allow_nd=True, dtype=np.float64)
         return np.column_stack([m.decision_function(X) for m in self.estimators_])
 

@@ -273,7 +273,7 @@ def test_foreign_hdf5(tmp_path):
 def test_not_hdf5(tmp_path):
     p = tmp_path / "notes.h5"
     p.write_text("participant,modality\n1,brush\n")
-    with pytest.raises(CampaignFormatError, match=r"notes\.h5: <file>: not an HDF5 file"):
+    with pytest.raises(CampaignFormatError, match=r"notes\.h5: not an HDF5 file \(no HDF5 signature\), so not an eskin campaign"):
         load_campaign(p)
     empty = tmp_path / "empty.h5"
     empty.write_bytes(b"")
@@ -287,7 +287,7 @@ def test_truncated_hdf5(tmp_path, keep):
     p = tmp_path / "cut.h5"
     data = good.read_bytes()
     p.write_bytes(data[: int(len(data) * keep)])
-    with pytest.raises(CampaignFormatError, match=r"cut\.h5: <file>: (truncated|not an HDF5)"):
+    with pytest.raises(CampaignFormatError, match=r"cut\.h5: (truncated|not an HDF5)"):
         load_campaign(p, check_data=True)
 
 

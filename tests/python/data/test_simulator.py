@@ -139,7 +139,7 @@ def test_cli_errors_are_clear(tmp_path):
     bad.write_text("not a campaign")
     r = _cli("info", bad)
     assert r.exit_code == 2
-    assert "bad.h5: <file>: not an HDF5 file" in r.output
+    assert "bad.h5: not an HDF5 file" in r.output
     assert "Traceback" not in r.output
     r = _cli("info", tmp_path / "missing.h5")
     assert r.exit_code == 2 and "no such campaign file" in r.output

@@ -371,3 +371,17 @@ def test_kernel_kmeans_rejects_unknown_methods():
         kernel_kmeans(K, 2, method="spectral")
     with pytest.raises(ValueError, match="makes 2 clusters"):
         kernel_kmeans(K, 3, method="balanced")
+
+
+@pytest.mark.parametrize("make", [TensorSVC, TensorRLS, lambda: OneVsAllTouchClassifier(TensorRLS())])
+def test_patterns_of_another_order_are_named_as_such(make):
+    X, y = _patterns(6, n_classes=3 if make not in (TensorSVC, TensorRLS) else 2)
+    est = make().fit(X, y)
+    name = type(est).__name__
+    with pytest.raises(ValueError, match=rf"X has shape \({len(X)}, 72\), but {name} was fitted on "
+                                         r"patterns of shape \(3, 3, 8\): its rows look flattened: "
+                                         r"X.reshape\(-1, 3, 3, 8\) undoes it"):
+        est.predict(X.reshape(len(X), -1))
+    with pytest.raises(ValueError, match=r"one pattern needs the batch axis: X\[np.newaxis\]"):
+        est.predict(X[0])
+    assert est.predict(X[:1]).shape == (1,)

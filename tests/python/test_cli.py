@@ -1,0 +1,115 @@
+"""The `eskin` command line as a user meets it: --version, the help of on/off options, the
+predict table, `info --check`, and the one-line error for a file that is not a campaign."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from typer.testing import CliRunner
+
+import eskin
+from eskin.cli import app
+
+PACKAGE_ROOT = str(Path(eskin.__file__).resolve().parents[1])
+
+
+def run_eskin(*args: str) -> subprocess.CompletedProcess:
+    """The installed entry point's code path (eskin.cli.main), in a child process."""
+    env = dict(
+        os.environ,
+        COLUMNS="100",
+        PYTHONPATH=os.pathsep.join(filter(None, [PACKAGE_ROOT, os.environ.get("PYTHONPATH")])),
+    )
+    return subprocess.run(
+        [sys.executable, "-m", "eskin", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+        timeout=120,
+    )
+
+
+def test_dash_dash_version():
+    r = run_eskin("--version")
+    assert r.returncode == 0 and r.stdout == f"eskin {eskin.__version__}\n"
+
+
+@pytest.mark.parametrize("command", ["simulate", "info", "listen", "experiment", "replay"])
+def test_help_shows_flags_without_a_value(command):
+    r = run_eskin(command, "--help")
+    assert r.returncode == 0
+    assert "<bool>" not in r.stdout and "--help" in r.stdout
+
+
+def test_a_flag_takes_no_value():
+    r = run_eskin("info", "x.h5", "--check", "true")
+    assert r.returncode == 2 and "unexpected extra argument" in r.stderr + r.stdout
+
+
+def test_predict_table_columns_line_up():
+    from eskin.cli.learn import _prediction_table
+
+    model = SimpleNamespace(is_binary=False, classes=["brush", "finger", "washer"])
+    preds = [
+        {
+            "index": 0,
+            "label": "brush",
+            "true_label": "washer",
+            "decision_values": [1.0, -0.25, -3.5],
+        },
+        {
+            "index": 12,
+            "label": "washer",
+            "true_label": "finger",
+            "decision_values": [-1, 0.5, 12.25],
+            "dont_know": True,
+        },
+    ]
+    lines = _prediction_table(model, preds)
+    assert lines[0].split() == ["index", "label", "true", "f(brush)", "f(finger)", "f(washer)"]
+    # text columns start where their header does, number columns end where theirs does
+    for name in ("label", "true"):
+        start = lines[0].index(name)
+        assert all(ln[start - 1] == " " and ln[start] != " " for ln in lines[1:]), (name, lines)
+    ends = [lines[0].index(h) + len(h) for h in ("f(brush)", "f(finger)", "f(washer)")]
+    for ln in lines[1:]:
+        assert all(ln[e - 1] != " " and (e == len(ln) or ln[e] == " ") for e in ends), lines
+    assert lines[2].endswith("+12.2500  (don't know)")
+
+
+def test_info_check_says_ok(tmp_path):
+    from eskin.data.simulator import simulate
+
+    simulate(tmp_path / "c.h5", participants=1, runs=(2,))
+    r = CliRunner().invoke(app, ["info", str(tmp_path / "c.h5"), "--check"])
+    assert r.exit_code == 0
+    assert r.output.rstrip().endswith("check: OK, the data of all 6 recordings read back intact")
+    r = CliRunner().invoke(app, ["info", str(tmp_path / "c.h5")])
+    assert "check:" not in r.output
+
+
+def test_a_file_that_is_not_a_campaign_is_named_once(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello\n")
+    r = CliRunner().invoke(app, ["info", str(tmp_path / "notes.txt")])
+    assert r.exit_code == 2
+    assert r.output.strip() == (
+        f"error: {tmp_path / 'notes.txt'}: not an HDF5 file (no HDF5 signature), so not an eskin "
+        "campaign (a campaign is an HDF5 file: docs/dataset-format.md)"
+    )
+
+
+def test_reports_written_to_a_pipe_are_not_cut_at_80_columns(monkeypatch):
+    from eskin.cli.link import report_console
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    console = report_console()  # pytest's stdout is not a terminal
+    assert console.width >= 200
+    with console.capture() as cap:
+        console.print("x" * 150)
+    assert cap.get().rstrip("\n") == "x" * 150
