@@ -39,7 +39,6 @@ class CampaignFormatError(ValueError):
         self.path = str(path) if path is not None else "<memory>"
         self.field = field
         self.problem = problem
-        # a problem of the whole file has no field: "path: problem"
         super().__init__(f"{self.path}: {field}: {problem}" if field else f"{self.path}: {problem}")
 
 
