@@ -83,15 +83,72 @@ def test_predict_table_columns_line_up():
     assert lines[2].endswith("+12.2500  (don't know)")
 
 
-def test_info_check_says_ok(tmp_path):
+@pytest.fixture(scope="module")
+def one_person(tmp_path_factory) -> Path:
+    """A simulated campaign of one participant, run 2: 6 recordings of 21000 samples."""
     from eskin.data.simulator import simulate
 
-    simulate(tmp_path / "c.h5", participants=1, runs=(2,))
-    r = CliRunner().invoke(app, ["info", str(tmp_path / "c.h5"), "--check"])
+    return simulate(tmp_path_factory.mktemp("one") / "c.h5", participants=1, runs=(2,))
+
+
+def test_info_check_says_ok(one_person):
+    r = CliRunner().invoke(app, ["info", str(one_person), "--check"])
     assert r.exit_code == 0
     assert r.output.rstrip().endswith("check: OK, the data of all 6 recordings read back intact")
-    r = CliRunner().invoke(app, ["info", str(tmp_path / "c.h5")])
+    r = CliRunner().invoke(app, ["info", str(one_person)])
     assert "check:" not in r.output
+
+
+def test_train_refuses_a_D_no_recording_fills(one_person, tmp_path):
+    r = CliRunner().invoke(
+        app,
+        [
+            "train",
+            str(one_person),
+            "--classes",
+            "brush,washer",
+            "--D",
+            "100000",
+            "-o",
+            str(tmp_path / "m.joblib"),
+        ],
+    )
+    assert r.exit_code == 2
+    assert (
+        f"error: --D 100000 is longer than every recording of {one_person} (at most 21000 samples)"
+    ) in r.output
+    assert not (tmp_path / "m.joblib").exists()
+
+
+def test_training_set_notes(one_person):
+    from eskin.cli.learn import _training_set_notes
+
+    assert _training_set_notes(one_person, 100, "cv") == []  # CV notes one group itself
+    one = "every recording comes from one participant"
+    assert any(one in n for n in _training_set_notes(one_person, 100, "md"))
+    assert any(
+        "--D 5000 is far above the paper's 20-100" in n
+        for n in _training_set_notes(one_person, 5000, "cv")
+    )
+
+
+def test_experiment_refuses_D_below_the_taxels(one_person, tmp_path):
+    r = CliRunner().invoke(
+        app,
+        [
+            "experiment",
+            str(one_person),
+            "--out",
+            str(tmp_path / "x"),
+            "--D",
+            "7",
+            "--quick",
+            "--no-progress",
+        ],
+    )
+    assert r.exit_code == 2
+    assert "D = 7 is below the 16 taxels of the 4x4 grid" in r.output
+    assert not (tmp_path / "x").exists()
 
 
 def test_a_file_that_is_not_a_campaign_is_named_once(tmp_path):

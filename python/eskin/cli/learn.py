@@ -38,6 +38,34 @@ class Subsample(str, Enum):
 SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
 
 
+def _training_set_notes(campaign: Path, D: int, selection: str) -> list[str]:
+    """Refuse a D no recording can fill; notes on a D far above the paper's and on a campaign
+    of one participant (which MD cannot warn about: it never splits by person)."""
+    import numpy as np
+
+    from eskin.data.campaign import load_campaign
+
+    try:
+        with load_campaign(campaign) as c:
+            longest = int(np.max(c.lengths)) if len(c) else 0
+            people = len(np.unique(c.participant))
+    except (ValueError, OSError):
+        return []  # train_model names the problem
+    if len(c) and D > longest:
+        _fail(f"--D {D} is longer than every recording of {campaign} (at most {longest} samples): "
+              f"every touch window would be stretched to D samples by interpolation, which adds "
+              f"nothing but time and size (the model file grows with D); the paper uses D in "
+              f"{{20, 50, 100}}")
+    notes = []
+    if D > 1000:
+        notes.append(f"--D {D} is far above the paper's 20-100: the search is slow and the model "
+                     f"file large (both grow with D)")
+    if people == 1 and selection == "md":
+        notes.append("every recording comes from one participant: nothing in the selection says "
+                     "how the model does on other people (record more participants)")
+    return notes
+
+
 def _prediction_table(model: Any, preds: list[dict[str, Any]]) -> list[str]:
     """`eskin predict`'s table, columns aligned: index, label, true label, decision value(s)."""
     heads = ["decision"] if model.is_binary else [f"f({c})" for c in model.classes]
@@ -104,6 +132,7 @@ def experiment(
     """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
     and figures into OUT."""
     from eskin.experiments.paper_protocol import run_experiment
+    from eskin.experiments.report import too_small_note
     from eskin.learn.parallel import compute_backend
 
     try:
@@ -126,6 +155,9 @@ def experiment(
     s = res["summary"]
     if res["campaign"].get("simulated"):
         typer.echo("note: the campaign is simulated")
+    small = too_small_note(res["analysis_set"]["n_participants"])
+    if small:
+        typer.echo(f"note: too small to compare with the paper: {small}")
     rng = s.get("binary_md_range_pct")
     if rng:
         typer.echo(f"binary problems (MD): mean validation error {rng[0]:.1f}-{rng[1]:.1f} %")
@@ -173,6 +205,8 @@ def train(
     if (classes is None) == (not all_classes):
         _fail("give exactly one of --classes a,b,... or --all-classes")
     names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
+    for note in _training_set_notes(campaign, D, selection.value):
+        typer.echo(f"note: {note}")
     try:
         with compute_backend(scheduler):
             model = train_model(

@@ -55,7 +55,7 @@ import numpy as np
 
 from eskin._progress import progress_bar
 from eskin.errors import ExperimentError
-from eskin.experiments.paper_tables import PAPER_PROBLEMS
+from eskin.experiments.paper_tables import PAPER_DS, PAPER_PROBLEMS
 from eskin.learn.models import (
     MACHINES,
     PAPER_ALPHAS,
@@ -733,6 +733,7 @@ def run_experiment(
     campaign = load_campaign(campaign_path)
     if len(campaign) == 0:
         raise ExperimentError(f"{campaign_path}: the campaign holds no recordings")
+    check_window_lengths(cfg.Ds, campaign.grid_shape, int(np.max(campaign.lengths)))
     names = [str(m) for m in campaign.modalities]
     cfg.problems = resolve_problems(problems, names)
 
@@ -743,6 +744,28 @@ def run_experiment(
     (out_dir / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
     write_report(results, out_dir, figures=figures)
     return results
+
+
+def check_window_lengths(Ds: Sequence[int], grid_shape: tuple[int, int], longest: int) -> None:
+    """Refuse the D values whose results could not be set beside the paper's: below the number
+    of taxels the time mode's rank is D, not rows x cols, so the alpha grid {1, Q/2, Q} means
+    something else; beyond the longest recording every touch would only be interpolated."""
+    taxels = int(grid_shape[0]) * int(grid_shape[1])
+    grid = f"{grid_shape[0]}x{grid_shape[1]}"
+    for D in Ds:
+        if D < taxels:
+            raise ExperimentError(
+                f"D = {D} is below the {taxels} taxels of the {grid} grid: the time mode of a "
+                f"touch then has rank at most {D} instead of {taxels}, so the alpha grid "
+                f"{{1, Q/2, Q}} is not the paper's and its tables cannot be compared; the paper "
+                f"uses D in {{{', '.join(map(str, PAPER_DS))}}}"
+            )
+        if D > longest:
+            raise ExperimentError(
+                f"D = {D} is longer than every recording (at most {longest} samples): every "
+                f"touch window would be stretched to D samples by interpolation, which adds "
+                f"nothing; the paper uses D in {{{', '.join(map(str, PAPER_DS))}}}"
+            )
 
 
 def _protocol_config(

@@ -31,6 +31,9 @@ PAPER_PROBLEMS: Final[dict[str, tuple[str, str]]] = {
 }
 
 PAPER_DS: Final[tuple[int, ...]] = (20, 50, 100)
+#: participants in the paper's analysis set (70 recorded, 5 dropped; 45 train and 20 validate
+#: in each run)
+PAPER_PARTICIPANTS: Final[int] = 65
 
 _H = "Q/2"
 _F = "Q"

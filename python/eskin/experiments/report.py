@@ -268,6 +268,19 @@ def _binary_table(results: dict[str, Any], machine: str, problem: str) -> list[s
     return lines
 
 
+def too_small_note(n_participants: int) -> str:
+    """Why an analysis set smaller than the paper's cannot be compared with its tables ("" when
+    it is as large)."""
+    if n_participants >= paper.PAPER_PARTICIPANTS:
+        return ""
+    return (
+        f"{n_participants} participants in the analysis set (the paper: "
+        f"{paper.PAPER_PARTICIPANTS}, 20 of them validating each run), so each run's validation "
+        "error rests on a few people and moves in large steps; the paper's numbers beside these "
+        "are for orientation only"
+    )
+
+
 def _summary_lines(results: dict[str, Any]) -> list[str]:
     s = results["summary"]
     camp = results["campaign"]
@@ -293,6 +306,9 @@ def _summary_lines(results: dict[str, Any]) -> list[str]:
         + "."
     )
     lines.append("")
+    note = too_small_note(a["n_participants"])
+    if note:
+        lines += [f"**Too small to compare with the paper**: {note}.", ""]
     lines.append(
         "| machine | problem | "
         + " | ".join(f"D={D} MD" for D in p["Ds"])

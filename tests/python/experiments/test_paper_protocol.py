@@ -273,3 +273,22 @@ def test_cli_problem_option_parsing():
         "brush vs washer": ("brush", "washer"),
         "C": ("washer", "finger"),
     }
+
+
+def test_window_lengths_the_paper_can_be_compared_with():
+    from eskin.errors import ExperimentError
+    from eskin.experiments.paper_protocol import check_window_lengths
+
+    check_window_lengths((16, 20, 21000), (4, 4), 21000)
+    with pytest.raises(ExperimentError, match=r"D = 15 is below the 16 taxels of the 4x4 grid"):
+        check_window_lengths((20, 15), (4, 4), 21000)
+    with pytest.raises(ExperimentError, match=r"D = 21001 is longer than every recording"):
+        check_window_lengths((21001,), (4, 4), 21000)
+    check_window_lengths((6,), (2, 3), 100)
+
+
+def test_a_small_analysis_set_says_it_cannot_be_compared():
+    from eskin.experiments.report import too_small_note
+
+    assert too_small_note(65) == "" and too_small_note(70) == ""
+    assert too_small_note(3).startswith("3 participants in the analysis set (the paper: 65")
