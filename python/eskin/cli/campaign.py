@@ -40,16 +40,19 @@ def simulate_cmd(
     import os
     import time
 
+    from eskin._files import refuse_overwrite
     from eskin._progress import progress_bar
     from eskin.data.simulator import simulate
 
-    with _user_errors(), progress_bar(enabled=not quiet) as bar:
+    with _user_errors():
+        refuse_overwrite(output, force)
         t0 = time.perf_counter()
-        task = bar.add_task("simulating recordings", total=participants * 12)
         n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
-        simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                 n_jobs=n_jobs, overwrite=force,
-                 progress=lambda done, total: bar.update(task, completed=done, total=total))
+        with progress_bar(not quiet) as bar:
+            task = bar.add_task("simulating recordings", total=None)
+            simulate(output, participants=participants, seed=seed, difficulty=difficulty,
+                     n_jobs=n_jobs, overwrite=force,
+                     progress=lambda done, total: bar.update(task, completed=done, total=total))
         typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
                    f"in {time.perf_counter() - t0:.1f} s")
 
@@ -74,12 +77,12 @@ def plot_cmd(
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Plot one recording: the taxel traces, the detected touch window, an energy heat map."""
+    from eskin._files import refuse_overwrite
     from eskin.data.campaign import load_campaign
     from eskin.signal.plotting import plot_recording
 
     with _user_errors():
-        if output.exists() and not force:
-            raise FileExistsError(f"{output}: file exists (use --force to replace it)")
+        refuse_overwrite(output, force, inputs=(file,))
         with load_campaign(file) as c:
             plot_recording(c, index, output)
         typer.echo(f"wrote {output}")
@@ -101,10 +104,14 @@ def import_csv_cmd(
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Import a folder of CSV recordings (one column per taxel) into a campaign file."""
+    from eskin._files import refuse_overwrite
     from eskin.data.campaign import load_campaign
     from eskin.data.importers import import_csv_folder
 
     with _user_errors():
+        inputs = [manifest or folder / "manifest.csv"]
+        inputs += [p for p in folder.iterdir() if p.is_file()] if folder.is_dir() else []
+        refuse_overwrite(output, force, inputs=inputs)
         import_csv_folder(
             folder, output, manifest=manifest,
             grid_shape=(rows, cols) if rows is not None and cols is not None else None,
@@ -128,10 +135,12 @@ def import_tdms_cmd(
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Import LabVIEW TDMS recordings (one group per recording) into a campaign file."""
+    from eskin._files import refuse_overwrite
     from eskin.data.campaign import load_campaign
     from eskin.data.importers import import_tdms
 
     with _user_errors():
+        refuse_overwrite(output, force, inputs=files)
         import_tdms(
             files, output,
             grid_shape=(rows, cols) if rows is not None and cols is not None else None,

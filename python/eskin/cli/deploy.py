@@ -43,13 +43,17 @@ def export(
         help="a controller (cortex-m4): check that the model fits its flash and RAM before "
         "writing (docs/mcu.md)",
     ),
+    force: bool = typer.Option(False, "--force", help="replace existing output files"),
 ) -> None:
     """Export a trained model for the controller: a .eskin file (docs/model-format.md)
     that eskin-classify and the C++ library load, and optionally a C header."""
+    from eskin._files import refuse_overwrite_all
     from eskin.deploy import load_model
     from eskin.deploy.export import CompiledModel, export_model, write_c_header
 
     try:
+        outputs = [output] + ([c_header] if c_header is not None else [])
+        refuse_overwrite_all(outputs, force, inputs=(model_path,))
         model = load_model(model_path)
         if getattr(model, "machine", None) == "compiled":
             _fail(f"{model_path} is already an exported .eskin model")
@@ -172,15 +176,15 @@ def register_replay(app: typer.Typer) -> None:
         plays over its serial link, or the recordings for eskin-classify (.npy or raw records)."""
         from collections import Counter
 
+        from eskin._files import refuse_overwrite
         from eskin.data.campaign import load_campaign
         from eskin.data.replay import write_raw_records, write_recordings_npy, write_replay_file
 
         kind = _replay_format(output, fmt)
         if not gap >= 0:
             _fail(f"--gap must be >= 0 seconds, got {gap}")
-        if output.exists() and not force:
-            _fail(f"{output}: file exists (use --force to replace it)")
         try:
+            refuse_overwrite(output, force, inputs=(campaign,))
             with load_campaign(campaign) as c:
                 idx = _selected(c, select)
                 if kind == "replay":

@@ -39,12 +39,14 @@ def evaluate(
     scheduler: str | None = typer.Option(
         None, help="Dask scheduler address, or local:N for a local cluster of N workers"
     ),
+    force: bool = typer.Option(False, "--force", help="replace the evaluation in OUT"),
 ) -> None:
     """How well will a recipe work on a new person? Train it (the options of train, with
     train's defaults) on all groups but the held-out ones, fold by fold, and score the
     held-out predictions: accuracy and balanced accuracy with 95 % intervals (bootstrap over
     groups), per-class recall, confusion matrix, settings per fold. Writes
     OUT/evaluation.json, .md, .png."""
+    from eskin._files import refuse_overwrite_all
     from eskin.learn.evaluation import evaluate_recipe
     from eskin.learn.evaluation_report import fold_line, summary_lines, write_evaluation
     from eskin.learn.parallel import compute_backend
@@ -60,6 +62,8 @@ def evaluate(
     recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
     recipe["quick"] = quick
     try:
+        written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
+        refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
             result = evaluate_recipe(
                 campaign,

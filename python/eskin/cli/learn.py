@@ -128,14 +128,18 @@ def experiment(
     seed: int = typer.Option(0, help="seed of every random choice"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bar"),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+    force: bool = typer.Option(False, "--force", help="replace the results in OUT"),
 ) -> None:
     """Run the paper's protocol (Tables 1-7, Figures 6-7) and write results.json, report.md
     and figures into OUT."""
+    from eskin._files import refuse_overwrite_all
     from eskin.experiments.paper_protocol import run_experiment
     from eskin.experiments.report import too_small_note
     from eskin.learn.parallel import compute_backend
 
     try:
+        written = [out / "results.json", out / "report.md"]
+        refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
             res = run_experiment(
                 campaign,
@@ -188,6 +192,7 @@ def train(
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Select, fit on all the given recordings and save a model.
 
@@ -197,6 +202,7 @@ def train(
     simulated campaigns it was the best recipe of docs/selection-study.md, far ahead of
     Maximal Discrepancy (--selection md).
     """
+    from eskin._files import refuse_overwrite
     from eskin.deploy import save_model
     from eskin.learn.evaluation_report import selection_estimate_lines
     from eskin.learn.models import train_model
@@ -204,6 +210,10 @@ def train(
 
     if (classes is None) == (not all_classes):
         _fail("give exactly one of --classes a,b,... or --all-classes")
+    try:
+        refuse_overwrite(output, force, inputs=(campaign,))
+    except OSError as exc:
+        _fail(str(exc))
     names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
     for note in _training_set_notes(campaign, D, selection.value):
         typer.echo(f"note: {note}")
@@ -249,13 +259,17 @@ def predict(
     engine: Engine = typer.Option(
         Engine.python, help="python: the Python model; cpp: the compiled C++ classifier"
     ),
+    force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
 ) -> None:
     """Classify every recording of a campaign; print labels, decision values, error rate."""
+    from eskin._files import refuse_overwrite
     from eskin.data.campaign import load_campaign
     from eskin.deploy import load_model
     from eskin.learn.models import error_rate
 
     try:
+        if json_out is not None:
+            refuse_overwrite(json_out, force, inputs=(model_path, campaign))
         model = load_model(model_path)
         camp = load_campaign(campaign)
         if engine is Engine.cpp:

@@ -268,7 +268,7 @@ def listen_cmd(
     reconnect: bool = typer.Option(
         False, "--reconnect", help="reopen the port when the controller goes away"),
     backend: str = typer.Option("auto", help="host classifier: auto | compiled | python"),
-    force: bool = typer.Option(False, "--force", help="replace the --record file"),
+    force: bool = typer.Option(False, "--force", help="replace the --record and --jsonl files"),
     view: str = typer.Option(
         "auto", help="live (rich view), plain (one line per event) or auto (live on a "
                      "terminal)"),
@@ -292,12 +292,16 @@ def demo_cmd(
     quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
     recordings: Optional[int] = typer.Option(
         None, "--recordings", help="stream only this many held-out recordings"),
+    force: bool = typer.Option(
+        False, "--force", help="use an --out folder that holds other files than the demo's"),
 ) -> None:
-    """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal."""
+    """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal.
+    Its own files in --out are replaced; a folder holding other files needs --force."""
     from eskin.demo import DemoError, run_demo
 
     console = report_console()
     with _user_errors():
+        _check_demo_folder(out, force)
         try:
             result = run_demo(out, participants=participants,
                               test_participants=test_participants, speed=speed, seed=seed,
@@ -315,6 +319,24 @@ def demo_cmd(
                   "ones[/]")
 
 
+def _check_demo_folder(out: Path, force: bool) -> None:
+    """The demo replaces its own files in ``out``; other files there need --force."""
+    from eskin.demo import demo_files
+    from eskin.errors import OverwriteError
+
+    if out.exists() and not out.is_dir():
+        raise OverwriteError(f"{out}: is a file; --out names the demo's folder")
+    if force or not out.is_dir():
+        return
+    ours = {p.name for p in demo_files(out).values()} | {"skin.tty"}
+    others = sorted(p.name for p in out.iterdir() if p.name not in ours)
+    if others:
+        raise OverwriteError(
+            f"{out}: the folder holds files the demo did not write ({', '.join(others[:3])}"
+            f"{', ...' if len(others) > 3 else ''}); use another --out, or --force"
+        )
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
     app.command("listen")(listen_cmd)
@@ -324,10 +346,13 @@ def register(app: typer.Typer) -> None:
 def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, record: Any,
             replay: Any, reconnect: bool, backend: str, force: bool, view: str) -> None:
     """`eskin listen`: run the listener until it ends, then score and report."""
+    from eskin._files import refuse_overwrite_all
     from eskin.link.listener import LinkListener
 
     live_mode = _live_mode(duration, view)
     with _user_errors():
+        outputs = [p for p in (record, jsonl) if p is not None]
+        refuse_overwrite_all(outputs, force, inputs=(model, replay))
         listener = LinkListener(port, model=model, backend=backend, record=record,
                                 replay=replay, reconnect=reconnect, overwrite=force,
                                 stats_interval=0.25 if live_mode else 5.0)

@@ -287,7 +287,6 @@ def test_listen_record_onto_an_existing_file_is_one_line(fw_sim, tmp_path):
     assert res.returncode == 2, res.stderr
     errors = [x for x in res.stderr.splitlines() if x]
     assert errors == [
-        f"error: {out}: file exists; refusing to overwrite recorded data (pass "
-        f"overwrite=True, or --force on the command line)"
+        f"error: {out}: file exists; refusing to overwrite it (use --force to replace it)"
     ], res.stderr
     assert out.read_bytes() == b"someone's data"

@@ -1,0 +1,64 @@
+"""The one overwrite rule of every command that writes a file.
+
+Recorded data is never lost: a command replaces an existing file only when asked (``--force``),
+and never writes onto one of its own inputs, even when asked (``eskin train camp.h5 -o camp.h5``
+would destroy the campaign it is reading). Both refusals raise :class:`eskin.errors.
+OverwriteError` (a FileExistsError) with a one-line message naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Union
+
+from eskin.errors import OverwriteError
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def same_file(a: PathLike, b: PathLike) -> bool:
+    """Whether two paths name the same file (through links and relative paths)."""
+    a, b = Path(a), Path(b)
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): compare where they would be
+        return a.resolve() == b.resolve()
+
+
+def refuse_overwrite(
+    path: PathLike, force: bool = False, inputs: Iterable[PathLike | None] = ()
+) -> Path:
+    """Check that a command may write ``path``; returns it as a Path.
+
+    Refuses (:class:`OverwriteError`) a path that is one of ``inputs`` (``None`` entries are
+    skipped), whatever ``force`` says, and an existing path unless ``force``.
+    """
+    path = Path(path)
+    for source in inputs:
+        if source is not None and same_file(path, source):
+            raise OverwriteError(
+                f"{path}: this is also an input of the command; write the output elsewhere"
+            )
+    if path.is_dir():
+        raise OverwriteError(f"{path}: is a folder, not a file")
+    if path.exists() and not force:
+        raise OverwriteError(
+            f"{path}: file exists; refusing to overwrite it (use --force to replace it)"
+        )
+    return path
+
+
+def refuse_overwrite_all(
+    paths: Iterable[PathLike], force: bool = False, inputs: Iterable[PathLike | None] = ()
+) -> list[Path]:
+    """:func:`refuse_overwrite` for every file a command writes; also refuses two outputs that
+    are the same file (``--record x --jsonl x``)."""
+    inputs = list(inputs)
+    out: list[Path] = []
+    for p in paths:
+        if any(same_file(p, q) for q in out):
+            raise OverwriteError(f"{p}: given twice as an output of the command")
+        out.append(refuse_overwrite(p, force, inputs))
+    return out
