@@ -93,10 +93,13 @@ def import_csv_cmd(
     output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
     manifest: Optional[Path] = typer.Option(
         None, help="manifest CSV (default: FOLDER/manifest.csv)"),
-    rows: Optional[int] = typer.Option(None, help="taxel rows (or a manifest column)"),
-    cols: Optional[int] = typer.Option(None, help="taxel columns (or a manifest column)"),
+    rows: Optional[int] = typer.Option(
+        None, help="taxel rows (default: a manifest column, else 4 for 16 taxel columns)"),
+    cols: Optional[int] = typer.Option(
+        None, help="taxel columns (default: a manifest column, else 4 for 16 taxel columns)"),
     rate: Optional[float] = typer.Option(
-        None, "--rate", help="sample rate in Hz (or a manifest column)"),
+        None, "--rate", help="sample rate in Hz (default: a manifest column, else the "
+        "recordings' time column)"),
     volts_per_count: Optional[float] = typer.Option(
         None, help="volts per ADC count; values in the CSV are volts if given, else counts"),
     modalities: Optional[str] = typer.Option(
@@ -124,8 +127,10 @@ def import_csv_cmd(
 def import_tdms_cmd(
     files: list[Path] = typer.Argument(..., help="LabVIEW .tdms files"),
     output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
-    rows: Optional[int] = typer.Option(None, help="taxel rows (default: from properties, 4)"),
-    cols: Optional[int] = typer.Option(None, help="taxel columns (default: from properties, 4)"),
+    rows: Optional[int] = typer.Option(
+        None, help="taxel rows (default: from properties, else 4 for 16 channels)"),
+    cols: Optional[int] = typer.Option(
+        None, help="taxel columns (default: from properties, else 4 for 16 channels)"),
     rate: Optional[float] = typer.Option(
         None, "--rate", help="sample rate in Hz (default: wf_increment property)"),
     volts_per_count: Optional[float] = typer.Option(

@@ -39,6 +39,10 @@ _DIRECTIONS = {
     "?": DIRECTION_UNKNOWN, "nan": DIRECTION_UNKNOWN,
 }
 _TIME_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds", "sample"}
+#: first-column names that hold the time in seconds (the sample rate can be read from them)
+_SECONDS_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds"}
+#: the grid taken when none is given and a recording has 16 taxels: the paper's sensor
+DEFAULT_GRID = (4, 4)
 
 
 def parse_direction(value: Any, where: str) -> int:
@@ -183,6 +187,78 @@ def _count_lines(path: Path) -> int:
     return n - (1 if has_header else 0)
 
 
+def _manifest_setting(rows: list[dict[str, str]], man: Path, column: str, cast: Any) -> Any:
+    v = _one_value(rows, column, man)
+    if v is None:
+        return None
+    try:
+        return cast(v)
+    except ValueError:
+        raise ValueError(f"{man}: column {column!r} value {v!r} is not a number") from None
+
+
+def _rate_from_time_column(path: Path) -> float | None:
+    """The sample rate read from a recording's first column when it holds the time in seconds
+    (evenly spaced); None when it has no such column."""
+    has_header, names, _ = _csv_header(path)
+    if not (has_header and names and names[0].lower() in _SECONDS_COLUMNS):
+        return None
+    try:
+        t = np.loadtxt(path, delimiter=",", skiprows=1, usecols=0, ndmin=1, dtype=np.float64,
+                       encoding="utf-8-sig")
+    except ValueError as exc:
+        raise ValueError(f"{path}: time column {names[0]!r}: {exc}") from None
+    dt = np.diff(t)
+    if t.size < 2 or not np.all(np.isfinite(t)) or not np.all(dt > 0):
+        raise ValueError(f"{path}: time column {names[0]!r} does not increase, so it gives no "
+                         f"sample rate (give --rate)")
+    step = (t[-1] - t[0]) / (t.size - 1)
+    if np.max(np.abs(dt - step)) > 0.01 * step:
+        raise ValueError(f"{path}: time column {names[0]!r} is not evenly spaced (steps "
+                         f"{dt.min():g} to {dt.max():g} s), so it gives no sample rate "
+                         f"(give --rate)")
+    return float(f"{1.0 / step:.6g}")
+
+
+def _taxel_columns(path: Path) -> int:
+    has_header, names, n = _csv_header(path)
+    return n - (1 if has_header and names and names[0].lower() in _TIME_COLUMNS else 0)
+
+
+def _csv_settings(
+    rows: list[dict[str, str]], man: Path, first: Path | None, grid_shape: Any,
+    rate: float | None, vpc: float | None,
+) -> tuple[tuple[int, int], float, float]:
+    """Grid, rate and volts per count: from the arguments, else the manifest, else (grid) 4x4
+    when the first recording has 16 taxel columns and (rate) its time column; every setting
+    still missing is named in one error."""
+    readable = first is not None and first.is_file()
+    if grid_shape is None:
+        r = _manifest_setting(rows, man, "rows", int)
+        c = _manifest_setting(rows, man, "cols", int)
+        if r is not None and c is not None:
+            grid_shape = (r, c)
+        elif readable and _taxel_columns(first) == DEFAULT_GRID[0] * DEFAULT_GRID[1]:
+            grid_shape = DEFAULT_GRID
+    if rate is None:
+        rate = _manifest_setting(rows, man, "sample_rate_hz", float)
+    if rate is None and readable:
+        rate = _rate_from_time_column(first)
+    if vpc is None:
+        vpc = _manifest_setting(rows, man, "volts_per_count", float)
+    missing = [what for what, value in (
+        ("the grid (--rows and --cols, or manifest columns 'rows' and 'cols'; 4x4 is taken "
+         "only for 16 taxel columns)", grid_shape),
+        ("the sample rate (--rate, a manifest column 'sample_rate_hz', or a first column "
+         "'time' in seconds in the recordings)", rate),
+        ("the volts per count (--volts-per-count or a manifest column 'volts_per_count'; it "
+         "converts counts to volts)", vpc),
+    ) if value is None]
+    if missing:
+        raise ValueError(f"{man}: {len(missing)} setting(s) not given: " + "; ".join(missing))
+    return grid_shape, float(rate), float(vpc)
+
+
 def import_csv_folder(
     folder: str | os.PathLike[str],
     output: str | os.PathLike[str],
@@ -202,9 +278,11 @@ def import_csv_folder(
     columns ``file`` (relative to the folder), ``modality`` (a label), ``participant`` (integer),
     ``direction`` (h/horizontal/0, v/vertical/1, or unknown/255/empty) and ``run`` (integer).
     Optional columns, one value for the whole campaign: ``rows``, ``cols``, ``sample_rate_hz``,
-    ``volts_per_count`` (arguments override them). Each recording CSV: one column per taxel in
-    row-major order, an optional header line (a first column named time/t/timestamp is
-    dropped), one line per sample; integers are ADC counts, other numbers volts (``units``
+    ``volts_per_count`` (arguments override them). Without them, the grid is 4x4 when the
+    recordings have 16 taxel columns, and the rate is read from a first column named
+    time/t/time_s/seconds/timestamp (seconds, evenly spaced); every setting still missing is
+    named in one error. Each recording CSV: one column per taxel in row-major order, an optional
+    header line (a first column named time/t/timestamp/sample is dropped), one line per sample; integers are ADC counts, other numbers volts (``units``
     forces one). Recordings may differ in length: the campaign pads them (``length`` keeps each).
     Class ids follow ``modalities`` if given, else the sorted labels.
     """
@@ -223,32 +301,9 @@ def import_csv_folder(
     if not rows_:
         raise ValueError(f"{man}: lists no recordings")
 
-    def _setting(value: Any, column: str, cast: Any) -> Any:
-        if value is not None:
-            return value
-        v = _one_value(rows_, column, man)
-        if v is None:
-            return None
-        try:
-            return cast(v)
-        except ValueError:
-            raise ValueError(f"{man}: column {column!r} value {v!r} is not a number") from None
-
-    if grid_shape is None:
-        r = _setting(None, "rows", int)
-        c = _setting(None, "cols", int)
-        if r is None or c is None:
-            raise ValueError(f"{man}: grid shape not given (arguments rows/cols, or manifest "
-                             f"columns 'rows' and 'cols')")
-        grid_shape = (r, c)
-    rate = _setting(sample_rate_hz, "sample_rate_hz", float)
-    if rate is None:
-        raise ValueError(f"{man}: sample rate not given (argument, or manifest column "
-                         f"'sample_rate_hz')")
-    vpc = _setting(volts_per_count, "volts_per_count", float)
-    if vpc is None:
-        raise ValueError(f"{man}: volts_per_count not given (argument, or manifest column "
-                         f"'volts_per_count'); it converts counts to volts")
+    first = (folder / rows_[0]["file"]).resolve() if rows_[0].get("file") else None
+    grid_shape, rate, vpc = _csv_settings(rows_, man, first, grid_shape, sample_rate_hz,
+                                          volts_per_count)
     n_rows, n_cols = int(grid_shape[0]), int(grid_shape[1])
     if n_rows < 1 or n_cols < 1:
         raise ValueError(f"grid shape must be positive, got {grid_shape}")
@@ -329,6 +384,13 @@ def _taxel_order(channels: list[Any], n_rows: int, n_cols: int, where: str) -> l
     return sorted(channels, key=lambda ch: _natural_key(ch.name))
 
 
+def _channel_count_problem(where: str, n: int, grid: tuple[int, int], defaulted: bool) -> str:
+    return (f"{where}: {n} channels, expected one per taxel ({grid[0]}x{grid[1]} = "
+            f"{grid[0] * grid[1]})" + ("; 4x4 is taken only for 16 channels: give the grid "
+                                       "(--rows and --cols, or rows/cols properties)"
+                                       if defaulted else ""))
+
+
 def import_tdms(
     files: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     output: str | os.PathLike[str],
@@ -390,12 +452,11 @@ def import_tdms(
                     elif r is not None and c is not None:
                         grid = (int(r), int(c))
                     else:
-                        grid = (4, 4)
+                        grid = DEFAULT_GRID
                     grid_seen.add(grid)
                     if len(chans) != grid[0] * grid[1]:
-                        raise ValueError(
-                            f"{where}: {len(chans)} channels, expected one per taxel "
-                            f"({grid[0]}x{grid[1]} = {grid[0] * grid[1]})")
+                        defaulted = grid_shape is None and (r is None or c is None)
+                        raise ValueError(_channel_count_problem(where, len(chans), grid, defaulted))
                     rate = sample_rate_hz if sample_rate_hz is not None else label(
                         "sample_rate_hz", "sample_rate")
                     if rate is None:

@@ -78,7 +78,7 @@ def test_csv_errors(tmp_path):
     kw = dict(grid_shape=(4, 4), sample_rate_hz=1000.0, volts_per_count=1e-3)
     with pytest.raises(ValueError, match=r"r00\.csv: 16 taxel columns.*expected 12"):
         import_csv_folder(folder, out, **{**kw, "grid_shape": (3, 4)})
-    with pytest.raises(ValueError, match="sample rate not given"):
+    with pytest.raises(ValueError, match=r"manifest\.csv: 1 setting\(s\) not given: the sample rate"):
         import_csv_folder(folder, out, grid_shape=(4, 4), volts_per_count=1.0)
     with pytest.raises(ValueError, match=r"not among the given modalities"):
         import_csv_folder(folder, out, modalities=["finger", "brush"], **kw)
@@ -223,3 +223,38 @@ def test_cli_import_csv_and_tdms(tmp_path):
                   "--modalities", "brush,finger,washer"])
     assert r.exit_code == 0, r.output
     assert "3 recordings" in r.output
+
+
+def test_csv_names_every_missing_setting_at_once(tmp_path):
+    folder, _ = _csv_folder(tmp_path, grid=(3, 4))
+    with pytest.raises(ValueError) as err:
+        import_csv_folder(folder, tmp_path / "c.h5")
+    msg = str(err.value)
+    assert msg.startswith(f"{folder / 'manifest.csv'}: 3 setting(s) not given: the grid (--rows")
+    assert "4x4 is taken only for 16 taxel columns" in msg
+    assert "; the sample rate (--rate" in msg and "; the volts per count (--volts-per-count" in msg
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_csv_grid_and_rate_from_the_recordings(tmp_path):
+    # 16 taxel columns: the paper's 4x4 grid; a time column in seconds: the rate
+    folder, truth = _csv_folder(tmp_path, time_col=True)
+    out = import_csv_folder(folder, tmp_path / "c.h5", volts_per_count=1e-3)
+    with load_campaign(out) as c:
+        assert c.grid_shape == (4, 4) and c.sample_rate_hz == 1000.0
+        np.testing.assert_array_equal(c.recording(2).reshape(16, -1), truth[2])
+    # an uneven time column gives no rate, and says so
+    rec = folder / "r00.csv"
+    lines = rec.read_text().splitlines()
+    lines[3] = "0.0025" + lines[3][lines[3].index(","):]
+    rec.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"r00\.csv: time column 'time' is not evenly spaced"):
+        import_csv_folder(folder, tmp_path / "d.h5", volts_per_count=1e-3)
+
+
+def test_tdms_takes_4x4_only_for_16_channels(tmp_path):
+    p = tmp_path / "twelve.tdms"
+    _tdms(p, [(c[:12], props) for c, props in _recs(1)], root_props={"source": "no grid"})
+    with pytest.raises(ValueError, match=r"12 channels, expected one per taxel \(4x4 = 16\); 4x4 "
+                                         r"is taken only for 16 channels: give the grid"):
+        import_tdms([p], tmp_path / "t.h5", sample_rate_hz=3000.0)
