@@ -353,7 +353,7 @@ def plan_folds(
             raise EvaluationError(
                 f"fold {k + 1}: no training recording of class(es) {missing} once its test "
                 f"{groups} group(s) are held out; every class needs recordings from at least "
-                f"2 {groups} groups (or use fewer --folds)"
+                f"2 {groups} groups (leave such a class out with --classes)"
             )
     return folds, names, labels
 

@@ -278,3 +278,41 @@ def test_scheduler_address_errors_are_one_line(sim_campaign, tmp_path):
     r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), "--scheduler", "local:x"])
     assert r.exit_code == 2
     assert "--scheduler 'local:x': expected local:N" in r.output
+
+
+def test_a_class_recorded_by_one_group_only_is_a_clear_error(tmp_path):
+    from eskin.data.campaign import write_campaign
+
+    rng = np.random.default_rng(0)
+    recs = [(rng.standard_normal((2, 2, 50)) * 100).astype(np.int16) for _ in range(12)]
+    path = write_campaign(
+        tmp_path / "c.h5",
+        recs,
+        modality=[0, 1] * 5 + [2, 2],
+        participant=[0, 0, 1, 1, 2, 2, 0, 0, 1, 1, 2, 2],
+        direction=[255] * 12,
+        run=[1] * 12,
+        modalities=["a", "b", "c"],
+        sample_rate_hz=100.0,
+        volts_per_count=1e-3,
+        source="recorded",
+    )
+    r = _run(["evaluate", str(path), "--out", str(tmp_path / "ev"), "--quick"])
+    assert r.exit_code == 2
+    assert "fold 3: no training recording of class(es) ['c']" in r.output
+    r = _run(
+        [
+            "evaluate",
+            str(path),
+            "--out",
+            str(tmp_path / "ev"),
+            "--quick",
+            "--D",
+            "5",
+            "--window",
+            "none",
+            "--classes",
+            "a,b",
+        ]
+    )
+    assert r.exit_code == 0, r.output
