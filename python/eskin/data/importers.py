@@ -18,7 +18,7 @@ import csv
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -415,8 +415,6 @@ def import_tdms(
     ``volts_per_count`` (argument or property; default 10/32768, a +-10 V 16-bit range).
     The grid is ``grid_shape``, else the file properties ``rows``/``cols``, else 4x4.
     """
-    from nptdms import TdmsFile
-
     paths = [Path(files)] if isinstance(files, (str, os.PathLike)) else [Path(f) for f in files]
     if not paths:
         raise ValueError("no TDMS files given")
@@ -425,86 +423,9 @@ def import_tdms(
             raise FileNotFoundError(f"{p}: no such TDMS file")
 
     # pass 1: metadata only (no channel data is read)
-    recs: list[dict[str, Any]] = []
-    rate_seen: set[float] = set()
-    vpc_seen: set[float] = set()
-    grid_seen: set[tuple[int, int]] = set()
-    for p in paths:
-        try:
-            with open(p, "rb") as fh, TdmsFile.open(fh) as tf:
-                groups = tf.groups()
-                if not groups:
-                    raise ValueError(f"{p}: no groups (expected one group per recording)")
-                for g in groups:
-                    where = f"{p}, group {g.name!r}"
-                    chans = g.channels()
-                    if not chans:
-                        raise ValueError(f"{where}: no channels")
-
-                    def label(*names: str, _g: Any = g) -> Any:
-                        v = _prop(_g, *names)
-                        return v if v is not None else _prop(tf, *names)
-
-                    r = label("rows")
-                    c = label("cols", "columns")
-                    if grid_shape is not None:
-                        grid = (int(grid_shape[0]), int(grid_shape[1]))
-                    elif r is not None and c is not None:
-                        grid = (int(r), int(c))
-                    else:
-                        grid = DEFAULT_GRID
-                    grid_seen.add(grid)
-                    if len(chans) != grid[0] * grid[1]:
-                        defaulted = grid_shape is None and (r is None or c is None)
-                        raise ValueError(_channel_count_problem(where, len(chans), grid, defaulted))
-                    rate = sample_rate_hz if sample_rate_hz is not None else label(
-                        "sample_rate_hz", "sample_rate")
-                    if rate is None:
-                        incs = {float(ch.properties.get("wf_increment", 0) or 0) for ch in chans}
-                        if len(incs) != 1 or next(iter(incs)) <= 0:
-                            raise ValueError(
-                                f"{where}: sample rate unknown (no sample_rate_hz property and "
-                                f"no single positive wf_increment on the channels)")
-                        rate = 1.0 / incs.pop()
-                    rate_seen.add(round(float(rate), 6))
-                    vpc = volts_per_count if volts_per_count is not None else label(
-                        "volts_per_count")
-                    if vpc is not None:
-                        vpc_seen.add(float(vpc))
-                    modality = label("modality", "label", "touch")
-                    if modality is None or str(modality).strip() == "":
-                        raise ValueError(f"{where}: no 'modality' property (group or file)")
-                    part = label("participant", "subject")
-                    if part is None:
-                        raise ValueError(f"{where}: no 'participant' property (group or file)")
-                    run = label("run")
-                    lengths = {len(ch) for ch in chans}
-                    if len(lengths) != 1:
-                        raise ValueError(f"{where}: channels have different lengths "
-                                         f"{sorted(lengths)}")
-                    recs.append(dict(
-                        path=p, group=g.name, where=where, label=str(modality).strip(),
-                        participant=_parse_int(part, where, "participant", -2**31, 2**31 - 1),
-                        direction=parse_direction(
-                            label("direction") if label("direction") is not None else "",
-                            where),
-                        run=_parse_int(run if run is not None else 0, where, "run", 0, 255),
-                        length=lengths.pop(), grid=grid))
-        except (OSError, KeyError, EOFError) as exc:
-            raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
-        except ValueError as exc:
-            if str(exc).startswith(str(p)):
-                raise
-            raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
-    if len(grid_seen) != 1:
-        raise ValueError(f"recordings have different grid shapes {sorted(grid_seen)}")
-    if len(rate_seen) != 1:
-        raise ValueError(f"recordings have different sample rates {sorted(rate_seen)} Hz")
-    if len(vpc_seen) > 1:
-        raise ValueError(f"recordings have different volts_per_count {sorted(vpc_seen)}")
-    grid = grid_seen.pop()
-    rate = rate_seen.pop()
-    vpc = vpc_seen.pop() if vpc_seen else 10.0 / 32768
+    settings = (grid_shape, sample_rate_hz, volts_per_count)
+    recs = [rec for p in paths for rec in _tdms_file_recordings(p, *settings)]
+    grid, rate, vpc = _tdms_common_settings(recs)
     names, ids = _class_ids([r["label"] for r in recs], modalities, "TDMS files")
     t = max(max(r["length"] for r in recs), 1)
 
@@ -514,32 +435,147 @@ def import_tdms(
                         overwrite=overwrite,
                         attrs={"imported_from": "tdms " + ", ".join(p.name for p in paths[:10]),
                                **dict(attrs or {})}) as w:
-        open_file: Any = None
-        try:
-            for rec, cid in zip(recs, ids):
-                if open_file is None or open_file[0] != rec["path"]:
-                    if open_file is not None:
-                        open_file[1].close()
-                        open_file[2].close()
-                    fh = open(rec["path"], "rb")  # noqa: SIM115 - closed below
-                    open_file = (rec["path"], TdmsFile.open(fh), fh)
-                g = open_file[1][rec["group"]]
-                chans = _taxel_order(g.channels(), grid[0], grid[1], rec["where"])
-                x = np.stack([np.asarray(ch[:]) for ch in chans])
-                if x.dtype.kind == "f":
-                    counts = _to_counts(x.astype(np.float64), vpc,
-                                        "volts" if units == "auto" else units, rec["where"])
-                elif x.dtype.kind in "iu":
-                    counts = _to_counts(x.astype(np.float64), vpc,
-                                        "counts" if units == "auto" else units, rec["where"])
-                else:
-                    raise ValueError(f"{rec['where']}: channel data of type {x.dtype} "
-                                     f"(expected numbers)")
-                w.append(counts.reshape(grid[0], grid[1], -1), modality=cid,
-                         participant=rec["participant"], direction=rec["direction"],
-                         run=rec["run"])
-        finally:
-            if open_file is not None:
-                open_file[1].close()
-                open_file[2].close()
+        for rec, cid, counts in _tdms_counts(recs, ids, grid, vpc, units):
+            w.append(counts.reshape(grid[0], grid[1], -1), modality=cid,
+                     participant=rec["participant"], direction=rec["direction"],
+                     run=rec["run"])
     return Path(output)
+
+
+def _tdms_file_recordings(
+    p: Path,
+    grid_shape: tuple[int, int] | None,
+    sample_rate_hz: float | None,
+    volts_per_count: float | None,
+) -> list[dict[str, Any]]:
+    """The metadata of every group (recording) of one TDMS file; no channel data is read."""
+    from nptdms import TdmsFile
+
+    recs: list[dict[str, Any]] = []
+    try:
+        with open(p, "rb") as fh, TdmsFile.open(fh) as tf:
+            groups = tf.groups()
+            if not groups:
+                raise ValueError(f"{p}: no groups (expected one group per recording)")
+            for g in groups:
+                recs.append(
+                    _tdms_group_recording(p, tf, g, grid_shape, sample_rate_hz, volts_per_count)
+                )
+    except (OSError, KeyError, EOFError) as exc:
+        raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
+    except ValueError as exc:
+        if str(exc).startswith(str(p)):
+            raise
+        raise ValueError(f"{p}: not a readable TDMS file ({exc})") from None
+    return recs
+
+
+def _tdms_group_recording(
+    p: Path,
+    tf: Any,
+    g: Any,
+    grid_shape: tuple[int, int] | None,
+    sample_rate_hz: float | None,
+    volts_per_count: float | None,
+) -> dict[str, Any]:
+    """One group's recording: labels, grid, rate and volts per count (group properties, else
+    the file's), length, checked."""
+    where = f"{p}, group {g.name!r}"
+    chans = g.channels()
+    if not chans:
+        raise ValueError(f"{where}: no channels")
+
+    def label(*names: str, _g: Any = g) -> Any:
+        v = _prop(_g, *names)
+        return v if v is not None else _prop(tf, *names)
+
+    r = label("rows")
+    c = label("cols", "columns")
+    if grid_shape is not None:
+        grid = (int(grid_shape[0]), int(grid_shape[1]))
+    elif r is not None and c is not None:
+        grid = (int(r), int(c))
+    else:
+        grid = DEFAULT_GRID
+    if len(chans) != grid[0] * grid[1]:
+        defaulted = grid_shape is None and (r is None or c is None)
+        raise ValueError(_channel_count_problem(where, len(chans), grid, defaulted))
+    rate = sample_rate_hz if sample_rate_hz is not None else label(
+        "sample_rate_hz", "sample_rate")
+    if rate is None:
+        incs = {float(ch.properties.get("wf_increment", 0) or 0) for ch in chans}
+        if len(incs) != 1 or next(iter(incs)) <= 0:
+            raise ValueError(
+                f"{where}: sample rate unknown (no sample_rate_hz property and "
+                f"no single positive wf_increment on the channels)")
+        rate = 1.0 / incs.pop()
+    vpc = volts_per_count if volts_per_count is not None else label("volts_per_count")
+    modality = label("modality", "label", "touch")
+    if modality is None or str(modality).strip() == "":
+        raise ValueError(f"{where}: no 'modality' property (group or file)")
+    part = label("participant", "subject")
+    if part is None:
+        raise ValueError(f"{where}: no 'participant' property (group or file)")
+    run = label("run")
+    lengths = {len(ch) for ch in chans}
+    if len(lengths) != 1:
+        raise ValueError(f"{where}: channels have different lengths "
+                         f"{sorted(lengths)}")
+    return dict(
+        path=p, group=g.name, where=where, label=str(modality).strip(),
+        participant=_parse_int(part, where, "participant", -2**31, 2**31 - 1),
+        direction=parse_direction(
+            label("direction") if label("direction") is not None else "",
+            where),
+        run=_parse_int(run if run is not None else 0, where, "run", 0, 255),
+        length=lengths.pop(), grid=grid, rate=round(float(rate), 6),
+        vpc=None if vpc is None else float(vpc))
+
+
+def _tdms_common_settings(recs: list[dict[str, Any]]) -> tuple[tuple[int, int], float, float]:
+    """The one grid, sample rate and volts per count of every recording."""
+    grid_seen = {r["grid"] for r in recs}
+    rate_seen = {r["rate"] for r in recs}
+    vpc_seen = {r["vpc"] for r in recs if r["vpc"] is not None}
+    if len(grid_seen) != 1:
+        raise ValueError(f"recordings have different grid shapes {sorted(grid_seen)}")
+    if len(rate_seen) != 1:
+        raise ValueError(f"recordings have different sample rates {sorted(rate_seen)} Hz")
+    if len(vpc_seen) > 1:
+        raise ValueError(f"recordings have different volts_per_count {sorted(vpc_seen)}")
+    return grid_seen.pop(), rate_seen.pop(), vpc_seen.pop() if vpc_seen else 10.0 / 32768
+
+
+def _tdms_counts(
+    recs: list[dict[str, Any]], ids: Any, grid: tuple[int, int], vpc: float, units: str
+) -> Iterator[tuple[dict[str, Any], int, np.ndarray]]:
+    """(recording, class id, ADC counts (taxels, length)) one at a time, each file opened once
+    for its consecutive groups."""
+    from nptdms import TdmsFile
+
+    open_file: Any = None
+    try:
+        for rec, cid in zip(recs, ids):
+            if open_file is None or open_file[0] != rec["path"]:
+                if open_file is not None:
+                    open_file[1].close()
+                    open_file[2].close()
+                fh = open(rec["path"], "rb")  # noqa: SIM115 - closed below
+                open_file = (rec["path"], TdmsFile.open(fh), fh)
+            g = open_file[1][rec["group"]]
+            chans = _taxel_order(g.channels(), grid[0], grid[1], rec["where"])
+            x = np.stack([np.asarray(ch[:]) for ch in chans])
+            if x.dtype.kind == "f":
+                counts = _to_counts(x.astype(np.float64), vpc,
+                                    "volts" if units == "auto" else units, rec["where"])
+            elif x.dtype.kind in "iu":
+                counts = _to_counts(x.astype(np.float64), vpc,
+                                    "counts" if units == "auto" else units, rec["where"])
+            else:
+                raise ValueError(f"{rec['where']}: channel data of type {x.dtype} "
+                                 f"(expected numbers)")
+            yield rec, cid, counts
+    finally:
+        if open_file is not None:
+            open_file[1].close()
+            open_file[2].close()
