@@ -313,17 +313,7 @@ class _Chain:
         self.x_pos = (np.arange(cfg.cols) - (cfg.cols - 1) / 2) * cfg.pitch_mm
         self.y_pos = ((cfg.rows - 1) / 2 - np.arange(cfg.rows)) * cfg.pitch_mm
         self.spread = cfg.spread_per_thickness * cfg.pdms_thickness_mm
-        self.sos = np.concatenate([
-            sps.butter(1, cfg.ca_highpass_hz, "highpass", fs=self.fs_fine, output="sos"),
-            sps.butter(1, cfg.bpf_highpass_hz, "highpass", fs=self.fs_fine, output="sos"),
-            sps.butter(2, cfg.bpf_lowpass_hz, "lowpass", fs=self.fs_fine, output="sos"),
-        ])
-        # charge-amplifier volts per newton on a taxel
-        self.v_per_n = cfg.d33_pc_per_n / cfg.feedback_pf
-        # taxel sensitivity mismatch: a property of the one sensor used in the campaign
-        srng = np.random.default_rng([seed, 0x5E45])
-        self.gain = np.exp(srng.normal(0.0, cfg.gain_mismatch, (cfg.rows, cfg.cols)))
-        self.hum_coupling = srng.uniform(0.5, 1.5, (cfg.rows, cfg.cols))
+        self.sensor = _Sensor(cfg, seed, self.fs_fine)
 
     # ---- kinematics
     def _path(self, rng: np.random.Generator, style: ParticipantStyle, modality: int,
@@ -534,8 +524,8 @@ class _Chain:
             contacts = self._washer(rng, style, p, force, variant, u_fine, moving)
 
         taxel_force = self._project(contacts, u_coarse, p, style, direction)
-        volts = self._front_end(taxel_force, rng)
-        counts, truth_extra = self._noise_and_adc(volts, rng)
+        volts = self.sensor.front_end(taxel_force, rng)
+        counts, truth_extra = self.sensor.noise_and_adc(volts, rng)
 
         t0 = p["onset"]
         t_end = t0 + 0.8 * p["t_press"] + p["t_move"] + (p["strokes"] - 1) * p["t_pause"] \
@@ -581,13 +571,34 @@ class _Chain:
         out = np.matmul(f * (1 - frac), w0) + np.matmul(f * frac, w1)  # (k, blk, 16)
         return out.reshape(k * blk, -1)[: self.n_fine].T
 
-    def _front_end(self, taxel_force: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+
+class _Sensor:
+    """The one sensor of the campaign and its electronics: taxel gains and mains pickup, the
+    charge amplifier and band-pass filters, amplifier noise, drift, faulty taxels, the ADC."""
+
+    def __init__(self, cfg: SimulatorConfig, seed: int, fs_fine: float):
+        self.cfg = cfg
+        self.fs = cfg.sample_rate_hz
+        self.n = cfg.n_samples
+        self.sos = np.concatenate([
+            sps.butter(1, cfg.ca_highpass_hz, "highpass", fs=fs_fine, output="sos"),
+            sps.butter(1, cfg.bpf_highpass_hz, "highpass", fs=fs_fine, output="sos"),
+            sps.butter(2, cfg.bpf_lowpass_hz, "lowpass", fs=fs_fine, output="sos"),
+        ])
+        # charge-amplifier volts per newton on a taxel
+        self.v_per_n = cfg.d33_pc_per_n / cfg.feedback_pf
+        # taxel sensitivity mismatch: a property of the one sensor used in the campaign
+        srng = np.random.default_rng([seed, 0x5E45])
+        self.gain = np.exp(srng.normal(0.0, cfg.gain_mismatch, (cfg.rows, cfg.cols)))
+        self.hum_coupling = srng.uniform(0.5, 1.5, (cfg.rows, cfg.cols))
+
+    def front_end(self, taxel_force: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """PVDF charge -> charge amplifier -> band-pass -> sampled at the DAQ rate (volts)."""
         gain = self.gain.reshape(-1, 1) * np.exp(rng.normal(0.0, 0.02, (taxel_force.shape[0], 1)))
         v = sps.sosfilt(self.sos, taxel_force * (self.v_per_n * gain), axis=-1)
         return v[:, :: self.cfg.oversample][:, : self.n]
 
-    def _noise_and_adc(self, volts: np.ndarray, rng: np.random.Generator
+    def noise_and_adc(self, volts: np.ndarray, rng: np.random.Generator
                        ) -> tuple[np.ndarray, dict[str, Any]]:
         cfg = self.cfg
         d = cfg.level
