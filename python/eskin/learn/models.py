@@ -326,12 +326,7 @@ def preprocess_campaign(
     indices = np.asarray(indices, dtype=np.int64)
     lengths = np.asarray(campaign.lengths)
     n = len(indices)
-    variants = sorted({(int(D), str(s)) for D, s in variants})
-    for D, s in variants:
-        if D < 1:
-            raise TrainingError(f"D must be >= 1, got {D}")
-        if s not in ("algorithm2", "even"):
-            raise TrainingError(f"subsample must be 'algorithm2' or 'even', got {s!r}")
+    variants = _checked_variants(variants)
     if n == 0:
         raise TrainingError("no recording to preprocess")
     rows, cols = (int(v) for v in np.shape(campaign.recording(int(indices[0])))[:2])
@@ -341,18 +336,12 @@ def preprocess_campaign(
     snr = np.full(n, np.nan)
     for c0 in range(0, n, chunk):
         sel = indices[c0 : c0 + chunk]
-        recs = [np.asarray(campaign.recording(int(i))) for i in sel]
-        lens = np.minimum(np.array([r.shape[-1] for r in recs], np.int64), lengths[sel])
-        if np.any(lens < 1):
-            raise TrainingError(f"recording {int(sel[np.argmin(lens)])} is empty (length 0)")
-        block = np.zeros((len(recs), rows, cols, int(lens.max())), dtype=recs[0].dtype)
-        for j, r in enumerate(recs):
-            block[j, :, :, : lens[j]] = r[..., : lens[j]]
+        block, lens = _read_block(campaign, sel, lengths[sel], rows, cols)
         if window == "energy":
             win = np.asarray(
                 detect_windows(block, lengths=lens, sample_rate_hz=rate, config=config),
                 dtype=np.int64,
-            ).reshape(len(recs), 2)
+            ).reshape(len(sel), 2)
         else:
             win = np.stack([np.zeros_like(lens), lens], axis=1)
         for D, s in variants:
@@ -368,13 +357,39 @@ def preprocess_campaign(
             )
         windows[c0 : c0 + len(sel)] = win
         if stats:
-            for j in range(len(recs)):
+            for j in range(len(sel)):
                 bad[c0 + j], snr[c0 + j] = _recording_stats(
                     block[j, :, :, : lens[j]], int(win[j, 0]), int(win[j, 1])
                 )
         if on_chunk is not None:
             on_chunk(len(sel))
     return Prepared(out, windows, bad, snr, time.perf_counter() - t0, notes)
+
+
+def _checked_variants(variants: Sequence[tuple[int, str]]) -> list[tuple[int, str]]:
+    """The distinct (D, subsample method) pairs, sorted and checked."""
+    variants = sorted({(int(D), str(s)) for D, s in variants})
+    for D, s in variants:
+        if D < 1:
+            raise TrainingError(f"D must be >= 1, got {D}")
+        if s not in ("algorithm2", "even"):
+            raise TrainingError(f"subsample must be 'algorithm2' or 'even', got {s!r}")
+    return variants
+
+
+def _read_block(
+    campaign: Any, sel: np.ndarray, lengths: np.ndarray, rows: int, cols: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The recordings ``sel`` as one zero-padded block (n, rows, cols, longest) and their
+    valid lengths."""
+    recs = [np.asarray(campaign.recording(int(i))) for i in sel]
+    lens = np.minimum(np.array([r.shape[-1] for r in recs], np.int64), lengths)
+    if np.any(lens < 1):
+        raise TrainingError(f"recording {int(sel[np.argmin(lens)])} is empty (length 0)")
+    block = np.zeros((len(recs), rows, cols, int(lens.max())), dtype=recs[0].dtype)
+    for j, r in enumerate(recs):
+        block[j, :, :, : lens[j]] = r[..., : lens[j]]
+    return block, lens
 
 
 # --------------------------------------------------------------------------------------------
