@@ -6,7 +6,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 JOBS ?= $(shell nproc)
-APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind pkg-config
+APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind pkg-config \
+  clang libclang-rt-14-dev libfuzzer-14-dev
 # The Cortex-M4F cross toolchain and the board emulator of `make mcu` (a separate list: the rest of
 # the build does not need them).
 APT_MCU_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib \
@@ -17,13 +18,14 @@ BUILD_CPP := build/cpp
 BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
-.PHONY: all deps mcu-deps mcu venv install cpp ctest pytest test demo dev devtest bench clean stubs
+.PHONY: all deps mcu-deps mcu venv install cpp ctest pytest test demo dev devtest bench clean stubs \
+  sanitize check-sanitizers fuzz
 
 all: install cpp
 
 # Debian packages (Eigen, GoogleTest, a compiler); installed only when missing.
 deps: build/.deps-ok
-build/.deps-ok:
+build/.deps-ok: Makefile
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing Debian packages:$$missing"; \
@@ -64,7 +66,44 @@ ctest: cpp
 pytest: install
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
 
-test: ctest pytest
+test: ctest pytest check-sanitizers
+
+# The C++ tests and the libFuzzer harnesses (tests/fuzz) built by clang with AddressSanitizer and
+# UndefinedBehaviorSanitizer (docs/fuzzing.md). check-sanitizers runs the tests and each harness
+# for FUZZ_RUNS inputs from its seed corpus (part of `make test`); `make fuzz` runs each harness
+# for FUZZ_TIME seconds and on until FUZZ_MIN_RUNS inputs, keeping its corpus in build/fuzz-corpus.
+BUILD_SAN := build/sanitize
+FUZZ_HARNESSES := model frame_decoder replay npy
+FUZZ_RUNS ?= 2000
+FUZZ_TIME ?= 60
+FUZZ_MIN_RUNS ?= 100000
+FUZZ_FLAGS := -rss_limit_mb=2048 -malloc_limit_mb=1024 -timeout=10 -print_final_stats=1
+sanitize: deps venv
+	CC=clang CXX=clang++ $(CMAKE) -S . -B $(BUILD_SAN) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+	  -DESKIN_BUILD_TESTS=ON -DESKIN_BUILD_PYTHON=OFF -DESKIN_INSTALL=OFF -DESKIN_FUZZ=ON >/dev/null
+	$(CMAKE) --build $(BUILD_SAN) -j $(JOBS)
+
+check-sanitizers: sanitize
+	cd $(BUILD_SAN) && "$(abspath $(VENV))/bin/ctest" --output-on-failure -j $(JOBS)
+	@for h in $(FUZZ_HARNESSES); do \
+	  rm -rf $(BUILD_SAN)/fuzz-new/$$h && mkdir -p $(BUILD_SAN)/fuzz-new/$$h && \
+	  echo "fuzz_$$h: $(FUZZ_RUNS) runs" && \
+	  $(BUILD_SAN)/fuzz_$$h $(FUZZ_FLAGS) -seed=1 -runs=$(FUZZ_RUNS) \
+	    -artifact_prefix=$(BUILD_SAN)/fuzz-new/$$h- $(BUILD_SAN)/fuzz-new/$$h tests/fuzz/corpus/$$h \
+	    2>$(BUILD_SAN)/fuzz-new/$$h.log || { tail -40 $(BUILD_SAN)/fuzz-new/$$h.log; exit 1; }; \
+	done
+
+fuzz: sanitize
+	@for h in $(FUZZ_HARNESSES); do \
+	  d=build/fuzz-corpus/$$h; mkdir -p $$d; \
+	  run() { $(BUILD_SAN)/fuzz_$$h $(FUZZ_FLAGS) -artifact_prefix=$$d- "$$@" $$d tests/fuzz/corpus/$$h \
+	    2>$$d.log || { tail -40 $$d.log >&2; exit 1; }; \
+	    grep -h "^stat::number_of_executed_units" $$d.log | awk '{print $$2}'; }; \
+	  n=$$(run -max_total_time=$(FUZZ_TIME)) || exit 1; \
+	  if [ "$$n" -lt $(FUZZ_MIN_RUNS) ]; then \
+	    m=$$(run -runs=$$(( $(FUZZ_MIN_RUNS) - n ))) || exit 1; n=$$(( n + m )); fi; \
+	  echo "fuzz_$$h: $$n runs, no finding (corpus $$d, $$(ls $$d | wc -l) inputs)"; \
+	done
 
 # The inference core on a Cortex-M4F (docs/mcu.md): a small model of the demo campaign and a few
 # held-out recordings (tools/mcu_case.py), the device build (cmake/arm-none-eabi.cmake,

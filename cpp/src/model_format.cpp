@@ -52,7 +52,6 @@ constexpr double kMaxSigma = 1e6;
 // so that no sum can overflow to inf (and inf - inf to NaN).
 constexpr double kMaxDecisionBound = 1e300;
 constexpr std::uint32_t kMaxClasses = 1024;
-constexpr std::uint32_t kMaxFields = 256;
 constexpr std::uint64_t kMaxFileBytes = 1ull << 31;
 
 // As `std::ostream << std::setprecision(17) << v`, without iostreams (not in a controller build).
