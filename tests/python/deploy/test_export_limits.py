@@ -8,6 +8,7 @@ and exit with status 2, and nothing dies on a signal or runs out of memory.
 
 from __future__ import annotations
 
+import io
 import re
 import struct
 import subprocess
@@ -21,6 +22,10 @@ from eskin._paths import find_executable
 from eskin.deploy.export import CompiledModel, ModelFormatError
 
 FIXTURE = Path(__file__).resolve().parents[2] / "data" / "model_small_float64.eskin"
+# a 2x2-grid binary model of the fuzzing seed corpus
+FIXTURE_TINY = (
+    Path(__file__).resolve().parents[2] / "fuzz" / "corpus" / "model" / "tiny_float32.eskin"
+)
 
 
 def _section(b: bytes, tag: bytes) -> int:
@@ -136,3 +141,25 @@ def test_fw_sim_refuses_it(bad_model, tmp_path):
     assert res.stderr.count("\n") == 1
     assert res.stderr.startswith(f"eskin-fw-sim: --model: {path}: section ")
     assert re.search(message, res.stderr)
+
+
+def test_eskin_classify_refuses_huge_declared_npy_at_once(tmp_path):
+    """A 128-byte .npy declaring 2e9 recordings is refused from its header, not read."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "<i2", "fortran_order": False, "shape": (2_000_000_000, 4, 4, 300)}
+    )
+    rec = tmp_path / "huge.npy"
+    rec.write_bytes(header.getvalue() + bytes(64))
+    for args, kwargs in (([str(rec)], {}), (["-"], {"input": rec.read_bytes()})):
+        res = subprocess.run(
+            [_tool("eskin-classify"), str(FIXTURE), *args],
+            check=False,
+            capture_output=True,
+            timeout=60,
+            **kwargs,
+        )
+        err = res.stderr.decode()
+        assert res.returncode == 2, err
+        assert err.count("\n") == 1
+        assert "shape (2000000000, 4, 4, 300) of <i2 declares more than the limit" in err
