@@ -450,7 +450,323 @@ def unreceived_samples(status: StatusFrame, received: int, counts: dict[str, int
     return max(known, status.samples_sent - received)
 
 
-class LinkListener:
+def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: float,
+                     **non_negative: float) -> str:
+    """LinkListener's options, checked; returns the recording policy (default: one recording
+    per replay segment with a replay file, else one per detected touch)."""
+    if record_policy is None:
+        record_policy = "segment" if replay is not None else "touch"
+    if record_policy not in RECORD_POLICIES:
+        raise ValueError(
+            f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
+    if record_policy == "segment" and replay is None:
+        raise ValueError("record_policy='segment' needs the replay file (replay=...)")
+    for name, v in non_negative.items():
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+    if not (read_timeout > 0):
+        raise ValueError(f"read_timeout must be > 0, got {read_timeout}")
+    return record_policy
+
+
+class _FrameEvents:
+    """Decoding: the received bytes -> frames -> the listener's events (a part of
+    :class:`LinkListener`, which holds the state)."""
+
+    # -- frames -> events ------------------------------------------------------------------
+    def _process(self, chunk: bytes) -> list[LinkEvent]:
+        out: list[LinkEvent] = []
+        frames = self._decoder.feed(chunk)
+        received = time.perf_counter()
+        i = 0
+        while i < len(frames):
+            f = frames[i]
+            if isinstance(f, DataFrame):
+                j = i
+                while j < len(frames) and isinstance(frames[j], DataFrame):
+                    j += 1
+                self._received += sum(int(fr.samples.shape[0]) for fr in frames[i:j])
+                out += self._on_data(frames[i:j], received)
+                i = j
+                continue
+            if isinstance(f, DecisionFrame):
+                out.append(self._on_controller_decision(f))
+            elif isinstance(f, StatusFrame):
+                self.last_status = f
+                self._counts["status_frames"] += 1
+                self._unseen = unreceived_samples(f, self._received, self._counts, self._unseen)
+                out.append(StatusEvent(f))
+            elif isinstance(f, InfoFrame):
+                self.info = f
+                out.append(InfoEvent(f))
+            i += 1  # PONG: nothing to do
+        return out
+
+    def _class_name(self, index: int) -> Optional[str]:
+        """A controller label's name, from its INFO (None before INFO or out of range)."""
+        names: Sequence[str] = self.info.class_names if self.info is not None else ()
+        return str(names[index]) if 0 <= index < len(names) else None
+
+    def _on_controller_decision(self, f: DecisionFrame) -> Decision:
+        d = Decision("controller", f.onset_sample, f.offset_sample, self._class_name(f.label),
+                     int(f.label), tuple(float(v) for v in f.values), bool(f.dont_know),
+                     f.decided_sample, float(f.latency_us))
+        self._counts["decisions_controller"] += 1
+        self.decisions.append(d)
+        return d
+
+
+class _HostStream:
+    """The stream on the host: DATA frames -> a continuous sample stream (holes bridged or
+    restarted), its history, and the host classifier's decisions (a part of
+    :class:`LinkListener`, which holds the state)."""
+
+    def _setup_stream(self, grid: tuple[int, int]) -> None:
+        self._grid = grid
+        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
+        need = self.history_s
+        if self.record_path is not None:
+            if self.record_policy == "segment":
+                segs = self.replay.segments
+                longest = int(segs["length"].max()) if len(segs) else 0
+                need = max(need, longest / rate + 1.0)
+            else:
+                need = max(need, self._max_touch_s() + 2 * self.context_s + 1.0)
+        self._history = _History(int(math.ceil(need * rate)), grid)
+        if self.classifier is not None and tuple(self.classifier.grid) != grid:
+            raise ValueError(
+                f"the controller streams a {grid[0]}x{grid[1]} grid; the host model expects "
+                f"{self.classifier.grid[0]}x{self.classifier.grid[1]}"
+            )
+        if (self.record_path is not None and self.record_policy == "touch"
+                and self.classifier is None):
+            self._det = HostClassifier(grid, rate)
+
+    def _max_touch_s(self) -> float:
+        cfg = None
+        c = self.classifier
+        if c is not None:
+            m = getattr(c, "model", None)
+            cfg = getattr(m, "window_config", None) if m is not None else None
+            if cfg is None and getattr(c, "compiled", None) is not None:
+                cfg = c.compiled.window_config.get("max_window_s")  # type: ignore[union-attr]
+                return float(cfg) if cfg is not None else 7.0
+        return float(getattr(cfg, "max_window_s", 7.0) or 7.0)
+
+    def _on_data(self, frames: list[DataFrame], received: float) -> list[LinkEvent]:
+        """DATA frames -> DataBlocks; contiguous frames reach the classifier as one block."""
+        out: list[LinkEvent] = []
+        run: list[tuple[DataFrame, int]] = []
+
+        def flush_run() -> None:
+            if not run:
+                return
+            first = run[0][0].first_sample
+            block = (run[0][0].samples if len(run) == 1
+                     else np.concatenate([f.samples for f, _ in run]))
+            self._feed(first, block, np.zeros(block.shape[0], bool), out, received)
+            out.extend(DataBlock(f.first_sample, f.samples, f.timestamp_us, f.overrun, lost)
+                       for f, lost in run)
+            run.clear()
+
+        for f in frames:
+            if f.overrun:
+                self._counts["overrun_frames"] += 1
+            grid = (int(f.samples.shape[1]), int(f.samples.shape[2]))
+            if self._grid is None:
+                self._setup_stream(grid)
+            elif grid != self._grid:
+                continue  # a frame for another grid cannot be part of this stream: ignore it
+            expected = run[-1][0].end_sample if run else self._next
+            lost = 0
+            if expected is not None and f.first_sample != expected:
+                flush_run()
+                if f.first_sample < expected:
+                    self._index_resets += 1
+                lost = self._bridge(f.first_sample, out)
+                self._lost_samples += lost
+            run.append((f, lost))
+        flush_run()
+        return out
+
+    def _bridge(self, first: int, out: list[LinkEvent]) -> int:
+        """A hole (or a reset) before stream index ``first``; returns the samples lost."""
+        assert self._next is not None
+        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
+        gap = first - self._next
+        if 0 < gap <= self.max_fill_s * rate and self._last is not None:
+            hold = np.broadcast_to(self._last, (gap, *self._last.shape))
+            self._lost_ranges.append((self._next, first))
+            self._feed(self._next, np.ascontiguousarray(hold), np.ones(gap, bool), out, None)
+            return gap
+        # too long a hole, or the indices went backwards: restart the host classifier here
+        for c in (self.classifier, self._det):
+            if c is not None:
+                out.extend(self._touches(c, c.flush(), None))
+                c.reset()
+        if self.record_policy == "touch":
+            out.extend(self._record_ready(final=True))
+        self._base = first
+        self._next = first
+        if gap > 0:
+            self._lost_ranges.append((first - gap, first))
+        return max(gap, 0)
+
+    def _feed(self, first: int, block: np.ndarray, lost: np.ndarray, out: list[LinkEvent],
+              received: Optional[float]) -> None:
+        if self._next is None:
+            self._next = first
+            self._base = first
+        assert self._history is not None
+        self._history.append(first, block, lost)
+        self._next = first + block.shape[0]
+        self._last = block[-1].copy()
+        flat = block.reshape(block.shape[0], -1)
+        if self.classifier is not None:
+            out.extend(self._touches(self.classifier, self.classifier.push(flat), received))
+        if self._det is not None:
+            out.extend(self._touches(self._det, self._det.push(flat), received))
+        out.extend(self._record_ready())
+
+    def _touches(self, c: HostClassifier, touches: list[_Touch],
+                 received: Optional[float]) -> list[LinkEvent]:
+        out: list[LinkEvent] = []
+        for t in touches:
+            start, stop = self._base + t.start, self._base + t.stop
+            if c is self.classifier:
+                lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
+                latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
+                names = c.class_names  # the host model's classes, not the controller's
+                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
+                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
+                             self._next or stop, latency, lost)
+                self._counts["decisions_host"] += 1
+                self.decisions.append(d)
+                out.append(d)
+            if self.record_path is not None and self.record_policy == "touch":
+                if c is self._det or (self._det is None and c is self.classifier):
+                    label = "unknown"
+                    if c is self.classifier and t.label_index >= 0 and not t.dont_know:
+                        label = c.class_names[t.label_index]
+                    self._pending_touch.append((start, stop, label))
+        if self._lost_ranges and self._next is not None:
+            horizon = self._next - (self._history.capacity if self._history else 0)
+            self._lost_ranges = [r for r in self._lost_ranges if r[1] > horizon]
+        return out
+
+    def _end_of_stream(self) -> list[LinkEvent]:
+        out: list[LinkEvent] = []
+        s = self.last_status
+        if (s is not None and s.state == StreamState.FINISHED and self._next is not None
+                and s.next_sample > self._next and not self._tail_counted):
+            # samples produced after the last one received, which no later frame revealed
+            self._lost_samples += s.next_sample - self._next
+            self._tail_counted = True
+        for c in (self.classifier, self._det):
+            if c is not None and self._history is not None:
+                out.extend(self._touches(c, c.flush(), None))
+        out.extend(self._record_ready(final=True))
+        return out
+
+
+class _StreamRecorder:
+    """Recording the received stream to a campaign file, one recording per replay segment or
+    per detected touch (a part of :class:`LinkListener`, which holds the state)."""
+
+    # -- recording -------------------------------------------------------------------------
+    def _open_writer(self) -> None:
+        from eskin.data.campaign import CampaignWriter
+
+        assert self.record_path is not None and self._grid is not None
+        info = self.info
+        rate = info.sample_rate_hz if info is not None else (
+            self.replay.sample_rate_hz if self.replay is not None else 3000.0)
+        vpc = info.volts_per_count if info is not None and info.volts_per_count > 0 else (
+            self.replay.volts_per_count if self.replay is not None else 1.0)
+        attrs: dict[str, Any] = {**self.record_attrs, "recorded_by": "eskin.link.LinkListener",
+                                 "record_policy": self.record_policy, "port": self.path}
+        with_contact = False
+        if self.record_policy == "segment":
+            names = list(self.replay.class_names) or []
+            if not names or np.any(self.replay.segments["label"] < 0):
+                names.append("unknown")
+            n_samples = int(self.replay.segments["length"].max())
+            attrs["labels"] = "true classes from the replay file"
+            attrs["replay_file"] = str(self.replay.path)
+            with_contact = bool(np.all(self.replay.segments["contact_onset"] >= 0))
+        else:
+            names = list(self.classifier.class_names) if self.classifier is not None else []
+            names.append("unknown")
+            n_samples = int(math.ceil((self._max_touch_s() + 2 * self.context_s) * rate)) + 1
+            attrs["labels"] = ("the host's decisions (not ground truth); unknown = don't know"
+                               if self.classifier is not None else "none (unknown)")
+        self._with_contact = with_contact
+        self._writer = CampaignWriter(
+            self.record_path, grid_shape=self._grid, n_samples=n_samples, sample_rate_hz=rate,
+            volts_per_count=vpc, modalities=names, source=self.record_source, attrs=attrs,
+            contact_interval=with_contact, overwrite=self.overwrite,
+            extra_fields={"stream_start": np.int64, "lost_samples": np.int32},
+        )
+
+    def _record_ready(self, final: bool = False) -> list[LinkEvent]:
+        if self.record_path is None or self._history is None:
+            return []
+        out: list[LinkEvent] = []
+        h = self._history
+        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
+        if self.record_policy == "segment":
+            segs = self.replay.segments
+            while self._next_segment < len(segs):
+                seg = segs[self._next_segment]
+                start = self.replay_offset + int(seg["start"])
+                stop = start + int(seg["length"])
+                if h.end < stop:
+                    break  # not there yet (a segment never completed is never written)
+                self._next_segment += 1
+                if h.begin > start:
+                    continue  # not fully received: joined late, or a long hole inside it
+                label = int(seg["label"])
+                names = self._writer_names()
+                modality = label if label >= 0 else len(names) - 1
+                ci = None
+                if self._with_contact:
+                    ci = (int(seg["contact_onset"]), int(seg["contact_offset"]))
+                out.append(self._append(start, stop, modality, ci))
+        else:
+            ctx = int(round(self.context_s * rate))
+            keep = []
+            for start, stop, label in self._pending_touch:
+                a, b = start - ctx, stop + ctx
+                if h.end < b and not final:
+                    keep.append((start, stop, label))
+                    continue
+                names = self._writer_names()
+                out.append(self._append(max(a, h.begin), min(b, h.end), names.index(label), None))
+            self._pending_touch = keep
+        return out
+
+    def _writer_names(self) -> list[str]:
+        if self._writer is None:
+            self._open_writer()
+        return list(self._writer.modalities)
+
+    def _append(self, start: int, stop: int, modality: int,
+                contact: Optional[tuple[int, int]]) -> Recorded:
+        assert self._history is not None
+        if self._writer is None:
+            self._open_writer()
+        samples, lost = self._history.get(start, stop)
+        stop = start + samples.shape[0]
+        rec = np.ascontiguousarray(np.moveaxis(samples, 0, -1))
+        n_lost = int(lost.sum())
+        idx = self._writer.append(
+            rec, modality=modality, participant=-1, direction=255, run=0,
+            contact_interval=contact, extra={"stream_start": start, "lost_samples": n_lost})
+        self._counts["recordings"] += 1
+        return Recorded(idx, start, stop, self._writer.modalities[modality], n_lost)
+
+
+class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
     """The controller's live stream over a serial port, as events. See the module docstring.
 
     Parameters
@@ -492,19 +808,9 @@ class LinkListener:
         stats_interval: Optional[float] = 1.0,
         history_s: float = 2.0,
     ) -> None:
-        if record_policy is None:
-            record_policy = "segment" if replay is not None else "touch"
-        if record_policy not in RECORD_POLICIES:
-            raise ValueError(
-                f"record_policy must be one of {RECORD_POLICIES}, got {record_policy!r}")
-        if record_policy == "segment" and replay is None:
-            raise ValueError("record_policy='segment' needs the replay file (replay=...)")
-        for name, v in (("context_s", context_s), ("max_fill_s", max_fill_s),
-                        ("reconnect_timeout", reconnect_timeout), ("history_s", history_s)):
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if not (read_timeout > 0):
-            raise ValueError(f"read_timeout must be > 0, got {read_timeout}")
+        record_policy = _checked_options(
+            record_policy, replay, read_timeout, context_s=context_s, max_fill_s=max_fill_s,
+            reconnect_timeout=reconnect_timeout, history_s=history_s)
         if isinstance(port, SerialPort):
             self._port: Optional[SerialPort] = port
             self.path = port.path
@@ -534,6 +840,10 @@ class LinkListener:
         self.stats_interval = stats_interval
         self.history_s = float(history_s)
 
+        self._init_state()
+
+    def _init_state(self) -> None:
+        """What the listener has received so far: nothing yet."""
         self.info: Optional[InfoFrame] = None
         self.last_status: Optional[StatusFrame] = None
         self.decisions: list[Decision] = []
@@ -737,283 +1047,16 @@ class LinkListener:
             return Connection("reconnected", self.path, "port reopened after the peer closed")
         return None
 
-    # -- frames -> events ------------------------------------------------------------------
-    def _process(self, chunk: bytes) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        frames = self._decoder.feed(chunk)
-        received = time.perf_counter()
-        i = 0
-        while i < len(frames):
-            f = frames[i]
-            if isinstance(f, DataFrame):
-                j = i
-                while j < len(frames) and isinstance(frames[j], DataFrame):
-                    j += 1
-                self._received += sum(int(fr.samples.shape[0]) for fr in frames[i:j])
-                out += self._on_data(frames[i:j], received)
-                i = j
-                continue
-            if isinstance(f, DecisionFrame):
-                out.append(self._on_controller_decision(f))
-            elif isinstance(f, StatusFrame):
-                self.last_status = f
-                self._counts["status_frames"] += 1
-                self._unseen = unreceived_samples(f, self._received, self._counts, self._unseen)
-                out.append(StatusEvent(f))
-            elif isinstance(f, InfoFrame):
-                self.info = f
-                out.append(InfoEvent(f))
-            i += 1  # PONG: nothing to do
-        return out
 
-    def _class_name(self, index: int) -> Optional[str]:
-        """A controller label's name, from its INFO (None before INFO or out of range)."""
-        names: Sequence[str] = self.info.class_names if self.info is not None else ()
-        return str(names[index]) if 0 <= index < len(names) else None
 
-    def _on_controller_decision(self, f: DecisionFrame) -> Decision:
-        d = Decision("controller", f.onset_sample, f.offset_sample, self._class_name(f.label),
-                     int(f.label), tuple(float(v) for v in f.values), bool(f.dont_know),
-                     f.decided_sample, float(f.latency_us))
-        self._counts["decisions_controller"] += 1
-        self.decisions.append(d)
-        return d
 
-    def _setup_stream(self, grid: tuple[int, int]) -> None:
-        self._grid = grid
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        need = self.history_s
-        if self.record_path is not None:
-            if self.record_policy == "segment":
-                segs = self.replay.segments
-                longest = int(segs["length"].max()) if len(segs) else 0
-                need = max(need, longest / rate + 1.0)
-            else:
-                need = max(need, self._max_touch_s() + 2 * self.context_s + 1.0)
-        self._history = _History(int(math.ceil(need * rate)), grid)
-        if self.classifier is not None and tuple(self.classifier.grid) != grid:
-            raise ValueError(
-                f"the controller streams a {grid[0]}x{grid[1]} grid; the host model expects "
-                f"{self.classifier.grid[0]}x{self.classifier.grid[1]}"
-            )
-        if (self.record_path is not None and self.record_policy == "touch"
-                and self.classifier is None):
-            self._det = HostClassifier(grid, rate)
 
-    def _max_touch_s(self) -> float:
-        cfg = None
-        c = self.classifier
-        if c is not None:
-            m = getattr(c, "model", None)
-            cfg = getattr(m, "window_config", None) if m is not None else None
-            if cfg is None and getattr(c, "compiled", None) is not None:
-                cfg = c.compiled.window_config.get("max_window_s")  # type: ignore[union-attr]
-                return float(cfg) if cfg is not None else 7.0
-        return float(getattr(cfg, "max_window_s", 7.0) or 7.0)
 
-    def _on_data(self, frames: list[DataFrame], received: float) -> list[LinkEvent]:
-        """DATA frames -> DataBlocks; contiguous frames reach the classifier as one block."""
-        out: list[LinkEvent] = []
-        run: list[tuple[DataFrame, int]] = []
 
-        def flush_run() -> None:
-            if not run:
-                return
-            first = run[0][0].first_sample
-            block = (run[0][0].samples if len(run) == 1
-                     else np.concatenate([f.samples for f, _ in run]))
-            self._feed(first, block, np.zeros(block.shape[0], bool), out, received)
-            out.extend(DataBlock(f.first_sample, f.samples, f.timestamp_us, f.overrun, lost)
-                       for f, lost in run)
-            run.clear()
 
-        for f in frames:
-            if f.overrun:
-                self._counts["overrun_frames"] += 1
-            grid = (int(f.samples.shape[1]), int(f.samples.shape[2]))
-            if self._grid is None:
-                self._setup_stream(grid)
-            elif grid != self._grid:
-                continue  # a frame for another grid cannot be part of this stream: ignore it
-            expected = run[-1][0].end_sample if run else self._next
-            lost = 0
-            if expected is not None and f.first_sample != expected:
-                flush_run()
-                if f.first_sample < expected:
-                    self._index_resets += 1
-                lost = self._bridge(f.first_sample, out)
-                self._lost_samples += lost
-            run.append((f, lost))
-        flush_run()
-        return out
 
-    def _bridge(self, first: int, out: list[LinkEvent]) -> int:
-        """A hole (or a reset) before stream index ``first``; returns the samples lost."""
-        assert self._next is not None
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        gap = first - self._next
-        if 0 < gap <= self.max_fill_s * rate and self._last is not None:
-            hold = np.broadcast_to(self._last, (gap, *self._last.shape))
-            self._lost_ranges.append((self._next, first))
-            self._feed(self._next, np.ascontiguousarray(hold), np.ones(gap, bool), out, None)
-            return gap
-        # too long a hole, or the indices went backwards: restart the host classifier here
-        for c in (self.classifier, self._det):
-            if c is not None:
-                out.extend(self._touches(c, c.flush(), None))
-                c.reset()
-        if self.record_policy == "touch":
-            out.extend(self._record_ready(final=True))
-        self._base = first
-        self._next = first
-        if gap > 0:
-            self._lost_ranges.append((first - gap, first))
-        return max(gap, 0)
 
-    def _feed(self, first: int, block: np.ndarray, lost: np.ndarray, out: list[LinkEvent],
-              received: Optional[float]) -> None:
-        if self._next is None:
-            self._next = first
-            self._base = first
-        assert self._history is not None
-        self._history.append(first, block, lost)
-        self._next = first + block.shape[0]
-        self._last = block[-1].copy()
-        flat = block.reshape(block.shape[0], -1)
-        if self.classifier is not None:
-            out.extend(self._touches(self.classifier, self.classifier.push(flat), received))
-        if self._det is not None:
-            out.extend(self._touches(self._det, self._det.push(flat), received))
-        out.extend(self._record_ready())
 
-    def _touches(self, c: HostClassifier, touches: list[_Touch],
-                 received: Optional[float]) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        for t in touches:
-            start, stop = self._base + t.start, self._base + t.stop
-            if c is self.classifier:
-                lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
-                latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
-                names = c.class_names  # the host model's classes, not the controller's
-                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
-                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
-                             self._next or stop, latency, lost)
-                self._counts["decisions_host"] += 1
-                self.decisions.append(d)
-                out.append(d)
-            if self.record_path is not None and self.record_policy == "touch":
-                if c is self._det or (self._det is None and c is self.classifier):
-                    label = "unknown"
-                    if c is self.classifier and t.label_index >= 0 and not t.dont_know:
-                        label = c.class_names[t.label_index]
-                    self._pending_touch.append((start, stop, label))
-        if self._lost_ranges and self._next is not None:
-            horizon = self._next - (self._history.capacity if self._history else 0)
-            self._lost_ranges = [r for r in self._lost_ranges if r[1] > horizon]
-        return out
 
-    # -- recording -------------------------------------------------------------------------
-    def _open_writer(self) -> None:
-        from eskin.data.campaign import CampaignWriter
 
-        assert self.record_path is not None and self._grid is not None
-        info = self.info
-        rate = info.sample_rate_hz if info is not None else (
-            self.replay.sample_rate_hz if self.replay is not None else 3000.0)
-        vpc = info.volts_per_count if info is not None and info.volts_per_count > 0 else (
-            self.replay.volts_per_count if self.replay is not None else 1.0)
-        attrs: dict[str, Any] = {**self.record_attrs, "recorded_by": "eskin.link.LinkListener",
-                                 "record_policy": self.record_policy, "port": self.path}
-        with_contact = False
-        if self.record_policy == "segment":
-            names = list(self.replay.class_names) or []
-            if not names or np.any(self.replay.segments["label"] < 0):
-                names.append("unknown")
-            n_samples = int(self.replay.segments["length"].max())
-            attrs["labels"] = "true classes from the replay file"
-            attrs["replay_file"] = str(self.replay.path)
-            with_contact = bool(np.all(self.replay.segments["contact_onset"] >= 0))
-        else:
-            names = list(self.classifier.class_names) if self.classifier is not None else []
-            names.append("unknown")
-            n_samples = int(math.ceil((self._max_touch_s() + 2 * self.context_s) * rate)) + 1
-            attrs["labels"] = ("the host's decisions (not ground truth); unknown = don't know"
-                               if self.classifier is not None else "none (unknown)")
-        self._with_contact = with_contact
-        self._writer = CampaignWriter(
-            self.record_path, grid_shape=self._grid, n_samples=n_samples, sample_rate_hz=rate,
-            volts_per_count=vpc, modalities=names, source=self.record_source, attrs=attrs,
-            contact_interval=with_contact, overwrite=self.overwrite,
-            extra_fields={"stream_start": np.int64, "lost_samples": np.int32},
-        )
 
-    def _record_ready(self, final: bool = False) -> list[LinkEvent]:
-        if self.record_path is None or self._history is None:
-            return []
-        out: list[LinkEvent] = []
-        h = self._history
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        if self.record_policy == "segment":
-            segs = self.replay.segments
-            while self._next_segment < len(segs):
-                seg = segs[self._next_segment]
-                start = self.replay_offset + int(seg["start"])
-                stop = start + int(seg["length"])
-                if h.end < stop:
-                    break  # not there yet (a segment never completed is never written)
-                self._next_segment += 1
-                if h.begin > start:
-                    continue  # not fully received: joined late, or a long hole inside it
-                label = int(seg["label"])
-                names = self._writer_names()
-                modality = label if label >= 0 else len(names) - 1
-                ci = None
-                if self._with_contact:
-                    ci = (int(seg["contact_onset"]), int(seg["contact_offset"]))
-                out.append(self._append(start, stop, modality, ci))
-        else:
-            ctx = int(round(self.context_s * rate))
-            keep = []
-            for start, stop, label in self._pending_touch:
-                a, b = start - ctx, stop + ctx
-                if h.end < b and not final:
-                    keep.append((start, stop, label))
-                    continue
-                names = self._writer_names()
-                out.append(self._append(max(a, h.begin), min(b, h.end), names.index(label), None))
-            self._pending_touch = keep
-        return out
-
-    def _writer_names(self) -> list[str]:
-        if self._writer is None:
-            self._open_writer()
-        return list(self._writer.modalities)
-
-    def _append(self, start: int, stop: int, modality: int,
-                contact: Optional[tuple[int, int]]) -> Recorded:
-        assert self._history is not None
-        if self._writer is None:
-            self._open_writer()
-        samples, lost = self._history.get(start, stop)
-        stop = start + samples.shape[0]
-        rec = np.ascontiguousarray(np.moveaxis(samples, 0, -1))
-        n_lost = int(lost.sum())
-        idx = self._writer.append(
-            rec, modality=modality, participant=-1, direction=255, run=0,
-            contact_interval=contact, extra={"stream_start": start, "lost_samples": n_lost})
-        self._counts["recordings"] += 1
-        return Recorded(idx, start, stop, self._writer.modalities[modality], n_lost)
-
-    def _end_of_stream(self) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        s = self.last_status
-        if (s is not None and s.state == StreamState.FINISHED and self._next is not None
-                and s.next_sample > self._next and not self._tail_counted):
-            # samples produced after the last one received, which no later frame revealed
-            self._lost_samples += s.next_sample - self._next
-            self._tail_counted = True
-        for c in (self.classifier, self._det):
-            if c is not None and self._history is not None:
-                out.extend(self._touches(c, c.flush(), None))
-        out.extend(self._record_ready(final=True))
-        return out
