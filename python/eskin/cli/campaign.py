@@ -163,9 +163,14 @@ def recover_cmd(
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
+    from eskin._files import refuse_overwrite
     from eskin.data.campaign import recover_campaign
+    from eskin.data.journal import journal_and_target
 
     with _user_errors():
+        journal, target = journal_and_target(file)
+        if journal.exists():  # else: "nothing to recover"
+            refuse_overwrite(output if output is not None else target, force, inputs=(journal,))
         typer.echo(recover_campaign(file, output, overwrite=force).message())
 
 

@@ -1068,13 +1068,9 @@ def recover_campaign(path: str | os.PathLike[str], output: str | os.PathLike[str
     journal is deleted once the campaign file is in place. Refuses while the writer is still
     alive, and never replaces an existing file unless ``overwrite=True``.
     """
-    from eskin.data.journal import journal_path, target_of
+    from eskin.data.journal import journal_and_target
 
-    p = Path(path)
-    if p.name.startswith(".") and p.name.endswith(".partial"):
-        journal, target = p, target_of(p)
-    else:
-        journal, target = journal_path(p), p
+    journal, target = journal_and_target(path)
     if not journal.exists():
         raise FileNotFoundError(f"{target}: nothing to recover (no journal {journal.name} "
                                 f"next to it)")

@@ -61,6 +61,14 @@ def target_of(journal: str | os.PathLike[str]) -> Path:
     return journal.with_name(name[1 : -len(".partial")])
 
 
+def journal_and_target(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """(journal, campaign file) from either of the two."""
+    p = Path(path)
+    if p.name.startswith(".") and p.name.endswith(".partial"):
+        return p, target_of(p)
+    return journal_path(p), p
+
+
 def fsync_dir(folder: Path) -> None:
     """Make a creation, rename or removal in ``folder`` durable."""
     fd = os.open(folder, os.O_RDONLY)

@@ -327,3 +327,18 @@ def test_cli_recover_says_what_it_salvaged(tmp_path):
     r = CliRunner().invoke(app, ["recover", str(path)])
     assert r.exit_code == 2 and "nothing to recover" in r.output
     assert r.output.count("\n") == 1
+    # the one overwrite rule: an existing output only with --force, never the journal itself
+    journal_path(path).write_bytes(data)
+    for args, message in (
+        ([], f"error: {path}: file exists"),
+        (
+            ["-o", str(journal_path(path)), "--force"],
+            f"error: {journal_path(path)}: this is also an input of the command",
+        ),
+    ):
+        r = CliRunner().invoke(app, ["recover", str(path), *args])
+        assert r.exit_code == 2 and r.output.startswith(message), r.output
+        assert r.output.count("\n") == 1
+    assert journal_path(path).read_bytes() == data
+    r = CliRunner().invoke(app, ["recover", str(path), "--force"])
+    assert r.exit_code == 0 and r.output.startswith(f"recovered 3 complete recordings into {path}")
