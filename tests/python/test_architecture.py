@@ -218,3 +218,20 @@ def test_pending_splits_are_still_pending():
         if sizes.get(name, (0, 1, False))[0] <= sizes.get(name, (0, 1, False))[1]
     ]
     assert not done, f"no longer over the limit; remove from PENDING: {done}"
+
+
+def test_cli_commands_are_top_level_functions():
+    # one thin module per command group: its commands are module-level functions, registered
+    # by register(app), never defined inside another function
+    nested = []
+    for module, path in MODULES.items():
+        if not module.startswith("eskin.cli."):
+            continue
+        for outer in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(outer, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for inner in ast.walk(outer):
+                decorators = getattr(inner, "decorator_list", [])
+                if inner is not outer and any("command" in ast.unparse(d) for d in decorators):
+                    nested.append(f"{module}.{outer.name}.{inner.name}")
+    assert not nested, f"commands defined inside functions: {nested}"

@@ -78,8 +78,7 @@ def export(
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the eskin app."""
     app.command("export")(export)
-
-    register_replay(app)
+    app.command("replay")(replay)
 
 
 def _ints(text: str, key: str) -> list[int]:
@@ -149,58 +148,54 @@ def _replay_format(output: Path, fmt: Optional[ReplayFormat]) -> str:
     return by_suffix[output.suffix.lower()]
 
 
-def register_replay(app: typer.Typer) -> None:
-    """Add `eskin replay`."""
+def replay(
+    campaign: Path = typer.Argument(..., metavar="CAMPAIGN", help="campaign file (.h5)"),
+    output: Path = typer.Option(
+        ..., "-o", "--output",
+        help="file to write: .eskr (a replay stream for eskin-fw-sim) or .npy (the "
+        "recordings, for eskin-classify)"),
+    select: list[str] = typer.Option(
+        [], "--select", metavar="KEY=VALUES",
+        help="keep the recordings with these values: modality=brush,washer, "
+        "participant=61-70, direction=h, run=2, index=0-9 (repeat to combine; default: "
+        "every recording)"),
+    fmt: Optional[ReplayFormat] = typer.Option(
+        None, "--format", help="replay, npy or records (raw records of any lengths for "
+        "eskin-classify); default: from the file name"),
+    gap: float = typer.Option(0.5, "--gap", help="replay: seconds of quiet noise between "
+                              "recordings"),
+    seed: int = typer.Option(0, help="replay: seed of the quiet noise"),
+    force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+) -> None:
+    """Write a campaign's recordings for the controller: a replay stream that eskin-fw-sim
+    plays over its serial link, or the recordings for eskin-classify (.npy or raw records)."""
+    from collections import Counter
 
-    @app.command("replay")
-    def replay(
-        campaign: Path = typer.Argument(..., metavar="CAMPAIGN", help="campaign file (.h5)"),
-        output: Path = typer.Option(
-            ..., "-o", "--output",
-            help="file to write: .eskr (a replay stream for eskin-fw-sim) or .npy (the "
-            "recordings, for eskin-classify)"),
-        select: list[str] = typer.Option(
-            [], "--select", metavar="KEY=VALUES",
-            help="keep the recordings with these values: modality=brush,washer, "
-            "participant=61-70, direction=h, run=2, index=0-9 (repeat to combine; default: "
-            "every recording)"),
-        fmt: Optional[ReplayFormat] = typer.Option(
-            None, "--format", help="replay, npy or records (raw records of any lengths for "
-            "eskin-classify); default: from the file name"),
-        gap: float = typer.Option(0.5, "--gap", help="replay: seconds of quiet noise between "
-                                  "recordings"),
-        seed: int = typer.Option(0, help="replay: seed of the quiet noise"),
-        force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
-    ) -> None:
-        """Write a campaign's recordings for the controller: a replay stream that eskin-fw-sim
-        plays over its serial link, or the recordings for eskin-classify (.npy or raw records)."""
-        from collections import Counter
+    from eskin._files import refuse_overwrite
+    from eskin.data.campaign import load_campaign
+    from eskin.data.replay import write_raw_records, write_recordings_npy, write_replay_file
 
-        from eskin._files import refuse_overwrite
-        from eskin.data.campaign import load_campaign
-        from eskin.data.replay import write_raw_records, write_recordings_npy, write_replay_file
-
-        kind = _replay_format(output, fmt)
-        if not gap >= 0:
-            _fail(f"--gap must be >= 0 seconds, got {gap}")
-        try:
-            refuse_overwrite(output, force, inputs=(campaign,))
-            with load_campaign(campaign) as c:
-                idx = _selected(c, select)
-                if kind == "replay":
-                    rf = write_replay_file(c, idx, output, gap_s=gap, seed=seed)
-                    detail = f", {rf.n_samples / rf.sample_rate_hz:.1f} s at {rf.sample_rate_hz:g} Hz"
-                elif kind == "npy":
-                    detail = f", shape {write_recordings_npy(c, idx, output)}"
-                else:
-                    write_raw_records(c, idx, output)
-                    detail = ""
-                counts = Counter(c.modalities[int(m)] for m in c.modality[idx])
-        except (ValueError, OSError) as exc:
-            _fail(str(exc))
-        per_class = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
-        typer.echo(f"wrote {output}: {len(idx)} recordings ({per_class}){detail}; "
-                   f"{_FORMAT_USE[kind]}")
+    kind = _replay_format(output, fmt)
+    if not gap >= 0:
+        _fail(f"--gap must be >= 0 seconds, got {gap}")
+    try:
+        refuse_overwrite(output, force, inputs=(campaign,))
+        with load_campaign(campaign) as c:
+            idx = _selected(c, select)
+            if kind == "replay":
+                rf = write_replay_file(c, idx, output, gap_s=gap, seed=seed)
+                detail = f", {rf.n_samples / rf.sample_rate_hz:.1f} s at {rf.sample_rate_hz:g} Hz"
+            elif kind == "npy":
+                detail = f", shape {write_recordings_npy(c, idx, output)}"
+            else:
+                write_raw_records(c, idx, output)
+                detail = ""
+            counts = Counter(c.modalities[int(m)] for m in c.modality[idx])
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    per_class = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+    typer.echo(f"wrote {output}: {len(idx)} recordings ({per_class}){detail}; "
+               f"{_FORMAT_USE[kind]}")
 
 
 def _check_target(model: object, dtype: str, target: str) -> None:
