@@ -193,6 +193,8 @@ def train(
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
+    progress: bool = typer.Option(
+        True, "--progress/--no-progress", help="show that the search is running (terminal)"),
 ) -> None:
     """Select, fit on all the given recordings and save a model.
 
@@ -203,6 +205,7 @@ def train(
     Maximal Discrepancy (--selection md).
     """
     from eskin._files import refuse_overwrite
+    from eskin._progress import progress_bar
     from eskin.deploy import save_model
     from eskin.learn.evaluation_report import selection_estimate_lines
     from eskin.learn.models import train_model
@@ -218,7 +221,8 @@ def train(
     for note in _training_set_notes(campaign, D, selection.value):
         typer.echo(f"note: {note}")
     try:
-        with compute_backend(scheduler):
+        with compute_backend(scheduler), progress_bar(progress) as bar:
+            bar.add_task(f"training ({selection.value} search)", total=None)
             model = train_model(
                 campaign,
                 classes=names,
