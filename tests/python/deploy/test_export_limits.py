@@ -9,6 +9,7 @@ and exit with status 2, and nothing dies on a signal or runs out of memory.
 from __future__ import annotations
 
 import io
+import os
 import re
 import struct
 import subprocess
@@ -163,3 +164,27 @@ def test_eskin_classify_refuses_huge_declared_npy_at_once(tmp_path):
         assert res.returncode == 2, err
         assert err.count("\n") == 1
         assert "shape (2000000000, 4, 4, 300) of <i2 declares more than the limit" in err
+
+
+def test_eskin_classify_raw_record_allocates_only_what_arrives():
+    """A raw record declaring 2^28 samples of 16 taxels (8 GiB) followed by 1000 bytes: the
+    tool reads what arrives, says the record is truncated, and stays small."""
+    header = b"ESKR" + struct.pack("<HHII", 4, 4, 1 << 28, 0)
+    proc = subprocess.Popen(
+        [_tool("eskin-classify"), str(FIXTURE), "-"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    with proc.stdin, proc.stdout, proc.stderr:
+        proc.stdin.write(header + bytes(1000))
+        proc.stdin.close()
+        err = proc.stderr.read().decode()
+        proc.stdout.read()
+        _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    assert proc.returncode == 2, err
+    assert err == (
+        "eskin-classify: <stdin>: record 0: truncated samples (1000 of 8589934592 bytes)\n"
+    )
+    assert usage.ru_maxrss < 200_000  # kB: the declared 8 GiB were never allocated
