@@ -59,9 +59,7 @@ class Block:
 
 
 def _dedent(text: str, indent: str) -> str:
-    return "".join(
-        ln.removeprefix(indent) for ln in text.splitlines(keepends=True)
-    )
+    return "".join(ln.removeprefix(indent) for ln in text.splitlines(keepends=True))
 
 
 def _markers_before(text: str, start: int) -> list[re.Match]:
@@ -139,8 +137,12 @@ def _environment(tmp: Path) -> dict[str, str]:
         MPLBACKEND="Agg",
         COLUMNS="100",
     )
-    if "ESKIN_BIN_DIR" in env:
-        env["ESKIN_BIN_DIR"] = str(Path(env["ESKIN_BIN_DIR"]).resolve())
+    # the build tree of the tools (the README's install block installs from it)
+    env["ESKIN_BIN_DIR"] = str(
+        Path(env["ESKIN_BIN_DIR"]).resolve()
+        if env.get("ESKIN_BIN_DIR")
+        else find_executable("eskin-classify").parent
+    )
     return env
 
 
