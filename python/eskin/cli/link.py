@@ -424,11 +424,11 @@ def _print_scores(scores: list[Any], live_mode: bool) -> None:
         from rich.table import Table
 
         console = report_console()
+        console.print("\naccuracy against the replay's true classes (one decision per recording):")
         for sc in scores:
             names = list(sc.class_names)
-            t = Table(title=f"{sc.source}: {sc.correct}/{sc.recordings} right "
-                            f"({100 * sc.accuracy:.1f} %), {sc.dont_know} don't know, "
-                            f"{sc.no_decision} without a decision")
+            console.print(score_lines(sc)[0], style="bold", highlight=False)
+            t = Table()
             t.add_column("true \\ decided", style="bold")
             for n in [*names, "none"]:
                 t.add_column(n, justify="right")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from eskin.data.replay import write_replay_arrays
 from eskin.link.listener import Decision
@@ -68,3 +69,19 @@ def test_segment_of_a_window(tmp_path):
     assert segment_of(rf, 1100, 1200) == -1  # the gap
     assert segment_of(rf, 0, 150, stream_offset=100) == -1
     assert segment_of(rf, 250, 300, stream_offset=100) == 0
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_scores_are_printed_as_accuracy_and_confusion_matrix(tmp_path, capsys, live):
+    from eskin.cli.link import _print_scores
+
+    rf = _replay(tmp_path)
+    (score,) = score_decisions(
+        [_d("controller", 200, "brush"), _d("controller", 1300, "brush")], rf
+    )
+    _print_scores([score], live)
+    out = capsys.readouterr().out
+    assert "accuracy against the replay's true classes (one decision per recording):" in out
+    assert "controller: 1/3 recordings right (33.3 %), 0 don't know, 1 without a decision" in out
+    rows = [ln for ln in out.splitlines() if "finger" in ln and "true" not in ln]
+    assert rows and rows[0].replace("│", " ").split() == ["finger", "1", "0", "0", "0"]
