@@ -35,6 +35,10 @@ from eskin._paths import find_executable
 REPO = next(p for p in Path(__file__).resolve().parents if (p / "README.md").is_file())
 DOCUMENTS = ["README.md", *sorted(str(p.relative_to(REPO)) for p in (REPO / "docs").glob("*.md"))]
 LANGUAGES = {"sh": "sh", "bash": "sh", "shell": "sh", "python": "python", "py": "python"}
+#: blocks that are not run here: unlabelled ones (output, diagrams, synopses) and C++/CMake (the
+#: README's are built against the installed library by test_cpp_install.py); a block in any other
+#: language fails the test instead of being skipped
+NOT_RUN = {"", "cpp", "cmake"}
 BLOCK_TIMEOUT_S = 300
 
 FENCE = re.compile(
@@ -85,6 +89,10 @@ def blocks_of(document: str) -> list[Block]:
         language = LANGUAGES.get(m.group("lang"))
         line = text.count("\n", 0, m.start()) + 1
         markers = _markers_before(text, m.start())
+        assert language or m.group("lang") in NOT_RUN, (
+            f"{document}:{line}: a ```{m.group('lang')} block: label it sh or python to run it, "
+            "or add its language to NOT_RUN with the reason"
+        )
         if language is None:
             assert not markers, f"{document}:{line}: doctest marker on a block that is not run"
             continue
