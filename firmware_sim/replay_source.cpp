@@ -95,6 +95,11 @@ bool ReplaySource::open_bytes(const std::uint8_t* p, std::size_t size, int grid_
   }
   if (size >= 8 && std::memcmp(p, "ESKREPLY", 8) == 0) return open_eskr(p, size, error);
   if (is_npy(p, size)) return open_npy(p, size, grid_rows, grid_cols, error);
+  if (size >= 8 && std::memcmp(p, "\x89HDF\r\n\x1a\n", 8) == 0) {
+    error = "an HDF5 file (an eskin campaign?), not a replay: `eskin replay CAMPAIGN -o FILE.eskr` "
+            "writes one from a campaign";
+    return false;
+  }
   error = "not an eskin replay file (magic ESKREPLY) nor a .npy file";
   return false;
 }

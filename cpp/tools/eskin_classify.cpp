@@ -270,6 +270,10 @@ int main(int argc, char** argv) {
       throw InputError(what + ": empty input");
     } else if (got >= 4 && std::memcmp(magic, "ESKR", 4) == 0) {
       classify_raw(*in, magic, got, what, pr, model);
+    } else if (got == 6 && std::memcmp(magic, "\x89HDF\r\n", 6) == 0) {
+      throw InputError(what + ": an HDF5 file (an eskin campaign?), not recordings: `eskin replay "
+                              "CAMPAIGN -o recordings.npy` writes a campaign's recordings for "
+                              "eskin-classify");
     } else {
       throw InputError(what + ": neither a .npy file nor raw 'ESKR' records");
     }

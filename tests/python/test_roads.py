@@ -173,3 +173,22 @@ def test_batch_road_to_eskin_classify(trained):
         run2 = np.flatnonzero(c.run == 2)
         expected = eskin.CompiledModel(d / "m.eskin").classify(np.asarray(c.signals[run2]))
     assert [row[1] for row in lines["run2.npy"]] == list(expected.labels)
+
+
+def test_a_campaign_given_straight_to_the_tools_names_the_way_in(trained):
+    for tool, args, command in (
+        ("eskin-fw-sim", ["c.h5"], "`eskin replay CAMPAIGN -o FILE.eskr`"),
+        ("eskin-classify", ["m.eskin", "c.h5"], "`eskin replay CAMPAIGN -o recordings.npy`"),
+    ):
+        r = subprocess.run(
+            [str(find_executable(tool)), *args],
+            cwd=trained,
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=False,
+        )
+        assert r.returncode == 2
+        assert (
+            f"{tool}: c.h5: an HDF5 file (an eskin campaign?)" in r.stderr and command in r.stderr
+        )
