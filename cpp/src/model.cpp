@@ -84,7 +84,9 @@ struct Classifier::Impl {
       }
   }
 
-  explicit Impl(const Model& m)
+  // raw: the buffers of Classifier::classify (the raw recording's tensor, the touches of the
+  // window choice); a StreamClassifier's classifier only runs classify_tensor.
+  Impl(const Model& m, bool raw)
       : layout({static_cast<std::size_t>(m.rows()), static_cast<std::size_t>(m.cols()),
                 static_cast<std::size_t>(m.D())},
                {static_cast<std::size_t>(m.alpha_store(0)), static_cast<std::size_t>(m.alpha_store(1)),
@@ -92,9 +94,9 @@ struct Classifier::Impl {
         ws(layout),
         detector(static_cast<std::int64_t>(m.rows()) * m.cols(), m.sample_rate_hz(),
                  m.window_config(), /*store_samples=*/false),
-        tensor(static_cast<std::size_t>(m.rows()) * m.cols() * m.D()),
+        tensor(raw ? static_cast<std::size_t>(m.rows()) * m.cols() * m.D() : 0),
         values(m.machines().size()),
-        selector(detector.params(), static_cast<std::int64_t>(kMaxTouches)),
+        selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 1)),
         ov32(detail::select_overlap_f32()),
         ov64(detail::select_overlap_f64()) {
     if (m.is_float64()) xb64.resize(layout.bases_size());
@@ -163,7 +165,10 @@ struct Classifier::Impl {
   detail::DotF64 dot64 = detail::select_dot_f64();
 };
 
-Classifier::Classifier(const Model& model) : model_(&model), impl_(std::make_unique<Impl>(model)) {}
+Classifier::Classifier(const Model& model)
+    : model_(&model), impl_(std::make_unique<Impl>(model, /*raw=*/true)) {}
+Classifier::Classifier(const Model& model, TensorsOnly)
+    : model_(&model), impl_(std::make_unique<Impl>(model, /*raw=*/false)) {}
 Classifier::~Classifier() = default;
 Classifier::Classifier(Classifier&&) noexcept = default;
 
@@ -266,7 +271,8 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
   if (x == nullptr || out == nullptr) return ClassifyStatus::kNullPointer;
   const Model& m = *model_;
   Impl& s = *impl_;
-  if (rows != m.rows() || cols != m.cols() || T_total < 1 || length < 1 || length > T_total)
+  if (rows != m.rows() || cols != m.cols() || T_total < 1 || length < 1 || length > T_total ||
+      s.tensor.empty())
     return ClassifyStatus::kBadShape;
   const std::int64_t n_taxels = static_cast<std::int64_t>(rows) * cols;
   TouchWindow w;
@@ -325,7 +331,7 @@ ClassifyStatus Classifier::classify(const double* x, int rows, int cols, std::in
 
 StreamClassifier::StreamClassifier(const Model& model)
     : model_(&model),
-      classifier_(model),
+      classifier_(model, Classifier::TensorsOnly{}),
       detector_(static_cast<std::int64_t>(model.rows()) * model.cols(), model.sample_rate_hz(),
                 model.window_config(), /*store_samples=*/true),
       tensor_(static_cast<std::size_t>(model.rows()) * model.cols() * model.D()) {}

@@ -202,6 +202,11 @@ class Classifier {
   struct Impl;
 
  private:
+  friend class StreamClassifier;
+  struct TensorsOnly {};
+  /// Only classify_tensor (the raw-recording buffers of classify are not allocated; classify
+  /// returns kBadShape): a StreamClassifier's, which brings its own tensor.
+  Classifier(const Model& model, TensorsOnly);
   template <typename T>
   ClassifyStatus classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
                               std::int64_t length, Decision* out) noexcept;
