@@ -1,7 +1,8 @@
 // The eskin MCU test program (bare metal, Cortex-M4F, QEMU mps2-an386; docs/mcu.md).
 //
 // The model is compiled in (a header from tools/mcu_case.py: the .eskin bytes as a const,
-// 8-byte aligned array, so in flash) and loaded with Model::view_bytes (its bases stay in flash).
+// 8-byte aligned array, so in flash) and loaded by the status-code loader Model::parse with its
+// bases read in place (they stay in flash); a truncated copy must be refused with kTruncated.
 // The held-out recordings stream from a file on the host through semihosting, one multi-taxel
 // int16 sample at a time, into a StreamClassifier; every decision is checked against the host's
 // float64 decision for the same model and samples (same window, same label, decision values
@@ -64,8 +65,23 @@ std::uint32_t median(std::uint32_t* v, int n) {
 
 int main() {
   std::setvbuf(stdout, nullptr, _IONBF, 0);
+  int bad = 0;
+  {
+    // the status-code loader refuses a damaged model without exceptions: here the first
+    // 1000 bytes of the real one (the header says more)
+    eskin::Model truncated;
+    eskin::ModelLoadError err;
+    const bool ok = eskin::Model::parse(mcu_model_data, 1000, &truncated, &err, true);
+    std::printf("a truncated model: %s (%s)\n", ok ? "accepted" : "refused", err.message.c_str());
+    if (ok || err.code != eskin::ModelError::kTruncated) ++bad;
+  }
   const std::uint64_t c0 = mcu_ticks();
-  const eskin::Model model = eskin::Model::view_bytes(mcu_model_data, mcu_model_size);
+  eskin::Model model;
+  eskin::ModelLoadError err;
+  if (!eskin::Model::parse(mcu_model_data, mcu_model_size, &model, &err, /*in_place=*/true)) {
+    std::printf("the model is refused: %s\n", err.message.c_str());
+    return 1;
+  }
   eskin::StreamClassifier sc(model);
   const std::uint64_t c1 = mcu_ticks();
   const std::size_t heap = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
@@ -80,7 +96,7 @@ int main() {
     std::printf("cannot open %s\n", MCU_CASE_STREAM);
     return 1;
   }
-  int n_dec = 0, bad = 0;
+  int n_dec = 0;
   double worst = 0.0;
   std::uint64_t other_ticks = 0, samples = 0;
   auto check = [&](eskin::ClassifyStatus st, std::uint64_t ticks) {

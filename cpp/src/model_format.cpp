@@ -61,6 +61,8 @@ std::string fmt_double(double v) {
   return buf;
 }
 
+// The throwing API's end of a failed parse: ModelFormatError on the host; without exceptions
+// (the device build) the message goes to detail::fatal_error.
 [[noreturn]] void fail(ModelError code, const std::string& msg) {
 #if defined(__cpp_exceptions)
   throw ModelFormatError(code, msg);
@@ -69,6 +71,23 @@ std::string fmt_double(double v) {
   detail::fatal_error(msg.c_str());
 #endif
 }
+
+// The first error of a parse. The parser returns at every failed check (`return err.set(...)`);
+// a read past the end of a section records its error and yields zeros, so that nothing after
+// the first error can read out of bounds or size an allocation from garbage.
+struct ParseError {
+  bool failed = false;
+  ModelError code = ModelError::kIo;
+  std::string message;
+  bool set(ModelError c, const std::string& msg) {
+    if (!failed) {
+      failed = true;
+      code = c;
+      message = msg;
+    }
+    return false;
+  }
+};
 
 // Index of the first byte of s[0, n) that does not start a well-formed UTF-8 sequence (RFC 3629:
 // no overlong forms, no surrogates, nothing above U+10FFFF), or n when all of it is valid.
@@ -105,18 +124,21 @@ std::size_t utf8_error_at(const char* s, std::size_t n) {
 // Little-endian reads from a bounded byte range.
 class Reader {
  public:
-  Reader(const std::uint8_t* data, std::size_t size, std::string what)
-      : p_(data), n_(size), what_(std::move(what)) {}
+  Reader(const std::uint8_t* data, std::size_t size, std::string what, ParseError& err)
+      : p_(data), n_(size), what_(std::move(what)), err_(err) {}
+  bool ok() const { return !err_.failed; }
   std::size_t pos() const { return pos_; }
   std::size_t remaining() const { return n_ - pos_; }
-  void need(std::size_t k, const char* field) const {
-    if (k > n_ - pos_)
-      fail(ModelError::kLayout, what_ + ": field '" + field + "' runs past the end of the section (" +
+  bool need(std::size_t k, const char* field) {
+    if (err_.failed) return false;
+    if (k <= n_ - pos_) return true;
+    pos_ = n_;
+    return err_.set(ModelError::kLayout, what_ + ": field '" + field + "' runs past the end of the section (" +
                                     std::to_string(n_ - pos_) + " bytes left, " +
                                     std::to_string(k) + " needed)");
   }
   std::uint32_t u32(const char* field) {
-    need(4, field);
+    if (!need(4, field)) return 0;
     std::uint32_t v = 0;
     for (int i = 3; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
     pos_ += 4;
@@ -129,7 +151,7 @@ class Reader {
     return v;
   }
   std::uint64_t u64(const char* field) {
-    need(8, field);
+    if (!need(8, field)) return 0;
     std::uint64_t v = 0;
     for (int i = 7; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
     pos_ += 8;
@@ -148,24 +170,33 @@ class Reader {
     return v;
   }
   std::string name(const char* field) {
-    need(model_format::kNameBytes, field);
+    if (!need(model_format::kNameBytes, field)) return {};
     const char* s = reinterpret_cast<const char*>(p_ + pos_);
     const std::size_t len = strnlen(s, model_format::kNameBytes);
-    if (len == 0 || len == model_format::kNameBytes)
-      fail(ModelError::kValue, what_ + ": field '" + field + "' must be a non-empty name of at most " +
+    if (len == 0 || len == model_format::kNameBytes) {
+      err_.set(ModelError::kValue, what_ + ": field '" + field + "' must be a non-empty name of at most " +
                                    std::to_string(model_format::kNameBytes - 1) +
                                    " bytes, NUL padded");
+      return {};
+    }
     for (std::size_t i = len; i < model_format::kNameBytes; ++i)
-      if (s[i] != 0) fail(ModelError::kValue, what_ + ": field '" + field + "' has non-zero padding");
+      if (s[i] != 0) {
+        err_.set(ModelError::kValue, what_ + ": field '" + field + "' has non-zero padding");
+        return {};
+      }
     for (std::size_t i = 0; i < len; ++i) {
       const unsigned char c = static_cast<unsigned char>(s[i]);
-      if (c < 0x20 || c == 0x7F)
-        fail(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
+      if (c < 0x20 || c == 0x7F) {
+        err_.set(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
+        return {};
+      }
     }
     const std::size_t bad = utf8_error_at(s, len);
-    if (bad != len)
-      fail(ModelError::kValue, what_ + ": field '" + field + "' is not valid UTF-8 (byte " +
-                                   std::to_string(bad) + ")");
+    if (bad != len) {
+      err_.set(ModelError::kValue, what_ + ": field '" + field + "' is not valid UTF-8 (byte " +
+                                       std::to_string(bad) + ")");
+      return {};
+    }
     std::string out(s, len);
     pos_ += model_format::kNameBytes;
     return out;
@@ -173,23 +204,26 @@ class Reader {
   // Zero padding up to the next multiple of 8 (relative to the section start).
   void pad8(const char* field) {
     const std::size_t k = (8 - (pos_ % 8)) % 8;
-    need(k, field);
+    if (!need(k, field)) return;
     for (std::size_t i = 0; i < k; ++i)
-      if (p_[pos_ + i] != 0) fail(ModelError::kValue, what_ + ": non-zero padding after '" + field + "'");
+      if (p_[pos_ + i] != 0) {
+        err_.set(ModelError::kValue, what_ + ": non-zero padding after '" + field + "'");
+        return;
+      }
     pos_ += k;
   }
   void zero_u32(const char* field) {
-    if (u32(field) != 0) fail(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
+    if (u32(field) != 0) err_.set(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
   }
   const std::uint8_t* raw(std::size_t k, const char* field) {
-    need(k, field);
+    if (!need(k, field)) return nullptr;
     const std::uint8_t* r = p_ + pos_;
     pos_ += k;
     return r;
   }
-  void expect_end() const {
+  void expect_end() {
     if (pos_ != n_)
-      fail(ModelError::kLayout, what_ + ": " + std::to_string(n_ - pos_) +
+      err_.set(ModelError::kLayout, what_ + ": " + std::to_string(n_ - pos_) +
                                     " unexpected trailing bytes in the section");
   }
   const std::string& what() const { return what_; }
@@ -199,6 +233,7 @@ class Reader {
   std::size_t n_;
   std::size_t pos_ = 0;
   std::string what_;
+  ParseError& err_;
 };
 
 std::string tag_str(std::uint32_t tag) {
@@ -231,18 +266,18 @@ constexpr bool kLittleEndian = false;  // unknown: always copy
 class ModelParser {
  public:
   /// borrow: keep the bases in `data` instead of copying them (see Model::view_bytes).
-  static Model parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
-                     bool borrow = false);
+  static bool parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
+                    bool borrow, Model& m, ParseError& err);
 
  private:
-  static void parse_prep(Reader& r, Model& m);
-  static void parse_clas(Reader& r, Model& m);
-  static void parse_svbs(Reader& r, Model& m);
-  static void parse_mach(Reader& r, Model& m);
-  static void check_machines(Model& m, const std::string& origin);
+  static bool parse_prep(Reader& r, Model& m, ParseError& err);
+  static bool parse_clas(Reader& r, Model& m, ParseError& err);
+  static bool parse_svbs(Reader& r, Model& m, ParseError& err);
+  static bool parse_mach(Reader& r, Model& m, ParseError& err);
+  static bool check_machines(Model& m, const std::string& origin, ParseError& err);
 };
 
-void ModelParser::parse_prep(Reader& r, Model& m) {
+bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
   const std::uint32_t rows = r.u32("rows"), cols = r.u32("cols"), D = r.u32("D");
   const std::uint32_t window = r.u32("window_mode"), sub = r.u32("subsample");
@@ -251,27 +286,27 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   r.zero_u32("reserved");
   const double rate = r.f64("sample_rate_hz");
   if (rows < 1 || rows > kMaxGrid || cols < 1 || cols > kMaxGrid)
-    fail(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
+    return err.set(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
                                  std::to_string(cols) + " out of range [1, 256]");
   if (D < 2 || D > kMaxD)
-    fail(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
+    return err.set(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
   if (std::uint64_t{rows} * cols * D > kMaxTensor)
-    fail(ModelError::kValue, w + ": rows*cols*D = " + std::to_string(rows) + "*" +
+    return err.set(ModelError::kValue, w + ": rows*cols*D = " + std::to_string(rows) + "*" +
                                  std::to_string(cols) + "*" + std::to_string(D) + " = " +
                                  std::to_string(std::uint64_t{rows} * cols * D) +
                                  " exceeds the limit " + std::to_string(kMaxTensor));
   if (window > 1)
-    fail(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 energy, 1 none)");
+    return err.set(ModelError::kValue, w + ": window_mode=" + std::to_string(window) + " (0 energy, 1 none)");
   if (sub > 1)
-    fail(ModelError::kValue, w + ": subsample=" + std::to_string(sub) + " (0 algorithm2, 1 even)");
+    return err.set(ModelError::kValue, w + ": subsample=" + std::to_string(sub) + " (0 algorithm2, 1 even)");
   if (short_policy > 1)
-    fail(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
+    return err.set(ModelError::kValue, w + ": short_policy=" + std::to_string(short_policy) +
                                  " (0 interpolate, 1 error)");
   if (!(std::isfinite(rate) && rate > 0 && rate <= 1e7))
-    fail(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be in (0, 1e7]");
+    return err.set(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be in (0, 1e7]");
   const auto& names = window_config_field_names();
   if (n_fields != kWindowConfigSize)
-    fail(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
+    return err.set(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
                                  std::to_string(kWindowConfigSize) + " (the WindowConfig fields)");
   std::array<double, kWindowConfigSize> values{};
   std::array<bool, kWindowConfigSize> seen{};
@@ -281,22 +316,23 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
     std::size_t k = 0;
     while (k < kWindowConfigSize && name != names[k]) ++k;
     if (k == kWindowConfigSize)
-      fail(ModelError::kValue, w + ": unknown window field '" + name + "'");
-    if (seen[k]) fail(ModelError::kValue, w + ": window field '" + name + "' repeated");
+      return err.set(ModelError::kValue, w + ": unknown window field '" + name + "'");
+    if (seen[k]) return err.set(ModelError::kValue, w + ": window field '" + name + "' repeated");
     if (!std::isfinite(value))
-      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+      return err.set(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
                                    " is not finite");
     // times (seconds) and frequencies are bounded so that seconds * rate stays far inside
     // int64 in the detector's conversions to samples
     const bool converted = name.size() > 2 && (name.compare(name.size() - 2, 2, "_s") == 0 ||
                                                name.compare(name.size() - 3, 3, "_hz") == 0);
     if (converted && std::fabs(value) > 1e6)
-      fail(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
+      return err.set(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
                                    " is outside [-1e6, 1e6]");
     seen[k] = true;
     values[k] = value;
   }
   r.expect_end();
+  if (err.failed) return false;
   const WindowConfig cfg = window_config_from_array(values.data(), values.size());
 #if defined(__cpp_exceptions)
   try {
@@ -304,10 +340,11 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
     const DetectorParams p = resolve_window_config(cfg, rate);
     check_detector_buffers(p, cfg, std::int64_t{rows} * cols);
   } catch (const std::exception& e) {
-    fail(ModelError::kValue, w + ": " + e.what());
+    return err.set(ModelError::kValue, w + ": " + e.what());
   }
 #else
-  (void)resolve_window_config(cfg, rate);
+  // without exceptions, settings the detector rejects end in detail::fatal_error
+  check_detector_buffers(resolve_window_config(cfg, rate), cfg, std::int64_t{rows} * cols);
 #endif
   m.rows_ = static_cast<int>(rows);
   m.cols_ = static_cast<int>(cols);
@@ -317,32 +354,34 @@ void ModelParser::parse_prep(Reader& r, Model& m) {
   m.short_policy_ = static_cast<ShortPolicy>(short_policy);
   m.sample_rate_hz_ = rate;
   m.window_config_ = cfg;
+  return true;
 }
 
-void ModelParser::parse_clas(Reader& r, Model& m) {
+bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
   const std::uint32_t n = r.u32("n_classes"), rule = r.u32("rule");
   if (n < 2 || n > kMaxClasses)
-    fail(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, 1024]");
-  if (rule > 1) fail(ModelError::kValue, w + ": rule=" + std::to_string(rule) + " (0 binary, 1 one_vs_all)");
+    return err.set(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, 1024]");
+  if (rule > 1) return err.set(ModelError::kValue, w + ": rule=" + std::to_string(rule) + " (0 binary, 1 one_vs_all)");
   if (rule == 0 && n != 2)
-    fail(ModelError::kValue, w + ": the binary rule needs 2 classes, got " + std::to_string(n));
+    return err.set(ModelError::kValue, w + ": the binary rule needs 2 classes, got " + std::to_string(n));
   m.rule_ = static_cast<DecisionRule>(rule);
-  r.need(static_cast<std::size_t>(n) * model_format::kNameBytes, "class names");
+  if (!r.need(static_cast<std::size_t>(n) * model_format::kNameBytes, "class names")) return false;
   m.class_names_.clear();
   for (std::uint32_t i = 0; i < n; ++i) {
     std::string s = r.name("class name");
     for (const auto& g : m.class_names_)
-      if (g == s) fail(ModelError::kValue, w + ": class name '" + s + "' repeated");
+      if (g == s) return err.set(ModelError::kValue, w + ": class name '" + s + "' repeated");
     m.class_names_.push_back(std::move(s));
   }
   r.expect_end();
+  return !err.failed;
 }
 
-void ModelParser::parse_svbs(Reader& r, Model& m) {
+bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
   const std::uint32_t Z = r.u32("n_modes"), n_sv = r.u32("n_sv");
-  if (Z != 3) fail(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
+  if (Z != 3) return err.set(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
   std::array<std::uint32_t, 3> dims{}, astore{};
   for (auto& d : dims) d = r.u32("dims");
   for (auto& a : astore) a = r.u32("alpha_store");
@@ -350,7 +389,7 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
                                             static_cast<std::uint32_t>(m.cols_),
                                             static_cast<std::uint32_t>(m.D_)};
   if (dims != expect)
-    fail(ModelError::kValue, w + ": tensor dims (" + std::to_string(dims[0]) + ", " +
+    return err.set(ModelError::kValue, w + ": tensor dims (" + std::to_string(dims[0]) + ", " +
                                  std::to_string(dims[1]) + ", " + std::to_string(dims[2]) +
                                  ") differ from the preprocessing's (rows, cols, D) = (" +
                                  std::to_string(expect[0]) + ", " + std::to_string(expect[1]) + ", " +
@@ -362,18 +401,18 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
     const std::uint64_t N = total / dims[z];
     const std::uint64_t Q = std::min<std::uint64_t>(dims[z], N);
     if (astore[z] < 1 || astore[z] > Q)
-      fail(ModelError::kValue, w + ": alpha_store[" + std::to_string(z) + "]=" +
+      return err.set(ModelError::kValue, w + ": alpha_store[" + std::to_string(z) + "]=" +
                                    std::to_string(astore[z]) + " out of range [1, Q=" +
                                    std::to_string(Q) + "]");
     m.alpha_store_[z] = static_cast<int>(astore[z]);
     m.basis_rows_[z] = static_cast<int>(N);
     bytes_needed += static_cast<std::size_t>(N * astore[z] * real_bytes);
   }
-  if (n_sv < 1) fail(ModelError::kValue, w + ": n_sv=0: a model needs at least one support vector");
+  if (n_sv < 1) return err.set(ModelError::kValue, w + ": n_sv=0: a model needs at least one support vector");
   // Everything that follows must fit in the section: checked before allocating anything.
   const std::uint64_t rank_bytes = (std::uint64_t{n_sv} * 3 * 4 + 7) / 8 * 8;
   if (std::uint64_t{n_sv} * bytes_needed + rank_bytes > r.remaining())
-    fail(ModelError::kLayout, w + ": n_sv=" + std::to_string(n_sv) + " needs " +
+    return err.set(ModelError::kLayout, w + ": n_sv=" + std::to_string(n_sv) + " needs " +
                                   std::to_string(std::uint64_t{n_sv} * bytes_needed + rank_bytes) +
                                   " bytes of ranks and bases, the section has " +
                                   std::to_string(r.remaining()));
@@ -383,17 +422,19 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
     for (int z = 0; z < 3; ++z) {
       const std::uint32_t rk = r.u32("ranks");
       if (rk > astore[z])
-        fail(ModelError::kValue, w + ": rank of support vector " + std::to_string(i) + " in mode " +
+        return err.set(ModelError::kValue, w + ": rank of support vector " + std::to_string(i) + " in mode " +
                                      std::to_string(z) + " is " + std::to_string(rk) +
                                      " > alpha_store " + std::to_string(astore[z]));
       m.ranks_[static_cast<std::size_t>(i) * 3 + static_cast<std::size_t>(z)] = static_cast<int>(rk);
     }
   r.pad8("ranks");
+  if (err.failed) return false;
   for (int z = 0; z < 3; ++z) {
     const std::size_t N = static_cast<std::size_t>(m.basis_rows_[z]);
     const std::size_t A = static_cast<std::size_t>(astore[z]);
     const std::size_t count = static_cast<std::size_t>(n_sv) * A * N;
     const std::uint8_t* p = r.raw(count * real_bytes, "bases");
+    if (p == nullptr) return false;
     // Borrowed (Model::view_bytes): used in place when the bytes are the machine's own floats
     // (little-endian) and aligned for them; copied otherwise.
     const bool in_place = m.borrow_ && kLittleEndian &&
@@ -422,7 +463,7 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
         v = f;
       }
       if (!std::isfinite(v) || std::fabs(v) > 1.0 + 1e-5)
-        fail(ModelError::kValue, w + ": basis entry " + std::to_string(j) + " of mode " +
+        return err.set(ModelError::kValue, w + ": basis entry " + std::to_string(j) + " of mode " +
                                      std::to_string(z) + " is " + fmt_double(v) +
                                      " (entries of orthonormal columns lie in [-1, 1])");
     }
@@ -440,7 +481,7 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
           }
           const double want = (k == l && static_cast<int>(k) < rk) ? 1.0 : 0.0;
           if (std::fabs(dot - want) > tol)
-            fail(ModelError::kValue, w + ": basis of support vector " + std::to_string(i) +
+            return err.set(ModelError::kValue, w + ": basis of support vector " + std::to_string(i) +
                                          " in mode " + std::to_string(z) + " is not orthonormal " +
                                          "up to its rank " + std::to_string(rk) + " (columns " +
                                          std::to_string(l) + "," + std::to_string(k) + ": " +
@@ -449,16 +490,18 @@ void ModelParser::parse_svbs(Reader& r, Model& m) {
     }
   }
   r.expect_end();
+  return !err.failed;
 }
 
-void ModelParser::parse_mach(Reader& r, Model& m) {
+bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
   const std::uint32_t n = r.u32("n_machines");
   r.zero_u32("reserved");
   const std::size_t real_bytes = m.float64_ ? 8 : 4;
   // A machine takes at least 24 + 3*16 bytes: bound n before reserving.
+  if (!r.ok()) return false;
   if (n < 1 || std::uint64_t{n} * 72 > r.remaining())
-    fail(ModelError::kValue, w + ": n_machines=" + std::to_string(n) + " impossible for a section of " +
+    return err.set(ModelError::kValue, w + ": n_machines=" + std::to_string(n) + " impossible for a section of " +
                                  std::to_string(r.remaining()) + " bytes");
   m.machines_.clear();
   m.machines_.reserve(n);
@@ -471,33 +514,34 @@ void ModelParser::parse_mach(Reader& r, Model& m) {
     r.zero_u32("reserved");
     mm.intercept = r.f64("intercept");
     if (!std::isfinite(mm.intercept))
-      fail(ModelError::kValue, mw + ": intercept=" + fmt_double(mm.intercept) + " is not finite");
+      return err.set(ModelError::kValue, mw + ": intercept=" + fmt_double(mm.intercept) + " is not finite");
     for (int z = 0; z < 3; ++z) {
       const std::uint32_t a = r.u32("alpha");
       r.zero_u32("reserved");
       const double s = r.f64("sigma");
       if (a < 1 || a > static_cast<std::uint32_t>(m.alpha_store_[z]))
-        fail(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
+        return err.set(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
                                      " out of range [1, alpha_store=" +
                                      std::to_string(m.alpha_store_[z]) + "]");
       if (!(s >= kMinSigma && s <= kMaxSigma))
-        fail(ModelError::kValue, mw + ": sigma[" + std::to_string(z) + "]=" + fmt_double(s) +
+        return err.set(ModelError::kValue, mw + ": sigma[" + std::to_string(z) + "]=" + fmt_double(s) +
                                      " out of range [1e-06, 1e+06]");
       mm.alpha[static_cast<std::size_t>(z)] = static_cast<int>(a);
       mm.sigma[static_cast<std::size_t>(z)] = s;
     }
     if (n_terms < 1 || n_terms > static_cast<std::uint32_t>(m.n_sv_))
-      fail(ModelError::kValue, mw + ": n_terms=" + std::to_string(n_terms) + " out of range [1, n_sv=" +
+      return err.set(ModelError::kValue, mw + ": n_terms=" + std::to_string(n_terms) + " out of range [1, n_sv=" +
                                    std::to_string(m.n_sv_) + "]");
-    r.need(std::size_t{n_terms} * (4 + real_bytes), "support-vector indices and coefficients");
+    if (!r.need(std::size_t{n_terms} * (4 + real_bytes), "support-vector indices and coefficients"))
+      return false;
     mm.sv_index.resize(n_terms);
     for (std::uint32_t t = 0; t < n_terms; ++t) {
       const std::uint32_t i = r.u32("sv_index");
       if (i >= static_cast<std::uint32_t>(m.n_sv_))
-        fail(ModelError::kValue, mw + ": sv_index[" + std::to_string(t) + "]=" + std::to_string(i) +
+        return err.set(ModelError::kValue, mw + ": sv_index[" + std::to_string(t) + "]=" + std::to_string(i) +
                                      " >= n_sv=" + std::to_string(m.n_sv_));
       if (t > 0 && i <= mm.sv_index[t - 1])
-        fail(ModelError::kValue, mw + ": sv_index must be strictly increasing (entry " +
+        return err.set(ModelError::kValue, mw + ": sv_index must be strictly increasing (entry " +
                                      std::to_string(t) + ")");
       mm.sv_index[t] = i;
     }
@@ -506,38 +550,39 @@ void ModelParser::parse_mach(Reader& r, Model& m) {
     for (std::uint32_t t = 0; t < n_terms; ++t) {
       const double c = m.float64_ ? r.f64("coef") : static_cast<double>(r.f32("coef"));
       if (!std::isfinite(c))
-        fail(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
+        return err.set(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
       mm.coef[t] = c;
     }
     double bound = std::fabs(mm.intercept);
     for (const double c : mm.coef) bound += std::fabs(c);
     if (!(bound <= kMaxDecisionBound))
-      fail(ModelError::kValue, mw + ": |intercept| + sum |coef| = " + fmt_double(bound) +
+      return err.set(ModelError::kValue, mw + ": |intercept| + sum |coef| = " + fmt_double(bound) +
                                    " exceeds 1e+300 (decision values would overflow)");
     r.pad8("coef");
     m.machines_.push_back(std::move(mm));
   }
   r.expect_end();
+  return !err.failed;
 }
 
-void ModelParser::check_machines(Model& m, const std::string& origin) {
+bool ModelParser::check_machines(Model& m, const std::string& origin, ParseError& err) {
   const int nc = static_cast<int>(m.class_names_.size());
   const int nm = static_cast<int>(m.machines_.size());
   if (m.rule_ == DecisionRule::kBinary) {
     if (nm != 1)
-      fail(ModelError::kValue, origin + ": the binary rule needs 1 machine, got " + std::to_string(nm));
+      return err.set(ModelError::kValue, origin + ": the binary rule needs 1 machine, got " + std::to_string(nm));
     const auto& mm = m.machines_[0];
     if (!((mm.positive == 1 && mm.negative == 0) || (mm.positive == 0 && mm.negative == 1)))
-      fail(ModelError::kValue, origin + ": binary machine classes (" + std::to_string(mm.positive) +
+      return err.set(ModelError::kValue, origin + ": binary machine classes (" + std::to_string(mm.positive) +
                                    ", " + std::to_string(mm.negative) + ") must be (1, 0) or (0, 1)");
   } else {
     if (nm != nc)
-      fail(ModelError::kValue, origin + ": one_vs_all needs one machine per class (" +
+      return err.set(ModelError::kValue, origin + ": one_vs_all needs one machine per class (" +
                                    std::to_string(nc) + "), got " + std::to_string(nm));
     for (int k = 0; k < nm; ++k)
       if (m.machines_[static_cast<std::size_t>(k)].positive != k ||
           m.machines_[static_cast<std::size_t>(k)].negative != -1)
-        fail(ModelError::kValue, origin + ": one_vs_all machine " + std::to_string(k) +
+        return err.set(ModelError::kValue, origin + ": one_vs_all machine " + std::to_string(k) +
                                      " must have positive_class=" + std::to_string(k) +
                                      " and negative_class=-1");
   }
@@ -546,41 +591,42 @@ void ModelParser::check_machines(Model& m, const std::string& origin) {
     for (auto i : mm.sv_index) used[i] = 1;
   for (int i = 0; i < m.n_sv_; ++i)
     if (!used[static_cast<std::size_t>(i)])
-      fail(ModelError::kValue, origin + ": support vector " + std::to_string(i) +
+      return err.set(ModelError::kValue, origin + ": support vector " + std::to_string(i) +
                                    " is used by no machine");
+  return true;
 }
 
-Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
-                         bool borrow) {
+bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
+                        bool borrow, Model& m, ParseError& err) {
   namespace mf = model_format;
-  if (data == nullptr && size > 0) fail(ModelError::kIo, origin + ": null data");
+  if (data == nullptr && size > 0) return err.set(ModelError::kIo, origin + ": null data");
   if (size < 8 || std::memcmp(data, mf::kMagic, 8) != 0)
-    fail(ModelError::kNotAModel, origin + ": not an eskin model file (magic bytes \\x89ESKIN\\r\\n missing)");
+    return err.set(ModelError::kNotAModel, origin + ": not an eskin model file (magic bytes \\x89ESKIN\\r\\n missing)");
   if (size < mf::kHeaderBytes + 4)
-    fail(ModelError::kTruncated, origin + ": truncated: " + std::to_string(size) +
+    return err.set(ModelError::kTruncated, origin + ": truncated: " + std::to_string(size) +
                                      " bytes, shorter than the 36-byte header and checksum");
-  Reader h(data, mf::kHeaderBytes, origin + ": header");
+  Reader h(data, mf::kHeaderBytes, origin + ": header", err);
   h.raw(8, "magic");
   const std::uint32_t vh = h.u32("version/header_bytes");
   const std::uint32_t version = vh & 0xFFFFu, header_bytes = vh >> 16;
   if (version != mf::kVersion)
-    fail(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
+    return err.set(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
                                    " is not supported (this library reads version " +
                                    std::to_string(mf::kVersion) + ")");
   if (header_bytes != mf::kHeaderBytes)
-    fail(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
+    return err.set(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
   const std::uint32_t flags = h.u32("flags");
   const std::uint32_t file_bytes = h.u32("file_bytes");
   const std::uint32_t n_sections = h.u32("section_count");
   if (file_bytes > size)
-    fail(ModelError::kTruncated, origin + ": truncated: the header says " + std::to_string(file_bytes) +
+    return err.set(ModelError::kTruncated, origin + ": truncated: the header says " + std::to_string(file_bytes) +
                                      " bytes, only " + std::to_string(size) + " present");
   if (file_bytes < size)
-    fail(ModelError::kLayout, origin + ": " + std::to_string(size - file_bytes) +
+    return err.set(ModelError::kLayout, origin + ": " + std::to_string(size - file_bytes) +
                                   " unexpected bytes after the end of the model (file_bytes=" +
                                   std::to_string(file_bytes) + ")");
   if (file_bytes < mf::kHeaderBytes + 4 || file_bytes > kMaxFileBytes || file_bytes % 4 != 0)
-    fail(ModelError::kLayout, origin + ": file_bytes=" + std::to_string(file_bytes) + " is impossible");
+    return err.set(ModelError::kLayout, origin + ": file_bytes=" + std::to_string(file_bytes) + " is impossible");
   std::uint32_t stored_crc = 0;
   for (int i = 3; i >= 0; --i) stored_crc = (stored_crc << 8) | data[file_bytes - 4 + static_cast<std::uint32_t>(i)];
   const std::uint32_t crc = mf::crc32(data, file_bytes - 4);
@@ -589,14 +635,14 @@ Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::
     std::snprintf(buf, sizeof buf, ": checksum mismatch (stored CRC-32 0x%lx, computed 0x%lx): the "
                   "file is corrupted", static_cast<unsigned long>(stored_crc),
                   static_cast<unsigned long>(crc));
-    fail(ModelError::kChecksum, origin + buf);
+    return err.set(ModelError::kChecksum, origin + buf);
   }
   // Checksum good: now the structure.
   if (flags & ~mf::kFlagFloat64)
-    fail(ModelError::kValue, origin + ": unknown flags 0x" + std::to_string(flags));
+    return err.set(ModelError::kValue, origin + ": unknown flags 0x" + std::to_string(flags));
   h.zero_u32("reserved");
   h.zero_u32("reserved");
-  Model m;
+  if (err.failed) return false;
   m.borrow_ = borrow;
   m.float64_ = (flags & mf::kFlagFloat64) != 0;
   m.file_bytes_ = file_bytes;
@@ -607,50 +653,71 @@ Model ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::
   const std::size_t end = file_bytes - 4;
   for (std::uint32_t s = 0; s < n_sections; ++s) {
     if (end - pos < 8)
-      fail(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
-    Reader sh(data + pos, 8, origin + ": section header");
+      return err.set(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
+    Reader sh(data + pos, 8, origin + ": section header", err);
     const std::uint32_t tag = sh.u32("tag"), bytes = sh.u32("payload_bytes");
     pos += 8;
     const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
     if (padded > end - pos)
-      fail(ModelError::kLayout, origin + ": section '" + tag_str(tag) + "' (" + std::to_string(bytes) +
+      return err.set(ModelError::kLayout, origin + ": section '" + tag_str(tag) + "' (" + std::to_string(bytes) +
                                     " bytes) runs past the end of the file");
     for (std::size_t i = bytes; i < padded; ++i)
       if (data[pos + i] != 0)
-        fail(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
-    Reader r(data + pos, bytes, origin + ": section " + tag_str(tag));
+        return err.set(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
+    Reader r(data + pos, bytes, origin + ": section " + tag_str(tag), err);
     const char first = static_cast<char>(tag & 0xFF);
     if (first >= 'a' && first <= 'z') {
       // ancillary section (e.g. "meta"): skipped
     } else if (next < 4 && tag == kOrder[next]) {
-      switch (next) {
-        case 0: parse_prep(r, m); break;
-        case 1: parse_clas(r, m); break;
-        case 2: parse_svbs(r, m); break;
-        default: parse_mach(r, m); break;
-      }
+      const bool ok = next == 0   ? parse_prep(r, m, err)
+                      : next == 1 ? parse_clas(r, m, err)
+                      : next == 2 ? parse_svbs(r, m, err)
+                                  : parse_mach(r, m, err);
+      if (!ok) return false;
       ++next;
     } else {
-      fail(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
+      return err.set(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
                                     (next < 4 ? tag_str(kOrder[next]) : std::string("end")) + "')");
     }
     pos += padded;
   }
   if (next < 4)
-    fail(ModelError::kLayout, origin + ": required section '" + tag_str(kOrder[next]) + "' missing");
+    return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kOrder[next]) + "' missing");
   if (pos != end)
-    fail(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
+    return err.set(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
                                   " bytes after the last section, before the checksum");
-  check_machines(m, origin);
-  return m;
+  return check_machines(m, origin, err);
 }
 
+bool Model::parse(const std::uint8_t* data, std::size_t size, Model* out, ModelLoadError* error,
+                  bool in_place) {
+  ParseError err;
+  Model m;
+  if (out == nullptr) err.set(ModelError::kIo, "model: no Model to fill");
+  else if (ModelParser::parse(data, size, "model", in_place, m, err)) *out = std::move(m);
+  if (err.failed && error != nullptr) {
+    error->code = err.code;
+    error->message = std::move(err.message);
+  }
+  return !err.failed;
+}
+
+namespace {
+Model parse_or_fail(const std::uint8_t* data, std::size_t size, const std::string& origin,
+                    bool borrow) {
+  ParseError err;
+  Model m;
+  if (!ModelParser::parse(data, size, origin, borrow, m, err)) fail(err.code, err.message);
+  return m;
+}
+}  // namespace
+
 Model Model::from_bytes(const std::uint8_t* data, std::size_t size) {
-  return ModelParser::parse(data, size, "model");
+  return parse_or_fail(data, size, "model", /*borrow=*/false);
 }
 
 Model Model::view_bytes(const std::uint8_t* data, std::size_t size) {
-  return ModelParser::parse(data, size, "model", /*borrow=*/true);
+  return parse_or_fail(data, size, "model", /*borrow=*/true);
 }
 
 #if !defined(ESKIN_DEVICE)  // a controller has no file system (and no iostreams)
@@ -666,7 +733,7 @@ Model Model::load(const std::string& path) {
   std::vector<std::uint8_t> buf(static_cast<std::size_t>(n));
   if (n > 0 && !f.read(reinterpret_cast<char*>(buf.data()), n))
     fail(ModelError::kIo, path + ": cannot read the model file");
-  return ModelParser::parse(buf.data(), buf.size(), path);
+  return parse_or_fail(buf.data(), buf.size(), path, /*borrow=*/false);
 }
 
 #endif  // !ESKIN_DEVICE

@@ -525,3 +525,71 @@ TEST(ModelStream, SameDecisionAsBatchAndNoAllocation) {
     EXPECT_EQ(g_allocations.load(), 0) << dtype;
   }
 }
+
+// The status-code loader (Model::parse) is the throwing loader's core: on the same truncated and
+// bit-flipped files it fails exactly when from_bytes throws, with the same code and message, and
+// leaves its output untouched; on success it gives the same model.
+TEST(ModelParse, StatusLoaderAgreesWithTheThrowingLoader) {
+  std::mt19937 rng(777);
+  int failed = 0, loaded = 0;
+  for (const char* dtype : {"float32", "float64"}) {
+    const Bytes good = fixture(dtype);
+    for (int trial = 0; trial < 1500; ++trial) {
+      Bytes b = good;
+      if (trial % 5 == 0) {
+        b.resize(rng() % good.size());
+      } else {
+        const std::size_t limit = (trial % 2) ? b.size() : std::min<std::size_t>(b.size(), 256);
+        for (int f = 0; f < 1 + static_cast<int>(rng() % 3); ++f)
+          b[rng() % limit] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
+      }
+      if (trial % 3 != 0) fix_crc(b);
+      Model out;
+      eskin::ModelLoadError err;
+      const bool ok = Model::parse(b.data(), b.size(), &out, &err);
+      const std::string thrown = load_message(b);
+      if (ok) {
+        ++loaded;
+        EXPECT_EQ(thrown, "") << "trial " << trial;
+        EXPECT_EQ(out.n_support(), Model::from_bytes(b.data(), b.size()).n_support());
+      } else {
+        ++failed;
+        EXPECT_EQ(err.message, thrown) << "trial " << trial;
+        EXPECT_EQ(err.code, load_error(b)) << "trial " << trial;
+        EXPECT_EQ(out.n_support(), 0) << "a failed parse leaves its output untouched";
+      }
+    }
+  }
+  EXPECT_GT(failed, 1000);
+  EXPECT_GT(loaded, 10);
+  EXPECT_FALSE(Model::parse(nullptr, 10, nullptr, nullptr));  // no output: a failure, no crash
+}
+
+// view_bytes keeps the bases where they are when they are aligned for their type, copies them
+// otherwise; the model is the same either way.
+TEST(ModelParse, ViewBytesReadsAlignedBasesInPlace) {
+  for (const char* dtype : {"float32", "float64"}) {
+    const Bytes good = fixture(dtype);
+    std::vector<std::uint64_t> aligned((good.size() + 16) / 8);  // 8-byte aligned storage
+    auto* base = reinterpret_cast<std::uint8_t*>(aligned.data());
+    std::copy(good.begin(), good.end(), base);
+    const Model in_place = Model::view_bytes(base, good.size());
+    const auto* p = in_place.is_float64()
+                        ? reinterpret_cast<const std::uint8_t*>(in_place.bases_f64(0))
+                        : reinterpret_cast<const std::uint8_t*>(in_place.bases_f32(0));
+    EXPECT_TRUE(p >= base && p < base + good.size()) << dtype;
+    std::vector<std::uint8_t> shifted(good.size() + 1);
+    std::copy(good.begin(), good.end(), shifted.begin() + 1);  // misaligned by one byte
+    const Model copied = Model::view_bytes(shifted.data() + 1, good.size());
+    const auto* q = copied.is_float64()
+                        ? reinterpret_cast<const std::uint8_t*>(copied.bases_f64(0))
+                        : reinterpret_cast<const std::uint8_t*>(copied.bases_f32(0));
+    EXPECT_FALSE(q >= shifted.data() && q < shifted.data() + shifted.size()) << dtype;
+    const std::size_t n = static_cast<std::size_t>(in_place.n_support()) *
+                          static_cast<std::size_t>(in_place.alpha_store(0) * in_place.basis_rows(0));
+    for (std::size_t i = 0; i < n; ++i) {
+      if (in_place.is_float64()) ASSERT_EQ(in_place.bases_f64(0)[i], copied.bases_f64(0)[i]);
+      else ASSERT_EQ(in_place.bases_f32(0)[i], copied.bases_f32(0)[i]);
+    }
+  }
+}

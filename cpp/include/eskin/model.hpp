@@ -2,7 +2,7 @@
 // and the classifier that runs a loaded model on raw piezo windows.
 //
 // Loading allocates and throws (ModelFormatError, a std::runtime_error, whose message names the
-// field and the bad value). Classifying does neither: a Classifier allocates its workspace once,
+// field and the bad value); Model::parse is the same loader returning a status instead. Classifying does neither: a Classifier allocates its workspace once,
 // at construction, and its per-decision calls return a ClassifyStatus. The StreamClassifier
 // (below) is the controller's path: one multi-taxel sample at a time, no allocation after
 // construction.
@@ -42,6 +42,12 @@ class ModelFormatError : public std::runtime_error {
   ModelError code_;
 };
 
+/// What the status-code loader (Model::parse) reports instead of throwing.
+struct ModelLoadError {
+  ModelError code = ModelError::kIo;
+  std::string message;  ///< names the field and the value, as ModelFormatError::what()
+};
+
 /// Binary layout constants (docs/model-format.md).
 namespace model_format {
 inline constexpr std::uint8_t kMagic[8] = {0x89, 'E', 'S', 'K', 'I', 'N', '\r', '\n'};
@@ -72,7 +78,15 @@ struct ModelMachine {
 /// A loaded, fully validated model. Immutable once loaded.
 class Model {
  public:
-  /// Parse and validate a model held in memory (e.g. a C header's byte array).
+  /// The loader without exceptions: parse and validate a model held in memory. Returns true
+  /// and fills `*out`, or returns false, leaves `*out` unchanged and fills `*error` (if not
+  /// null) with what ModelFormatError would have said. `in_place` as view_bytes. (In a build
+  /// without exceptions, detector settings that the detector itself rejects still end in
+  /// detail::fatal_error; the exporter never writes such a file.)
+  static bool parse(const std::uint8_t* data, std::size_t size, Model* out, ModelLoadError* error,
+                    bool in_place = false);
+  /// Parse and validate a model held in memory (e.g. a C header's byte array); throws
+  /// ModelFormatError (parse() is the same loader without exceptions).
   static Model from_bytes(const std::uint8_t* data, std::size_t size);
   /// Same, but the support-vector bases stay where they are in `data` (not copied) when they are
   /// aligned for their type on a little-endian machine: a controller's model stays in flash
