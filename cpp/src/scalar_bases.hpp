@@ -1,16 +1,19 @@
 // Private to the core: the per-pattern subspace bases of the tensor kernel (tensor_kernel.hpp) in
-// a chosen scalar type, for one pattern at a time, with a cyclic Jacobi eigen-solver. The device
-// build (ESKIN_DEVICE) classifies with ScalarBases<float>: a Cortex-M4F computes in single
-// precision in hardware (double precision is emulated in software, tens of instructions per
-// operation), and its workspace is a few kilobytes where BasisWorkspace keeps eight lanes.
+// a chosen scalar type, for one pattern at a time. The device build (ESKIN_DEVICE) classifies with
+// ScalarBases<float>: a Cortex-M4F computes in single precision in hardware (double precision is
+// emulated in software, tens of instructions per operation), and this workspace is a few
+// kilobytes where BasisWorkspace keeps eight lanes.
 //
 // Same conventions as BasisWorkspace: mode-z unfolding with the remaining indices in C order; the
 // first alpha_z right-singular vectors of the unfolding as an N_z x alpha_z column-major block;
 // columns beyond the numerical rank exactly zero; each column's largest-magnitude entry (the
-// first on ties) positive. Differences, which the float32 parity test bounds (docs/mcu.md): the
-// arithmetic is Real's, and the numerical rank counts the Gram eigenvalues above
-// tau = max(1e-12, 16 * n * eps_Real) times the largest one (n the Gram matrix's size), the level
-// below which a Gram eigenvalue in precision Real is rounding noise.
+// first on ties) positive. The method differs, for accuracy in single precision: the host squares
+// the unfolding (Gram matrix, then its eigenvectors), which in float would blur every singular
+// direction whose gap to the next is below ~1e-7 of the largest squared singular value. Here the
+// thin side of the unfolding is reduced by a Householder QR and the small triangular factor is
+// diagonalised by one-sided (Hestenes) Jacobi rotations, both working on the data itself, so that
+// errors scale with eps * s_1, not eps * s_1^2. The numerical rank counts the singular values
+// with s^2 > tau * s_1^2, tau = max(1e-12, (16 eps_Real)^2) (with double, the host's 1e-12).
 //
 // The constructor allocates; compute() neither allocates nor throws.
 #pragma once
@@ -25,48 +28,51 @@
 
 namespace eskin::detail {
 
-/// Eigen-decomposition of the symmetric n x n matrix `a` (row-major, overwritten) by cyclic
-/// Jacobi rotations: on return the diagonal of `a` holds the eigenvalues and row j of `v` the
-/// unit eigenvector of a[j * n + j]. Returns false if 50 sweeps did not converge.
+/// One-sided Jacobi: rotates the columns of the n x n column-major matrix `b` until they are
+/// mutually orthogonal, accumulating the rotations in `w` (set to the identity first): on return
+/// b = B0 W with orthogonal columns, so the singular values of B0 are the column norms of b and
+/// its right-singular vectors the columns of w. Returns false if 60 sweeps did not converge.
 template <class Real>
-bool jacobi_eigen(std::size_t n, Real* a, Real* v) noexcept {
-  for (std::size_t i = 0; i < n * n; ++i) v[i] = Real(0);
-  for (std::size_t i = 0; i < n; ++i) v[i * n + i] = Real(1);
-  Real total = 0;
-  for (std::size_t i = 0; i < n * n; ++i) total += a[i] * a[i];
+bool one_sided_jacobi(std::size_t n, Real* b, Real* w) noexcept {
+  for (std::size_t i = 0; i < n * n; ++i) w[i] = Real(0);
+  for (std::size_t i = 0; i < n; ++i) w[i * n + i] = Real(1);
   const Real eps = std::numeric_limits<Real>::epsilon();
-  for (int sweep = 0; sweep < 50; ++sweep) {
-    Real off = 0;
-    for (std::size_t p = 0; p < n; ++p)
-      for (std::size_t q = p + 1; q < n; ++q) off += a[p * n + q] * a[p * n + q];
-    if (!(off > eps * eps * total * Real(0.25))) return std::isfinite(off);
-    for (std::size_t p = 0; p + 1 < n; ++p)
-      for (std::size_t q = p + 1; q < n; ++q) {
-        const Real apq = a[p * n + q];
-        if (apq == Real(0)) continue;
-        const Real theta = (a[q * n + q] - a[p * n + p]) / (Real(2) * apq);
-        const Real t = (theta >= 0 ? Real(1) : Real(-1)) /
-                       (std::fabs(theta) + std::sqrt(theta * theta + Real(1)));
-        const Real c = Real(1) / std::sqrt(t * t + Real(1)), s = t * c;
-        // A <- J^T A J on rows and columns p, q
-        for (std::size_t k = 0; k < n; ++k) {
-          const Real akp = a[k * n + p], akq = a[k * n + q];
-          a[k * n + p] = c * akp - s * akq;
-          a[k * n + q] = s * akp + c * akq;
+  Real total = 0;
+  for (std::size_t i = 0; i < n * n; ++i) total += b[i] * b[i];
+  const Real tiny = eps * eps * total;  // products of rounding-noise columns: nothing to rotate
+  for (int sweep = 0; sweep < 60; ++sweep) {
+    bool rotated = false;
+    for (std::size_t j = 0; j + 1 < n; ++j)
+      for (std::size_t k = j + 1; k < n; ++k) {
+        Real* bj = b + j * n;
+        Real* bk = b + k * n;
+        Real a = 0, c = 0, g = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+          a += bj[i] * bj[i];
+          c += bk[i] * bk[i];
+          g += bj[i] * bk[i];
         }
-        for (std::size_t k = 0; k < n; ++k) {
-          const Real apk = a[p * n + k], aqk = a[q * n + k];
-          a[p * n + k] = c * apk - s * aqk;
-          a[q * n + k] = s * apk + c * aqk;
+        // orthogonal enough, or both columns at the level of rounding noise
+        if (!(std::fabs(g) > eps * std::sqrt(a * c)) || !(std::fabs(g) > tiny)) continue;
+        rotated = true;
+        const Real zeta = (c - a) / (Real(2) * g);
+        const Real t = (zeta >= 0 ? Real(1) : Real(-1)) /
+                       (std::fabs(zeta) + std::sqrt(Real(1) + zeta * zeta));
+        const Real cs = Real(1) / std::sqrt(Real(1) + t * t), sn = cs * t;
+        for (std::size_t i = 0; i < n; ++i) {
+          const Real x = bj[i], y = bk[i];
+          bj[i] = cs * x - sn * y;
+          bk[i] = sn * x + cs * y;
         }
-        Real* vp = v + p * n;
-        Real* vq = v + q * n;
-        for (std::size_t k = 0; k < n; ++k) {
-          const Real x = vp[k], y = vq[k];
-          vp[k] = c * x - s * y;
-          vq[k] = s * x + c * y;
+        Real* wj = w + j * n;
+        Real* wk = w + k * n;
+        for (std::size_t i = 0; i < n; ++i) {
+          const Real x = wj[i], y = wk[i];
+          wj[i] = cs * x - sn * y;
+          wk[i] = sn * x + cs * y;
         }
       }
+    if (!rotated) return true;
   }
   return false;
 }
@@ -81,8 +87,12 @@ class ScalarBases {
       n = std::max(n, layout_.cols(z));
     }
     x_.assign(layout_.tensor_size(), Real(0));
-    g_.assign(q * q, Real(0));
-    v_.assign(q * q, Real(0));
+    qr_.assign(layout_.tensor_size(), Real(0));  // the thin side of an unfolding, then its QR
+    b_.assign(q * q, Real(0));
+    w_.assign(q * q, Real(0));
+    tau_.assign(q, Real(0));
+    diag_.assign(q, Real(0));
+    sv_.assign(q, Real(0));
     order_.assign(q, 0);
     col_.assign(n, Real(0));
   }
@@ -118,7 +128,7 @@ class ScalarBases {
     return st;
   }
 
-  // The tensor viewed as (before, m, after): unfolding entry (i, j = p * after + s).
+  // The tensor viewed as (before, m, after): unfolding A, entry (i, j = p * after + s).
   template <class Out>
   bool mode(std::size_t z, Out* out, int* rank) noexcept {
     const std::size_t m = layout_.rows(z), n = layout_.cols(z), q = layout_.q(z),
@@ -127,66 +137,86 @@ class ScalarBases {
     for (std::size_t k = 0; k < z; ++k) before *= layout_.dim(k);
     const std::size_t after = n / before;
     const Real* x = x_.data();
-    Real* g = g_.data();
-    if (m <= n) {  // G = A A^T (m x m)
+    // X: the unfolding's long side in q columns of L = max(m, n) rows (column-major): A itself
+    // when m > n (columns j), else A^T (columns i).
+    const std::size_t L = std::max(m, n);
+    Real* X = qr_.data();
+    for (std::size_t p = 0; p < before; ++p)
       for (std::size_t i = 0; i < m; ++i)
-        for (std::size_t k = 0; k <= i; ++k) {
-          Real acc = 0;
-          for (std::size_t p = 0; p < before; ++p) {
-            const Real* xi = x + (p * m + i) * after;
-            const Real* xk = x + (p * m + k) * after;
-            for (std::size_t s = 0; s < after; ++s) acc += xi[s] * xk[s];
-          }
-          g[i * m + k] = g[k * m + i] = acc;
+        for (std::size_t s = 0; s < after; ++s) {
+          const std::size_t j = p * after + s;
+          const Real v = x[(p * m + i) * after + s];
+          if (m > n) X[j * L + i] = v;
+          else X[i * L + j] = v;
         }
-    } else {  // G = A^T A (n x n); column j = (p, s) has entries x[(p * m + i) * after + s]
-      for (std::size_t j = 0; j < n; ++j)
-        for (std::size_t l = 0; l <= j; ++l) {
-          const Real* xj = x + (j / after) * m * after + j % after;
-          const Real* xl = x + (l / after) * m * after + l % after;
-          Real acc = 0;
-          for (std::size_t i = 0; i < m; ++i) acc += xj[i * after] * xl[i * after];
-          g[j * n + l] = g[l * n + j] = acc;
-        }
+    // Householder QR of X (L x q): R's strict upper part in X above the diagonal, its diagonal
+    // in diag_, the reflector of column c in X[c.., c] with tau_[c].
+    for (std::size_t c = 0; c < q; ++c) {
+      Real* col = X + c * L;
+      Real nrm = 0;
+      for (std::size_t i = c; i < L; ++i) nrm += col[i] * col[i];
+      nrm = std::sqrt(nrm);
+      if (nrm == Real(0)) {
+        tau_[c] = 0;
+        diag_[c] = 0;
+        continue;
+      }
+      const Real a = col[c] > 0 ? -nrm : nrm;
+      col[c] -= a;
+      Real vv = 0;
+      for (std::size_t i = c; i < L; ++i) vv += col[i] * col[i];
+      tau_[c] = Real(2) / vv;
+      diag_[c] = a;
+      for (std::size_t k = c + 1; k < q; ++k) {
+        Real* ck = X + k * L;
+        Real d = 0;
+        for (std::size_t i = c; i < L; ++i) d += col[i] * ck[i];
+        d *= tau_[c];
+        for (std::size_t i = c; i < L; ++i) ck[i] -= d * col[i];
+      }
     }
-    Real* v = v_.data();
-    if (!jacobi_eigen(q, g, v)) return false;
-    // eigenvalues descending (stable: the first index on ties)
-    // (insertion sort: std::stable_sort may allocate a buffer)
+    // B = R (m > n: its right-singular vectors are A's) or R^T (m <= n: its right-singular
+    // vectors U_R map to A's as Q U_R), q x q column-major.
+    Real* B = b_.data();
+    for (std::size_t r = 0; r < q; ++r)
+      for (std::size_t c = 0; c < q; ++c) {
+        const Real rv = r < c ? X[c * L + r] : (r == c ? diag_[r] : Real(0));  // R(r, c)
+        if (m > n) B[c * q + r] = rv;
+        else B[r * q + c] = rv;
+      }
+    Real* W = w_.data();
+    if (!one_sided_jacobi(q, B, W)) return false;
+    for (std::size_t c = 0; c < q; ++c) {
+      Real s2 = 0;
+      for (std::size_t i = 0; i < q; ++i) s2 += B[c * q + i] * B[c * q + i];
+      sv_[c] = s2;  // squared singular value of column c
+    }
+    // singular values descending (insertion sort, stable: std::stable_sort may allocate)
     for (std::size_t i = 0; i < q; ++i) {
       std::size_t j = i;
-      for (; j > 0 && g[order_[j - 1] * q + order_[j - 1]] < g[i * q + i]; --j) order_[j] = order_[j - 1];
+      for (; j > 0 && sv_[order_[j - 1]] < sv_[i]; --j) order_[j] = order_[j - 1];
       order_[j] = i;
     }
-    const Real lmax = std::max(Real(0), g[order_[0] * q + order_[0]]);
-    const Real tau = std::max(Real(1e-12), Real(16) * Real(q) * std::numeric_limits<Real>::epsilon());
+    const Real smax = sv_[order_[0]];
+    const Real e16 = Real(16) * std::numeric_limits<Real>::epsilon();
+    const Real tau = std::max(Real(1e-12), e16 * e16);
     std::size_t r = 0;
-    while (r < q && lmax > 0 && g[order_[r] * q + order_[r]] > tau * lmax) ++r;
+    while (r < q && smax > 0 && sv_[order_[r]] > tau * smax) ++r;
     const std::size_t k = std::min(alpha, r);
     Real* col = col_.data();
     for (std::size_t c = 0; c < k; ++c) {
-      const Real* u = v + order_[c] * q;
+      const Real* wv = W + order_[c] * q;
       if (m > n) {
-        for (std::size_t j = 0; j < n; ++j) col[j] = u[j];
-      } else {  // v_c = A^T u_c / s_c, then orthogonalised against the previous columns
-        const Real inv_s = Real(1) / std::sqrt(g[order_[c] * q + order_[c]]);
-        for (std::size_t p = 0; p < before; ++p)
-          for (std::size_t s = 0; s < after; ++s) {
-            Real acc = 0;
-            for (std::size_t i = 0; i < m; ++i) acc += u[i] * x[(p * m + i) * after + s];
-            col[p * after + s] = acc * inv_s;
-          }
-        for (int pass = 0; pass < 2; ++pass) {
-          for (std::size_t b = 0; b < c; ++b) {
-            Real dt = 0;
-            for (std::size_t j = 0; j < n; ++j) dt += col[j] * static_cast<Real>(out[b * n + j]);
-            for (std::size_t j = 0; j < n; ++j) col[j] -= dt * static_cast<Real>(out[b * n + j]);
-          }
-          Real nrm = 0;
-          for (std::size_t j = 0; j < n; ++j) nrm += col[j] * col[j];
-          nrm = std::sqrt(nrm);
-          if (!(nrm > 0)) return false;
-          for (std::size_t j = 0; j < n; ++j) col[j] /= nrm;
+        for (std::size_t j = 0; j < n; ++j) col[j] = wv[j];
+      } else {  // Q [w; 0]: the reflectors applied last to first
+        for (std::size_t j = 0; j < n; ++j) col[j] = j < q ? wv[j] : Real(0);
+        for (std::size_t h = q; h-- > 0;) {
+          if (tau_[h] == Real(0)) continue;
+          const Real* v = X + h * L;
+          Real d = 0;
+          for (std::size_t i = h; i < L; ++i) d += v[i] * col[i];
+          d *= tau_[h];
+          for (std::size_t i = h; i < L; ++i) col[i] -= d * v[i];
         }
       }
       std::size_t big = 0;
@@ -201,7 +231,7 @@ class ScalarBases {
   }
 
   BasisLayout layout_;
-  std::vector<Real> x_, g_, v_, col_;
+  std::vector<Real> x_, qr_, b_, w_, tau_, diag_, sv_, col_;
   std::vector<std::size_t> order_;
 };
 

@@ -114,7 +114,7 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
     groups = len({tuple(m["alphas"]) for m in machines})
     terms = sum(len(m["coef"]) for m in machines)
     workspace = (
-        size * 8 + bases * real + size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
+        size * 8 + bases * real + 2 * size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
     )
     tables = groups * cm.n_support * 3 * 4 + cm.n_support * 3 * 4 + terms * 12
     flash = {"model": cm.file_bytes, "program": t.program_flash_bytes}

@@ -1,0 +1,173 @@
+"""Instructions per decision of the inference core on a Cortex-M4F (QEMU), beside x86-64.
+
+For each model of the table below (the MCU preset of the demo model, tools/mcu_case.py: a
+3-class tensor-RLS, Maximal Discrepancy selection on the quick grid, trained on all simulated
+participants but one; the detector's longest window cut so that its buffers fit 128 KB), the
+device program of `make mcu` is rebuilt with that model compiled in and run on QEMU's
+mps2-an386 board (Cortex-M4, -icount shift=0: instructions counted with SysTick, see
+docs/mcu.md). Printed per model: support vectors, alpha_store, model bytes, the program's flash
+and RAM, the median instructions of the push that ends a touch (subsample the window, the input's
+bases in float32, the distances to the support vectors, the machines), the same decision on this
+x86-64 host (float64, the host build: valgrind callgrind inside Classifier::classify_tensor,
+eskin-classify on the same held-out recordings), their ratio, and the time at 168 MHz for 1 and
+1.5 cycles per instruction. Every device run must end with parity=ok.
+
+Run (after `make dev` and `make mcu-deps`):
+    ESKIN_BIN_DIR=build/dev PYTHONPATH=python python benchmarks/bench_mcu.py
+The data are simulated (eskin.simulate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+# (D, participants simulated, detector's max_window_s, alpha: None = the quick grid's choice):
+# the detector's buffers and the input's tensor must fit 128 KB of RAM beside the rest
+CONFIGS = [
+    (20, 4, 0.5, None),
+    (50, 4, 0.5, None),
+    (100, 4, 0.4, None),
+    (20, 8, 0.5, None),
+    (50, 8, 0.4, None),
+    (20, 4, 0.5, "Q/2"),
+    (50, 4, 0.4, "Q"),
+    (100, 4, 0.4, "Q/2"),
+]
+
+
+def _mcu_case():
+    spec = importlib.util.spec_from_file_location("mcu_case", REPO / "tools" / "mcu_case.py")
+    mod = importlib.util.module_from_spec(spec)
+    assert spec.loader is not None
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def device_run(build: Path, header: Path) -> dict:
+    """Rebuild the device program with `header` and run it on QEMU; the numbers it printed."""
+    subprocess.run(
+        [
+            "cmake",
+            "-S",
+            str(REPO),
+            "-B",
+            str(build),
+            "-G",
+            "Ninja",
+            f"-DCMAKE_TOOLCHAIN_FILE={REPO / 'cmake/arm-none-eabi.cmake'}",
+            "-DESKIN_DEVICE=ON",
+            "-DCMAKE_BUILD_TYPE=Release",
+            f"-DESKIN_MCU_MODEL_HEADER={header}",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    res = subprocess.run(
+        ["cmake", "--build", str(build)], capture_output=True, text=True, check=False
+    )
+    if res.returncode != 0:
+        raise SystemExit(f"the device build failed:\n{res.stdout[-3000:]}{res.stderr[-2000:]}")
+    res = subprocess.run(
+        [str(REPO / "mcu/run.sh"), str(build / "mcu/eskin-mcu.elf")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    last = res.stdout.strip().splitlines()[-1] if res.stdout.strip() else ""
+    m = re.match(
+        r"MCU: board=(\S+) decisions=(\d+) parity=(\w+) instr_per_decision=(\d+) "
+        r"flash=(\d+) ram=(\d+)$",
+        last,
+    )
+    if m is None:
+        raise SystemExit(f"the device run did not end with the MCU line:\n{res.stdout[-2000:]}")
+    det = re.search(r"(\d+) instructions per sample on average", res.stdout)
+    return {
+        "decisions": int(m.group(2)),
+        "parity": m.group(3),
+        "instr": int(m.group(4)),
+        "flash": int(m.group(5)),
+        "ram": int(m.group(6)),
+        "per_sample": int(det.group(1)) if det else 0,
+    }
+
+
+def x86_instructions(model: Path, recordings: Path) -> float | None:
+    """Instructions per Classifier::classify_tensor call on this host (callgrind)."""
+    from eskin._paths import find_executable
+
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        return None
+    exe = str(find_executable("eskin-classify"))
+    res = subprocess.run(
+        [
+            valgrind,
+            "--tool=callgrind",
+            "--callgrind-out-file=/dev/null",
+            "--toggle-collect=eskin::Classifier::classify_tensor(*",
+            exe,
+            str(model),
+            str(recordings),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    m = re.search(r"Collected\s*:\s*(\d+)", res.stderr)
+    n = sum(1 for ln in res.stdout.splitlines() if ln and ln[0].isdigit())
+    if m is None or n == 0 or int(m.group(1)) == 0:
+        return None
+    return int(m.group(1)) / n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=REPO / "build" / "bench-mcu")
+    args = ap.parse_args()
+    from eskin.deploy import CompiledModel
+
+    case_mod = _mcu_case()
+    rows = []
+    for D, participants, max_window_s, alpha in CONFIGS:
+        case = args.out / f"D{D}-P{participants}-a{(alpha or 'grid').replace('/', '')}"
+        case_mod.build_case(
+            case,
+            D=D,
+            max_window_s=max_window_s,
+            participants=participants,
+            per_class=2,
+            seed=0,
+            alpha=alpha,
+        )
+        cm = CompiledModel(case / "model.eskin")
+        dev = device_run(args.out / "build", case / "mcu_case.h")
+        x86 = x86_instructions(case / "model.eskin", case / "heldout.npy")
+        rows.append((D, cm.n_support, cm.alpha_store, cm.file_bytes, dev, x86, max_window_s))
+        print(f"D={D} n_sv={cm.n_support}: {dev}, x86 {x86}", flush=True)
+    print()
+    print(
+        "| D | support vectors | alpha_store | model bytes | flash | RAM | instructions per "
+        "decision (M4F) | x86-64 (float64) | M4F / x86 | at 168 MHz (CPI 1 - 1.5) | detector "
+        "per sample | parity |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for D, n_sv, alpha, size, dev, x86, _ in rows:
+        ratio = f"{dev['instr'] / x86:.1f}" if x86 else "-"
+        x86s = f"{x86 / 1e6:.3f} M" if x86 else "-"
+        ms = dev["instr"] / 168e6 * 1e3
+        print(
+            f"| {D} | {n_sv} | {tuple(alpha)} | {size} | {dev['flash']} | {dev['ram']} | "
+            f"{dev['instr'] / 1e6:.3f} M | {x86s} | {ratio} | {ms:.1f} - {1.5 * ms:.1f} ms | "
+            f"{dev['per_sample']} | {dev['parity']} ({dev['decisions']} decisions) |"
+        )
+
+
+if __name__ == "__main__":
+    main()
