@@ -35,7 +35,14 @@ TOLERANCE = 2e-3
 
 
 def build_case(
-    out: Path, *, D: int, max_window_s: float, participants: int, per_class: int, seed: int
+    out: Path,
+    *,
+    D: int,
+    max_window_s: float,
+    participants: int,
+    per_class: int,
+    seed: int,
+    alpha: str | None = None,
 ) -> dict:
     import eskin
     from eskin import WindowConfig
@@ -56,15 +63,28 @@ def build_case(
     for c in np.unique(camp.modality[test_idx]):
         chosen.extend(test_idx[camp.modality[test_idx] == c][:per_class].tolist())
     chosen = sorted(chosen)
+    # the quick grid (2 lambdas x 2 sigmas x alpha in {1, Q/2}), or one alpha forced
+    from eskin.learn.models import QUICK_LAMBDAS, QUICK_SIGMAS
+
+    grid = (
+        {"quick": True}
+        if alpha is None
+        else {
+            "lambdas": QUICK_LAMBDAS,
+            "sigmas": QUICK_SIGMAS,
+            "alphas": (alpha,),
+            "md_options": {"n_labelings": 3},
+        }
+    )
     model = eskin.train_model(
         camp.subset(train_idx),
         machine="rls",
         selection="md",
-        quick=True,
         D=D,
         window_config=WindowConfig(max_window_s=max_window_s),
         seed=seed,
         n_jobs=1,
+        **grid,
     )
     data = eskin.export_model(model, out / "model.eskin", dtype="float32").read_bytes()
     compiled = eskin.CompiledModel(data)
@@ -74,6 +94,8 @@ def build_case(
         raise SystemExit("the MCU preset does not fit the target")
     write_c_header(out / "model.eskin", out / "mcu_model.h", name="mcu_model")
 
+    # the same recordings whole, for a host run of the same model (benchmarks/bench_mcu.py)
+    np.save(out / "heldout.npy", np.asarray(camp.signals[chosen], dtype="<i2"))
     rf = eskin.write_replay_file(camp, chosen, out / "stream.eskr", gap_s=0.5, seed=seed)
     samples = np.ascontiguousarray(np.asarray(rf.samples, dtype="<i2").reshape(rf.n_samples, -1))
     samples.tofile(out / "stream.i16")
@@ -133,6 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--participants", type=int, default=4)
     ap.add_argument("--per-class", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--alpha",
+        choices=["1", "Q/2", "Q"],
+        default=None,
+        help="one alpha instead of the quick grid's choice",
+    )
     a = ap.parse_args(argv)
     info = build_case(
         a.out,
@@ -141,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         participants=a.participants,
         per_class=a.per_class,
         seed=a.seed,
+        alpha=a.alpha,
     )
     print("mcu case: " + ", ".join(f"{k}={v}" for k, v in info.items()))
     return 0
