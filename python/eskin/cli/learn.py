@@ -198,12 +198,11 @@ def train(
 ) -> None:
     """Select, fit on all the given recordings and save a model.
 
-    Default recipe: tensor-SVM, D = 100, energy touch window, Algorithm 2
-    subsampling, the paper's grid chosen by cross-validation over
-    participant-grouped splits (stratified splits, with a note, when the
-    recordings have no participants). On unseen people of simulated
-    campaigns it was the best deployable recipe on average, 4-15 points
-    ahead of Maximal Discrepancy (--selection md): docs/selection-study.md.
+    Default: tensor-SVM, D = 100, energy window, Algorithm 2 subsampling, the
+    paper's grid chosen by participant-grouped cross-validation (stratified, with
+    a note, without participants): on unseen people of simulated campaigns the
+    best deployable recipe on average, 4-15 points ahead of Maximal Discrepancy
+    (--selection md); see docs/selection-study.md.
     """
     from eskin._files import refuse_overwrite
     from eskin._progress import progress_bar

@@ -743,9 +743,8 @@ def train_model(
         leave one class out; ``cv_options`` go to :class:`~eskin.CrossValidationSearch`) or
         "md" (Maximal Discrepancy, Algorithm 1; ``md_options`` go to
         :class:`~eskin.MaximalDiscrepancySearch`). The default is CV because on unseen
-        participants of simulated campaigns it selected better models than every reading of
-        Maximal Discrepancy, by 4-5 points on average for the best reading and 15 for eskin's
-        first one (docs/selection-study.md).
+        participants of simulated campaigns it beat every reading of Maximal Discrepancy, by 4-5
+        points on average (the best reading) to 15 (eskin's first; docs/selection-study.md).
     D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`).
     lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
         replaces it by a 2x2x2 grid (for tests and demos).
