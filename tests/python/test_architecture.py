@@ -163,12 +163,6 @@ MAX_CLASS_LINES = 300
 #: a definition may run longer only with this comment on the line above it, saying why
 EXEMPTION = "# long:"
 
-#: definitions still over the limit, with their size today: each may only shrink, and leaves
-#: this table when it is split
-PENDING: dict[str, int] = {
-    "eskin.learn.models.train_model": 188,
-}
-
 
 def definition_sizes() -> dict[str, tuple[int, int, bool]]:
     """Qualified name -> (lines, limit, exempted) of every function and class in the package
@@ -204,20 +198,9 @@ def test_no_function_over_80_lines_and_no_class_over_300():
     too_long = {
         name: n
         for name, (n, limit, exempt) in definition_sizes().items()
-        if n > limit and not exempt and n > PENDING.get(name, 0)
+        if n > limit and not exempt
     }
     assert not too_long, f"over the size limit (split into named steps): {too_long}"
-
-
-def test_pending_splits_are_still_pending():
-    # a split definition leaves PENDING, so that the table says what is left
-    sizes = definition_sizes()
-    done = [
-        name
-        for name in PENDING
-        if sizes.get(name, (0, 1, False))[0] <= sizes.get(name, (0, 1, False))[1]
-    ]
-    assert not done, f"no longer over the limit; remove from PENDING: {done}"
 
 
 def test_cli_commands_are_top_level_functions():

@@ -27,7 +27,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -698,7 +698,256 @@ def _require_touches(X: np.ndarray, data: Any) -> None:
         where = f"{data}: " if isinstance(data, (str, os.PathLike)) else ""
         raise TrainingError(
             f"{where}no touch anywhere: each of the {len(flat)} training recordings is flat "
-            f"(its preprocessed tensor is constant), so there is nothing to learn")
+            f"(its preprocessed tensor is constant), so there is nothing to learn"
+        )
+
+
+@dataclass(frozen=True)
+class _Recipe:
+    """How :func:`train_model` trains (its arguments of the same names, checked on creation)."""
+
+    machine: str
+    selection: str
+    D: int
+    window: str
+    subsample: str
+    negatives: str
+    seed: int
+    n_jobs: int
+    group_by: str
+    lambdas: Sequence[float] = PAPER_LAMBDAS
+    sigmas: Sequence[float] = PAPER_SIGMAS
+    alphas: Sequence[str] = PAPER_ALPHAS
+    md_options: Mapping[str, Any] | None = None
+    cv_options: Mapping[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.machine not in MACHINES:
+            raise TrainingError(f"machine must be 'svm' or 'rls', got {self.machine!r}")
+        if self.selection not in SELECTIONS:
+            raise TrainingError(f"selection must be 'md' or 'cv', got {self.selection!r}")
+        if self.negatives not in ("balanced", "all"):
+            raise TrainingError(f"negatives must be 'balanced' or 'all', got {self.negatives!r}")
+        if int(self.D) < 1:
+            raise TrainingError(f"D must be >= 1, got {self.D}")
+
+    def with_grid(
+        self,
+        quick: bool,
+        lambdas: Sequence[float],
+        sigmas: Sequence[float],
+        alphas: Sequence[str],
+        md_options: Mapping[str, Any] | None,
+        cv_options: Mapping[str, Any] | None,
+    ) -> _Recipe:
+        """This recipe searching the given grid, or with ``quick`` the 2x2x2 grid and lighter
+        selection options (3 labelings, 3 splits; given options win)."""
+        if quick:
+            lambdas, sigmas, alphas = QUICK_LAMBDAS, QUICK_SIGMAS, QUICK_ALPHAS
+            md_options = {"n_labelings": 3, **dict(md_options or {})}
+            cv_options = {"n_splits": 3, **dict(cv_options or {})}
+        return replace(
+            self,
+            lambdas=lambdas,
+            sigmas=sigmas,
+            alphas=alphas,
+            md_options=md_options,
+            cv_options=cv_options,
+        )
+
+
+def _training_data(
+    data: Any,
+    labels: Any,
+    classes: Sequence[str] | None,
+    class_names: Sequence[str] | None,
+    lengths: Any,
+    sample_rate_hz: float,
+    runs: Sequence[int] | None,
+    group_by: str,
+) -> tuple[Any, dict[str, Any], list[str], np.ndarray, np.ndarray, np.ndarray | None]:
+    """(recordings, source info, classes learnt, indices of the recordings trained on, their
+    labels 0..len(classes)-1, their ``group_by`` groups or None). The classes default to every
+    class present and must be known, distinct, at least 2 and each recorded among the training
+    recordings (only those of ``runs``, when given)."""
+    rec, ids, names, parts, info = _load_data(data, labels, class_names, lengths, sample_rate_hz)
+    if group_by != "participant" and hasattr(rec, "modalities"):
+        parts = group_labels(rec, group_by)
+    present = [names[k] for k in sorted(set(ids.tolist())) if 0 <= k < len(names)]
+    if classes is None:
+        classes = present
+    classes = [str(c) for c in classes]
+    unknown = [c for c in classes if c not in names]
+    if unknown:
+        raise TrainingError(f"unknown class(es) {unknown}; the data has classes {names}")
+    if len(set(classes)) != len(classes):
+        raise TrainingError(f"classes must be distinct, got {classes}")
+    if len(classes) < 2:
+        raise TrainingError(f"at least 2 classes are needed, got {classes}")
+    cls_ids = [names.index(c) for c in classes]
+    mask = np.isin(ids, cls_ids)
+    if runs is not None and hasattr(rec, "run"):
+        mask &= np.isin(np.asarray(rec.run), list(runs))
+    idx = np.flatnonzero(mask)
+    missing = [c for c, k in zip(classes, cls_ids) if not np.any(ids[idx] == k)]
+    if missing:
+        raise TrainingError(f"no recording of class(es) {missing} in the training data")
+    y_all = np.array([cls_ids.index(k) for k in ids[idx]], np.int64)
+    groups = parts[idx] if parts is not None else None
+    return rec, info, classes, idx, y_all, groups
+
+
+def _training_patterns(
+    data: Any, rec: Any, idx: np.ndarray, recipe: _Recipe, window_config: Any, rate: float
+) -> tuple[np.ndarray, float]:
+    """(the preprocessed patterns of the training recordings, seconds taken); refuses patterns
+    without any touch."""
+    key = (int(recipe.D), recipe.subsample)
+    prep = preprocess_campaign(
+        rec, idx, [key], window=recipe.window, config=window_config, sample_rate_hz=rate
+    )
+    X = prep.X[key]
+    _require_touches(X, data)
+    return X, prep.seconds
+
+
+def _selected_settings(machine: str, fitted_search: Any, ys: np.ndarray) -> dict[str, Any]:
+    """What one fitted search chose, its selection terms and the size of its training set."""
+    return {
+        **describe_params(machine, fitted_search.best_params_, fitted_search.best_estimator_),
+        "selection_terms": selected_row(fitted_search),
+        "n_train": int(len(ys)),
+        "n_positive": int(np.sum(ys == 1)),
+    }
+
+
+def _one_vs_all_indices(
+    y_all: np.ndarray, n_classes: int, negatives: str, seed: int
+) -> list[np.ndarray]:
+    """The sorted training indices of each 1-vs-all machine: its class's patterns, and all the
+    others or ("balanced") as many seeded random ones of the other classes."""
+    rng = np.random.default_rng(seed)
+    machine_indices = []
+    for k in range(n_classes):
+        pos = np.flatnonzero(y_all == k)
+        neg = np.flatnonzero(y_all != k)
+        if negatives == "balanced" and len(neg) > len(pos):
+            neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
+        machine_indices.append(np.sort(np.concatenate([pos, neg])))
+    return machine_indices
+
+
+def _select_and_fit(
+    recipe: _Recipe,
+    X: np.ndarray,
+    y_all: np.ndarray,
+    classes: list[str],
+    groups: np.ndarray | None,
+    notes: list[str],
+) -> tuple[Any, bool, list[dict[str, Any]], float]:
+    """(fitted estimator, whether its splits were grouped, the settings each machine chose,
+    seconds taken): one binary machine for 2 classes, else one 1-vs-all machine per class.
+    Notes on the splits are added to ``notes``."""
+    search = make_search(
+        recipe.machine,
+        recipe.selection,
+        param_grid(recipe.lambdas, recipe.sigmas, recipe.alphas),
+        seed=recipe.seed,
+        md_options=recipe.md_options,
+        cv_options=recipe.cv_options,
+        n_jobs=recipe.n_jobs,
+    )
+    t0 = time.perf_counter()
+    groups, group_notes = cv_groups(recipe.selection, groups, recipe.group_by)
+    notes += group_notes
+    if len(classes) == 2:
+        _, grouped = fit_grouped(
+            lambda g: fit_search(search, X, y_all, g), groups, recipe.group_by, notes
+        )
+        selected = [_selected_settings(recipe.machine, search, y_all)]
+        return search.best_estimator_, grouped, selected, time.perf_counter() - t0
+    from eskin.learn.estimators import OneVsAllTouchClassifier
+
+    machine_indices = _one_vs_all_indices(y_all, len(classes), recipe.negatives, recipe.seed)
+    estimator, grouped = fit_grouped(
+        lambda g: OneVsAllTouchClassifier(estimator=search).fit(
+            X, y_all, machine_indices=machine_indices, groups=g
+        ),
+        groups,
+        recipe.group_by,
+        notes,
+    )
+    selected = [
+        {
+            "class": classes[k],
+            **_selected_settings(recipe.machine, srch, (y_all[mi] == k).astype(int)),
+        }
+        for k, (srch, mi) in enumerate(zip(estimator.searches_, machine_indices))
+    ]
+    return estimator, grouped, selected, time.perf_counter() - t0
+
+
+def _training_record(
+    recipe: _Recipe,
+    info: dict[str, Any],
+    classes: list[str],
+    y_all: np.ndarray,
+    grouped: bool,
+    notes: list[str],
+    seconds: float,
+) -> dict[str, Any]:
+    """The model's ``training`` record: data source, pattern counts, grid, selection options,
+    how the CV splits went, notes, time taken, creation time and eskin version."""
+    import eskin
+
+    split_by = (recipe.group_by if grouped else "recordings") if recipe.selection == "cv" else None
+    return {
+        **info,
+        "n_patterns": int(len(y_all)),
+        "patterns_per_class": {c: int(np.sum(y_all == k)) for k, c in enumerate(classes)},
+        "grid": {
+            "lambdas": list(map(float, recipe.lambdas)),
+            "sigmas": list(map(float, recipe.sigmas)),
+            "alphas": list(recipe.alphas),
+        },
+        "md_options": dict(recipe.md_options or {}),
+        "cv_options": dict(recipe.cv_options or {}),
+        "cv_split_by": split_by,
+        "negatives": recipe.negatives,
+        "seed": recipe.seed,
+        "notes": notes,
+        "seconds": seconds,
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "eskin_version": eskin.__version__,
+    }
+
+
+def _touch_model(
+    recipe: _Recipe,
+    classes: list[str],
+    estimator: Any,
+    selected: list[dict[str, Any]],
+    training: dict[str, Any],
+    rate: float,
+    shape: tuple[int, ...],
+    window_config: Any,
+) -> TouchModel:
+    """The trained :class:`TouchModel`."""
+    return TouchModel(
+        classes=classes,
+        estimator=estimator,
+        machine=recipe.machine,
+        selection=recipe.selection,
+        D=int(recipe.D),
+        window=recipe.window,
+        subsample=recipe.subsample,
+        sample_rate_hz=rate,
+        grid_shape=(int(shape[0]), int(shape[1])),
+        window_config=window_config,
+        selected=selected,
+        selection_report={"lambda_shown": "lambda for both machines; the SVM uses C = 1/lambda"},
+        training=training,
+    )
 
 
 def train_model(
@@ -754,140 +1003,25 @@ def train_model(
     group_by : the campaign label that groups recordings in the CV selection's splits (no group
         on both sides): "participant" (default), "run", "direction" or an integer extra field.
     """
-    if machine not in MACHINES:
-        raise TrainingError(f"machine must be 'svm' or 'rls', got {machine!r}")
-    if selection not in SELECTIONS:
-        raise TrainingError(f"selection must be 'md' or 'cv', got {selection!r}")
-    if negatives not in ("balanced", "all"):
-        raise TrainingError(f"negatives must be 'balanced' or 'all', got {negatives!r}")
-    if int(D) < 1:
-        raise TrainingError(f"D must be >= 1, got {D}")
-    if quick:
-        lambdas, sigmas, alphas = QUICK_LAMBDAS, QUICK_SIGMAS, QUICK_ALPHAS
-        md_options = {"n_labelings": 3, **dict(md_options or {})}
-        cv_options = {"n_splits": 3, **dict(cv_options or {})}
-    rec, ids, names, parts, info = _load_data(data, labels, class_names, lengths, sample_rate_hz)
-    if group_by != "participant" and hasattr(rec, "modalities"):
-        parts = group_labels(rec, group_by)
-    present = [names[k] for k in sorted(set(ids.tolist())) if 0 <= k < len(names)]
-    if classes is None:
-        classes = present
-    classes = [str(c) for c in classes]
-    unknown = [c for c in classes if c not in names]
-    if unknown:
-        raise TrainingError(f"unknown class(es) {unknown}; the data has classes {names}")
-    if len(set(classes)) != len(classes):
-        raise TrainingError(f"classes must be distinct, got {classes}")
-    if len(classes) < 2:
-        raise TrainingError(f"at least 2 classes are needed, got {classes}")
-    cls_ids = [names.index(c) for c in classes]
-    mask = np.isin(ids, cls_ids)
-    if runs is not None and hasattr(rec, "run"):
-        mask &= np.isin(np.asarray(rec.run), list(runs))
-    idx = np.flatnonzero(mask)
-    missing = [c for c, k in zip(classes, cls_ids) if not np.any(ids[idx] == k)]
-    if missing:
-        raise TrainingError(f"no recording of class(es) {missing} in the training data")
-    y_all = np.array([cls_ids.index(k) for k in ids[idx]], np.int64)
-    groups = parts[idx] if parts is not None else None
-
+    recipe = _Recipe(machine, selection, D, window, subsample, negatives, seed, n_jobs, group_by)
+    recipe = recipe.with_grid(quick, lambdas, sigmas, alphas, md_options, cv_options)
+    rec, info, classes, idx, y_all, groups = _training_data(
+        data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
+    )
     rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
     # the detector settings valid at this rate, written into the model explicitly (also with
     # window="none": the compiled classifier builds its detector from them)
     window_config, notes = window_config_for_rate(window_config, rate)
     notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
-    prep = preprocess_campaign(
-        rec, idx, [(int(D), subsample)], window=window, config=window_config, sample_rate_hz=rate
+    X, prep_seconds = _training_patterns(data, rec, idx, recipe, window_config, rate)
+    estimator, grouped, selected, fit_seconds = _select_and_fit(
+        recipe, X, y_all, classes, groups, notes
     )
-    X = prep.X[(int(D), subsample)]
-    _require_touches(X, data)
-    shape = X.shape[1:]
-    grid = param_grid(lambdas, sigmas, alphas)
-    search = make_search(
-        machine,
-        selection,
-        grid,
-        seed=seed,
-        md_options=md_options,
-        cv_options=cv_options,
-        n_jobs=n_jobs,
+    training = _training_record(
+        recipe, info, classes, y_all, grouped, notes, fit_seconds + prep_seconds
     )
-
-    def report(fitted_search: Any, ys: np.ndarray) -> dict[str, Any]:
-        return {
-            **describe_params(machine, fitted_search.best_params_, fitted_search.best_estimator_),
-            "selection_terms": selected_row(fitted_search),
-            "n_train": int(len(ys)),
-            "n_positive": int(np.sum(ys == 1)),
-        }
-
-    t0 = time.perf_counter()
-    groups, group_notes = cv_groups(selection, groups, group_by)
-    notes += group_notes
-    if len(classes) == 2:
-        _, grouped = fit_grouped(
-            lambda g: fit_search(search, X, y_all, g), groups, group_by, notes
-        )
-        estimator = search.best_estimator_
-        selected = [report(search, y_all)]
-    else:
-        from eskin.learn.estimators import OneVsAllTouchClassifier
-
-        rng = np.random.default_rng(seed)
-        machine_indices = []
-        for k in range(len(classes)):
-            pos = np.flatnonzero(y_all == k)
-            neg = np.flatnonzero(y_all != k)
-            if negatives == "balanced" and len(neg) > len(pos):
-                neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
-            machine_indices.append(np.sort(np.concatenate([pos, neg])))
-        estimator, grouped = fit_grouped(
-            lambda g: OneVsAllTouchClassifier(estimator=search).fit(
-                X, y_all, machine_indices=machine_indices, groups=g
-            ),
-            groups,
-            group_by,
-            notes,
-        )
-        selected = [
-            {"class": classes[k], **report(srch, (y_all[mi] == k).astype(int))}
-            for k, (srch, mi) in enumerate(zip(estimator.searches_, machine_indices))
-        ]
-    import eskin
-
-    training = {
-        **info,
-        "n_patterns": int(len(idx)),
-        "patterns_per_class": {c: int(np.sum(y_all == k)) for k, c in enumerate(classes)},
-        "grid": {
-            "lambdas": list(map(float, lambdas)),
-            "sigmas": list(map(float, sigmas)),
-            "alphas": list(alphas),
-        },
-        "md_options": dict(md_options or {}),
-        "cv_options": dict(cv_options or {}),
-        "cv_split_by": (group_by if grouped else "recordings") if selection == "cv" else None,
-        "negatives": negatives,
-        "seed": seed,
-        "notes": notes,
-        "seconds": time.perf_counter() - t0 + prep.seconds,
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "eskin_version": eskin.__version__,
-    }
-    return TouchModel(
-        classes=classes,
-        estimator=estimator,
-        machine=machine,
-        selection=selection,
-        D=int(D),
-        window=window,
-        subsample=subsample,
-        sample_rate_hz=rate,
-        grid_shape=(int(shape[0]), int(shape[1])),
-        window_config=window_config,
-        selected=selected,
-        selection_report={"lambda_shown": "lambda for both machines; the SVM uses C = 1/lambda"},
-        training=training,
+    return _touch_model(
+        recipe, classes, estimator, selected, training, rate, X.shape[1:], window_config
     )
 
 
