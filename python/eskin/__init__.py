@@ -24,6 +24,7 @@ _EXPORTS: dict[str, str] = {
     "mode_distances": "learn",
     "resolve_alphas": "learn",
     "pattern_bases": "learn",
+    "pattern_log_energy": "learn",
     "PatternBases": "learn",
     "bases_mode_distances": "learn",
     "bases_tensor_kernel": "learn",

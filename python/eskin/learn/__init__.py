@@ -18,6 +18,7 @@ from .kernel import (
     kernel_from_distances,
     mode_distances,
     pattern_bases,
+    pattern_log_energy,
     resolve_alphas,
     tensor_kernel,
 )
@@ -70,6 +71,7 @@ __all__ = [
     "md_tau",
     "mode_distances",
     "pattern_bases",
+    "pattern_log_energy",
     "preprocess_campaign",
     "register_model_format",
     "resolve_alphas",

@@ -15,8 +15,15 @@ squared distance between the pattern subspaces, ``K = exp(-sum_z d_z / (2 sigma_
 Every fitted binary machine exposes the same attributes, the contract that deployment builds on:
 ``support_vectors_`` (n_sv, *tensor shape), ``dual_coef_`` (n_sv,) (alpha_i*y_i for the SVM,
 beta_i for RLS), ``intercept_`` (float, 0 for RLS), ``alphas_`` and ``sigmas_`` (one per mode),
-``classes_`` (2 labels; decision > 0 means ``classes_[1]``), with
+``classes_`` (2 labels; decision > 0 means ``classes_[1]``), ``amplitude_width_`` (0.0 without
+the amplitude factor) and ``sv_log_energy_`` (n_sv,), with
 ``decision_function(x) = sum_i dual_coef_[i] K(sv_i, x) + intercept_``.
+
+The amplitude-aware kernel (``amplitude=a``, off by default) multiplies the tensor kernel by a
+Gaussian on the patterns' log energies (:func:`eskin.pattern_log_energy`):
+``K(x, x') = K_tensor(x, x') exp(-(e(x) - e(x'))^2 / (2 w^2))`` with the width
+``w = a * max(std of e over the training patterns, 0.05)``: ``a`` is in units of the training
+set's spread of log energy, so the same grid suits every sensor.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ from sklearn.svm import SVC
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_is_fitted, check_random_state, validate_data
 
-from .kernel import mode_distances, resolve_alphas
+from .kernel import mode_distances, pattern_log_energy, resolve_alphas
 
 __all__ = [
     "TensorSVC",
@@ -86,6 +93,45 @@ def sigma_tuple(sigma, n_modes: int) -> tuple[float, ...]:
     if not all(np.isfinite(s) and s > 0 for s in values):
         raise ValueError(f"sigma must be positive and finite, got {sigma!r}")
     return values
+
+
+#: The smallest spread of the training patterns' log energies that the amplitude width is a
+#: multiple of: a campaign whose touches all have about the same energy (spread below 0.05, i.e.
+#: amplitudes within about 2.5 %) would otherwise get an arbitrarily narrow factor.
+MIN_ENERGY_SPREAD = 0.05
+
+
+def check_amplitude(amplitude) -> float | None:
+    """``amplitude`` as a positive float, or None (no amplitude factor); ValueError otherwise."""
+    if amplitude is None:
+        return None
+    if isinstance(amplitude, (bool, np.bool_)) or not isinstance(amplitude, numbers.Real):
+        raise ValueError(f"amplitude must be None or a positive number, got {amplitude!r}")
+    if not (np.isfinite(amplitude) and amplitude > 0):
+        raise ValueError(f"amplitude must be None or a positive number, got {amplitude!r}")
+    return float(amplitude)
+
+
+def amplitude_width(amplitude, energies: np.ndarray) -> float:
+    """The factor's width in log-energy units: ``amplitude`` times the spread (standard
+    deviation, at least :data:`MIN_ENERGY_SPREAD`) of the training patterns' log energies;
+    0.0 when ``amplitude`` is None."""
+    a = check_amplitude(amplitude)
+    if a is None:
+        return 0.0
+    spread = float(np.std(energies)) if len(energies) else 0.0
+    return a * max(spread, MIN_ENERGY_SPREAD)
+
+
+def amplitude_factor(e_a: np.ndarray, e_b: np.ndarray, width: float) -> np.ndarray | None:
+    """``exp(-(e_a[i] - e_b[j])^2 / (2 width^2))``, shape (len(e_a), len(e_b)); None when the
+    width is 0 (no factor)."""
+    if not width > 0:
+        return None
+    diff = np.subtract.outer(np.asarray(e_a, float), np.asarray(e_b, float))
+    with np.errstate(invalid="ignore", over="ignore"):
+        factor = np.exp(-(diff * diff) / (2.0 * width * width))
+    return np.nan_to_num(factor, nan=0.0)
 
 
 def kernel_from_distances(dists: np.ndarray, sigmas) -> np.ndarray:
@@ -191,6 +237,8 @@ def svm_train(K: np.ndarray, y_pm: np.ndarray, C: float, tol: float = 1e-3):
 class _TensorKernelMachine(ClassifierMixin, BaseEstimator):
     """Binary kernel machine on the tensor kernel (shared fit/predict plumbing)."""
 
+    amplitude = None  # what machines pickled before the amplitude factor had
+
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
         tags.classifier_tags.multi_class = False
@@ -198,20 +246,28 @@ class _TensorKernelMachine(ClassifierMixin, BaseEstimator):
         return tags
 
     def _kernel_setup(self, X):
+        """(training Gram matrix, the training patterns' log energies); sets the kernel's
+        fitted settings."""
         self.tensor_shape_ = tuple(X.shape[1:])
         self.alphas_ = tuple(int(a) for a in resolve_alphas(self.tensor_shape_, self.alpha))
         self.sigmas_ = sigma_tuple(self.sigma, len(self.tensor_shape_))
-        return kernel_from_distances(mode_distances(X, alpha=self.alphas_), self.sigmas_)
+        energies = pattern_log_energy(X)
+        self.amplitude_width_ = amplitude_width(self.amplitude, energies)
+        K = kernel_from_distances(mode_distances(X, alpha=self.alphas_), self.sigmas_)
+        factor = amplitude_factor(energies, energies, self.amplitude_width_)
+        return (K if factor is None else K * factor), energies
 
     def fit(self, X, y):
         """Fit on tensors ``X`` (n, *shape) (or 2-D with ``tensor_shape``) and 2-class ``y``."""
         X, y = _validate_fit(self, X, y)
         self.classes_, y_pm = binary_targets(y, type(self).__name__)
         self._check_regulariser()
-        K = self._kernel_setup(X)
+        check_amplitude(self.amplitude)
+        K, energies = self._kernel_setup(X)
         beta, intercept, support = self._train(K, y_pm)
         self.support_ = np.asarray(support, dtype=np.intp)
         self.support_vectors_ = np.ascontiguousarray(X[self.support_])
+        self.sv_log_energy_ = np.ascontiguousarray(energies[self.support_])
         self.dual_coef_ = np.ascontiguousarray(beta[self.support_])
         self.intercept_ = float(intercept)
         return self
@@ -223,7 +279,11 @@ class _TensorKernelMachine(ClassifierMixin, BaseEstimator):
         if self.dual_coef_.size == 0:
             return np.full(X.shape[0], self.intercept_)
         d = mode_distances(X, self.support_vectors_, alpha=self.alphas_)
-        return kernel_from_distances(d, self.sigmas_) @ self.dual_coef_ + self.intercept_
+        K = kernel_from_distances(d, self.sigmas_)
+        width = getattr(self, "amplitude_width_", 0.0)  # 0 in models pickled before the factor
+        if width > 0:
+            K *= amplitude_factor(pattern_log_energy(X), self.sv_log_energy_, width)
+        return K @ self.dual_coef_ + self.intercept_
 
     def predict(self, X):
         """Class labels: ``classes_[1]`` where the decision value is > 0, else ``classes_[0]``."""
@@ -244,17 +304,21 @@ class TensorSVC(_TensorKernelMachine):
         Number of right-singular vectors kept per mode (see ``eskin.resolve_alphas``).
     tensor_shape : tuple of int, optional
         Pattern shape for 2-D ``X``.
+    amplitude : float or None
+        The amplitude-aware kernel's width in units of the training patterns' spread of log
+        energy (see the module's docstring); None (default): the paper's tensor kernel.
 
     Fitted attributes: ``support_vectors_``, ``dual_coef_`` (alpha_i*y_i), ``intercept_``,
     ``support_`` (indices into the training set), ``alphas_``, ``sigmas_``, ``classes_``,
-    ``tensor_shape_``.
+    ``tensor_shape_``, ``amplitude_width_``, ``sv_log_energy_``.
     """
 
-    def __init__(self, C=1.0, sigma=1.0, alpha="half", tensor_shape=None):
+    def __init__(self, C=1.0, sigma=1.0, alpha="half", tensor_shape=None, amplitude=None):
         self.C = C
         self.sigma = sigma
         self.alpha = alpha
         self.tensor_shape = tensor_shape
+        self.amplitude = amplitude
 
     def _check_regulariser(self):
         if not (np.isfinite(self.C) and self.C > 0):
@@ -273,14 +337,15 @@ class TensorRLS(_TensorKernelMachine):
     ----------
     lam : float
         Regularisation lambda > 0.
-    sigma, alpha, tensor_shape : as for :class:`TensorSVC`.
+    sigma, alpha, tensor_shape, amplitude : as for :class:`TensorSVC`.
     """
 
-    def __init__(self, lam=1.0, sigma=1.0, alpha="half", tensor_shape=None):
+    def __init__(self, lam=1.0, sigma=1.0, alpha="half", tensor_shape=None, amplitude=None):
         self.lam = lam
         self.sigma = sigma
         self.alpha = alpha
         self.tensor_shape = tensor_shape
+        self.amplitude = amplitude
 
     def _check_regulariser(self):
         if not (np.isfinite(self.lam) and self.lam > 0):

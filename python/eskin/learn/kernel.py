@@ -34,6 +34,7 @@ __all__ = [
     "kernel_from_distances",
     "mode_distances",
     "pattern_bases",
+    "pattern_log_energy",
     "resolve_alphas",
     "tensor_kernel",
 ]
@@ -256,6 +257,27 @@ def tensor_kernel(
     bx, by, nt = _prepare(X, Y, alpha, n_threads)
     assert sigmas is not None  # _prepare rejected fewer than 2 modes
     return _core.tensor_kernel(bx, by, sigmas, nt)
+
+
+#: Added to a pattern's mean square before the logarithm, so that an all-zero pattern has a
+#: finite log energy (log 1e-12 = -27.6). The deployed classifier uses the same constant.
+LOG_ENERGY_FLOOR = 1e-12
+
+
+def pattern_log_energy(X: object) -> np.ndarray:
+    """Log energy of each pattern of ``X`` (shape (n, d1, ..., dZ)): ``log(mean(x^2) + 1e-12)``
+    over all of a pattern's entries, shape (n,).
+
+    The tensor kernel compares subspaces and is blind to amplitude (a tap and a punch with the
+    same shape are the same pattern to it); the amplitude-aware kernel of the estimators
+    multiplies it by a Gaussian on the difference of these log energies. The log makes the
+    difference independent of the sensor's units (a gain multiplies every energy alike).
+    """
+    arr = _as_patterns(X, "X")
+    flat = arr.reshape(arr.shape[0], -1)
+    with np.errstate(over="ignore"):
+        mean_square = np.einsum("ij,ij->i", flat, flat) / flat.shape[1]
+    return np.log(mean_square + LOG_ENERGY_FLOOR)
 
 
 def kernel_from_distances(distances: object, sigma: SigmaSpec = 1.0) -> np.ndarray:

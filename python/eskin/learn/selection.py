@@ -7,7 +7,8 @@ each is in ``docs/learning.md``).
 :class:`CrossValidationSearch` is the conventional selection it is compared with (Section 4.2,
 Figure 7): repeated random splits of the training set, optionally grouped by participant.
 
-Both take a grid over ``lam`` (or ``C``), ``sigma`` and ``alpha``, for either machine: a grid in
+Both take a grid over ``lam`` (or ``C``), ``sigma``, ``alpha`` and ``amplitude`` (the
+amplitude-aware kernel's width, None for the paper's kernel), for either machine: a grid in
 ``lam`` given to a :class:`~eskin.estimators.TensorSVC` means ``C = 1/lam`` (reading R9), and a grid
 in ``C`` given to a :class:`~eskin.estimators.TensorRLS` means ``lam = 1/C``. Every
 configuration's numbers are in ``cv_results_`` (a dict of arrays, one entry per configuration);
@@ -16,7 +17,8 @@ configuration's numbers are in ``cv_results_`` (a dict of arrays, one entry per 
 
 How the work is shared out: the per-mode distances are computed once per alpha
 (``eskin.mode_distances``) and reused for every sigma (``K = exp(-sum_z d_z/(2 sigma_z^2))``).
-The work is cut into (alpha, sigma) blocks, run with joblib (``n_jobs``, any backend, Dask
+The amplitude factor depends only on the patterns' log energies (computed once) and on
+``amplitude``. The work is cut into (alpha, sigma, amplitude) blocks, run with joblib (``n_jobs``, any backend, Dask
 included). Within a block, kernel k-means runs once, RLS goes through one eigendecomposition of
 K reused for every lambda and every random labelling, and the SVM is libsvm on the precomputed
 K. Every random draw is seeded from ``random_state`` and the configuration (or block) index,
@@ -41,14 +43,17 @@ from .estimators import (
     KMEANS_METHODS,
     TensorRLS,
     TensorSVC,
+    amplitude_factor,
+    amplitude_width,
     as_tensors,
     binary_targets,
+    check_amplitude,
     kernel_from_distances,
     kernel_kmeans,
     sigma_tuple,
     svm_train,
 )
-from .kernel import mode_distances, resolve_alphas
+from .kernel import mode_distances, pattern_log_energy, resolve_alphas
 
 __all__ = [
     "MD_READINGS",
@@ -67,7 +72,7 @@ PAPER_GRID = {
     "alpha": [1, "half", "full"],
 }
 
-_SEARCHABLE = ("lam", "C", "sigma", "alpha")
+_SEARCHABLE = ("lam", "C", "sigma", "alpha", "amplitude")
 
 #: Named readings of Algorithm 1: name -> (MaximalDiscrepancySearch options, what it means).
 #: Each option is documented in the class and in docs/learning.md; docs/selection-study.md
@@ -164,6 +169,7 @@ class _Config:
     est_params: dict  # parameters for set_params on the estimator
     alphas: tuple  # resolved alpha per mode
     sigmas: tuple  # sigma per mode
+    amplitude: float | None = None  # the amplitude factor's width (spreads of log energy)
 
 
 def _machine_kind(estimator) -> str:
@@ -194,7 +200,7 @@ def _configurations(estimator, param_grid, pattern_shape):
         if unknown:
             raise ValueError(
                 f"param_grid key(s) {sorted(unknown)} cannot be searched; use lam (or C), "
-                "sigma, alpha"
+                "sigma, alpha, amplitude"
             )
         if "lam" in p and "C" in p:
             raise ValueError("param_grid gives both lam and C; give one (C = 1/lam)")
@@ -215,16 +221,35 @@ def _configurations(estimator, param_grid, pattern_shape):
         alpha = params.get("alpha", base["alpha"])
         alphas = tuple(int(a) for a in resolve_alphas(pattern_shape, alpha))
         sigmas = sigma_tuple(sigma, len(pattern_shape))
-        configs.append(_Config(i, lam, params, alphas, sigmas))
+        amplitude = check_amplitude(params.get("amplitude", base.get("amplitude")))
+        configs.append(_Config(i, lam, params, alphas, sigmas, amplitude))
     return kind, configs
 
 
 def _blocks(configs):
-    """Group configurations by (alphas, sigmas): one kernel per block."""
+    """Group configurations by (alphas, sigmas, amplitude): one kernel per block."""
     blocks: dict = {}
     for c in configs:
-        blocks.setdefault((c.alphas, c.sigmas), []).append(c)
+        blocks.setdefault((c.alphas, c.sigmas, c.amplitude), []).append(c)
     return list(blocks.items())
+
+
+def _amplitude_factors(configs, energies):
+    """{amplitude: the (n, n) factor, or None without one} for every amplitude of the grid;
+    the width is relative to the spread of ``energies`` (the search's training patterns, as
+    in the refitted estimator)."""
+    factors = {}
+    for c in configs:
+        if c.amplitude not in factors:
+            width = amplitude_width(c.amplitude, energies)
+            factors[c.amplitude] = amplitude_factor(energies, energies, width)
+    return factors
+
+
+def _kernel(dists, sigmas, factor):
+    """The Gram matrix of one block: the tensor kernel, times the amplitude factor if any."""
+    K = kernel_from_distances(dists, sigmas)
+    return K if factor is None else K * factor
 
 
 def _resolve_seed(random_state) -> int:
@@ -305,13 +330,13 @@ def _single_threaded_blas():
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
-def _md_block(kind, dists, sigmas, y, configs, settings, seed, block_index):
-    """Algorithm 1 for every lambda of one (alpha, sigma) block.
+def _md_block(kind, dists, sigmas, factor, y, configs, settings, seed, block_index):
+    """Algorithm 1 for every lambda of one (alpha, sigma, amplitude) block.
 
     Returns one dict per configuration: v, the N errors v*, chi, Gamma_0, lambda steps, cap hits.
     """
     with _single_threaded_blas():
-        K = kernel_from_distances(dists, sigmas)  # I. the kernel
+        K = _kernel(dists, sigmas, factor)  # I. the kernel
         y_cl = None
         if settings.reference == "clustering":
             # II. two clusters by kernel k-means; X(a) is cluster 0
@@ -508,10 +533,10 @@ def _md_block_svm(K, y, y_cl, configs, settings, seed, strategy="search"):
 # --------------------------------------------------------------------------------------------
 # conventional cross-validation, one (alpha, sigma) block
 # --------------------------------------------------------------------------------------------
-def _cv_block(kind, dists, sigmas, y, configs, splits):
+def _cv_block(kind, dists, sigmas, factor, y, configs, splits):
     """Validation and training errors of every lambda of one block on every split."""
     with _single_threaded_blas():
-        K = kernel_from_distances(dists, sigmas)
+        K = _kernel(dists, sigmas, factor)
         test_err = np.empty((len(configs), len(splits)))
         train_err = np.empty((len(configs), len(splits)))
         for s, (tr, te) in enumerate(splits):
@@ -538,14 +563,18 @@ def _cv_block(kind, dists, sigmas, y, configs, splits):
 # the two searches
 # --------------------------------------------------------------------------------------------
 def _select(criterion, configs):
-    """Lowest criterion; ties go to the simpler machine: larger lambda, then larger sigma."""
+    """Lowest criterion; ties go to the simpler machine: larger lambda, then larger sigma,
+    then no amplitude factor, then a wider one."""
     crit = np.asarray(criterion, dtype=float)
     best = np.nanmin(crit)
     cand = np.flatnonzero(crit <= best + 1e-12)
-    key = sorted(
-        cand,
-        key=lambda i: (-configs[i].lam, -float(np.mean(configs[i].sigmas)), i),
-    )
+
+    def simplicity(i):
+        amp = configs[i].amplitude
+        return (-configs[i].lam, -float(np.mean(configs[i].sigmas)),
+                -(math.inf if amp is None else amp), i)
+
+    key = sorted(cand, key=simplicity)
     return int(key[0])
 
 
@@ -567,13 +596,19 @@ class _SearchBase(ClassifierMixin, BaseEstimator):
         for cfg in configs:  # per-mode distances once per alpha, reused for every sigma
             if cfg.alphas not in dists:
                 dists[cfg.alphas] = mode_distances(Xt, alpha=cfg.alphas)
-        return X, y, y_pm, kind, configs, dists
+        factors = _amplitude_factors(configs, pattern_log_energy(Xt))
+        return X, y, y_pm, kind, configs, dists, factors
 
-    def _prepare_distances(self, distances, y, pattern_shape):
-        """As :meth:`_prepare`, from per-mode distances given per resolved alpha tuple."""
+    def _prepare_distances(self, distances, y, pattern_shape, energies=None):
+        """As :meth:`_prepare`, from per-mode distances given per resolved alpha tuple (and the
+        patterns' log energies when the grid has an amplitude factor)."""
         y = np.asarray(y)
         self.classes_, y_pm = binary_targets(y, type(self).__name__)
         kind, configs = _configurations(self._estimator(), self._grid(), tuple(pattern_shape))
+        if energies is None and any(c.amplitude is not None for c in configs):
+            raise ValueError("the grid has an amplitude factor: give the patterns' energies")
+        if energies is not None and np.shape(energies) != (y_pm.size,):
+            raise ValueError(f"energies has shape {np.shape(energies)}, expected ({y_pm.size},)")
         dists = {}
         for cfg in configs:
             if cfg.alphas not in distances:
@@ -585,7 +620,8 @@ class _SearchBase(ClassifierMixin, BaseEstimator):
                     f"{(len(pattern_shape), y_pm.size, y_pm.size)}"
                 )
             dists[cfg.alphas] = d
-        return None, y, y_pm, kind, configs, dists
+        factors = _amplitude_factors(configs, np.zeros(0) if energies is None else energies)
+        return None, y, y_pm, kind, configs, dists, factors
 
     def _base_results(self, configs):
         res = {
@@ -594,6 +630,7 @@ class _SearchBase(ClassifierMixin, BaseEstimator):
             "C": np.array([1.0 / c.lam for c in configs]),
             "alphas": [c.alphas for c in configs],
             "sigmas": [c.sigmas for c in configs],
+            "amplitudes": [c.amplitude for c in configs],
         }
         grid = list(ParameterGrid(self._grid()))
         for key in sorted({k for p in grid for k in p}):
@@ -785,17 +822,21 @@ class MaximalDiscrepancySearch(_SearchBase):
         self._check_params()
         return self._fit_prepared(*self._prepare(X, y))
 
-    def fit_distances(self, distances, y, pattern_shape):
+    def fit_distances(self, distances, y, pattern_shape, energies=None):
         """As :meth:`fit` from precomputed per-mode distances, without refitting.
 
         ``distances`` maps each resolved alpha tuple of the grid (e.g. ``(1, 1, 1)``) to the
-        ``(n_modes, n, n)`` array of :func:`eskin.mode_distances`; used by studies that reuse
-        one distance computation for many searches. ``best_estimator_`` is not set.
+        ``(n_modes, n, n)`` array of :func:`eskin.mode_distances`; ``energies`` are the
+        patterns' :func:`eskin.pattern_log_energy` (needed when the grid has an amplitude
+        factor). Used by studies that reuse one distance computation for many searches.
+        ``best_estimator_`` is not set.
         """
         self._check_params()
-        return self._fit_prepared(*self._prepare_distances(distances, y, pattern_shape))
+        return self._fit_prepared(
+            *self._prepare_distances(distances, y, pattern_shape, energies)
+        )
 
-    def _fit_prepared(self, X, y, y_pm, kind, configs, dists):
+    def _fit_prepared(self, X, y, y_pm, kind, configs, dists, factors):
         n = y_pm.size
         self.random_state_ = _resolve_seed(self.random_state)
         settings = _MDSettings(
@@ -809,9 +850,10 @@ class MaximalDiscrepancySearch(_SearchBase):
         with _single_threaded_blas():
             results = Parallel(n_jobs=self.n_jobs)(
                 delayed(_md_block)(
-                    kind, dists[alphas], sigmas, y_pm, cfgs, settings, self.random_state_, b
+                    kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, settings,
+                    self.random_state_, b,
                 )
-                for b, ((alphas, sigmas), cfgs) in enumerate(blocks)
+                for b, ((alphas, sigmas, amp), cfgs) in enumerate(blocks)
             )
         by_index = {}
         for (_, cfgs), res in zip(blocks, results):
@@ -906,17 +948,19 @@ class CrossValidationSearch(_SearchBase):
         self._check_splits()
         return self._fit_prepared(*self._prepare(X, y), groups)
 
-    def fit_distances(self, distances, y, pattern_shape, groups=None):
+    def fit_distances(self, distances, y, pattern_shape, groups=None, energies=None):
         """As :meth:`fit` from precomputed per-mode distances (see
         :meth:`MaximalDiscrepancySearch.fit_distances`), without refitting."""
         self._check_splits()
-        return self._fit_prepared(*self._prepare_distances(distances, y, pattern_shape), groups)
+        return self._fit_prepared(
+            *self._prepare_distances(distances, y, pattern_shape, energies), groups
+        )
 
     def _check_splits(self):
         if not (isinstance(self.n_splits, numbers.Integral) and self.n_splits >= 1):
             raise ValueError(f"n_splits must be a positive int, got {self.n_splits!r}")
 
-    def _fit_prepared(self, X, y, y_pm, kind, configs, dists, groups):
+    def _fit_prepared(self, X, y, y_pm, kind, configs, dists, factors, groups):
         self.random_state_ = _resolve_seed(self.random_state)
         split_seed = int(_rng(self.random_state_, _KEY_SPLITS).integers(np.iinfo(np.int32).max))
         idx = np.zeros(y_pm.size)
@@ -941,8 +985,8 @@ class CrossValidationSearch(_SearchBase):
         blocks = _blocks(configs)
         with _single_threaded_blas():  # see MaximalDiscrepancySearch.fit
             results = Parallel(n_jobs=self.n_jobs)(
-                delayed(_cv_block)(kind, dists[alphas], sigmas, y_pm, cfgs, splits)
-                for (alphas, sigmas), cfgs in blocks
+                delayed(_cv_block)(kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, splits)
+                for (alphas, sigmas, amp), cfgs in blocks
             )
         test_err = np.empty((len(configs), len(splits)))
         train_err = np.empty((len(configs), len(splits)))
