@@ -170,3 +170,25 @@ def test_reports_written_to_a_pipe_are_not_cut_at_80_columns(monkeypatch):
     with console.capture() as cap:
         console.print("x" * 150)
     assert cap.get().rstrip("\n") == "x" * 150
+
+
+def test_train_searches_the_amplitude_widths_it_is_given(one_person, tmp_path):
+    out = tmp_path / "m.joblib"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "--D", "20"]
+    r = CliRunner().invoke(app, [*args, "--amplitude", "off,1", "-o", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    model = eskin.load_model(out)
+    assert model.training["grid"]["amplitudes"] == [None, 1.0]
+    chosen = model.selected[0]["amplitude"]
+    assert chosen in (None, 1.0)
+    assert (", amplitude=1 (" in r.output) == (chosen == 1.0)
+
+
+@pytest.mark.parametrize("bad", ["0", "loud", "1,-2"])
+def test_train_refuses_a_bad_amplitude(one_person, tmp_path, bad):
+    out = tmp_path / "m.joblib"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "-o", str(out)]
+    r = CliRunner().invoke(app, [*args, "--amplitude", bad])
+    assert r.exit_code == 2
+    assert f"error: --amplitude {bad}: amplitude must be 'off' or a positive number" in r.output
+    assert not out.exists()

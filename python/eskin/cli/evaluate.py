@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from eskin.cli.learn import Machine, Selection, Subsample, Window, _fail
+from eskin.cli.learn import AMPLITUDE_HELP, Machine, Selection, Subsample, Window, _amplitudes, _fail
 
 
 def _names(text: str | None) -> list[str] | None:
@@ -33,6 +33,7 @@ def evaluate(
     D: int | None = typer.Option(None, "--D", help="subsampled window length"),
     window: Window | None = typer.Option(None, help="touch-window detector, or none"),
     subsample: Subsample | None = typer.Option(None, help="subsampling method"),
+    amplitude: str | None = typer.Option(None, help=AMPLITUDE_HELP),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -61,6 +62,7 @@ def evaluate(
     # options not given keep eskin.train_model's defaults (the recipe eskin train uses)
     recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
     recipe["quick"] = quick
+    recipe.update(_amplitudes(amplitude))
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))

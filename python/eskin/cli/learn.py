@@ -97,6 +97,38 @@ def _ints(text: str, what: str) -> list[int]:
     return values
 
 
+AMPLITUDE_HELP = (
+    "amplitude-aware kernel widths to search, e.g. off, 1 or off,1,4 (in spreads of the "
+    "training touches' log energy; off: the paper's kernel)"
+)
+
+
+def _amplitudes(text: Optional[str]) -> dict[str, Any]:
+    """``{"amplitudes": ...}`` for train_model from --amplitude, or {} (its default)."""
+    from eskin.learn.models import parse_amplitudes
+
+    if text is None:
+        return {}
+    try:
+        return {"amplitudes": parse_amplitudes(text)}
+    except ValueError as exc:
+        _fail(f"--amplitude {text}: {exc}")
+
+
+def _selected_lines(model: Any) -> list[str]:
+    """The setting each machine of a trained model selected, a line each."""
+    lines = []
+    for sel in model.selected:
+        name = f"{sel['class']} vs rest: " if "class" in sel else ""
+        first = f"C={sel['C']:g}" if model.machine == "svm" else f"lambda={sel['lambda']:g}"
+        amp = "" if sel.get("amplitude") is None else f", amplitude={sel['amplitude']:g}"
+        lines.append(
+            f"  {name}{first}, sigma={sel['sigma']:g}, alpha={sel['alpha'] or sel['alphas']}"
+            f"{amp} ({sel['n_train']} patterns)"
+        )
+    return lines
+
+
 def _problems(text: Optional[str]) -> Optional[list[str]]:
     """'A,B' -> presets; 'brush:washer;finger:washer' -> class pairs."""
     if text is None:
@@ -188,6 +220,7 @@ def train(
     D: int = typer.Option(100, "--D", help="subsampled window length"),
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
     subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+    amplitude: Optional[str] = typer.Option(None, help=AMPLITUDE_HELP),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -211,6 +244,7 @@ def train(
     from eskin.learn.models import train_model
     from eskin.learn.parallel import compute_backend
 
+    amplitudes = _amplitudes(amplitude)
     if (classes is None) == (not all_classes):
         _fail("give exactly one of --classes a,b,... or --all-classes")
     try:
@@ -234,6 +268,7 @@ def train(
                 quick=quick,
                 seed=seed,
                 n_jobs=-1 if scheduler else n_jobs,
+                **amplitudes,
             )
         save_model(model, output)
     except (ValueError, OSError, KeyError) as exc:
@@ -244,14 +279,7 @@ def train(
         f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
         f"D={model.D}, window={model.window})"
     )
-    for sel in model.selected:
-        name = f"{sel['class']} vs rest: " if "class" in sel else ""
-        first = f"C={sel['C']:g}" if model.machine == "svm" else f"lambda={sel['lambda']:g}"
-        typer.echo(
-            f"  {name}{first}, sigma={sel['sigma']:g}, alpha={sel['alpha'] or sel['alphas']}"
-            f" ({sel['n_train']} patterns)"
-        )
-    for line in selection_estimate_lines(model):
+    for line in _selected_lines(model) + selection_estimate_lines(model):
         typer.echo(line)
     typer.echo(f"wrote {output}")
 

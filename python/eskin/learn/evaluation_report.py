@@ -20,7 +20,8 @@ def _ci(ci: Any) -> str:
 
 
 def _setting(selected: Any) -> str:
-    """One machine's selected setting, short: 'C=10 sigma=2 alpha=Q'."""
+    """One machine's selected setting, short: 'C=10 sigma=2 alpha=Q' (and 'amplitude=1'
+    when it has the amplitude factor)."""
     if not isinstance(selected, Mapping):
         return str(selected)
     if "lambda" not in selected:
@@ -30,6 +31,8 @@ def _setting(selected: Any) -> str:
     head = f"C={selected['C']:g}" if "C" in selected else f"lambda={selected['lambda']:g}"
     alpha = selected.get("alpha") or selected.get("alphas")
     text = f"{head} sigma={selected['sigma']:g} alpha={alpha}"
+    if selected.get("amplitude") is not None:
+        text += f" amplitude={selected['amplitude']:g}"
     return f"{selected['class']}: {text}" if "class" in selected else text
 
 

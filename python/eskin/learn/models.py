@@ -44,6 +44,10 @@ PAPER_LAMBDAS: tuple[float, ...] = (1e-3, 1e-2, 1e-1, 1e0, 1e1)
 PAPER_SIGMAS: tuple[float, ...] = tuple(2.0**k for k in range(-4, 5))
 PAPER_ALPHAS: tuple[str, ...] = ("1", "Q/2", "Q")
 
+#: The amplitude-aware kernel's widths searched by default (None: the paper's kernel; a number:
+#: the width in spreads of the training patterns' log energy, see eskin.TensorSVC).
+DEFAULT_AMPLITUDES: tuple[float | None, ...] = (None,)
+
 QUICK_LAMBDAS: tuple[float, ...] = (1e-2, 1e0)
 QUICK_SIGMAS: tuple[float, ...] = (2.0**-1, 2.0**1)
 QUICK_ALPHAS: tuple[str, ...] = ("1", "Q/2")
@@ -86,19 +90,47 @@ def param_grid(
     lambdas: Sequence[float] = PAPER_LAMBDAS,
     sigmas: Sequence[float] = PAPER_SIGMAS,
     alphas: Sequence[str] = PAPER_ALPHAS,
+    amplitudes: Sequence[float | None] = (None,),
 ) -> dict[str, list[Any]]:
     """The search grid in lambda for both machines (the searches train the SVM with C =
-    1/lambda, reading R9), sigma, and alpha in the estimators' terms (1, "half", "full")."""
+    1/lambda, reading R9), sigma, alpha in the estimators' terms (1, "half", "full") and, unless
+    it is only None (the paper's kernel), the amplitude factor's width."""
     for a in alphas:
         if a not in ALPHA_SPEC:
             raise TrainingError(f"alpha label must be one of '1', 'Q/2', 'Q', got {a!r}")
-    if not lambdas or not sigmas or not alphas:
-        raise TrainingError("the grid needs at least one lambda, one sigma and one alpha")
-    return {
+    if not lambdas or not sigmas or not alphas or not amplitudes:
+        raise TrainingError(
+            "the grid needs at least one lambda, one sigma, one alpha and one amplitude"
+        )
+    grid: dict[str, list[Any]] = {
         "lam": [float(v) for v in lambdas],
         "sigma": [float(v) for v in sigmas],
         "alpha": [ALPHA_SPEC[a] for a in alphas],
     }
+    if list(amplitudes) != [None]:
+        grid["amplitude"] = [_checked_amplitude(a) for a in amplitudes]
+    return grid
+
+
+def _checked_amplitude(value: Any) -> float | None:
+    if value is None:
+        return None
+    try:
+        amplitude = float(value)
+    except (TypeError, ValueError):
+        amplitude = float("nan")
+    if not (np.isfinite(amplitude) and amplitude > 0):
+        raise TrainingError(f"amplitude must be 'off' or a positive number, got {value!r}")
+    return amplitude
+
+
+def parse_amplitudes(text: str) -> tuple[float | None, ...]:
+    """Amplitude-factor widths from text such as "off", "1" or "off,1,4" ("off"/"none": the
+    paper's kernel without the factor)."""
+    values: list[float | None] = []
+    for item in (t.strip() for t in str(text).split(",")):
+        values.append(None if item.lower() in ("off", "none") else _checked_amplitude(item))
+    return tuple(values)
 
 
 def make_search(
@@ -159,6 +191,7 @@ def describe_params(
         "alpha": alpha_label(alpha),
         "alpha_value": alpha if isinstance(alpha, str) else np.atleast_1d(alpha).tolist(),
         "alphas": [int(a) for a in getattr(estimator, "alphas_", ())] or None,
+        "amplitude": params.get("amplitude"),
     }
     if machine == "svm":
         out["C"] = 1.0 / lam
@@ -718,6 +751,7 @@ class _Recipe:
     lambdas: Sequence[float] = PAPER_LAMBDAS
     sigmas: Sequence[float] = PAPER_SIGMAS
     alphas: Sequence[str] = PAPER_ALPHAS
+    amplitudes: Sequence[float | None] = DEFAULT_AMPLITUDES
     md_options: Mapping[str, Any] | None = None
     cv_options: Mapping[str, Any] | None = None
 
@@ -737,11 +771,13 @@ class _Recipe:
         lambdas: Sequence[float],
         sigmas: Sequence[float],
         alphas: Sequence[str],
+        amplitudes: Sequence[float | None],
         md_options: Mapping[str, Any] | None,
         cv_options: Mapping[str, Any] | None,
     ) -> _Recipe:
-        """This recipe searching the given grid, or with ``quick`` the 2x2x2 grid and lighter
-        selection options (3 labelings, 3 splits; given options win)."""
+        """This recipe searching the given grid, or with ``quick`` the 2x2x2 grid (times the
+        given amplitudes) and lighter selection options (3 labelings, 3 splits; given options
+        win)."""
         if quick:
             lambdas, sigmas, alphas = QUICK_LAMBDAS, QUICK_SIGMAS, QUICK_ALPHAS
             md_options = {"n_labelings": 3, **dict(md_options or {})}
@@ -751,6 +787,7 @@ class _Recipe:
             lambdas=lambdas,
             sigmas=sigmas,
             alphas=alphas,
+            amplitudes=tuple(amplitudes),
             md_options=md_options,
             cv_options=cv_options,
         )
@@ -851,7 +888,7 @@ def _select_and_fit(
     search = make_search(
         recipe.machine,
         recipe.selection,
-        param_grid(recipe.lambdas, recipe.sigmas, recipe.alphas),
+        param_grid(recipe.lambdas, recipe.sigmas, recipe.alphas, recipe.amplitudes),
         seed=recipe.seed,
         md_options=recipe.md_options,
         cv_options=recipe.cv_options,
@@ -909,6 +946,7 @@ def _training_record(
             "lambdas": list(map(float, recipe.lambdas)),
             "sigmas": list(map(float, recipe.sigmas)),
             "alphas": list(recipe.alphas),
+            "amplitudes": list(recipe.amplitudes),
         },
         "md_options": dict(recipe.md_options or {}),
         "cv_options": dict(recipe.cv_options or {}),
@@ -964,6 +1002,7 @@ def train_model(
     lambdas: Sequence[float] = PAPER_LAMBDAS,
     sigmas: Sequence[float] = PAPER_SIGMAS,
     alphas: Sequence[str] = PAPER_ALPHAS,
+    amplitudes: Sequence[float | None] = DEFAULT_AMPLITUDES,
     quick: bool = False,
     md_options: Mapping[str, Any] | None = None,
     cv_options: Mapping[str, Any] | None = None,
@@ -997,6 +1036,9 @@ def train_model(
     D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`).
     lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
         replaces it by a 2x2x2 grid (for tests and demos).
+    amplitudes : the amplitude-aware kernel's widths searched (None: the paper's kernel; a
+        number: the factor's width in spreads of the training patterns' log energy, see
+        :class:`~eskin.TensorSVC`); every one multiplies the grid.
     negatives : for 1-vs-all machines, "balanced" (the paper: as many random patterns of the
         other classes as positives, seeded) or "all".
     runs : only recordings of these runs (default: every recording).
@@ -1004,7 +1046,7 @@ def train_model(
         on both sides): "participant" (default), "run", "direction" or an integer extra field.
     """
     recipe = _Recipe(machine, selection, D, window, subsample, negatives, seed, n_jobs, group_by)
-    recipe = recipe.with_grid(quick, lambdas, sigmas, alphas, md_options, cv_options)
+    recipe = recipe.with_grid(quick, lambdas, sigmas, alphas, amplitudes, md_options, cv_options)
     rec, info, classes, idx, y_all, groups = _training_data(
         data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
     )
