@@ -235,7 +235,11 @@ def _slow_noise(rng: np.random.Generator, n: int, fs: float, cutoff_hz: float) -
 
 def _band_noise(rng: np.random.Generator, shape: tuple[int, int], fs: float,
                 band: tuple[float, float]) -> np.ndarray:
-    sos = sps.butter(2, band, "bandpass", fs=fs, output="sos")
+    """Unit-variance noise in ``band`` (Hz), its upper edge kept below 0.45 fs (and the lower
+    below half the upper) so that low sample rates keep what of the band they can hold."""
+    high = min(float(band[1]), 0.45 * fs)
+    low = min(float(band[0]), 0.5 * high)
+    sos = sps.butter(2, (low, high), "bandpass", fs=fs, output="sos")
     x = sps.sosfilt(sos, rng.standard_normal(shape), axis=-1)
     return x / (np.std(x, axis=-1, keepdims=True) + 1e-12)
 
