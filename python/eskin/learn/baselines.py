@@ -10,7 +10,12 @@ Both see the same preprocessed patterns (rows, cols, D) as the tensor machine of
   with its regularisation chosen by leave-one-out (``RidgeClassifierCV``), the usual MiniRocket
   pipeline. It needs ``aeon`` (``pip install 'eskin[minirocket]'``) or ``sktime``; MiniRocket
   needs at least 9 time steps, so patterns with D < 9 are repeated along time
-  (linear interpolation) up to 9 steps for it.
+  (linear interpolation) up to 9 steps for it. Tested with aeon 1.0 and 1.6
+  (``aeon.transformations.collection.convolution_based.MiniRocket``, multivariate since 1.0) and
+  sktime 1.2 (``MiniRocketMultivariate``).
+
+A baseline needs training patterns of at least two classes (``EvaluationError`` otherwise):
+a ridge classifier fitted on one class would silently predict that class for everything.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin.errors import BaselineUnavailable
+from eskin.errors import BaselineUnavailable, EvaluationError
 
 BASELINES: tuple[str, ...] = ("vector", "minirocket")
 VECTOR_C: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
@@ -53,11 +58,21 @@ def run_baseline(
     seed: int = 0,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Fit baseline ``name`` on the training patterns; (predicted class ids, its settings)."""
+    _check_two_classes(name, y_train)
     if name == "vector":
         return vector_svm(X_train, y_train, groups_train, X_test)
     if name == "minirocket":
         return minirocket(X_train, y_train, X_test, seed=seed)
     raise ValueError(f"unknown baseline {name!r}: choose from {', '.join(BASELINES)}")
+
+
+def _check_two_classes(name: str, y_train: np.ndarray) -> None:
+    classes = np.unique(np.asarray(y_train))
+    if len(classes) < 2:
+        found = f"only class {classes[0]}" if len(classes) else "no patterns"
+        raise EvaluationError(
+            f"baseline {name!r}: the training patterns hold {found}; at least 2 classes are needed"
+        )
 
 
 def _inner_splits(y: np.ndarray, groups: np.ndarray) -> Any:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 
 import numpy as np
 import pytest
 
+from eskin.errors import EvaluationError
 from eskin.learn.baselines import (
     BaselineUnavailable,
     _series,
@@ -50,13 +51,34 @@ def test_short_patterns_are_stretched_to_minirocket_length():
     assert _series(long).shape == (1, 2, 30)
 
 
-def test_minirocket_runs_when_installed_and_says_how_to_install_otherwise():
+def _hide(monkeypatch: pytest.MonkeyPatch, *packages: str) -> None:
+    """Make importing ``packages`` (and their submodules) fail as if they were not installed."""
+    loaded = [m for m in sys.modules if m.split(".")[0] in packages]
+    for name in (*packages, *loaded):
+        monkeypatch.setitem(sys.modules, name, None)
+
+
+def test_minirocket_without_aeon_or_sktime_says_how_to_install(monkeypatch):
+    _hide(monkeypatch, "aeon", "sktime")
+    with pytest.raises(BaselineUnavailable, match=r"pip install 'eskin\[minirocket\]'"):
+        check_baselines(["minirocket"])
+
+
+@pytest.mark.parametrize("library", ["aeon", "sktime"])
+def test_minirocket_learns_a_separable_problem(library, monkeypatch):
+    pytest.importorskip(library)
+    if library == "sktime":
+        _hide(monkeypatch, "aeon")  # aeon is preferred when both are installed
     X, y, g = _two_classes(40)
-    installed = any(importlib.util.find_spec(m) for m in ("aeon", "sktime"))
-    if not installed:
-        with pytest.raises(BaselineUnavailable, match=r"pip install 'eskin\[minirocket\]'"):
-            check_baselines(["minirocket"])
-        return
-    pred, settings = run_baseline("minirocket", X[::2], y[::2], g[::2], X[1::2])
-    assert np.mean(pred == y[1::2]) >= 0.9
-    assert settings["library"] in ("aeon", "sktime")
+    pred, settings = run_baseline("minirocket", X[:20], y[:20], g[:20], X[20:])
+    assert np.array_equal(pred, y[20:])
+    assert settings["library"] == library
+    assert settings["n_features"] > 0
+
+
+@pytest.mark.parametrize("name", ["vector", "minirocket"])
+def test_a_baseline_refuses_training_patterns_of_one_class(name):
+    X, y, g = _two_classes(40)
+    one_class = y == 0
+    with pytest.raises(EvaluationError, match=rf"baseline '{name}': .* only class 0"):
+        run_baseline(name, X[one_class], y[one_class], g[one_class], X[~one_class])
