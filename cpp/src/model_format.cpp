@@ -52,6 +52,12 @@ constexpr double kMaxSigma = 1e6;
 // so that no sum can overflow to inf (and inf - inf to NaN).
 constexpr double kMaxDecisionBound = 1e300;
 constexpr std::uint32_t kMaxClasses = 1024;
+// AMPL (format version 2): support-vector log energies within [-1e4, 1e4] (a finite double
+// pattern has e in [log 1e-12, log DBL_MAX] = [-27.6, 709.8]) and widths 0 or in [1e-6, 1e6], so
+// that (e(x) - e_i)^2 / (2 w^2) is finite for every finite e(x) and never 0 * inf.
+constexpr double kMaxLogEnergy = 1e4;
+constexpr double kMinAmplitudeWidth = 1e-6;
+constexpr double kMaxAmplitudeWidth = 1e6;
 constexpr std::uint64_t kMaxFileBytes = 1ull << 31;
 
 // As `std::ostream << std::setprecision(17) << v`, without iostreams (not in a controller build).
@@ -274,6 +280,10 @@ class ModelParser {
   static bool parse_clas(Reader& r, Model& m, ParseError& err);
   static bool parse_svbs(Reader& r, Model& m, ParseError& err);
   static bool parse_mach(Reader& r, Model& m, ParseError& err);
+  static bool parse_ampl(Reader& r, Model& m, ParseError& err);
+  static bool parse_required(int which, Reader& r, Model& m, ParseError& err);
+  static bool parse_sections(const std::uint8_t* data, std::size_t end, std::uint32_t n_sections,
+                             const std::string& origin, Model& m, ParseError& err);
   static bool check_machines(Model& m, const std::string& origin, ParseError& err);
 };
 
@@ -565,6 +575,44 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   return !err.failed;
 }
 
+bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
+  const std::string& w = r.what();
+  const std::uint32_t n_sv = r.u32("n_sv"), n_machines = r.u32("n_machines");
+  if (!r.ok()) return false;
+  if (n_sv != static_cast<std::uint32_t>(m.n_sv_))
+    return err.set(ModelError::kValue, w + ": n_sv=" + std::to_string(n_sv) + " differs from SVBS's n_sv=" +
+                                 std::to_string(m.n_sv_));
+  if (n_machines != m.machines_.size())
+    return err.set(ModelError::kValue, w + ": n_machines=" + std::to_string(n_machines) +
+                                 " differs from MACH's n_machines=" + std::to_string(m.machines_.size()));
+  // both counts are those of sections already read: the sizes below are bounded by them
+  if (!r.need((std::size_t{n_sv} + n_machines) * 8, "log energies and widths")) return false;
+  std::vector<double> energy(n_sv);
+  for (std::uint32_t i = 0; i < n_sv; ++i) {
+    const double e = r.f64("sv_log_energy");
+    if (!(std::fabs(e) <= kMaxLogEnergy))
+      return err.set(ModelError::kValue, w + ": sv_log_energy[" + std::to_string(i) + "]=" + fmt_double(e) +
+                                   " is not finite or outside [-1e+04, 1e+04]");
+    energy[i] = e;
+  }
+  bool any = false;
+  for (std::uint32_t k = 0; k < n_machines; ++k) {
+    const double a = r.f64("amplitude_width");
+    if (!(a == 0.0 || (a >= kMinAmplitudeWidth && a <= kMaxAmplitudeWidth)))
+      return err.set(ModelError::kValue, w + ": machine " + std::to_string(k) + ": amplitude_width=" +
+                                   fmt_double(a) + " must be 0 (no amplitude factor) or within [1e-06, 1e+06]");
+    m.machines_[k].amplitude_width = a;
+    any = any || a > 0.0;
+  }
+  r.expect_end();
+  if (err.failed) return false;
+  if (!any)
+    return err.set(ModelError::kValue, w + ": every amplitude_width is 0 (a model without the amplitude "
+                                 "factor is written as format version 1)");
+  m.sv_log_energy_ = std::move(energy);
+  return true;
+}
+
 bool ModelParser::check_machines(Model& m, const std::string& origin, ParseError& err) {
   const int nc = static_cast<int>(m.class_names_.size());
   const int nm = static_cast<int>(m.machines_.size());
@@ -596,6 +644,69 @@ bool ModelParser::check_machines(Model& m, const std::string& origin, ParseError
   return true;
 }
 
+namespace {
+// The required sections in their order: version 1 has the first four, version 2 all five.
+constexpr std::uint32_t kRequired[5] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
+                                        tag_of("MACH"), tag_of("AMPL")};
+}  // namespace
+
+bool ModelParser::parse_required(int which, Reader& r, Model& m, ParseError& err) {
+  switch (which) {
+    case 0: return parse_prep(r, m, err);
+    case 1: return parse_clas(r, m, err);
+    case 2: return parse_svbs(r, m, err);
+    case 3: return parse_mach(r, m, err);
+    default: return parse_ampl(r, m, err);
+  }
+}
+
+// The sections between the header and the checksum (`end`): the required ones in order,
+// ancillary ones skipped.
+bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std::uint32_t n_sections,
+                                 const std::string& origin, Model& m, ParseError& err) {
+  namespace mf = model_format;
+  const int n_required = m.format_version_ >= mf::kVersionAmplitude ? 5 : 4;
+  int next = 0;
+  std::size_t pos = mf::kHeaderBytes;
+  for (std::uint32_t s = 0; s < n_sections; ++s) {
+    if (end - pos < 8)
+      return err.set(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
+    Reader sh(data + pos, 8, origin + ": section header", err);
+    const std::uint32_t tag = sh.u32("tag"), bytes = sh.u32("payload_bytes");
+    pos += 8;
+    const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
+    if (padded > end - pos)
+      return err.set(ModelError::kLayout, origin + ": section '" + tag_str(tag) + "' (" + std::to_string(bytes) +
+                                    " bytes) runs past the end of the file");
+    for (std::size_t i = bytes; i < padded; ++i)
+      if (data[pos + i] != 0)
+        return err.set(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
+    Reader r(data + pos, bytes, origin + ": section " + tag_str(tag), err);
+    const char first = static_cast<char>(tag & 0xFF);
+    if (first >= 'a' && first <= 'z') {
+      // ancillary section (e.g. "meta"): skipped
+    } else if (next < n_required && tag == kRequired[next]) {
+      if (!parse_required(next, r, m, err)) return false;
+      ++next;
+    } else if (tag == kRequired[4] && n_required == 4) {
+      return err.set(ModelError::kLayout, origin + ": section 'AMPL' (the amplitude factor) is not allowed "
+                                    "in format version " + std::to_string(m.format_version_) +
+                                    " (it needs version 2)");
+    } else {
+      return err.set(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
+                                    (next < n_required ? tag_str(kRequired[next]) : std::string("end")) + "')");
+    }
+    pos += padded;
+  }
+  if (next < n_required)
+    return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kRequired[next]) + "' missing" +
+                                  (next == 4 ? " (format version 2 has an amplitude factor)" : ""));
+  if (pos != end)
+    return err.set(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
+                                  " bytes after the last section, before the checksum");
+  return true;
+}
+
 bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::string& origin,
                         bool borrow, Model& m, ParseError& err) {
   namespace mf = model_format;
@@ -609,9 +720,10 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
   h.raw(8, "magic");
   const std::uint32_t vh = h.u32("version/header_bytes");
   const std::uint32_t version = vh & 0xFFFFu, header_bytes = vh >> 16;
-  if (version != mf::kVersion)
+  if (version < mf::kMinVersion || version > mf::kVersion)
     return err.set(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
-                                   " is not supported (this library reads version " +
+                                   " is not supported (this library reads versions " +
+                                   std::to_string(mf::kMinVersion) + " and " +
                                    std::to_string(mf::kVersion) + ")");
   if (header_bytes != mf::kHeaderBytes)
     return err.set(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
@@ -646,46 +758,8 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
   m.borrow_ = borrow;
   m.float64_ = (flags & mf::kFlagFloat64) != 0;
   m.file_bytes_ = file_bytes;
-  static constexpr std::uint32_t kOrder[4] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
-                                              tag_of("MACH")};
-  int next = 0;
-  std::size_t pos = mf::kHeaderBytes;
-  const std::size_t end = file_bytes - 4;
-  for (std::uint32_t s = 0; s < n_sections; ++s) {
-    if (end - pos < 8)
-      return err.set(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
-    Reader sh(data + pos, 8, origin + ": section header", err);
-    const std::uint32_t tag = sh.u32("tag"), bytes = sh.u32("payload_bytes");
-    pos += 8;
-    const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
-    if (padded > end - pos)
-      return err.set(ModelError::kLayout, origin + ": section '" + tag_str(tag) + "' (" + std::to_string(bytes) +
-                                    " bytes) runs past the end of the file");
-    for (std::size_t i = bytes; i < padded; ++i)
-      if (data[pos + i] != 0)
-        return err.set(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
-    Reader r(data + pos, bytes, origin + ": section " + tag_str(tag), err);
-    const char first = static_cast<char>(tag & 0xFF);
-    if (first >= 'a' && first <= 'z') {
-      // ancillary section (e.g. "meta"): skipped
-    } else if (next < 4 && tag == kOrder[next]) {
-      const bool ok = next == 0   ? parse_prep(r, m, err)
-                      : next == 1 ? parse_clas(r, m, err)
-                      : next == 2 ? parse_svbs(r, m, err)
-                                  : parse_mach(r, m, err);
-      if (!ok) return false;
-      ++next;
-    } else {
-      return err.set(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
-                                    (next < 4 ? tag_str(kOrder[next]) : std::string("end")) + "')");
-    }
-    pos += padded;
-  }
-  if (next < 4)
-    return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kOrder[next]) + "' missing");
-  if (pos != end)
-    return err.set(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
-                                  " bytes after the last section, before the checksum");
+  m.format_version_ = static_cast<int>(version);
+  if (!parse_sections(data, file_bytes - 4, n_sections, origin, m, err)) return false;
   return check_machines(m, origin, err);
 }
 

@@ -1,6 +1,7 @@
 // The .eskin loader (every bad-file case gives its error, fuzzed files never crash or hang).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
@@ -94,6 +95,61 @@ std::size_t section_offset(const Bytes& b, const char* tag) {
   return 0;
 }
 
+void append_u32(Bytes& b, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) b.push_back(static_cast<std::uint8_t>(v >> (8 * i)));
+}
+void append_f64(Bytes& b, double v) {
+  std::uint64_t u;
+  std::memcpy(&u, &v, 8);
+  for (int i = 0; i < 8; ++i) b.push_back(static_cast<std::uint8_t>(u >> (8 * i)));
+}
+
+// The AMPL payload (format version 2): counts, then the support vectors' log energies and the
+// machines' amplitude widths.
+Bytes ampl_payload(const std::vector<double>& energy, const std::vector<double>& widths) {
+  Bytes p;
+  append_u32(p, static_cast<std::uint32_t>(energy.size()));
+  append_u32(p, static_cast<std::uint32_t>(widths.size()));
+  for (const double e : energy) append_f64(p, e);
+  for (const double w : widths) append_f64(p, w);
+  return p;
+}
+
+// A version-1 file with a section `tag` inserted right after MACH, as `version`; the header's
+// sizes and the CRC fixed.
+Bytes with_section_after_mach(const Bytes& v1, const char* tag, const Bytes& payload,
+                              std::uint16_t version = 2) {
+  const std::size_t mach = section_offset(v1, "MACH");
+  const std::size_t after = mach + (get_u32(v1, mach - 4) + 7) / 8 * 8;
+  Bytes sec(tag, tag + 4);
+  append_u32(sec, static_cast<std::uint32_t>(payload.size()));
+  sec.insert(sec.end(), payload.begin(), payload.end());
+  sec.resize((sec.size() + 7) / 8 * 8, 0);
+  Bytes b(v1.begin(), v1.begin() + static_cast<std::ptrdiff_t>(after));
+  b.insert(b.end(), sec.begin(), sec.end());
+  b.insert(b.end(), v1.begin() + static_cast<std::ptrdiff_t>(after), v1.end());
+  b[8] = static_cast<std::uint8_t>(version);
+  b[9] = static_cast<std::uint8_t>(version >> 8);
+  put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+  put_u32(b, 20, get_u32(b, 20) + 1);
+  fix_crc(b);
+  return b;
+}
+
+// The fixture as format version 2: machines 0 and 2 with an amplitude factor (widths 0.5 and
+// 2), machine 1 without; support vector i has log energy 0.25 i - 1.
+std::vector<double> fixture_energies(const Bytes& v1) {
+  const Model m = Model::from_bytes(v1.data(), v1.size());
+  std::vector<double> e;
+  for (int i = 0; i < m.n_support(); ++i) e.push_back(0.25 * i - 1.0);
+  return e;
+}
+const std::vector<double> kFixtureWidths = {0.5, 0.0, 2.0};
+Bytes fixture_amplitude(const char* dtype) {
+  const Bytes v1 = fixture(dtype);
+  return with_section_after_mach(v1, "AMPL", ampl_payload(fixture_energies(v1), kFixtureWidths));
+}
+
 ModelError load_error(const Bytes& b) {
   try {
     Model::from_bytes(b.data(), b.size());
@@ -171,10 +227,15 @@ TEST(ModelLoad, ForeignFile) {
 }
 
 TEST(ModelLoad, WrongVersion) {
-  Bytes b = fixture("float32");
-  b[8] = 2;  // version 2, CRC left stale: the version is reported, not the checksum
-  EXPECT_EQ(load_error(b), ModelError::kVersion);
-  EXPECT_NE(load_message(b).find("version 2"), std::string::npos);
+  for (const std::uint8_t v : {0, 3, 200}) {
+    Bytes b = fixture("float32");
+    b[8] = v;  // CRC left stale: the version is reported, not the checksum
+    EXPECT_EQ(load_error(b), ModelError::kVersion);
+    EXPECT_NE(load_message(b).find("model format version " + std::to_string(v) +
+                                   " is not supported (this library reads versions 1 and 2)"),
+              std::string::npos)
+        << load_message(b);
+  }
 }
 
 TEST(ModelLoad, BadChecksum) {
@@ -379,8 +440,8 @@ TEST(ModelLimits, ClassNamesMustBeValidUtf8) {
 TEST(ModelFuzz, TruncatedAndBitFlippedFiles) {
   std::mt19937 rng(12345);
   int loaded = 0, rejected = 0;
-  for (const char* dtype : {"float32", "float64"}) {
-    const Bytes good = fixture(dtype);
+  for (const Bytes& good : {fixture("float32"), fixture("float64"), fixture_amplitude("float32"),
+                            fixture_amplitude("float64")}) {
     for (std::size_t n = 0; n < good.size(); n += (n < 400 ? 1 : 37)) {
       Bytes b(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(n));
       EXPECT_NE(load_error(b), static_cast<ModelError>(0)) << "truncated to " << n;
@@ -396,9 +457,12 @@ TEST(ModelFuzz, TruncatedAndBitFlippedFiles) {
       Bytes b = good;
       const int flips = 1 + static_cast<int>(rng() % 4);
       for (int f = 0; f < flips; ++f) {
-        // bias the flips towards the header and section headers, where the sizes live
+        // bias the flips towards the header and section headers, where the sizes live, and
+        // (every fourth trial) towards the end: MACH, AMPL and meta
         const std::size_t limit = (trial % 2) ? b.size() : std::min<std::size_t>(b.size(), 256);
-        b[rng() % limit] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
+        const std::size_t at = (trial % 4 == 2) ? b.size() - 1 - rng() % std::min<std::size_t>(b.size(), 600)
+                                                : rng() % limit;
+        b[at] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
       }
       if (b == good) continue;
       if (trial % 3 == 0) {
@@ -415,7 +479,7 @@ TEST(ModelFuzz, TruncatedAndBitFlippedFiles) {
       }
     }
   }
-  EXPECT_GT(rejected, 1000);
+  EXPECT_GT(rejected, 2000);
   RecordProperty("loaded", loaded);
 }
 
@@ -532,8 +596,7 @@ TEST(ModelStream, SameDecisionAsBatchAndNoAllocation) {
 TEST(ModelParse, StatusLoaderAgreesWithTheThrowingLoader) {
   std::mt19937 rng(777);
   int failed = 0, loaded = 0;
-  for (const char* dtype : {"float32", "float64"}) {
-    const Bytes good = fixture(dtype);
+  for (const Bytes& good : {fixture("float32"), fixture("float64"), fixture_amplitude("float64")}) {
     for (int trial = 0; trial < 1500; ++trial) {
       Bytes b = good;
       if (trial % 5 == 0) {
@@ -591,5 +654,116 @@ TEST(ModelParse, ViewBytesReadsAlignedBasesInPlace) {
       if (in_place.is_float64()) ASSERT_EQ(in_place.bases_f64(0)[i], copied.bases_f64(0)[i]);
       else ASSERT_EQ(in_place.bases_f32(0)[i], copied.bases_f32(0)[i]);
     }
+  }
+}
+
+// ---- format version 2: the amplitude factor (section AMPL)
+
+namespace {
+
+// What loading `b` says, and its code.
+struct LoadResult {
+  ModelError code;
+  std::string message;
+};
+LoadResult load_result(const Bytes& b) { return {load_error(b), load_message(b)}; }
+
+Bytes fixture_with_ampl(const std::vector<double>& energy, const std::vector<double>& widths,
+                        const char* dtype = "float64") {
+  return with_section_after_mach(fixture(dtype), "AMPL", ampl_payload(energy, widths));
+}
+
+}  // namespace
+
+TEST(ModelAmplitude, VersionTwoLoadsItsWidthsAndEnergies) {
+  for (const char* dtype : {"float32", "float64"}) {
+    const Bytes b = fixture_amplitude(dtype);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    EXPECT_EQ(m.format_version(), 2);
+    ASSERT_TRUE(m.has_amplitude());
+    EXPECT_EQ(m.sv_log_energy(), fixture_energies(fixture(dtype)));
+    for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(m.machines()[k].amplitude_width, kFixtureWidths[k]);
+    // the status-code loader and view_bytes read the same
+    Model parsed;
+    eskin::ModelLoadError err;
+    ASSERT_TRUE(Model::parse(b.data(), b.size(), &parsed, &err, /*in_place=*/true)) << err.message;
+    EXPECT_EQ(parsed.sv_log_energy(), m.sv_log_energy());
+    EXPECT_EQ(parsed.machines()[2].amplitude_width, 2.0);
+  }
+}
+
+TEST(ModelAmplitude, VersionOneIsUnchanged) {
+  const Bytes b = fixture("float64");
+  EXPECT_EQ(get_u32(b, 8) & 0xFFFFu, 1u);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  EXPECT_EQ(m.format_version(), 1);
+  EXPECT_FALSE(m.has_amplitude());
+  EXPECT_TRUE(m.sv_log_energy().empty());
+  for (const auto& mm : m.machines()) EXPECT_EQ(mm.amplitude_width, 0.0);
+}
+
+TEST(ModelAmplitude, BadAmplSectionsAreRefusedNamingFieldAndValue) {
+  const Bytes v1 = fixture("float64");
+  const std::vector<double> e = fixture_energies(v1);
+  const std::size_t n_sv = e.size();
+  const auto expect = [](const Bytes& b, ModelError code, const std::string& text) {
+    const LoadResult r = load_result(b);
+    EXPECT_EQ(r.code, code) << r.message;
+    EXPECT_NE(r.message.find(text), std::string::npos) << r.message;
+  };
+  {  // counts that differ from SVBS's and MACH's
+    Bytes p = ampl_payload(e, kFixtureWidths);
+    put_u32(p, 0, static_cast<std::uint32_t>(n_sv + 1));
+    expect(with_section_after_mach(v1, "AMPL", p), ModelError::kValue,
+           "section AMPL: n_sv=" + std::to_string(n_sv + 1) + " differs from SVBS's n_sv=" +
+               std::to_string(n_sv));
+    p = ampl_payload(e, kFixtureWidths);
+    put_u32(p, 4, 1000000);
+    expect(with_section_after_mach(v1, "AMPL", p), ModelError::kValue,
+           "section AMPL: n_machines=1000000 differs from MACH's n_machines=3");
+  }
+  {  // a payload too short for its counts, and one with trailing bytes
+    Bytes p = ampl_payload(e, kFixtureWidths);
+    p.resize(p.size() - 8);
+    expect(with_section_after_mach(v1, "AMPL", p), ModelError::kLayout,
+           "section AMPL: field 'log energies and widths' runs past the end of the section");
+    p = ampl_payload(e, kFixtureWidths);
+    p.resize(p.size() + 8, 0);
+    expect(with_section_after_mach(v1, "AMPL", p), ModelError::kLayout,
+           "section AMPL: 8 unexpected trailing bytes");
+  }
+  for (const double bad : {std::nan(""), HUGE_VAL, -HUGE_VAL, 1.0001e4, -2e4}) {
+    std::vector<double> eb = e;
+    eb[2] = bad;
+    expect(fixture_with_ampl(eb, kFixtureWidths), ModelError::kValue,
+           "section AMPL: sv_log_energy[2]=");
+    expect(fixture_with_ampl(eb, kFixtureWidths), ModelError::kValue,
+           "is not finite or outside [-1e+04, 1e+04]");
+  }
+  for (const double bad : {-1.0, 9.9e-7, 1e-300, 1.01e6, HUGE_VAL, std::nan("")}) {
+    expect(fixture_with_ampl(e, {0.5, bad, 2.0}), ModelError::kValue,
+           "section AMPL: machine 1: amplitude_width=");
+    expect(fixture_with_ampl(e, {0.5, bad, 2.0}), ModelError::kValue,
+           "must be 0 (no amplitude factor) or within [1e-06, 1e+06]");
+  }
+  {  // the range's ends load; version 2 without any factor does not
+    const Bytes ends = fixture_with_ampl({e.begin(), e.end()}, {1e-6, 1e6, 0.0});
+    EXPECT_EQ(Model::from_bytes(ends.data(), ends.size()).machines()[1].amplitude_width, 1e6);
+    expect(fixture_with_ampl(e, {0.0, 0.0, 0.0}), ModelError::kValue,
+           "section AMPL: every amplitude_width is 0");
+  }
+  // AMPL in a version-1 file; a version-2 file without AMPL
+  expect(with_section_after_mach(v1, "AMPL", ampl_payload(e, kFixtureWidths), 1), ModelError::kLayout,
+         "section 'AMPL' (the amplitude factor) is not allowed in format version 1");
+  {
+    Bytes b = v1;
+    b[8] = 2;
+    fix_crc(b);
+    expect(b, ModelError::kLayout, "required section 'AMPL' missing");
+  }
+  // an ancillary section between MACH and AMPL is skipped, as anywhere
+  {
+    const Bytes b = with_section_after_mach(fixture_amplitude("float64"), "note", Bytes{'h', 'i'});
+    EXPECT_TRUE(Model::from_bytes(b.data(), b.size()).has_amplitude());
   }
 }

@@ -51,7 +51,14 @@ struct ModelLoadError {
 /// Binary layout constants (docs/model-format.md).
 namespace model_format {
 inline constexpr std::uint8_t kMagic[8] = {0x89, 'E', 'S', 'K', 'I', 'N', '\r', '\n'};
-inline constexpr std::uint16_t kVersion = 1;
+/// Versions this library reads: 1 (the tensor kernel), 2 (adds the AMPL section: an amplitude
+/// factor on some machines). kVersion is the newest; a file is written as version 1 unless it
+/// needs the factor.
+inline constexpr std::uint16_t kMinVersion = 1;
+inline constexpr std::uint16_t kVersion = 2;
+inline constexpr std::uint16_t kVersionAmplitude = 2;
+/// Amplitude factor (format version 2): e(x) = log(mean(x^2) + kLogEnergyFloor).
+inline constexpr double kLogEnergyFloor = 1e-12;
 inline constexpr std::uint32_t kHeaderBytes = 32;
 inline constexpr std::uint32_t kFlagFloat64 = 1u;
 inline constexpr std::size_t kNameBytes = 32;  ///< class and window-field names, NUL padded
@@ -64,7 +71,9 @@ std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc =
 enum class DecisionRule : std::uint32_t { kBinary = 0, kOneVsAll = 1 };
 
 /// One binary machine f(x) = sum_t coef[t] K(sv[t], x) + intercept, with
-/// K = prod_z exp(-dist_z / (2 sigma_z^2)) on the first alpha_z basis columns of each mode.
+/// K = prod_z exp(-dist_z / (2 sigma_z^2)) on the first alpha_z basis columns of each mode,
+/// times exp(-(e(x) - e(sv[t]))^2 / (2 w^2)) when the amplitude width w > 0 (e: log energy,
+/// docs/model-format.md, "Decision").
 struct ModelMachine {
   int positive = 0;   ///< class index claimed when f > 0
   int negative = -1;  ///< class index when f <= 0 (binary rule), -1 = "all the others"
@@ -73,7 +82,12 @@ struct ModelMachine {
   std::array<double, model_format::kModes> sigma{};
   std::vector<std::uint32_t> sv_index;  ///< rows of the model's support-vector table
   std::vector<double> coef;             ///< dual coefficients, as stored (float32 or float64)
+  double amplitude_width = 0.0;         ///< w of the amplitude factor; 0 = no factor
 };
+
+/// Log energy of a (rows, cols, D) tensor of n entries: log(mean(x^2) + 1e-12), in double;
+/// +inf when the mean square overflows.
+double tensor_log_energy(const double* x, std::size_t n) noexcept;
 
 /// A loaded, fully validated model. Immutable once loaded.
 class Model {
@@ -130,6 +144,12 @@ class Model {
     return bases64_[z].empty() ? b64_[z] : bases64_[z].data();
   }
   std::size_t file_bytes() const noexcept { return file_bytes_; }
+  /// 1, or 2 when some machine has an amplitude factor (section AMPL).
+  int format_version() const noexcept { return format_version_; }
+  /// Log energy e(sv_i) of each support vector (n_support() entries) when the model has an
+  /// amplitude factor (format version 2), else empty.
+  const std::vector<double>& sv_log_energy() const noexcept { return sv_log_energy_; }
+  bool has_amplitude() const noexcept { return !sv_log_energy_.empty(); }
 
  private:
   int rows_ = 0, cols_ = 0, D_ = 0;
@@ -152,6 +172,8 @@ class Model {
   std::array<const double*, 3> b64_{};
   bool borrow_ = false;
   std::size_t file_bytes_ = 0;
+  int format_version_ = 1;
+  std::vector<double> sv_log_energy_;
 
   friend class ModelParser;
 };
