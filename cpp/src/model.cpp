@@ -56,6 +56,13 @@ const char* to_string(ClassifyStatus s) noexcept {
 
 const char* overlap_kernel_name() noexcept { return detail::overlap_kernel_name(); }
 
+double tensor_log_energy(const double* x, std::size_t n) noexcept {
+  double sum = 0.0;
+  for (std::size_t i = 0; i < n; ++i) sum += x[i] * x[i];
+  const double mean = n > 0 ? sum / static_cast<double>(n) : 0.0;
+  return std::log(mean + model_format::kLogEnergyFloor);  // log(inf) = inf: the factor is 0
+}
+
 // Machines are grouped by their alpha triple: the per-mode distances of a support vector depend
 // only on it, so they are computed once per (group, support vector) and shared by the machines.
 struct Classifier::Impl {
@@ -139,6 +146,7 @@ struct Classifier::Impl {
       }
     }
     dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
+    if (m.has_amplitude()) energy_gap.resize(static_cast<std::size_t>(m.n_support()));
   }
 
   BasisLayout layout;
@@ -155,6 +163,7 @@ struct Classifier::Impl {
   std::vector<Group> groups;
   std::vector<std::size_t> machine_group;
   std::vector<DecisionReal> dist;  // (group, sv, mode) squared mode distances
+  std::vector<DecisionReal> energy_gap;  // (e(x) - e(sv_i))^2 per support vector (amplitude factor)
   std::vector<double> values;
   // The window choice of eskin::detect_window (WindowConfig.select), the same code as the
   // batch preprocessing; its buffer (kMaxTouches) is allocated here, never per decision.
@@ -164,6 +173,36 @@ struct Classifier::Impl {
   detail::DotF32 dot32 = detail::select_dot_f32();
   detail::DotF64 dot64 = detail::select_dot_f64();
 };
+
+namespace {
+// f(x) of one machine from the squared mode distances `d` of its group (sv, mode) and, for a
+// machine with an amplitude factor, the squared log-energy gaps (sv).
+double machine_value(const ModelMachine& mm, const DecisionReal* d, const DecisionReal* gap) noexcept {
+  DecisionReal w[3];
+  for (int z = 0; z < 3; ++z)
+    w[z] = static_cast<DecisionReal>(1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] *
+                                            mm.sigma[static_cast<std::size_t>(z)]));
+  DecisionReal f = 0;
+  if (mm.amplitude_width > 0) {
+    // widths in [1e-6, 1e6] and |e_i| <= 1e4 (the loader's checks): wa and every finite gap
+    // times wa are finite; an infinite gap (mean square overflowed) gives exp(-inf) = 0
+    const auto wa = static_cast<DecisionReal>(1.0 / (2.0 * mm.amplitude_width * mm.amplitude_width));
+    for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
+      const std::size_t i = mm.sv_index[t];
+      const DecisionReal* di = d + i * 3;
+      f += static_cast<DecisionReal>(mm.coef[t]) *
+           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2] + gap[i] * wa));
+    }
+  } else {
+    for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
+      const DecisionReal* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
+      f += static_cast<DecisionReal>(mm.coef[t]) *
+           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
+    }
+  }
+  return static_cast<double>(f) + mm.intercept;
+}
+}  // namespace
 
 Classifier::Classifier(const Model& model)
     : model_(&model), impl_(std::make_unique<Impl>(model, /*raw=*/true)) {}
@@ -220,22 +259,17 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
       }
     }
   }
-  const auto& machines = m.machines();
-  for (std::size_t k = 0; k < machines.size(); ++k) {
-    const auto& mm = machines[k];
-    const DecisionReal* d = s.dist.data() + s.machine_group[k] * n_sv * 3;
-    DecisionReal w[3];
-    for (int z = 0; z < 3; ++z)
-      w[z] = static_cast<DecisionReal>(1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] *
-                                              mm.sigma[static_cast<std::size_t>(z)]));
-    DecisionReal f = 0;
-    for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
-      const DecisionReal* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
-      f += static_cast<DecisionReal>(mm.coef[t]) *
-           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
-    }
-    s.values[k] = static_cast<double>(f) + mm.intercept;
+  if (m.has_amplitude()) {
+    // the amplitude factor's input: e(x) once per decision, in double (also on a controller)
+    const double ex = tensor_log_energy(tensor, static_cast<std::size_t>(m.rows()) * m.cols() * m.D());
+    const auto& e = m.sv_log_energy();
+    for (std::size_t i = 0; i < n_sv; ++i)
+      s.energy_gap[i] = static_cast<DecisionReal>((ex - e[i]) * (ex - e[i]));  // inf if ex is
   }
+  const auto& machines = m.machines();
+  for (std::size_t k = 0; k < machines.size(); ++k)
+    s.values[k] = machine_value(machines[k], s.dist.data() + s.machine_group[k] * n_sv * 3,
+                                s.energy_gap.data());
   out->n_machines = static_cast<int>(machines.size());
   out->values = s.values.data();
   if (m.rule() == DecisionRule::kBinary) {

@@ -543,8 +543,11 @@ TEST(ModelStream, AllocationCounterSeesAllocations) {
 }
 
 TEST(ModelStream, SameDecisionAsBatchAndNoAllocation) {
-  for (const char* dtype : {"float32", "float64"}) {
-    const Bytes b = fixture(dtype);
+  // the two precisions, each without and with the amplitude factor (format versions 1 and 2)
+  for (const std::string dtype : {"float32", "float64", "float32+amplitude", "float64+amplitude"}) {
+    const bool amplitude = dtype.find("+amplitude") != std::string::npos;
+    const std::string real = dtype.substr(0, 7);
+    const Bytes b = amplitude ? fixture_amplitude(real.c_str()) : fixture(real.c_str());
     const Model m = Model::from_bytes(b.data(), b.size());
     eskin::Classifier clf(m);
     eskin::StreamClassifier sc(m);
@@ -587,6 +590,7 @@ TEST(ModelStream, SameDecisionAsBatchAndNoAllocation) {
     for (int rep = 0; rep < 3; ++rep) clf.classify(x.data(), 4, 4, T, T, &batch);
     g_counting = false;
     EXPECT_EQ(g_allocations.load(), 0) << dtype;
+    EXPECT_EQ(m.has_amplitude(), amplitude);
   }
 }
 
@@ -765,5 +769,141 @@ TEST(ModelAmplitude, BadAmplSectionsAreRefusedNamingFieldAndValue) {
   {
     const Bytes b = with_section_after_mach(fixture_amplitude("float64"), "note", Bytes{'h', 'i'});
     EXPECT_TRUE(Model::from_bytes(b.data(), b.size()).has_amplitude());
+  }
+}
+
+namespace {
+
+// The decision values of a float64 model, by hand from its stored bases: the input's bases by
+// BasisWorkspace, each overlap ||V_i^T V_x||_F^2 summed entry by entry, the docs' formula.
+std::vector<double> hand_decision(const Model& m, const std::vector<double>& x) {
+  const std::size_t A[3] = {static_cast<std::size_t>(m.alpha_store(0)),
+                            static_cast<std::size_t>(m.alpha_store(1)),
+                            static_cast<std::size_t>(m.alpha_store(2))};
+  eskin::BasisLayout layout({static_cast<std::size_t>(m.rows()), static_cast<std::size_t>(m.cols()),
+                             static_cast<std::size_t>(m.D())},
+                            {A[0], A[1], A[2]});
+  eskin::BasisWorkspace ws(layout);
+  std::vector<double> xb(layout.bases_size());
+  int rx[3];
+  EXPECT_EQ(ws.compute(x.data(), xb.data(), rx), eskin::KernelStatus::ok);
+  double sq = 0;
+  for (const double v : x) sq += v * v;
+  const double ex = std::log(sq / static_cast<double>(x.size()) + 1e-12);
+  std::vector<double> out;
+  for (const auto& mm : m.machines()) {
+    double f = mm.intercept;
+    for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
+      const std::size_t i = mm.sv_index[t];
+      double exponent = 0;
+      for (int z = 0; z < 3; ++z) {
+        const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
+        const std::size_t a = static_cast<std::size_t>(mm.alpha[static_cast<std::size_t>(z)]);
+        const double* vi = m.bases_f64(z) + i * A[z] * N;
+        const double* vx = xb.data() + layout.offset(static_cast<std::size_t>(z));
+        double ov = 0;
+        for (std::size_t k = 0; k < a; ++k)
+          for (std::size_t l = 0; l < a; ++l) {
+            double dot = 0;
+            for (std::size_t n = 0; n < N; ++n) dot += vi[k * N + n] * vx[l * N + n];
+            ov += dot * dot;
+          }
+        const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+        const int rxa = std::min(rx[z], static_cast<int>(a));
+        const double d = std::max(0.0, ri + rxa - 2 * ov);
+        const double s = mm.sigma[static_cast<std::size_t>(z)];
+        exponent += d / (2 * s * s);
+      }
+      if (mm.amplitude_width > 0) {
+        const double g = ex - m.sv_log_energy()[i];
+        exponent += g * g / (2 * mm.amplitude_width * mm.amplitude_width);
+      }
+      f += mm.coef[t] * std::exp(-exponent);
+    }
+    out.push_back(f);
+  }
+  return out;
+}
+
+std::vector<double> random_tensor(const Model& m, double scale, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, scale);
+  std::vector<double> x(static_cast<std::size_t>(m.rows()) * m.cols() * m.D());
+  for (double& v : x) v = g(rng);
+  return x;
+}
+
+}  // namespace
+
+TEST(ModelAmplitude, HostDecisionEqualsTheHandComputation) {
+  const Bytes b = fixture_amplitude("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  for (const double scale : {0.3, 1.0, 4.0}) {  // log energies about -2.4, 0 and 2.8
+    const std::vector<double> x = random_tensor(m, scale, 7);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const std::vector<double> want = hand_decision(m, x);
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "scale " << scale;
+  }
+}
+
+// The factor scales a machine's kernel terms and nothing else: when every support vector has
+// the input's log energy it is 1 and the decision is the version-1 model's, machine 1 (w = 0)
+// never depends on it, and the amplitude makes the other machines differ.
+TEST(ModelAmplitude, FactorIsOneAtEqualEnergyAndOnlyOnItsMachines) {
+  const Bytes v1 = fixture("float64");
+  const Model m1 = Model::from_bytes(v1.data(), v1.size());
+  const std::vector<double> x = random_tensor(m1, 2.0, 11);
+  const double ex = eskin::tensor_log_energy(x.data(), x.size());
+  eskin::Classifier c1(m1);
+  eskin::Decision d1;
+  ASSERT_EQ(c1.classify_tensor(x.data(), &d1), eskin::ClassifyStatus::kOk);
+  const std::vector<double> v1_values(d1.values, d1.values + 3);
+
+  const Bytes same = fixture_with_ampl(std::vector<double>(fixture_energies(v1).size(), ex), kFixtureWidths);
+  const Model ms = Model::from_bytes(same.data(), same.size());
+  eskin::Classifier cs(ms);
+  eskin::Decision ds;
+  ASSERT_EQ(cs.classify_tensor(x.data(), &ds), eskin::ClassifyStatus::kOk);
+  for (int k = 0; k < 3; ++k) EXPECT_DOUBLE_EQ(ds.values[k], v1_values[static_cast<std::size_t>(k)]);
+
+  const Bytes far = fixture_with_ampl(std::vector<double>(fixture_energies(v1).size(), ex + 3.0),
+                                      kFixtureWidths);
+  const Model mf = Model::from_bytes(far.data(), far.size());
+  eskin::Classifier cf(mf);
+  eskin::Decision df;
+  ASSERT_EQ(cf.classify_tensor(x.data(), &df), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(df.values[1], v1_values[1]);  // machine 1 has no factor
+  // machine 0 (w = 0.5): each term times exp(-9 / 0.5); machine 2 (w = 2): exp(-9 / 8)
+  const auto& mm = m1.machines();
+  EXPECT_NEAR(df.values[0] - mm[0].intercept, (v1_values[0] - mm[0].intercept) * std::exp(-18.0), 1e-12);
+  EXPECT_NEAR(df.values[2] - mm[2].intercept, (v1_values[2] - mm[2].intercept) * std::exp(-9.0 / 8.0), 1e-12);
+}
+
+// A tensor whose mean square overflows: the factor is 0, never NaN.
+TEST(ModelAmplitude, OverflowingInputGivesNoNaN) {
+  std::vector<double> huge(128, 1e200);
+  EXPECT_EQ(eskin::tensor_log_energy(huge.data(), huge.size()), INFINITY);
+  const std::vector<double> zero(128, 0.0);
+  EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(zero.data(), zero.size()), std::log(1e-12));
+  for (const char* dtype : {"float32", "float64"}) {
+    const Bytes b = fixture_amplitude(dtype);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    for (const double big : {1e150, 1e160, 1e200, 1e300}) {
+      std::vector<double> x = random_tensor(m, 1.0, 5);
+      for (double& v : x) v *= big;
+      eskin::Decision d;
+      const eskin::ClassifyStatus st = clf.classify_tensor(x.data(), &d);
+      if (st != eskin::ClassifyStatus::kOk) continue;  // refused (not finite) is fine too
+      for (int k = 0; k < 3; ++k) {
+        EXPECT_FALSE(std::isnan(d.values[k])) << dtype << " " << big;
+        if (m.machines()[static_cast<std::size_t>(k)].amplitude_width > 0 &&
+            !std::isfinite(eskin::tensor_log_energy(x.data(), x.size())))
+          EXPECT_EQ(d.values[k], m.machines()[static_cast<std::size_t>(k)].intercept) << big;
+      }
+    }
   }
 }
