@@ -176,6 +176,10 @@ void bind_model(py::module_& m) {
         return py::make_tuple(mm.alpha_store(0), mm.alpha_store(1), mm.alpha_store(2));
       })
       .def_property_readonly("file_bytes", &Model::file_bytes)
+      .def_property_readonly("format_version", &Model::format_version,
+                             "1, or 2 when some machine has an amplitude factor")
+      .def_property_readonly("sv_log_energy", &Model::sv_log_energy,
+                             "log energy of each support vector (format version 2), else []")
       .def_property_readonly("machines", [](const Model& mm) {
         py::list out;
         for (const auto& k : mm.machines()) {
@@ -187,6 +191,7 @@ void bind_model(py::module_& m) {
           d["sigmas"] = py::make_tuple(k.sigma[0], k.sigma[1], k.sigma[2]);
           d["sv_index"] = k.sv_index;
           d["coef"] = k.coef;
+          d["amplitude_width"] = k.amplitude_width;
           out.append(d);
         }
         return out;

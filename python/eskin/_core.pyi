@@ -88,6 +88,11 @@ class Model:
     def file_bytes(self) -> int:
         ...
     @property
+    def format_version(self) -> int:
+        """
+        1, or 2 when some machine has an amplitude factor
+        """
+    @property
     def is_float64(self) -> bool:
         ...
     @property
@@ -111,6 +116,11 @@ class Model:
     @property
     def subsample(self) -> str:
         ...
+    @property
+    def sv_log_energy(self) -> list[float]:
+        """
+        log energy of each support vector (format version 2), else []
+        """
     @property
     def window(self) -> str:
         ...
@@ -185,7 +195,7 @@ def window_config_defaults() -> numpy.typing.NDArray[numpy.float64]:
     ...
 def window_config_resolve(config: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], sample_rate_hz: typing.SupportsFloat | typing.SupportsIndex) -> dict:
     ...
-MODEL_FORMAT_VERSION: int = 1
+MODEL_FORMAT_VERSION: int = 2
 WINDOW_CONFIG_FIELDS: list = ['frame_s', 'dc_cutoff_hz', 'combine', 'noise_window_s', 'noise_quantile', 'warmup_s', 'min_noise_energy', 'on_factor', 'off_factor', 'release_fraction', 'lookback_s', 'hold_s', 'min_duration_s', 'pad_before_s', 'pad_after_s', 'max_window_s', 'select', 'span_fraction', 'fallback']
 __version__: str = '0.1.0'
 

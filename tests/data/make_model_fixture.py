@@ -36,7 +36,8 @@ def qr_bases(tensors, alphas):
     return ranks, bases
 
 
-def main() -> None:
+def fixture_spec() -> ModelSpec:
+    """The fixture's description (format version 1: no amplitude factor)."""
     rng = np.random.default_rng(0)
     D = 8
     pool = rng.standard_normal((9, 4, 4, D))
@@ -46,7 +47,7 @@ def main() -> None:
         machines.append(
             MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0), pool[idx], rng.standard_normal(5))
         )
-    spec = ModelSpec(
+    return ModelSpec(
         class_names=["brush", "finger", "washer"],
         rule="one_vs_all",
         machines=machines,
@@ -58,6 +59,10 @@ def main() -> None:
         window_config=WindowConfig(),  # the detector's defaults
         meta={"note": "loader test fixture, random bases"},
     )
+
+
+def main() -> None:
+    spec = fixture_spec()
     for dtype in ("float32", "float64"):
         out = Path(__file__).with_name(f"model_small_{dtype}.eskin")
         out.write_bytes(model_to_bytes(spec, dtype, bases_fn=qr_bases))

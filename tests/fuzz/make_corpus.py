@@ -48,11 +48,15 @@ def _section(b: bytes, tag: bytes) -> int:
         pos += 8 + (size + 7) // 8 * 8
 
 
-def tiny_model(dtype: str) -> bytes:
-    """A binary model on a 2x2 grid with D = 4 and three support vectors."""
+def tiny_model(dtype: str, amplitude_width: float = 0.0) -> bytes:
+    """A binary model on a 2x2 grid with D = 4 and three support vectors (format version 2, with
+    an amplitude factor, when amplitude_width > 0)."""
     rng = np.random.default_rng(3)
     sv = rng.standard_normal((3, 2, 2, 4))
-    machine = MachineSpec(1, 0, 0.25, (2, 2, 2), (1.0, 0.5, 2.0), sv, np.array([0.5, -1.0, 0.75]))
+    if amplitude_width > 0:  # support vectors of different energies
+        sv = sv * np.array([0.5, 1.0, 3.0])[:, None, None, None]
+    machine = MachineSpec(1, 0, 0.25, (2, 2, 2), (1.0, 0.5, 2.0), sv, np.array([0.5, -1.0, 0.75]),
+                          amplitude_width=amplitude_width)
     spec = ModelSpec(
         class_names=["brush", "finger"],
         rule="binary",
@@ -76,6 +80,16 @@ def model_corpus() -> None:
         b = bytearray(good)
         struct.pack_into("<d", b, mach + 8 + 24 + 8, 1e-300)  # sigma
         (d / f"sigma_tiny_{dtype}.eskin").write_bytes(_model_crc(b))
+    for dtype in ("float32", "float64"):  # format version 2: the amplitude factor (AMPL)
+        good = tiny_model(dtype, amplitude_width=0.75)
+        (d / f"tiny_amplitude_{dtype}.eskin").write_bytes(good)
+    ampl = _section(good, b"AMPL")
+    b = bytearray(good)
+    struct.pack_into("<d", b, ampl + 8 + 3 * 8, 1e-300)  # amplitude width
+    (d / "amplitude_width_tiny_float64.eskin").write_bytes(_model_crc(b))
+    b = bytearray(good)
+    struct.pack_into("<d", b, ampl + 8, float("nan"))  # a support vector's log energy
+    (d / "log_energy_nan_float64.eskin").write_bytes(_model_crc(b))
     shutil.copy(DATA / "model_small_float32.eskin", d / "small_one_vs_all_float32.eskin")
 
 

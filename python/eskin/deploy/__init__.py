@@ -11,6 +11,7 @@ from eskin.learn.models import load_model, save_model
 
 from .export import (
     FORMAT_VERSION,
+    FORMAT_VERSIONS,
     MAGIC,
     CompiledDecisions,
     CompiledModel,
@@ -19,6 +20,7 @@ from .export import (
     ModelSpec,
     compiled_engine,
     export_model,
+    format_version,
     model_to_bytes,
     spec_from_estimator,
     spec_from_model,
@@ -28,6 +30,7 @@ from .target import TARGETS, DeviceBudget, Target, device_budget
 
 __all__ = [
     "FORMAT_VERSION",
+    "FORMAT_VERSIONS",
     "MAGIC",
     "TARGETS",
     "CompiledDecisions",
@@ -40,6 +43,7 @@ __all__ = [
     "compiled_engine",
     "device_budget",
     "export_model",
+    "format_version",
     "load_model",
     "model_to_bytes",
     "save_model",

@@ -2,7 +2,8 @@
 
 The file format is specified in ``docs/model-format.md``. In short: a 32-byte header (magic,
 version, flags, size), four sections (preprocessing, classes, support-vector bases, machines) and a
-CRC-32 trailer. Support vectors are stored as their per-mode subspace bases (all the kernel needs
+CRC-32 trailer; a model whose machines have an amplitude factor is format version 2 and has a
+fifth section (the support vectors' log energies and the machines' amplitude widths). Support vectors are stored as their per-mode subspace bases (all the kernel needs
 at inference), deduplicated across the machines of a one-vs-all model.
 
 Three entry points:
@@ -31,6 +32,8 @@ __all__ = [
     "pattern_bases",
     "MAGIC",
     "FORMAT_VERSION",
+    "FORMAT_VERSIONS",
+    "format_version",
     "MachineSpec",
     "ModelSpec",
     "ModelFormatError",
@@ -44,7 +47,14 @@ __all__ = [
 ]
 
 MAGIC = b"\x89ESKIN\r\n"
-FORMAT_VERSION = 1
+#: The versions written: 1 (the tensor kernel), 2 (some machine has an amplitude factor: section
+#: AMPL). FORMAT_VERSION is the newest; each file is written in the lowest version that holds it.
+FORMAT_VERSIONS = (1, 2)
+FORMAT_VERSION = 2
+#: e(x) = log(mean(x^2) + LOG_ENERGY_FLOOR), as the C++ classifier (eskin::tensor_log_energy)
+LOG_ENERGY_FLOOR = 1e-12
+_MAX_LOG_ENERGY = 1e4
+_AMPLITUDE_WIDTH_RANGE = (1e-6, 1e6)
 HEADER_BYTES = 32
 FLAG_FLOAT64 = 1
 NAME_BYTES = 32
@@ -63,6 +73,11 @@ class MachineSpec:
     ``positive`` is the class index claimed when f(x) > 0; ``negative`` the class index when
     f(x) <= 0 for a binary model, -1 for a one-vs-all machine ("all the other classes").
     ``alphas`` and ``sigmas`` hold one value per tensor mode (rows, cols, D).
+
+    ``amplitude_width`` w > 0 multiplies each kernel term by
+    exp(-(e(x) - e(sv_i))^2 / (2 w^2)), e the log energy log(mean(x^2) + 1e-12); 0 (the default)
+    is the plain tensor kernel. ``sv_log_energy`` holds e() of each support vector (as the
+    estimator's ``sv_log_energy_``); None computes it from ``support_vectors``.
     """
 
     positive: int
@@ -72,6 +87,8 @@ class MachineSpec:
     sigmas: tuple[float, ...]
     support_vectors: np.ndarray  # (n_sv, rows, cols, D)
     dual_coef: np.ndarray  # (n_sv,)
+    amplitude_width: float = 0.0
+    sv_log_energy: np.ndarray | None = None  # (n_sv,)
 
 
 @dataclass
@@ -169,6 +186,46 @@ def _validate_spec(spec: ModelSpec) -> None:
                 )
             if not (np.isfinite(m.sigmas[z]) and m.sigmas[z] > 0):
                 raise ModelFormatError(f"machine {k}: sigma[{z}]={m.sigmas[z]} must be > 0")
+        _validate_amplitude(k, m, sv.shape[0])
+
+
+def _validate_amplitude(k: int, m: MachineSpec, n_sv: int) -> None:
+    """The amplitude width (0, or within the loader's range) and the given log energies."""
+    w = m.amplitude_width
+    lo, hi = _AMPLITUDE_WIDTH_RANGE
+    if not (np.isfinite(w) and (w == 0 or lo <= w <= hi)):
+        raise ModelFormatError(
+            f"machine {k}: amplitude_width={w!r} must be 0 (no amplitude factor) or within "
+            f"[{lo:g}, {hi:g}]"
+        )
+    if m.sv_log_energy is None:
+        return
+    e = np.asarray(m.sv_log_energy, dtype=np.float64)
+    if e.shape != (n_sv,):
+        raise ModelFormatError(
+            f"machine {k}: sv_log_energy shape {e.shape}, expected ({n_sv},) (one per support vector)"
+        )
+    bad = np.flatnonzero(~(np.abs(e) <= _MAX_LOG_ENERGY))
+    if bad.size:
+        raise ModelFormatError(
+            f"machine {k}: sv_log_energy[{bad[0]}]={float(e[bad[0]])!r} is not finite or outside "
+            f"[-{_MAX_LOG_ENERGY:g}, {_MAX_LOG_ENERGY:g}]"
+        )
+
+
+def format_version(spec: ModelSpec) -> int:
+    """The version a spec is written in: 2 if some machine has an amplitude factor, else 1."""
+    return 2 if any(float(m.amplitude_width) > 0 for m in spec.machines) else 1
+
+
+def _log_energy(tensors: np.ndarray) -> np.ndarray:
+    """e(x) = log(mean(x^2) + 1e-12) of each pattern (n, rows, cols, D) -> (n,), float64: the
+    amplitude factor's input, as the C++ classifier computes it (inf where the mean square
+    overflows)."""
+    flat = np.asarray(tensors, dtype=np.float64).reshape(len(tensors), -1)
+    with np.errstate(over="ignore"):
+        mean_square = np.einsum("ij,ij->i", flat, flat) / flat.shape[1]
+    return np.log(mean_square + LOG_ENERGY_FLOOR)
 
 
 def _window_fields(cfg: Any) -> dict[str, float]:
@@ -225,24 +282,29 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
         raise ModelFormatError(f"dtype={dtype!r}: expected 'float32' or 'float64'")
     _validate_spec(spec)
     real = np.dtype("<f8") if dtype == "float64" else np.dtype("<f4")
+    version = format_version(spec)
     unique, machine_terms = _unique_support_vectors(spec)
     alpha_store = tuple(max(int(m.alphas[z]) for m in spec.machines) for z in range(3))
     ranks, bases = bases_fn(np.stack(unique), alpha_store)
 
-    meta = json.dumps(
-        {"format": "eskin-model", "dtype": dtype, **spec.meta}, sort_keys=True, default=str
-    ).encode("utf-8")
+    meta_fields = {"format": "eskin-model", "dtype": dtype, **spec.meta}
+    if version >= 2:  # a version-1 file's meta (and every byte of it) is as it always was
+        meta_fields["amplitude"] = True
+        meta_fields["amplitude_widths"] = [float(m.amplitude_width) for m in spec.machines]
+    meta = json.dumps(meta_fields, sort_keys=True, default=str).encode("utf-8")
     sections = [
         _section(b"PREP", _prep_section(spec)),
         _section(b"CLAS", _clas_section(spec)),
         _section(b"SVBS", _svbs_section(spec, len(unique), alpha_store, ranks, bases, real)),
         _section(b"MACH", _mach_section(spec, machine_terms, real)),
-        _section(b"meta", meta),
     ]
+    if version >= 2:
+        sections.append(_section(b"AMPL", _ampl_section(spec, unique)))
+    sections.append(_section(b"meta", meta))
     body_len = HEADER_BYTES + sum(len(s) for s in sections)
     flags = FLAG_FLOAT64 if dtype == "float64" else 0
     header = MAGIC + struct.pack(
-        "<HHIIIII", FORMAT_VERSION, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
+        "<HHIIIII", version, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
     )
     body = header + b"".join(sections)
     return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
@@ -266,6 +328,48 @@ def _unique_support_vectors(spec: ModelSpec) -> tuple[list[np.ndarray], list[dic
             terms[idx] = terms.get(idx, 0.0) + float(c)  # a repeated pattern: one term
         machine_terms.append(terms)
     return unique, machine_terms
+
+
+def _table_log_energies(spec: ModelSpec, unique: list[np.ndarray]) -> np.ndarray:
+    """e() of each support vector of the table: the machines' own values where they give them
+    (the same tensor must have the same energy in every machine), else computed."""
+    table = {x.tobytes(): i for i, x in enumerate(unique)}
+    energy = np.full(len(unique), np.nan)
+    owner = np.full(len(unique), -1)
+    for k, m in enumerate(spec.machines):
+        if m.sv_log_energy is None:
+            continue
+        sv = np.ascontiguousarray(m.support_vectors, dtype=np.float64)
+        for j, (x, e) in enumerate(zip(sv, np.asarray(m.sv_log_energy, dtype=np.float64))):
+            i = table[x.tobytes()]
+            if owner[i] >= 0 and abs(energy[i] - e) > 1e-9 * (1.0 + abs(e)):
+                raise ModelFormatError(
+                    f"machine {k}: sv_log_energy[{j}]={float(e)!r}, but the same support vector "
+                    f"has {float(energy[i])!r} in machine {owner[i]} (one pattern, one energy)"
+                )
+            if owner[i] < 0:
+                energy[i], owner[i] = e, k
+    missing = np.flatnonzero(owner < 0)
+    if missing.size:
+        energy[missing] = _log_energy(np.stack([unique[i] for i in missing]))
+    bad = np.flatnonzero(~(np.abs(energy) <= _MAX_LOG_ENERGY))
+    if bad.size:
+        raise ModelFormatError(
+            f"support vector {bad[0]}: log energy {float(energy[bad[0]])!r} is not finite or "
+            f"outside [-{_MAX_LOG_ENERGY:g}, {_MAX_LOG_ENERGY:g}]"
+        )
+    return energy
+
+
+def _ampl_section(spec: ModelSpec, unique: list[np.ndarray]) -> bytes:
+    """AMPL (format version 2): the support vectors' log energies, the machines' widths."""
+    energy = _table_log_energies(spec, unique)
+    widths = np.array([float(m.amplitude_width) for m in spec.machines], dtype="<f8")
+    return (
+        struct.pack("<II", len(unique), len(spec.machines))
+        + energy.astype("<f8").tobytes()
+        + widths.tobytes()
+    )
 
 
 def _prep_section(spec: ModelSpec) -> bytes:
@@ -334,6 +438,12 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
     coef = np.asarray(est.dual_coef_, dtype=np.float64).reshape(-1)
     if sv.shape[0] == 0:
         raise ModelFormatError(f"{where}: the machine has no support vectors; nothing to export")
+    width = float(getattr(est, "amplitude_width_", 0.0) or 0.0)
+    energy = getattr(est, "sv_log_energy_", None)
+    if width > 0 and energy is None:
+        raise ModelFormatError(
+            f"{where}: amplitude_width_={width!r} but no fitted attribute 'sv_log_energy_'"
+        )
     return MachineSpec(
         positive=positive,
         negative=negative,
@@ -342,6 +452,8 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
         sigmas=tuple(float(s) for s in est.sigmas_),
         support_vectors=sv,
         dual_coef=coef,
+        amplitude_width=width,
+        sv_log_energy=None if energy is None else np.asarray(energy, dtype=np.float64).reshape(-1),
     )
 
 
@@ -479,7 +591,8 @@ def write_c_header(model_or_file: Any, path: PathLike, *, name: str = "eskin_mod
     ident = _c_ident(name)
     guard = ident.upper() + "_H"
     lines = [
-        f"/* {ident}: an eskin model (.eskin format version {FORMAT_VERSION}, docs/model-format.md)",
+        f"/* {ident}: an eskin model (.eskin format version {cm.format_version}, "
+        "docs/model-format.md)",
         f" * classes: {', '.join(cm.class_names)} ({cm.rule})",
         f" * grid {cm.grid_shape[0]}x{cm.grid_shape[1]}, D = {cm.D}, window {cm.window}, "
         f"subsample {cm.subsample}, {cm.sample_rate_hz:g} Hz",
@@ -600,6 +713,13 @@ class CompiledModel:
     is_float64 = property(lambda self: bool(self._model.is_float64))
     file_bytes = property(lambda self: int(self._model.file_bytes))
     machines = property(lambda self: list(self._model.machines))
+    format_version = property(lambda self: int(self._model.format_version))
+    #: e() of each support vector (format version 2), else an empty array
+    sv_log_energy = property(lambda self: np.asarray(self._model.sv_log_energy, dtype=np.float64))
+    #: each machine's amplitude width (0: no amplitude factor)
+    amplitude_widths = property(
+        lambda self: tuple(float(m["amplitude_width"]) for m in self._model.machines)
+    )
 
     def __repr__(self) -> str:
         return (

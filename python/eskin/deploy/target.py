@@ -117,6 +117,10 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
         size * 8 + bases * real + 2 * size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
     )
     tables = groups * cm.n_support * 3 * 4 + cm.n_support * 3 * 4 + terms * 12
+    if cm.format_version >= 2:
+        # the amplitude factor: the support vectors' log energies (double) and the classifier's
+        # squared gaps to the input's (float)
+        tables += cm.n_support * (8 + 4)
     flash = {"model": cm.file_bytes, "program": t.program_flash_bytes}
     ram = {
         "detector samples": samples,
@@ -140,7 +144,7 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
             ),
             "float32 instead of float64"
             if cm.is_float64
-            else "float16 bases would halve them (not in model format version 1)",
+            else "float16 bases would halve them (not in the model format)",
         ]
     if sum(ram.values()) > t.ram_bytes:
         per = taxels * 2 * cm.sample_rate_hz / 10
