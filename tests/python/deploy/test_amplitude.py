@@ -266,16 +266,65 @@ def test_c_header_and_device_budget_of_a_version_2_model(campaign, tmp_path):
     assert b2.ram["model tables"] - b1.ram["model tables"] == n_sv * 12
 
 
-def test_an_estimator_with_a_width_but_no_energies_is_refused(campaign):
-    from eskin.learn.estimators import TensorRLS
+def _fit(campaign, D, machine, n_classes, amplitude):
+    """A real machine with the amplitude factor, trained on the first 3 participants."""
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
 
-    X = _patterns(campaign, 20)
-    y = (np.asarray(campaign.modality) == 0).astype(int)
-    est = TensorRLS(lam=0.1, sigma=0.5, alpha="half").fit(X, y)
-    if getattr(est, "amplitude_width_", 0.0) == 0.0:
-        est.amplitude_width_ = 1.0  # as a fitted estimator with the factor but no energies
-    if hasattr(est, "sv_log_energy_"):
-        del est.sv_log_energy_
-    with pytest.raises(ModelFormatError, match="binary machine: amplitude_width_=1.0 but no "
+    X = _patterns(campaign, D)
+    y = np.asarray(campaign.modality).astype(np.int64)
+    part = np.asarray(campaign.participant)
+    train = np.isin(part, np.unique(part)[:3])
+    if n_classes == 2:
+        train &= y < 2
+    base = (TensorSVC(C=10.0, sigma=0.5, alpha="half", amplitude=amplitude) if machine == "svm"
+            else TensorRLS(lam=0.1, sigma=0.5, alpha="half", amplitude=amplitude))
+    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
+    return est.fit(X[train], y[train]), X
+
+
+@pytest.mark.parametrize("machine", ["svm", "rls"])
+@pytest.mark.parametrize("n_classes", [2, 3])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_exported_estimators_decide_like_python(campaign, machine, n_classes, dtype):
+    """TensorSVC / TensorRLS(amplitude=1.0), alone or one-vs-all: the C++ decision values on the
+    raw recordings of the whole campaign against the estimator's decision_function."""
+    est, X = _fit(campaign, 20, machine, n_classes, amplitude=1.0)
+    names = list(campaign.modalities[:n_classes])
+    spec = spec_from_estimator(est, names, D=20, grid_shape=(4, 4),
+                               sample_rate_hz=campaign.sample_rate_hz)
+    assert all(m.amplitude_width > 0 for m in spec.machines)
+    data = model_to_bytes(spec, dtype)
+    cm = CompiledModel(data)
+    assert cm.format_version == 2
+    got = cm.classify(np.asarray(campaign.signals), np.asarray(campaign.lengths))
+    F = np.asarray(est.decision_function(X), float).reshape(len(X), -1)
+    _, scale = _python_decisions(spec, X)
+    if dtype == "float64":
+        np.testing.assert_allclose(got.decision_values, F, rtol=0, atol=1e-6)
+        assert np.abs(got.decision_values - F).max() < 1e-9  # measured: ~1e-15
+        labels = est.predict(X)
+        if n_classes == 2:
+            labels = (F[:, 0] > 0).astype(int)
+        np.testing.assert_array_equal(got.label_indices, labels)
+    else:
+        assert np.all(np.abs(got.decision_values - F) <= 1e-4 * scale)
+    # the estimator's energies are the table's, and the formula's e()
+    machines = est.estimators_ if n_classes > 2 else [est]
+    for m in machines:
+        np.testing.assert_allclose(m.sv_log_energy_, _log_energy(m.support_vectors_), atol=1e-12)
+    np.testing.assert_allclose(eskin.pattern_log_energy(X), _log_energy(X), rtol=0, atol=1e-12)
+
+
+def test_an_estimator_without_the_factor_exports_version_1(campaign):
+    est, _ = _fit(campaign, 20, "rls", 2, amplitude=None)
+    assert est.amplitude_width_ == 0.0
+    spec = spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4))
+    assert struct.unpack_from("<H", model_to_bytes(spec), 8)[0] == 1
+
+
+def test_an_estimator_with_a_width_but_no_energies_is_refused(campaign):
+    est, _ = _fit(campaign, 20, "rls", 2, amplitude=1.0)
+    del est.sv_log_energy_  # as a machine fitted by other code, without the energies
+    with pytest.raises(ModelFormatError, match=r"binary machine: amplitude_width_=.* but no "
                        "fitted attribute 'sv_log_energy_'"):
         spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4))
