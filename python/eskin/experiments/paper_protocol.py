@@ -906,7 +906,7 @@ def _prepare_analysis_set(
         run=used_run,
         excluded=[_jsonable(p) for p in excluded],
         exclusion_rule=rule,
-        notes=notes,
+        notes=notes + (prep.notes if cfg.window == "energy" else []),
         scores=scores,
     )
     X = {k: v[keep] for k, v in prep.X.items()}

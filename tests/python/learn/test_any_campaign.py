@@ -205,3 +205,17 @@ def test_segments_shorter_than_D_and_alpha_are_interpolated():
     other = eskin.preprocess(np.array([[[[3, 1, 4], [1, 5, 9]]]], np.int16), 7, window="none")
     K = tensor_kernel(np.concatenate([X, other]), sigma=1.0, alpha="full")
     assert np.all(np.isfinite(K)) and np.allclose(np.diag(K), 1.0)
+
+
+def test_the_experiment_report_says_when_the_detector_was_adapted_to_the_rate(tmp_path):
+    from eskin.experiments.paper_protocol import run_experiment
+
+    camp = shaped_campaign(tmp_path / "c.h5", rows=3, cols=5, rate=10.0, participants=4)
+    res = run_experiment(
+        camp, tmp_path / "exp", quick=True, Ds=(20,), problems=["gesture0,gesture1"],
+        progress=False, baseline=False, runs=1,
+    )
+    notes = res["analysis_set"]["notes"]
+    assert any("WindowConfig.dc_cutoff_hz = 5 Hz is not below half the sample rate" in n
+               for n in notes), notes
+    assert "dc_cutoff_hz = 5 Hz" in (tmp_path / "exp" / "report.md").read_text()
