@@ -192,3 +192,14 @@ def test_train_refuses_a_bad_amplitude(one_person, tmp_path, bad):
     assert r.exit_code == 2
     assert f"error: --amplitude {bad}: amplitude must be 'off' or a positive number" in r.output
     assert not out.exists()
+
+
+def test_train_groups_its_cv_splits_by_the_label_it_is_given(one_person, tmp_path):
+    out = tmp_path / "m.joblib"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "-o", str(out)]
+    r = CliRunner().invoke(app, [*args, "--groups", "direction", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert eskin.load_model(out).training["cv_split_by"] in ("direction", "recordings")
+    r = CliRunner().invoke(app, [*args, "--groups", "nosuch", "--force"])
+    assert r.exit_code == 2
+    assert "error: --groups 'nosuch': no such label; the campaign has participant" in r.output

@@ -115,6 +115,26 @@ def _amplitudes(text: Optional[str]) -> dict[str, Any]:
         _fail(f"--amplitude {text}: {exc}")
 
 
+def _train_and_save(
+    campaign: Path, output: Path, recipe: dict[str, Any], scheduler: Optional[str], progress: bool
+) -> Any:
+    """train_model(campaign, **recipe) on the scheduler's cluster (if any) with a progress
+    display, saved to ``output``; a one-line error for bad input."""
+    from eskin._progress import progress_bar
+    from eskin.deploy import save_model
+    from eskin.learn.models import train_model
+    from eskin.learn.parallel import compute_backend
+
+    try:
+        with compute_backend(scheduler), progress_bar(progress) as bar:
+            bar.add_task(f"training ({recipe['selection']} search)", total=None)
+            model = train_model(campaign, **recipe)
+        save_model(model, output)
+    except (ValueError, OSError, KeyError) as exc:
+        _fail(str(exc))
+    return model
+
+
 def _selected_lines(model: Any) -> list[str]:
     """The setting each machine of a trained model selected, a line each."""
     lines = []
@@ -221,6 +241,11 @@ def train(
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
     subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
     amplitude: Optional[str] = typer.Option(None, help=AMPLITUDE_HELP),
+    groups: str = typer.Option(
+        "participant",
+        help="label whose groups the cv splits keep apart: participant, run, direction or an "
+        "integer extra field",
+    ),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -238,11 +263,7 @@ def train(
     (--selection md); see docs/selection-study.md.
     """
     from eskin._files import refuse_overwrite
-    from eskin._progress import progress_bar
-    from eskin.deploy import save_model
     from eskin.learn.evaluation_report import selection_estimate_lines
-    from eskin.learn.models import train_model
-    from eskin.learn.parallel import compute_backend
 
     amplitudes = _amplitudes(amplitude)
     if (classes is None) == (not all_classes):
@@ -254,25 +275,20 @@ def train(
     names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
     for note in _training_set_notes(campaign, D, selection.value):
         typer.echo(f"note: {note}")
-    try:
-        with compute_backend(scheduler), progress_bar(progress) as bar:
-            bar.add_task(f"training ({selection.value} search)", total=None)
-            model = train_model(
-                campaign,
-                classes=names,
-                machine=machine.value,
-                selection=selection.value,
-                D=D,
-                window=window.value,
-                subsample=subsample.value,
-                quick=quick,
-                seed=seed,
-                n_jobs=-1 if scheduler else n_jobs,
-                **amplitudes,
-            )
-        save_model(model, output)
-    except (ValueError, OSError, KeyError) as exc:
-        _fail(str(exc))
+    recipe = {
+        "classes": names,
+        "machine": machine.value,
+        "selection": selection.value,
+        "D": D,
+        "window": window.value,
+        "subsample": subsample.value,
+        "quick": quick,
+        "seed": seed,
+        "n_jobs": -1 if scheduler else n_jobs,
+        "group_by": groups,
+        **amplitudes,
+    }
+    model = _train_and_save(campaign, output, recipe, scheduler, progress)
     for note in model.training.get("notes", []):
         typer.echo(f"note: {note}")
     typer.echo(
