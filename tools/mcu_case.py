@@ -2,8 +2,10 @@
 
 Simulates a small demo campaign (SIMULATED data), trains the MCU preset of the demo model on all
 participants but the last (tensor-RLS, Maximal Discrepancy selection on the quick grid, D and the
-detector's longest window cut to fit a Cortex-M4F: see docs/mcu.md), exports it as a float32
-``.eskin`` model and streams a few held-out recordings of the last participant through the
+detector's longest window cut to fit a Cortex-M4F: see docs/mcu.md), with the amplitude-aware
+kernel (``--amplitude SIGMA``, the estimators' ``amplitude``: default 1.0, so that the device's
+parity check covers the factor; ``--amplitude off`` for the plain tensor kernel), exports it as a
+float32 ``.eskin`` model (format version 2 with the factor, 1 without) and streams a few held-out recordings of the last participant through the
 host's C++ stream classifier (float64 arithmetic) for the reference decisions. Writes into OUT:
 
 * ``model.eskin``: the model;
@@ -17,7 +19,7 @@ host's C++ stream classifier (float64 arithmetic) for the reference decisions. W
 The model's flash and RAM on the target are reported (eskin.deploy.target) before anything is
 written.
 
-    python tools/mcu_case.py OUT [--D 20] [--max-window-s 0.4] [--per-class 2]
+    python tools/mcu_case.py OUT [--D 20] [--max-window-s 0.4] [--per-class 2] [--amplitude 1.0]
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ def build_case(
     per_class: int,
     seed: int,
     alpha: str | None = None,
+    amplitude: float | None = None,
 ) -> dict:
     import eskin
     from eskin import WindowConfig
@@ -77,6 +80,8 @@ def build_case(
             "md_options": {"n_labelings": 3},
         }
     )
+    if amplitude is not None:  # the amplitude factor's width, in spreads of log energy
+        grid["amplitudes"] = (amplitude,)
     model = eskin.train_model(
         camp.subset(train_idx),
         machine="rls",
@@ -139,6 +144,8 @@ def build_case(
     (out / "mcu_case.h").write_text("\n".join(lines))
     return {
         "model_bytes": len(data),
+        "format_version": compiled.format_version,
+        "amplitude_widths": "/".join(f"{w:.4g}" for w in compiled.amplitude_widths),
         "n_support": compiled.n_support,
         "D": D,
         "recordings": len(chosen),
@@ -146,6 +153,15 @@ def build_case(
         "decisions": len(decisions),
         "classes": names,
     }
+
+
+def _amplitude(text: str) -> float | None:
+    if text.lower() in ("off", "none"):
+        return None
+    value = float(text)
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"--amplitude must be 'off' or > 0, got {text!r}")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -162,6 +178,14 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="one alpha instead of the quick grid's choice",
     )
+    ap.add_argument(
+        "--amplitude",
+        type=_amplitude,
+        default=1.0,
+        metavar="SIGMA",
+        help="train with the amplitude factor of this width, in spreads of the training "
+        "patterns' log energy (default 1.0); 'off': the plain tensor kernel",
+    )
     a = ap.parse_args(argv)
     info = build_case(
         a.out,
@@ -171,6 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         per_class=a.per_class,
         seed=a.seed,
         alpha=a.alpha,
+        amplitude=a.amplitude,
     )
     print("mcu case: " + ", ".join(f"{k}={v}" for k, v in info.items()))
     return 0
