@@ -190,7 +190,7 @@ def test_train_refuses_a_bad_amplitude(one_person, tmp_path, bad):
     args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "-o", str(out)]
     r = CliRunner().invoke(app, [*args, "--amplitude", bad])
     assert r.exit_code == 2
-    assert f"error: --amplitude {bad}: amplitude must be 'off' or a positive number" in r.output
+    assert f"error: --amplitude {bad}: amplitude must be 'off' or a number in [0.01, 100]" in r.output
     assert not out.exists()
 
 

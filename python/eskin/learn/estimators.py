@@ -101,14 +101,26 @@ def sigma_tuple(sigma, n_modes: int) -> tuple[float, ...]:
 MIN_ENERGY_SPREAD = 0.05
 
 
+#: The amplitude values the estimators accept (in spreads of log energy): beyond them the factor
+#: is either a step that no test touch passes or 1 everywhere, and the deployable model format
+#: bounds the width it stores.
+AMPLITUDE_RANGE = (1e-2, 1e2)
+
+
 def check_amplitude(amplitude) -> float | None:
-    """``amplitude`` as a positive float, or None (no amplitude factor); ValueError otherwise."""
+    """``amplitude`` as a float in :data:`AMPLITUDE_RANGE`, or None (no amplitude factor);
+    ValueError otherwise."""
     if amplitude is None:
         return None
-    if isinstance(amplitude, (bool, np.bool_)) or not isinstance(amplitude, numbers.Real):
-        raise ValueError(f"amplitude must be None or a positive number, got {amplitude!r}")
-    if not (np.isfinite(amplitude) and amplitude > 0):
-        raise ValueError(f"amplitude must be None or a positive number, got {amplitude!r}")
+    low, high = AMPLITUDE_RANGE
+    if (
+        isinstance(amplitude, (bool, np.bool_))
+        or not isinstance(amplitude, numbers.Real)
+        or not low <= amplitude <= high
+    ):
+        raise ValueError(
+            f"amplitude must be None or a number in [{low:g}, {high:g}], got {amplitude!r}"
+        )
     return float(amplitude)
 
 

@@ -119,8 +119,13 @@ def _checked_amplitude(value: Any) -> float | None:
         amplitude = float(value)
     except (TypeError, ValueError):
         amplitude = float("nan")
-    if not (np.isfinite(amplitude) and amplitude > 0):
-        raise TrainingError(f"amplitude must be 'off' or a positive number, got {value!r}")
+    from eskin.learn.estimators import AMPLITUDE_RANGE
+
+    low, high = AMPLITUDE_RANGE
+    if not low <= amplitude <= high:
+        raise TrainingError(
+            f"amplitude must be 'off' or a number in [{low:g}, {high:g}], got {value!r}"
+        )
     return amplitude
 
 
