@@ -77,6 +77,25 @@ CAMPAIGNS = {
     ),
     "d1-30p": ("d1-30p", {"difficulty": 1.0, "participants": 30}, {}, "energy"),
 }
+#: campaigns unlike the built-in one, for the amplitude-aware kernel (``--part amplitude``): a
+#: 1x4 strip, 200 Hz sampling, and every modality pressed with the same mean force and a wider
+#: spread of force between participants (amplitude is then a nuisance, not a cue)
+OTHER_CAMPAIGNS = {
+    "d1-1x4": ("d1-1x4", {"difficulty": 1.0, "participants": 70}, {"rows": 1, "cols": 4}, "energy"),
+    "d1-200Hz": (
+        "d1-200Hz",
+        {"difficulty": 1.0, "participants": 70},
+        {"sample_rate_hz": 200.0, "bpf_lowpass_hz": 90.0, "brush_band_hz": (15.0, 90.0)},
+        "energy",
+    ),
+    "d1-sameforce": (
+        "d1-sameforce",
+        {"difficulty": 1.0, "participants": 70},
+        {"brush_force_n": 1.0, "finger_force_n": 1.0, "washer_force_n": 1.0,
+         "style_force_sigma": 0.8},
+        "energy",
+    ),
+}
 QUICK_CAMPAIGNS = {
     "q-d1": ("q-d1", {"difficulty": 1.0, "participants": 16}, {"duration_s": 4.0}, "energy"),
     "q-d2-none": ("q-d2", {"difficulty": 2.0, "participants": 16}, {"duration_s": 4.0}, "none"),
@@ -399,6 +418,58 @@ def recipes_unit(cache, name, spec, problem, split, ds, grid, reading, beyond_d,
 
 
 # --------------------------------------------------------------------------------------------
+# the amplitude-aware kernel as the estimators and eskin train run it
+#: recipe -> (D, the grid's amplitude values, None: no "amplitude" key)
+AMPLITUDE_RECIPES = {
+    "cv/D100/algorithm2": (100, None),
+    "cv/D100/algorithm2/amp:1,4": (100, [1.0, 4.0]),
+    "cv/D100/algorithm2/amp:off,1,4": (100, [None, 1.0, 4.0]),
+    "cv/D100/algorithm2/amp:off,0.5,1,2,4": (100, [None, 0.5, 1.0, 2.0, 4.0]),
+    "cv/D50/algorithm2": (50, None),
+    "cv/D50/algorithm2/amp:off,1,4": (50, [None, 1.0, 4.0]),
+}
+
+
+def product_cv_row(kind, X, y, groups, train, test, grid, seed, recipe, dists, energies):
+    """Participant-grouped CV over ``grid`` on the training part, then the chosen estimator
+    refitted there (the estimators' own code, amplitude factor included) and scored on the
+    test part."""
+    est = TensorSVC() if kind == "svm" else TensorRLS()
+    cv = CrossValidationSearch(
+        est, grid, n_splits=10, test_size=0.3, random_state=seed, refit=False
+    ).fit_distances(dists, y[train], X.shape[1:], groups[train], energies=energies)
+    model = est.set_params(**cv.best_params_).fit(X[train], y[train])
+    return {
+        "recipe": recipe,
+        "machine": kind,
+        "test_error": float(np.mean(model.predict(X[test]) != y[test])),
+        "cv_estimate": float(cv.best_criterion_),
+        "chosen": {k: v for k, v in cv.best_params_.items()},
+    }
+
+
+def amplitude_unit(cache, name, spec, problem, split, grid, seed, machines):
+    """Rows of every :data:`AMPLITUDE_RECIPES` recipe on one (campaign, problem, split)."""
+    rows = []
+    for D in sorted({d for d, _ in AMPLITUDE_RECIPES.values()}):
+        X, mod, part, names = patterns(cache, name, spec, D, "algorithm2")
+        idx, y, groups, train, test = problem_split(mod, part, names, problem, split)
+        Xp = X[idx]
+        dists = all_distances(Xp[train])
+        energies = eskin.pattern_log_energy(Xp[train])
+        for recipe, (d, amps) in AMPLITUDE_RECIPES.items():
+            if d != D:
+                continue
+            g = dict(grid) if amps is None else {**grid, "amplitude": amps}
+            for kind in machines:
+                rows.append(
+                    product_cv_row(kind, Xp, y, groups, train, test, g, seed, recipe, dists,
+                                   energies)
+                )
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
 # why: how well each criterion ranks the grid by held-out error
 DIAGNOSED = {
     "md:lloyd": md_reading("lloyd"),
@@ -695,6 +766,55 @@ def default_table(rows, default=DEFAULT_RECIPE):
     return "\n".join(lines)
 
 
+#: what eskin train does with no options since the amplitude-aware kernel is deployable
+TRAIN_DEFAULT = ("svm", "cv/D100/algorithm2/amp:off,1,4")
+
+
+def default_vs_best_table(rows, default=TRAIN_DEFAULT):
+    """Per campaign: eskin train's default recipe against the best recipe of ``rows`` (the
+    best of several recipes on the same units is an optimistic yardstick)."""
+    head = f"tensor-{default[0].upper()} {default[1]}"
+    lines = [
+        f"| campaign | default: {head} | best recipe | its error | default - best | units |",
+        "| --- | ---: | --- | ---: | ---: | ---: |",
+    ]
+    for c in sorted({r["campaign"] for r in rows}):
+        means = {}
+        for r in rows:
+            if r["campaign"] == c:
+                means.setdefault((r["machine"], r["recipe"]), []).append(r["test_error"])
+        n = min(len(v) for v in means.values())
+        full = {k: 100 * np.mean(v) for k, v in means.items() if len(v) == n}
+        if default not in full:
+            continue
+        best = min(full, key=full.get)
+        lines.append(
+            f"| {c} | {full[default]:.1f} | tensor-{best[0].upper()} {best[1]} | "
+            f"{full[best]:.1f} | {full[default] - full[best]:+.1f} | {n} |"
+        )
+    return "\n".join(lines)
+
+
+def amplitude_tables(rows):
+    """The amplitude part's markdown: recipes over all campaigns, per campaign, and the
+    default against the best."""
+    ref = "cv/D100/algorithm2"
+    parts = [
+        f"\n## The amplitude-aware kernel as eskin trains it (held-out error %, vs {ref})\n",
+        method_table(rows, "recipe", ref),
+    ]
+    for kind in ("svm", "rls"):
+        parts += [
+            f"\n## Amplitude recipes per campaign, tensor-{kind.upper()}\n",
+            campaign_table(rows, "recipe", list(AMPLITUDE_RECIPES), kind),
+        ]
+    parts += [
+        "\n## eskin train's default against the best amplitude recipe, per campaign\n",
+        default_vs_best_table(rows),
+    ]
+    return parts
+
+
 def merge_recipes(rows, readings_file, reading, d_read):
     """Add the readings part's MD rows at ``d_read`` as recipe rows of the same units."""
     units = {r["unit"] for r in rows}
@@ -749,6 +869,9 @@ def write_tables(
                 f"\n## Recipes per campaign, tensor-{kind.upper()}\n",
                 campaign_table(rows, "recipe", recipes, kind),
             ]
+    amplitude_file = out / "results_amplitude.jsonl"
+    if amplitude_file.exists():
+        parts += amplitude_tables(load_rows(amplitude_file))
     diagnose_file = out / "results_diagnose.jsonl"
     if diagnose_file.exists():
         parts += [
@@ -763,7 +886,12 @@ def write_tables(
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="two small campaigns, a small grid")
-    ap.add_argument("--part", choices=("readings", "recipes", "all", "diagnose"), default="all")
+    ap.add_argument(
+        "--part", choices=("readings", "recipes", "all", "diagnose", "amplitude"), default="all"
+    )
+    ap.add_argument(
+        "--machines", default="svm,rls", help="machines of --part amplitude (comma-separated)"
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
         "--splits", type=int, default=2, help="participant splits per problem (d0-d3; 1 else)"
@@ -776,7 +904,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     campaigns = QUICK_CAMPAIGNS if args.quick else CAMPAIGNS
     if args.campaigns:
-        campaigns = {k: campaigns[k] for k in args.campaigns.split(",")}
+        pool = campaigns if args.quick else {**campaigns, **OTHER_CAMPAIGNS}
+        campaigns = {k: pool[k] for k in args.campaigns.split(",")}
     grid = QUICK_GRID if args.quick else PAPER_GRID
     cache = args.cache / ("quick" if args.quick else "full")
     out = args.out or cache
@@ -786,7 +915,25 @@ def main(argv=None):
     core = {"d0", "d1", "d2", "d3", "q-d1"}
     readings_file, recipes_file = out / "results_readings.jsonl", out / "results_recipes.jsonl"
     diagnose_file = out / "results_diagnose.jsonl"
-    if args.part == "diagnose" and not args.tables_only:
+    amplitude_file = out / "results_amplitude.jsonl"
+    if args.part == "amplitude" and not args.quick and not args.campaigns:
+        campaigns = {**campaigns, **OTHER_CAMPAIGNS}
+    if args.part == "amplitude" and not args.tables_only:
+        prepare(cache, campaigns, [(D, "algorithm2") for D in (50, 100)], args.jobs)
+        machines = args.machines.split(",")
+        tasks = [
+            (
+                f"A|{name}|{problem}|{split}",
+                amplitude_unit,
+                (cache, name, spec, problem, split, grid, 1000 * split + ord(problem), machines),
+                amplitude_file,
+            )
+            for split in range(args.splits)
+            for name, spec in campaigns.items()
+            for problem in PROBLEMS
+        ]
+        run_units(tasks, args.jobs)
+    elif args.part == "diagnose" and not args.tables_only:
         prepare(cache, campaigns, [(d_read, "algorithm2")], args.jobs)
         tasks = [
             (
