@@ -1,8 +1,8 @@
 """`make demo`: the whole eskin story on the built-in simulated campaign, in a few minutes.
 
 1. simulate a campaign (SIMULATED data, :func:`eskin.simulate`);
-2. train a 3-class model (tensor-RLS by default, or tensor-SVM) with Maximal Discrepancy
-   selection on some participants
+2. train a 3-class model with ``eskin train``'s default recipe (tensor-SVM, or tensor-RLS,
+   selected by participant-grouped cross-validation) on some participants
    (:func:`eskin.models.train_model`), save it and export it to a ``.eskin`` file
    (:func:`eskin.export.export_model`);
 3. write the held-out participants' recordings as a replay file
@@ -143,7 +143,7 @@ def run_demo(
     seed: int = 0,
     n_jobs: int = 2,
     quick: bool = False,
-    machine: str = "rls",
+    machine: str = "svm",
     max_recordings: Optional[int] = None,
     gap_s: float = 0.5,
     log: Optional[Callable[[str], None]] = None,
@@ -179,7 +179,7 @@ def run_demo(
     # 2. train, save, export
     t0 = time.perf_counter()
     n_train_parts = len(np.unique(camp.participant)) - test_participants
-    say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} with MD selection on "
+    say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} (eskin train's recipe) on "
         f"{n_train_parts} participants ({len(train_idx)} recordings"
         f"{', quick grid' if quick else ''})")
     model, compiled = _train_and_export(camp.subset(train_idx), files, machine, quick, seed, say)
@@ -249,8 +249,8 @@ def _held_out_split(camp: Any, test_participants: int,
 
 def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: bool,
                       seed: int, say: Callable[[str], None]) -> tuple[Any, Any]:
-    """Train the model with MD selection, save it, export the .eskin file and load that back
-    as the compiled model the host runs."""
+    """Train the model with eskin train's default recipe, save it, export the .eskin file and
+    load that back as the compiled model the host runs."""
     try:
         from eskin.deploy import save_model
         from eskin.deploy.export import CompiledModel, export_model
@@ -258,8 +258,7 @@ def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: b
     except ImportError as exc:
         raise DemoError(
             f"a part of the pipeline is missing from this installation ({exc})") from None
-    model = train_model(train, selection="md", machine=machine, quick=quick, seed=seed,
-                        n_jobs=1)
+    model = train_model(train, machine=machine, quick=quick, seed=seed, n_jobs=1)
     save_model(model, files["model"])
     export_model(model, files["eskin"])
     compiled = CompiledModel(files["eskin"])

@@ -288,7 +288,7 @@ def demo_cmd(
     speed: float = typer.Option(5.0, help="replay speed (x real time)"),
     seed: int = typer.Option(0, help="random seed"),
     jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
-    machine: str = typer.Option("rls", help="rls (tensor-RLS) or svm (tensor-SVM)"),
+    machine: str = typer.Option("svm", help="svm (tensor-SVM) or rls (tensor-RLS)"),
     quick: bool = typer.Option(False, "--quick", help="a 2x2x2 grid instead of the paper's"),
     recordings: Optional[int] = typer.Option(
         None, "--recordings", help="stream only this many held-out recordings"),
