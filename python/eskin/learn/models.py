@@ -55,6 +55,11 @@ QUICK_LAMBDAS: tuple[float, ...] = (1e-2, 1e0)
 QUICK_SIGMAS: tuple[float, ...] = (2.0**-1, 2.0**1)
 QUICK_ALPHAS: tuple[str, ...] = ("1", "Q/2")
 
+#: D when the recordings allow it (the paper's largest; the study found it as good as 50 and
+#: better than 20); with D=None, train_model takes the longest training recording when that is
+#: shorter (no point stretching every touch by interpolation).
+DEFAULT_D = 100
+
 MACHINES: tuple[str, ...] = ("svm", "rls")
 SELECTIONS: tuple[str, ...] = ("md", "cv")
 
@@ -770,7 +775,7 @@ class _Recipe:
             raise TrainingError(f"selection must be 'md' or 'cv', got {self.selection!r}")
         if self.negatives not in ("balanced", "all"):
             raise TrainingError(f"negatives must be 'balanced' or 'all', got {self.negatives!r}")
-        if int(self.D) < 1:
+        if self.D is not None and int(self.D) < 1:
             raise TrainingError(f"D must be >= 1, got {self.D}")
 
     def with_grid(
@@ -840,6 +845,23 @@ def _training_data(
     y_all = np.array([cls_ids.index(k) for k in ids[idx]], np.int64)
     groups = parts[idx] if parts is not None else None
     return rec, info, classes, idx, y_all, groups
+
+
+def _default_D(recipe: _Recipe, rec: Any, idx: np.ndarray, notes: list[str]) -> _Recipe:
+    """The recipe with D resolved: as given, else :data:`DEFAULT_D`, or the longest training
+    recording (at least 2 samples) when that is shorter, with a note."""
+    if recipe.D is not None:
+        return recipe
+    lengths = np.asarray(rec.lengths)[idx]
+    longest = int(lengths.max()) if len(lengths) else DEFAULT_D
+    if longest >= DEFAULT_D:
+        return replace(recipe, D=DEFAULT_D)
+    D = max(2, longest)
+    notes.append(
+        f"the training recordings are at most {longest} samples long: D = {D} instead of "
+        f"{DEFAULT_D} (a longer D would only stretch every touch by interpolation)"
+    )
+    return replace(recipe, D=D)
 
 
 def _training_patterns(
@@ -1003,7 +1025,7 @@ def train_model(
     classes: Sequence[str] | None = None,
     machine: str = "svm",
     selection: str = "cv",
-    D: int = 100,
+    D: int | None = None,
     window: str = "energy",
     subsample: str = "algorithm2",
     window_config: Any = None,
@@ -1041,14 +1063,14 @@ def train_model(
         :class:`~eskin.MaximalDiscrepancySearch`). The default is CV because on unseen
         participants of simulated campaigns it beat every reading of Maximal Discrepancy, by 4-5
         points on average (the best reading) to 15 (eskin's first; docs/selection-study.md).
-    D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`).
+    D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`); D
+        None (default) is 100, or the longest training recording when that is shorter.
     lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
         replaces it by a 2x2x2 grid (for tests and demos).
     amplitudes : the amplitude-aware kernel's widths searched (None: the paper's kernel; a
         number: the factor's width in spreads of the training patterns' log energy, see
-        :class:`~eskin.TensorSVC`); every one multiplies the grid. The default (None, 1, 4)
-        lowered the held-out error on unseen participants of simulated campaigns by 3 points
-        (docs/selection-study.md); ``(None,)`` is the paper's kernel alone.
+        :class:`~eskin.TensorSVC`), each multiplying the grid; the default (None, 1, 4) cut the
+        held-out error on unseen participants of simulated campaigns by 3 points.
     negatives : for 1-vs-all machines, "balanced" (the paper: as many random patterns of the
         other classes as positives, seeded) or "all".
     runs : only recordings of these runs (default: every recording).
@@ -1065,6 +1087,7 @@ def train_model(
     # window="none": the compiled classifier builds its detector from them)
     window_config, notes = window_config_for_rate(window_config, rate)
     notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
+    recipe = _default_D(recipe, rec, idx, notes)
     X, prep_seconds = _training_patterns(data, rec, idx, recipe, window_config, rate)
     estimator, grouped, selected, fit_seconds = _select_and_fit(
         recipe, X, y_all, classes, groups, notes

@@ -219,3 +219,36 @@ def test_the_experiment_report_says_when_the_detector_was_adapted_to_the_rate(tm
     assert any("WindowConfig.dc_cutoff_hz = 5 Hz is not below half the sample rate" in n
                for n in notes), notes
     assert "dc_cutoff_hz = 5 Hz" in (tmp_path / "exp" / "report.md").read_text()
+
+
+def test_the_defaults_train_on_gestures_shorter_than_the_default_D(tmp_path):
+    """eskin train with no options on 10 Hz gestures of 3 to 10 frames: D becomes the longest
+    recording, with a note; evaluate and predict run on the model."""
+    from eskin.learn.models import DEFAULT_D, load_model
+
+    camp = shaped_campaign(
+        tmp_path / "c.h5", rows=19, cols=27, rate=10.0, participants=3, min_len=3, max_len=10
+    )
+    model = tmp_path / "m.joblib"
+    r = _run(["train", camp, "-o", model, "--all-classes", "--quick", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert (
+        f"note: the training recordings are at most 10 samples long: D = 10 instead of "
+        f"{DEFAULT_D}" in r.output
+    )
+    assert load_model(model).D == 10
+    assert _run(["predict", model, camp]).exit_code == 0
+    r = _run(["evaluate", camp, "--out", tmp_path / "ev", "--quick"])
+    assert r.exit_code == 0, r.output
+    r = _run(["train", camp, "-o", model, "--all-classes", "--quick", "--D", 11, "--force"])
+    assert r.exit_code == 2 and "--D 11 is longer than every recording" in r.output
+
+
+def test_the_default_D_is_100_when_the_recordings_allow_it(tmp_path):
+    from eskin.learn.models import train_model
+
+    camp = shaped_campaign(tmp_path / "c.h5", rows=2, cols=2, rate=100.0, participants=2,
+                           counts=[3, 3], min_len=100, max_len=150)
+    model = train_model(camp, quick=True)
+    assert model.D == 100
+    assert not any("samples long" in n for n in model.training["notes"])
