@@ -38,12 +38,20 @@ def replay(tmp_path_factory):
     return write_replay_arrays(path, recs, gap_s=0.0, seed=2)
 
 
+def interruptible() -> None:
+    """In a child before exec: Ctrl-C's default action, as in a terminal. A test run started
+    in the background by a non-interactive shell inherits SIGINT ignored, and Python keeps an
+    inherited SIG_IGN (it then raises no KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_fw_sim(exe, *args) -> tuple[subprocess.Popen, str]:
     proc = subprocess.Popen(
         [str(exe), *map(str, args), "--quiet"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=interruptible,
     )
     first = proc.stdout.readline().split()
     assert first and first[0] == "PTY", (first, proc.stderr.read())
@@ -76,6 +84,7 @@ def test_listen_writes_its_final_statistics_when_a_signal_ends_it(fw_sim, replay
         stderr=subprocess.PIPE,
         text=True,
         env=child_env(),
+        preexec_fn=interruptible,
     )
     try:
         line = listen.stdout.readline()
