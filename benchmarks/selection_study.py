@@ -738,6 +738,17 @@ def figure(rows, methods, path):
 DEFAULT_RECIPE = ("svm", "cv/D100/algorithm2")  # what eskin train does with no options
 
 
+def _recipe_means(rows, campaign):
+    """({(machine, recipe): mean held-out error %} over the recipes that ran on every unit of
+    ``campaign``, that number of units)."""
+    errors = {}
+    for r in rows:
+        if r["campaign"] == campaign:
+            errors.setdefault((r["machine"], r["recipe"]), []).append(r["test_error"])
+    n = min(len(v) for v in errors.values())
+    return {k: 100 * np.mean(v) for k, v in errors.items() if len(v) == n}, n
+
+
 def default_table(rows, default=DEFAULT_RECIPE):
     """Per campaign: eskin train's default recipe against the best recipe of the study, and
     against the best one that eskin's deployable classifier can run (no amplitude factor)."""
@@ -747,12 +758,7 @@ def default_table(rows, default=DEFAULT_RECIPE):
         "| --- | ---: | --- | ---: | ---: | --- | ---: | ---: | ---: |",
     ]
     for c in sorted({r["campaign"] for r in rows}):
-        means = {}
-        for r in rows:
-            if r["campaign"] == c:
-                means.setdefault((r["machine"], r["recipe"]), []).append(r["test_error"])
-        n = min(len(v) for v in means.values())
-        full = {k: 100 * np.mean(v) for k, v in means.items() if len(v) == n}
+        full, n = _recipe_means(rows, c)
         if default not in full:
             continue
         best = min(full, key=full.get)
@@ -779,12 +785,7 @@ def default_vs_best_table(rows, default=TRAIN_DEFAULT):
         "| --- | ---: | --- | ---: | ---: | ---: |",
     ]
     for c in sorted({r["campaign"] for r in rows}):
-        means = {}
-        for r in rows:
-            if r["campaign"] == c:
-                means.setdefault((r["machine"], r["recipe"]), []).append(r["test_error"])
-        n = min(len(v) for v in means.values())
-        full = {k: 100 * np.mean(v) for k, v in means.items() if len(v) == n}
+        full, n = _recipe_means(rows, c)
         if default not in full:
             continue
         best = min(full, key=full.get)

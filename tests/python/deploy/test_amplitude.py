@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import eskin
+from deploy_data import fit_machine
 from eskin.deploy import device_budget
 from eskin.deploy.export import (
     CompiledModel,
@@ -268,18 +269,7 @@ def test_c_header_and_device_budget_of_a_version_2_model(campaign, tmp_path):
 
 def _fit(campaign, D, machine, n_classes, amplitude):
     """A real machine with the amplitude factor, trained on the first 3 participants."""
-    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
-
-    X = _patterns(campaign, D)
-    y = np.asarray(campaign.modality).astype(np.int64)
-    part = np.asarray(campaign.participant)
-    train = np.isin(part, np.unique(part)[:3])
-    if n_classes == 2:
-        train &= y < 2
-    base = (TensorSVC(C=10.0, sigma=0.5, alpha="half", amplitude=amplitude) if machine == "svm"
-            else TensorRLS(lam=0.1, sigma=0.5, alpha="half", amplitude=amplitude))
-    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
-    return est.fit(X[train], y[train]), X
+    return fit_machine(campaign, D, machine, n_classes, alpha="half", amplitude=amplitude)
 
 
 @pytest.mark.parametrize("machine", ["svm", "rls"])

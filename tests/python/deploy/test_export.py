@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import eskin
+from deploy_data import fit_machine
 from eskin._paths import find_executable
 from eskin.deploy.export import (
     CompiledModel,
@@ -225,19 +226,7 @@ def test_parity_with_python_kernel(campaign, D, n_classes, dtype):
 
 def _fit(campaign, D, machine, n_classes, alpha):
     """A real machine trained on the first 3 participants (simulated data)."""
-    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
-
-    X = _patterns(campaign, D)
-    y = np.asarray(campaign.modality).astype(np.int64)
-    part = np.asarray(campaign.participant)
-    train = np.isin(part, np.unique(part)[:3])
-    if n_classes == 2:
-        train &= y < 2
-    base = (TensorSVC(C=10.0, sigma=0.5, alpha=alpha) if machine == "svm"
-            else TensorRLS(lam=0.1, sigma=0.5, alpha=alpha))
-    est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
-    est.fit(X[train], y[train])
-    return est, X
+    return fit_machine(campaign, D, machine, n_classes, alpha=alpha)
 
 
 @pytest.mark.parametrize("D", [20, 50])
