@@ -86,6 +86,7 @@ def build_case(
         camp.subset(train_idx),
         machine="rls",
         selection="md",
+        negatives="balanced",
         D=D,
         window_config=WindowConfig(max_window_s=max_window_s),
         seed=seed,

@@ -203,3 +203,15 @@ def test_train_groups_its_cv_splits_by_the_label_it_is_given(one_person, tmp_pat
     r = CliRunner().invoke(app, [*args, "--groups", "nosuch", "--force"])
     assert r.exit_code == 2
     assert "error: --groups 'nosuch': no such label; the campaign has participant" in r.output
+
+
+@pytest.mark.parametrize("negatives", ["all", "balanced"])
+def test_train_gives_each_machine_the_negatives_asked_for(one_person, tmp_path, negatives):
+    out = tmp_path / "m.joblib"
+    args = ["train", str(one_person), "--all-classes", "--quick", "-o", str(out), "--no-progress"]
+    r = CliRunner().invoke(app, [*args, "--negatives", negatives])
+    assert r.exit_code == 0, r.output
+    model = eskin.load_model(out)
+    assert model.training["negatives"] == negatives
+    # 6 recordings, 2 per class: a machine sees its 2 and the other 4, or 2 of them
+    assert [s["n_train"] for s in model.selected] == [6 if negatives == "all" else 4] * 3

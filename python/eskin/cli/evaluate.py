@@ -6,7 +6,17 @@ from pathlib import Path
 
 import typer
 
-from eskin.cli.learn import AMPLITUDE_HELP, Machine, Selection, Subsample, Window, _amplitudes, _fail
+from eskin.cli.learn import (
+    AMPLITUDE_HELP,
+    NEGATIVES_HELP,
+    Machine,
+    Negatives,
+    Selection,
+    Subsample,
+    Window,
+    _amplitudes,
+    _fail,
+)
 
 
 def _names(text: str | None) -> list[str] | None:
@@ -34,6 +44,7 @@ def evaluate(
     window: Window | None = typer.Option(None, help="touch-window detector, or none"),
     subsample: Subsample | None = typer.Option(None, help="subsampling method"),
     amplitude: str | None = typer.Option(None, help=AMPLITUDE_HELP),
+    negatives: Negatives | None = typer.Option(None, help=NEGATIVES_HELP),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -58,6 +69,7 @@ def evaluate(
         "D": D,
         "window": window,
         "subsample": subsample,
+        "negatives": negatives,
     }
     # options not given keep eskin.train_model's defaults (the recipe eskin train uses)
     recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}

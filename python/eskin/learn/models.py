@@ -1036,7 +1036,7 @@ def train_model(
     quick: bool = False,
     md_options: Mapping[str, Any] | None = None,
     cv_options: Mapping[str, Any] | None = None,
-    negatives: str = "balanced",
+    negatives: str = "all",
     runs: Sequence[int] | None = None,
     class_names: Sequence[str] | None = None,
     lengths: Sequence[int] | None = None,
@@ -1071,8 +1071,8 @@ def train_model(
         number: the factor's width in spreads of the training patterns' log energy, see
         :class:`~eskin.TensorSVC`), each multiplying the grid; the default (None, 1, 4) cut the
         held-out error on unseen participants of simulated campaigns by 3 points.
-    negatives : for 1-vs-all machines, "balanced" (the paper: as many random patterns of the
-        other classes as positives, seeded) or "all".
+    negatives : what each 1-vs-all machine sees of the other classes: "all" their patterns
+        (benchmarks/multiclass_study.py) or "balanced" (the paper: as many, seeded random).
     runs : only recordings of these runs (default: every recording).
     group_by : the campaign label that groups recordings in the CV selection's splits (no group
         on both sides): "participant" (default), "run", "direction" or an integer extra field.
