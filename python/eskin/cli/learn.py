@@ -249,7 +249,7 @@ def train(
         "Discrepancy (the paper's Algorithm 1)",
     ),
     D: Optional[int] = typer.Option(
-        None, "--D", help="subsampled window length [default: 100, or the longest recording]"
+        None, "--D", help="subsampled window length (default 100, or the longest recording)"
     ),
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
     subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
@@ -274,9 +274,10 @@ def train(
     energy window, Algorithm 2 subsampling, the paper's grid times the
     amplitude-aware factor (off, 1, 4), chosen by participant-grouped
     cross-validation (stratified, with a note, without participants); each
-    one-vs-all machine sees every pattern of the other classes. On unseen people of simulated campaigns: 11.3 % error
-    against 14.4 % without the factor, and 4-15 points ahead of Maximal
-    Discrepancy (--selection md); see docs/selection-study.md.
+    one-vs-all machine sees every pattern of the other classes. On unseen
+    people of simulated campaigns: 11.3 % error against 14.4 % without the
+    factor, and 4-15 points ahead of Maximal Discrepancy (--selection md);
+    see docs/selection-study.md.
     """
     from eskin._files import refuse_overwrite
     from eskin.learn.evaluation_report import selection_estimate_lines
