@@ -269,6 +269,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         "n_test": len(task.test_idx),
         "accuracy": float(np.mean(pred == y_test)),
         "selected": _plain(model.selected),
+        "trained_with": trained_with(model),
         "inner_cv_error": _inner_estimate(model.selected),
         "notes": list(model.training.get("notes", [])),
         "y_true": y_test.tolist(),
@@ -291,6 +292,31 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
             }
     record["seconds"] = time.perf_counter() - t0
     return record
+
+
+def trained_with(model: Any) -> dict[str, Any]:
+    """The recipe a trained model really ran (the given options and train_model's defaults
+    together): machine, selection, D, window, subsampling, amplitudes, negatives, version."""
+    training = model.training
+    return {
+        "machine": model.machine,
+        "selection": model.selection,
+        "D": int(model.D),
+        "window": model.window,
+        "subsample": model.subsample,
+        "amplitudes": list(training.get("grid", {}).get("amplitudes", [None])),
+        "negatives": training.get("negatives"),
+        "eskin_version": training.get("eskin_version"),
+    }
+
+
+def _folds_trained_with(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per setting, its value if every fold ran the same, else the list of the folds' values."""
+    out: dict[str, Any] = {}
+    for key in records[0]["trained_with"] if records else ():
+        values = [r["trained_with"][key] for r in records]
+        out[key] = values[0] if all(v == values[0] for v in values) else values
+    return out
 
 
 def _plain(v: Any) -> Any:
@@ -411,6 +437,7 @@ def evaluate_recipe(
             "scheme": "leave-one-group-out" if n_folds is None else f"{n_folds} grouped folds",
             "n_groups": len(np.unique(labels[np.concatenate([te for _, te in folds])])),
             "recipe": _plain(recipe),
+            "trained_with": _folds_trained_with(result["folds"]),
             "seed": int(seed),
             "seconds": time.perf_counter() - t0,
         }

@@ -41,6 +41,29 @@ def fold_settings(record: Mapping[str, Any]) -> str:
     return "; ".join(_setting(s) for s in record.get("selected", []))
 
 
+def describe_trained_with(settings: Mapping[str, Any]) -> str:
+    """The recipe the folds ran, in words: 'tensor-SVM, cv selection, D = 100, ...'."""
+    if not settings:
+        return "-"
+    return (
+        f"tensor-{str(settings.get('machine')).upper()}, "
+        f"{settings.get('selection')} selection, D = {settings.get('D')}, "
+        f"window {settings.get('window')}, {settings.get('subsample')} subsampling, "
+        f"amplitude factor {_amplitude_text(settings.get('amplitudes', [None]))}, "
+        f"negatives {settings.get('negatives')} (eskin {settings.get('eskin_version')})"
+    )
+
+
+def _amplitude_text(amplitudes: Any) -> str:
+    """'off, 1, 4' for the amplitude widths of a recipe (as given when they are not a list of
+    widths, e.g. different per fold)."""
+    if isinstance(amplitudes, list) and all(
+        a is None or isinstance(a, (int, float)) for a in amplitudes
+    ):
+        return ", ".join("off" if a is None else f"{a:g}" for a in amplitudes)
+    return str(amplitudes)
+
+
 def summary_lines(result: Mapping[str, Any]) -> list[str]:
     """What ``eskin evaluate`` prints: overall scores with their interval, per-class recall,
     the confusion matrix, the per-fold accuracy and settings, and the baselines."""
@@ -50,6 +73,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{result['scheme']} by {result['groups']} ({result['n_groups']} groups, "
             f"{len(result['folds'])} folds, {result['n_recordings']} recordings)"
         ),
+        f"trained with: {describe_trained_with(result.get('trained_with', {}))}",
         f"accuracy          {_pct(result['accuracy'])}  95 % CI {_ci(result['ci95'])}",
         (
             f"balanced accuracy {_pct(result['balanced_accuracy'])}  95 % CI "
@@ -103,6 +127,8 @@ def _markdown(result: Mapping[str, Any], figure: str) -> str:
             f"`{json.dumps(result['recipe'], sort_keys=True)}`; seed {result['seed']}. Each "
             "fold's model selection saw only its training groups (nested evaluation)."
         ),
+        "",
+        f"Trained with: {describe_trained_with(result.get('trained_with', {}))}.",
         "",
         "| | accuracy | 95 % CI | balanced accuracy | 95 % CI |",
         "| --- | ---: | ---: | ---: | ---: |",

@@ -180,6 +180,19 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
     assert (out / "evaluation.png").read_bytes()[:4] == b"\x89PNG"
     assert "balanced accuracy" in r.output and "95 % CI" in r.output
     assert "confusion" in r.output
+    # what the folds really ran: the given options and train's defaults together
+    ran = res["trained_with"]
+    assert {k: ran[k] for k in ("machine", "selection", "D", "window", "subsample")} == {
+        "machine": "svm", "selection": "cv", "D": 20, "window": "energy",
+        "subsample": "algorithm2",
+    }
+    from eskin.learn.models import DEFAULT_AMPLITUDES
+
+    assert ran["amplitudes"] == list(DEFAULT_AMPLITUDES) and ran["negatives"] == "all"
+    assert all(f["trained_with"]["D"] == 20 for f in res["folds"])
+    words = "trained with: tensor-SVM, cv selection, D = 20, window energy"
+    assert words in r.output
+    assert words.replace("trained with", "Trained with") in (out / "evaluation.md").read_text()
 
 
 def test_evaluate_rejects_an_unknown_group_label(sim_campaign, tmp_path):
