@@ -80,10 +80,13 @@ class Printer {
     const auto& names = model_.class_names();
     std::printf("# model %s: %zu classes (", model_path.c_str(), names.size());
     for (std::size_t i = 0; i < names.size(); ++i) std::printf("%s%s", i ? " " : "", names[i].c_str());
-    std::printf("), rule %s, grid %dx%d, D=%d, %s, %d support vectors\n",
+    int with_factor = 0;
+    for (const auto& mm : model_.machines()) with_factor += mm.amplitude_width > 0 ? 1 : 0;
+    std::printf("), rule %s, grid %dx%d, D=%d, %s, %d support vectors, amplitude factor on %d of "
+                "%zu machines\n",
                 model_.rule() == eskin::DecisionRule::kBinary ? "binary" : "one_vs_all",
                 model_.rows(), model_.cols(), model_.D(), model_.is_float64() ? "float64" : "float32",
-                model_.n_support());
+                model_.n_support(), with_factor, model_.machines().size());
     std::printf("index\tlabel\tdont_know\twindow_start\twindow_stop");
     for (const auto& mm : model_.machines()) {
       if (model_.rule() == eskin::DecisionRule::kBinary)

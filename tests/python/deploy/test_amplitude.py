@@ -318,3 +318,29 @@ def test_an_estimator_with_a_width_but_no_energies_is_refused(campaign):
     with pytest.raises(ModelFormatError, match=r"binary machine: amplitude_width_=.* but no "
                        "fitted attribute 'sv_log_energy_'"):
         spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4))
+
+
+def test_eskin_classify_runs_a_version_2_model_and_says_so(campaign, tmp_path):
+    """The command-line classifier on a model with the factor on two of three machines: its
+    decisions are the compiled model's, and its header line counts the machines with it."""
+    import subprocess
+
+    from eskin._paths import find_executable
+
+    try:
+        exe = str(find_executable("eskin-classify"))
+    except FileNotFoundError:
+        pytest.skip("eskin-classify is not built")
+    spec, _ = _spec(campaign, 20, [1.5, 0.0, 0.7])
+    model_file = export_model(spec, tmp_path / "m.eskin", dtype="float64")
+    sig = np.asarray(campaign.signals[:5])
+    np.save(tmp_path / "rec.npy", sig)
+    res = subprocess.run([exe, str(model_file), str(tmp_path / "rec.npy")],
+                         capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines[0].startswith("# model") and "amplitude factor on 2 of 3 machines" in lines[0]
+    header = lines[1].split("\t")
+    values = np.array([[float(v) for v in ln.split("\t")[5:]] for ln in lines[2:]])
+    assert header[5:] == [f"f_{c}" for c in spec.class_names]
+    np.testing.assert_array_equal(values, CompiledModel(model_file).classify(sig).decision_values)
