@@ -164,11 +164,6 @@ def all_distances(X):
     return out
 
 
-def log_energy(X):
-    """Log of the mean squared value of each pattern (its touch's amplitude)."""
-    return np.log(np.mean(X.reshape(len(X), -1) ** 2, axis=1) + 1e-12)
-
-
 # --------------------------------------------------------------------------------------------
 # held-out error of configurations
 def _sub(dists, rows, cols):
@@ -309,7 +304,7 @@ def readings_unit(kind, dists_tr, y_tr, groups_tr, shape, held, grid, readings, 
 def with_energy_mode(dists, X, train):
     """Distances with a 4th "mode": squared log-energy differences in units of the training
     patterns' standard deviation, so K = tensor kernel x exp(-d_e / (2 sigma_e^2))."""
-    e = log_energy(X)
+    e = eskin.pattern_log_energy(X)
     de = (e[:, None] - e[None, :]) ** 2 / max(float(np.var(e[train])), 1e-12)
     return {k + (1,): np.concatenate([v, de[None]], axis=0) for k, v in dists.items()}
 

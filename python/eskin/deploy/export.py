@@ -26,6 +26,7 @@ from typing import Any, Sequence, Union
 import numpy as np
 
 from eskin.errors import ModelFormatError
+from eskin.learn.kernel import pattern_log_energy
 
 __all__ = [
     "CompiledDecisions",
@@ -51,8 +52,6 @@ MAGIC = b"\x89ESKIN\r\n"
 #: AMPL). FORMAT_VERSION is the newest; each file is written in the lowest version that holds it.
 FORMAT_VERSIONS = (1, 2)
 FORMAT_VERSION = 2
-#: e(x) = log(mean(x^2) + LOG_ENERGY_FLOOR), as the C++ classifier (eskin::tensor_log_energy)
-LOG_ENERGY_FLOOR = 1e-12
 _MAX_LOG_ENERGY = 1e4
 _AMPLITUDE_WIDTH_RANGE = (1e-6, 1e6)
 HEADER_BYTES = 32
@@ -218,16 +217,6 @@ def format_version(spec: ModelSpec) -> int:
     return 2 if any(float(m.amplitude_width) > 0 for m in spec.machines) else 1
 
 
-def _log_energy(tensors: np.ndarray) -> np.ndarray:
-    """e(x) = log(mean(x^2) + 1e-12) of each pattern (n, rows, cols, D) -> (n,), float64: the
-    amplitude factor's input, as the C++ classifier computes it (inf where the mean square
-    overflows)."""
-    flat = np.asarray(tensors, dtype=np.float64).reshape(len(tensors), -1)
-    with np.errstate(over="ignore"):
-        mean_square = np.einsum("ij,ij->i", flat, flat) / flat.shape[1]
-    return np.log(mean_square + LOG_ENERGY_FLOOR)
-
-
 def _window_fields(cfg: Any) -> dict[str, float]:
     """The detector settings as name -> float (an eskin.WindowConfig or a plain mapping)."""
     if cfg is None:
@@ -351,7 +340,7 @@ def _table_log_energies(spec: ModelSpec, unique: list[np.ndarray]) -> np.ndarray
                 energy[i], owner[i] = e, k
     missing = np.flatnonzero(owner < 0)
     if missing.size:
-        energy[missing] = _log_energy(np.stack([unique[i] for i in missing]))
+        energy[missing] = pattern_log_energy(np.stack([unique[i] for i in missing]))
     bad = np.flatnonzero(~(np.abs(energy) <= _MAX_LOG_ENERGY))
     if bad.size:
         raise ModelFormatError(

@@ -121,20 +121,19 @@ def param_grid(
 
 
 def _checked_amplitude(value: Any) -> float | None:
+    """``value`` (None, a number or its text) as the estimators' ``amplitude``; a TrainingError
+    naming the accepted range otherwise."""
+    from eskin.learn.estimators import AMPLITUDE_RANGE, check_amplitude
+
     if value is None:
         return None
     try:
-        amplitude = float(value)
+        return check_amplitude(float(value))
     except (TypeError, ValueError):
-        amplitude = float("nan")
-    from eskin.learn.estimators import AMPLITUDE_RANGE
-
-    low, high = AMPLITUDE_RANGE
-    if not low <= amplitude <= high:
+        low, high = AMPLITUDE_RANGE
         raise TrainingError(
             f"amplitude must be 'off' or a number in [{low:g}, {high:g}], got {value!r}"
-        )
-    return amplitude
+        ) from None
 
 
 def parse_amplitudes(text: str) -> tuple[float | None, ...]:
