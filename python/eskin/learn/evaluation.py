@@ -465,6 +465,17 @@ def _run_folds(
     return records
 
 
+def _without_predictions(record: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a fold record less its per-recording predictions (its own and its baselines')."""
+    out = {k: v for k, v in record.items() if k not in ("y_true", "y_pred")}
+    if "baselines" in record:
+        out["baselines"] = {
+            name: {k: v for k, v in b.items() if k != "y_pred"}
+            for name, b in record["baselines"].items()
+        }
+    return out
+
+
 def _pooled(
     records: list[dict[str, Any]],
     folds: list[tuple[np.ndarray, np.ndarray]],
@@ -473,11 +484,13 @@ def _pooled(
     baselines: Sequence[str],
     seed: int,
 ) -> dict[str, Any]:
-    """Scores of the pooled out-of-fold predictions, per fold records, baselines."""
+    """Scores of the pooled out-of-fold predictions, per fold records, baselines. The fold
+    records are read, never changed: the result's folds are copies without the predictions
+    (which the result holds pooled)."""
     records = sorted(records, key=lambda r: r["fold"])
     test_idx = np.concatenate([folds[r["fold"]][1] for r in records])
-    y_true = np.concatenate([r.pop("y_true") for r in records]).astype(np.int64)
-    y_pred = np.concatenate([r.pop("y_pred") for r in records]).astype(np.int64)
+    y_true = np.concatenate([r["y_true"] for r in records]).astype(np.int64)
+    y_pred = np.concatenate([r["y_pred"] for r in records]).astype(np.int64)
     g = labels[test_idx]
     result: dict[str, Any] = {
         "classes": list(names),
@@ -487,9 +500,9 @@ def _pooled(
     }
     result["baselines"] = {}
     for name in baselines:
-        b_pred = np.concatenate([r["baselines"][name].pop("y_pred") for r in records])
+        b_pred = np.concatenate([r["baselines"][name]["y_pred"] for r in records])
         result["baselines"][name] = summarise(y_true, b_pred.astype(np.int64), g, names, seed)
-    result["folds"] = records
+    result["folds"] = [_without_predictions(r) for r in records]
     result["predictions"] = {
         "index": test_idx.tolist(),
         "group": g.tolist(),

@@ -105,6 +105,31 @@ def test_low_rate_campaigns_train_evaluate_and_predict(tmp_path, rows, cols, rat
     assert len(res["folds"]) == 3 and res["n_recordings"] == 27
 
 
+def check_trained_model(model_path: Path, camp: Path, *, rate: float, grid: tuple[int, int],
+                        n_classes: int, D: int) -> None:
+    """The model file holds what was trained (classes, grid, rate, D), classifies every
+    recording of its campaign into one of its classes with finite decision values, and the
+    compiled classifier reading it decides the same."""
+    from eskin.data.campaign import load_campaign
+    from eskin.deploy.export import compiled_engine
+    from eskin.learn.models import load_model
+
+    model = load_model(model_path)
+    assert model.classes == [f"gesture{k}" for k in range(n_classes)]
+    assert tuple(model.grid_shape) == grid
+    assert model.sample_rate_hz == rate and model.D == D
+    with load_campaign(camp) as c:
+        py = model.predict_recordings(c)
+        cpp = compiled_engine(model).predict_recordings(c)
+        assert len(py) == len(c)
+    assert {p["label"] for p in py} <= set(model.classes)
+    values = np.array([p["decision_values"] for p in py])
+    assert values.shape == (len(py), 1 if n_classes == 2 else n_classes)
+    assert np.isfinite(values).all()
+    assert [p["label"] for p in py] == [p["label"] for p in cpp]
+    np.testing.assert_allclose(values, [p["decision_values"] for p in cpp], atol=1e-6)
+
+
 def test_the_compiled_classifier_reads_a_low_rate_model(tmp_path):
     """The configuration adapted to 10 Hz is the one in the model file: the C++ classifier
     makes the same patterns and decisions as Python."""
@@ -136,6 +161,7 @@ def test_extreme_rates_train(tmp_path, rate):
     )
     r = _run(["train", camp, "-o", tmp_path / "m.joblib", "--all-classes", "--quick", "--D", 10])
     assert r.exit_code == 0, r.output
+    check_trained_model(tmp_path / "m.joblib", camp, rate=rate, grid=(2, 2), n_classes=2, D=10)
 
 
 @pytest.mark.parametrize(("rows", "cols"), [(1, 1), (64, 64)])
@@ -164,6 +190,7 @@ def test_extreme_grids_train(tmp_path, rows, cols):
         ]
     )
     assert r.exit_code == 0, r.output
+    check_trained_model(tmp_path / "m.joblib", camp, rate=100.0, grid=(rows, cols), n_classes=2, D=6)
 
 
 def test_twenty_unbalanced_classes_and_a_rare_one_train_with_a_warning(tmp_path):
@@ -187,6 +214,7 @@ def test_twenty_unbalanced_classes_and_a_rare_one_train_with_a_warning(tmp_path)
     )
     assert r.exit_code == 0, r.output
     assert "note: class gesture0 has only 3 recordings" in r.output
+    check_trained_model(tmp_path / "m.joblib", camp, rate=100.0, grid=(2, 3), n_classes=20, D=8)
 
 
 def test_segments_shorter_than_D_and_alpha_are_interpolated():

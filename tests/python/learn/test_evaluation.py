@@ -71,6 +71,42 @@ def test_scores_of_a_known_confusion():
     assert bal == pytest.approx(balanced_accuracy_score(y_true, y_pred))
 
 
+
+def test_pooling_reads_the_fold_records_without_changing_them():
+    """Pooled scores of folds given out of order: the predictions are concatenated in fold
+    order, with their groups; the baseline is scored on its own predictions; the fold records
+    passed in keep their predictions, the result's folds are copies without them."""
+    import copy
+
+    from eskin.learn.evaluation import _pooled
+
+    folds = [(np.array([2, 3]), np.array([0, 1])), (np.array([0, 1]), np.array([2, 3]))]
+    records = [
+        {"fold": 1, "accuracy": 0.5, "y_true": np.array([1, 1]), "y_pred": np.array([1, 0]),
+         "baselines": {"majority": {"accuracy": 0.0, "y_pred": np.array([0, 0])}}},
+        {"fold": 0, "accuracy": 1.0, "y_true": np.array([0, 0]), "y_pred": np.array([0, 0]),
+         "baselines": {"majority": {"accuracy": 1.0, "y_pred": np.array([0, 0])}}},
+    ]
+    before = copy.deepcopy(records)
+    labels = np.array([7, 7, 8, 8])
+    result = _pooled(records, folds, labels, ["a", "b"], ["majority"], seed=0)
+    for r, b in zip(records, before):  # unchanged, predictions included
+        assert r.keys() == b.keys() and r["baselines"]["majority"].keys() == b["baselines"]["majority"].keys()
+        np.testing.assert_array_equal(r["y_pred"], b["y_pred"])
+        np.testing.assert_array_equal(r["y_true"], b["y_true"])
+    assert result["predictions"] == {
+        "index": [0, 1, 2, 3], "group": [7, 7, 8, 8], "true": [0, 0, 1, 1], "predicted": [0, 0, 1, 0]}
+    assert result["accuracy"] == pytest.approx(0.75)
+    assert result["per_class_recall"] == {"a": 1.0, "b": 0.5}
+    assert result["confusion"] == [[2, 0], [1, 1]]
+    assert result["baselines"]["majority"]["accuracy"] == pytest.approx(0.5)
+    assert result["baselines"]["majority"]["confusion"] == [[2, 0], [2, 0]]
+    assert [f["fold"] for f in result["folds"]] == [0, 1]
+    assert [f["accuracy"] for f in result["folds"]] == [1.0, 0.5]
+    for f in result["folds"]:
+        assert "y_true" not in f and "y_pred" not in f
+        assert f["baselines"]["majority"].keys() == {"accuracy"}
+
 @settings(max_examples=100, deadline=None)
 @given(st.integers(0, 10**6), st.integers(2, 40), st.integers(2, 5), st.floats(0.0, 1.0))
 def test_interval_contains_the_point_estimate(seed, n_groups, n_classes, skill):

@@ -89,7 +89,15 @@ def test_listen_writes_its_final_statistics_when_a_signal_ends_it(fw_sim, replay
     try:
         line = listen.stdout.readline()
         assert line.startswith(f"listening on {pty_path}"), (line, listen.stderr.read())
-        time.sleep(0.7)  # some samples arrive
+        # wait for a periodic statistics line that counts samples (an event, not a delay)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            line = listen.stdout.readline()
+            assert line, listen.stderr.read()
+            if line.startswith("stats ") and " samples=0 " not in line:
+                break
+        else:
+            raise AssertionError("eskin listen printed no statistics with samples")
         listen.send_signal(signum)
         stdout, stderr = listen.communicate(timeout=30)
     finally:
