@@ -13,6 +13,9 @@
 // decision value per machine (%.17g). A recording that cannot be classified prints its status
 // as the label ("error:<status>").
 //
+// A file eskin knows given in the wrong place (a replay file, a campaign, a Python model, a
+// .eskin model as FILE, recordings as MODEL) is named, with the tool or command that reads it.
+//
 // Exit status: 0 all recordings classified, 1 some could not be, 2 bad usage, model or input.
 #include <sys/stat.h>
 
@@ -150,9 +153,10 @@ void classify_recordings(std::istream& in, const eskin::NpyHeader& h, std::int64
 
 // ---- .npy (eskin/npy.hpp): the header is checked, and a file's size against it, before any
 // data is read; recordings are then read and classified one at a time.
-void classify_npy(std::istream& in, const std::uint8_t* magic, std::int64_t file_bytes,
-                  const std::string& what, Printer& pr, const eskin::Model& m) {
-  std::vector<std::uint8_t> head(magic, magic + 6), more;
+void classify_npy(std::istream& in, const std::uint8_t* first, std::size_t n_first,
+                  std::int64_t file_bytes, const std::string& what, Printer& pr,
+                  const eskin::Model& m) {
+  std::vector<std::uint8_t> head(first, first + n_first), more;
   read_elements(in, eskin::kNpyPreambleBytes - head.size(), more);
   head.insert(head.end(), more.begin(), more.end());
   const std::size_t data_offset = eskin::npy_data_offset(head.data(), head.size(), what);
@@ -225,6 +229,61 @@ void classify_raw(std::istream& in, const std::uint8_t* first, std::size_t n_fir
   }
 }
 
+// ---- what a file given in the wrong place is, and the tool that reads it. The raw-record magic
+// "ESKR" is a prefix of the replay magic "ESKREPLY", so the longer magic is checked first.
+struct KnownFile {
+  const char* magic;
+  std::size_t size;
+  const char* what;    // "an eskin replay file (.eskr)"
+  const char* reader;  // the tool that reads it
+};
+const KnownFile kKnownFiles[] = {
+    {"\x89" "ESKIN\r\n", 8, "an eskin model (.eskin)",
+     "eskin-classify reads it as MODEL, its first argument"},
+    {"ESKREPLY", 8, "an eskin replay file (.eskr, the stream eskin-fw-sim plays)",
+     "eskin-fw-sim streams it; `eskin replay CAMPAIGN -o recordings.npy` writes recordings for "
+     "eskin-classify"},
+    {"\x89HDF\r\n\x1a\n", 8, "an HDF5 file (an eskin campaign?)",
+     "`eskin replay CAMPAIGN -o recordings.npy` writes a campaign's recordings for "
+     "eskin-classify"},
+    {"\x93NUMPY", 6, "a .npy array (recordings)", "eskin-classify reads it as FILE, after MODEL"},
+    {"ESKR", 4, "raw 'ESKR' records (recordings)", "eskin-classify reads them as FILE, after MODEL"},
+    // eskin train's joblib files: zlib-compressed (levels 1-9), or plain pickles (protocols 2-5)
+#define ESKIN_JOBLIB(m)                                                              \
+  {m, 2, "a Python model file (joblib; eskin train writes them)",                   \
+   "`eskin export MODEL.joblib -o MODEL.eskin` writes the .eskin model eskin-classify " \
+   "reads"}
+    ESKIN_JOBLIB("\x78\x01"), ESKIN_JOBLIB("\x78\x5e"), ESKIN_JOBLIB("\x78\x9c"),
+    ESKIN_JOBLIB("\x78\xda"), ESKIN_JOBLIB("\x80\x02"), ESKIN_JOBLIB("\x80\x03"),
+    ESKIN_JOBLIB("\x80\x04"), ESKIN_JOBLIB("\x80\x05"),
+#undef ESKIN_JOBLIB
+};
+
+// The known file these first bytes start, or nullptr.
+const KnownFile* known_file(const std::uint8_t* head, std::size_t n) {
+  for (const auto& k : kKnownFiles)
+    if (n >= k.size && std::memcmp(head, k.magic, k.size) == 0) return &k;
+  return nullptr;
+}
+
+// The first bytes of a regular file (fewer when it is shorter or cannot be read).
+std::size_t file_head(const std::string& path, std::uint8_t* out, std::size_t n) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return 0;
+  f.read(reinterpret_cast<char*>(out), static_cast<std::streamsize>(n));
+  return static_cast<std::size_t>(f.gcount());
+}
+
+// MODEL must be a .eskin file: anything else eskin knows is named with the tool that reads it.
+void check_model_path(const std::string& path) {
+  std::uint8_t head[8];
+  const std::size_t n = file_head(path, head, sizeof head);
+  const KnownFile* k = known_file(head, n);
+  if (k == nullptr || k == &kKnownFiles[0]) return;  // a model, or unknown: the loader says
+  throw InputError("MODEL " + path + ": " + k->what + ", not a .eskin model; " + k->reader +
+                   " (usage: eskin-classify MODEL.eskin [FILE|-])");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -250,6 +309,7 @@ int main(int argc, char** argv) {
   const std::string model_path = args[0];
   const std::string input = args.size() == 2 ? args[1] : "-";
   try {
+    check_model_path(model_path);
     const eskin::Model model = eskin::Model::load(model_path);
     Printer pr(model);
     std::ifstream file;
@@ -263,22 +323,23 @@ int main(int argc, char** argv) {
       what = input;
       file_bytes = regular_file_size(input);
     }
-    std::uint8_t magic[6];
-    in->read(reinterpret_cast<char*>(magic), 6);
+    std::uint8_t magic[8];
+    in->read(reinterpret_cast<char*>(magic), 8);
     const std::size_t got = static_cast<std::size_t>(in->gcount());
-    pr.header(model_path);
-    if (got == 6 && eskin::is_npy(magic, got)) {
-      classify_npy(*in, magic, file_bytes, what, pr, model);
+    const KnownFile* known = known_file(magic, got);
+    if (got >= 6 && eskin::is_npy(magic, got)) {
+      pr.header(model_path);
+      classify_npy(*in, magic, got, file_bytes, what, pr, model);
     } else if (got == 0) {
       throw InputError(what + ": empty input");
-    } else if (got >= 4 && std::memcmp(magic, "ESKR", 4) == 0) {
+    } else if (known != nullptr && std::strcmp(known->magic, "ESKR") == 0) {
+      pr.header(model_path);
       classify_raw(*in, magic, got, what, pr, model);
-    } else if (got == 6 && std::memcmp(magic, "\x89HDF\r\n", 6) == 0) {
-      throw InputError(what + ": an HDF5 file (an eskin campaign?), not recordings: `eskin replay "
-                              "CAMPAIGN -o recordings.npy` writes a campaign's recordings for "
-                              "eskin-classify");
+    } else if (known != nullptr) {
+      throw InputError(what + ": " + known->what + ", not recordings: " + known->reader);
     } else {
-      throw InputError(what + ": neither a .npy file nor raw 'ESKR' records");
+      throw InputError(what + ": neither a .npy file nor raw 'ESKR' records (`eskin replay "
+                              "CAMPAIGN -o FILE.npy`, or `--format records`, writes them)");
     }
     std::fflush(stdout);
     return pr.failed() > 0 ? 1 : 0;

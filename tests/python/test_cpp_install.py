@@ -137,7 +137,10 @@ def test_install_gives_headers_library_cmake_package_pkgconfig_and_tools(prefix)
     assert str(REPO) not in targets and str(build_tree()) not in targets
 
 
-def test_readme_example_builds_with_find_package(prefix, model_and_stream, tmp_path):
+@pytest.fixture(scope="module")
+def readme_example(prefix, tmp_path_factory) -> Path:
+    """The README's classify_stream.cpp, built by its CMakeLists.txt with find_package(eskin)."""
+    tmp_path = tmp_path_factory.mktemp("readme_example")
     project = tmp_path / "classify_stream"
     project.mkdir()
     (project / "classify_stream.cpp").write_text(readme_block("cpp", "classify_stream.cpp"))
@@ -164,8 +167,53 @@ def test_readme_example_builds_with_find_package(prefix, model_and_stream, tmp_p
     ):
         r = subprocess.run(cmd, check=False, capture_output=True, text=True)
         assert r.returncode == 0, r.stdout + r.stderr
+    return build / "classify_stream"
+
+
+def test_readme_example_builds_with_find_package(readme_example, model_and_stream):
     model, raw, expected = model_and_stream
-    assert run_classifier(build / "classify_stream", model, raw) == expected
+    assert run_classifier(readme_example, model, raw) == expected
+
+
+def eskin_cli(cwd: Path, *args: str) -> str:
+    """Run ``eskin ARGS`` in ``cwd`` (the package under test); its standard output."""
+    root = str(Path(eskin.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        filter(None, [root, os.environ.get("PYTHONPATH")])))
+    r = subprocess.run([sys.executable, "-m", "eskin", *args], cwd=cwd, env=env,
+                       capture_output=True, text=True, timeout=600, check=False)
+    assert r.returncode == 0, f"eskin {' '.join(args)}:\n{r.stdout}\n{r.stderr}"
+    return r.stdout
+
+
+def test_readme_example_runs_on_a_campaign_through_eskin_replay(readme_example, tmp_path):
+    """Campaign -> model -> `eskin replay --format raw` -> the README's program on its stdin,
+    with command-line tools only: one decision on every recording's touch, the decisions the
+    Python side's stream classifier makes on the same bytes, and the bytes are the samples of
+    the replay stream eskin-fw-sim would play."""
+    d = tmp_path
+    eskin_cli(d, "simulate", "-o", "c.h5", "--participants", "1", "--seed", "5", "-q")
+    eskin_cli(d, "train", "c.h5", "--all-classes", "--quick", "-o", "m.joblib", "--no-progress")
+    eskin_cli(d, "export", "m.joblib", "-o", "m.eskin")
+    out = eskin_cli(d, "replay", "c.h5", "-o", "run2.raw", "--select", "run=2")
+    assert "wrote run2.raw: 6 recordings (2 brush, 2 finger, 2 washer), " in out
+    assert "a raw int16 stream" in out
+    eskin_cli(d, "replay", "c.h5", "-o", "run2.eskr", "--select", "run=2")
+    rf = eskin.read_replay_file(d / "run2.eskr")
+    stream = np.fromfile(d / "run2.raw", dtype="<i2")
+    assert np.array_equal(stream, np.asarray(rf.samples).ravel())
+    lines = run_classifier(readme_example, d / "m.eskin", d / "run2.raw")
+    events = CompiledModel(d / "m.eskin").stream(stream.reshape(rf.n_samples, -1))
+    expected = [
+        f"[{e['window'][0]}, {e['window'][1]}) {e['label']}{' ?' if e['dont_know'] else ''}"
+        for e in events
+        if e["status_name"] == "decision"
+    ]
+    assert lines == expected
+    windows = [tuple(int(v) for v in line[1:].split(")")[0].split(", ")) for line in lines]
+    for seg in rf.segments:  # every recording's touch is decided: a window overlaps it
+        lo, hi = int(seg["start"]), int(seg["start"] + seg["length"])
+        assert any(a < hi and b > lo for a, b in windows), (lo, hi, windows)
 
 
 def test_readme_example_builds_with_pkg_config(prefix, model_and_stream, tmp_path):

@@ -192,3 +192,33 @@ def test_a_campaign_given_straight_to_the_tools_names_the_way_in(trained):
         assert (
             f"{tool}: c.h5: an HDF5 file (an eskin campaign?)" in r.stderr and command in r.stderr
         )
+
+
+def test_eskin_classify_names_a_file_given_in_the_wrong_place(trained):
+    """A replay file ('ESKREPLY' starts with the raw-record magic 'ESKR'), a campaign, a
+    Python model or a .eskin model where the other belongs: one line naming what the file is
+    and what reads it, exit 2, nothing on standard output."""
+    eskin_cli(trained, "replay", "c.h5", "-o", "wrong.eskr", "--select", "run=2")
+    cases = (
+        (["m.eskin", "wrong.eskr"],
+         "wrong.eskr: an eskin replay file (.eskr, the stream eskin-fw-sim plays), not "
+         "recordings: eskin-fw-sim streams it"),
+        (["m.eskin", "m.eskin"],
+         "m.eskin: an eskin model (.eskin), not recordings: eskin-classify reads it as MODEL"),
+        (["m.eskin", "m.joblib"], "m.joblib: a Python model file (joblib; eskin train writes"),
+        (["wrong.eskr", "m.eskin"],
+         "MODEL wrong.eskr: an eskin replay file (.eskr, the stream eskin-fw-sim plays), not a "
+         ".eskin model; eskin-fw-sim streams it"),
+        (["c.h5", "wrong.eskr"],
+         "MODEL c.h5: an HDF5 file (an eskin campaign?), not a .eskin model; `eskin replay "
+         "CAMPAIGN -o recordings.npy`"),
+        (["m.joblib", "wrong.eskr"],
+         "MODEL m.joblib: a Python model file (joblib; eskin train writes them), not a .eskin "
+         "model; `eskin export MODEL.joblib -o MODEL.eskin` writes the .eskin model"),
+    )
+    for args, message in cases:
+        r = subprocess.run([str(find_executable("eskin-classify")), *args], cwd=trained,
+                           capture_output=True, text=True, timeout=30, check=False)
+        assert (r.returncode, r.stdout) == (2, ""), (args, r.stdout, r.stderr)
+        assert r.stderr.startswith("eskin-classify: ") and message in r.stderr, r.stderr
+        assert len(r.stderr.splitlines()) == 1

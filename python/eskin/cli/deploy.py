@@ -14,6 +14,7 @@ class ReplayFormat(str, Enum):
     replay = "replay"
     npy = "npy"
     records = "records"
+    raw = "raw"
 
 
 #: what each output format is for, as `eskin replay` reports it
@@ -21,6 +22,8 @@ _FORMAT_USE = {
     "replay": "a stream for eskin-fw-sim",
     "npy": "recordings for eskin-classify",
     "records": "raw records for eskin-classify",
+    "raw": "a raw int16 stream, one sample of every taxel after another, for a controller "
+           "loop on its standard input (the README's classify_stream.cpp)",
 }
 _SELECT_KEYS = ("modality", "participant", "direction", "run", "index")
 
@@ -141,10 +144,11 @@ def _selected(c: Any, select: list[str]) -> Any:
 def _replay_format(output: Path, fmt: Optional[ReplayFormat]) -> str:
     if fmt is not None:
         return fmt.value
-    by_suffix = {".eskr": "replay", ".npy": "npy"}
+    by_suffix = {".eskr": "replay", ".npy": "npy", ".raw": "raw"}
     if output.suffix.lower() not in by_suffix:
-        _fail(f"{output}: say what to write with --format (replay, npy or records), or name the "
-              f"file .eskr (a replay stream for eskin-fw-sim) or .npy (for eskin-classify)")
+        _fail(f"{output}: say what to write with --format (replay, npy, records or raw), or "
+              f"name the file .eskr (a replay stream for eskin-fw-sim), .npy (for "
+              f"eskin-classify) or .raw (a raw int16 stream)")
     return by_suffix[output.suffix.lower()]
 
 
@@ -152,28 +156,35 @@ def replay(
     campaign: Path = typer.Argument(..., metavar="CAMPAIGN", help="campaign file (.h5)"),
     output: Path = typer.Option(
         ..., "-o", "--output",
-        help="file to write: .eskr (a replay stream for eskin-fw-sim) or .npy (the "
-        "recordings, for eskin-classify)"),
+        help="file to write: .eskr (a replay stream for eskin-fw-sim), .npy (the "
+        "recordings, for eskin-classify) or .raw (the replay stream's int16 samples alone)"),
     select: list[str] = typer.Option(
         [], "--select", metavar="KEY=VALUES",
         help="keep the recordings with these values: modality=brush,washer, "
         "participant=61-70, direction=h, run=2, index=0-9 (repeat to combine; default: "
         "every recording)"),
     fmt: Optional[ReplayFormat] = typer.Option(
-        None, "--format", help="replay, npy or records (raw records of any lengths for "
-        "eskin-classify); default: from the file name"),
-    gap: float = typer.Option(0.5, "--gap", help="replay: seconds of quiet noise between "
-                              "recordings"),
-    seed: int = typer.Option(0, help="replay: seed of the quiet noise"),
+        None, "--format", help="replay, npy, records (raw records of any lengths for "
+        "eskin-classify) or raw (the replay stream without its header: int16 little-endian, "
+        "one sample of every taxel, row by row, after another); default: from the file name"),
+    gap: float = typer.Option(0.5, "--gap", help="replay and raw: seconds of quiet noise "
+                              "between recordings"),
+    seed: int = typer.Option(0, help="replay and raw: seed of the quiet noise"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
     """Write a campaign's recordings for the controller: a replay stream that eskin-fw-sim
-    plays over its serial link, or the recordings for eskin-classify (.npy or raw records)."""
+    plays over its serial link, the same stream as raw int16 samples (what a controller loop
+    reads), or the recordings for eskin-classify (.npy or raw records)."""
     from collections import Counter
 
     from eskin._files import refuse_overwrite
     from eskin.data.campaign import load_campaign
-    from eskin.data.replay import write_raw_records, write_recordings_npy, write_replay_file
+    from eskin.data.replay import (
+        write_raw_records,
+        write_raw_stream,
+        write_recordings_npy,
+        write_replay_file,
+    )
 
     kind = _replay_format(output, fmt)
     if not gap >= 0:
@@ -185,6 +196,10 @@ def replay(
             if kind == "replay":
                 rf = write_replay_file(c, idx, output, gap_s=gap, seed=seed)
                 detail = f", {rf.n_samples / rf.sample_rate_hz:.1f} s at {rf.sample_rate_hz:g} Hz"
+            elif kind == "raw":
+                n, rows, cols = write_raw_stream(c, idx, output, gap_s=gap, seed=seed)
+                detail = (f", {n} samples of {rows}x{cols} taxels ({n / c.sample_rate_hz:.1f} s "
+                          f"at {c.sample_rate_hz:g} Hz)")
             elif kind == "npy":
                 detail = f", shape {write_recordings_npy(c, idx, output)}"
             else:

@@ -16,7 +16,7 @@ import math
 import os
 import struct
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -32,6 +32,7 @@ __all__ = [
     "ReplayFormatError",
     "read_replay_file",
     "write_raw_records",
+    "write_raw_stream",
     "write_recordings_npy",
     "write_replay_arrays",
     "write_replay_file",
@@ -106,6 +107,7 @@ def write_replay_arrays(
     noise_counts: Optional[float] = None,
     baseline: Optional[np.ndarray] = None,
     seed: int = 0,
+    _raw: bool = False,
 ) -> ReplayFile:
     """Write recordings (each int16 (rows, cols, length)) as one replay stream.
 
@@ -141,14 +143,23 @@ def write_replay_arrays(
 
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
-        f.write(head)
-        f.write(gaps.quiet(gap, None, gaps.edge_level(recs[0], True)).tobytes())
-        for i, r in enumerate(recs):
-            clipped = np.clip(r, -32768, 32767).astype("<i2")
-            f.write(np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes())
-            nxt = gaps.edge_level(recs[i + 1], True) if i + 1 < n else None
-            f.write(gaps.quiet(gap, gaps.edge_level(r, False), nxt).tobytes())
-    return read_replay_file(path)
+        if not _raw:
+            f.write(head)
+        for chunk in _stream_chunks(recs, gaps, gap):
+            f.write(chunk)
+    return None if _raw else read_replay_file(path)  # type: ignore[return-value]
+
+
+def _stream_chunks(recs: list[np.ndarray], gaps: _QuietGaps, gap: int) -> Iterator[bytes]:
+    """The stream's bytes in order (int16 little-endian, one sample of every taxel after
+    another): a quiet gap, then each recording followed by its gap."""
+    n = len(recs)
+    yield gaps.quiet(gap, None, gaps.edge_level(recs[0], True)).tobytes()
+    for i, r in enumerate(recs):
+        clipped = np.clip(r, -32768, 32767).astype("<i2")
+        yield np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes()
+        nxt = gaps.edge_level(recs[i + 1], True) if i + 1 < n else None
+        yield gaps.quiet(gap, gaps.edge_level(r, False), nxt).tobytes()
 
 
 def _check_recordings(recs: list[np.ndarray]) -> tuple[int, int]:
@@ -285,23 +296,48 @@ def write_replay_file(
     ``modalities``, ``sample_rate_hz`` and ``volts_per_count``); labels are its modality ids,
     contact intervals its simulator ground truth when present.
     """
+    return write_replay_arrays(path, **_campaign_stream(campaign, indices), gap_s=gap_s,
+                               noise_counts=noise_counts, seed=seed)
+
+
+def write_raw_stream(
+    campaign: Any,
+    indices: Optional[Sequence[int]],
+    path: str | os.PathLike[str],
+    *,
+    gap_s: float = 0.5,
+    noise_counts: Optional[float] = None,
+    seed: int = 0,
+) -> tuple[int, int, int]:
+    """Write the stream :func:`write_replay_file` would write with the same arguments, its
+    samples alone: int16 little-endian, one sample of every taxel (row by row) after another,
+    no header. This is what a controller loop reads sample by sample (the README's
+    ``classify_stream.cpp`` on its standard input). Returns (samples, rows, cols)."""
+    fields = _campaign_stream(campaign, indices)
+    write_replay_arrays(path, **fields, gap_s=gap_s, noise_counts=noise_counts, seed=seed,
+                        _raw=True)
+    recs = fields["recordings"]
+    gap = int(round(gap_s * fields["sample_rate_hz"]))
+    n = sum(r.shape[2] for r in recs) + gap * (len(recs) + 1)
+    return n, int(recs[0].shape[0]), int(recs[0].shape[1])
+
+
+def _campaign_stream(campaign: Any, indices: Optional[Sequence[int]]) -> dict[str, Any]:
+    """write_replay_arrays' arguments for recordings ``indices`` (all when None) of a
+    campaign."""
     idx = np.arange(len(campaign)) if indices is None else np.asarray(indices, dtype=np.int64)
     recs = [np.asarray(campaign.recording(int(i))) for i in idx]
     labels = np.asarray(campaign.modality)[idx] if getattr(campaign, "modality", None) is not None else None
     contact = getattr(campaign, "contact_interval", None)
     contacts = np.asarray(contact)[idx] if contact is not None else None
-    return write_replay_arrays(
-        path,
-        recs,
+    return dict(
+        recordings=recs,
         labels=labels,
         class_names=list(getattr(campaign, "modalities", ()) or ()),
         sample_rate_hz=float(getattr(campaign, "sample_rate_hz", 3000.0)),
         volts_per_count=float(getattr(campaign, "volts_per_count", 1.0)),
         contact_intervals=contacts,
         recording_indices=idx,
-        gap_s=gap_s,
-        noise_counts=noise_counts,
-        seed=seed,
     )
 
 
