@@ -115,9 +115,15 @@ def _check_labels(
 
 
 def _check_contents(
-    where: str | None, labels: Mapping[str, np.ndarray], n_modalities: int, n_samples: int
+    where: str | None, labels: Mapping[str, np.ndarray], n_modalities: int, n_samples: int,
+    first: int = 0,
 ) -> None:
-    """Cross-field checks on already typed label arrays."""
+    """Cross-field checks on already typed label arrays (``first``: the index of their first
+    recording, for the messages)."""
+
+    def more(bad: np.ndarray) -> str:
+        return f" ({bad.size} bad entries)" if bad.size > 1 else ""
+
     length = labels["length"]
     if length.size:
         bad = np.flatnonzero((length < 0) | (length > n_samples))
@@ -125,8 +131,8 @@ def _check_contents(
             i = int(bad[0])
             raise CampaignFormatError(
                 where, "/recordings/length",
-                f"recording {i} has length {int(length[i])}, outside [0, T={n_samples}] "
-                f"({bad.size} bad entries)")
+                f"recording {first + i} has length {int(length[i])}, outside "
+                f"[0, T={n_samples}]{more(bad)}")
     modality = labels["modality"]
     if modality.size:
         bad = np.flatnonzero(modality >= n_modalities)
@@ -134,8 +140,8 @@ def _check_contents(
             i = int(bad[0])
             raise CampaignFormatError(
                 where, "/recordings/modality",
-                f"recording {i} has modality id {int(modality[i])}, out of range: the "
-                f"modalities attribute names {n_modalities} classes ({bad.size} bad entries)")
+                f"recording {first + i} has modality id {int(modality[i])}, out of range: the "
+                f"modalities attribute names {n_modalities} classes{more(bad)}")
     direction = labels["direction"]
     if direction.size:
         bad = np.flatnonzero(~np.isin(direction, list(DIRECTION_NAMES)))
@@ -143,8 +149,8 @@ def _check_contents(
             i = int(bad[0])
             raise CampaignFormatError(
                 where, "/recordings/direction",
-                f"recording {i} has direction {int(direction[i])} (allowed: 0 horizontal, "
-                f"1 vertical, 255 unknown)")
+                f"recording {first + i} has direction {int(direction[i])} (allowed: "
+                f"0 horizontal, 1 vertical, 255 unknown)")
     ci = labels.get("contact_interval")
     if ci is not None and ci.size:
         bad = np.flatnonzero((ci[:, 0] < 0) | (ci[:, 1] < ci[:, 0]) | (ci[:, 1] > length))
@@ -152,8 +158,8 @@ def _check_contents(
             i = int(bad[0])
             raise CampaignFormatError(
                 where, "/recordings/contact_interval",
-                f"recording {i} has interval [{int(ci[i, 0])}, {int(ci[i, 1])}), not within "
-                f"[0, length={int(length[i])}] with onset <= offset")
+                f"recording {first + i} has interval [{int(ci[i, 0])}, {int(ci[i, 1])}), not "
+                f"within [0, length={int(length[i])}] with onset <= offset")
 
 
 def _check_attrs(where: str | None, attrs: Mapping[str, Any]) -> dict[str, Any]:
@@ -760,6 +766,16 @@ class CampaignWriter:
     writer's ``grid_shape``, ``n_samples`` and ``compression_level``), which lets worker
     processes do the compression. Compression: gzip (deflate) at ``compression_level`` with the
     shuffle filter, or none (``compression_level=None``).
+
+    Each way out of ``with CampaignWriter(...)`` (docs/dataset-format.md, "Each way out"):
+    the block ends normally: the campaign file is built and the journal deleted; an exception
+    (``KeyboardInterrupt`` from Ctrl-C included) ends it: no campaign file appears, the
+    journal is kept with every recording whose append returned (``eskin recover`` builds the
+    campaign) and the exception carries a note saying so and naming a failed append; the
+    process dies (SIGTERM without a handler, kill -9, a crash, power loss): the journal is kept
+    likewise. ``on_error="discard"`` deletes the journal on an exception instead, for data that
+    still exists elsewhere (arrays in memory, imported files, a simulator seed). A block that
+    appended nothing leaves nothing.
     """
 
     def __init__(
@@ -778,8 +794,13 @@ class CampaignWriter:
         compression_level: int | None = 1,
         extra_fields: Mapping[str, Any] | None = None,
         durable: bool = True,
+        on_error: str = "keep",
     ):
         from eskin.data.journal import JournalWriter
+
+        if on_error not in ("keep", "discard"):
+            raise ValueError(f"on_error must be 'keep' or 'discard', got {on_error!r}")
+        self.on_error = on_error
 
         self.path = Path(path)
         rows, cols = (int(v) for v in grid_shape)
@@ -812,6 +833,7 @@ class CampaignWriter:
             self._with_ci, self._extra_types), durable=durable)
         self._n = 0
         self._closed = False
+        self._failed: int | None = None  # index of an append that raised
 
     def __len__(self) -> int:
         return self._n
@@ -829,7 +851,17 @@ class CampaignWriter:
         disk (it survives a crash of this process or of the machine)."""
         if self._closed:
             raise ValueError(f"{self.path}: writer is closed")
-        where = f"recording {self._n}"
+        try:
+            return self._append(signals, modality, participant, direction, run, length,
+                                contact_interval, extra)
+        except BaseException:
+            self._failed = self._n
+            raise
+
+    def _append(self, signals: Any, modality: int | str, participant: int, direction: int,
+                run: int, length: int | None, contact_interval: tuple[int, int] | None,
+                extra: Mapping[str, Any] | None) -> int:
+        where = f"{self.path}: recording {self._n}"
         if isinstance(signals, EncodedRecording):
             enc = signals
             if (enc.grid_shape != self.grid_shape or enc.n_samples != self.n_samples
@@ -906,14 +938,33 @@ class CampaignWriter:
         self._closed = True
         self._journal.discard()
 
+    def keep(self) -> str:
+        """Stop writing without building the campaign: the journal stays on the disk, holding
+        every recording whose ``append`` returned, for ``eskin recover``; returns a sentence
+        saying so (what ``with`` adds to an exception that ends the block)."""
+        self._closed = True
+        self._journal.release()
+        text = (f"{self.path}: the {self._n} recordings whose append returned are kept in the "
+                f"journal {self._journal.path}; `eskin recover {self.path}` builds the campaign "
+                f"from them")
+        if self._failed is not None:
+            text += f" (recording {self._failed}, whose append failed, is not among them)"
+        return text
+
     def __enter__(self) -> CampaignWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is None:
             self.close()
-        else:
+        elif self._closed:
+            return
+        elif self._n == 0 or self.on_error == "discard":
             self.abort()
+        else:
+            note = self.keep()
+            if exc is not None and hasattr(exc, "add_note"):
+                exc.add_note(note)
 
 
 def _check_target(path: Path, overwrite: bool) -> None:
@@ -944,9 +995,59 @@ def _journal_settings(attrs: dict[str, Any], dec: Mapping[str, Any], grid: tuple
             "attrs": [[k, encode_attr(_attr_value(v))] for k, v in values.items()]}
 
 
-def _build_from_journal(contents: Any, out: Path) -> int:
-    """Write the campaign file ``out`` from a journal's settings and complete records;
-    return the number of recordings."""
+class _RecordCheck:
+    """The campaign loader's checks on one journal record at a time (labels, contact interval,
+    extra values, the chunk's size), so that recovery writes only what the loader accepts."""
+
+    def __init__(self, settings: Mapping[str, Any], attrs: Mapping[str, Any], where: str):
+        self.rows, self.cols = (int(v) for v in settings["grid_shape"])
+        self.t = int(settings["n_samples"])
+        self.level = settings["compression_level"]
+        self.n_modalities = len(attrs["modalities"])
+        self.with_ci = bool(settings["contact_interval"])
+        self.extra_types = {k: np.dtype(v) for k, v in settings["extra_fields"]}
+        self.extra_shapes: dict[str, tuple[int, ...]] = {}
+        self.where = where
+
+    def problem(self, index: int, rec: Any, verify_data: bool = True) -> str:
+        """What is wrong with record ``index`` ("" when nothing), naming the field;
+        ``verify_data``: also inflate its chunk to check its size."""
+        arrays = {k: [rec.meta.get(k)] for k in _LABEL_FIELDS}
+        if self.with_ci:
+            arrays["contact_interval"] = [rec.meta.get("contact_interval")]
+        try:
+            arrays = {k: np.asarray(v) for k, v in arrays.items()}
+            labels = _check_labels(self.where, 1, arrays, strict_dtype=False)
+            _check_contents(self.where, labels, self.n_modalities, self.t, first=index)
+        except CampaignFormatError as exc:
+            return f"{exc.field}: {exc.problem}"
+        except (ValueError, TypeError, OverflowError) as exc:
+            return f"labels: {exc}"
+        for k, dt in self.extra_types.items():
+            v = rec.extras.get(k)
+            shape = self.extra_shapes.setdefault(k, getattr(v, "shape", ()))
+            if not isinstance(v, np.ndarray) or v.dtype != dt or v.shape != shape:
+                return (f"/recordings/extra/{k}: {getattr(v, 'dtype', type(v).__name__)} "
+                        f"{getattr(v, 'shape', '')}, expected {dt} {shape}")
+        size = self.rows * self.cols * self.t * 2
+        if not verify_data:
+            return ""
+        try:
+            raw = len(rec.chunk) if self.level is None else len(
+                zlib.decompressobj().decompress(rec.chunk, size + 1))
+        except zlib.error as exc:
+            return f"/recordings/signals: the compressed chunk does not inflate ({exc})"
+        if raw != size:
+            return (f"/recordings/signals: the chunk holds {raw} bytes, not the {size} of a "
+                    f"{self.rows}x{self.cols}x{self.t} int16 recording")
+        return ""
+
+
+def _build_from_journal(contents: Any, out: Path, verify_data: bool = True
+                        ) -> tuple[int, list[str]]:
+    """Write the campaign file ``out`` from a journal's settings and its records that pass the
+    loader's checks; return the number of recordings written and, for each record skipped,
+    "record K: field: problem"."""
     import h5py
 
     from eskin.data.journal import decode_attr
@@ -955,19 +1056,30 @@ def _build_from_journal(contents: Any, out: Path) -> int:
     rows, cols = s["grid_shape"]
     t, level = int(s["n_samples"]), s["compression_level"]
     check_sizes(str(contents.path), 0, rows, cols, t)
+    attrs = {k: decode_attr(v) for k, v in s["attrs"]}
+    try:
+        _check_attrs(str(contents.path), attrs)
+    except CampaignFormatError as exc:
+        raise CampaignFormatError(contents.path, f"header: {exc.field}", exc.problem) from None
+    check = _RecordCheck(s, attrs, str(contents.path))
     labels: dict[str, list[Any]] = {k: [] for k in (*_LABEL_FIELDS, "contact_interval")}
-    extra_types = {k: np.dtype(v) for k, v in s["extra_fields"]}
-    extras: dict[str, list[Any]] = {k: [] for k in extra_types}
+    extras: dict[str, list[Any]] = {k: [] for k in check.extra_types}
+    skipped: list[str] = []
     with h5py.File(out, "w") as f:
-        for k, v in s["attrs"]:
-            f.attrs[k] = decode_attr(v)
+        for k, v in attrs.items():
+            f.attrs[k] = v
         grp = f.create_group("recordings")
         sig = grp.create_dataset(
             "signals", shape=(0, rows, cols, t), maxshape=(None, rows, cols, t), dtype=np.int16,
             chunks=(1, rows, cols, t), compression=None if level is None else "gzip",
             compression_opts=level, shuffle=level is not None)
         n = 0
-        for rec in contents.records:
+        skipped += contents.skipped
+        for rec in contents.records():
+            problem = check.problem(rec.index, rec, verify_data)
+            if problem:
+                skipped.append(f"record {rec.index}: {problem}")
+                continue
             sig.resize(n + 1, axis=0)
             sig.id.write_direct_chunk((n, 0, 0, 0), rec.chunk, filter_mask=0)
             for k, values in labels.items():
@@ -981,16 +1093,17 @@ def _build_from_journal(contents: Any, out: Path) -> int:
         if s["contact_interval"]:
             grp.create_dataset("contact_interval", data=np.asarray(
                 labels["contact_interval"], dtype=np.int32).reshape(n, 2))
-        if extra_types:
+        if check.extra_types:
             eg = grp.create_group("extra")
-            for k, dt in extra_types.items():
-                eg.create_dataset(k, data=np.asarray(extras[k], dtype=dt))
+            for k, dt in check.extra_types.items():
+                shape = (n, *check.extra_shapes.get(k, ()))
+                eg.create_dataset(k, data=np.asarray(extras[k], dtype=dt).reshape(shape))
     fd = os.open(out, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:
         os.close(fd)
-    return n
+    return n, sorted(skipped, key=lambda text: int(text.split(":")[0].split()[1]))
 
 
 def _place(tmp: Path, target: Path, overwrite: bool) -> None:
@@ -1024,38 +1137,61 @@ class Recovery:
     recordings: int
     dropped_bytes: int
     dropped_reason: str
+    skipped: tuple[str, ...] = ()
+    kept_journal: Path | None = None
 
     def message(self) -> str:
         """One line for the user: what was recovered and what was not."""
         text = f"recovered {self.recordings} complete recordings into {self.output}"
+        if self.skipped:
+            more = len(self.skipped) - 10
+            text += (f"; skipped {len(self.skipped)} invalid records ("
+                     + "; ".join(self.skipped[:10]) + (f"; {more} more" if more > 0 else "")
+                     + ")")
         if self.dropped_bytes:
             text += (f"; dropped the last {self.dropped_bytes} bytes of the journal "
                      f"({self.dropped_reason})")
+        if self.kept_journal is not None:
+            text += f"; the journal is kept as {self.kept_journal}"
         return text
 
 
 def _finish_journal(journal: Path, output: Path, overwrite: bool,
                     held: Any = None) -> Recovery:
     """Build ``output`` from ``journal`` (locked by us: ``held`` is the writer holding it, or
-    None to lock it here), place it, then delete the journal."""
+    None to lock it here), check that it loads and reads back, place it, then delete the
+    journal (or, if records were skipped as invalid, move it aside as ``.NAME.rejected``)."""
     from eskin.data.journal import LockedJournal, fsync_dir
 
     tmp = output.with_name(f".{output.name}.{os.getpid()}.building")
+    kept = None
     try:
         with LockedJournal(journal, lock=held is None) as reader:
             contents = reader.read()
             try:
-                n = _build_from_journal(contents, tmp)
+                # the writer's own records were checked by append; recovery checks them all
+                n, skipped = _build_from_journal(contents, tmp, verify_data=held is None)
+                try:
+                    load_campaign(tmp, check_data=held is None).close()
+                except CampaignFormatError as exc:
+                    raise CampaignFormatError(
+                        output, "", f"the campaign built from {journal} does not check "
+                        f"({exc.field}: {exc.problem}); the journal is kept") from None
                 _place(tmp, output, overwrite)
             finally:
                 tmp.unlink(missing_ok=True)
             fsync_dir(output.parent)
-            journal.unlink()
+            if skipped:
+                kept = journal.with_name(journal.name[: -len(".partial")] + ".rejected")
+                os.replace(journal, kept)
+            else:
+                journal.unlink()
             fsync_dir(journal.parent)
     finally:
         if held is not None:
             held.release()
-    return Recovery(output, n, contents.dropped_bytes, contents.dropped_reason)
+    return Recovery(output, n, contents.dropped_bytes, contents.dropped_reason,
+                    tuple(skipped), kept)
 
 
 def recover_campaign(path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
@@ -1139,7 +1275,8 @@ def write_campaign(
     with CampaignWriter(path, grid_shape=grid, n_samples=max(t, 1), sample_rate_hz=sample_rate_hz,
                         volts_per_count=volts_per_count, modalities=modalities, source=source,
                         attrs=attrs, contact_interval=ci is not None, overwrite=overwrite,
-                        extra_fields={k: v.dtype for k, v in ex.items()}) as w:
+                        extra_fields={k: v.dtype for k, v in ex.items()},
+                        on_error="discard") as w:
         for i, rec in enumerate(recs):
             w.append(rec, modality=int(labels["modality"][i]),
                      participant=int(labels["participant"][i]),

@@ -330,7 +330,7 @@ def import_csv_folder(
     t = max(max(lengths), 1)
     with CampaignWriter(output, grid_shape=(n_rows, n_cols), n_samples=t,
                         sample_rate_hz=rate, volts_per_count=vpc, modalities=names,
-                        source="recorded", overwrite=overwrite,
+                        source="recorded", overwrite=overwrite, on_error="discard",
                         attrs={"imported_from": f"csv folder {folder.name}", **dict(attrs or {})}
                         ) as w:
         for e, cid in zip(entries, ids):
@@ -432,7 +432,7 @@ def import_tdms(
     # pass 2: one recording at a time
     with CampaignWriter(output, grid_shape=grid, n_samples=t, sample_rate_hz=rate,
                         volts_per_count=vpc, modalities=names, source="recorded",
-                        overwrite=overwrite,
+                        overwrite=overwrite, on_error="discard",
                         attrs={"imported_from": "tdms " + ", ".join(p.name for p in paths[:10]),
                                **dict(attrs or {})}) as w:
         for rec, cid, counts in _tdms_counts(recs, ids, grid, vpc, units):

@@ -182,6 +182,8 @@ class JournalWriter:
             self.discard()
             raise
         self.n = 0
+        self.end = os.lseek(self._fd, 0, os.SEEK_CUR)  # one past the last complete record
+        self.broken = ""
 
     def append(
         self, meta: Mapping[str, Any], extras: Mapping[str, tuple[Any, np.dtype]], chunk: bytes
@@ -194,10 +196,29 @@ class JournalWriter:
         body = b"".join(b for _, b in blobs) + chunk
         head = _RECORD_HEAD.pack(RECORD_MAGIC, self.n, len(text), len(body))
         crc = zlib.crc32(body, zlib.crc32(text, zlib.crc32(head[4:])))
-        _write_all(self._fd, head + text + body + _CRC.pack(crc))
-        if self.durable:
-            os.fdatasync(self._fd)
+        if self.broken:
+            raise OSError(errno.EIO, f"{self.path}: the journal cannot take more recordings "
+                          f"({self.broken}); the {self.n} appended before are kept in it")
+        try:
+            _write_all(self._fd, head + text + body + _CRC.pack(crc))
+            if self.durable:
+                os.fdatasync(self._fd)
+        except BaseException as exc:
+            self._cut_back(exc)
+            raise
+        self.end += len(head) + len(text) + len(body) + _CRC.size
         self.n += 1
+
+    def _cut_back(self, exc: BaseException) -> None:
+        """After a failed append: cut the journal back to its last complete record, so that
+        later appends follow it; if that fails too, refuse further appends (the reader stops
+        at the torn record anyway: nothing appended before is lost)."""
+        try:
+            os.ftruncate(self._fd, self.end)
+            os.lseek(self._fd, self.end, os.SEEK_SET)
+        except OSError as cut:
+            self.broken = f"an append failed ({exc!r}) and the torn record could not be cut " \
+                f"off ({cut.strerror})"
 
     def release(self) -> None:
         """Close and unlock the journal, leaving it on disk (for a later recovery)."""
@@ -231,23 +252,37 @@ def _is_locked(path: Path) -> bool:
 
 @dataclass
 class JournalRecord:
-    """One complete recording read back from a journal."""
+    """One complete recording read back from a journal (``index``: its append's index)."""
 
     meta: dict[str, Any]
     extras: dict[str, np.ndarray]
     chunk: bytes
+    index: int = 0
 
 
 @dataclass
 class JournalContents:
-    """What :meth:`LockedJournal.read` found: the settings, the records (an iterator, read once)
-    and, after iterating, how many bytes at the end were torn or damaged."""
+    """What :meth:`LockedJournal.read` found, all known as soon as it returns: the settings,
+    where each complete record starts, the records skipped as unreadable (CRC-valid, but
+    labels a campaign cannot hold: "record K: problem"), and how many bytes at the end were
+    torn or damaged (and why). :meth:`records` reads the records one at a time."""
 
     path: Path
     settings: dict[str, Any]
-    records: Iterator[JournalRecord] = field(repr=False)
+    offsets: list[int] = field(default_factory=list, repr=False)
+    skipped: list[str] = field(default_factory=list)
     dropped_bytes: int = 0
     dropped_reason: str = ""
+    _fh: Any = field(default=None, repr=False)
+
+    def records(self) -> Iterator[JournalRecord]:
+        """The complete records, in append order (one in memory at a time)."""
+        for index, pos in enumerate(self.offsets):
+            self._fh.seek(pos)
+            record, reason = _read_record(self._fh, None, 1 << 62)
+            if record is None:  # changed under its lock: a damaged disk
+                raise JournalError(f"{self.path}: record at byte {pos} no longer reads ({reason})")
+            yield record
 
 
 class LockedJournal:
@@ -266,27 +301,26 @@ class LockedJournal:
         self.size = os.fstat(self._fh.fileno()).st_size
 
     def read(self) -> JournalContents:
-        """Parse the header; the records are read lazily, one at a time."""
-        settings, start = _read_header(self._fh, self.path)
-        contents = JournalContents(self.path, settings, iter(()))
-        contents.records = self._records(contents, start)
-        return contents
-
-    def _records(self, contents: JournalContents, pos: int) -> Iterator[JournalRecord]:
+        """Parse the header and walk every record once (checking its CRC-32 and labels), so
+        that what is complete, skipped and dropped is known before anything is built."""
+        settings, pos = _read_header(self._fh, self.path)
+        contents = JournalContents(self.path, settings, _fh=self._fh)
         fh, index = self._fh, 0
         fh.seek(pos)
         while pos < self.size:
             record, reason = _read_record(fh, index, self.size - pos)
-            if record is not None:
-                problem = _meta_problem(record.meta, record.extras, contents.settings)
-                if problem:
-                    record, reason = None, f"recording {index}: {problem}"
-            if record is None:
+            if record is None and not reason.startswith("skip:"):
                 contents.dropped_bytes, contents.dropped_reason = self.size - pos, reason
-                return
+                break
+            problem = reason[5:] if record is None else _meta_problem(
+                record.meta, record.extras, settings)
+            if problem:
+                contents.skipped.append(f"record {index}: {problem}")
+            else:
+                contents.offsets.append(pos)
             pos = fh.tell()
             index += 1
-            yield record
+        return contents
 
     def close(self) -> None:
         self._fh.close()
@@ -360,41 +394,43 @@ _LABELS = ("length", "modality", "participant", "direction", "run")
 
 
 def _meta_problem(meta: Any, extras: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
-    """What is wrong with one record's labels and extras ("" when nothing)."""
+    """What is wrong with one record's labels and extras ("" when nothing); the values are
+    checked against the campaign format when the campaign is built."""
     if not isinstance(meta, dict) or not all(_is_int(meta.get(k)) for k in _LABELS):
-        return f"labels {meta!r} incomplete"
+        return f"labels: {meta!r} incomplete (each of {', '.join(_LABELS)} an integer)"
     ci = meta.get("contact_interval")
     if settings["contact_interval"] and not (
         isinstance(ci, list) and len(ci) == 2 and all(map(_is_int, ci))
     ):
-        return f"contact interval {ci!r} missing"
+        return f"/recordings/contact_interval: {ci!r} missing or not two integers"
     if list(extras) != [k for k, _ in settings["extra_fields"]]:
-        return f"extra fields {list(extras)} differ from the header's"
+        return f"/recordings/extra: fields {list(extras)} differ from the header's"
     return ""
 
 
-def _read_record(fh: Any, index: int, remaining: int) -> tuple[JournalRecord | None, str]:
-    """Read the next record; (None, reason) if it is torn or damaged."""
+def _read_record(fh: Any, index: int | None, remaining: int) -> tuple[JournalRecord | None, str]:
+    """Read the next record (``index``: the one expected, None: any); (None, reason) if it is
+    torn or damaged, (None, "skip:" + reason) if it is complete but its labels unreadable."""
     head = fh.read(_RECORD_HEAD.size)
     if len(head) < _RECORD_HEAD.size:
         return None, "a torn record header"
     magic, idx, m, b = _RECORD_HEAD.unpack(head)
-    if magic != RECORD_MAGIC or idx != index:
+    if magic != RECORD_MAGIC or (index is not None and idx != index):
         return None, f"no record {index} where expected (damaged data)"
     if m > _MAX_META or _RECORD_HEAD.size + m + b + 4 > remaining:
-        return None, f"recording {index} incomplete (the append in flight)"
+        return None, f"recording {idx} incomplete (the append in flight)"
     text, body, crc = fh.read(m), fh.read(b), fh.read(4)
     if _CRC.unpack(crc)[0] != zlib.crc32(body, zlib.crc32(text, zlib.crc32(head[4:]))):
-        return None, f"recording {index} fails its CRC-32 (torn or damaged)"
+        return None, f"recording {idx} fails its CRC-32 (torn or damaged)"
     try:
         meta = json.loads(text.decode("utf-8"))
         extras, pos = {}, 0
         for name, size in meta.pop("extra"):
-            extras[name] = _npy_value(body[pos : pos + size])
-            pos += size
+            extras[str(name)] = _npy_value(body[pos : pos + int(size)])
+            pos += int(size)
         chunk = body[pos:]
         if len(chunk) != meta.pop("chunk"):
-            return None, f"recording {index}: chunk size mismatch"
-    except (ValueError, KeyError, TypeError) as exc:
-        return None, f"recording {index}: unreadable labels ({exc})"
-    return JournalRecord(meta, extras, chunk), ""
+            return None, "skip:/recordings/signals: chunk size differs from its label"
+    except (ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
+        return None, f"skip:labels: unreadable ({exc})"
+    return JournalRecord(meta, extras, chunk, idx), ""

@@ -757,7 +757,7 @@ def simulate(
                         sample_rate_hz=cfg.sample_rate_hz, volts_per_count=cfg.volts_per_count,
                         modalities=list(MODALITIES), source="simulated", attrs=attrs,
                         contact_interval=True, overwrite=overwrite,
-                        extra_fields=extra_fields, durable=False) as w:
+                        extra_fields=extra_fields, durable=False, on_error="discard") as w:
         for k, ((participant, run, modality, direction), rec, truth) in enumerate(
                 iter_recordings(participants, seed, config=cfg, runs=runs, n_jobs=n_jobs,
                                 _encode=(w.compression_level,))):
