@@ -291,6 +291,24 @@ void bind_protocol(py::module_& m) {
   p.attr("PROTOCOL_VERSION") = protocol::kProtocolVersion;
   p.attr("MAX_FRAME_SIZE") = protocol::kMaxFrameSize;
   p.attr("MAX_DECISION_VALUES") = protocol::kMaxDecisionValues;
+  // The protocol's numbering as the C++ core has it (eskin.link.protocol's enums are checked
+  // against these by tests/python/link/test_protocol.py).
+  py::dict types;
+  for (int t = 0; t < 256; ++t)
+    if (protocol::is_known_type(static_cast<std::uint8_t>(t)))
+      types[protocol::frame_type_name(static_cast<protocol::FrameType>(t))] = t;
+  p.attr("FRAME_TYPES") = types;
+  py::dict flag_bits;
+  flag_bits["OVERRUN"] = protocol::flags::kOverrun;
+  flag_bits["SYNC"] = protocol::flags::kSync;
+  flag_bits["LOOP"] = protocol::flags::kLoop;
+  p.attr("FLAGS") = flag_bits;
+  py::dict states;
+  states["STOPPED"] = static_cast<int>(protocol::StreamState::stopped);
+  states["STREAMING"] = static_cast<int>(protocol::StreamState::streaming);
+  states["FINISHED"] = static_cast<int>(protocol::StreamState::finished);
+  p.attr("STREAM_STATES") = states;
+  p.attr("DELIMITER") = py::bytes(reinterpret_cast<const char*>(&protocol::kDelimiter), 1);
 
   p.def(
       "crc32",

@@ -15,28 +15,6 @@
 
 namespace eskin {
 
-namespace model_format {
-namespace {
-struct CrcTable {
-  std::uint32_t t[256];
-  constexpr CrcTable() : t{} {
-    for (std::uint32_t i = 0; i < 256; ++i) {
-      std::uint32_t c = i;
-      for (int k = 0; k < 8; ++k) c = (c & 1u) ? (0xEDB88320u ^ (c >> 1)) : (c >> 1);
-      t[i] = c;
-    }
-  }
-};
-constexpr CrcTable kCrcTable{};
-}  // namespace
-
-std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc) noexcept {
-  crc = ~crc;
-  for (std::size_t i = 0; i < n; ++i) crc = kCrcTable.t[(crc ^ data[i]) & 0xFFu] ^ (crc >> 8);
-  return ~crc;
-}
-}  // namespace model_format
-
 namespace {
 
 // Limits that keep every product of sizes far from overflow and every allocation sane.

@@ -61,16 +61,6 @@ struct Reader {
   }
 };
 
-constexpr std::array<std::uint32_t, 256> make_crc_table() {
-  std::array<std::uint32_t, 256> table{};
-  for (std::uint32_t i = 0; i < 256; ++i) {
-    std::uint32_t c = i;
-    for (int k = 0; k < 8; ++k) c = (c & 1U) ? (0xEDB88320U ^ (c >> 1)) : (c >> 1);
-    table[i] = c;
-  }
-  return table;
-}
-constexpr std::array<std::uint32_t, 256> kCrcTable = make_crc_table();
 
 /// Payload size of a frame as it will be serialised; 0 with ok=false if invalid.
 std::size_t payload_size(const Frame& f, bool& ok) {
@@ -147,12 +137,6 @@ std::ptrdiff_t fixed_payload_size(FrameType type) {
     case FrameType::info_request: return 0;
   }
   return -1;
-}
-
-std::uint32_t crc32(const std::uint8_t* data, std::size_t size, std::uint32_t crc) {
-  std::uint32_t c = crc ^ 0xFFFFFFFFU;
-  for (std::size_t i = 0; i < size; ++i) c = kCrcTable[(c ^ data[i]) & 0xFFU] ^ (c >> 8);
-  return c ^ 0xFFFFFFFFU;
 }
 
 std::size_t cobs_encode(const std::uint8_t* in, std::size_t size, std::uint8_t* out,

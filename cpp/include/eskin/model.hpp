@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "eskin/crc32.hpp"
 #include "eskin/preprocess.hpp"
 #include "eskin/tensor_kernel.hpp"
 
@@ -63,9 +64,8 @@ inline constexpr std::uint32_t kHeaderBytes = 32;
 inline constexpr std::uint32_t kFlagFloat64 = 1u;
 inline constexpr std::size_t kNameBytes = 32;  ///< class and window-field names, NUL padded
 inline constexpr int kModes = 3;               ///< (rows, cols, D) tensors
-/// CRC-32 with the zlib polynomial (reflected 0xEDB88320, init and final xor 0xFFFFFFFF);
-/// equal to Python's zlib.crc32. `crc` continues a previous call (start with 0).
-std::uint32_t crc32(const std::uint8_t* data, std::size_t n, std::uint32_t crc = 0) noexcept;
+/// The file's CRC-32: the core's one (eskin/crc32.hpp, zlib's).
+using eskin::crc32;
 }  // namespace model_format
 
 enum class DecisionRule : std::uint32_t { kBinary = 0, kOneVsAll = 1 };

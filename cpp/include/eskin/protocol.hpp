@@ -12,6 +12,8 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "eskin/crc32.hpp"
+
 namespace eskin::protocol {
 
 inline constexpr std::uint16_t kProtocolVersion = 1;
@@ -147,9 +149,8 @@ const char* frame_type_name(FrameType type);
 
 // ---- checksum and byte stuffing -------------------------------------------------------------
 
-/// CRC-32 (zlib / ISO-HDLC: reflected 0xEDB88320, init and xorout 0xFFFFFFFF).
-/// Pass a previous result as `crc` to continue a running checksum.
-std::uint32_t crc32(const std::uint8_t* data, std::size_t size, std::uint32_t crc = 0);
+/// The frames' CRC-32: the core's one (eskin/crc32.hpp, zlib's).
+using eskin::crc32;
 
 /// COBS-encodes `in` into `out` (no delimiter). Returns the encoded length, or 0 if `cap` is
 /// smaller than max_encoded_size(size) - 1 would need (nothing useful is written then).

@@ -242,3 +242,16 @@ def test_reset_forgets_partial_frame():
     dec.feed(STREAM[:100])
     dec.reset()
     assert dec.feed(STREAM[100:]) == STREAM_FRAMES[1:]
+
+
+def test_python_numbering_is_the_cores():
+    """One source for the protocol's numbers: the C++ header (cpp/include/eskin/protocol.hpp),
+    read through the compiled core; eskin.link.protocol's enums must equal it name for name."""
+    from eskin import _core
+    from eskin.link.protocol import DELIMITER, Flags, FrameType, StreamState
+
+    core = _core.protocol
+    assert {t.name: int(t) for t in FrameType} == dict(core.FRAME_TYPES)
+    assert {f.name: int(f) for f in Flags if f.name != "NONE"} == dict(core.FLAGS)
+    assert {s.name: int(s) for s in StreamState} == dict(core.STREAM_STATES)
+    assert DELIMITER == core.DELIMITER
