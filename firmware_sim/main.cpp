@@ -60,8 +60,9 @@ Simulates the e-skin controller: creates a pseudo-terminal (raw mode), prints
 "PTY <slave path>" as the first line of stdout, and streams INPUT over it in the eskin wire
 protocol (docs/wire-protocol.md) at the real sample rate.
 
-INPUT: an eskin replay file (.eskr, written by eskin.replay.write_replay_file) or a .npy
-little-endian int16 array (n_samples, rows, cols) / (n_samples, taxels) with --grid.
+INPUT: an eskin replay file (.eskr, written by `eskin replay CAMPAIGN -o FILE.eskr`, or from
+Python by eskin.data.replay.write_replay_file) or a .npy little-endian int16 array
+(n_samples, rows, cols) / (n_samples, taxels) with --grid.
 
 options:
   --link PATH          also publish the port as a symlink PATH (replaced if it is a symlink)

@@ -47,6 +47,38 @@ def test_help_shows_flags_without_a_value(command):
     assert "<bool>" not in r.stdout and "--help" in r.stdout
 
 
+def test_the_command_list_gives_each_command_one_whole_sentence():
+    """`eskin --help` lists every command with the first sentence of its help: no sentence
+    cut at a line break of the docstring (a row without a command name is a cut)."""
+    env = dict(os.environ, COLUMNS="400",
+               PYTHONPATH=os.pathsep.join(filter(None, [PACKAGE_ROOT,
+                                                        os.environ.get("PYTHONPATH")])))
+    r = subprocess.run([sys.executable, "-m", "eskin", "--help"], capture_output=True,
+                       text=True, env=env, check=True, timeout=120)
+    box = r.stdout.split("Commands")[1].splitlines()[1:]
+    rows = [ln.strip("│ ").split(None, 1) for ln in box if ln.startswith("│")]
+    names = {c.name for c in app.registered_commands} | {"version"}
+    assert {row[0] for row in rows} <= names and len(rows) >= 15
+    for name, summary in rows:
+        assert summary.rstrip().endswith((".", "?")), (name, summary)
+
+
+def test_help_texts_name_python_functions_that_exist():
+    """eskin-fw-sim --help names the Python function that writes its input; it exists."""
+    import importlib
+    import re
+
+    from eskin._paths import find_executable
+
+    r = subprocess.run([str(find_executable("eskin-fw-sim")), "--help"], capture_output=True,
+                       text=True, check=False, timeout=30)
+    dotted = re.findall(r"\beskin(?:\.\w+)+", r.stdout)
+    assert "eskin.data.replay.write_replay_file" in dotted
+    for name in dotted:
+        module, _, attr = name.rpartition(".")
+        assert callable(getattr(importlib.import_module(module), attr)), name
+
+
 def test_a_flag_takes_no_value():
     r = run_eskin("info", "x.h5", "--check", "true")
     assert r.returncode == 2 and "unexpected extra argument" in r.stderr + r.stdout
@@ -215,3 +247,25 @@ def test_train_gives_each_machine_the_negatives_asked_for(one_person, tmp_path, 
     assert model.training["negatives"] == negatives
     # 6 recordings, 2 per class: a machine sees its 2 and the other 4, or 2 of them
     assert [s["n_train"] for s in model.selected] == [6 if negatives == "all" else 4] * 3
+
+
+def test_predict_says_when_the_recordings_trained_the_model(one_person, tmp_path):
+    """On its own training campaign (or a copy holding some of those recordings) predict's
+    error rate is followed by a note that these recordings trained the model; on other
+    recordings there is no note."""
+    from eskin.data.campaign import load_campaign
+    from eskin.data.simulator import simulate
+
+    model = tmp_path / "m.joblib"
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "-o",
+                                 str(model), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["predict", str(model), str(one_person)])
+    assert r.exit_code == 0
+    assert ("note: 6 of these 6 recordings trained this model: their error rate says how well "
+            "the model fits them, not how it does on new recordings") in r.output
+    other = simulate(tmp_path / "other.h5", participants=1, runs=(2,), seed=7)
+    with load_campaign(other) as c:
+        assert len(c) == 6
+    r = CliRunner().invoke(app, ["predict", str(model), str(other)])
+    assert r.exit_code == 0 and "error rate:" in r.output and "trained this model" not in r.output

@@ -68,7 +68,20 @@ def _flags_without_value(command: Any) -> None:
         _flags_without_value(sub)
 
 
+def _one_line_summaries(group: Any) -> None:
+    """`eskin --help` lists each command with the first sentence of its help, on one line (the
+    list keeps the help's own line breaks, which would cut a sentence in the middle)."""
+    import re
+
+    for sub in getattr(group, "commands", {}).values():
+        if sub.short_help is None and sub.help:
+            first_paragraph = sub.help.strip().split("\n\n")[0]
+            text = " ".join(first_paragraph.split())
+            sub.short_help = re.split(r"(?<=[.?!])\s+(?=[A-Z])", text)[0]
+
+
 def main() -> None:
     command = typer.main.get_command(app)
     _flags_without_value(command)
+    _one_line_summaries(command)
     command(prog_name="eskin")

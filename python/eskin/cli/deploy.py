@@ -70,12 +70,31 @@ def export(
     except (ValueError, OSError, KeyError) as exc:
         _fail(str(exc))
     typer.echo(
-        f"wrote {path}: {cm.file_bytes} bytes, {', '.join(cm.class_names)} ({cm.rule}), "
+        f"wrote {path}: {_size(cm.file_bytes)}, {', '.join(cm.class_names)} ({cm.rule}), "
         f"D={cm.D}, {cm.n_support} support vectors, "
         f"{'float64' if cm.is_float64 else 'float32'}"
     )
     if c_header is not None:
-        typer.echo(f"wrote {c_header}")
+        typer.echo(f"wrote {c_header}: {_size(c_header.stat().st_size)} of C source (the "
+                   f"compiled arrays take {_size(cm.file_bytes)})")
+    if cm.file_bytes > EXPORT_WARN_BYTES and target is None:
+        typer.echo(
+            f"warning: {path} is {_size(cm.file_bytes)}, more than the "
+            f"{_size(EXPORT_WARN_BYTES)} of flash of a Cortex-M4F controller (docs/mcu.md); "
+            f"`eskin export --target cortex-m4` checks a model against it", err=True)
+
+
+#: `eskin export` warns when a model file is larger than this: the flash of the Cortex-M4F
+#: controllers eskin targets (deploy/target.py's cortex-m4, 1 MiB)
+EXPORT_WARN_BYTES = 1 << 20
+
+
+def _size(n: int) -> str:
+    """A file size for people: '1.8 MiB (1886884 bytes)', '41228 bytes'."""
+    if n < 1 << 16:
+        return f"{n} bytes"
+    unit, scale = ("MiB", 1 << 20) if n >= 1 << 20 else ("KiB", 1 << 10)
+    return f"{n / scale:.1f} {unit} ({n} bytes)"
 
 
 def register(app: typer.Typer) -> None:

@@ -140,10 +140,34 @@ def _train_and_save(
         with compute_backend(scheduler), progress_bar(progress) as bar:
             bar.add_task(f"training ({recipe['selection']} search)", total=None)
             model = train_model(campaign, **recipe)
+        model.training["recording_digests"] = sorted(_trained_digests(campaign, model.classes))
         save_model(model, output)
     except (ValueError, OSError, KeyError) as exc:
         _fail(str(exc))
     return model
+
+
+def _recording_digests(camp: Any, indices: Any) -> list[str]:
+    """A short content digest of each recording (its valid samples), so that `eskin predict`
+    can tell the recordings a model was trained on, in any file that holds them."""
+    import hashlib
+
+    import numpy as np
+
+    return [hashlib.sha1(np.ascontiguousarray(camp.recording(int(i)), dtype="<i2").tobytes())
+            .hexdigest()[:16] for i in indices]
+
+
+def _trained_digests(campaign: Path, classes: Any) -> list[str]:
+    """The digests of the recordings `eskin train` learns from: every recording of the
+    model's classes."""
+    import numpy as np
+
+    from eskin.data.campaign import load_campaign
+
+    with load_campaign(campaign) as c:
+        ids = [k for k, name in enumerate(c.modalities) if name in set(classes)]
+        return _recording_digests(c, np.flatnonzero(np.isin(c.modality, ids)))
 
 
 def _selected_lines(model: Any) -> list[str]:
@@ -359,6 +383,14 @@ def predict(
         typer.echo(f"error rate: {100 * err:.2f} % ({n} recordings of the model's classes)")
     else:
         typer.echo("error rate: unknown (no labelled recording of the model's classes)")
+    trained = set(getattr(model, "training", {}).get("recording_digests", ()))
+    if trained:
+        seen = sum(d in trained for d in _recording_digests(camp, range(len(camp))))
+        if seen:
+            typer.echo(
+                f"note: {seen} of these {len(camp)} recordings trained this model: their "
+                f"error rate says how well the model fits them, not how it does on new "
+                f"recordings (`eskin evaluate` measures that on held-out people)")
     if json_out is not None:
         try:
             json_out.parent.mkdir(parents=True, exist_ok=True)
