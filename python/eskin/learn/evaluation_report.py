@@ -54,6 +54,23 @@ def describe_trained_with(settings: Mapping[str, Any]) -> str:
     )
 
 
+def given_options(recipe: Mapping[str, Any]) -> str:
+    """The recipe options an evaluation was given, as the command line spells them
+    ('--quick, --D 50'), or 'none (eskin train's defaults)'."""
+    words = []
+    for key, value in sorted(recipe.items()):
+        if value is None or value is False:
+            continue
+        flag = "--" + ("amplitude" if key == "amplitudes" else key.replace("_", "-"))
+        if value is True:
+            words.append(flag)
+        else:
+            text = ",".join("off" if v is None else f"{v:g}" if isinstance(v, float) else str(v)
+                            for v in value) if isinstance(value, (list, tuple)) else str(value)
+            words.append(f"{flag} {text}")
+    return ", ".join(f"`{w}`" for w in words) or "none (eskin train's defaults)"
+
+
 def _amplitude_text(amplitudes: Any) -> str:
     """'off, 1, 4' for the amplitude widths of a recipe (as given when they are not a list of
     widths, e.g. different per fold)."""
@@ -123,8 +140,8 @@ def _markdown(result: Mapping[str, Any], figure: str) -> str:
         "",
         (
             f"Campaign `{result.get('campaign')}`; {result['scheme']} by {result['groups']} "
-            f"({result['n_groups']} groups, {result['n_recordings']} recordings); recipe "
-            f"`{json.dumps(result['recipe'], sort_keys=True)}`; seed {result['seed']}. Each "
+            f"({result['n_groups']} groups, {result['n_recordings']} recordings); options "
+            f"given: {given_options(result['recipe'])}; seed {result['seed']}. Each "
             "fold's model selection saw only its training groups (nested evaluation)."
         ),
         "",

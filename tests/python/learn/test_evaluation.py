@@ -229,6 +229,9 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
     words = "trained with: tensor-SVM, cv selection, D = 20, window energy"
     assert words in r.output
     assert words.replace("trained with", "Trained with") in (out / "evaluation.md").read_text()
+    # the options it was given, as the command line spells them (not a JSON dict)
+    assert ("options given: `--D 20`, `--quick`, `--selection cv`;"
+            in (out / "evaluation.md").read_text())
 
 
 def test_evaluate_rejects_an_unknown_group_label(sim_campaign, tmp_path):
