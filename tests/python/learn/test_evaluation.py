@@ -107,6 +107,59 @@ def test_pooling_reads_the_fold_records_without_changing_them():
         assert "y_true" not in f and "y_pred" not in f
         assert f["baselines"]["majority"].keys() == {"accuracy"}
 
+
+def test_recall_of_an_asymmetric_confusion_is_per_true_class_and_named():
+    """Rows are the true classes: recall divides by the row sums (the column sums, precision,
+    differ here), and the named recalls follow the class order."""
+    from eskin.learn.evaluation import summarise
+
+    y_true = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    y_pred = np.array([0, 1, 2, 1, 1, 0, 0, 0, 2])
+    cm = confusion_matrix(y_true, y_pred, 3)
+    assert cm.tolist() == [[1, 1, 1], [0, 2, 0], [3, 0, 1]]
+    acc, bal, recall = scores_from_confusion(cm)
+    assert recall.tolist() == pytest.approx([1 / 3, 1.0, 0.25])  # precision: 0.25, 2/3, 0.5
+    assert acc == pytest.approx(4 / 9) and bal == pytest.approx((1 / 3 + 1 + 0.25) / 3)
+    s = summarise(y_true, y_pred, np.arange(9), ["a", "b", "c"], seed=0)
+    assert s["per_class_recall"] == pytest.approx({"a": 1 / 3, "b": 1.0, "c": 0.25})
+    assert s["confusion"] == cm.tolist()
+    assert (s["accuracy"], s["balanced_accuracy"]) == pytest.approx((acc, bal))
+
+
+def test_one_group_resampled_is_the_data_itself():
+    """With a single group every bootstrap resample is the whole data, so the interval is the
+    point estimate exactly: a resample pooled with rows and columns swapped (macro precision
+    0.47 here, not the balanced accuracy 0.53) would widen it."""
+    y_true = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    y_pred = np.array([0, 1, 2, 1, 1, 0, 0, 0, 2])
+    ci = group_bootstrap_ci(y_true, y_pred, np.zeros(9), 3, n_boot=50, seed=3)
+    acc, bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, 3))
+    assert ci["accuracy"] == pytest.approx([acc, acc])
+    assert ci["balanced_accuracy"] == pytest.approx([bal, bal])
+
+
+def test_the_bootstrap_seed_changes_the_resamples():
+    rng = np.random.default_rng(4)
+    groups = np.repeat(np.arange(12), 5)
+    y = rng.integers(0, 3, 60)
+    pred = np.where(rng.random(60) < 0.6, y, rng.integers(0, 3, 60))
+    intervals = {tuple(group_bootstrap_ci(y, pred, groups, 3, n_boot=200, seed=s)["accuracy"])
+                 for s in range(5)}
+    assert len(intervals) > 1
+
+
+def test_groups_are_dealt_largest_first_to_the_emptiest_fold():
+    """One group of 5 recordings and five of 1, in 2 folds: largest first gives 5 and 5
+    (smallest first would end 3 and 7, whatever the seed)."""
+    from eskin.learn.evaluation import _dealt_folds
+
+    groups = np.array([0, 0, 0, 0, 0, 1, 2, 3, 4, 5])
+    for seed in range(4):
+        folds = _dealt_folds(groups, 2, seed)
+        assert sorted(len(f) for f in folds) == [5, 5]
+        assert any(set(f.tolist()) == {0, 1, 2, 3, 4} for f in folds)
+        assert sorted(np.concatenate(folds).tolist()) == list(range(10))
+
 @settings(max_examples=100, deadline=None)
 @given(st.integers(0, 10**6), st.integers(2, 40), st.integers(2, 5), st.floats(0.0, 1.0))
 def test_interval_contains_the_point_estimate(seed, n_groups, n_classes, skill):
@@ -168,6 +221,11 @@ def check_evaluation_json(path: Path, campaign: Path) -> dict:
         part = np.asarray(camp.participant)
     idx = np.array(res["predictions"]["index"])
     assert len(np.unique(idx)) == len(idx) == res["n_recordings"]
+    # each fold's accuracy is its share of right predictions (pooled: the overall accuracy)
+    right = np.array(res["predictions"]["true"]) == np.array(res["predictions"]["predicted"])
+    offsets = np.cumsum([0] + [f["n_test"] for f in res["folds"]])
+    for f, a, b in zip(res["folds"], offsets[:-1], offsets[1:]):
+        assert f["accuracy"] == pytest.approx(right[a:b].mean())
     for f in res["folds"]:
         assert FOLD_KEYS <= set(f)
         assert not set(f["train_groups"]) & set(f["test_groups"])
@@ -368,3 +426,20 @@ def test_a_class_recorded_by_one_group_only_is_a_clear_error(tmp_path):
         ]
     )
     assert r.exit_code == 0, r.output
+
+
+def test_classes_and_runs_both_filter_the_recordings(tmp_path):
+    """--classes and --runs select the recordings that pass both."""
+    from learn_data import user_campaign
+
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import plan_folds
+
+    with load_campaign(user_campaign(tmp_path)) as camp:  # every recording is of run 1
+        folds, names, _ = plan_folds(camp, classes=["tap", "stroke"], runs=[1], n_folds=2)
+        tested = np.sort(np.concatenate([te for _, te in folds]))
+        mod = np.asarray(camp.modality)
+        assert names == ["tap", "stroke"]
+        np.testing.assert_array_equal(tested, np.flatnonzero(np.isin(mod, [0, 1])))
+        with pytest.raises(EvaluationError):
+            plan_folds(camp, classes=["tap", "stroke"], runs=[2], n_folds=2)

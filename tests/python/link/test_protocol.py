@@ -12,9 +12,12 @@ from hypothesis import strategies as st
 
 from eskin.link.protocol import (
     DELIMITER,
+    MAX_FRAME_SIZE,
     CommandFrame,
+    DecoderStats,
     DataFrame,
     DecisionFrame,
+    Flags,
     FrameDecoder,
     FrameType,
     InfoFrame,
@@ -255,3 +258,76 @@ def test_python_numbering_is_the_cores():
     assert {f.name: int(f) for f in Flags if f.name != "NONE"} == dict(core.FLAGS)
     assert {s.name: int(s) for s in StreamState} == dict(core.STREAM_STATES)
     assert DELIMITER == core.DELIMITER
+
+
+def _data(**kw) -> DataFrame:
+    fields = dict(first_sample=10, timestamp_us=5, rows=1, cols=2, seq=3, flags=0,
+                  samples=np.array([[[1, 2]], [[3, 4]]], np.int16))
+    fields.update(kw)
+    samples = fields.pop("samples")
+    fields.pop("rows"), fields.pop("cols")
+    return DataFrame(samples=samples, **fields)
+
+
+def test_data_frames_are_equal_only_when_every_field_and_sample_is():
+    """The round-trip tests rely on ==: each field and each sample value must count."""
+    a = _data()
+    assert a == _data() and not (a != _data())
+    assert a != _data(first_sample=11)
+    assert a != _data(timestamp_us=6)
+    assert a != _data(seq=4)
+    assert a != _data(flags=int(Flags.OVERRUN))
+    assert a != _data(samples=np.array([[[1, 2]], [[3, 5]]], np.int16))  # one value
+    assert a != _data(samples=np.array([[[1], [2]], [[3], [4]]], np.int16))  # same values, 2x1
+    assert a.__eq__("not a frame") is NotImplemented
+
+
+def test_the_int16_range_is_accepted_to_its_ends_and_refused_past_them():
+    ends = np.array([[[-32768, 32767]]], np.int32)
+    frame = _data(samples=ends)
+    (back,) = FrameDecoder(wait_for_delimiter=False).feed(encode_frame(frame))
+    np.testing.assert_array_equal(back.samples, ends)
+    for bad in (-32769, 32768):
+        with pytest.raises(ValueError, match="int16"):
+            encode_frame(_data(samples=np.array([[[0, bad]]], np.int32)))
+    with pytest.raises(ValueError, match="integer ADC codes"):
+        encode_frame(_data(samples=np.zeros((1, 1, 2), np.float32)))
+    with pytest.raises(ValueError, match=r"\(n_samples, rows, cols\)"):
+        encode_frame(_data(samples=np.zeros((1, 2), np.int16)))
+
+
+def test_rejected_counts_crc_errors_malformed_and_oversize_blocks():
+    dec = FrameDecoder(64)
+    good = encode_frame(_data())
+    damaged = bytearray(good)
+    damaged[3] ^= 0x40
+    oversize = encode_frame(_data(samples=np.zeros((20, 1, 2), np.int16)))
+    dec.feed(DELIMITER + bytes(damaged) + oversize + b"\x01\x01\x01\x00" + good)
+    st = dec.stats
+    assert (st.crc_errors, st.oversize, st.malformed) == (1, 1, 1)
+    assert st.rejected == 3
+    assert st.frames == 1
+
+
+def test_reset_keeps_or_clears_the_statistics_as_asked():
+    dec = FrameDecoder(wait_for_delimiter=False)
+    dec.feed(encode_frame(_data()) + b"\x05junk\x00")
+    before = dec.stats
+    assert before.frames == 1 and before.rejected == 1
+    dec.reset()
+    assert dec.stats == before
+    dec.reset(reset_stats=True)
+    assert dec.stats == DecoderStats()
+    # a reset also forgets the expected sequence and sample index: no gap is counted after it
+    dec.feed(encode_frame(_data(seq=1, first_sample=0)))
+    dec.reset()
+    dec.feed(encode_frame(_data(seq=9, first_sample=100)))
+    assert dec.stats.sequence_gaps == 0 and dec.stats.lost_samples == 0
+
+
+@pytest.mark.parametrize("size", [7, MAX_FRAME_SIZE + 1])
+def test_the_decoder_limit_is_checked(size):
+    with pytest.raises(ValueError, match=rf"\[8, {MAX_FRAME_SIZE}\], got {size}"):
+        FrameDecoder(size)
+    assert FrameDecoder(8).max_frame_size == 8
+    assert FrameDecoder(MAX_FRAME_SIZE).max_frame_size == MAX_FRAME_SIZE

@@ -1,0 +1,172 @@
+"""The recording journal (eskin.data.journal) on its own: what reaches the disk and when, and
+what its reader accepts, skips or drops."""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin.data import journal as jr
+from eskin.errors import JournalError
+
+SETTINGS = {
+    "grid_shape": [2, 2],
+    "n_samples": 0,
+    "compression_level": None,
+    "contact_interval": True,
+    "extra_fields": [["force", "<f4"]],
+    "attrs": [],
+}
+META = {"length": 3, "modality": 1, "participant": 2, "direction": 0, "run": 1,
+        "contact_interval": [0, 3]}
+
+
+def write(tmp_path: Path, n: int = 2, settings=None, **kw) -> Path:
+    w = jr.JournalWriter(tmp_path / "c.h5", settings or SETTINGS, **kw)
+    for k in range(n):
+        w.append(META, {"force": (np.float32(k), np.dtype("<f4"))}, bytes([k]) * 24)
+    w.release()
+    return w.path
+
+
+def read(path: Path):
+    with jr.LockedJournal(path) as j:
+        contents = j.read()
+        return contents, [r for r in contents.records()]
+
+
+def test_records_read_back_in_order_with_their_labels_and_extras(tmp_path):
+    contents, records = read(write(tmp_path, 3))
+    assert contents.settings == SETTINGS
+    assert [r.index for r in records] == [0, 1, 2]
+    assert [r.chunk for r in records] == [bytes([k]) * 24 for k in range(3)]
+    assert [float(r.extras["force"]) for r in records] == [0.0, 1.0, 2.0]
+    assert all(r.meta == META for r in records)
+    assert contents.dropped_bytes == 0 and contents.skipped == []
+
+
+@pytest.mark.parametrize("durable", [True, False])
+def test_the_header_and_its_directory_entry_reach_the_disk_and_appends_when_durable(
+        tmp_path, monkeypatch, durable):
+    """The real fsync calls, counted: the header and the folder once at creation, then one
+    data sync per append only when durable."""
+    calls: list[str] = []
+    real_fsync, real_fdatasync = os.fsync, os.fdatasync
+
+    def fsync(fd):
+        calls.append("dir" if os.path.isdir(f"/proc/self/fd/{fd}") else "file")
+        real_fsync(fd)
+
+    def fdatasync(fd):
+        calls.append("append")
+        real_fdatasync(fd)
+
+    monkeypatch.setattr(jr.os, "fsync", fsync)
+    monkeypatch.setattr(jr.os, "fdatasync", fdatasync)
+    write(tmp_path, 3, durable=durable)
+    assert calls[:2] == ["file", "dir"]
+    assert calls[2:] == (["append"] * 3 if durable else [])
+
+
+def test_a_record_replayed_at_the_next_place_is_not_taken_for_it(tmp_path):
+    """A record copied after itself has a valid CRC but the wrong index: the reader stops
+    there instead of reading it twice."""
+    path = write(tmp_path, 1)
+    data = path.read_bytes()
+    header_end = len(jr.HEADER_MAGIC) + 4 + struct.unpack("<I", data[8:12])[0] + 4
+    path.write_bytes(data + data[header_end:])
+    contents, records = read(path)
+    assert len(records) == 1
+    assert contents.dropped_bytes == len(data) - header_end
+    assert "no record 1 where expected" in contents.dropped_reason
+
+
+def test_a_torn_last_record_is_dropped_and_measured(tmp_path):
+    path = write(tmp_path, 2)
+    data = path.read_bytes()
+    path.write_bytes(data[:-5])
+    contents, records = read(path)
+    assert len(records) == 1 and contents.dropped_bytes > 0
+    assert "incomplete" in contents.dropped_reason
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("grid_shape", [2]), ("grid_shape", [2, "2"]), ("n_samples", 1.5),
+     ("compression_level", "9"), ("contact_interval", 1), ("extra_fields", [["force"]]),
+     ("extra_fields", [["force", 4]]), ("attrs", [[1, 2]]), ("attrs", "x")],
+)
+def test_a_malformed_header_setting_is_named(tmp_path, key, value):
+    path = write(tmp_path, 0, settings={**SETTINGS, key: value})
+    with pytest.raises(JournalError, match=f"header: '{key}' missing or malformed"):
+        read(path)
+    missing = {k: v for k, v in SETTINGS.items() if k != key}
+    path.unlink()
+    path = write(tmp_path, 0, settings=missing)
+    with pytest.raises(JournalError, match=f"header: '{key}' missing or malformed"):
+        read(path)
+
+
+def test_the_header_crc_and_size_are_checked(tmp_path):
+    path = write(tmp_path, 0)
+    data = bytearray(path.read_bytes())
+    data[14] ^= 1
+    path.write_bytes(bytes(data))
+    with pytest.raises(JournalError, match="header: torn or damaged"):
+        read(path)
+    path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", (64 << 20) + 1))
+    with pytest.raises(JournalError, match="implausible"):
+        read(path)
+    text = b"[1, 2]"
+    path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", len(text)) + text
+                     + struct.pack("<I", zlib.crc32(text)))
+    with pytest.raises(JournalError, match="settings are not a JSON object"):
+        read(path)
+
+
+@pytest.mark.parametrize(
+    ("meta", "extras", "problem"),
+    [
+        ({**META, "contact_interval": None}, {"force": 0}, "contact_interval"),
+        ({**META, "contact_interval": [0]}, {"force": 0}, "contact_interval"),
+        ({**META, "run": "1"}, {"force": 0}, "labels:"),
+        (META, {}, "/recordings/extra"),
+        (META, {"other": 0}, "/recordings/extra"),
+    ],
+)
+def test_records_a_campaign_cannot_hold_are_skipped_and_named(tmp_path, meta, extras, problem):
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    w.append(META, {"force": (np.float32(0), np.dtype("<f4"))}, b"a" * 24)
+    w.append(meta, {k: (np.float32(v), np.dtype("<f4")) for k, v in extras.items()}, b"b" * 24)
+    w.append(META, {"force": (np.float32(2), np.dtype("<f4"))}, b"c" * 24)
+    w.release()
+    contents, records = read(w.path)
+    assert [r.index for r in records] == [0, 2]
+    assert len(contents.skipped) == 1
+    assert contents.skipped[0].startswith("record 1: ") and problem in contents.skipped[0]
+    assert contents.dropped_bytes == 0
+
+
+def test_without_contact_intervals_a_record_needs_none(tmp_path):
+    settings = {**SETTINGS, "contact_interval": False}
+    w = jr.JournalWriter(tmp_path / "c.h5", settings)
+    w.append({k: v for k, v in META.items() if k != "contact_interval"},
+             {"force": (np.float32(0), np.dtype("<f4"))}, b"a" * 24)
+    w.release()
+    contents, records = read(w.path)
+    assert len(records) == 1 and contents.skipped == []
+
+
+def test_a_second_writer_or_reader_is_refused_while_the_journal_is_held(tmp_path):
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    with pytest.raises(FileExistsError):
+        jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    with pytest.raises(FileExistsError):
+        jr.LockedJournal(w.path)
+    w.discard()
+    assert not w.path.exists()
