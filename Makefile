@@ -19,7 +19,7 @@ BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
 .PHONY: all deps mcu-deps mcu venv install cpp ctest pytest test demo dev devtest bench clean stubs \
-  sanitize check-sanitizers fuzz
+  sanitize check-sanitizers fuzz mutation
 
 all: install cpp
 
@@ -138,6 +138,15 @@ dev: deps venv
 devtest: dev
 	cd $(BUILD_DEV) && ctest --output-on-failure -j $(JOBS)
 	PYTHONPATH=python ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) -m pytest -q tests/python
+
+# Mutation testing of the modules that guard data and results (docs/testing.md; not part of
+# `make test`): cosmic-ray for the Python modules, tools/mutation.py's own mutator for the C++
+# model loader and frame decoder. One line per module, "MUTATION: module=... mutants=N
+# killed=K ..."; MUTATION_SAMPLE mutants of each module run (a seeded sample; empty: all).
+MUTATION_SAMPLE ?= 20
+mutation: dev
+	$(PIP) install -q $$($(PY) -c "import tomllib;print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
+	ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) tools/mutation.py $(if $(MUTATION_SAMPLE),--sample $(MUTATION_SAMPLE))
 
 clean:
 	rm -rf build python/eskin/_core*.so

@@ -1,0 +1,292 @@
+#!/usr/bin/env python3
+"""Mutation testing of the modules that guard data and results (`make mutation`, docs/testing.md).
+
+A mutant is one small change to a module (a comparison turned around, a constant moved by one, a
+return value flipped, a check deleted); the tests that cover the module either fail on it (the
+mutant is *killed*) or pass (it *survives*: a missing test, or a change that alters nothing).
+
+* Python modules: cosmic-ray (PyPI) generates the mutants of the operator families below and runs
+  the module's covering test files on each, in a copy of python/ and tests/ under
+  build/mutation (the work tree is never changed).
+* C++ files (the model loader in cpp/src/model_format.cpp, the frame decoder in
+  cpp/src/protocol.cpp): this script's own mutator, on the lines between two markers, in a copy
+  of the sources built once (Debug, no optimisation: fast rebuilds); each mutant recompiles one
+  file, relinks the GoogleTest binary that covers it and runs it. A mutant that does not compile
+  is not a mutant (not counted).
+
+Every module's mutants are all generated; with --sample N (the default of `make mutation`) a
+seeded random N of them run, and the line says so. Output, one line per module:
+
+    MUTATION: module=<path> mutants=<n> killed=<k> generated=<g>
+
+and build/mutation/survivors.txt lists each survivor (file, line, operator, the changed text).
+Timeouts (a mutant that makes the tests hang, 3x the unmutated run plus 30 s) count as killed.
+Runs under `nice -n 10`; the exit status is 1 if a module is below --threshold.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "build" / "mutation"
+
+#: module -> the pytest arguments of the tests that cover it
+PYTHON_MODULES: dict[str, list[str]] = {
+    "python/eskin/data/journal.py": [
+        "tests/python/data/test_journal.py", "tests/python/data/test_campaign_recovery.py"],
+    "python/eskin/data/campaign.py": [
+        "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py"],
+    "python/eskin/learn/evaluation.py": [
+        "tests/python/learn/test_evaluation.py", "-k", "not dask and not cluster and not scheduler"],
+    "python/eskin/link/protocol.py": ["tests/python/link/test_protocol.py"],
+    "python/eskin/deploy/export.py": [
+        "tests/python/deploy/test_export.py", "tests/python/deploy/test_export_limits.py"],
+}
+
+#: cosmic-ray operator families run (the others, e.g. swapping + for <<, make mostly mutants
+#: that crash at once or duplicate these)
+PYTHON_OPERATORS = re.compile(
+    r"core/(ReplaceComparisonOperator_.*|NumberReplacer|ReplaceTrueWithFalse|ReplaceFalseWithTrue"
+    r"|ReplaceAndWithOr|ReplaceOrWithAnd|AddNot|ReplaceUnaryOperator_Delete_Not"
+    r"|ZeroIterationForLoop|ReplaceBreakWithContinue|ReplaceContinueWithBreak"
+    r"|ReplaceBinaryOperator_(Add_Sub|Sub_Add|Mul_Div|Div_Mul|FloorDiv_Mul|Mod_FloorDiv"
+    r"|BitOr_BitAnd|BitAnd_BitOr))$")
+
+
+@dataclass(frozen=True)
+class CppModule:
+    path: str
+    start: str  # the mutated region: from the line holding `start`
+    end: str | None  # ... to the line before the one holding `end` (None: end of file)
+    target: str  # the GoogleTest executable that covers it
+
+
+CPP_MODULES = [
+    CppModule("cpp/src/model_format.cpp", "struct Reader", "Model Model::from_bytes", "test_model"),
+    CppModule("cpp/src/protocol.cpp", "std::ptrdiff_t cobs_decode(", None, "test_protocol"),
+]
+
+
+def nice() -> list[str]:
+    return ["nice", "-n", "10"] if shutil.which("nice") else []
+
+
+def report(module: str, n: int, killed: int, generated: int, sampled: bool) -> float:
+    score = killed / n if n else 0.0
+    note = " (a seeded sample of the generated mutants)" if sampled else ""
+    print(f"MUTATION: module={module} mutants={n} killed={killed} generated={generated}"
+          f"  # score {score:.2f}{note}", flush=True)
+    return score
+
+
+def copy_tree(dst: Path) -> None:
+    """The tracked files of the work tree (and the compiled module) copied to ``dst``."""
+    if dst.exists():
+        shutil.rmtree(dst)
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, check=True,
+                           capture_output=True).stdout.decode().split("\0")
+    for f in filter(None, files):
+        src = REPO / f
+        if src.is_file():
+            (dst / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dst / f)
+    for so in (REPO / "python" / "eskin").glob("_core*.so"):
+        shutil.copy2(so, dst / "python" / "eskin" / so.name)
+
+
+# ------------------------------------------------------------------------------------ Python
+
+
+def run_python(module: str, tests: list[str], sample: int | None, seed: int,
+               survivors: list[str]) -> float:
+    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_item import TestOutcome, WorkerOutcome, WorkResult
+
+    work = OUT / "py"
+    session = OUT / (module.replace("/", "_") + ".sqlite")
+    session.unlink(missing_ok=True)
+    env = dict(os.environ, PYTHONPATH="python", PYTHONDONTWRITEBYTECODE="1")
+    env.setdefault("ESKIN_BIN_DIR", str(REPO / "build" / "dev"))
+    pytest = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+              "-p", "no:randomly", *tests]
+    t0 = time.monotonic()
+    base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
+    if base.returncode != 0:
+        sys.exit(f"mutation: the tests of {module} fail unmutated:\n{base.stdout[-3000:]}")
+    timeout = 3 * (time.monotonic() - t0) + 30
+    cfg = OUT / "cosmic-ray.toml"
+    cfg.write_text(
+        "[cosmic-ray]\n"
+        f"module-path = {json.dumps(module)}\n"
+        f"timeout = {timeout:.0f}\n"
+        "excluded-modules = []\n"
+        f"test-command = {json.dumps(shlex.join(nice() + pytest))}\n"
+        '\n[cosmic-ray.distributor]\nname = "local"\n')
+    cosmic_ray = str(Path(sys.executable).parent / "cosmic-ray")
+    subprocess.run([cosmic_ray, "init", str(cfg), str(session)],
+                   cwd=work, env=env, check=True, capture_output=True)
+    with use_db(str(session), WorkDB.Mode.open) as db:
+        items = list(db.pending_work_items)
+        kept = [w for w in items if all(PYTHON_OPERATORS.match(m.operator_name) for m in w.mutations)]
+        chosen = kept
+        if sample is not None and len(kept) > sample:
+            chosen = random.Random(seed).sample(kept, sample)
+        ids = {w.job_id for w in chosen}
+        skip = [w.job_id for w in items if w.job_id not in ids]
+        if skip:
+            db.set_multiple_results(skip, WorkResult(output="not run",
+                                                     worker_outcome=WorkerOutcome.SKIPPED))
+    subprocess.run([cosmic_ray, "exec", str(cfg), str(session)], cwd=work, env=env, check=True,
+                   capture_output=True)
+    n = killed = 0
+    with use_db(str(session), WorkDB.Mode.open) as db:
+        for item, result in db.completed_work_items:
+            if result.worker_outcome == WorkerOutcome.SKIPPED:
+                continue
+            n += 1
+            if result.test_outcome == TestOutcome.SURVIVED:
+                for m in item.mutations:
+                    line = (work / module).read_text().splitlines()[m.start_pos[0] - 1].strip()
+                    survivors.append(f"{module}:{m.start_pos[0]} {m.operator_name} "
+                                     f"#{m.occurrence}: {line}")
+            else:
+                killed += 1
+    return report(module, n, killed, len(kept), len(chosen) < len(kept))
+
+
+# --------------------------------------------------------------------------------------- C++
+
+CPP_SWAPS = [(" < ", " <= "), (" <= ", " < "), (" > ", " >= "), (" >= ", " > "),
+             (" == ", " != "), (" != ", " == "), (" && ", " || "), (" || ", " && ")]
+
+
+def strip_strings(line: str) -> str:
+    """The line with its string and character literals blanked and its // comment dropped."""
+    line = re.sub(r'"(\\.|[^"\\])*"', lambda m: '"' + " " * (len(m.group()) - 2) + '"', line)
+    line = re.sub(r"'(\\.|[^'\\])*'", lambda m: "'" + " " * (len(m.group()) - 2) + "'", line)
+    cut = line.find("//")
+    return line if cut < 0 else line[:cut] + " " * (len(line) - cut)
+
+
+def cpp_mutants(text: str, mod: CppModule) -> list[tuple[int, str, str]]:
+    """(line index, operator, mutated line) for every mutant of the region."""
+    lines = text.splitlines()
+    start = next(i for i, ln in enumerate(lines) if mod.start in ln)
+    end = len(lines) if mod.end is None else next(
+        i for i, ln in enumerate(lines) if mod.end in ln and i > start)
+    out: list[tuple[int, str, str]] = []
+    for i in range(start, end):
+        line, code = lines[i], strip_strings(lines[i])
+        if code.lstrip().startswith(("#", "/*", "*")):
+            continue
+        for a, b in CPP_SWAPS:  # comparison and logical operators
+            for m in re.finditer(re.escape(a), code):
+                out.append((i, f"swap{a.strip()}{b.strip()}",
+                            line[: m.start()] + b + line[m.end():]))
+        for m in re.finditer(r"(?<![\w.])(\d+)(u|U|ULL|ull|LL)?(?![\w.])", code):  # constants
+            v = int(m.group(1))
+            out.append((i, "constant+1", line[: m.start(1)] + str(v + 1) + line[m.end(1):]))
+        for a, b in (("return true;", "return false;"), ("return false;", "return true;")):
+            if a in code:  # returns
+                out.append((i, f"return {b.split()[1][:-1]}", line.replace(a, b, 1)))
+        m = re.match(r"(\s*)if \((.*)\)(\s*(return|\{|[\w:]+\().*)$", line)
+        if m and m.group(2).count("(") == m.group(2).count(")"):  # a deleted check
+            out.append((i, "delete check", f"{m.group(1)}if (false && ({m.group(2)})){m.group(3)}"))
+    return out
+
+
+def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str]) -> float:
+    src = OUT / "cpp-src"
+    build = OUT / "cpp-build"
+    if not (build / "build.ninja").exists():
+        copy_tree(src)
+        cmake = shutil.which("cmake", path=str(Path(sys.executable).parent)) or "cmake"
+        subprocess.run([cmake, "-S", str(src), "-B", str(build), "-G", "Ninja",
+                        "-DCMAKE_BUILD_TYPE=Debug", "-DESKIN_BUILD_TESTS=ON",
+                        "-DESKIN_BUILD_PYTHON=OFF", "-DESKIN_INSTALL=OFF"],
+                       check=True, capture_output=True)
+    ninja = shutil.which("ninja", path=str(Path(sys.executable).parent)) or "ninja"
+    target = src / mod.path
+    original = (REPO / mod.path).read_text()
+    target.write_text(original)
+
+    def build_and_test(timeout: float | None) -> str:
+        b = subprocess.run(nice() + [ninja, "-C", str(build), mod.target], capture_output=True)
+        if b.returncode != 0:
+            return "no-compile"
+        try:
+            t = subprocess.run(nice() + [str(build / mod.target), "--gtest_brief=1"],
+                               capture_output=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return "timeout"
+        return "pass" if t.returncode == 0 else "fail"
+
+    t0 = time.monotonic()
+    if build_and_test(None) != "pass":
+        sys.exit(f"mutation: {mod.target} fails unmutated")
+    timeout = 3 * (time.monotonic() - t0) + 30
+    mutants = cpp_mutants(original, mod)
+    chosen = mutants
+    if sample is not None and len(mutants) > sample:
+        chosen = random.Random(seed).sample(mutants, sample)
+    lines = original.splitlines(keepends=True)
+    n = killed = 0
+    try:
+        for i, op, new in chosen:
+            mutated = lines.copy()
+            mutated[i] = new + "\n"
+            target.write_text("".join(mutated))
+            outcome = build_and_test(timeout)
+            if outcome == "no-compile":
+                continue
+            n += 1
+            if outcome == "pass":
+                survivors.append(f"{mod.path}:{i + 1} {op}: {new.strip()}")
+            else:
+                killed += 1
+    finally:
+        target.write_text(original)
+    return report(mod.path, n, killed, len(mutants), len(chosen) < len(mutants))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", action="append", help="only this module (repeatable)")
+    ap.add_argument("--sample", type=int, default=None,
+                    help="run a seeded random N of each module's mutants (default: all)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--threshold", type=float, default=0.85)
+    args = ap.parse_args(argv)
+    OUT.mkdir(parents=True, exist_ok=True)
+    wanted = set(args.only or [])
+    t0 = time.monotonic()
+    survivors: list[str] = []
+    scores: dict[str, float] = {}
+    py = {m: t for m, t in PYTHON_MODULES.items() if not wanted or m in wanted}
+    if py:
+        copy_tree(OUT / "py")
+    for module, tests in py.items():
+        scores[module] = run_python(module, tests, args.sample, args.seed, survivors)
+    for mod in CPP_MODULES:
+        if not wanted or mod.path in wanted:
+            scores[mod.path] = run_cpp(mod, args.sample, args.seed, survivors)
+    (OUT / "survivors.txt").write_text("".join(s + "\n" for s in survivors))
+    print(f"mutation: {len(scores)} modules in {time.monotonic() - t0:.0f} s; "
+          f"{len(survivors)} survivors in {OUT / 'survivors.txt'}")
+    return 0 if all(s >= args.threshold for s in scores.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
