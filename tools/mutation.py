@@ -210,8 +210,8 @@ def cpp_mutants(text: str, mod: CppModule) -> list[tuple[int, str, str]]:
 def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str]) -> float:
     src = OUT / "cpp-src"
     build = OUT / "cpp-build"
+    copy_tree(src)  # file times kept: the build redoes only what changed
     if not (build / "build.ninja").exists():
-        copy_tree(src)
         cmake = shutil.which("cmake", path=str(Path(sys.executable).parent)) or "cmake"
         subprocess.run([cmake, "-S", str(src), "-B", str(build), "-G", "Ninja",
                         "-DCMAKE_BUILD_TYPE=Debug", "-DESKIN_BUILD_TESTS=ON",
