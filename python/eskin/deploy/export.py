@@ -296,7 +296,21 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
         "<HHIIIII", version, HEADER_BYTES, flags, body_len + 4, len(sections), 0, 0
     )
     body = header + b"".join(sections)
-    return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+    blob = body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+    _check_loads(blob)
+    return blob
+
+
+def _check_loads(blob: bytes) -> None:
+    """The format's one rule set is the C++ loader's (cpp/src/model_format.cpp, read through
+    the compiled core): a model it would refuse is never written. (:func:`_validate_spec`
+    only refuses a description earlier, naming its fields.)"""
+    from eskin import _core
+
+    try:
+        _core.Model.from_bytes(blob)
+    except _core.ModelFormatError as exc:
+        raise ModelFormatError(f"the model would not load: {exc}") from None
 
 
 def _unique_support_vectors(spec: ModelSpec) -> tuple[list[np.ndarray], list[dict[int, float]]]:

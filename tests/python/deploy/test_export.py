@@ -619,3 +619,47 @@ def test_any_valid_description_round_trips(rows, cols, D, n_classes, n_pool, see
     got = cm.classify_tensors(X).decision_values
     tol = 1e-9 if dtype == "float64" else 1e-4
     assert np.all(np.abs(got - F) <= tol * np.maximum(scale, 1e-300) + 1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    field=st.sampled_from(["sigma", "rate", "intercept", "coef", "alpha", "grid", "D", "name",
+                           "amplitude"]),
+    value=st.sampled_from([0.0, -1.0, 1e-9, 1e-7, 1e7, 1e300, float("inf"), float("nan"), 300]),
+)
+def test_a_damaged_description_is_refused_or_loads(seed, field, value):
+    """One rule set: whatever the exporter writes, the C++ loader accepts; a description out
+    of the loader's bounds (some of which the exporter's own checks do not know) is refused
+    with a ModelFormatError, never written."""
+    rng = np.random.default_rng(seed)
+    rows, cols, D = 2, 2, 4
+    pool = rng.normal(size=(3, rows, cols, D))
+    machine = MachineSpec(1, 0, 0.1, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=3))
+    spec = ModelSpec(["a", "b"], "binary", [machine], D, (rows, cols), window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    if field == "sigma":
+        machine.sigmas = (1.0, value, 1.0)
+    elif field == "rate":
+        spec.sample_rate_hz = value
+    elif field == "intercept":
+        machine.intercept = value
+    elif field == "coef":
+        machine.dual_coef = np.array([1.0, value, 1.0])
+    elif field == "alpha":
+        machine.alphas = (2, int(min(value, 300)) if np.isfinite(value) else 0, 2)
+    elif field == "grid":
+        n = int(min(value, 300)) if np.isfinite(value) else 0
+        spec.grid_shape = (n, 1)
+    elif field == "D":
+        spec.D = int(min(value, 300)) if np.isfinite(value) else 0
+    elif field == "name":
+        spec.class_names = ["a", "x" * int(min(value, 300) if np.isfinite(value) else 0)]
+    elif field == "amplitude":
+        machine.amplitude_width = value
+    try:
+        blob = model_to_bytes(spec, "float64")
+    except ModelFormatError as exc:
+        assert str(exc) and "\n" not in str(exc)
+        return
+    CompiledModel(blob)  # what was written loads
