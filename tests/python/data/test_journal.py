@@ -3,6 +3,7 @@ what its reader accepts, skips or drops."""
 
 from __future__ import annotations
 
+import json
 import os
 import struct
 import zlib
@@ -170,3 +171,57 @@ def test_a_second_writer_or_reader_is_refused_while_the_journal_is_held(tmp_path
         jr.LockedJournal(w.path)
     w.discard()
     assert not w.path.exists()
+
+
+def raw_record(index: int, meta: dict, body: bytes) -> bytes:
+    """A record as the writer lays it out, from its parts (for records it would not write)."""
+    text = json.dumps(meta).encode()
+    head = struct.pack("<4sIIQ", jr.RECORD_MAGIC, index, len(text), len(body))
+    return head + text + body + struct.pack("<I", zlib.crc32(body, zlib.crc32(text, zlib.crc32(head[4:]))))
+
+
+def test_a_missing_record_stops_the_reading_at_its_place(tmp_path):
+    """Record 2 where record 1 should be (a lost block of the disk): not taken for record 1."""
+    one = {**META, "extra": [], "chunk": 4}
+    path = write(tmp_path, 0, settings={**SETTINGS, "extra_fields": []})
+    path.write_bytes(path.read_bytes() + raw_record(0, one, b"abcd") + raw_record(2, one, b"efgh"))
+    contents, records = read(path)
+    assert [r.index for r in records] == [0]
+    assert "no record 1 where expected" in contents.dropped_reason
+
+
+def test_complete_records_with_unreadable_labels_are_skipped_with_their_reason(tmp_path):
+    path = write(tmp_path, 0, settings={**SETTINGS, "extra_fields": []})
+    ok = {**META, "extra": [], "chunk": 4}
+    path.write_bytes(path.read_bytes() + raw_record(0, ok, b"abcd")
+                     + raw_record(1, {**ok, "chunk": 5}, b"abcd")
+                     + raw_record(2, {k: v for k, v in ok.items() if k != "extra"}, b"abcd")
+                     + raw_record(3, ok, b"efgh"))
+    contents, records = read(path)
+    assert [r.chunk for r in records] == [b"abcd", b"efgh"]
+    assert contents.skipped[0] == "record 1: /recordings/signals: chunk size differs from its label"
+    assert contents.skipped[1].startswith("record 2: labels: unreadable (")
+    assert contents.dropped_bytes == 0
+
+
+def test_a_contact_interval_is_exactly_two_integers(tmp_path):
+    w = jr.JournalWriter(tmp_path / "c.h5", {**SETTINGS, "extra_fields": []})
+    w.append({**META, "contact_interval": [0, 3, 5]}, {}, b"a" * 24)
+    w.append({**META, "contact_interval": [0, 3.0]}, {}, b"a" * 24)
+    w.release()
+    contents, records = read(w.path)
+    assert records == [] and len(contents.skipped) == 2
+
+
+@pytest.mark.parametrize("value", [True, 3, 2.5, "s", np.float32(1.5), np.arange(6).reshape(2, 3),
+                                   np.array(7, np.int16), np.array(["ab", "c"])])
+def test_attributes_round_trip_with_their_dtype(value):
+    back = jr.decode_attr(json.loads(json.dumps(jr.encode_attr(value))))
+    if isinstance(value, (bool, int, float, str)):
+        assert back == value and type(back) is type(value)
+    elif np.asarray(value).dtype.kind == "U":
+        assert [v.decode() if isinstance(v, bytes) else v for v in back.tolist()] == value.tolist()
+    else:
+        assert np.asarray(back).dtype == np.asarray(value).dtype
+        np.testing.assert_array_equal(back, value)
+        assert np.ndim(back) == np.ndim(value)
