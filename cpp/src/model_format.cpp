@@ -275,9 +275,11 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   const double rate = r.f64("sample_rate_hz");
   if (rows < 1 || rows > kMaxGrid || cols < 1 || cols > kMaxGrid)
     return err.set(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
-                                 std::to_string(cols) + " out of range [1, 256]");
+                                 std::to_string(cols) + " out of range [1, " +
+                                 std::to_string(kMaxGrid) + "]");
   if (D < 2 || D > kMaxD)
-    return err.set(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, 100000]");
+    return err.set(ModelError::kValue, w + ": D=" + std::to_string(D) + " out of range [2, " +
+                                 std::to_string(kMaxD) + "]");
   if (std::uint64_t{rows} * cols * D > kMaxTensor)
     return err.set(ModelError::kValue, w + ": rows*cols*D = " + std::to_string(rows) + "*" +
                                  std::to_string(cols) + "*" + std::to_string(D) + " = " +
@@ -349,7 +351,8 @@ bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
   const std::uint32_t n = r.u32("n_classes"), rule = r.u32("rule");
   if (n < 2 || n > kMaxClasses)
-    return err.set(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, 1024]");
+    return err.set(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, " +
+                                 std::to_string(kMaxClasses) + "]");
   if (rule > 1) return err.set(ModelError::kValue, w + ": rule=" + std::to_string(rule) + " (0 binary, 1 one_vs_all)");
   if (rule == 0 && n != 2)
     return err.set(ModelError::kValue, w + ": the binary rule needs 2 classes, got " + std::to_string(n));

@@ -907,3 +907,129 @@ TEST(ModelAmplitude, OverflowingInputGivesNoNaN) {
     }
   }
 }
+
+// ---- the checks beside the loader's main job: each refusal below was once accepted by a
+// mutant of cpp/src/model_format.cpp without a test failing (docs/testing.md).
+namespace {
+
+double get_f64(const Bytes& b, std::size_t off) {
+  std::uint64_t u = 0;
+  for (int i = 7; i >= 0; --i) u = (u << 8) | b[off + static_cast<std::size_t>(i)];
+  double v;
+  std::memcpy(&v, &u, 8);
+  return v;
+}
+
+std::string refused(Bytes b) {
+  fix_crc(b);
+  return load_message(b);
+}
+
+bool says(const std::string& message, const std::string& part) {
+  return message.find(part) != std::string::npos;
+}
+
+// Offset of the first basis entry of mode 0 (after the SVBS counts and the padded ranks).
+std::size_t first_basis(const Bytes& b) {
+  const std::size_t svbs = section_offset(b, "SVBS");
+  const std::uint32_t n_sv = get_u32(b, svbs + 4);
+  return svbs + 32 + (std::size_t{n_sv} * 12 + 7) / 8 * 8;
+}
+
+}  // namespace
+
+TEST(ModelChecks, ClassNamesMustBePresentAndDistinct) {
+  const Bytes good = fixture("float32");
+  const std::size_t names = section_offset(good, "CLAS") + 8;
+  Bytes empty = good;
+  std::fill(empty.begin() + static_cast<std::ptrdiff_t>(names + 32),
+            empty.begin() + static_cast<std::ptrdiff_t>(names + 64), 0);
+  EXPECT_TRUE(says(refused(empty), "'class name' must be a non-empty name")) << refused(empty);
+  Bytes repeated = good;
+  std::copy(good.begin() + static_cast<std::ptrdiff_t>(names),
+            good.begin() + static_cast<std::ptrdiff_t>(names + 32),
+            repeated.begin() + static_cast<std::ptrdiff_t>(names + 64));
+  EXPECT_TRUE(says(refused(repeated), "class name 'brush' repeated")) << refused(repeated);
+}
+
+TEST(ModelChecks, TheBinaryRuleNeedsTwoClasses) {
+  Bytes b = fixture("float32");
+  put_u32(b, section_offset(b, "CLAS") + 4, 0);  // three classes, binary rule
+  EXPECT_TRUE(says(refused(b), "the binary rule needs 2 classes, got 3")) << refused(b);
+}
+
+TEST(ModelChecks, DMustBeAtLeastTwo) {
+  Bytes b = fixture("float32");
+  put_u32(b, section_offset(b, "PREP") + 8, 1);
+  EXPECT_TRUE(says(refused(b), "D=1 out of range [2, ")) << refused(b);
+  Bytes rows = fixture("float32");
+  put_u32(rows, section_offset(rows, "PREP"), 0);
+  EXPECT_TRUE(says(refused(rows), "rows=0 cols=4 out of range [1, 256]")) << refused(rows);
+}
+
+TEST(ModelChecks, BasesMustBeOrthonormalToTheFormatsTolerance) {
+  // column 0 of support vector 0 in mode 0: 32 entries; its largest entry (at least 1/sqrt(32))
+  // moved by delta changes the column's norm by about 2 * 0.18 * delta
+  auto largest = [](const Bytes& b, std::size_t at, std::size_t width) {
+    std::size_t best = at;
+    double best_v = 0;
+    for (std::size_t j = 0; j < 32; ++j) {
+      double v;
+      if (width == 8) {
+        v = get_f64(b, at + 8 * j);
+      } else {
+        const std::uint32_t u = get_u32(b, at + 4 * j);
+        float f;
+        std::memcpy(&f, &u, 4);
+        v = f;
+      }
+      if (std::fabs(v) > best_v) best_v = std::fabs(v), best = at + width * j;
+    }
+    return best;
+  };
+  {  // float64: tolerance 1e-8; a 1e-5 move is far above it (and far below 1e-2)
+    Bytes b = fixture("float64");
+    const std::size_t at = largest(b, first_basis(b), 8);
+    const double v = get_f64(b, at);
+    put_f64(b, at, v - std::copysign(1e-5, v));
+    EXPECT_TRUE(says(refused(b), "is not orthonormal up to its rank")) << refused(b);
+  }
+  {  // float32: tolerance 1e-4; a 1e-3 move
+    Bytes b = fixture("float32");
+    const std::size_t at = largest(b, first_basis(b), 4);
+    std::uint32_t u = get_u32(b, at);
+    float f;
+    std::memcpy(&f, &u, 4);
+    f -= std::copysign(1e-3f, f);
+    std::memcpy(&u, &f, 4);
+    put_u32(b, at, u);
+    EXPECT_TRUE(says(refused(b), "is not orthonormal up to its rank")) << refused(b);
+  }
+  {  // a column beyond the rank must be zero: rank 1 declared for support vector 1's basis of
+     // 2 columns in mode 0
+    Bytes b = fixture("float64");
+    const std::size_t rank = section_offset(b, "SVBS") + 32 + 12;
+    ASSERT_EQ(get_u32(b, rank), 2u);
+    put_u32(b, rank, 1);
+    EXPECT_TRUE(says(refused(b), "support vector 1 in mode 0 is not orthonormal up to its rank 1"))
+        << refused(b);
+  }
+}
+
+TEST(ModelChecks, SupportVectorIndicesStrictlyIncrease) {
+  Bytes b = fixture("float32");
+  const std::size_t m0 = section_offset(b, "MACH") + 8;
+  put_u32(b, m0 + 72 + 4, get_u32(b, m0 + 72));  // machine 0's second term repeats its first
+  EXPECT_TRUE(says(refused(b), "machine 0: sv_index must be strictly increasing (entry 1)"))
+      << refused(b);
+}
+
+TEST(ModelChecks, HeaderFlagsAndFileSize) {
+  Bytes flags = fixture("float32");
+  put_u32(flags, 12, get_u32(flags, 12) | 2u);
+  EXPECT_TRUE(says(refused(flags), "unknown flags 0x2")) << refused(flags);
+  Bytes odd = fixture("float32");
+  odd.insert(odd.end() - 4, {0, 0});
+  put_u32(odd, 16, static_cast<std::uint32_t>(odd.size()));
+  EXPECT_TRUE(says(refused(odd), " is impossible")) << refused(odd);
+}

@@ -225,3 +225,31 @@ def test_attributes_round_trip_with_their_dtype(value):
         assert np.asarray(back).dtype == np.asarray(value).dtype
         np.testing.assert_array_equal(back, value)
         assert np.ndim(back) == np.ndim(value)
+
+
+def test_labels_over_a_mebibyte_are_not_read(tmp_path):
+    """A record declaring more than 1 MiB of labels is taken for damage (the reader never
+    allocates what a damaged length says), even with a valid CRC."""
+    path = write(tmp_path, 0, settings={**SETTINGS, "extra_fields": []})
+    big = {**META, "extra": [], "chunk": 4, "note": "x" * (1 << 20)}
+    path.write_bytes(path.read_bytes() + raw_record(0, big, b"abcd"))
+    contents, records = read(path)
+    assert records == [] and contents.dropped_bytes > 1 << 20
+    assert "recording 0 incomplete" in contents.dropped_reason
+
+
+@pytest.mark.parametrize("name", ["c.h5", "campaign.v2.h5", "x"])
+def test_a_journal_names_its_target(tmp_path, name):
+    target = tmp_path / name
+    journal = jr.journal_path(target)
+    assert journal.parent == tmp_path and journal.name == f".{name}.partial"
+    assert jr.target_of(journal) == target
+    assert jr.journal_and_target(journal) == (journal, target)
+    assert jr.journal_and_target(target) == (journal, target)
+
+
+@pytest.mark.parametrize("name", ["c.h5.partial", ".c.h5", ".partial", "..partial"])
+def test_other_names_are_not_journals(tmp_path, name):
+    with pytest.raises(ValueError, match="not a recording journal name"):
+        jr.target_of(tmp_path / name)
+    assert jr.target_of(tmp_path / ".a.partial") == tmp_path / "a"
