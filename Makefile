@@ -2,12 +2,21 @@
 #   make demo   the whole pipeline on the built-in simulated campaign
 #   make test   every test (ctest for the C++ core, pytest for the package)
 SHELL := /bin/bash
+, := ,
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 JOBS ?= $(shell nproc)
-APT_PACKAGES := libeigen3-dev libgtest-dev build-essential valgrind pkg-config \
-  clang libclang-rt-14-dev libfuzzer-14-dev
+# Debian packages, by what needs them (each list is installed, through apt-get, only when one of
+# its packages is missing):
+#   make demo (and every build): a C++17 compiler and Eigen
+APT_PACKAGES := build-essential libeigen3-dev
+#   make test: GoogleTest (ctest), valgrind (instruction counts of benchmarks/bench_inference.py)
+#   and pkg-config (a test builds against the installed C++ library with it)
+APT_TEST_PACKAGES := libgtest-dev valgrind pkg-config
+#   make test's sanitizer and fuzzing leg (check-sanitizers, sanitize, fuzz): clang, its runtime
+#   libraries and libFuzzer
+APT_SANITIZE_PACKAGES := clang libclang-rt-14-dev libfuzzer-14-dev
 # The Cortex-M4F cross toolchain and the board emulator of `make mcu` (a separate list: the rest of
 # the build does not need them).
 APT_MCU_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib \
@@ -18,52 +27,79 @@ BUILD_CPP := build/cpp
 BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
-.PHONY: all deps mcu-deps mcu venv install cpp ctest pytest test demo dev devtest bench clean stubs \
-  sanitize check-sanitizers fuzz mutation
+.PHONY: all deps test-deps sanitize-deps mcu-deps mcu venv venv-test install cpp ctest pytest \
+  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz mutation
 
 all: install cpp
 
-# Debian packages (Eigen, GoogleTest, a compiler); installed only when missing.
+# One step of a long target: a line saying what it does, so no minute passes in silence.
+step = @printf '\n==> %s\n' "$(1)"
+
+# Installs the Debian packages of list $(1) that are missing (apt-get, with sudo when not root).
+define apt_install
+@missing=""; for p in $(1); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+if [ -n "$$missing" ]; then \
+  echo "==> installing Debian packages:$$missing"; \
+  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
+fi
+@mkdir -p build && touch $@
+endef
+
 deps: build/.deps-ok
 build/.deps-ok: Makefile
-	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
-	if [ -n "$$missing" ]; then \
-	  echo "installing Debian packages:$$missing"; \
-	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
-	fi
-	@mkdir -p build && touch $@
+	$(call apt_install,$(APT_PACKAGES))
+
+test-deps: build/.test-deps-ok
+build/.test-deps-ok: Makefile
+	$(call apt_install,$(APT_PACKAGES) $(APT_TEST_PACKAGES))
+
+sanitize-deps: build/.sanitize-deps-ok
+build/.sanitize-deps-ok: Makefile
+	$(call apt_install,$(APT_SANITIZE_PACKAGES))
 
 mcu-deps: build/.mcu-deps-ok
 build/.mcu-deps-ok:
-	@missing=""; for p in $(APT_MCU_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
-	if [ -n "$$missing" ]; then \
-	  echo "installing Debian packages:$$missing"; \
-	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
-	fi
-	@mkdir -p build && touch $@
+	$(call apt_install,$(APT_MCU_PACKAGES))
 
-# A virtual environment with the build tools and the package's own dependencies.
+# A virtual environment with the build tools and the package's own dependencies (what `make demo`
+# needs); venv-test adds the test dependencies (pytest, hypothesis, Dask). pip is upgraded only
+# when it is too old for an editable install of a pyproject package (PEP 660: pip 21.3).
 venv: $(VENV)/.deps-ok
 $(VENV)/.deps-ok: pyproject.toml
+	$(call step,Python environment $(VENV): build tools and eskin's dependencies (pip))
 	@test -x $(PY) || python3 -m venv $(VENV)
-	$(PIP) install -q --upgrade pip
-	$(PIP) install -q scikit-build-core pybind11 cmake ninja
-	$(PIP) install -q $$($(PY) -c "import tomllib;d=tomllib.load(open('pyproject.toml','rb'))['project'];print(' '.join(repr(x) for x in d['dependencies']+d['optional-dependencies']['test']))" | tr -d "'")
+	@$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (21, 3))" \
+	  || $(PIP) install --upgrade pip
+	$(PIP) install --progress-bar off scikit-build-core pybind11 cmake ninja \
+	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']))")
+	@touch $@
+
+venv-test: $(VENV)/.test-deps-ok
+$(VENV)/.test-deps-ok: $(VENV)/.deps-ok
+	$(call step,Python environment $(VENV): test dependencies (pip))
+	$(PIP) install --progress-bar off \
+	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['optional-dependencies']['test']))")
 	@touch $@
 
 # The package itself, editable: Python sources from python/, the compiled core built by scikit-build-core.
+# pip -v shows scikit-build-core's CMake and Ninja output: only the build's own progress lines
+# ([n/N] ..., *** ...) and pip's result are shown, and the whole log goes to build/install.log.
 install: deps venv
-	$(PIP) install -q --no-build-isolation --no-deps -e .
+	$(call step,building the C++ core$(,) eskin-fw-sim$(,) eskin-classify and the Python module (scikit-build-core$(,) editable install into $(VENV)))
+	@mkdir -p build; set -o pipefail; \
+	$(PIP) install -v --no-build-isolation --no-deps -e . 2>&1 | tee build/install.log \
+	  | grep --line-buffered -E '^ *(\[[0-9]+/[0-9]+\]|\*\*\* )|^Successfully|^ERROR|error:' \
+	  || { echo "the build failed; its log: build/install.log"; tail -30 build/install.log; exit 1; }
 
 # The C++ core on its own, with its GoogleTest suite and the command-line tools.
-cpp: deps venv
+cpp: test-deps venv
 	$(CMAKE) -S . -B $(BUILD_CPP) -G Ninja -DCMAKE_BUILD_TYPE=Release -DESKIN_BUILD_TESTS=ON -DESKIN_BUILD_PYTHON=OFF >/dev/null
 	$(CMAKE) --build $(BUILD_CPP) -j $(JOBS)
 
 ctest: cpp
 	cd $(BUILD_CPP) && "$(CURDIR)/$(VENV)/bin/ctest" --output-on-failure -j $(JOBS)
 
-pytest: install
+pytest: install venv-test
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
 
 test: ctest pytest check-sanitizers
@@ -78,7 +114,7 @@ FUZZ_RUNS ?= 2000
 FUZZ_TIME ?= 60
 FUZZ_MIN_RUNS ?= 100000
 FUZZ_FLAGS := -rss_limit_mb=2048 -malloc_limit_mb=1024 -timeout=10 -print_final_stats=1
-sanitize: deps venv
+sanitize: deps sanitize-deps test-deps venv
 	CC=clang CXX=clang++ $(CMAKE) -S . -B $(BUILD_SAN) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
 	  -DESKIN_BUILD_TESTS=ON -DESKIN_BUILD_PYTHON=OFF -DESKIN_INSTALL=OFF -DESKIN_FUZZ=ON >/dev/null
 	$(CMAKE) --build $(BUILD_SAN) -j $(JOBS)
@@ -121,21 +157,24 @@ mcu: mcu-deps install
 	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log
 	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok ' || { echo "make mcu: no 'MCU: ... parity=ok' line"; exit 1; }
 
-demo: install cpp
-	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m eskin demo --out demo_out
+# The demo needs the package and the two tools the editable install puts into $(VENV)/bin; not the
+# GoogleTest suites, nor clang.
+demo: install
+	$(call step,eskin demo --out demo_out)
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m eskin demo --out demo_out
 
 bench: install cpp
 	for b in benchmarks/bench_*.py; do echo "== $$b"; ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) $$b || exit 1; done
 
 # Fast inner loop for developers: one CMake build with tests, tools and the module put in place
 # next to python/eskin (no pip involved). Run the Python tests with `make devtest`.
-dev: deps venv
+dev: test-deps venv
 	$(CMAKE) -S . -B $(BUILD_DEV) -G Ninja -DCMAKE_BUILD_TYPE=Release -DESKIN_BUILD_TESTS=ON \
 	  -DESKIN_BUILD_PYTHON=ON -DESKIN_PYTHON_INPLACE=ON -DPython_EXECUTABLE=$(abspath $(PY)) \
 	  -Dpybind11_DIR=$$($(PY) -m pybind11 --cmakedir) >/dev/null
 	$(CMAKE) --build $(BUILD_DEV) -j $(JOBS)
 
-devtest: dev
+devtest: dev venv-test
 	cd $(BUILD_DEV) && ctest --output-on-failure -j $(JOBS)
 	PYTHONPATH=python ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) -m pytest -q tests/python
 
@@ -144,7 +183,7 @@ devtest: dev
 # model loader and frame decoder. One line per module, "MUTATION: module=... mutants=N
 # killed=K ..."; MUTATION_SAMPLE mutants of each module run (a seeded sample; empty: all).
 MUTATION_SAMPLE ?= 20
-mutation: dev
+mutation: dev venv-test
 	$(PIP) install -q $$($(PY) -c "import tomllib;print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
 	ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) tools/mutation.py $(if $(MUTATION_SAMPLE),--sample $(MUTATION_SAMPLE))
 

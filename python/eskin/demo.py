@@ -3,10 +3,10 @@
 1. simulate a campaign (SIMULATED data, :func:`eskin.simulate`);
 2. train a 3-class model with ``eskin train``'s default recipe (tensor-SVM, or tensor-RLS,
    selected by participant-grouped cross-validation) on some participants
-   (:func:`eskin.models.train_model`), save it and export it to a ``.eskin`` file
-   (:func:`eskin.export.export_model`);
+   (:func:`eskin.learn.models.train_model`), save it and export it to a ``.eskin`` file
+   (:func:`eskin.deploy.export.export_model`);
 3. write the held-out participants' recordings as a replay file
-   (:func:`eskin.replay.write_replay_file`) and start the firmware simulator ``eskin-fw-sim`` on
+   (:func:`eskin.data.replay.write_replay_file`) and start the firmware simulator ``eskin-fw-sim`` on
    it with the model on board: it publishes a pseudo-terminal and streams the recordings at
    ``speed`` x real time, sending its own DECISION frames;
 4. listen on the pseudo-terminal (:class:`eskin.link.LinkListener`) with the same model on the
@@ -45,6 +45,20 @@ from eskin.link.scoring import assign_decisions, confusion_matrix
 __all__ = ["DemoError", "DemoResult", "assign_decisions", "confusion_matrix",
            "offline_stream_decisions", "run_demo", "start_fw_sim"]
 
+#: `eskin evaluate` of the demo's recipe (eskin train's defaults, tensor-SVM) on the demo's own
+#: campaign (its defaults: 20 simulated participants, seed 0), in 5 participant-disjoint folds
+#: (each trained on 16 participants and tested on the other 4), measured with eskin 0.1.0 by
+#:   eskin simulate -o sim20.h5 --participants 20 --seed 0
+#:   eskin evaluate sim20.h5 --out ev --folds 5
+#: accuracy 84.6 %, 95 % interval [80.0, 89.2] % (bootstrap over participants), 240 recordings.
+#: The demo prints it beside its live error, which comes from one split (fewer people trained).
+EVALUATE_REFERENCE = {
+    "command": "eskin simulate -o sim20.h5 --participants 20 --seed 0; "
+               "eskin evaluate sim20.h5 --out ev --folds 5",
+    "participants": 20, "seed": 0, "machine": "svm", "folds": 5, "recordings": 240,
+    "error": 1 - 0.846, "error_ci95": (1 - 0.892, 1 - 0.800),
+}
+
 # decisions of one source per replay segment: label index (-1: no decision), values, dont_know
 SOURCES = ("controller (live)", "host (live)", "offline (Python)")
 BATCH = "offline batch (per recording)"
@@ -66,6 +80,10 @@ class DemoResult:
     agree: bool = True
     disagreement: str = ""
     summary: list[str] = field(default_factory=list)
+    #: the live (controller) error on the held-out people with its 95 % interval, and the
+    #: `eskin evaluate` figure of the same recipe (None when the demo's settings differ from
+    #: those it was measured with)
+    held_out: dict[str, Any] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- pieces
@@ -137,9 +155,9 @@ def finish_fw_sim(proc: subprocess.Popen, timeout: float = 10.0) -> dict[str, An
 def run_demo(
     out: str | os.PathLike[str],
     *,
-    participants: int = 8,
-    test_participants: int = 2,
-    speed: float = 5.0,
+    participants: int = 20,
+    test_participants: int = 8,
+    speed: float = 0.0,
     seed: int = 0,
     n_jobs: int = 2,
     quick: bool = False,
@@ -152,9 +170,11 @@ def run_demo(
 
     ``participants`` are simulated, the last ``test_participants`` of them held out and streamed
     (all their recordings, or ``max_recordings`` of them spread over the classes) at ``speed`` x
-    real time; ``machine`` is "svm" (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a
-    2x2x2 grid instead of the paper's 135 configurations.
+    real time (0: as fast as the host reads, which loses nothing); ``machine`` is "svm"
+    (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a 2x2x2 grid instead of the
+    paper's 135 configurations.
     """
+    from eskin._progress import progress_bar
     from eskin.data.campaign import load_campaign
     from eskin.data.replay import write_replay_file
     from eskin.data.simulator import simulate
@@ -170,8 +190,11 @@ def run_demo(
     t0 = time.perf_counter()
     say(f"[bold]1/5[/] simulating {participants} participants x 12 recordings "
         f"(SIMULATED data) -> {files['campaign']}")
-    simulate(files["campaign"], participants=participants, seed=seed, n_jobs=n_jobs,
-             overwrite=True)
+    with progress_bar() as bar:  # shown on a terminal
+        task = bar.add_task("simulating", total=None)
+        simulate(files["campaign"], participants=participants, seed=seed, n_jobs=n_jobs,
+                 overwrite=True,
+                 progress=lambda done, total: bar.update(task, completed=done, total=total))
     timings["simulate"] = time.perf_counter() - t0
     camp = load_campaign(files["campaign"])
     train_idx, test_idx = _held_out_split(camp, test_participants, max_recordings)
@@ -203,25 +226,63 @@ def run_demo(
                   SOURCES[2]: offline.touches}
     cmp = compare_sources(per_source, offline, rf.segments, len(names), len(test_idx))
     timings["total"] = sum(timings.values())
+    held_out = _held_out_figures(camp, rf, offline.true, cmp.labels[SOURCES[0]], len(names),
+                                 participants, seed, machine, quick)
     summary = _summary(camp, train_idx, test_idx, speed, stats, fw_stats, len(offline.touches),
                        cmp.extras[SOURCES[0]], timings, files)
+    summary.insert(0, _held_out_line(held_out))
     result = DemoResult(
         class_names=names, true_labels=offline.true, labels=cmp.labels, values=cmp.values,
         confusion=cmp.confusion, error_rates=cmp.error_rates, agreement=cmp.agreement,
         stats=stats, fw_stats=fw_stats, files=files, timings=timings, agree=not cmp.problems,
-        disagreement="; ".join(cmp.problems), summary=summary,
+        disagreement="; ".join(cmp.problems), summary=summary, held_out=held_out,
     )
     _write_report(files["report"], result)
     say("[bold]5/5[/] comparing live and offline decisions")
     return result
 
 
+def _held_out_figures(camp: Any, rf: Any, true: np.ndarray, live: np.ndarray, n_classes: int,
+                      participants: int, seed: int, machine: str,
+                      quick: bool) -> dict[str, Any]:
+    """The controller's live error on the held-out recordings with a 95 % interval (bootstrap
+    over the held-out participants, as eskin evaluate's), and EVALUATE_REFERENCE when the demo
+    ran the campaign and recipe it was measured on."""
+    from eskin.learn.evaluation import group_bootstrap_ci
+
+    people = np.asarray(camp.participant)[rf.segments["recording"].astype(np.int64)]
+    pred = np.where(live >= 0, live, (true + 1) % n_classes)  # no decision counts as wrong
+    ci = group_bootstrap_ci(true, pred, people, n_classes, seed=seed)["accuracy"]
+    ref = EVALUATE_REFERENCE
+    same = (participants, seed, machine, quick) == (ref["participants"], ref["seed"],
+                                                   ref["machine"], False)
+    return {"live_error": float(np.mean(live != true)), "live_error_ci95": [1 - ci[1], 1 - ci[0]],
+            "recordings": int(len(true)), "participants": int(len(np.unique(people))),
+            "evaluate": dict(ref) if same else None}
+
+
+def _held_out_line(h: dict[str, Any]) -> str:
+    """The live error beside eskin evaluate's figure for the same recipe and campaign."""
+    lo, hi = h["live_error_ci95"]
+    line = (f"held-out error: live (controller) {h['live_error']:.1%} [{lo:.1%}, {hi:.1%}] on "
+            f"{h['recordings']} recordings of {h['participants']} unseen participants; ")
+    ref = h["evaluate"]
+    if ref is None:
+        return line + ("`eskin evaluate CAMPAIGN --out DIR` measures this recipe in "
+                       "participant-disjoint folds")
+    elo, ehi = ref["error_ci95"]
+    return line + (f"eskin evaluate, same recipe and campaign, {ref['folds']} "
+                   f"participant-disjoint folds: {ref['error']:.1%} [{elo:.1%}, {ehi:.1%}] on "
+                   f"all {ref['recordings']} recordings (95 % intervals, bootstrap over "
+                   f"participants)")
+
+
 def _check_demo_args(participants: int, test_participants: int, speed: float) -> None:
     if participants < 2 or not 1 <= test_participants < participants:
         raise ValueError(f"need participants >= 2 and 1 <= test_participants < participants, got "
                          f"{participants} and {test_participants}")
-    if not speed > 0:
-        raise ValueError(f"speed must be > 0, got {speed}")
+    if not speed >= 0:
+        raise ValueError(f"speed must be >= 0 (0: as fast as the host reads), got {speed}")
 
 
 def demo_files(out: Path) -> dict[str, Path]:
@@ -252,13 +313,16 @@ def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: b
     """Train the model with eskin train's default recipe, save it, export the .eskin file and
     load that back as the compiled model the host runs."""
     try:
+        from eskin._progress import progress_bar
         from eskin.deploy import save_model
         from eskin.deploy.export import CompiledModel, export_model
         from eskin.learn.models import train_model
     except ImportError as exc:
         raise DemoError(
             f"a part of the pipeline is missing from this installation ({exc})") from None
-    model = train_model(train, machine=machine, quick=quick, seed=seed, n_jobs=1)
+    with progress_bar() as bar:  # shown on a terminal
+        bar.add_task("training (cv search)", total=None)
+        model = train_model(train, machine=machine, quick=quick, seed=seed, n_jobs=1)
     save_model(model, files["model"])
     export_model(model, files["eskin"])
     compiled = CompiledModel(files["eskin"])
@@ -300,9 +364,10 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
     from eskin.link.listener import Decision, LinkListener
 
     stream_s = rf.n_samples / rf.sample_rate_hz
+    pace = (f"at {speed:g}x: ~{stream_s / speed:.0f} s" if speed > 0
+            else "as fast as the host reads")
     say(f"[bold]3/5[/] eskin-fw-sim streams {len(rf.segments)} held-out recordings "
-        f"({stream_s:.0f} s of signal at {speed:g}x: ~{stream_s / speed:.0f} s) with the model "
-        f"on board")
+        f"({stream_s:.0f} s of signal {pace}) with the model on board")
     link_path = files["campaign"].parent / "skin.tty"
     proc, pty = start_fw_sim([str(files["replay"]), "--model", str(files["eskin"]),
                               "--speed", f"{speed:g}", "--tick", "10", "--wait-start",
@@ -317,7 +382,7 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
                           record_attrs={"description": "SIMULATED campaign streamed over the "
                                         "eskin-fw-sim pseudo-terminal by `eskin demo`"}) as link:
             with open(files["decisions"], "w", encoding="utf-8") as jf:
-                for ev in link.events(until_eof=True, duration=max(60.0, 4 * stream_s / speed)):
+                for ev in link.events(until_eof=True, duration=max(60.0, 4 * stream_s / (speed or 10.0))):
                     if isinstance(ev, Decision):
                         decisions.append(ev)
                         jf.write(json.dumps(ev.as_dict()) + "\n")
@@ -417,7 +482,8 @@ def _summary(camp: Any, train_idx: np.ndarray, test_idx: np.ndarray, speed: floa
     lost = stats.lost_samples + stats.rejected
     summary = [
         f"SIMULATED campaign: {len(camp)} recordings; trained on {len(train_idx)}, streamed "
-        f"{len(test_idx)} held-out recordings over a real pseudo-terminal at {speed:g}x.",
+        f"{len(test_idx)} held-out recordings over a real pseudo-terminal "
+        f"{f'at {speed:g}x' if speed > 0 else 'as fast as the host reads'}.",
         f"live decisions: {stats.decisions_controller} from the controller, "
         f"{stats.decisions_host} from the host, {n_offline} offline: "
         f"{stats.decisions_controller - extra} recordings decided, "
@@ -450,4 +516,5 @@ def _write_report(path: Path, result: DemoResult) -> None:
         "link_stats": result.stats.as_dict(),
         "fw_sim_stats": result.fw_stats,
         "timings_s": result.timings,
+        "held_out": result.held_out,
     }, indent=2, default=str))

@@ -59,3 +59,34 @@ def test_demo_end_to_end(tmp_path):
     for k, i in enumerate(rf.segments["recording"]):  # the stream, recorded, is the source
         assert np.array_equal(live.recording(k), src.recording(int(i)))
         assert live.modality[k] == src.modality[int(i)]
+
+
+def test_demo_command_prints_the_held_out_error_beside_eskin_evaluates(tmp_path):
+    """`eskin demo` (here a small run) prints the controller's live error on the held-out
+    people with its interval and, for its default campaign and recipe, eskin evaluate's
+    documented figure; other settings name the command that measures it."""
+    pytest.importorskip("eskin.learn.models", reason="the learning stack is not installed")
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+    from eskin.demo import EVALUATE_REFERENCE, _held_out_line
+
+    out = tmp_path / "demo"
+    r = CliRunner().invoke(app, ["demo", "--out", str(out), "--participants", "2",
+                                 "--test-participants", "1", "--quick", "--recordings", "3"])
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    h = report["held_out"]
+    assert (h["recordings"], h["participants"], h["evaluate"]) == (3, 1, None)
+    assert h["live_error"] == report["error_rates"]["controller (live)"]
+    lo, hi = h["live_error_ci95"]
+    assert 0 <= lo <= h["live_error"] <= hi <= 1
+    text = " ".join(r.output.split())
+    assert (f"held-out error: live (controller) {h['live_error']:.1%} [{lo:.1%}, {hi:.1%}] on 3 "
+            f"recordings of 1 unseen participants; `eskin evaluate CAMPAIGN --out DIR` "
+            f"measures this recipe") in text
+    assert "as fast as the host reads" in text
+    # the defaults' line: eskin evaluate's figure for the same recipe and campaign
+    line = _held_out_line({**h, "evaluate": EVALUATE_REFERENCE})
+    assert "eskin evaluate, same recipe and campaign, 5 participant-disjoint folds: 15.4 % " \
+           "[10.8 %, 20.0 %] on all 240 recordings" in line.replace("%", " %")

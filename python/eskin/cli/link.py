@@ -283,9 +283,11 @@ def listen_cmd(
 
 def demo_cmd(
     out: Path = typer.Option(Path("demo_out"), "--out", help="folder for every file"),
-    participants: int = typer.Option(8, help="simulated participants"),
-    test_participants: int = typer.Option(2, help="held out, streamed over the link"),
-    speed: float = typer.Option(5.0, help="replay speed (x real time)"),
+    participants: int = typer.Option(20, help="simulated participants"),
+    test_participants: int = typer.Option(8, help="held out, streamed over the link"),
+    speed: float = typer.Option(
+        0.0, help="replay speed (x real time; 0: as fast as the host reads, which loses "
+        "nothing)"),
     seed: int = typer.Option(0, help="random seed"),
     jobs: int = typer.Option(2, "--jobs", "-j", help="worker processes for the simulator"),
     machine: str = typer.Option("svm", help="svm (tensor-SVM) or rls (tensor-RLS)"),
