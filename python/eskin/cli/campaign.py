@@ -100,8 +100,17 @@ def import_csv_cmd(
     rate: Optional[float] = typer.Option(
         None, "--rate", help="sample rate in Hz (default: a manifest column, else the "
         "recordings' time column)"),
+    time_column: Optional[str] = typer.Option(
+        None, "--time-column", help="the recordings' time column, by its header name (dropped; "
+        "gives the rate). Default: a column named time, t, time_s, timestamp (s), time_ms, "
+        "t_ms (ms), time_us (us), or sample/index (a sample index)"),
+    time_unit: Optional[str] = typer.Option(
+        None, "--time-unit", help="unit of the time column: s, ms or us (default: the one its "
+        "name says)"),
     volts_per_count: Optional[float] = typer.Option(
-        None, help="volts per ADC count; values in the CSV are volts if given, else counts"),
+        None, help="volts per ADC count. Needed when the CSV holds volts (numbers that are not "
+        "integers): they are divided by it into counts. Integer counts are imported as they "
+        "are; given, it is stored so plots can show volts"),
     modalities: Optional[str] = typer.Option(
         None, help="comma-separated class names in class-id order (default: sorted labels)"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
@@ -119,9 +128,14 @@ def import_csv_cmd(
             folder, output, manifest=manifest,
             grid_shape=(rows, cols) if rows is not None and cols is not None else None,
             sample_rate_hz=rate, volts_per_count=volts_per_count,
-            modalities=modalities.split(",") if modalities else None, overwrite=force)
+            modalities=modalities.split(",") if modalities else None, overwrite=force,
+            time_column=time_column, time_unit=time_unit)
         with load_campaign(output) as c:
-            typer.echo(f"wrote {output}: {len(c)} recordings")
+            vpc = ("values as ADC counts (no --volts-per-count)"
+                   if "volts_per_count_given" in c.attrs else
+                   f"{c.volts_per_count:.6g} V per count")
+            typer.echo(f"wrote {output}: {len(c)} recordings, {c.grid_shape[0]}x"
+                       f"{c.grid_shape[1]} taxels, {c.sample_rate_hz:g} Hz, {vpc}")
 
 
 def import_tdms_cmd(
@@ -200,7 +214,10 @@ def _print_info(c) -> None:
     console.print(f"  sample rate       {s['sample_rate_hz']:g} Hz")
     console.print(f"  padded length T   {s['samples_per_recording']} samples "
                   f"({s['duration_s']:.3g} s)")
-    console.print(f"  volts per count   {s['volts_per_count']:.6g} V")
+    if "volts_per_count_given" in c.attrs:
+        console.print("  volts per count   not given (values imported as ADC counts)")
+    else:
+        console.print(f"  volts per count   {s['volts_per_count']:.6g} V")
     console.print(f"  valid lengths     min {s['length_min']}, median {s['length_median']:g}, "
                   f"max {s['length_max']} samples")
     console.print(f"  participants      {s['participants']}")

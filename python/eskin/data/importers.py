@@ -38,9 +38,56 @@ _DIRECTIONS = {
     "255": DIRECTION_UNKNOWN, "": DIRECTION_UNKNOWN, "unknown": DIRECTION_UNKNOWN,
     "?": DIRECTION_UNKNOWN, "nan": DIRECTION_UNKNOWN,
 }
-_TIME_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds", "sample"}
-#: first-column names that hold the time in seconds (the sample rate can be read from them)
-_SECONDS_COLUMNS = {"t", "time", "time_s", "timestamp", "seconds"}
+#: seconds per unit of a time column (import_csv_folder's ``time_unit``)
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+#: header names recognised as a time column (any position, any case), with their unit; None:
+#: a sample index (dropped, gives no rate)
+TIME_COLUMNS: dict[str, str | None] = {
+    **dict.fromkeys(("t", "time", "time_s", "t_s", "times", "seconds", "sec", "secs", "s",
+                     "timestamp", "timestamp_s", "time_sec", "elapsed_s"), "s"),
+    **dict.fromkeys(("time_ms", "t_ms", "ms", "millis", "milliseconds", "timestamp_ms",
+                     "elapsed_ms"), "ms"),
+    **dict.fromkeys(("time_us", "t_us", "us", "micros", "microseconds", "timestamp_us",
+                     "elapsed_us"), "us"),
+    **dict.fromkeys(("sample", "samples", "index", "sample_index", "n"), None),
+}
+#: the attribute an import writes when no volts per count was given (the values are counts)
+VPC_NOT_GIVEN = "not given: the values were imported as ADC counts"
+
+
+@dataclass(frozen=True)
+class TimeColumn:
+    """Which column of a recording CSV holds the time (or a sample index) and its unit."""
+
+    index: int
+    name: str
+    unit: str | None  # "s", "ms", "us"; None: a sample index
+
+
+def find_time_column(names: Sequence[str], path: Path, time_column: str | None = None,
+                     time_unit: str | None = None) -> TimeColumn | None:
+    """The time column of a CSV header: the one named ``time_column`` (any case; its unit is
+    ``time_unit``, else the unit its name says), else the first header name of
+    :data:`TIME_COLUMNS`; None when there is none."""
+    if time_unit is not None and time_unit not in TIME_UNITS:
+        raise ValueError(f"time unit {time_unit!r}: use one of {', '.join(TIME_UNITS)}")
+    lower = [n.strip().lower() for n in names]
+    if time_column is not None:
+        want = time_column.strip().lower()
+        if want not in lower:
+            raise ValueError(f"{path}: no column {time_column!r} (--time-column); the header "
+                             f"has {', '.join(map(repr, names[:8]))}"
+                             f"{', ...' if len(names) > 8 else ''}")
+        k = lower.index(want)
+        unit = time_unit or TIME_COLUMNS.get(want)
+        if unit is None and want not in TIME_COLUMNS:
+            raise ValueError(f"{path}: time column {names[k]!r}: its name does not say its "
+                             f"unit; give --time-unit s, ms or us")
+        return TimeColumn(k, names[k], unit)
+    for k, n in enumerate(lower):
+        if n in TIME_COLUMNS:
+            return TimeColumn(k, names[k], time_unit or TIME_COLUMNS[n])
+    return None
 #: the grid taken when none is given and a recording has 16 taxels: the paper's sensor
 DEFAULT_GRID = (4, 4)
 
@@ -91,7 +138,11 @@ def _to_counts(x: np.ndarray, volts_per_count: float | None, units: str,
         units = "counts" if np.all(x == np.round(x)) else "volts"
     if units == "volts":
         if volts_per_count is None:
-            raise ValueError(f"{where}: values are volts, so volts_per_count must be given")
+            bad = np.argwhere(x != np.round(x))
+            at = f" (the first at sample {bad[0][-1]})" if len(bad) else ""
+            raise ValueError(f"{where}: values are not integers{at}, so they are taken for volts "
+                             f"and need the volts per ADC count (--volts-per-count, or a "
+                             f"manifest column 'volts_per_count')")
         x = np.round(x / volts_per_count)
     elif units != "counts":
         raise ValueError(f"units must be 'auto', 'counts' or 'volts', got {units!r}")
@@ -154,30 +205,79 @@ def _csv_header(path: Path) -> tuple[bool, list[str], int]:
         return True, [c.strip() for c in cells], len(cells)
 
 
-def _read_csv_recording(path: Path, n_taxels: int) -> np.ndarray:
-    """One recording CSV -> float64 (n_taxels, length)."""
+def _time_hint(names: Sequence[str]) -> str:
+    """For a column-count error: a header name that looks like a time column but is not one
+    that is recognised, and the options that declare it."""
+    for n in names:
+        low = n.strip().lower()
+        looks_like_time = re.search(r"time|stamp|clock|elapsed|^ts?_|_ts?$|^ts$", low)
+        if low not in TIME_COLUMNS and looks_like_time:
+            return (f"; if column {n!r} is the time, give --time-column {n} --time-unit s|ms|us "
+                    f"(recognised without options: time, t, time_s, time_ms, time_us, "
+                    f"timestamp, ...)")
+    return ""
+
+
+def _read_csv_recording(path: Path, n_taxels: int, time_column: str | None = None,
+                        time_unit: str | None = None) -> np.ndarray:
+    """One recording CSV -> float64 (n_taxels, length), its time column dropped."""
     has_header, names, n_cols = _csv_header(path)
     if n_cols == 0:
         raise ValueError(f"{path}: empty file")
-    drop_time = has_header and names and names[0].lower() in _TIME_COLUMNS
-    use = n_cols - (1 if drop_time else 0)
+    if time_column is not None and not has_header:
+        raise ValueError(f"{path}: --time-column {time_column!r} names a header column, but "
+                         f"the file's first line holds numbers (no header)")
+    tc = find_time_column(names, path, time_column, time_unit) if has_header else None
+    use = n_cols - (1 if tc is not None else 0)
     if use != n_taxels:
         raise ValueError(
             f"{path}: {use} taxel columns"
-            f"{' (after the time column)' if drop_time else ''}, expected {n_taxels} "
-            f"(rows x cols)")
+            f"{f' (after the time column {tc.name!r})' if tc is not None else ''}, expected "
+            f"{n_taxels} (rows x cols){_time_hint(names) if tc is None else ''}")
+    data = _load_numbers(path, has_header, names, n_cols)
+    if tc is not None:
+        data = np.delete(data, tc.index, axis=1)
+    return np.ascontiguousarray(data.T)
+
+
+def _load_numbers(path: Path, has_header: bool, names: Sequence[str], n_cols: int,
+                  usecols: int | None = None) -> np.ndarray:
+    """The numbers of a recording CSV (float64 (lines, n_cols), or (lines,) of column
+    ``usecols``). A bad cell or line is reported at the file's own 1-based line number."""
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1 if has_header else 0, ndmin=2,
-                          dtype=np.float64, encoding="utf-8-sig")
+                          dtype=np.float64, encoding="utf-8-sig",
+                          usecols=None if usecols is None else (usecols,))
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise ValueError(_first_bad_cell(path, has_header, names, n_cols) or f"{path}: {exc}"
+                         ) from None
     if data.shape[0] == 0:
         raise ValueError(f"{path}: no samples")
-    if data.shape[1] != n_cols:
+    if usecols is None and data.shape[1] != n_cols:
         raise ValueError(f"{path}: rows have {data.shape[1]} columns, header has {n_cols}")
-    if drop_time:
-        data = data[:, 1:]
-    return np.ascontiguousarray(data.T)
+    return data if usecols is None else data[:, 0]
+
+
+def _first_bad_cell(path: Path, has_header: bool, names: Sequence[str], n_cols: int) -> str:
+    """'FILE, line 100, column 2 ('r0c1'): '' is not a number' for the first cell that is not a
+    number (or line with a wrong number of cells), counting lines as an editor does; '' if
+    none is found."""
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        for line_no, cells in enumerate(csv.reader(fh), start=1):
+            if line_no == 1 and has_header:
+                continue
+            if not cells or (len(cells) == 1 and not cells[0].strip()):
+                continue  # a blank line: skipped
+            if len(cells) != n_cols:
+                return (f"{path}, line {line_no}: {len(cells)} cells, expected {n_cols} (as the "
+                        f"{'header' if has_header else 'first line'})")
+            for col, cell in enumerate(cells, start=1):
+                try:
+                    float(cell)
+                except ValueError:
+                    name = f" ({names[col - 1]!r})" if has_header and col <= len(names) else ""
+                    return f"{path}, line {line_no}, column {col}{name}: {cell!r} is not a number"
+    return ""
 
 
 def _count_lines(path: Path) -> int:
@@ -197,66 +297,72 @@ def _manifest_setting(rows: list[dict[str, str]], man: Path, column: str, cast: 
         raise ValueError(f"{man}: column {column!r} value {v!r} is not a number") from None
 
 
-def _rate_from_time_column(path: Path) -> float | None:
-    """The sample rate read from a recording's first column when it holds the time in seconds
-    (evenly spaced); None when it has no such column."""
-    has_header, names, _ = _csv_header(path)
-    if not (has_header and names and names[0].lower() in _SECONDS_COLUMNS):
+def _rate_from_time_column(path: Path, time_column: str | None = None,
+                           time_unit: str | None = None) -> float | None:
+    """The sample rate read from a recording's time column (evenly spaced; seconds, ms or us,
+    see :func:`find_time_column`); None when it has none, or only a sample index."""
+    has_header, names, n_cols = _csv_header(path)
+    tc = find_time_column(names, path, time_column, time_unit) if has_header else None
+    if tc is None or tc.unit is None:
         return None
-    try:
-        t = np.loadtxt(path, delimiter=",", skiprows=1, usecols=0, ndmin=1, dtype=np.float64,
-                       encoding="utf-8-sig")
-    except ValueError as exc:
-        raise ValueError(f"{path}: time column {names[0]!r}: {exc}") from None
+    t = _load_numbers(path, True, names, n_cols, usecols=tc.index) * TIME_UNITS[tc.unit]
     dt = np.diff(t)
     if t.size < 2 or not np.all(np.isfinite(t)) or not np.all(dt > 0):
-        raise ValueError(f"{path}: time column {names[0]!r} does not increase, so it gives no "
+        raise ValueError(f"{path}: time column {tc.name!r} does not increase, so it gives no "
                          f"sample rate (give --rate)")
     step = (t[-1] - t[0]) / (t.size - 1)
     if np.max(np.abs(dt - step)) > 0.01 * step:
-        raise ValueError(f"{path}: time column {names[0]!r} is not evenly spaced (steps "
+        raise ValueError(f"{path}: time column {tc.name!r} is not evenly spaced (steps "
                          f"{dt.min():g} to {dt.max():g} s), so it gives no sample rate "
                          f"(give --rate)")
     return float(f"{1.0 / step:.6g}")
 
 
-def _taxel_columns(path: Path) -> int:
+def _taxel_columns(path: Path, time_column: str | None = None,
+                   time_unit: str | None = None) -> int:
     has_header, names, n = _csv_header(path)
-    return n - (1 if has_header and names and names[0].lower() in _TIME_COLUMNS else 0)
+    tc = find_time_column(names, path, time_column, time_unit) if has_header else None
+    return n - (1 if tc is not None else 0)
 
 
 def _csv_settings(
     rows: list[dict[str, str]], man: Path, first: Path | None, grid_shape: Any,
-    rate: float | None, vpc: float | None,
-) -> tuple[tuple[int, int], float, float]:
+    rate: float | None, vpc: float | None, time_column: str | None = None,
+    time_unit: str | None = None,
+) -> tuple[tuple[int, int], float, float | None]:
     """Grid, rate and volts per count: from the arguments, else the manifest, else (grid) 4x4
     when the first recording has 16 taxel columns and (rate) its time column; every setting
     still missing is named in one error."""
     readable = first is not None and first.is_file()
+    grid_note = ""
     if grid_shape is None:
         r = _manifest_setting(rows, man, "rows", int)
         c = _manifest_setting(rows, man, "cols", int)
         if r is not None and c is not None:
             grid_shape = (r, c)
-        elif readable and _taxel_columns(first) == DEFAULT_GRID[0] * DEFAULT_GRID[1]:
-            grid_shape = DEFAULT_GRID
+        elif readable:
+            n_taxels = _taxel_columns(first, time_column, time_unit)
+            if n_taxels == DEFAULT_GRID[0] * DEFAULT_GRID[1]:
+                grid_shape = DEFAULT_GRID
+            else:
+                grid_note = (f", the first recording has {n_taxels}"
+                             f"{_time_hint(_csv_header(first)[1])}")
     if rate is None:
         rate = _manifest_setting(rows, man, "sample_rate_hz", float)
     if rate is None and readable:
-        rate = _rate_from_time_column(first)
+        rate = _rate_from_time_column(first, time_column, time_unit)
     if vpc is None:
         vpc = _manifest_setting(rows, man, "volts_per_count", float)
     missing = [what for what, value in (
         ("the grid (--rows and --cols, or manifest columns 'rows' and 'cols'; 4x4 is taken "
-         "only for 16 taxel columns)", grid_shape),
-        ("the sample rate (--rate, a manifest column 'sample_rate_hz', or a first column "
-         "'time' in seconds in the recordings)", rate),
-        ("the volts per count (--volts-per-count or a manifest column 'volts_per_count'; it "
-         "converts counts to volts)", vpc),
+         f"only for 16 taxel columns{grid_note})", grid_shape),
+        ("the sample rate (--rate, a manifest column 'sample_rate_hz', or a time column in "
+         "the recordings: a column named time, t, time_ms, time_us, timestamp, ... or given "
+         "by --time-column NAME --time-unit s|ms|us)", rate),
     ) if value is None]
     if missing:
         raise ValueError(f"{man}: {len(missing)} setting(s) not given: " + "; ".join(missing))
-    return grid_shape, float(rate), float(vpc)
+    return grid_shape, float(rate), None if vpc is None else float(vpc)
 
 
 def import_csv_folder(
@@ -271,6 +377,8 @@ def import_csv_folder(
     units: str = "auto",
     overwrite: bool = False,
     attrs: Mapping[str, Any] | None = None,
+    time_column: str | None = None,
+    time_unit: str | None = None,
 ) -> Path:
     """Import a folder of CSV recordings into a campaign file at ``output``.
 
@@ -279,12 +387,19 @@ def import_csv_folder(
     ``direction`` (h/horizontal/0, v/vertical/1, or unknown/255/empty) and ``run`` (integer).
     Optional columns, one value for the whole campaign: ``rows``, ``cols``, ``sample_rate_hz``,
     ``volts_per_count`` (arguments override them). Without them, the grid is 4x4 when the
-    recordings have 16 taxel columns, and the rate is read from a first column named
-    time/t/time_s/seconds/timestamp (seconds, evenly spaced); every setting still missing is
-    named in one error. Each recording CSV: one column per taxel in row-major order, an optional
-    header line (a first column named time/t/timestamp/sample is dropped), one line per sample; integers are ADC counts, other numbers volts (``units``
-    forces one). Recordings may differ in length: the campaign pads them (``length`` keeps each).
-    Class ids follow ``modalities`` if given, else the sorted labels.
+    recordings have 16 taxel columns, and the rate is read from the recordings' time column
+    (evenly spaced). Every setting still missing is named in one error. Each recording CSV: one
+    column per taxel in row-major order, an optional header line, one line per sample. A time
+    column is dropped: the header column named ``time_column`` (unit ``time_unit``: "s", "ms" or
+    "us", else the one its name says), else the first one named as in :data:`TIME_COLUMNS`
+    (time, t, time_s, timestamp in seconds; time_ms, t_ms in ms; time_us in us; sample, index:
+    a sample index). Integers are ADC counts, other numbers volts (``units`` forces one);
+    ``volts_per_count`` converts volts to counts and is stored in the campaign (plots show
+    volts with it). It is needed only for volts: integer counts are imported as they are, and
+    without it the campaign stores 1.0 and the attribute ``volts_per_count_given`` =
+    :data:`VPC_NOT_GIVEN`. A cell that is not a number is reported at the file's own 1-based
+    line and column. Recordings may differ in length: the campaign pads them (``length`` keeps
+    each). Class ids follow ``modalities`` if given, else the sorted labels.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -303,7 +418,7 @@ def import_csv_folder(
 
     first = (folder / rows_[0]["file"]).resolve() if rows_[0].get("file") else None
     grid_shape, rate, vpc = _csv_settings(rows_, man, first, grid_shape, sample_rate_hz,
-                                          volts_per_count)
+                                          volts_per_count, time_column, time_unit)
     n_rows, n_cols = int(grid_shape[0]), int(grid_shape[1])
     if n_rows < 1 or n_cols < 1:
         raise ValueError(f"grid shape must be positive, got {grid_shape}")
@@ -328,13 +443,16 @@ def import_csv_folder(
     names, ids = _class_ids([e.label for e in entries], modalities, str(man))
     lengths = [_count_lines(e.file) for e in entries]
     t = max(max(lengths), 1)
+    extra = {} if vpc is not None else {"volts_per_count_given": VPC_NOT_GIVEN}
     with CampaignWriter(output, grid_shape=(n_rows, n_cols), n_samples=t,
-                        sample_rate_hz=rate, volts_per_count=vpc, modalities=names,
-                        source="recorded", overwrite=overwrite, on_error="discard",
-                        attrs={"imported_from": f"csv folder {folder.name}", **dict(attrs or {})}
+                        sample_rate_hz=rate, volts_per_count=1.0 if vpc is None else vpc,
+                        modalities=names, source="recorded", overwrite=overwrite,
+                        on_error="discard",
+                        attrs={"imported_from": f"csv folder {folder.name}", **extra,
+                               **dict(attrs or {})}
                         ) as w:
         for e, cid in zip(entries, ids):
-            x = _read_csv_recording(e.file, n_rows * n_cols)
+            x = _read_csv_recording(e.file, n_rows * n_cols, time_column, time_unit)
             counts = _to_counts(x, vpc, units, str(e.file))
             w.append(counts.reshape(n_rows, n_cols, -1), modality=cid,
                      participant=e.participant, direction=e.direction, run=e.run)

@@ -230,9 +230,10 @@ def test_csv_names_every_missing_setting_at_once(tmp_path):
     with pytest.raises(ValueError) as err:
         import_csv_folder(folder, tmp_path / "c.h5")
     msg = str(err.value)
-    assert msg.startswith(f"{folder / 'manifest.csv'}: 3 setting(s) not given: the grid (--rows")
+    assert msg.startswith(f"{folder / 'manifest.csv'}: 2 setting(s) not given: the grid (--rows")
     assert "4x4 is taken only for 16 taxel columns" in msg
-    assert "; the sample rate (--rate" in msg and "; the volts per count (--volts-per-count" in msg
+    assert "; the sample rate (--rate" in msg and "--time-column NAME --time-unit s|ms|us" in msg
+    assert "volts" not in msg  # integer counts need no volts per count
     assert not (tmp_path / "c.h5").exists()
 
 
@@ -258,3 +259,101 @@ def test_tdms_takes_4x4_only_for_16_channels(tmp_path):
     with pytest.raises(ValueError, match=r"12 channels, expected one per taxel \(4x4 = 16\); 4x4 "
                                          r"is taken only for 16 channels: give the grid"):
         import_tdms([p], tmp_path / "t.h5", sample_rate_hz=3000.0)
+
+
+def _retime(folder, name, scale):
+    """Rename the recordings' time column to ``name`` and write its values in units of
+    ``scale`` seconds (the helper writes seconds)."""
+    for rec in sorted(folder.glob("r*.csv")):
+        lines = rec.read_text().splitlines()
+        out = [name + lines[0][lines[0].index(","):]]
+        for ln in lines[1:]:
+            t, rest = ln.split(",", 1)
+            out.append(f"{float(t) / scale:.6g},{rest}")
+        rec.write_text("\n".join(out) + "\n")
+
+
+def _import(folder, out, *args):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    return CliRunner().invoke(app, ["import-csv", str(folder), "-o", str(out), *args])
+
+
+@pytest.mark.parametrize("name,scale,args", [
+    ("time_ms", 1e-3, []),
+    ("Timestamp_us", 1e-6, []),
+    ("clock", 1e-3, ["--time-column", "clock", "--time-unit", "ms"]),
+    ("t", 1e-6, ["--time-unit", "us"]),
+])
+def test_cli_import_csv_reads_the_time_column_in_its_unit(tmp_path, name, scale, args):
+    """A time column of a common name is recognised with the unit its name says (any case),
+    --time-column/--time-unit name any other; it is dropped and gives the rate. Integer
+    counts need no --volts-per-count."""
+    folder, truth = _csv_folder(tmp_path, time_col=True)
+    _retime(folder, name, scale)
+    r = _import(folder, tmp_path / "c.h5", *args)
+    assert r.exit_code == 0, r.output
+    assert ("4 recordings, 4x4 taxels, 1000 Hz, values as ADC counts (no --volts-per-count)"
+            in r.output)
+    with load_campaign(tmp_path / "c.h5") as c:
+        assert c.sample_rate_hz == 1000.0 and c.grid_shape == (4, 4)
+        np.testing.assert_array_equal(c.recording(1).reshape(16, -1), truth[1])
+        assert "not given" in c.attrs["volts_per_count_given"]
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "c.h5")])
+    assert "volts per count   not given (values imported as ADC counts)" in info.output
+
+
+def test_cli_import_csv_names_an_unknown_time_column_and_bad_cells_by_line(tmp_path):
+    folder, _ = _csv_folder(tmp_path, time_col=True)
+    _retime(folder, "clock", 1e-3)
+    out = tmp_path / "c.h5"
+    # an unrecognised time column: the column count names it and the options
+    r = _import(folder, out, "--rate", "1000")
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert ("4x4 is taken only for 16 taxel columns, the first recording has 17; if column "
+            "'clock' is the time, give --time-column clock --time-unit s|ms|us"
+            ) in " ".join(r.output.split())
+    r = _import(folder, out, "--rate", "1000", "--rows", "4", "--cols", "4")
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert ("r00.csv: 17 taxel columns, expected 16 (rows x cols); if column 'clock' is the "
+            "time, give --time-column clock --time-unit s|ms|us") in " ".join(r.output.split())
+    r = _import(folder, out, "--time-column", "clock")
+    assert r.exit_code == 2 and "time column 'clock': its name does not say its unit; give " \
+        "--time-unit s, ms or us" in " ".join(r.output.split())
+    r = _import(folder, out, "--time-column", "zeit", "--time-unit", "ms")
+    assert r.exit_code == 2 and "no column 'zeit' (--time-column)" in " ".join(r.output.split())
+    # a blank cell: the file's own line (1-based, header counted) and column, with its name
+    rec = folder / "r02.csv"
+    lines = rec.read_text().splitlines()
+    cells = lines[59].split(",")
+    cells[1] = ""
+    lines[59] = ",".join(cells)
+    rec.write_text("\n".join(lines) + "\n")
+    r = _import(folder, out, "--time-column", "clock", "--time-unit", "ms")
+    assert r.exit_code == 2 and not out.exists()
+    assert "r02.csv, line 60, column 2 ('r0c0'): '' is not a number" in " ".join(
+        r.output.split())
+
+
+def test_cli_import_csv_volts_need_volts_per_count(tmp_path):
+    folder, truth = _csv_folder(tmp_path, volts=True, time_col=True)
+    r = _import(folder, tmp_path / "c.h5")
+    assert r.exit_code == 2 and "values are not integers (the first at sample 0), so they are " \
+        "taken for volts and need the volts per ADC count (--volts-per-count" in " ".join(
+            r.output.split())
+    r = _import(folder, tmp_path / "c.h5", "--volts-per-count", "0.001")
+    assert r.exit_code == 0 and "0.001 V per count" in r.output
+    with load_campaign(tmp_path / "c.h5") as c:
+        np.testing.assert_array_equal(c.recording(0).reshape(16, -1), truth[0])
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    help_text = " ".join(CliRunner().invoke(app, ["import-csv", "--help"]).output.split())
+    assert "Integer counts are imported as they are" in help_text.replace("│ ", "")
