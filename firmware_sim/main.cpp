@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "eskin/controller.hpp"
 #include "eskin/protocol.hpp"
 #include "eskin/version.hpp"
 #include "pty_link.hpp"
@@ -214,7 +215,10 @@ std::uint32_t clamp_u32(std::int64_t v) {
   return static_cast<std::uint32_t>(std::clamp<std::int64_t>(v, 0, 0xFFFFFFFFLL));
 }
 
-class Simulator {
+/// The simulator: paces the replay against absolute deadlines and services the pty; the
+/// controller's protocol and stream logic is eskin::Controller (eskin/controller.hpp), the
+/// same code the firmware runs, to which this class is the port.
+class Simulator final : public ControllerPort {
  public:
   Simulator(const Options& o, ReplaySource& src, PtyLink& link)
       : o_(o), src_(src), link_(link), taxels_(src.taxels()) {
@@ -222,22 +226,21 @@ class Simulator {
     const std::size_t max_spf = proto::max_samples_per_frame(taxels_);
     spf_ = std::min<std::size_t>(static_cast<std::size_t>(o.samples_per_frame), max_spf);
     tick_ = o.tick > 0 ? static_cast<std::size_t>(o.tick) : (o.model.empty() ? spf_ : 1);
-    streaming_ = !o.wait_start;
     class_names_ = src.class_names();
     frame_samples_.resize(spf_ * taxels_);
   }
 
 #if ESKIN_FWSIM_HAS_MODEL
   void set_model(const Model* model) {
-    model_ = model;
     stream_ = std::make_unique<StreamClassifier>(*model);
     class_names_ = model->class_names();
   }
 #endif
 
   int run() {
-    origin_ = now_ns();
+    origin_ = steady_ns();
     anchor_ns_ = origin_;
+    make_controller();
     std::printf("PTY %s\nORIGIN_NS %lld\n", link_.slave_path().c_str(),
                 static_cast<long long>(origin_));
     std::fflush(stdout);
@@ -246,27 +249,28 @@ class Simulator {
                    link_.slave_path().c_str(), static_cast<unsigned long long>(src_.n_samples()),
                    src_.rows(), src_.cols(), rate_, o_.speed, o_.speed == 0 ? " (unpaced)" : "");
     service();
-    if (streaming_) start_stream(false);
+    if (!o_.wait_start) ctl_->start();
     std::int64_t finished_at = 0;
     while (!g_stop) {
       // Unpaced (--speed 0), the replay runs as fast as the host reads: with no host, it waits.
-      if (streaming_ && !finished_ && (o_.speed > 0 || link_.host_connected())) {
+      if (ctl_->streaming() && !ctl_->finished() && (o_.speed > 0 || link_.host_connected())) {
         step();
-        if (finished_) {
-          finished_at = now_ns();
-          send_status();
+        if (ctl_->finished()) {
+          finished_at = steady_ns();
           link_.flush_tx();
         }
       } else {
         link_.wait_io(5, link_.queued() > 0);
         service();
-        if (finished_ && now_ns() - finished_at >= static_cast<std::int64_t>(o_.hold_s * 1e9)) break;
+        if (ctl_->finished() &&
+            steady_ns() - finished_at >= static_cast<std::int64_t>(o_.hold_s * 1e9))
+          break;
       }
     }
     // last words: a final STATUS, and a bounded wait for the host to take what is queued
-    send_status();
-    const std::int64_t give_up = now_ns() + 1000000000LL;
-    while (link_.queued() > 0 && link_.host_connected() && now_ns() < give_up) {
+    ctl_->send_status();
+    const std::int64_t give_up = steady_ns() + 1000000000LL;
+    while (link_.queued() > 0 && link_.host_connected() && steady_ns() < give_up) {
       if (!link_.flush_tx()) break;
       link_.wait_io(5, true);
       bool rc, dc;
@@ -277,7 +281,72 @@ class Simulator {
     return 0;
   }
 
+  // ---- ControllerPort
+  bool host_connected() const override { return link_.host_connected(); }
+
+  /// Queues a frame if it fits. Unpaced (--speed 0), it waits for room while the host is
+  /// connected: the replay then runs as fast as the host reads. Paced, it never waits: the
+  /// controller drops and counts.
+  bool send(proto::Frame& f, std::size_t reserve) override {
+    bool ok = link_.send(f, reserve);
+    while (!ok && o_.speed == 0 && link_.host_connected() && !g_stop) {
+      if (!link_.flush_tx()) break;
+      link_.wait_writable(20);  // host commands wait until after (no re-entrant queueing)
+      bool rc, dc;
+      link_.update_host(rc, dc);
+      ok = link_.send(f, reserve);
+    }
+    link_.flush_tx();
+    return ok;
+  }
+  void send_delimiter() override { link_.send_delimiter(); }
+  std::int64_t now_ns() const override { return steady_ns() - origin_; }
+  void fill_status(proto::StatusPayload& s) const override {
+    s.rx_errors = link_.rx_errors();
+    s.faults_injected = clamp_u32(static_cast<std::int64_t>(link_.faults_injected()));
+    s.pacing_p50_ns = clamp_u32(pacing_.percentile_ns(0.5));
+    s.pacing_p99_ns = clamp_u32(pacing_.percentile_ns(0.99));
+    s.pacing_max_ns = clamp_u32(pacing_.max_ns());
+  }
+  void on_stream_start(bool again) override {
+    if (again) pos_ = 0;
+    anchor_ns_ = steady_ns();
+    anchor_sample_ = ctl_->next_sample();
+  }
+  void on_decision_sent(std::uint32_t latency_us) override { latencies_us_.push_back(latency_us); }
+
  private:
+  static std::int64_t steady_ns() { return eskin::fwsim::now_ns(); }
+
+  void make_controller() {
+    names_joined_.clear();
+    std::size_t n = 0;
+    for (const auto& c : class_names_) {
+      if (n == 255 || names_joined_.size() + c.size() + 1 > 2048) break;
+      if (n) names_joined_ += '\n';
+      names_joined_ += c;
+      ++n;
+    }
+    ControllerConfig cfg;
+    cfg.rows = static_cast<std::uint8_t>(src_.rows());
+    cfg.cols = static_cast<std::uint8_t>(src_.cols());
+    cfg.samples_per_frame = static_cast<std::uint16_t>(spf_);
+    cfg.frame_samples = frame_samples_.data();
+    cfg.sample_rate_hz = rate_;
+    cfg.volts_per_count = src_.volts_per_count();
+    cfg.speed = o_.speed;
+    cfg.class_names = names_joined_.data();
+    cfg.names_len = static_cast<std::uint16_t>(names_joined_.size());
+    cfg.n_classes = static_cast<std::uint8_t>(n);
+    cfg.status_period_ns = static_cast<std::int64_t>(o_.status_ms) * 1000000LL;
+    cfg.control_reserve = kControlReserve;
+#if ESKIN_FWSIM_HAS_MODEL
+    ctl_ = std::make_unique<Controller>(cfg, *this, stream_.get());
+#else
+    ctl_ = std::make_unique<Controller>(cfg, *this, nullptr);
+#endif
+  }
+
   /// Acquisition deadline of the sample that ends at stream index `end` (exclusive).
   std::int64_t deadline_for(std::uint64_t end) const {
     return anchor_ns_ +
@@ -290,210 +359,27 @@ class Simulator {
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(tick_, left));
     std::int64_t acquired = 0;
     if (o_.speed > 0) {
-      const std::int64_t deadline = deadline_for(next_sample_ + n);
+      const std::int64_t deadline = deadline_for(ctl_->next_sample() + n);
       sleep_until(deadline);
-      const std::int64_t t = now_ns();
+      const std::int64_t t = steady_ns();
       pacing_.add(t - deadline);
       acquired = deadline;
     } else {
-      acquired = now_ns();
+      acquired = steady_ns();
     }
+    // with tick > 1, sample k of this batch was acquired (n - 1 - k) periods before the last
+    const double period_ns = o_.speed > 0 ? 1e9 / (rate_ * o_.speed) : 0.0;
     for (std::size_t k = 0; k < n; ++k) {
-      const std::int16_t* s = src_.sample(pos_);
-      std::memcpy(frame_samples_.data() + frame_fill_ * taxels_, s, taxels_ * sizeof(std::int16_t));
-      if (frame_fill_ == 0) frame_first_ = next_sample_;
-      ++frame_fill_;
+      const std::int64_t at =
+          acquired - static_cast<std::int64_t>(static_cast<double>(n - 1 - k) * period_ns);
+      ctl_->push(src_.sample(pos_), at - origin_);
       ++pos_;
-      ++next_sample_;
-      // with tick > 1, sample k of this batch was acquired (n - 1 - k) periods before the last
-      const double period_ns = o_.speed > 0 ? 1e9 / (rate_ * o_.speed) : 0.0;
-      classify(s, acquired - static_cast<std::int64_t>(static_cast<double>(n - 1 - k) * period_ns));
-      if (frame_fill_ == spf_) send_data(acquired);
     }
     if (pos_ == src_.n_samples()) {
-      if (frame_fill_ > 0) send_data(acquired);
-      if (o_.loop) {
-        pos_ = 0;
-        loop_flag_ = true;
-      } else {
-        finished_ = true;
-#if ESKIN_FWSIM_HAS_MODEL
-        // The replay ended inside a touch: decide on it now. Its decided sample is the last one,
-        // so the latency runs from that sample's acquisition and includes this classification.
-        if (stream_ && stream_->flush() == ClassifyStatus::kDecision) send_decision(acquired);
-#endif
-      }
+      ctl_->end_of_replay(acquired - origin_, o_.loop);
+      if (o_.loop) pos_ = 0;
     }
     service();
-  }
-
-  void classify(const std::int16_t* sample, std::int64_t acquired_ns) {
-#if ESKIN_FWSIM_HAS_MODEL
-    if (!stream_) return;
-    const ClassifyStatus st = stream_->push(sample);
-    if (st == ClassifyStatus::kDecision) {
-      send_decision(acquired_ns);
-    } else if (st != ClassifyStatus::kOk) {
-      ++classify_errors_;
-    }
-#else
-    (void)sample;
-    (void)acquired_ns;
-#endif
-  }
-
-#if ESKIN_FWSIM_HAS_MODEL
-  void send_decision(std::int64_t acquired_ns) {
-    const Decision& d = stream_->decision();
-    proto::Frame f;
-    f.type = proto::FrameType::decision;
-    auto& p = f.decision;
-    p.onset_sample = static_cast<std::uint64_t>(std::max<std::int64_t>(d.window_start, 0));
-    p.offset_sample = static_cast<std::uint64_t>(std::max<std::int64_t>(d.window_stop, 0));
-    p.decided_sample = next_sample_ == 0 ? 0 : next_sample_ - 1;
-    p.label = static_cast<std::int16_t>(d.label);
-    p.dont_know = d.dont_know ? 1 : 0;
-    p.n_values = static_cast<std::uint8_t>(
-        std::min<int>(d.n_machines, static_cast<int>(proto::kMaxDecisionValues)));
-    for (int i = 0; i < p.n_values; ++i) p.values[i] = d.values[i];
-    const std::int64_t t = now_ns();
-    p.timestamp_us = static_cast<std::uint64_t>((t - origin_) / 1000);
-    p.latency_us = clamp_u32((t - acquired_ns) / 1000);
-    ++decisions_made_;
-    // DATA leaves room for control frames, so a decision is queued even while samples drop.
-    if (!queue(f)) return;
-    ++decisions_sent_;
-    latencies_us_.push_back(p.latency_us);
-    link_.flush_tx();
-  }
-#endif
-
-  void send_data(std::int64_t acquired_ns) {
-    proto::Frame f;
-    f.type = proto::FrameType::data;
-    f.data.first_sample = frame_first_;
-    f.data.timestamp_us = static_cast<std::uint64_t>((acquired_ns - origin_) / 1000);
-    f.data.rows = static_cast<std::uint8_t>(src_.rows());
-    f.data.cols = static_cast<std::uint8_t>(src_.cols());
-    f.data.n_samples = static_cast<std::uint16_t>(frame_fill_);
-    f.data.samples = frame_samples_.data();
-    f.flags = static_cast<std::uint8_t>((dropped_since_data_ ? proto::flags::kOverrun : 0) |
-                                        (loop_flag_ ? proto::flags::kLoop : 0));
-    const std::size_t n = frame_fill_;
-    frame_fill_ = 0;
-    if (queue(f, kControlReserve)) {
-      samples_sent_ += n;
-      dropped_since_data_ = false;
-      loop_flag_ = false;
-      dropping_ = false;
-    } else {
-      dropped_samples_ += n;
-      dropped_since_data_ = dropped_since_status_ = true;
-      if (!dropping_ && link_.host_connected()) ++overrun_events_;
-      dropping_ = link_.host_connected();
-    }
-    link_.flush_tx();
-  }
-
-  /// Queues a frame if a host is there and it fits (keeping `reserve` bytes free). Unpaced
-  /// (--speed 0), it waits for room while the host is connected: the replay then runs as fast
-  /// as the host reads. Paced, it never waits: the caller drops and counts.
-  bool queue(proto::Frame& f, std::size_t reserve = 0) {
-    if (!link_.host_connected()) return false;
-    if (sync_pending_) f.flags |= proto::flags::kSync;
-    bool ok = link_.send(f, reserve);
-    while (!ok && o_.speed == 0 && link_.host_connected() && !g_stop) {
-      if (!link_.flush_tx()) break;
-      link_.wait_writable(20);  // host commands wait until after (no re-entrant queueing)
-      bool rc, dc;
-      link_.update_host(rc, dc);
-      ok = link_.send(f, reserve);
-    }
-    if (ok) sync_pending_ = false;
-    return ok;
-  }
-
-  void start_stream(bool from_command) {
-    if (from_command && finished_) {  // START after the end: play it again
-      pos_ = 0;
-      finished_ = false;
-    }
-    streaming_ = true;
-    anchor_ns_ = now_ns();
-    anchor_sample_ = next_sample_;
-    announce();
-  }
-
-  /// Delimiter + INFO, with SYNC on the first frame after it.
-  void announce() {
-    if (!link_.host_connected()) return;
-    link_.send_delimiter();
-    sync_pending_ = true;
-    send_info();
-    link_.flush_tx();
-  }
-
-  void send_info() {
-    proto::Frame f;
-    f.type = proto::FrameType::info;
-    auto& p = f.info;
-    p.rows = static_cast<std::uint8_t>(src_.rows());
-    p.cols = static_cast<std::uint8_t>(src_.cols());
-    p.samples_per_frame = static_cast<std::uint16_t>(spf_);
-    p.sample_rate_hz = rate_;
-    p.volts_per_count = src_.volts_per_count();
-    p.speed = o_.speed;
-    p.has_model = has_model() ? 1 : 0;
-    names_joined_.clear();
-    std::size_t n = 0;
-    for (const auto& c : class_names_) {
-      if (n == 255 || names_joined_.size() + c.size() + 1 > 2048) break;
-      if (n) names_joined_ += '\n';
-      names_joined_ += c;
-      ++n;
-    }
-    p.n_classes = static_cast<std::uint8_t>(n);
-    p.names_len = static_cast<std::uint16_t>(names_joined_.size());
-    p.class_names = names_joined_.data();
-    queue(f);
-  }
-
-  void send_status() {
-    proto::Frame f;
-    f.type = proto::FrameType::status;
-    auto& s = f.status;
-    const std::int64_t t = now_ns();
-    s.uptime_us = static_cast<std::uint64_t>((t - origin_) / 1000);
-    s.next_sample = next_sample_;
-    s.samples_sent = samples_sent_;
-    s.dropped_samples = dropped_samples_;
-    s.overrun_events = overrun_events_;
-    s.rx_errors = link_.rx_errors();
-    s.faults_injected = clamp_u32(static_cast<std::int64_t>(link_.faults_injected()));
-    s.decisions_sent = static_cast<std::uint32_t>(decisions_sent_);
-    s.pacing_p50_ns = clamp_u32(pacing_.percentile_ns(0.5));
-    s.pacing_p99_ns = clamp_u32(pacing_.percentile_ns(0.99));
-    s.pacing_max_ns = clamp_u32(pacing_.max_ns());
-    s.state = finished_ ? proto::StreamState::finished
-              : streaming_ ? proto::StreamState::streaming
-                           : proto::StreamState::stopped;
-    s.host_connected = link_.host_connected() ? 1 : 0;
-    s.connections = static_cast<std::uint16_t>(std::min<std::uint32_t>(connections_, 65535));
-    f.flags = dropped_since_status_ ? proto::flags::kOverrun : 0;
-    if (queue(f)) dropped_since_status_ = false;
-    last_status_ns_ = t;
-  }
-
-  bool has_model() const {
-#if ESKIN_FWSIM_HAS_MODEL
-    return stream_ != nullptr;
-#else
-    return false;
-#endif
-  }
-
-  void service_input() {
-    link_.poll_commands([this](const proto::Frame& f) { on_command(f); });
   }
 
   /// Host presence, host commands, periodic STATUS, and writing out the queue.
@@ -502,44 +388,16 @@ class Simulator {
     link_.update_host(reconnected, disconnected);
     if (disconnected && !o_.quiet) std::fprintf(stderr, "eskin-fw-sim: host closed the port\n");
     if (reconnected) {
-      ++connections_;
       if (!o_.quiet) std::fprintf(stderr, "eskin-fw-sim: host connected\n");
-      announce();  // a delimiter first, so the host's decoder syncs before our first frame
+      ctl_->host_connected();
     }
-    if (link_.host_connected()) service_input();
-    if (now_ns() - last_status_ns_ >= static_cast<std::int64_t>(o_.status_ms) * 1000000LL)
-      send_status();
+    if (link_.host_connected())
+      link_.poll_commands([this](const proto::Frame& f) { ctl_->on_command(f); });
+    ctl_->poll();
     if (!link_.flush_tx()) {
       bool rc, dc;
       link_.update_host(rc, dc);
     }
-  }
-
-  void on_command(const proto::Frame& f) {
-    switch (f.type) {
-      case proto::FrameType::start:
-        if (!streaming_ || finished_) start_stream(true);
-        else announce();
-        break;
-      case proto::FrameType::stop:
-        streaming_ = false;
-        send_status();
-        break;
-      case proto::FrameType::ping: {
-        proto::Frame r;
-        r.type = proto::FrameType::pong;
-        r.ping.token = f.ping.token;
-        r.ping.timestamp_us = static_cast<std::uint64_t>((now_ns() - origin_) / 1000);
-        queue(r);
-        break;
-      }
-      case proto::FrameType::info_request:
-        send_info();
-        break;
-      default:
-        ++unexpected_frames_;  // a controller -> host frame sent to us
-    }
-    link_.flush_tx();
   }
 
   void print_stats() {
@@ -550,6 +408,7 @@ class Simulator {
       const std::size_t i = std::min(lat.size() - 1, static_cast<std::size_t>(q * (lat.size() - 1) + 0.5));
       return lat[i];
     };
+    const Controller& c = *ctl_;
     std::printf(
         "STATS {\"samples_produced\": %llu, \"samples_sent\": %llu, \"dropped_samples\": %llu, "
         "\"overrun_events\": %u, \"faults_injected\": %llu, \"bytes_written\": %llu, "
@@ -558,17 +417,19 @@ class Simulator {
         "\"decisions_sent\": %llu, \"classify_errors\": %llu, \"latency_p50_us\": %.0f, "
         "\"latency_p99_us\": %.0f, \"latency_max_us\": %.0f, \"elapsed_s\": %.6f, "
         "\"origin_ns\": %lld, \"realtime\": %s}\n",
-        static_cast<unsigned long long>(next_sample_), static_cast<unsigned long long>(samples_sent_),
-        static_cast<unsigned long long>(dropped_samples_), overrun_events_,
+        static_cast<unsigned long long>(c.next_sample()),
+        static_cast<unsigned long long>(c.samples_sent()),
+        static_cast<unsigned long long>(c.dropped_samples()), c.overrun_events(),
         static_cast<unsigned long long>(link_.faults_injected()),
-        static_cast<unsigned long long>(link_.bytes_written()), link_.rx_errors(), connections_,
+        static_cast<unsigned long long>(link_.bytes_written()), link_.rx_errors(), c.connections(),
         static_cast<unsigned long long>(pacing_.count()),
         static_cast<long long>(pacing_.percentile_ns(0.5)),
         static_cast<long long>(pacing_.percentile_ns(0.99)), static_cast<long long>(pacing_.max_ns()),
-        static_cast<unsigned long long>(decisions_made_), static_cast<unsigned long long>(decisions_sent_),
-        static_cast<unsigned long long>(classify_errors_), pct(0.5), pct(0.99),
+        static_cast<unsigned long long>(c.decisions_made()),
+        static_cast<unsigned long long>(c.decisions_sent()),
+        static_cast<unsigned long long>(c.classify_errors()), pct(0.5), pct(0.99),
         lat.empty() ? 0.0 : static_cast<double>(lat.back()),
-        static_cast<double>(now_ns() - origin_) * 1e-9, static_cast<long long>(origin_),
+        static_cast<double>(steady_ns() - origin_) * 1e-9, static_cast<long long>(origin_),
         realtime_granted ? "true" : "false");
     std::fflush(stdout);
   }
@@ -580,38 +441,19 @@ class Simulator {
   double rate_ = 3000.0;
   std::size_t spf_ = 10;
   std::size_t tick_ = 10;
-  bool streaming_ = true;
-  bool finished_ = false;
-  bool sync_pending_ = false;
-  bool loop_flag_ = false;
-  bool dropping_ = false;
-  bool dropped_since_data_ = false;
-  bool dropped_since_status_ = false;
   std::vector<std::string> class_names_;
   std::string names_joined_;
   std::vector<std::int16_t> frame_samples_;
-  std::size_t frame_fill_ = 0;
-  std::uint64_t frame_first_ = 0;
   std::uint64_t pos_ = 0;
-  std::uint64_t next_sample_ = 0;
   std::int64_t origin_ = 0;
   std::int64_t anchor_ns_ = 0;
   std::uint64_t anchor_sample_ = 0;
-  std::int64_t last_status_ns_ = 0;
-  std::uint64_t samples_sent_ = 0;
-  std::uint64_t dropped_samples_ = 0;
-  std::uint32_t overrun_events_ = 0;
-  std::uint32_t connections_ = 0;
-  std::uint64_t unexpected_frames_ = 0;
-  std::uint64_t decisions_made_ = 0;
-  std::uint64_t decisions_sent_ = 0;
-  std::uint64_t classify_errors_ = 0;
   std::vector<std::uint32_t> latencies_us_;
   PacingStats pacing_;
 #if ESKIN_FWSIM_HAS_MODEL
-  const Model* model_ = nullptr;
   std::unique_ptr<StreamClassifier> stream_;
 #endif
+  std::unique_ptr<Controller> ctl_;
 };
 
 int main_impl(int argc, char** argv) {

@@ -285,14 +285,14 @@ std::size_t serialize_frame(const Frame& f, std::uint8_t* raw, std::size_t cap,
   return total;
 }
 
-std::size_t FrameEncoder::encode(const Frame& frame, std::uint8_t* out, std::size_t cap) {
-  const std::size_t n = serialize_frame(frame, raw_.data(), raw_.size(), &status_);
+std::size_t FrameEncoderBase::encode(const Frame& frame, std::uint8_t* out, std::size_t cap) {
+  const std::size_t n = serialize_frame(frame, raw_, cap_, &status_);
   if (n == 0) return 0;
   if (cap < max_encoded_size(n)) {
     status_ = EncodeStatus::buffer_too_small;
     return 0;
   }
-  const std::size_t e = cobs_encode(raw_.data(), n, out, cap);
+  const std::size_t e = cobs_encode(raw_, n, out, cap);
   out[e] = kDelimiter;
   status_ = EncodeStatus::ok;
   return e + 1;
@@ -300,14 +300,19 @@ std::size_t FrameEncoder::encode(const Frame& frame, std::uint8_t* out, std::siz
 
 // ---- decoder -------------------------------------------------------------------------------
 
-FrameDecoder::FrameDecoder(std::size_t max_frame_size, bool wait_for_delimiter)
-    : max_frame_size_(max_frame_size < kHeaderSize + kCrcSize
+FrameDecoderBase::FrameDecoderBase(std::uint8_t* block, std::uint8_t* raw, std::int16_t* samples,
+                                   std::size_t capacity, std::size_t max_frame_size,
+                                   bool wait_for_delimiter)
+    : block_(block),
+      raw_(raw),
+      samples_(samples),
+      max_frame_size_(max_frame_size < kHeaderSize + kCrcSize
                           ? kHeaderSize + kCrcSize
-                          : (max_frame_size > kMaxFrameSize ? kMaxFrameSize : max_frame_size)),
+                          : (max_frame_size > capacity ? capacity : max_frame_size)),
       max_block_(max_encoded_size(max_frame_size_) - 1),
       synced_(!wait_for_delimiter) {}
 
-void FrameDecoder::reset(bool reset_stats) {
+void FrameDecoderBase::reset(bool reset_stats) {
   fill_ = 0;
   discarding_ = false;
   has_frame_ = false;
@@ -316,7 +321,7 @@ void FrameDecoder::reset(bool reset_stats) {
   if (reset_stats) stats_ = DecoderStats{};
 }
 
-std::size_t FrameDecoder::feed(const std::uint8_t* data, std::size_t size) {
+std::size_t FrameDecoderBase::feed(const std::uint8_t* data, std::size_t size) {
   has_frame_ = false;
   std::size_t i = 0;
   while (i < size) {
@@ -354,8 +359,8 @@ std::size_t FrameDecoder::feed(const std::uint8_t* data, std::size_t size) {
   return i;
 }
 
-void FrameDecoder::finish_block() {
-  const std::ptrdiff_t len = cobs_decode(block_.data(), fill_, raw_.data(), max_frame_size_);
+void FrameDecoderBase::finish_block() {
+  const std::ptrdiff_t len = cobs_decode(block_, fill_, raw_, max_frame_size_);
   if (len < 0) {
     // Not valid COBS, or decodes to more than max_frame_size bytes.
     ++stats_.malformed;
@@ -366,12 +371,12 @@ void FrameDecoder::finish_block() {
     ++stats_.malformed;
     return;
   }
-  const std::uint8_t* t = raw_.data() + n - kCrcSize;
+  const std::uint8_t* t = raw_ + n - kCrcSize;
   const std::uint32_t want = static_cast<std::uint32_t>(t[0]) |
                              (static_cast<std::uint32_t>(t[1]) << 8) |
                              (static_cast<std::uint32_t>(t[2]) << 16) |
                              (static_cast<std::uint32_t>(t[3]) << 24);
-  if (crc32(raw_.data(), n - kCrcSize) != want) {
+  if (crc32(raw_, n - kCrcSize) != want) {
     ++stats_.crc_errors;
     return;
   }
@@ -403,8 +408,8 @@ void FrameDecoder::finish_block() {
   }
 }
 
-bool FrameDecoder::parse(std::size_t len) {
-  Reader r{raw_.data()};
+bool FrameDecoderBase::parse(std::size_t len) {
+  Reader r{raw_};
   const std::uint8_t type = r.u8();
   if (!is_known_type(type)) return false;
   Frame& f = frame_;
@@ -425,7 +430,7 @@ bool FrameDecoder::parse(std::size_t len) {
       const std::size_t n = static_cast<std::size_t>(d.n_samples) * d.rows * d.cols;
       if (n == 0 || payload != kDataFixedSize + 2 * n) return false;
       for (std::size_t i = 0; i < n; ++i) samples_[i] = r.i16();
-      d.samples = samples_.data();
+      d.samples = samples_;
       return true;
     }
     case FrameType::decision: {

@@ -538,3 +538,45 @@ TEST(NoHeap, EncodeAndDecodeAllocateNothing) {
   EXPECT_EQ(after - before, 0);
   EXPECT_EQ(accepted, s.frames.size());
 }
+
+// A codec sized for one use holds only what its frames need, and refuses larger frames the way
+// the full-size one refuses frames over kMaxFrameSize: the encoder without writing, the decoder
+// by counting the block oversize and resyncing at the next delimiter.
+TEST(SizedCodecs, HoldOnlyTheirFramesAndRefuseLargerOnes) {
+  static_assert(sizeof(p::BasicFrameDecoder<32>) < 1024 && sizeof(p::FrameDecoder) > 12000,
+                "a command decoder is small");
+  static_assert(sizeof(p::BasicFrameEncoder<512>) < 1024, "a controller encoder is small");
+  const Stream s = make_stream(21, 9);
+  p::BasicFrameEncoder<512> enc;  // DATA of 10 x 16 taxels is 348 bytes decoded
+  p::FrameEncoder full;
+  p::BasicFrameDecoder<32> commands(32, false);  // host commands are at most 20 bytes
+  std::size_t accepted = 0, small = 0;
+  Bytes out(p::kMaxEncodedFrameSize), ref(p::kMaxEncodedFrameSize);
+  for (const auto& f : s.frames) {
+    const std::size_t n = enc.encode(f, out.data(), out.size());
+    ASSERT_EQ(n, full.encode(f, ref.data(), ref.size()));  // every frame here fits 512 bytes
+    ASSERT_TRUE(std::equal(out.begin(), out.begin() + n, ref.begin()));
+    commands.feed_all(out.data(), n, [&](const p::Frame& g) {
+      ++accepted;
+      EXPECT_EQ(g.type, p::FrameType::pong);
+    });
+    if (serialize(f).size() <= 32) ++small;
+  }
+  EXPECT_EQ(accepted, small);  // PONGs (20 bytes) only
+  EXPECT_GT(accepted, 0U);
+  EXPECT_EQ(commands.stats().oversize + commands.stats().frames, s.frames.size());
+
+  // a DATA frame of 20 samples (668 bytes) does not fit the 512-byte encoder: refused, nothing
+  // written
+  std::vector<std::int16_t> codes(20 * 16, 7);
+  p::Frame big;
+  big.type = p::FrameType::data;
+  big.data.rows = big.data.cols = 4;
+  big.data.n_samples = 20;
+  big.data.samples = codes.data();
+  std::fill(out.begin(), out.end(), 0xAB);
+  EXPECT_EQ(enc.encode(big, out.data(), out.size()), 0U);
+  EXPECT_EQ(enc.status(), p::EncodeStatus::buffer_too_small);
+  EXPECT_EQ(out[0], 0xAB);
+  EXPECT_GT(full.encode(big, out.data(), out.size()), 0U);
+}

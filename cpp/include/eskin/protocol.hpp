@@ -175,18 +175,58 @@ const char* encode_status_message(EncodeStatus status);
 std::size_t serialize_frame(const Frame& frame, std::uint8_t* raw, std::size_t cap,
                             EncodeStatus* status = nullptr);
 
-/// Frame encoder with its own fixed scratch buffer: encode() writes the COBS-encoded frame and
-/// its trailing 0x00 delimiter into `out` and returns the number of bytes (0 on failure, with
-/// status() telling why). No heap, no exceptions.
-class FrameEncoder {
+/// Frame encoder: serialises into a scratch buffer of its own, then COBS-encodes. encode()
+/// writes the encoded frame and its trailing 0x00 delimiter into `out` and returns the number
+/// of bytes (0 on failure, with status() telling why). No heap, no exceptions. The scratch
+/// buffer is the derived BasicFrameEncoder's, sized by its user (a device that only sends
+/// short frames holds only what they need).
+class FrameEncoderBase {
  public:
+  FrameEncoderBase(const FrameEncoderBase&) = delete;
+  FrameEncoderBase& operator=(const FrameEncoderBase&) = delete;
+
   std::size_t encode(const Frame& frame, std::uint8_t* out, std::size_t cap);
   EncodeStatus status() const { return status_; }
+  /// Largest decoded frame this encoder can serialise.
+  std::size_t max_frame_size() const { return cap_; }
+
+ protected:
+  FrameEncoderBase(std::uint8_t* raw, std::size_t cap) : raw_(raw), cap_(cap) {}
+  ~FrameEncoderBase() = default;
 
  private:
-  std::array<std::uint8_t, kMaxFrameSize> raw_{};
+  std::uint8_t* raw_;
+  std::size_t cap_;
   EncodeStatus status_ = EncodeStatus::ok;
 };
+
+namespace detail {
+/// Buffers of the sized encoder and decoder: a base class constructed before the codec that
+/// points into it.
+template <std::size_t MaxFrame>
+struct EncoderStorage {
+  std::array<std::uint8_t, MaxFrame> raw{};
+};
+template <std::size_t MaxFrame>
+struct DecoderStorage {
+  std::array<std::uint8_t, max_encoded_size(MaxFrame) - 1> block{};
+  std::array<std::uint8_t, MaxFrame> raw{};
+  std::array<std::int16_t, MaxFrame / 2> samples{};
+};
+}  // namespace detail
+
+/// An encoder for frames of at most MaxFrame decoded bytes (header + payload + CRC).
+template <std::size_t MaxFrame = kMaxFrameSize>
+class BasicFrameEncoder : private detail::EncoderStorage<MaxFrame>, public FrameEncoderBase {
+  static_assert(MaxFrame >= kHeaderSize + kCrcSize && MaxFrame <= kMaxFrameSize,
+                "MaxFrame must hold a header and a CRC and be at most kMaxFrameSize");
+
+ public:
+  BasicFrameEncoder() : FrameEncoderBase(this->raw.data(), MaxFrame) {}
+};
+
+/// The encoder for any frame of the protocol (4 KiB of scratch).
+using FrameEncoder = BasicFrameEncoder<kMaxFrameSize>;
 
 // ---- streaming decoder --------------------------------------------------------------------------
 
@@ -217,9 +257,13 @@ struct DecoderStats {
 /// at the next delimiter. A frame is accepted only when its COBS block, CRC-32 and payload layout
 /// are all valid. Bytes before the first delimiter are skipped (the sender starts every stream
 /// with a delimiter), unless constructed with wait_for_delimiter = false.
-class FrameDecoder {
+///
+/// Its buffers are the derived BasicFrameDecoder's, sized by its user: a controller that only
+/// receives host commands (at most 20 bytes) holds a few dozen bytes, a host 12 KiB.
+class FrameDecoderBase {
  public:
-  explicit FrameDecoder(std::size_t max_frame_size = kMaxFrameSize, bool wait_for_delimiter = true);
+  FrameDecoderBase(const FrameDecoderBase&) = delete;
+  FrameDecoderBase& operator=(const FrameDecoderBase&) = delete;
 
   /// Consumes bytes up to and including the delimiter of the next accepted frame (or all of
   /// them). Returns how many bytes were consumed.
@@ -244,19 +288,26 @@ class FrameDecoder {
   /// Forgets partial input and sequence expectations (stats are kept unless reset_stats).
   void reset(bool reset_stats = false);
 
+ protected:
+  /// `block` holds max_encoded_size(capacity) - 1 bytes, `raw` capacity bytes, `samples`
+  /// capacity / 2 values; max_frame_size is clamped to [8, capacity].
+  FrameDecoderBase(std::uint8_t* block, std::uint8_t* raw, std::int16_t* samples,
+                   std::size_t capacity, std::size_t max_frame_size, bool wait_for_delimiter);
+  ~FrameDecoderBase() = default;
+
  private:
   void finish_block();
   bool parse(std::size_t len);
 
+  std::uint8_t* block_;
+  std::uint8_t* raw_;
+  std::int16_t* samples_;
   std::size_t max_frame_size_;
   std::size_t max_block_;
   bool synced_;
   bool discarding_ = false;
   bool has_frame_ = false;
   std::size_t fill_ = 0;
-  std::array<std::uint8_t, kMaxEncodedFrameSize> block_{};
-  std::array<std::uint8_t, kMaxFrameSize> raw_{};
-  std::array<std::int16_t, kMaxFrameSize / 2> samples_{};
   Frame frame_;
   DecoderStats stats_;
   bool have_seq_ = false;
@@ -264,6 +315,22 @@ class FrameDecoder {
   bool have_sample_ = false;
   std::uint64_t next_sample_ = 0;
 };
+
+/// A decoder whose buffers hold frames of at most MaxFrame decoded bytes; the constructor's
+/// max_frame_size can lower that limit further at run time.
+template <std::size_t MaxFrame = kMaxFrameSize>
+class BasicFrameDecoder : private detail::DecoderStorage<MaxFrame>, public FrameDecoderBase {
+  static_assert(MaxFrame >= kHeaderSize + kCrcSize && MaxFrame <= kMaxFrameSize,
+                "MaxFrame must hold a header and a CRC and be at most kMaxFrameSize");
+
+ public:
+  explicit BasicFrameDecoder(std::size_t max_frame_size = MaxFrame, bool wait_for_delimiter = true)
+      : FrameDecoderBase(this->block.data(), this->raw.data(), this->samples.data(), MaxFrame,
+                         max_frame_size, wait_for_delimiter) {}
+};
+
+/// The decoder for any frame of the protocol (a host's: about 12 KiB of buffers).
+using FrameDecoder = BasicFrameDecoder<kMaxFrameSize>;
 
 /// Payload size a frame of this type must have (fixed part only for variable-size types), or
 /// -1 for an unknown type.
