@@ -27,7 +27,7 @@ BUILD_CPP := build/cpp
 BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
-.PHONY: all deps test-deps sanitize-deps mcu-deps mcu venv venv-test install cpp ctest pytest \
+.PHONY: all deps test-deps sanitize-deps mcu-deps mcu mcu-link venv venv-test install cpp ctest pytest \
   test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz mutation
 
 all: install cpp
@@ -156,6 +156,29 @@ mcu: mcu-deps install
 	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-mcu.elf
 	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log
 	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok ' || { echo "make mcu: no 'MCU: ... parity=ok' line"; exit 1; }
+
+# The controller firmware on the wire (docs/mcu.md, "The controller on the wire"): the device
+# build's eskin-fw (eskin::Controller on the board's UART, samples from a timer interrupt) runs
+# on QEMU's mps2-an386 in real time with the model of `make mcu`'s case in its flash slot and 12
+# held-out recordings of its campaign (4 per class); the host's unmodified `eskin listen
+# PTY --model M --replay R` receives the stream, and the run ends with the line
+# "MCU-LINK: frames=... samples=... lost=0 crc_errors=0 decisions=n agree=n/n".
+# MCU_PY_DEP= (empty) runs it with the package from python/ (PYTHONPATH) instead of installing it.
+MCU_LINK := $(BUILD_MCU)/link
+MCU_PY_DEP ?= install
+mcu-link: mcu-deps $(MCU_PY_DEP)
+	@test -f $(MCU_CASE)/model.eskin -a -f $(MCU_CASE)/campaign.h5 || \
+	  PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE)
+	$(CMAKE) -S . -B $(BUILD_MCU) -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
+	  -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
+	  -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/mcu_case.h >/dev/null
+	$(CMAKE) --build $(BUILD_MCU) --target eskin-fw
+	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-fw.elf
+	@mkdir -p $(MCU_LINK)
+	$(PY) tools/mcu_link.py replay $(MCU_CASE) $(MCU_LINK)/stream.eskr
+	set -o pipefail; PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_link.py run \
+	  --elf $(BUILD_MCU)/mcu/eskin-fw.elf --model $(MCU_CASE)/model.eskin \
+	  --replay $(MCU_LINK)/stream.eskr --out $(MCU_LINK) | tee $(MCU_LINK)/mcu-link.log
 
 # The demo needs the package and the two tools the editable install puts into $(VENV)/bin; not the
 # GoogleTest suites, nor clang.

@@ -1,0 +1,102 @@
+#include "cmsdk_uart.hpp"
+
+#include "board_irq.hpp"
+#include "mcu_board.h"
+
+namespace eskin::mcu {
+
+namespace {
+
+inline volatile std::uint32_t& reg(std::uint32_t off) {
+  return *reinterpret_cast<volatile std::uint32_t*>(uart_reg::kUart0 + off);
+}
+
+Uart g_uart0;
+
+}  // namespace
+
+Uart& uart0() { return g_uart0; }
+
+void Uart::init() {
+  using namespace uart_reg;
+  reg(kCtrl) = 0;
+  reg(kBaudDiv) = 16;
+  reg(kIntStatus) = kIntTx | kIntRx;  // INTCLEAR
+  reg(kCtrl) = kCtrlTxEn | kCtrlRxEn | kCtrlTxInt | kCtrlRxInt;
+  irq_set_priority(kIrqRx, 0x40);
+  irq_set_priority(kIrqTx, 0x40);
+  irq_enable(kIrqRx);
+  irq_enable(kIrqTx);
+}
+
+std::size_t Uart::tx_free() const {
+  return kUartTxRing - static_cast<std::size_t>(tx_head_ - tx_tail_);
+}
+
+bool Uart::write(const std::uint8_t* p, std::size_t n) {
+  if (n > tx_free()) return false;
+  std::uint32_t h = tx_head_;
+  for (std::size_t i = 0; i < n; ++i, ++h) tx_[h & (kUartTxRing - 1)] = p[i];
+  compiler_barrier();
+  tx_head_ = h;
+  kick();
+  return true;
+}
+
+/// Puts the first byte on an idle line; the TX interrupt sends the rest.
+void Uart::kick() {
+  const std::uint32_t primask = irq_save();
+  if (!tx_busy_ && tx_tail_ != tx_head_) {
+    const std::uint32_t t = tx_tail_;
+    reg(uart_reg::kData) = tx_[t & (kUartTxRing - 1)];
+    tx_tail_ = t + 1;
+    tx_busy_ = true;
+    bytes_sent_ = bytes_sent_ + 1;
+  }
+  irq_restore(primask);
+}
+
+void Uart::on_tx_interrupt() {
+  const std::uint64_t entry = g_profile ? mcu_ticks() : 0;
+  reg(uart_reg::kIntStatus) = uart_reg::kIntTx;  // INTCLEAR
+  const std::uint32_t t = tx_tail_;
+  if (t != tx_head_) {
+    reg(uart_reg::kData) = tx_[t & (kUartTxRing - 1)];
+    tx_tail_ = t + 1;
+    bytes_sent_ = bytes_sent_ + 1;
+  } else {
+    tx_busy_ = false;
+  }
+  if (g_profile) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(mcu_ticks() - entry);
+}
+
+void Uart::on_rx_interrupt() {
+  const std::uint64_t entry = g_profile ? mcu_ticks() : 0;
+  reg(uart_reg::kIntStatus) = uart_reg::kIntRx;  // INTCLEAR
+  while (reg(uart_reg::kState) & uart_reg::kStateRxFull) {
+    const std::uint8_t b = static_cast<std::uint8_t>(reg(uart_reg::kData));
+    const std::uint32_t h = rx_head_;
+    if (h - rx_tail_ < kUartRxRing) {
+      rx_[h & (kUartRxRing - 1)] = b;
+      rx_head_ = h + 1;
+    } else {
+      rx_overruns_ = rx_overruns_ + 1;
+    }
+  }
+  if (g_profile) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(mcu_ticks() - entry);
+}
+
+std::size_t Uart::read(std::uint8_t* out, std::size_t cap) {
+  std::size_t n = 0;
+  std::uint32_t t = rx_tail_;
+  const std::uint32_t h = rx_head_;
+  while (t != h && n < cap) out[n++] = rx_[t++ & (kUartRxRing - 1)];
+  compiler_barrier();
+  rx_tail_ = t;
+  return n;
+}
+
+}  // namespace eskin::mcu
+
+extern "C" void mcu_uart0_rx_irq(void) { eskin::mcu::uart0().on_rx_interrupt(); }
+extern "C" void mcu_uart0_tx_irq(void) { eskin::mcu::uart0().on_tx_interrupt(); }

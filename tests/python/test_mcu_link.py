@@ -1,0 +1,136 @@
+"""The controller firmware on the wire: the device build's eskin-fw on QEMU's mps2-an386 (a real
+QEMU, its real -serial pty) streams a replay to the host's unmodified `eskin listen`, through
+tools/mcu_link.py as `make mcu-link` runs it. Skipped only when qemu-system-arm is not installed
+(`make mcu-deps`); the firmware is cross-built into build/mcu (the tree `make mcu` uses) when
+it is not there yet."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin import WindowConfig
+from eskin.data.replay import read_replay_file, write_replay_arrays
+from eskin.deploy.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+
+REPO = next(p for p in Path(__file__).resolve().parents if (p / "README.md").is_file())
+BUILD_MCU = REPO / "build" / "mcu"
+ELF = BUILD_MCU / "mcu" / "eskin-fw.elf"
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("qemu-system-arm") is None, reason="qemu-system-arm is not installed")
+
+
+def cmake() -> str:
+    found = shutil.which("cmake", path=str(Path(sys.executable).parent)) or shutil.which("cmake")
+    if found is None:
+        pytest.fail("cmake not found (it comes with `make venv`)")
+    return found
+
+
+@pytest.fixture(scope="module")
+def firmware() -> Path:
+    """eskin-fw.elf, built in build/mcu with the same configuration as `make mcu`'s."""
+    if shutil.which("arm-none-eabi-g++") is None:
+        pytest.fail("qemu-system-arm is installed but not the cross compiler (make mcu-deps)")
+    if not (BUILD_MCU / "build.ninja").is_file():
+        subprocess.run([cmake(), "-S", str(REPO), "-B", str(BUILD_MCU), "-G", "Ninja",
+                        "-DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake", "-DESKIN_DEVICE=ON",
+                        "-DCMAKE_BUILD_TYPE=Release"], cwd=REPO, check=True,
+                       stdout=subprocess.DEVNULL)
+    subprocess.run([cmake(), "--build", str(BUILD_MCU), "--target", "eskin-fw"], cwd=REPO,
+                   check=True, stdout=subprocess.DEVNULL)
+    return ELF
+
+
+def synthetic_model(path: Path, n_sv: int, seed: int, max_window_s: float = 0.5) -> Path:
+    """A three-class one-vs-all model of random support vectors (4x4, D = 20, float32), with a
+    touch window short enough for its detector to fit the controller's RAM."""
+    rng = np.random.default_rng(seed)
+    pool = rng.standard_normal((n_sv + 4, 4, 4, 20))
+    machines = [
+        MachineSpec(k, -1, 0.1 * (k - 1), (2, 2, 4), (1.0, 0.5, 2.0),
+                    pool[np.sort(rng.choice(len(pool), n_sv, replace=False))],
+                    rng.standard_normal(n_sv))
+        for k in range(3)
+    ]
+    spec = ModelSpec(class_names=["brush", "finger", "washer"], rule="one_vs_all",
+                     machines=machines, D=20, grid_shape=(4, 4),
+                     window_config=WindowConfig(max_window_s=max_window_s))
+    path.write_bytes(model_to_bytes(spec, "float32"))
+    return path
+
+
+def touch_replay(path: Path, n_touches: int, seed: int, rate: float = 3000.0) -> Path:
+    """Quiet noise with loud bursts (600-1200 samples), one recording per burst, labels
+    cycling, at `rate` samples per second."""
+    rng = np.random.default_rng(seed)
+    recs = []
+    for k in range(n_touches):
+        n_quiet, n_loud = 1500, int(rng.integers(600, 1200))
+        sig = np.concatenate([rng.normal(0, 30, (16, n_quiet)), rng.normal(0, 3000, (16, n_loud)),
+                              rng.normal(0, 30, (16, n_quiet))], axis=1)
+        recs.append(np.clip(sig, -32768, 32767).astype(np.int16).reshape(4, 4, -1))
+    write_replay_arrays(path, recs, labels=[k % 3 for k in range(n_touches)],
+                        class_names=["brush", "finger", "washer"], gap_s=0.2,
+                        sample_rate_hz=rate, volts_per_count=2.5e-4, seed=seed)
+    return path
+
+
+def mcu_link(elf: Path, model: Path, replay: Path, out: Path, *extra: str) -> tuple[str, dict]:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(REPO / "python"), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, str(REPO / "tools" / "mcu_link.py"), "run", "--elf",
+                        str(elf), "--model", str(model), "--replay", str(replay), "--out",
+                        str(out), *extra], capture_output=True, text=True, env=env, timeout=600)
+    lines = r.stdout.strip().splitlines()
+    assert lines and lines[-1].startswith("MCU-LINK: "), r.stdout + r.stderr
+    fw = json.loads((out / "fw.json").read_text())
+    return lines[-1], fw
+
+
+def test_the_firmware_serves_eskin_listen_in_real_time(firmware, tmp_path):
+    """Real time (no -icount) at 1 kSps (35 kB/s on the link): QEMU moves each UART byte with
+    a write(2) on the pty, which a loaded machine slows to some 12 us; the full rate (3 kSps,
+    105 kB/s) is `make mcu-link`'s."""
+    model = synthetic_model(tmp_path / "m.eskin", n_sv=6, seed=1)
+    replay = touch_replay(tmp_path / "r.eskr", 4, seed=2, rate=1000.0)
+    n = read_replay_file(replay).samples.shape[0]
+    # what the host's own stream classifier decides on the whole stream
+    events = CompiledModel(model).stream(
+        np.asarray(read_replay_file(replay).samples, dtype="<i2").reshape(n, -1))
+    windows = [tuple(e["window"]) for e in events if e["status_name"] == "decision"]
+    assert len(windows) == 4
+    line, fw = mcu_link(firmware, model, replay, tmp_path / "out")
+    k = len(windows)
+    assert line == (f"MCU-LINK: frames={line.split('frames=')[1].split()[0]} samples={n} lost=0 "
+                    f"crc_errors=0 decisions={k} agree={k}/{k}")
+    assert fw["samples"] == n and fw["lost_in_ring"] == 0 and fw["dropped"] == 0
+    rows = [json.loads(x) for x in (tmp_path / "out" / "listen.jsonl").read_text().splitlines()]
+    dev = [(r["onset_sample"], r["offset_sample"]) for r in rows
+           if r.get("type") == "decision" and r["source"] == "controller"]
+    assert dev == windows  # the device's windows are the host classifier's on the replay
+
+
+def test_a_decision_longer_than_5_ms_at_168_mhz_loses_no_sample(firmware, tmp_path):
+    """A model with 80 support vectors per machine; QEMU with -icount shift=3 runs the Cortex-M4
+    at 125 M instructions per second of its clock (slower than 168 MHz), so the decision's
+    instructions span more sample periods than they would on the part."""
+    model = synthetic_model(tmp_path / "slow.eskin", n_sv=80, seed=5, max_window_s=0.4)
+    replay = touch_replay(tmp_path / "r.eskr", 3, seed=6)
+    n = read_replay_file(replay).samples.shape[0]
+    line, fw = mcu_link(firmware, model, replay, tmp_path / "out", "--icount", "3")
+    assert " lost=0 crc_errors=0 decisions=3 agree=3/3" in line, line
+    assert f" samples={n} " in line
+    # the longest push (a decision) took more than 5 ms' worth of 168 MHz instructions, and the
+    # samples that came meanwhile waited in the ring
+    assert fw["longest_push_instructions"] > 5e-3 * 168e6, fw
+    assert fw["ring_high_water"] > 5e-3 * 3000, fw
+    assert fw["lost_in_ring"] == 0 and fw["dropped"] == 0
