@@ -33,25 +33,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import re
-import shutil
-import signal
-import struct
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
-MODEL_SLOT = 0x00040000  # eskin_fw.cpp: kModelSlot (flash)
-MODEL_SLOT_BYTES = 0x00100000 - MODEL_SLOT - 16
-REPLAY_ADDRESS = 0x21000000  # eskin_fw.cpp: kReplayAddress (PSRAM, 16 MB)
-REPLAY_MAX_BYTES = 16 << 20
 TICK_HZ = 25e6  # SysTick at the processor clock
-PTY_RE = re.compile(rb"char device redirected to (/dev/pts/\d+)")
+LISTEN_NICE = -10  # the listener's priority when permitted (QEMU's: eskin.link.qemu_controller)
 
 
 def write_replay(case: Path, out: Path, per_class: int, margin_s: float) -> dict:
@@ -86,44 +75,6 @@ def write_replay(case: Path, out: Path, per_class: int, margin_s: float) -> dict
         recording_indices=chosen, gap_s=0.5, seed=0)
     n = sum(r.shape[-1] for r in recs) + int(round(0.5 * rate)) * (len(recs) + 1)
     return {"recordings": len(chosen), "classes": len(set(labels)), "seconds": n / rate}
-
-
-def model_slot_image(model: Path, out: Path, profile: bool) -> Path:
-    """The firmware's model slot: magic, size, flags (bit 0: profile), reserved, model."""
-    data = model.read_bytes()
-    if len(data) > MODEL_SLOT_BYTES:
-        raise SystemExit(f"{model}: {len(data)} bytes, the firmware's model slot holds "
-                         f"{MODEL_SLOT_BYTES}")
-    out.write_bytes(b"ESKM" + struct.pack("<III", len(data), int(profile), 0) + data)
-    return out
-
-
-# On a busy machine the board's real time is the emulator's: QEMU moves every UART byte with a
-# write(2) on the pty and raises the TX interrupt after it, so the emulated controller keeps up
-# only while QEMU gets the processor when it needs it. With the right to (root, or
-# CAP_SYS_NICE), QEMU and the listener run at a higher priority (nice -15 and -10), still under
-# the ordinary fair scheduler (no real-time class: nothing can be starved for long).
-QEMU_NICE, LISTEN_NICE = -15, -10
-
-
-def priority(nice: int) -> list[str]:
-    try:
-        if os.geteuid() == 0 and shutil.which("nice"):
-            return ["nice", "-n", str(nice)]
-    except AttributeError:  # not POSIX
-        pass
-    return []
-
-
-def qemu_command(elf: Path, slot: Path, replay: Path, icount: int | None) -> list[str]:
-    cmd = ["qemu-system-arm", "-M", "mps2-an386", "-cpu", "cortex-m4", "-nographic",
-           "-monitor", "none", "-serial", "pty", "-semihosting-config",
-           "enable=on,target=native", "-kernel", str(elf),
-           "-device", f"loader,file={slot},addr={MODEL_SLOT:#x},force-raw=on",
-           "-device", f"loader,file={replay},addr={REPLAY_ADDRESS:#x},force-raw=on"]
-    if icount is not None:
-        cmd += ["-icount", f"shift={icount},sleep=on"]
-    return cmd
 
 
 def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
@@ -164,63 +115,36 @@ def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    if shutil.which("qemu-system-arm") is None:
-        print("mcu-link: qemu-system-arm is not installed (make mcu-deps)", file=sys.stderr)
-        return 2
+    from eskin.data.replay import read_replay_file
+    from eskin.link.qemu_controller import QemuController, QemuControllerError, priority
+
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    # profiling (the firmware timing its handlers) only where it costs instructions alone
-    slot = model_slot_image(args.model, out / "model-slot.bin", profile=args.icount is not None)
-    if args.replay.stat().st_size > REPLAY_MAX_BYTES:
-        raise SystemExit(f"{args.replay}: larger than the 16 MB PSRAM the firmware reads it from")
-    from eskin.data.replay import read_replay_file
-
     rp = read_replay_file(args.replay)
     stream_s = rp.samples.shape[0] / rp.sample_rate_hz
-    qemu_log = open(out / "qemu.log", "wb")
-    qemu = subprocess.Popen(priority(QEMU_NICE) + qemu_command(args.elf, slot, args.replay, args.icount),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            start_new_session=True)
-    found: list[str] = []
-    ready = threading.Event()
-
-    def copy_console() -> None:  # QEMU's stdout: the pty's name, then the firmware's console
-        for line in iter(qemu.stdout.readline, b""):
-            qemu_log.write(line)
-            qemu_log.flush()
-            m = PTY_RE.search(line)
-            if m and not found:
-                found.append(m.group(1).decode())
-                ready.set()
-        ready.set()
-
-    reader = threading.Thread(target=copy_console, daemon=True)
-    reader.start()
+    jsonl = out / "listen.jsonl"
     try:
-        ready.wait(30)
-        if not found:
-            raise SystemExit("mcu-link: QEMU gave no pty: "
-                             + (out / "qemu.log").read_text(errors="replace")[-1000:])
-        pty = found[0]
-        jsonl = out / "listen.jsonl"
-        listen = priority(LISTEN_NICE) + [sys.executable, "-m", "eskin", "listen", pty, "--model", str(args.model),
-                  "--replay", str(args.replay), "--until-eof", "--jsonl", str(jsonl),
-                  "--force", "--view", "plain"]
-        timeout = args.timeout if args.timeout else 60 + 4 * stream_s
-        with open(out / "listen.log", "wb") as log:
-            r = subprocess.run(listen, stdout=log, stderr=subprocess.STDOUT, timeout=timeout)
-        if r.returncode != 0:
-            print((out / "listen.log").read_text()[-2000:], file=sys.stderr)
-            raise SystemExit(f"mcu-link: eskin listen exited with {r.returncode}")
-    finally:
-        os.killpg(qemu.pid, signal.SIGTERM)
-        try:
-            qemu.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(qemu.pid, signal.SIGKILL)
-            qemu.wait()
-        reader.join(10)
-        qemu_log.close()
+        # profiling (the firmware timing itself) only where it costs instructions alone
+        with QemuController(args.model, args.replay, out, elf=args.elf,
+                            icount=args.icount) as qc:
+            listen = priority(LISTEN_NICE) + [
+                sys.executable, "-m", "eskin", "listen", qc.pty, "--model", str(args.model),
+                "--replay", str(args.replay), "--until-eof", "--jsonl", str(jsonl), "--force",
+                "--view", "plain"]
+            timeout = args.timeout if args.timeout else 120 + 4 * stream_s
+            with open(out / "listen.log", "wb") as log:
+                r = subprocess.run(listen, stdout=log, stderr=subprocess.STDOUT, timeout=timeout)
+    except QemuControllerError as exc:
+        print(f"mcu-link: {exc}", file=sys.stderr)
+        return 2
+    except subprocess.TimeoutExpired as exc:
+        print(f"mcu-link: eskin listen did not finish in {exc.timeout:.0f} s (see "
+              f"{out / 'listen.log'} and {out / 'qemu.log'})", file=sys.stderr)
+        return 1
+    if r.returncode != 0:
+        print((out / "listen.log").read_text()[-2000:], file=sys.stderr)
+        print(f"mcu-link: eskin listen exited with {r.returncode}", file=sys.stderr)
+        return 1
 
     rows = [json.loads(x) for x in jsonl.read_text().splitlines() if x.strip()]
     stats = next(r for r in rows if r.get("type") == "stats")

@@ -101,13 +101,13 @@ def test_the_firmware_serves_eskin_listen_in_real_time(firmware, tmp_path):
     a write(2) on the pty, which a loaded machine slows to some 12 us; the full rate (3 kSps,
     105 kB/s) is `make mcu-link`'s."""
     model = synthetic_model(tmp_path / "m.eskin", n_sv=6, seed=1)
-    replay = touch_replay(tmp_path / "r.eskr", 4, seed=2, rate=1000.0)
+    replay = touch_replay(tmp_path / "r.eskr", 3, seed=2, rate=1000.0)
     n = read_replay_file(replay).samples.shape[0]
     # what the host's own stream classifier decides on the whole stream
     events = CompiledModel(model).stream(
         np.asarray(read_replay_file(replay).samples, dtype="<i2").reshape(n, -1))
     windows = [tuple(e["window"]) for e in events if e["status_name"] == "decision"]
-    assert len(windows) == 4
+    assert len(windows) == 3
     line, fw = mcu_link(firmware, model, replay, tmp_path / "out")
     k = len(windows)
     assert line == (f"MCU-LINK: frames={line.split('frames=')[1].split()[0]} samples={n} lost=0 "
