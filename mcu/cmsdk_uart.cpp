@@ -7,6 +7,13 @@ namespace eskin::mcu {
 
 namespace {
 
+/// Clock ticks since `entry`; 0 for a reading that went backwards (a SysTick wrap-around not
+/// yet counted: the handler's own time is then not accounted).
+inline std::uint32_t clock_delta(std::uint64_t entry) {
+  const std::uint64_t d = mcu_ticks() - entry;
+  return d < (1u << 24) ? static_cast<std::uint32_t>(d) : 0u;
+}
+
 inline volatile std::uint32_t& reg(std::uint32_t off) {
   return *reinterpret_cast<volatile std::uint32_t*>(uart_reg::kUart0 + off);
 }
@@ -67,7 +74,7 @@ void Uart::on_tx_interrupt() {
   } else {
     tx_busy_ = false;
   }
-  if (g_profile) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(mcu_ticks() - entry);
+  if (g_profile) isr_ticks_ = isr_ticks_ + clock_delta(entry);
 }
 
 void Uart::on_rx_interrupt() {
@@ -83,7 +90,7 @@ void Uart::on_rx_interrupt() {
       rx_overruns_ = rx_overruns_ + 1;
     }
   }
-  if (g_profile) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(mcu_ticks() - entry);
+  if (g_profile) isr_ticks_ = isr_ticks_ + clock_delta(entry);
 }
 
 std::size_t Uart::read(std::uint8_t* out, std::size_t cap) {

@@ -335,7 +335,7 @@ int run() {
           const std::uint64_t t0 = mcu_ticks();
           ctl.push(s->codes, at);
           const std::uint64_t dt = mcu_ticks() - t0;
-          if (dt > ls.longest_push) ls.longest_push = dt;
+          if (dt < (1u << 24) && dt > ls.longest_push) ls.longest_push = dt;
         } else {
           ctl.push(s->codes, at);
         }
@@ -379,7 +379,7 @@ int run() {
       const std::uint32_t isr1 = smp.isr_ticks() + uart.isr_ticks();
       const std::uint64_t t1 = mcu_ticks();
       const std::uint64_t in_handlers = static_cast<std::uint32_t>(isr1 - isr0);
-      if (t1 - t0 > in_handlers) ls.idle_ticks += (t1 - t0) - in_handlers;
+      if (t1 - t0 < (1u << 24) && t1 - t0 > in_handlers) ls.idle_ticks += (t1 - t0) - in_handlers;
     } else {
       wait_for_interrupt_unless([&] { return !smp.empty() || uart.rx_pending(); });
     }

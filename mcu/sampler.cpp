@@ -72,7 +72,10 @@ std::uint32_t Sampler::take_trailing_lost() {
 void Sampler::on_timer_interrupt() {
   const std::uint64_t entry = mcu_ticks();  // the sample's acquisition time
   take(entry);
-  if (g_profile) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(mcu_ticks() - entry);
+  if (g_profile) {
+    const std::uint64_t d = mcu_ticks() - entry;  // a reading that went backwards: not counted
+    if (d < (1u << 24)) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(d);
+  }
 }
 
 void Sampler::take(std::uint64_t now) {

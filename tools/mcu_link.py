@@ -172,7 +172,14 @@ def run(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def _terminate(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)  # unwinds: QEMU and the listener are stopped on the way
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
+    signal.signal(signal.SIGTERM, _terminate)
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("replay", help="the held-out stream of make mcu's case")
