@@ -269,3 +269,59 @@ def test_predict_says_when_the_recordings_trained_the_model(one_person, tmp_path
         assert len(c) == 6
     r = CliRunner().invoke(app, ["predict", str(model), str(other)])
     assert r.exit_code == 0 and "error rate:" in r.output and "trained this model" not in r.output
+
+
+@pytest.fixture(scope="module")
+def grid8(tmp_path_factory) -> Path:
+    """An 8x8 campaign: each taxel of a simulated 4x4 campaign (3 participants, run 2) spread
+    over a 2x2 block of taxels, with a little independent noise."""
+    import numpy as np
+
+    from eskin.data.campaign import CampaignWriter, load_campaign
+    from eskin.data.simulator import simulate
+
+    d = tmp_path_factory.mktemp("grid8")
+    src = simulate(d / "c4.h5", participants=3, runs=(2,))
+    rng = np.random.default_rng(0)
+    with load_campaign(src) as c, CampaignWriter(
+            d / "c8.h5", grid_shape=(8, 8), n_samples=int(max(c.lengths)),
+            sample_rate_hz=c.sample_rate_hz, volts_per_count=c.volts_per_count,
+            modalities=list(c.modalities), source="simulated") as w:
+        for i in range(len(c)):
+            r = np.repeat(np.repeat(c.recording(i).astype(np.int32), 2, 0), 2, 1)
+            r = np.clip(r + rng.integers(-2, 3, r.shape), -32768, 32767).astype(np.int16)
+            w.append(r, modality=int(c.modality[i]), participant=int(c.participant[i]),
+                     direction=int(c.direction[i]), run=int(c.run[i]))
+    return d / "c8.h5"
+
+
+def test_experiment_quick_on_an_8x8_grid_chooses_a_valid_D(grid8, tmp_path):
+    """--quick's default D values (20, 50) are below the 64 taxels of an 8x8 grid: the
+    protocol runs at the paper's D = 100 and its report says so; a D given is still checked."""
+    import json
+
+    out = tmp_path / "x"
+    r = CliRunner().invoke(app, ["experiment", str(grid8), "--out", str(out), "--quick",
+                                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    res = json.loads((out / "results.json").read_text())
+    assert res["protocol"]["Ds"] == [100] and res["protocol"]["multiclass_D"] == 100
+    report = (out / "report.md").read_text()
+    assert ("D in {100} instead of the default {20, 50}: D must be at least the 64 taxels of "
+            "the 8x8 grid") in report and "D in {100}, 8 configurations" in report
+    r = CliRunner().invoke(app, ["experiment", str(grid8), "--out", str(tmp_path / "y"),
+                                 "--quick", "--D", "50", "--no-progress"])
+    assert r.exit_code == 2 and "D = 50 is below the 64 taxels of the 8x8 grid" in r.output
+
+
+def test_plot_labels_at_most_16_taxels_of_an_8x8_grid(grid8, tmp_path):
+    from eskin.signal.plotting import MAX_TAXEL_LABELS, labelled_taxels
+
+    r = CliRunner().invoke(app, ["plot", str(grid8), "-i", "3", "-o", str(tmp_path / "p.png")])
+    assert r.exit_code == 0 and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    assert labelled_taxels(4, 4) == list(range(16))
+    assert labelled_taxels(8, 8) == [r * 8 + c for r in range(8) for c in (0, 4)]
+    for rows, cols in ((1, 64), (64, 64), (3, 7), (20, 1)):
+        shown = labelled_taxels(rows, cols)
+        assert 0 < len(shown) <= MAX_TAXEL_LABELS and shown == sorted(set(shown))
+        assert shown[0] == 0 and shown[-1] < rows * cols

@@ -109,6 +109,8 @@ class ProtocolConfig:
     compare_machine: str = "rls"
     analysis_run: int | None = 2
     exclude: int | list[Any] | None = None
+    #: protocol notes on settings adapted to the campaign (reported with the analysis set's)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def n_configurations(self) -> int:
@@ -733,6 +735,8 @@ def run_experiment(
     campaign = load_campaign(campaign_path)
     if len(campaign) == 0:
         raise ExperimentError(f"{campaign_path}: the campaign holds no recordings")
+    if Ds is None:  # the defaults: the valid ones for this grid and these recordings
+        adapt_default_Ds(cfg, campaign.grid_shape, int(np.max(campaign.lengths)))
     check_window_lengths(cfg.Ds, campaign.grid_shape, int(np.max(campaign.lengths)))
     names = [str(m) for m in campaign.modalities]
     cfg.problems = resolve_problems(problems, names)
@@ -744,6 +748,29 @@ def run_experiment(
     (out_dir / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
     write_report(results, out_dir, figures=figures)
     return results
+
+
+def adapt_default_Ds(cfg: ProtocolConfig, grid_shape: tuple[int, int], longest: int) -> None:
+    """Keep the default D values that :func:`check_window_lengths` accepts for this grid and
+    these recordings; when none is left (e.g. --quick's 20 and 50 on an 8x8 grid of 64 taxels),
+    take the smallest of the paper's D values that is, else D = the number of taxels. The
+    change is noted in ``cfg.notes``; given D values are never changed (they are checked)."""
+    taxels = int(grid_shape[0]) * int(grid_shape[1])
+    ok = [D for D in cfg.Ds if taxels <= D <= longest]
+    if not ok:
+        ok = [min([D for D in PAPER_DS if taxels <= D <= longest] or [taxels])]
+    if tuple(ok) == tuple(cfg.Ds):
+        return
+    cfg.notes.append(
+        f"D in {{{', '.join(map(str, ok))}}} instead of the default {{"
+        f"{', '.join(map(str, cfg.Ds))}}}: D must be at least the {taxels} taxels of the "
+        f"{grid_shape[0]}x{grid_shape[1]} grid and at most the longest recording ({longest} "
+        f"samples)")
+    cfg.Ds = tuple(ok)
+    if cfg.multiclass_D not in cfg.Ds:
+        cfg.multiclass_D = max(cfg.Ds)
+    if cfg.compare_D not in cfg.Ds:
+        cfg.compare_D = max(cfg.Ds)
 
 
 def check_window_lengths(Ds: Sequence[int], grid_shape: tuple[int, int], longest: int) -> None:
@@ -906,7 +933,7 @@ def _prepare_analysis_set(
         run=used_run,
         excluded=[_jsonable(p) for p in excluded],
         exclusion_rule=rule,
-        notes=notes + (prep.notes if cfg.window == "energy" else []),
+        notes=notes + cfg.notes + (prep.notes if cfg.window == "energy" else []),
         scores=scores,
     )
     X = {k: v[keep] for k, v in prep.X.items()}

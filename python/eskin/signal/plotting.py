@@ -8,6 +8,23 @@ from typing import Any
 
 import numpy as np
 
+#: at most this many taxel labels on the traces' axis: more overlap at the figure's size
+MAX_TAXEL_LABELS = 16
+
+
+def labelled_taxels(rows: int, cols: int) -> list[int]:
+    """The taxels (row-major indices) whose traces get a label: all of a grid of up to
+    :data:`MAX_TAXEL_LABELS` taxels; else every k-th, starting at each row's first taxel when
+    the rows fit (an 8x8 grid: columns 0 and 4 of every row)."""
+    n = rows * cols
+    if n <= MAX_TAXEL_LABELS:
+        return list(range(n))
+    if rows <= MAX_TAXEL_LABELS:
+        per_row = max(1, MAX_TAXEL_LABELS // rows)
+        stride = -(-cols // per_row)
+        return [r * cols + c for r in range(rows) for c in range(0, cols, stride)]
+    stride = -(-n // MAX_TAXEL_LABELS)
+    return list(range(0, n, stride))
 
 def _detect_window(rec: np.ndarray, length: int, rate: float) -> tuple[tuple[int, int], str]:
     """The touch window of one recording, from eskin.preprocess.detect_windows."""
@@ -52,8 +69,9 @@ def plot_recording(campaign: Any, index: int, path: str | os.PathLike[str], *,
     cmap = plt.get_cmap("tab10")
     for k in range(rows * cols):
         ax.plot(t, flat[k] - k * step, lw=0.5, color=cmap((k // cols) % 10))
-    ax.set_yticks([-k * step for k in range(rows * cols)])
-    ax.set_yticklabels([f"{k // cols},{k % cols}" for k in range(rows * cols)], fontsize=7)
+    shown = labelled_taxels(rows, cols)
+    ax.set_yticks([-k * step for k in shown])
+    ax.set_yticklabels([f"{k // cols},{k % cols}" for k in shown], fontsize=7)
     ax.set_ylabel("taxel (row,col); traces offset")
     ax.set_xlabel("time (s)")
     ax.set_xlim(0, max(length, 1) / rate)
