@@ -315,7 +315,10 @@ int run() {
     bool rewind = false;
     if (port.take_start(&rewind)) {
       if (rewind) reported = false;
-      if (ls.start_ticks == 0) ls.start_ticks = mcu_ticks();
+      if (ls.start_ticks == 0) {  // the measurements cover the stream, not the wait for a host
+        ls.start_ticks = mcu_ticks();
+        ls.idle_ticks = 0;
+      }
       smp.start(rewind);
     }
     if (!ctl.streaming() && smp.running()) smp.stop();
