@@ -28,7 +28,7 @@ BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
 .PHONY: all deps test-deps sanitize-deps mcu-deps mcu mcu-link venv venv-test install cpp ctest pytest \
-  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz mutation
+  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz fuzz-listener mutation
 
 all: install cpp
 
@@ -129,7 +129,14 @@ check-sanitizers: sanitize
 	    2>$(BUILD_SAN)/fuzz-new/$$h.log || { tail -40 $(BUILD_SAN)/fuzz-new/$$h.log; exit 1; }; \
 	done
 
-fuzz: sanitize
+# The listener's fuzz test (hypothesis: CRC-valid frames of arbitrary field values), part of
+# `make test` with a short fixed budget; `make fuzz` runs it for FUZZ_LISTENER_EXAMPLES inputs.
+FUZZ_LISTENER_EXAMPLES ?= 100000
+fuzz-listener: install venv-test
+	ESKIN_FUZZ_EXAMPLES=$(FUZZ_LISTENER_EXAMPLES) $(PY) -m pytest -q -p no:cacheprovider \
+	  --hypothesis-show-statistics tests/python/link/test_listener_fuzz.py
+
+fuzz: sanitize fuzz-listener
 	@for h in $(FUZZ_HARNESSES); do \
 	  d=build/fuzz-corpus/$$h; mkdir -p $$d; \
 	  run() { $(BUILD_SAN)/fuzz_$$h $(FUZZ_FLAGS) -artifact_prefix=$$d- "$$@" $$d tests/fuzz/corpus/$$h \

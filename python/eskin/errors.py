@@ -16,6 +16,7 @@ __all__ = [
     "EvaluationError",
     "ExperimentError",
     "JournalError",
+    "LinkStreamError",
     "ModelFormatError",
     "OverwriteError",
     "PeerClosedError",
@@ -90,6 +91,12 @@ class SerialPortError(OSError):
 
     def __str__(self) -> str:
         return str(self.args[1]) if len(self.args) > 1 else super().__str__()
+
+
+class LinkStreamError(ValueError):
+    """The controller's stream cannot go on: a frame whose field contradicts what the host
+    needs (an INFO grid the host model cannot take). The message names the frame type, the
+    field and the value."""
 
 
 class PeerClosedError(SerialPortError):

@@ -81,7 +81,23 @@ def _one_line_summaries(group: Any) -> None:
 
 
 def main() -> None:
+    """The `eskin` command: Ctrl-C (or SIGTERM where a command turns it into one) ends any
+    command with one line, "interrupted", and exit code 130 (128 + SIGINT), as a shell does."""
+    import sys
+
+    import click
+
     command = typer.main.get_command(app)
     _flags_without_value(command)
     _one_line_summaries(command)
-    command(prog_name="eskin")
+    try:
+        code = command.main(prog_name="eskin", standalone_mode=False)
+    except (KeyboardInterrupt, click.exceptions.Abort):
+        click.echo("interrupted", err=True)
+        sys.exit(130)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    sys.exit(code if isinstance(code, int) else 0)

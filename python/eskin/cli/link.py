@@ -50,6 +50,21 @@ def report_console() -> Any:
     return Console(width=200, soft_wrap=True)
 
 
+def jsonl_line(obj: Any) -> str:
+    """One strict JSON line (RFC 8259: no NaN or Infinity): a non-finite number is null."""
+
+    def finite(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: finite(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [finite(x) for x in v]
+        return v
+
+    return json.dumps(finite(obj), allow_nan=False) + "\n"
+
+
 def _fmt_values(values: Any) -> str:
     return "[" + ", ".join(f"{v:+.3f}" for v in values) + "]"
 
@@ -107,7 +122,8 @@ def stats_line(s: Any) -> str:
     return (f"stats frames={s.frames} bytes={s.bytes} samples={s.samples} "
             f"crc_errors={s.crc_errors} malformed={s.malformed} oversize={s.oversize} "
             f"sequence_gaps={s.sequence_gaps} lost_frames={s.lost_frames} "
-            f"lost_samples={s.lost_samples} overrun_frames={s.overrun_frames} "
+            f"lost_samples={s.lost_samples} absurd_frames={s.absurd_frames} "
+            f"overrun_frames={s.overrun_frames} "
             f"controller_dropped={s.controller_dropped_samples} "
             f"controller_overruns={s.controller_overrun_events} "
             f"decisions controller={s.decisions_controller} host={s.decisions_host}")
@@ -125,6 +141,7 @@ def stats_table(s: Any, title: str = "link statistics") -> Any:
         ("samples", f"{s.samples} ({s.rate_samples_per_s:.0f}/s)"),
         ("CRC errors", str(s.crc_errors)),
         ("malformed / oversize", f"{s.malformed} / {s.oversize}"),
+        ("absurd frames (refused fields)", str(s.absurd_frames)),
         ("sequence gaps (frames)", f"{s.sequence_gaps} ({s.lost_frames})"),
         ("lost samples", str(s.lost_samples)),
         ("DATA frames flagged overrun", str(s.overrun_frames)),
@@ -202,13 +219,17 @@ def _live_mode(duration: Optional[float], view: str) -> bool:
     return view == "live" or (view == "auto" and sys.stdout.isatty())
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an interrupt."""
+
+
 def _sigterm_interrupts() -> Any:
     """Make SIGTERM end `eskin listen` like Ctrl-C (so it finishes its files); returns the
     function that puts the previous handler back."""
     import signal
 
     def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+        raise _Terminated
 
     try:
         previous = signal.signal(signal.SIGTERM, interrupt)
@@ -219,7 +240,7 @@ def _sigterm_interrupts() -> Any:
 
 def _run_plain(events: Any, out: Any, truth: Any = None) -> None:
     """Print one line per event; decisions also go to the JSON-lines file ``out``."""
-    from eskin.link.listener import Connection, Decision, InfoEvent, Recorded, Stats
+    from eskin.link.listener import Connection, Decision, InfoEvent, Recorded, Rejection, Stats
 
     rate = 3000.0
     last_info = None
@@ -236,12 +257,14 @@ def _run_plain(events: Any, out: Any, truth: Any = None) -> None:
         elif isinstance(ev, Decision):
             typer.echo(decision_line(ev, rate, truth))
             if out is not None:
-                out.write(json.dumps(ev.as_dict()) + "\n")
+                out.write(jsonl_line(ev.as_dict()))
                 out.flush()
         elif isinstance(ev, Connection):
             typer.echo(f"{ev.state} {ev.path} {ev.reason}".rstrip())
         elif isinstance(ev, Recorded):
             typer.echo(f"recorded #{ev.index} [{ev.start}, {ev.stop}) {ev.label}")
+        elif isinstance(ev, Rejection):
+            typer.echo(f"refused {ev.message()}")
         elif isinstance(ev, Stats):
             typer.echo(stats_line(ev.stats))
 
@@ -360,6 +383,7 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
                                 stats_interval=0.25 if live_mode else 5.0)
     out = None
     decisions: list[Any] = []
+    interrupted = 0
     restore = _sigterm_interrupts()
     try:
         with _user_errors():
@@ -374,14 +398,17 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
                 _run_live(listener, events, deque(maxlen=12), out, truth)
             else:
                 _run_plain(events, out, truth)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         typer.echo("interrupted")
+        interrupted = 143 if isinstance(exc, _Terminated) else 130  # 128 + the signal
     finally:
         restore()
         scores = _finish(listener, decisions, out)
     _print_scores(scores, live_mode)
-    if record is not None:
+    if record is not None and listener.stats.recordings:
         typer.echo(f"wrote {record}")
+    if interrupted:
+        raise typer.Exit(interrupted)
 
 
 def _finish(listener: Any, decisions: list[Any], out: Any) -> list[Any]:
@@ -394,8 +421,8 @@ def _finish(listener: Any, decisions: list[Any], out: Any) -> list[Any]:
         scores = _score(listener, decisions)
         if out is not None:
             for sc in scores:
-                out.write(json.dumps(sc.as_dict()) + "\n")
-            out.write(json.dumps({"type": "stats", **listener.stats.as_dict()}) + "\n")
+                out.write(jsonl_line(sc.as_dict()))
+            out.write(jsonl_line({"type": "stats", **listener.stats.as_dict()}))
             out.close()
     return scores
 
@@ -476,7 +503,7 @@ def _run_live(listener: Any, events: Any, recent: Any, out: Any, truth: Any = No
             elif isinstance(ev, Decision):
                 recent.append(ev)
                 if out is not None:
-                    out.write(json.dumps(ev.as_dict()) + "\n")
+                    out.write(jsonl_line(ev.as_dict()))
                     out.flush()
             elif isinstance(ev, Stats):
                 last_stats = ev.stats

@@ -19,6 +19,12 @@ Events, in arrival order:
 * :class:`Recorded` - a recording was appended to the campaign file (``record=``);
 * :class:`Connection` - :meth:`LinkListener.events` opened the port itself ("connected"), the
   peer went away ("disconnected"), or the port was reopened ("reconnected");
+* :class:`Rejection` - a frame sound on the wire (COBS, CRC-32, layout) but with a field no
+  controller sends (a sample index of 2^63, a rate of NaN, a grid unlike the stream's, a class
+  index past the controller's class names): counted in ``absurd_frames`` and left out
+  (:mod:`eskin.link.frame_checks`); a frame the stream cannot go on after (an INFO grid the
+  host model cannot take) ends :meth:`LinkListener.events` with
+  :class:`~eskin.errors.LinkStreamError` after the final :class:`Stats`;
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 
 Host decisions. With ``model=`` (a ``.eskin`` file, a saved TouchModel, or a loaded
@@ -59,30 +65,40 @@ rules").
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import time
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Optional, Union
 
 import numpy as np
 
+from eskin.errors import LinkStreamError
+from eskin.link.events import (
+    Connection,
+    DataBlock,
+    Decision,
+    InfoEvent,
+    LinkEvent,
+    LinkStats,
+    Recorded,
+    Rejection,
+    Stats,
+    StatusEvent,
+)
+from eskin.link.host_classifier import HostClassifier, load_host_classifier, max_touch_s
 from eskin.link.protocol import (
     CommandFrame,
-    DataFrame,
-    DecisionFrame,
-    DecoderStats,
-    FrameDecoder,
     FrameType,
     InfoFrame,
     StatusFrame,
     StreamState,
     encode_frame,
 )
+from eskin.link.recorder import StreamRecorder
 from eskin.link.serial_port import PeerClosedError, SerialPort, SerialPortError
+from eskin.link.receiver import StreamReceiver, unreceived_samples
 
 __all__ = [
     "Connection",
@@ -93,361 +109,16 @@ __all__ = [
     "LinkEvent",
     "LinkListener",
     "LinkStats",
+    "LinkStreamError",
     "Recorded",
+    "Rejection",
     "Stats",
     "StatusEvent",
     "load_host_classifier",
+    "unreceived_samples",
 ]
 
 RECORD_POLICIES = ("touch", "segment")
-
-
-# --------------------------------------------------------------------------- events
-
-
-@dataclass(frozen=True, eq=False)
-class DataBlock:
-    """Consecutive samples as received: int16 ``(n, rows, cols)``, stream indices
-    ``first_sample`` .. ``first_sample + n``; ``lost_before`` samples were lost just before."""
-
-    first_sample: int
-    samples: np.ndarray
-    timestamp_us: int = 0
-    overrun: bool = False
-    lost_before: int = 0
-
-    @property
-    def end_sample(self) -> int:
-        return self.first_sample + int(self.samples.shape[0])
-
-
-@dataclass(frozen=True)
-class Decision:
-    """A decision on one touch, from the controller (a DECISION frame) or from this host.
-
-    ``onset_sample``/``offset_sample``: the touch window ``[onset, offset)`` in stream indices;
-    ``label``: a class name (None when the class is unknown, e.g. no INFO yet); ``label_index``
-    indexes the class names (-1: none); ``values``: one decision value per binary machine;
-    ``dont_know``: no machine or several machines claimed the touch. ``latency_us``: for the
-    controller, its reported latency; for the host, the time from receiving the frame that ended
-    the touch to the decision. ``lost_samples``: host only, samples of the window that were lost.
-    """
-
-    source: str
-    onset_sample: int
-    offset_sample: int
-    label: Optional[str]
-    label_index: int
-    values: tuple[float, ...]
-    dont_know: bool = False
-    decided_sample: int = 0
-    latency_us: float = 0.0
-    lost_samples: int = 0
-
-    def as_dict(self) -> dict[str, Any]:
-        """The JSON object ``eskin listen --jsonl`` writes for this decision."""
-        return {
-            "type": "decision",
-            "source": self.source,
-            "onset_sample": int(self.onset_sample),
-            "offset_sample": int(self.offset_sample),
-            "decided_sample": int(self.decided_sample),
-            "label": self.label,
-            "label_index": int(self.label_index),
-            "values": [float(v) for v in self.values],
-            "dont_know": bool(self.dont_know),
-            "latency_us": float(self.latency_us),
-            "lost_samples": int(self.lost_samples),
-        }
-
-
-@dataclass(frozen=True)
-class StatusEvent:
-    status: StatusFrame
-
-
-@dataclass(frozen=True)
-class InfoEvent:
-    info: InfoFrame
-
-
-@dataclass(frozen=True)
-class Recorded:
-    """Recording ``index`` of the campaign file: stream samples ``[start, stop)``."""
-
-    index: int
-    start: int
-    stop: int
-    label: str
-    lost_samples: int = 0
-
-
-@dataclass(frozen=True)
-class Connection:
-    """``state``: "connected", "disconnected" (the peer closed the port) or "reconnected"."""
-
-    state: str
-    path: str
-    reason: str = ""
-
-
-@dataclass(frozen=True)
-class LinkStats(DecoderStats):
-    """Everything counted on the link (see the module docstring).
-
-    The decoder counters inherited from :class:`DecoderStats` (``bytes`` ..
-    ``sample_index_resets``, and ``rejected``) are this host's; the ``controller_*`` ones are
-    the controller's cumulative counters from its last STATUS.
-    """
-
-    elapsed_s: float = 0.0
-    overrun_frames: int = 0
-    status_frames: int = 0
-    decisions_controller: int = 0
-    decisions_host: int = 0
-    recordings: int = 0
-    disconnects: int = 0
-    reconnects: int = 0
-    controller_samples_sent: int = 0
-    controller_dropped_samples: int = 0
-    controller_overrun_events: int = 0
-    controller_rx_errors: int = 0
-    controller_faults_injected: int = 0
-    controller_decisions_sent: int = 0
-    controller_pacing_p50_us: float = 0.0
-    controller_pacing_p99_us: float = 0.0
-    controller_state: str = "unknown"
-
-    @property
-    def rate_samples_per_s(self) -> float:
-        return self.samples / self.elapsed_s if self.elapsed_s > 0 else 0.0
-
-    def as_dict(self) -> dict[str, Any]:  # type: ignore[override]
-        d: dict[str, Any] = dataclasses.asdict(self)
-        d["rejected"] = self.rejected
-        return d
-
-
-@dataclass(frozen=True)
-class Stats:
-    stats: LinkStats
-
-
-LinkEvent = Union[DataBlock, Decision, StatusEvent, InfoEvent, Recorded, Connection, Stats]
-
-
-# --------------------------------------------------------------------------- host classifiers
-
-
-@dataclass(frozen=True)
-class _Touch:
-    """A touch found by a host classifier, in its own sample count (from its last reset)."""
-
-    start: int
-    stop: int
-    label_index: int = -1
-    values: tuple[float, ...] = ()
-    dont_know: bool = False
-
-
-class HostClassifier:
-    """A streaming touch detector (+ classifier) fed with int16 samples ``(n, n_taxels)``.
-
-    ``push`` returns the touches completed by the samples, with their windows in samples since
-    the last ``reset``; ``flush`` ends a touch in progress. ``class_names`` is empty for a bare
-    detector (windows only, ``label_index`` -1).
-    """
-
-    kind = "detector"
-
-    def __init__(self, grid: tuple[int, int], sample_rate_hz: float = 3000.0,
-                 config: Any = None) -> None:
-        from eskin.signal.preprocess import TouchDetector
-
-        self.grid = (int(grid[0]), int(grid[1]))
-        self.class_names: list[str] = []
-        self.sample_rate_hz = float(sample_rate_hz)
-        self._det = TouchDetector(self.grid, self.sample_rate_hz, config)
-
-    def push(self, samples: np.ndarray) -> list[_Touch]:
-        return [_Touch(w.start, w.stop) for w in self._det.push(samples)]
-
-    def flush(self) -> list[_Touch]:
-        return [_Touch(w.start, w.stop) for w in self._det.flush()]
-
-    def reset(self) -> None:
-        self._det.reset()
-
-
-class _PythonModelClassifier(HostClassifier):
-    """eskin.preprocess.TouchDetector + a TouchModel's Python machines."""
-
-    kind = "python"
-
-    def __init__(self, model: Any) -> None:
-        from eskin.signal.preprocess import TouchDetector
-
-        self.model = model
-        self.grid = (int(model.grid_shape[0]), int(model.grid_shape[1]))
-        self.class_names = [str(c) for c in model.classes]
-        self.sample_rate_hz = float(model.sample_rate_hz)
-        self._det = TouchDetector(self.grid, self.sample_rate_hz, model.window_config,
-                                  D=int(model.D), subsample=str(model.subsample))
-
-    def _classify(self, windows: list) -> list[_Touch]:
-        out = []
-        for w in windows:
-            pred, F, dk = self.model.predict_indices(np.asarray(w.tensor)[None])
-            values = tuple(float(v) for v in np.atleast_1d(np.asarray(F)[0]))
-            out.append(_Touch(w.start, w.stop, int(pred[0]), values, bool(dk[0])))
-        return out
-
-    def push(self, samples: np.ndarray) -> list[_Touch]:
-        return self._classify(self._det.push(samples))
-
-    def flush(self) -> list[_Touch]:
-        return self._classify(self._det.flush())
-
-
-class _CompiledClassifier(HostClassifier):
-    """The C++ stream classifier of eskin.export.CompiledModel (what the controller runs)."""
-
-    kind = "compiled"
-
-    def __init__(self, compiled: Any) -> None:
-        from eskin import _core
-
-        self.compiled = compiled
-        self.grid = tuple(int(v) for v in compiled.grid_shape)  # type: ignore[assignment]
-        self.class_names = [str(c) for c in compiled.class_names]
-        self.sample_rate_hz = float(compiled.sample_rate_hz)
-        self._sc = _core.StreamClassifier(compiled._model)
-
-    def _events(self, events: list) -> list[_Touch]:
-        out = []
-        for e in events:
-            if "label" not in e:
-                continue  # an error status: the touch was dropped by the classifier
-            start, stop = (int(v) for v in e["window"])
-            out.append(_Touch(start, stop, int(e["label"]),
-                              tuple(float(v) for v in e["values"]), bool(e["dont_know"])))
-        return out
-
-    def push(self, samples: np.ndarray) -> list[_Touch]:
-        x = np.ascontiguousarray(samples.reshape(samples.shape[0], -1), dtype=np.float64)
-        return self._events(self._sc.feed(x, False))
-
-    def flush(self) -> list[_Touch]:
-        k = self.grid[0] * self.grid[1]
-        return self._events(self._sc.feed(np.zeros((0, k)), True))
-
-    def reset(self) -> None:
-        self._sc.reset()
-
-
-def load_host_classifier(model: Any, backend: str = "auto") -> HostClassifier:
-    """A host classifier from a model file path, a TouchModel or a CompiledModel.
-
-    ``backend``: "compiled" (the C++ stream classifier; needs eskin.export), "python"
-    (TouchDetector + the TouchModel's machines) or "auto" (compiled when available).
-    """
-    if backend not in ("auto", "compiled", "python"):
-        raise ValueError(f"backend must be 'auto', 'compiled' or 'python', got {backend!r}")
-    if isinstance(model, HostClassifier):
-        return model
-    try:
-        from eskin.deploy.export import CompiledModel
-    except ImportError:
-        CompiledModel = None  # type: ignore[assignment,misc]
-    if isinstance(model, (str, os.PathLike)):
-        path = Path(model)
-        if not path.is_file():
-            raise FileNotFoundError(f"model file {path} does not exist")
-        if path.suffix.lower() == ".eskin" and CompiledModel is not None and backend != "python":
-            return _CompiledClassifier(CompiledModel(path))
-        from eskin.deploy import load_model
-
-        model = load_model(path)
-    if CompiledModel is not None and isinstance(model, CompiledModel):
-        if backend == "python":
-            raise ValueError("a compiled .eskin model runs on the compiled backend only")
-        return _CompiledClassifier(model)
-    for attr in ("classes", "estimator", "D", "grid_shape"):
-        if not hasattr(model, attr):
-            raise ValueError(
-                f"model must be a model file, a TouchModel or a CompiledModel, not "
-                f"{type(model).__name__}"
-            )
-    if backend != "python" and CompiledModel is not None:
-        compiled = getattr(getattr(model, "estimator", None), "compiled", None)
-        if compiled is not None:  # a .eskin file loaded as a TouchModel
-            return _CompiledClassifier(compiled)
-        try:
-            return _CompiledClassifier(CompiledModel.from_model(model))
-        except (ValueError, TypeError, AttributeError):
-            if backend == "compiled":
-                raise
-    elif backend == "compiled":
-        raise RuntimeError("the compiled backend needs eskin.export (not available)")
-    return _PythonModelClassifier(model)
-
-
-# --------------------------------------------------------------------------- sample history
-
-
-class _History:
-    """The last ``capacity`` samples by stream index, with a mask of the ones that were lost."""
-
-    def __init__(self, capacity: int, grid: tuple[int, int]) -> None:
-        self.capacity = int(capacity)
-        self.buf = np.zeros((self.capacity, grid[0], grid[1]), np.int16)
-        self.lost = np.zeros(self.capacity, bool)
-        self.end = 0  # one past the newest stream index held
-        self.begin = 0  # oldest stream index held
-
-    def append(self, first: int, block: np.ndarray, lost: np.ndarray) -> None:
-        n = block.shape[0]
-        if first != self.end:  # a reset: start over at this index
-            self.begin = self.end = first
-        if n >= self.capacity:
-            first += n - self.capacity
-            block, lost = block[-self.capacity:], lost[-self.capacity:]
-            n = self.capacity
-            self.begin = self.end = first
-        pos = (first + np.arange(n)) % self.capacity
-        self.buf[pos] = block
-        self.lost[pos] = lost
-        self.end = first + n
-        self.begin = max(self.begin, self.end - self.capacity)
-
-    def get(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        """Samples [start, stop) clipped to what is held: (samples (n, rows, cols), lost (n,))."""
-        start, stop = max(start, self.begin), min(stop, self.end)
-        if stop <= start:
-            return self.buf[:0].copy(), self.lost[:0].copy()
-        pos = np.arange(start, stop) % self.capacity
-        return self.buf[pos], self.lost[pos]
-
-
-# --------------------------------------------------------------------------- the listener
-
-
-def unreceived_samples(status: StatusFrame, received: int, counts: dict[str, int],
-                       known: int = 0) -> int:
-    """Samples the controller sent that never arrived, from its STATUS counters: the larger of
-    ``known`` (the count so far: it only grows) and what this STATUS shows.
-
-    ``received``: samples of the DATA frames the host processed before this STATUS;
-    ``counts["reconnects"]``: the host's reconnections. A STATUS sent while the
-    controller is not streaming (stopped, or its replay finished) follows every DATA frame it
-    sent before it, so each of its ``samples_sent`` has been received or is lost, including
-    the ones after the last frame that arrived (which no hole in the sample indices reveals).
-    This holds when every sample it sent went to this host: when its ``connections`` are at
-    most the host's connections (0: an older controller that does not say)."""
-    sessions = 1 + counts["reconnects"]
-    if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
-        return known
-    return max(known, status.samples_sent - received)
 
 
 def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: float,
@@ -469,305 +140,14 @@ def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: fl
     return record_policy
 
 
-class _FrameEvents:
-    """Decoding: the received bytes -> frames -> the listener's events (a part of
-    :class:`LinkListener`, which holds the state)."""
-
-    # -- frames -> events ------------------------------------------------------------------
-    def _process(self, chunk: bytes) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        frames = self._decoder.feed(chunk)
-        received = time.perf_counter()
-        i = 0
-        while i < len(frames):
-            f = frames[i]
-            if isinstance(f, DataFrame):
-                j = i
-                while j < len(frames) and isinstance(frames[j], DataFrame):
-                    j += 1
-                self._received += sum(int(fr.samples.shape[0]) for fr in frames[i:j])
-                out += self._on_data(frames[i:j], received)
-                i = j
-                continue
-            if isinstance(f, DecisionFrame):
-                out.append(self._on_controller_decision(f))
-            elif isinstance(f, StatusFrame):
-                self.last_status = f
-                self._counts["status_frames"] += 1
-                self._unseen = unreceived_samples(f, self._received, self._counts, self._unseen)
-                out.append(StatusEvent(f))
-            elif isinstance(f, InfoFrame):
-                self.info = f
-                out.append(InfoEvent(f))
-            i += 1  # PONG: nothing to do
-        return out
-
-    def _class_name(self, index: int) -> Optional[str]:
-        """A controller label's name, from its INFO (None before INFO or out of range)."""
-        names: Sequence[str] = self.info.class_names if self.info is not None else ()
-        return str(names[index]) if 0 <= index < len(names) else None
-
-    def _on_controller_decision(self, f: DecisionFrame) -> Decision:
-        d = Decision("controller", f.onset_sample, f.offset_sample, self._class_name(f.label),
-                     int(f.label), tuple(float(v) for v in f.values), bool(f.dont_know),
-                     f.decided_sample, float(f.latency_us))
-        self._counts["decisions_controller"] += 1
-        self.decisions.append(d)
-        return d
-
-
-class _HostStream:
-    """The stream on the host: DATA frames -> a continuous sample stream (holes bridged or
-    restarted), its history, and the host classifier's decisions (a part of
-    :class:`LinkListener`, which holds the state)."""
-
-    def _setup_stream(self, grid: tuple[int, int]) -> None:
-        self._grid = grid
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        need = self.history_s
-        if self.record_path is not None:
-            if self.record_policy == "segment":
-                segs = self.replay.segments
-                longest = int(segs["length"].max()) if len(segs) else 0
-                need = max(need, longest / rate + 1.0)
-            else:
-                need = max(need, self._max_touch_s() + 2 * self.context_s + 1.0)
-        self._history = _History(int(math.ceil(need * rate)), grid)
-        if self.classifier is not None and tuple(self.classifier.grid) != grid:
-            raise ValueError(
-                f"the controller streams a {grid[0]}x{grid[1]} grid; the host model expects "
-                f"{self.classifier.grid[0]}x{self.classifier.grid[1]}"
-            )
-        if (self.record_path is not None and self.record_policy == "touch"
-                and self.classifier is None):
-            self._det = HostClassifier(grid, rate)
-
-    def _max_touch_s(self) -> float:
-        cfg = None
-        c = self.classifier
-        if c is not None:
-            m = getattr(c, "model", None)
-            cfg = getattr(m, "window_config", None) if m is not None else None
-            if cfg is None and getattr(c, "compiled", None) is not None:
-                cfg = c.compiled.window_config.get("max_window_s")  # type: ignore[union-attr]
-                return float(cfg) if cfg is not None else 7.0
-        return float(getattr(cfg, "max_window_s", 7.0) or 7.0)
-
-    def _on_data(self, frames: list[DataFrame], received: float) -> list[LinkEvent]:
-        """DATA frames -> DataBlocks; contiguous frames reach the classifier as one block."""
-        out: list[LinkEvent] = []
-        run: list[tuple[DataFrame, int]] = []
-
-        def flush_run() -> None:
-            if not run:
-                return
-            first = run[0][0].first_sample
-            block = (run[0][0].samples if len(run) == 1
-                     else np.concatenate([f.samples for f, _ in run]))
-            self._feed(first, block, np.zeros(block.shape[0], bool), out, received)
-            out.extend(DataBlock(f.first_sample, f.samples, f.timestamp_us, f.overrun, lost)
-                       for f, lost in run)
-            run.clear()
-
-        for f in frames:
-            if f.overrun:
-                self._counts["overrun_frames"] += 1
-            grid = (int(f.samples.shape[1]), int(f.samples.shape[2]))
-            if self._grid is None:
-                self._setup_stream(grid)
-            elif grid != self._grid:
-                continue  # a frame for another grid cannot be part of this stream: ignore it
-            expected = run[-1][0].end_sample if run else self._next
-            lost = 0
-            if expected is not None and f.first_sample != expected:
-                flush_run()
-                if f.first_sample < expected:
-                    self._index_resets += 1
-                lost = self._bridge(f.first_sample, out)
-                self._lost_samples += lost
-            run.append((f, lost))
-        flush_run()
-        return out
-
-    def _bridge(self, first: int, out: list[LinkEvent]) -> int:
-        """A hole (or a reset) before stream index ``first``; returns the samples lost."""
-        assert self._next is not None
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        gap = first - self._next
-        if 0 < gap <= self.max_fill_s * rate and self._last is not None:
-            hold = np.broadcast_to(self._last, (gap, *self._last.shape))
-            self._lost_ranges.append((self._next, first))
-            self._feed(self._next, np.ascontiguousarray(hold), np.ones(gap, bool), out, None)
-            return gap
-        # too long a hole, or the indices went backwards: restart the host classifier here
-        for c in (self.classifier, self._det):
-            if c is not None:
-                out.extend(self._touches(c, c.flush(), None))
-                c.reset()
-        if self.record_policy == "touch":
-            out.extend(self._record_ready(final=True))
-        self._base = first
-        self._next = first
-        if gap > 0:
-            self._lost_ranges.append((first - gap, first))
-        return max(gap, 0)
-
-    def _feed(self, first: int, block: np.ndarray, lost: np.ndarray, out: list[LinkEvent],
-              received: Optional[float]) -> None:
-        if self._next is None:
-            self._next = first
-            self._base = first
-        assert self._history is not None
-        self._history.append(first, block, lost)
-        self._next = first + block.shape[0]
-        self._last = block[-1].copy()
-        flat = block.reshape(block.shape[0], -1)
-        if self.classifier is not None:
-            out.extend(self._touches(self.classifier, self.classifier.push(flat), received))
-        if self._det is not None:
-            out.extend(self._touches(self._det, self._det.push(flat), received))
-        out.extend(self._record_ready())
-
-    def _touches(self, c: HostClassifier, touches: list[_Touch],
-                 received: Optional[float]) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        for t in touches:
-            start, stop = self._base + t.start, self._base + t.stop
-            if c is self.classifier:
-                lost = sum(max(0, min(stop, b) - max(start, a)) for a, b in self._lost_ranges)
-                latency = 0.0 if received is None else (time.perf_counter() - received) * 1e6
-                names = c.class_names  # the host model's classes, not the controller's
-                label = names[t.label_index] if 0 <= t.label_index < len(names) else None
-                d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
-                             self._next or stop, latency, lost)
-                self._counts["decisions_host"] += 1
-                self.decisions.append(d)
-                out.append(d)
-            if self.record_path is not None and self.record_policy == "touch":
-                if c is self._det or (self._det is None and c is self.classifier):
-                    label = "unknown"
-                    if c is self.classifier and t.label_index >= 0 and not t.dont_know:
-                        label = c.class_names[t.label_index]
-                    self._pending_touch.append((start, stop, label))
-        if self._lost_ranges and self._next is not None:
-            horizon = self._next - (self._history.capacity if self._history else 0)
-            self._lost_ranges = [r for r in self._lost_ranges if r[1] > horizon]
-        return out
-
-    def _end_of_stream(self) -> list[LinkEvent]:
-        out: list[LinkEvent] = []
-        s = self.last_status
-        if (s is not None and s.state == StreamState.FINISHED and self._next is not None
-                and s.next_sample > self._next and not self._tail_counted):
-            # samples produced after the last one received, which no later frame revealed
-            self._lost_samples += s.next_sample - self._next
-            self._tail_counted = True
-        for c in (self.classifier, self._det):
-            if c is not None and self._history is not None:
-                out.extend(self._touches(c, c.flush(), None))
-        out.extend(self._record_ready(final=True))
-        return out
-
-
-class _StreamRecorder:
-    """Recording the received stream to a campaign file, one recording per replay segment or
-    per detected touch (a part of :class:`LinkListener`, which holds the state)."""
-
-    # -- recording -------------------------------------------------------------------------
-    def _open_writer(self) -> None:
-        from eskin.data.campaign import CampaignWriter
-
-        assert self.record_path is not None and self._grid is not None
-        info = self.info
-        rate = info.sample_rate_hz if info is not None else (
-            self.replay.sample_rate_hz if self.replay is not None else 3000.0)
-        vpc = info.volts_per_count if info is not None and info.volts_per_count > 0 else (
-            self.replay.volts_per_count if self.replay is not None else 1.0)
-        attrs: dict[str, Any] = {**self.record_attrs, "recorded_by": "eskin.link.LinkListener",
-                                 "record_policy": self.record_policy, "port": self.path}
-        with_contact = False
-        if self.record_policy == "segment":
-            names = list(self.replay.class_names) or []
-            if not names or np.any(self.replay.segments["label"] < 0):
-                names.append("unknown")
-            n_samples = int(self.replay.segments["length"].max())
-            attrs["labels"] = "true classes from the replay file"
-            attrs["replay_file"] = str(self.replay.path)
-            with_contact = bool(np.all(self.replay.segments["contact_onset"] >= 0))
-        else:
-            names = list(self.classifier.class_names) if self.classifier is not None else []
-            names.append("unknown")
-            n_samples = int(math.ceil((self._max_touch_s() + 2 * self.context_s) * rate)) + 1
-            attrs["labels"] = ("the host's decisions (not ground truth); unknown = don't know"
-                               if self.classifier is not None else "none (unknown)")
-        self._with_contact = with_contact
-        self._writer = CampaignWriter(
-            self.record_path, grid_shape=self._grid, n_samples=n_samples, sample_rate_hz=rate,
-            volts_per_count=vpc, modalities=names, source=self.record_source, attrs=attrs,
-            contact_interval=with_contact, overwrite=self.overwrite,
-            extra_fields={"stream_start": np.int64, "lost_samples": np.int32},
-        )
-
-    def _record_ready(self, final: bool = False) -> list[LinkEvent]:
-        if self.record_path is None or self._history is None:
-            return []
-        out: list[LinkEvent] = []
-        h = self._history
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        if self.record_policy == "segment":
-            segs = self.replay.segments
-            while self._next_segment < len(segs):
-                seg = segs[self._next_segment]
-                start = self.replay_offset + int(seg["start"])
-                stop = start + int(seg["length"])
-                if h.end < stop:
-                    break  # not there yet (a segment never completed is never written)
-                self._next_segment += 1
-                if h.begin > start:
-                    continue  # not fully received: joined late, or a long hole inside it
-                label = int(seg["label"])
-                names = self._writer_names()
-                modality = label if label >= 0 else len(names) - 1
-                ci = None
-                if self._with_contact:
-                    ci = (int(seg["contact_onset"]), int(seg["contact_offset"]))
-                out.append(self._append(start, stop, modality, ci))
-        else:
-            ctx = int(round(self.context_s * rate))
-            keep = []
-            for start, stop, label in self._pending_touch:
-                a, b = start - ctx, stop + ctx
-                if h.end < b and not final:
-                    keep.append((start, stop, label))
-                    continue
-                names = self._writer_names()
-                out.append(self._append(max(a, h.begin), min(b, h.end), names.index(label), None))
-            self._pending_touch = keep
-        return out
-
-    def _writer_names(self) -> list[str]:
-        if self._writer is None:
-            self._open_writer()
-        return list(self._writer.modalities)
-
-    def _append(self, start: int, stop: int, modality: int,
-                contact: Optional[tuple[int, int]]) -> Recorded:
-        assert self._history is not None
-        if self._writer is None:
-            self._open_writer()
-        samples, lost = self._history.get(start, stop)
-        stop = start + samples.shape[0]
-        rec = np.ascontiguousarray(np.moveaxis(samples, 0, -1))
-        n_lost = int(lost.sum())
-        idx = self._writer.append(
-            rec, modality=modality, participant=-1, direction=255, run=0,
-            contact_interval=contact, extra={"stream_start": start, "lost_samples": n_lost})
-        self._counts["recordings"] += 1
-        return Recorded(idx, start, stop, self._writer.modalities[modality], n_lost)
-
-
-class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
+class LinkListener:
     """The controller's live stream over a serial port, as events. See the module docstring.
+
+    It holds the port; what arrives goes to collaborators, each with its own state:
+    :class:`~eskin.link.receiver.StreamReceiver` (bytes -> checked frames -> events, the counters),
+    which feeds :class:`~eskin.link.stream.StreamAssembler` (the continuous stream, its
+    history, the host's touches) and :class:`~eskin.link.recorder.StreamRecorder` (the
+    campaign file).
 
     Parameters
     ----------
@@ -786,6 +166,7 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
     stats_interval : seconds between :class:`Stats` events (None: only at the end).
     """
 
+    # long: the constructor's parameters, each stored once
     def __init__(
         self,
         port: Union[str, os.PathLike, SerialPort],
@@ -828,10 +209,6 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
         )
         self.record_path = None if record is None else Path(record)
         self.record_policy = record_policy
-        self.context_s = float(context_s)
-        self.overwrite = bool(overwrite)
-        self.record_source = str(record_source)
-        self.record_attrs = dict(record_attrs or {})
         self.reconnect_enabled = bool(reconnect)
         self.reconnect_timeout = float(reconnect_timeout)
         self.send_start = bool(send_start)
@@ -839,35 +216,22 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
         self.max_fill_s = float(max_fill_s)
         self.stats_interval = stats_interval
         self.history_s = float(history_s)
-
-        self._init_state()
-
-    def _init_state(self) -> None:
-        """What the listener has received so far: nothing yet."""
-        self.info: Optional[InfoFrame] = None
-        self.last_status: Optional[StatusFrame] = None
-        self.decisions: list[Decision] = []
-        self._decoder = FrameDecoder()
+        self.recorder: Optional[StreamRecorder] = None
+        if self.record_path is not None:
+            self.recorder = StreamRecorder(
+                self.record_path, policy=record_policy, replay=replay,
+                replay_offset=self.replay_offset, context_s=float(context_s),
+                overwrite=bool(overwrite), source=str(record_source),
+                attrs=dict(record_attrs or {}), port=self.path,
+                host_names=list(self.classifier.class_names) if self.classifier else [],
+                max_touch_s=max_touch_s(self.classifier))
+        self.receiver = StreamReceiver(classifier=self.classifier, recorder=self.recorder,
+                                   record_policy=record_policy, replay=replay,
+                                   max_fill_s=self.max_fill_s, history_s=self.history_s)
         self._t0: Optional[float] = None
-        self._counts = {"overrun_frames": 0, "status_frames": 0, "decisions_controller": 0,
-                        "decisions_host": 0, "recordings": 0, "disconnects": 0, "reconnects": 0}
+        self._disconnects = 0
         self._stop = False
         self._closed = False
-        # stream state
-        self._grid: Optional[tuple[int, int]] = None
-        self._next: Optional[int] = None  # next expected stream index
-        self._last: Optional[np.ndarray] = None  # last sample (for holding over holes)
-        self._base = 0  # stream index of the host classifier's sample 0
-        self._lost_ranges: list[tuple[int, int]] = []
-        self._lost_samples = self._received = self._unseen = 0  # see unreceived_samples
-        self._tail_counted = False
-        self._index_resets = 0
-        self._history: Optional[_History] = None
-        self._pending_touch: list[tuple[int, int, str]] = []  # (start, stop, label) to record
-        self._next_segment = 0
-        self._writer: Any = None
-        self._with_contact = False
-        self._det: Optional[HostClassifier] = None  # detector for touch recording w/o model
 
     # -- opening and closing ---------------------------------------------------------------
     def open(self) -> LinkListener:
@@ -905,14 +269,17 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
             return
         self._closed = True
         try:
-            if self._port is not None and self._port.is_open:
-                try:
-                    self._port.close()
-                except SerialPortError:
-                    pass
+            self._close_port()
         finally:
-            if self._writer is not None:
-                self._writer.close()
+            if self.recorder is not None:
+                self.recorder.close()
+
+    def _close_port(self) -> None:
+        if self._port is not None and self._port.is_open:
+            try:
+                self._port.close()
+            except SerialPortError:
+                pass
 
     def __enter__(self) -> LinkListener:
         return self.open()
@@ -923,56 +290,60 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
 
     def reconnect(self) -> Connection:
         """Close the port and open it again (the controller keeps its stream going)."""
-        if self._port is not None:
-            try:
-                self._port.close()
-            except SerialPortError:
-                pass
+        self._close_port()
         self._port = SerialPort(self.path)
-        self._decoder.reset(reset_stats=False)
-        self._counts["reconnects"] += 1
-        if self.send_start:
-            self._send_start()
+        self._reopened()
         return Connection("reconnected", self.path, "reopened by the host")
 
-    # -- statistics ------------------------------------------------------------------------
+    def _reopened(self) -> None:
+        self.receiver.reopened()
+        if self.send_start:
+            self._send_start()
+
+    # -- what was received -----------------------------------------------------------------
     @property
     def stats(self) -> LinkStats:
-        d = self._decoder.stats.as_dict()
-        s = self.last_status
-        ctrl: dict[str, Any] = {}
-        if s is not None:
-            ctrl = {
-                "controller_samples_sent": s.samples_sent,
-                "controller_dropped_samples": s.dropped_samples,
-                "controller_overrun_events": s.overrun_events,
-                "controller_rx_errors": s.rx_errors,
-                "controller_faults_injected": s.faults_injected,
-                "controller_decisions_sent": s.decisions_sent,
-                "controller_pacing_p50_us": s.pacing_p50_ns / 1000.0,
-                "controller_pacing_p99_us": s.pacing_p99_ns / 1000.0,
-                "controller_state": StreamState(s.state).name.lower(),
-            }
         elapsed = 0.0 if self._t0 is None else time.monotonic() - self._t0
-        # sample losses are counted here rather than by the decoder, whose expectations are
-        # reset when the port is reopened: a hole across a reconnect is a loss too
-        d["lost_samples"] = max(self._lost_samples, self._unseen)
-        d["sample_index_resets"] = self._index_resets
-        return LinkStats(elapsed_s=elapsed, **d, **self._counts, **ctrl)
+        return self.receiver.stats(elapsed, self._disconnects)
 
-    # -- taxel activity --------------------------------------------------------------------
+    @property
+    def info(self) -> Optional[InfoFrame]:
+        """The controller's last INFO accepted (None before one)."""
+        return self.receiver.info
+
+    @property
+    def last_status(self) -> Optional[StatusFrame]:
+        return self.receiver.last_status
+
+    @property
+    def decisions(self) -> list[Decision]:
+        """Every decision so far, the controller's and the host's, in arrival order."""
+        return self.receiver.decisions
+
+    @property
+    def rejections(self) -> list[Rejection]:
+        """The last (at most 100) frames refused for their fields."""
+        return self.receiver.rejections
+
     def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
         taxel's deviation from its mean over the last second (ADC counts); None before data."""
-        h = self._history
-        if h is None or h.end == h.begin:
-            return None
-        rate = self.info.sample_rate_hz if self.info is not None else 3000.0
-        ref, _ = h.get(h.end - int(rate), h.end)
-        recent, _ = h.get(h.end - max(1, int(window_s * rate)), h.end)
-        base = ref.mean(axis=0)
-        dev = recent.astype(np.float64) - base
-        return np.sqrt(np.mean(dev * dev, axis=0))
+        return self.receiver.activity(window_s)
+
+    def feed(self, data: bytes) -> list[LinkEvent]:
+        """The events of ``data``, bytes received from the controller (what :meth:`events`
+        does with each read; also for bytes captured elsewhere). Never raises for what the
+        bytes hold, except :class:`~eskin.errors.LinkStreamError` when the stream cannot go
+        on."""
+        if self._t0 is None:
+            self._t0 = time.monotonic()
+        return self.receiver.feed(data)
+
+    def finish(self) -> list[LinkEvent]:
+        """End the stream: count the samples sent after the last one received, end and decide
+        a touch in progress, write the pending recordings (what :meth:`events` does at its end
+        with ``flush``)."""
+        return self.receiver.finish()
 
     # -- the event loop --------------------------------------------------------------------
     def events(self, *, duration: Optional[float] = None, until_eof: bool = False,
@@ -983,80 +354,67 @@ class LinkListener(_FrameEvents, _HostStream, _StreamRecorder):
 
         At the end, with ``flush`` (the default), a touch in progress is ended and decided and
         pending touch recordings are written with what was received; pass ``flush=False`` to
-        call :meth:`events` again later on the same stream. The last event is :class:`Stats`."""
+        call :meth:`events` again later on the same stream. The last event is :class:`Stats`,
+        also when a frame ends the stream with :class:`~eskin.errors.LinkStreamError` (raised
+        after it)."""
         if self._port is None:
             self.open()
             yield Connection("connected", self.path)
-        t_start = time.monotonic()
-        t_stats = t_start
-        finished_at: Optional[float] = None
         try:
-            while not self._stop:
-                now = time.monotonic()
-                if duration is not None and now - t_start >= duration:
-                    break
-                if finished_at is not None and now - finished_at >= eof_grace_s:
-                    break
-                try:
-                    assert self._port is not None
-                    chunk = self._port.read(65536, timeout=self.read_timeout)
-                except PeerClosedError as exc:
-                    self._counts["disconnects"] += 1
-                    yield Connection("disconnected", self.path, str(exc))
-                    conn = self._try_reconnect() if self.reconnect_enabled else None
-                    if conn is None:
-                        break
-                    yield conn
-                    continue
-                if chunk:
-                    for ev in self._process(chunk):
-                        if (until_eof and finished_at is None and isinstance(ev, StatusEvent)
-                                and ev.status.state == StreamState.FINISHED):
-                            finished_at = time.monotonic()
-                        yield ev
-                if self.stats_interval is not None and now - t_stats >= self.stats_interval:
-                    t_stats = now
-                    yield Stats(self.stats)
+            yield from self._loop(duration, until_eof, eof_grace_s)
             if flush:
-                for ev in self._end_of_stream():
-                    yield ev
+                yield from self.finish()
+        except LinkStreamError:
             yield Stats(self.stats)
+            raise
         finally:
             self._stop = False
+        yield Stats(self.stats)
+
+    def _loop(self, duration: Optional[float], until_eof: bool,
+              eof_grace_s: float) -> Iterator[LinkEvent]:
+        t_start = t_stats = time.monotonic()
+        finished_at: Optional[float] = None
+        while not self._stop:
+            now = time.monotonic()
+            if duration is not None and now - t_start >= duration:
+                break
+            if finished_at is not None and now - finished_at >= eof_grace_s:
+                break
+            try:
+                assert self._port is not None
+                chunk = self._port.read(65536, timeout=self.read_timeout)
+            except PeerClosedError as exc:
+                self._disconnects += 1
+                yield Connection("disconnected", self.path, str(exc))
+                conn = self._try_reconnect() if self.reconnect_enabled else None
+                if conn is None:
+                    break
+                yield conn
+                continue
+            for ev in self.feed(chunk) if chunk else ():
+                if (until_eof and finished_at is None and isinstance(ev, StatusEvent)
+                        and ev.status.state == StreamState.FINISHED):
+                    finished_at = time.monotonic()
+                yield ev
+            if self.stats_interval is not None and now - t_stats >= self.stats_interval:
+                t_stats = now
+                yield Stats(self.stats)
 
     def __iter__(self) -> Iterator[LinkEvent]:
         return self.events()
 
     def _try_reconnect(self) -> Optional[Connection]:
         deadline = time.monotonic() + self.reconnect_timeout
-        if self._port is not None:
-            try:
-                self._port.close()
-            except SerialPortError:
-                pass
+        self._close_port()
         while time.monotonic() < deadline and not self._stop:
             try:
                 self._port = SerialPort(self.path)
             except SerialPortError:
                 time.sleep(0.05)
                 continue
-            self._decoder.reset(reset_stats=False)
-            self._counts["reconnects"] += 1
-            if self.send_start:
-                self._send_start()
+            self._reopened()
             return Connection("reconnected", self.path, "port reopened after the peer closed")
         return None
 
-
-
-
-
-
-
-
-
-
-
-
-
-
+    # -- bytes -> frames -> events ---------------------------------------------------------

@@ -426,8 +426,8 @@ def test_jsonl_schema_from_the_cli(pty, tmp_path):
     d, s = lines
     assert d == {"type": "decision", "source": "controller", "onset_sample": 20,
                  "offset_sample": 180, "decided_sample": 180, "label": "washer",
-                 "label_index": 2, "values": [-1.0, -0.25, 0.5], "dont_know": False,
-                 "latency_us": 120.0, "lost_samples": 0}
+                 "label_index": 2, "values": [-1.0, -0.25, 0.5], "nonfinite_values": False,
+                 "dont_know": False, "latency_us": 120.0, "lost_samples": 0}
     assert s["type"] == "stats" and s["samples"] == 200 and s["lost_samples"] == 0
     assert {"frames", "bytes", "crc_errors", "malformed", "sequence_gaps", "lost_samples",
             "controller_dropped_samples", "controller_overrun_events"} <= set(s)

@@ -1,0 +1,173 @@
+"""Frames sound on the wire but with absurd fields (eskin.link.frame_checks): each is refused,
+counted and named (frame type, field, value), the stream goes on, and `eskin listen` ends with
+its statistics; the reproductions run the real CLI in a real process on a real pty."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eskin.link.listener import DataBlock, InfoEvent, LinkListener, Rejection
+from eskin.link.protocol import (
+    DELIMITER,
+    DataFrame,
+    DecisionFrame,
+    InfoFrame,
+    StatusFrame,
+    StreamState,
+    encode_frame,
+)
+
+REPO = Path(__file__).resolve().parents[3]
+NAMES = ("brush", "finger", "washer")
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO / "python") + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _controller(wire: bytes) -> tuple[str, threading.Thread]:
+    """A pty whose controller end sends ``wire`` once the host has written (its START)."""
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)
+
+    def run() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            r, _, _ = select.select([master], [], [], 0.05)
+            try:
+                if r and os.read(master, 4096):
+                    break
+            except OSError:
+                time.sleep(0.02)
+        view = memoryview(wire)
+        while view:
+            view = view[os.write(master, view):]
+        time.sleep(1.0)
+        os.close(master)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return path, t
+
+
+def _data(first: int, n: int = 10, grid=(4, 4), seq: int = 0) -> DataFrame:
+    x = np.random.default_rng(first % 1000).integers(-50, 50, (n, *grid)).astype(np.int16)
+    return DataFrame(first, 0, x, seq)
+
+
+def _info(rate: float = 3000.0, grid=(4, 4), names=NAMES) -> InfoFrame:
+    return InfoFrame(grid[0], grid[1], rate, volts_per_count=1e-4, has_model=True,
+                     class_names=names)
+
+
+#: the absurd frames of the reproductions, each with the line `eskin listen` prints for it
+ABSURD = [
+    (_info(math.inf), "refused INFO frame: sample_rate_hz = inf: not a finite number in "
+                      "(0, 1e+06]"),
+    (_info(math.nan), "refused INFO frame: sample_rate_hz = nan: "),
+    (_info(0.0), "refused INFO frame: sample_rate_hz = 0.0: "),
+    (_info(-3000.0), "refused INFO frame: sample_rate_hz = -3000.0: "),
+    (_info(1e300), "refused INFO frame: sample_rate_hz = 1e+300: "),
+    (_data(2**63), "refused DATA frame: first_sample = 9223372036854775808: outside [0, 2^53)"),
+    (_data(2**64 - 5), f"refused DATA frame: first_sample = {2**64 - 5}: outside [0, 2^53)"),
+    (_data(20, n=1, grid=(255, 7)), "refused DATA frame: grid = '255x7': the INFO accepted says 4x4"),
+    (DecisionFrame(50, 40, 1, (0.5,)), "refused DECISION frame: offset_sample = 40: before "
+                                       "onset_sample 50"),
+    (DecisionFrame(10, 40, 9, (0.5,)), "refused DECISION frame: label = 9: not -1 (none) or a "
+                                       "class index (the INFO accepted has 3 class names)"),
+]
+
+
+def test_absurd_frames_are_refused_named_and_the_stream_goes_on(tmp_path):
+    good = [_info()] + [_data(k) for k in range(0, 200, 10)]
+    decisions = [DecisionFrame(20, 180, 2, (-1.0, math.nan, math.inf), decided_sample=180),
+                 DecisionFrame(20, 180, 0, (0.5, -0.5, -1.0), decided_sample=180)]
+    frames = [ABSURD[0][0], good[0], *[f for f, _ in ABSURD[1:]], *good[1:], *decisions,
+              StatusFrame(next_sample=200, samples_sent=200, state=StreamState.FINISHED,
+                          connections=1)]
+    wire = DELIMITER + b"".join(encode_frame(f) for f in frames)
+    path, thread = _controller(wire)
+    out = tmp_path / "d.jsonl"
+    res = subprocess.run([sys.executable, "-m", "eskin", "listen", path, "--jsonl", str(out),
+                          "--until-eof", "--duration", "60", "--view", "plain"],
+                         capture_output=True, text=True, env=_env(), timeout=120)
+    thread.join(5)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    refused = [x for x in res.stdout.splitlines() if x.startswith("refused ")]
+    assert len(refused) == len(ABSURD), refused
+    for line, (_, expected) in zip(refused, ABSURD):
+        assert line.startswith(expected), (line, expected)
+    lines = [json.loads(x) for x in out.read_text().splitlines()]  # strict JSON: no NaN
+    assert [d["values"] for d in lines[:2]] == [[-1.0, None, None], [0.5, -0.5, -1.0]]
+    assert [d["nonfinite_values"] for d in lines[:2]] == [True, False]
+    stats = lines[-1]
+    assert stats["type"] == "stats" and stats["absurd_frames"] == len(ABSURD)
+    assert stats["samples"] == 200 + 2 * 10 + 1 and stats["lost_samples"] == 0
+    assert stats["nonfinite_decisions"] == 1 and stats["decisions_controller"] == 2
+    assert stats["frames"] == len(frames)
+    assert "decision controller onset=20 (0.01 s) label=washer" in res.stdout  # 3000 Hz
+
+
+def test_one_stray_grid_before_any_info_does_not_lock_the_stream():
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    frames = [_data(0, n=1, grid=(255, 7))] + [_data(k) for k in range(0, 100, 10)]
+    events = listener.feed(DELIMITER + b"".join(encode_frame(f) for f in frames))
+    blocks = [e for e in events if isinstance(e, DataBlock)]
+    rejected = [e for e in events if isinstance(e, Rejection)]
+    # the stray frame came first: two 4x4 frames are refused, the third takes the stream over
+    assert [b.samples.shape[1:] for b in blocks] == [(255, 7)] + [(4, 4)] * 8
+    assert [(r.frame, r.field, r.value) for r in rejected] == [("DATA", "grid", "4x4")] * 2
+    assert listener.stats.absurd_frames == 2
+    # an INFO first: the stray frame is refused and the stream is 4x4 from its first frame
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    events = listener.feed(DELIMITER + b"".join(encode_frame(f) for f in [_info(), *frames]))
+    assert [type(e).__name__ for e in events[:2]] == ["InfoEvent", "Rejection"]
+    assert sum(isinstance(e, DataBlock) for e in events) == 10
+    assert listener.activity().shape == (4, 4)
+
+
+def test_an_info_grid_the_model_cannot_take_ends_with_one_line_and_the_statistics(tmp_path):
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(4, 4, 4, 5))
+    machines = [MachineSpec(k, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), X, rng.normal(size=4))
+                for k in range(2)]
+    model = tmp_path / "m.eskin"
+    model.write_bytes(model_to_bytes(ModelSpec(["a", "b"], "one_vs_all", machines, 5, (4, 4)),
+                                     "float32"))
+    wire = DELIMITER + b"".join(encode_frame(f) for f in [
+        _data(0), _info(grid=(2, 2), names=("a", "b")), _data(10, grid=(2, 2))])
+    path, thread = _controller(wire)
+    out = tmp_path / "d.jsonl"
+    res = subprocess.run([sys.executable, "-m", "eskin", "listen", path, "--model", str(model),
+                          "--jsonl", str(out), "--duration", "60", "--view", "plain"],
+                         capture_output=True, text=True, env=_env(), timeout=120)
+    thread.join(5)
+    assert res.returncode == 2
+    assert res.stderr == ("error: INFO frame: grid = 2x2: the host model expects 4x4\n"), res.stderr
+    assert "Traceback" not in res.stdout
+    stats = json.loads(out.read_text().splitlines()[-1])
+    assert stats["type"] == "stats" and stats["samples"] == 20 and stats["data_frames"] == 2
+    assert [x for x in res.stdout.splitlines() if x.startswith("stats ")], res.stdout
+
+
+def test_info_events_carry_only_accepted_infos():
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    wire = DELIMITER + b"".join(encode_frame(f) for f in (_info(0.0), _info(1500.0)))
+    events = listener.feed(wire)
+    assert [type(e) for e in events] == [Rejection, InfoEvent]
+    assert listener.info.sample_rate_hz == 1500.0
