@@ -165,6 +165,7 @@ def run_demo(
     max_recordings: Optional[int] = None,
     gap_s: float = 0.5,
     log: Optional[Callable[[str], None]] = None,
+    controller: str = "sim",
 ) -> DemoResult:
     """Run the demo in folder ``out`` (created; its files are replaced). See the module doc.
 
@@ -172,7 +173,10 @@ def run_demo(
     (all their recordings, or ``max_recordings`` of them spread over the classes) at ``speed`` x
     real time (0: as fast as the host reads, which loses nothing); ``machine`` is "svm"
     (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a 2x2x2 grid instead of the
-    paper's 135 configurations.
+    paper's 135 configurations. ``controller`` is "sim" (the
+    simulator ``eskin-fw-sim``) or "qemu": the controller's firmware on QEMU's Cortex-M4F board
+    (:mod:`eskin.link.qemu_controller`, docs/mcu.md), in real time (``speed`` 1), with the model
+    trained to fit the part (its touch window at most 0.5 s, as `make mcu`'s).
     """
     from eskin._progress import progress_bar
     from eskin.data.campaign import load_campaign
@@ -180,6 +184,10 @@ def run_demo(
     from eskin.data.simulator import simulate
 
     say = log or (lambda m: None)
+    if controller not in ("sim", "qemu"):
+        raise ValueError(f"controller must be 'sim' or 'qemu', got {controller!r}")
+    if controller == "qemu":
+        speed = 1.0  # the board samples in real time
     _check_demo_args(participants, test_participants, speed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -205,7 +213,8 @@ def run_demo(
     say(f"[bold]2/5[/] training a 3-class tensor-{machine.upper()} (eskin train's recipe) on "
         f"{n_train_parts} participants ({len(train_idx)} recordings"
         f"{', quick grid' if quick else ''})")
-    model, compiled = _train_and_export(camp.subset(train_idx), files, machine, quick, seed, say)
+    model, compiled = _train_and_export(camp.subset(train_idx), files, machine, quick, seed, say,
+                                        fit_device=controller == "qemu")
     timings["train"] = time.perf_counter() - t0
     names = list(model.classes)
 
@@ -217,7 +226,10 @@ def run_demo(
     offline = _offline_reference(model, camp, rf, test_idx)
     timings["offline"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
+    if controller == "qemu":
+        decisions, stats, fw_stats = _stream_and_listen_qemu(camp, rf, files, compiled, say)
+    else:
+        decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
     timings["live"] = time.perf_counter() - t0
 
     # 5. compare
@@ -309,9 +321,12 @@ def _held_out_split(camp: Any, test_participants: int,
 
 
 def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: bool,
-                      seed: int, say: Callable[[str], None]) -> tuple[Any, Any]:
+                      seed: int, say: Callable[[str], None],
+                      fit_device: bool = False) -> tuple[Any, Any]:
     """Train the model with eskin train's default recipe, save it, export the .eskin file and
-    load that back as the compiled model the host runs."""
+    load that back as the compiled model the host runs. ``fit_device``: a touch window of at
+    most 0.5 s and D = 20 (the MCU preset of docs/mcu.md), checked against the Cortex-M4F's
+    budget."""
     try:
         from eskin._progress import progress_bar
         from eskin.deploy import save_model
@@ -320,12 +335,24 @@ def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: b
     except ImportError as exc:
         raise DemoError(
             f"a part of the pipeline is missing from this installation ({exc})") from None
+    device = {}
+    if fit_device:
+        from eskin.signal.preprocess import WindowConfig
+
+        device = {"D": 20, "window_config": WindowConfig(max_window_s=0.5)}
     with progress_bar() as bar:  # shown on a terminal
         bar.add_task("training (cv search)", total=None)
-        model = train_model(train, machine=machine, quick=quick, seed=seed, n_jobs=1)
+        model = train_model(train, machine=machine, quick=quick, seed=seed, n_jobs=1, **device)
     save_model(model, files["model"])
     export_model(model, files["eskin"])
     compiled = CompiledModel(files["eskin"])
+    if fit_device:
+        from eskin.deploy.target import device_budget
+
+        budget = device_budget(compiled, "cortex-m4")
+        if not budget.fits:
+            raise DemoError("the model does not fit the Cortex-M4F: "
+                            + "; ".join(budget.report()))
     say(f"      classes {list(model.classes)}; exported {files['eskin']} "
         f"({files['eskin'].stat().st_size} bytes, {compiled.n_support} support patterns)")
     return model, compiled
@@ -393,6 +420,47 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
     finally:
         fw_stats = finish_fw_sim(proc)
     return decisions, stats, fw_stats
+
+
+def _stream_and_listen_qemu(camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
+                            say: Callable[[str], None]) -> tuple[list, Any, dict]:
+    """The live part against the controller's firmware on QEMU (eskin.link.qemu_controller):
+    the model in its flash slot, the replay as its ADC, the host listening on its pty as it
+    would on eskin-fw-sim's. Returns the live decisions, the link statistics and the board's
+    console lines."""
+    from eskin.link.listener import Decision, LinkListener
+    from eskin.link.qemu_controller import QemuController, QemuControllerError
+
+    stream_s = rf.n_samples / rf.sample_rate_hz
+    say(f"[bold]3/5[/] the controller firmware on QEMU (mps2-an386, Cortex-M4F) streams "
+        f"{len(rf.segments)} held-out recordings ({stream_s:.0f} s of signal in real time) with "
+        f"the model in its flash")
+    decisions: list[Decision] = []
+    qc = QemuController(files["eskin"], files["replay"], files["campaign"].parent / "qemu")
+    try:
+        pty = qc.start()
+    except QemuControllerError as exc:
+        raise DemoError(str(exc)) from None
+    try:
+        say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
+            f"{files['live']}")
+        with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
+                          record_source="simulated", stats_interval=None,
+                          record_attrs={"description": "SIMULATED campaign streamed by the "
+                                        "controller firmware on QEMU by `eskin demo`"}) as link:
+            with open(files["decisions"], "w", encoding="utf-8") as jf:
+                # a busy host slows the emulated board down (docs/mcu.md): generous time
+                for ev in link.events(until_eof=True, duration=600.0 + 10 * stream_s):
+                    if isinstance(ev, Decision):
+                        decisions.append(ev)
+                        jf.write(json.dumps(ev.as_dict()) + "\n")
+                        if ev.source == "controller":
+                            say(_decision_line(ev, camp, rf))
+                stats = link.stats
+                jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
+    finally:
+        console = qc.stop()
+    return decisions, stats, {"controller": "qemu", "console": console.splitlines()[-3:]}
 
 
 def _decision_line(ev: Any, camp: Any, rf: Any) -> str:

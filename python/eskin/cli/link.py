@@ -319,6 +319,10 @@ def demo_cmd(
         None, "--recordings", help="stream only this many held-out recordings"),
     force: bool = typer.Option(
         False, "--force", help="use an --out folder that holds other files than the demo's"),
+    controller: str = typer.Option(
+        "sim", "--controller", help="sim: the simulator eskin-fw-sim; qemu: the controller "
+        "firmware on QEMU's Cortex-M4F board (make mcu-link builds it; real time, a model "
+        "trained to fit the part)"),
 ) -> None:
     """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal.
     Its own files in --out are replaced; a folder holding other files needs --force."""
@@ -331,7 +335,8 @@ def demo_cmd(
             result = run_demo(out, participants=participants,
                               test_participants=test_participants, speed=speed, seed=seed,
                               n_jobs=jobs, quick=quick, machine=machine,
-                              max_recordings=recordings, log=lambda m: console.print(m))
+                              max_recordings=recordings, log=lambda m: console.print(m),
+                              controller=controller)
         except DemoError as exc:
             console.print(f"[bold red]demo failed:[/] {exc}")
             raise typer.Exit(1) from None
