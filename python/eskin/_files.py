@@ -62,3 +62,18 @@ def refuse_overwrite_all(
             raise OverwriteError(f"{p}: given twice as an output of the command")
         out.append(refuse_overwrite(p, force, inputs))
     return out
+
+
+def error_line(exc: BaseException, file: PathLike | None = None) -> str:
+    """The one line a command prints for an error: an ``OSError`` as "FILE: reason" (without
+    Python's "[Errno N]"; ``file`` names the file the command was writing when the error does
+    not: a full disk under ``f.write``), anything else as its message."""
+    if isinstance(exc, KeyError) and exc.args:
+        return str(exc.args[0])
+    if isinstance(exc, OSError) and exc.strerror:
+        name = exc.filename if exc.filename is not None else file
+        text = str(exc.strerror)
+        if name is not None and str(name) not in text:
+            text = f"{name}: {text}"
+        return text.replace("\n", " ")
+    return str(exc).replace("\n", " ")

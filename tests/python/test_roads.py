@@ -79,7 +79,7 @@ def test_replay_refuses_to_replace_a_file_without_force(trained):
         (["--select", "participant=9"], "no recording of 12 matches --select participant=9"),
         (["--select", "size=3"], "expected KEY=VALUES with KEY one of modality, participant"),
         (["--select", "run=two"], "'two' is not an integer or a range a-b"),
-        (["--format", "npy", "--gap", "-1"], "--gap must be >= 0 seconds"),
+        (["--format", "npy", "--gap", "-1"], "--gap must be a number of seconds in [0, 3600]"),
     ],
 )
 def test_replay_bad_arguments_are_one_line_errors(trained, args, message):

@@ -83,21 +83,25 @@ def _one_line_summaries(group: Any) -> None:
 def main() -> None:
     """The `eskin` command: Ctrl-C (or SIGTERM where a command turns it into one) ends any
     command with one line, "interrupted", and exit code 130 (128 + SIGINT), as a shell does."""
-    import sys
-
-    import click
-
     command = typer.main.get_command(app)
     _flags_without_value(command)
     _one_line_summaries(command)
     try:
-        code = command.main(prog_name="eskin", standalone_mode=False)
-    except (KeyboardInterrupt, click.exceptions.Abort):
-        click.echo("interrupted", err=True)
-        sys.exit(130)
-    except click.exceptions.Exit as exc:
-        sys.exit(exc.exit_code)
-    except click.ClickException as exc:
-        exc.show()
-        sys.exit(exc.exit_code)
-    sys.exit(code if isinstance(code, int) else 0)
+        command(prog_name="eskin")
+    except SystemExit as exc:
+        if exc.code != 143 and _from_interrupt(exc):
+            typer.echo("interrupted", err=True)
+            raise SystemExit(130) from None
+        raise
+
+
+def _from_interrupt(exc: BaseException) -> bool:
+    """True if ``exc`` ends a chain that a KeyboardInterrupt started (click turns Ctrl-C into
+    an exit or an abort, raised from it)."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False

@@ -17,12 +17,12 @@ import typer
 @contextlib.contextmanager
 def _user_errors() -> Iterator[None]:
     """Turn the errors a user can cause into a clear message and exit code 2."""
+    from eskin._files import error_line
+
     try:
         yield
-    except (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError,
-            PermissionError, KeyError, IndexError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        typer.echo(f"error: {msg}", err=True)
+    except (ValueError, OSError, KeyError, IndexError) as exc:
+        typer.echo(f"error: {error_line(exc)}", err=True)
         raise typer.Exit(2) from None
 
 
@@ -57,22 +57,29 @@ def simulate_cmd(
                    f"in {time.perf_counter() - t0:.1f} s")
 
 
+def _named(file: str) -> Path:
+    """A file argument; an empty one is refused (Path("") would be the current folder)."""
+    if not file.strip():
+        raise ValueError("no file name given (the argument is empty)")
+    return Path(file)
+
+
 def info_cmd(
-    file: Path = typer.Argument(..., help="campaign file"),
+    file: str = typer.Argument(..., help="campaign file"),
     check: bool = typer.Option(False, "--check", help="also read every recording's data"),
 ) -> None:
     """Summarise a campaign file: grid, rate, counts, lengths, source."""
     from eskin.data.campaign import load_campaign
 
-    with _user_errors(), load_campaign(file, check_data=check) as c:
+    with _user_errors(), load_campaign(_named(file), check_data=check) as c:
         _print_info(c)
         if check:
             typer.echo(f"check: OK, the data of all {len(c)} recordings read back intact")
 
 
 def plot_cmd(
-    file: Path = typer.Argument(..., help="campaign file"),
-    index: int = typer.Option(0, "--index", "-i", help="recording index"),
+    file: str = typer.Argument(..., help="campaign file"),
+    index: int = typer.Option(0, "--index", "-i", help="recording index, 0 to n - 1"),
     output: Path = typer.Option(..., "-o", "--output", help="image to write (.png, .svg)"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
@@ -82,8 +89,11 @@ def plot_cmd(
     from eskin.signal.plotting import plot_recording
 
     with _user_errors():
-        refuse_overwrite(output, force, inputs=(file,))
-        with load_campaign(file) as c:
+        path = _named(file)
+        refuse_overwrite(output, force, inputs=(path,))
+        with load_campaign(path) as c:
+            if not 0 <= index < len(c):
+                raise ValueError(f"--index {index}: {path} holds recordings 0 to {len(c) - 1}")
             plot_recording(c, index, output)
         typer.echo(f"wrote {output}")
 

@@ -68,7 +68,9 @@ def export(
         if c_header is not None:
             write_c_header(path, c_header, name=_header_name(c_header))
     except (ValueError, OSError, KeyError) as exc:
-        _fail(str(exc))
+        from eskin._files import error_line
+
+        _fail(error_line(exc, output))
     typer.echo(
         f"wrote {path}: {_size(cm.file_bytes)}, {', '.join(cm.class_names)} ({cm.rule}), "
         f"D={cm.D}, {cm.n_support} support vectors, "
@@ -206,8 +208,10 @@ def replay(
     )
 
     kind = _replay_format(output, fmt)
-    if not gap >= 0:
-        _fail(f"--gap must be >= 0 seconds, got {gap}")
+    from eskin.data.replay import MAX_GAP_S
+
+    if not 0 <= gap <= MAX_GAP_S:  # NaN and inf too
+        _fail(f"--gap must be a number of seconds in [0, {MAX_GAP_S:g}], got {gap:g}")
     try:
         refuse_overwrite(output, force, inputs=(campaign,))
         with load_campaign(campaign) as c:
@@ -226,7 +230,9 @@ def replay(
                 detail = ""
             counts = Counter(c.modalities[int(m)] for m in c.modality[idx])
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        from eskin._files import error_line
+
+        _fail(error_line(exc, output))
     per_class = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
     typer.echo(f"wrote {output}: {len(idx)} recordings ({per_class}){detail}; "
                f"{_FORMAT_USE[kind]}")

@@ -92,7 +92,9 @@ def evaluate(
             )
         paths = write_evaluation(result, out)
     except (ValueError, OSError, KeyError, ImportError) as exc:
-        _fail(str(exc))
+        from eskin._files import error_line
+
+        _fail(error_line(exc, out))
     for line in summary_lines(result):
         typer.echo(line)
     notes = sorted({n for f in result["folds"] for n in f.get("notes", [])})

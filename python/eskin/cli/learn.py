@@ -143,7 +143,9 @@ def _train_and_save(
         model.training["recording_digests"] = sorted(_trained_digests(campaign, model.classes))
         save_model(model, output)
     except (ValueError, OSError, KeyError) as exc:
-        _fail(str(exc))
+        from eskin._files import error_line
+
+        _fail(error_line(exc, output))
     return model
 
 

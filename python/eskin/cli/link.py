@@ -24,13 +24,12 @@ import typer
 @contextlib.contextmanager
 def _user_errors() -> Iterator[None]:
     """Turn the errors a user can cause into a clear message and exit code 2."""
-    from eskin.link.serial_port import SerialPortError
+    from eskin._files import error_line
 
     try:
         yield
-    except (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError, PermissionError,
-            SerialPortError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+    except (ValueError, OSError) as exc:  # SerialPortError is an OSError
+        typer.echo(f"error: {error_line(exc)}", err=True)
         raise typer.Exit(2) from None
 
 
@@ -410,7 +409,7 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
         restore()
         scores = _finish(listener, decisions, out)
     _print_scores(scores, live_mode)
-    if record is not None and listener.stats.recordings:
+    if record is not None and record.exists() and listener.stats.recordings:
         typer.echo(f"wrote {record}")
     if interrupted:
         raise typer.Exit(interrupted)

@@ -164,7 +164,14 @@ def _check_contents(
 
 def _check_attrs(where: str | None, attrs: Mapping[str, Any]) -> dict[str, Any]:
     """Validate the root attributes; return them decoded."""
-    dec = {k: _decode(v) for k, v in attrs.items()}
+    dec = {}
+    for k, v in attrs.items():
+        try:
+            dec[k] = _decode(v)
+        except UnicodeDecodeError as exc:
+            raise CampaignFormatError(
+                where, f"attribute {k!r}", f"not UTF-8 text (byte {exc.object[exc.start]:#04x} "
+                f"at position {exc.start})") from None
     if "format" not in dec:
         raise CampaignFormatError(
             where, "attribute 'format'",
@@ -517,8 +524,13 @@ class Campaign:
 
 
 def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
-                  check_data: bool = False) -> Campaign:
+                  check_data: bool = False, allow_external: bool = False) -> Campaign:
     """Open and validate a campaign file.
+
+    Everything a campaign holds must be inside its file: a dataset with external storage
+    (its data in another file, such as ``/dev/urandom``), a virtual dataset (mapped from other
+    files) or an external link is refused, naming it, unless ``allow_external=True``
+    (docs/dataset-format.md, "Storage outside the file").
 
     Signals stay in the file and are read on demand (``campaign.signals`` is a lazy
     :class:`CampaignSignals`); ``in_memory=True`` reads them all and closes the file.
@@ -558,6 +570,8 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
                 f"write): {msg}") from exc
         raise CampaignFormatError(where, "", f"damaged HDF5 file: {msg}") from exc
     try:
+        if not allow_external:
+            _check_storage(f, where)
         campaign = _load_open(f, where)
         if check_data:
             for i in range(len(campaign)):
@@ -581,6 +595,37 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
     except (OSError, RuntimeError, KeyError, TypeError) as exc:
         f.close()
         raise CampaignFormatError(where, "", f"damaged HDF5 file: {exc}") from exc
+
+
+def _check_storage(f: Any, where: str) -> None:
+    """Refuse external links, external storage and virtual datasets anywhere in the file."""
+    import h5py
+
+    def walk(group: Any, prefix: str, depth: int) -> None:
+        for name in group:
+            path = f"{prefix}/{name}"
+            link = group.get(name, getlink=True)
+            if isinstance(link, h5py.ExternalLink):
+                raise CampaignFormatError(
+                    where, path, f"an external link to {link.filename}:{link.path} (a campaign "
+                    f"holds its data itself; load_campaign(..., allow_external=True) follows it)")
+            if isinstance(link, h5py.SoftLink):
+                continue  # a name for something inside this file, checked where it is
+            obj = group.get(name)
+            if isinstance(obj, h5py.Dataset):
+                if obj.is_virtual:
+                    raise CampaignFormatError(
+                        where, path, "a virtual dataset (its data mapped from other files; "
+                        "load_campaign(..., allow_external=True) reads it)")
+                if obj.external:
+                    files = ", ".join(str(e[0]) for e in obj.external[:3])
+                    raise CampaignFormatError(
+                        where, path, f"external storage: its data is in {files}, not in this "
+                        f"file (load_campaign(..., allow_external=True) reads it)")
+            elif isinstance(obj, h5py.Group) and depth < 8:
+                walk(obj, path, depth + 1)
+
+    walk(f, "", 0)
 
 
 def _load_open(f: Any, where: str) -> Campaign:
@@ -1160,36 +1205,50 @@ def _finish_journal(journal: Path, output: Path, overwrite: bool,
                     held: Any = None) -> Recovery:
     """Build ``output`` from ``journal`` (locked by us: ``held`` is the writer holding it, or
     None to lock it here), check that it loads and reads back, place it, then delete the
-    journal (or, if records were skipped as invalid, move it aside as ``.NAME.rejected``)."""
+    journal (or, if records were skipped as invalid, move it aside as ``.NAME.rejected``).
+    An I/O error (a full or read-only disk) is one line naming the file; the journal stays
+    until the campaign is in place."""
+    try:
+        return _build_and_place(journal, output, overwrite, held)
+    except OSError as exc:
+        if isinstance(exc, (FileExistsError, FileNotFoundError, IsADirectoryError)):
+            raise
+        reason = exc.strerror or str(exc).split("(")[0].strip() or type(exc).__name__
+        keep = ("the journal is kept" if journal.exists()
+                else "the campaign file is in place")
+        raise OSError(exc.errno, f"{output}: cannot write the campaign file ({reason}); "
+                      f"{keep}: {journal}") from exc
+    finally:
+        if held is not None:
+            held.release()
+
+
+def _build_and_place(journal: Path, output: Path, overwrite: bool, held: Any) -> Recovery:
     from eskin.data.journal import LockedJournal, fsync_dir
 
     tmp = output.with_name(f".{output.name}.{os.getpid()}.building")
     kept = None
-    try:
-        with LockedJournal(journal, lock=held is None) as reader:
-            contents = reader.read()
+    with LockedJournal(journal, lock=held is None) as reader:
+        contents = reader.read()
+        try:
+            # the writer's own records were checked by append; recovery checks them all
+            n, skipped = _build_from_journal(contents, tmp, verify_data=held is None)
             try:
-                # the writer's own records were checked by append; recovery checks them all
-                n, skipped = _build_from_journal(contents, tmp, verify_data=held is None)
-                try:
-                    load_campaign(tmp, check_data=held is None).close()
-                except CampaignFormatError as exc:
-                    raise CampaignFormatError(
-                        output, "", f"the campaign built from {journal} does not check "
-                        f"({exc.field}: {exc.problem}); the journal is kept") from None
-                _place(tmp, output, overwrite)
-            finally:
-                tmp.unlink(missing_ok=True)
-            fsync_dir(output.parent)
-            if skipped:
-                kept = journal.with_name(journal.name[: -len(".partial")] + ".rejected")
-                os.replace(journal, kept)
-            else:
-                journal.unlink()
-            fsync_dir(journal.parent)
-    finally:
-        if held is not None:
-            held.release()
+                load_campaign(tmp, check_data=held is None).close()
+            except CampaignFormatError as exc:
+                raise CampaignFormatError(
+                    output, "", f"the campaign built from {journal} does not check "
+                    f"({exc.field}: {exc.problem}); the journal is kept") from None
+            _place(tmp, output, overwrite)
+        finally:
+            tmp.unlink(missing_ok=True)
+        fsync_dir(output.parent)
+        if skipped:
+            kept = journal.with_name(journal.name[: -len(".partial")] + ".rejected")
+            os.replace(journal, kept)
+        else:
+            journal.unlink()
+        fsync_dir(journal.parent)
     return Recovery(output, n, contents.dropped_bytes, contents.dropped_reason,
                     tuple(skipped), kept)
 

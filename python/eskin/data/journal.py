@@ -169,6 +169,9 @@ class JournalWriter:
             raise FileExistsError(
                 busy_message(self.target, self.path, _is_locked(self.path))
             ) from None
+        except OSError as exc:
+            raise OSError(exc.errno, f"{self.path}: cannot create the recording journal "
+                          f"({exc.strerror})") from None
         try:
             if not _lock(self._fd):
                 raise FileExistsError(busy_message(self.target, self.path, True))
@@ -178,6 +181,10 @@ class JournalWriter:
             )
             os.fsync(self._fd)
             fsync_dir(self.path.parent)
+        except OSError as exc:
+            self.discard()
+            raise OSError(exc.errno, f"{self.path}: cannot write the recording journal "
+                          f"({exc.strerror or exc})") from None
         except BaseException:
             self.discard()
             raise
@@ -203,6 +210,11 @@ class JournalWriter:
             _write_all(self._fd, head + text + body + _CRC.pack(crc))
             if self.durable:
                 os.fdatasync(self._fd)
+        except OSError as exc:
+            self._cut_back(exc)
+            raise OSError(exc.errno, f"{self.path}: cannot append recording {self.n} "
+                          f"({exc.strerror or exc}); the {self.n} appended before are kept in "
+                          f"the journal") from exc
         except BaseException as exc:
             self._cut_back(exc)
             raise

@@ -19,6 +19,8 @@ MAX_TAXELS = 4096
 """Taxels of a grid (rows x cols; a 64 x 64 skin)."""
 MAX_SAMPLES = 1 << 24
 """Samples of one recording, T (16,777,216: 93 minutes at 3 kHz)."""
+MIN_D = 2
+"""Samples of a subsampled window, D, at least (the model format's lower bound)."""
 MAX_D = 100_000
 """Samples of a subsampled window, D (the core's ``kMaxD``)."""
 MAX_RECORDING_BYTES = 1 << 30

@@ -56,6 +56,10 @@ SEGMENT_DTYPE = np.dtype(
 assert _HEADER.size == 56 and _SEGMENT.size == SEGMENT_DTYPE.itemsize == 48
 
 
+MAX_GAP_S = 3600.0
+"""The longest quiet gap between recordings of a replay stream: an hour."""
+
+
 @dataclass(frozen=True)
 class ReplayFile:
     """A replay stream: ``samples`` int16 (n_samples, rows, cols) (memory-mapped when read)."""
@@ -129,8 +133,9 @@ def write_replay_arrays(
         raise ValueError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
     if not (math.isfinite(volts_per_count) and volts_per_count > 0):
         raise ValueError(f"volts_per_count must be finite and > 0, got {volts_per_count}")
-    if gap_s < 0:
-        raise ValueError(f"gap_s must be >= 0, got {gap_s}")
+    if not (math.isfinite(gap_s) and 0 <= gap_s <= MAX_GAP_S):
+        raise ValueError(f"gap_s must be a number of seconds in [0, {MAX_GAP_S:g}], "
+                         f"got {gap_s:g}")
     gaps = _QuietGaps(recs, sample_rate_hz, noise_counts, baseline, seed)
     gap = int(round(gap_s * sample_rate_hz))
 

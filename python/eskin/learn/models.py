@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import ModelFormatError, TrainingError
 
 MODEL_FORMAT = "eskin.touch-model"
@@ -415,8 +416,9 @@ def _checked_variants(variants: Sequence[tuple[int, str]]) -> list[tuple[int, st
     """The distinct (D, subsample method) pairs, sorted and checked."""
     variants = sorted({(int(D), str(s)) for D, s in variants})
     for D, s in variants:
-        if D < 1:
-            raise TrainingError(f"D must be >= 1, got {D}")
+        if not MIN_D <= D <= MAX_D:
+            raise TrainingError(f"D must be in [{MIN_D}, {MAX_D}] (what a .eskin model holds), "
+                                f"got {D}")
         if s not in ("algorithm2", "even"):
             raise TrainingError(f"subsample must be 'algorithm2' or 'even', got {s!r}")
     return variants
@@ -774,8 +776,9 @@ class _Recipe:
             raise TrainingError(f"selection must be 'md' or 'cv', got {self.selection!r}")
         if self.negatives not in ("balanced", "all"):
             raise TrainingError(f"negatives must be 'balanced' or 'all', got {self.negatives!r}")
-        if self.D is not None and int(self.D) < 1:
-            raise TrainingError(f"D must be >= 1, got {self.D}")
+        if self.D is not None and not MIN_D <= int(self.D) <= MAX_D:
+            raise TrainingError(f"D must be in [{MIN_D}, {MAX_D}] (what a .eskin model holds), "
+                                f"got {self.D}")
 
     def with_grid(
         self,

@@ -151,9 +151,14 @@ class StreamRecorder:
         stop = start + samples.shape[0]
         rec = np.ascontiguousarray(np.moveaxis(samples, 0, -1))
         n_lost = int(lost.sum())
-        idx = self._writer.append(
-            rec, modality=modality, participant=-1, direction=255, run=0,
-            contact_interval=contact, extra={"stream_start": start, "lost_samples": n_lost})
+        try:
+            idx = self._writer.append(
+                rec, modality=modality, participant=-1, direction=255, run=0,
+                contact_interval=contact, extra={"stream_start": start, "lost_samples": n_lost})
+        except OSError as exc:  # a full or failing disk: stop recording, keep what was written
+            self._writer.keep()
+            raise OSError(exc.errno, f"{exc.strerror}; `eskin recover {self.path}` builds the "
+                          f"campaign from them") from exc
         self.recordings += 1
         return Recorded(idx, start, stop, self._writer.modalities[modality], n_lost)
 

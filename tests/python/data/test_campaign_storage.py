@@ -1,0 +1,83 @@
+"""A campaign holds its data itself: external storage (e.g. signals read from /dev/urandom),
+external links and virtual datasets are refused by the loader, naming the dataset, unless
+load_campaign(..., allow_external=True)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from eskin.data.campaign import CampaignFormatError, load_campaign, write_campaign
+
+REPO = Path(__file__).resolve().parents[3]
+N, T = 3, 50
+
+
+def _campaign(path: Path) -> Path:
+    sig = np.arange(N * 4 * 4 * T, dtype=np.int16).reshape(N, 4, 4, T)
+    return write_campaign(path, sig, modality=[0, 1, 0], participant=[1, 2, 3],
+                          direction=[0, 0, 1], run=[1, 1, 2], modalities=["a", "b"],
+                          sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+
+
+def _replace_signals(path: Path, make) -> None:
+    with h5py.File(path, "a") as f:
+        del f["recordings/signals"]
+        make(f["recordings"])
+
+
+def test_signals_stored_in_dev_urandom_are_refused_by_info_check(tmp_path):
+    path = _campaign(tmp_path / "c.h5")
+    _replace_signals(path, lambda g: g.create_dataset(
+        "signals", shape=(N, 4, 4, T), dtype=np.int16,
+        external=[("/dev/urandom", 0, N * 4 * 4 * T * 2)]))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO / "python") + os.pathsep + env.get("PYTHONPATH", "")
+    r = subprocess.run([sys.executable, "-m", "eskin", "info", "--check", str(path)],
+                       capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == (f"error: {path}: /recordings/signals: external storage: its data is in "
+                        f"/dev/urandom, not in this file (load_campaign(..., "
+                        f"allow_external=True) reads it)\n")
+    with load_campaign(path, allow_external=True) as c:  # the documented way to read it
+        assert c.signals.shape == (N, 4, 4, T)
+
+
+def test_an_external_link_is_refused(tmp_path):
+    other = _campaign(tmp_path / "other.h5")
+    path = _campaign(tmp_path / "c.h5")
+    _replace_signals(path, lambda g: g.__setitem__(
+        "signals", h5py.ExternalLink(str(other), "/recordings/signals")))
+    with pytest.raises(CampaignFormatError, match=rf"/recordings/signals: an external link to "
+                                                  rf".*other\.h5:/recordings/signals"):
+        load_campaign(path)
+    with load_campaign(path, allow_external=True, check_data=True) as c:
+        np.testing.assert_array_equal(c.recording(2), load_campaign(other).recording(2))
+    with h5py.File(path, "a") as f:  # anywhere in the file, not only where data is read
+        del f["recordings/signals"]
+        f["recordings/signals"] = load_campaign(other, in_memory=True).signals
+        f["notes"] = h5py.ExternalLink("/etc/passwd", "/x")
+    with pytest.raises(CampaignFormatError, match=r": /notes: an external link to /etc/passwd"):
+        load_campaign(path)
+
+
+def test_a_virtual_dataset_is_refused(tmp_path):
+    other = _campaign(tmp_path / "other.h5")
+    path = _campaign(tmp_path / "c.h5")
+
+    def virtual(g):
+        layout = h5py.VirtualLayout(shape=(N, 4, 4, T), dtype=np.int16)
+        layout[:] = h5py.VirtualSource(str(other), "/recordings/signals", shape=(N, 4, 4, T))
+        g.create_virtual_dataset("signals", layout)
+
+    _replace_signals(path, virtual)
+    with pytest.raises(CampaignFormatError, match=r"/recordings/signals: a virtual dataset"):
+        load_campaign(path)
+    with load_campaign(path, allow_external=True) as c:
+        assert c.signals.shape == (N, 4, 4, T)
