@@ -364,3 +364,52 @@ def test_encoded_and_uncompressed_recordings(tmp_path):
         with load_campaign(p) as c:
             np.testing.assert_array_equal(c.recording(0), rec[..., :30])
             assert np.all(np.asarray(c.signals)[0, ..., 30:] == 0)
+
+
+# ---------------------------------------------------------------- the checks beside the job
+
+
+def test_compression_levels_are_0_to_9(tmp_path):
+    for level in (0, 9):
+        with CampaignWriter(tmp_path / f"c{level}.h5", grid_shape=(1, 2), n_samples=4,
+                            sample_rate_hz=10.0, volts_per_count=1.0, modalities=["a"],
+                            source="recorded", compression_level=level) as w:
+            w.append(np.ones((1, 2, 4), np.int16), modality=0, participant=1, direction=0, run=1)
+        assert len(load_campaign(tmp_path / f"c{level}.h5", in_memory=True)) == 1
+    for level in (-1, 10):
+        with pytest.raises(ValueError, match=f"compression_level must be None or 0..9, got {level}"):
+            CampaignWriter(tmp_path / "bad.h5", grid_shape=(1, 2), n_samples=4,
+                           sample_rate_hz=10.0, volts_per_count=1.0, modalities=["a"],
+                           source="recorded", compression_level=level)
+
+
+def test_subset_indices_are_checked_at_both_ends(tmp_path):
+    p = tmp_path / "c.h5"
+    sig, _, _ = _write(p)
+    with load_campaign(p) as c:
+        np.testing.assert_array_equal(np.asarray(c.subset([-1, -6]).signals), sig[[5, 0]])
+        for bad in ([6], [-7], [0, 6]):
+            with pytest.raises(IndexError, match="out of range for 6 recordings"):
+                c.subset(bad)
+        assert len(c.subset([])) == 0
+
+
+def test_a_single_label_of_the_wrong_kind_is_refused():
+    sig, lengths, labels = _arrays(n=1)
+    with pytest.raises(CampaignFormatError, match="must be integers"):
+        Campaign(sig, lengths, modalities=MODS, sample_rate_hz=3000, volts_per_count=1.0,
+                 source="recorded", **{**labels, "run": np.array([1.0])})
+
+
+def test_an_extra_field_over_its_size_limit_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import eskin.data.campaign as cm
+
+    sig, lengths, labels = _arrays()
+    p = tmp_path / "x.h5"
+    write_campaign(p, sig, lengths=lengths, modalities=MODS, sample_rate_hz=100.0,
+                   volts_per_count=1.0, source="recorded",
+                   extras={"wide": np.zeros((6, 64), np.float64)}, **labels)
+    assert load_campaign(p).extras["wide"].shape == (6, 64)
+    monkeypatch.setattr(cm, "_MAX_EXTRA_BYTES", 6 * 64 * 8 - 1)  # one byte short of the field
+    with pytest.raises(CampaignFormatError, match="/recordings/extra/wide: wrong shape"):
+        load_campaign(p)
