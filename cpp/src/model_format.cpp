@@ -257,6 +257,12 @@ class ModelParser {
   static bool parse_prep(Reader& r, Model& m, ParseError& err);
   static bool parse_clas(Reader& r, Model& m, ParseError& err);
   static bool parse_svbs(Reader& r, Model& m, ParseError& err);
+  static bool read_svbs_shape(Reader& r, Model& m, ParseError& err,
+                              std::array<std::uint32_t, 3>& astore, std::uint32_t& n_sv);
+  static bool read_ranks(Reader& r, Model& m, ParseError& err,
+                         const std::array<std::uint32_t, 3>& astore, std::uint32_t n_sv);
+  static bool read_bases(Reader& r, Model& m, ParseError& err, int z);
+  static bool check_orthonormal(Reader& r, Model& m, ParseError& err, int z);
   static bool parse_mach(Reader& r, Model& m, ParseError& err);
   static bool parse_ampl(Reader& r, Model& m, ParseError& err);
   static bool parse_required(int which, Reader& r, Model& m, ParseError& err);
@@ -369,11 +375,28 @@ bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   return !err.failed;
 }
 
+// SVBS in four named steps: the table's shape, the ranks, each mode's bases (borrowed or
+// copied, every entry in [-1, 1]), and their orthonormality up to each rank.
 bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
+  std::array<std::uint32_t, 3> astore{};
+  std::uint32_t n_sv = 0;
+  if (!read_svbs_shape(r, m, err, astore, n_sv) || !read_ranks(r, m, err, astore, n_sv))
+    return false;
+  for (int z = 0; z < 3; ++z)
+    if (!read_bases(r, m, err, z) || !check_orthonormal(r, m, err, z)) return false;
+  r.expect_end();
+  return !err.failed;
+}
+
+// n_modes, n_sv, the tensor dims (those of PREP), alpha_store per mode; the section must hold
+// the ranks and bases they imply (checked before anything is allocated).
+bool ModelParser::read_svbs_shape(Reader& r, Model& m, ParseError& err,
+                                  std::array<std::uint32_t, 3>& astore, std::uint32_t& n_sv) {
   const std::string& w = r.what();
-  const std::uint32_t Z = r.u32("n_modes"), n_sv = r.u32("n_sv");
+  const std::uint32_t Z = r.u32("n_modes");
+  n_sv = r.u32("n_sv");
   if (Z != 3) return err.set(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
-  std::array<std::uint32_t, 3> dims{}, astore{};
+  std::array<std::uint32_t, 3> dims{};
   for (auto& d : dims) d = r.u32("dims");
   for (auto& a : astore) a = r.u32("alpha_store");
   const std::array<std::uint32_t, 3> expect{static_cast<std::uint32_t>(m.rows_),
@@ -400,7 +423,6 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
     bytes_needed += static_cast<std::size_t>(N * astore[z] * real_bytes);
   }
   if (n_sv < 1) return err.set(ModelError::kValue, w + ": n_sv=0: a model needs at least one support vector");
-  // Everything that follows must fit in the section: checked before allocating anything.
   const std::uint64_t rank_bytes = (std::uint64_t{n_sv} * 3 * 4 + 7) / 8 * 8;
   if (std::uint64_t{n_sv} * bytes_needed + rank_bytes > r.remaining())
     return err.set(ModelError::kLayout, w + ": n_sv=" + std::to_string(n_sv) + " needs " +
@@ -408,6 +430,13 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
                                   " bytes of ranks and bases, the section has " +
                                   std::to_string(r.remaining()));
   m.n_sv_ = static_cast<int>(n_sv);
+  return !err.failed;
+}
+
+// The rank of every support vector in every mode: at most its stored basis width.
+bool ModelParser::read_ranks(Reader& r, Model& m, ParseError& err,
+                             const std::array<std::uint32_t, 3>& astore, std::uint32_t n_sv) {
+  const std::string& w = r.what();
   m.ranks_.resize(static_cast<std::size_t>(n_sv) * 3);
   for (std::uint32_t i = 0; i < n_sv; ++i)
     for (int z = 0; z < 3; ++z) {
@@ -419,69 +448,80 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
       m.ranks_[static_cast<std::size_t>(i) * 3 + static_cast<std::size_t>(z)] = static_cast<int>(rk);
     }
   r.pad8("ranks");
-  if (err.failed) return false;
-  for (int z = 0; z < 3; ++z) {
-    const std::size_t N = static_cast<std::size_t>(m.basis_rows_[z]);
-    const std::size_t A = static_cast<std::size_t>(astore[z]);
-    const std::size_t count = static_cast<std::size_t>(n_sv) * A * N;
-    const std::uint8_t* p = r.raw(count * real_bytes, "bases");
-    if (p == nullptr) return false;
-    // Borrowed (Model::view_bytes): used in place when the bytes are the machine's own floats
-    // (little-endian) and aligned for them; copied otherwise.
-    const bool in_place = m.borrow_ && kLittleEndian &&
-                          reinterpret_cast<std::uintptr_t>(p) % real_bytes == 0;
-    if (in_place) {
-      if (m.float64_) m.b64_[z] = reinterpret_cast<const double*>(p);
-      else m.b32_[z] = reinterpret_cast<const float*>(p);
-    } else if (m.float64_) {
-      m.bases64_[z].resize(count);
-    } else {
-      m.bases32_[z].resize(count);
-    }
-    for (std::size_t j = 0; j < count; ++j) {
-      double v;
-      if (m.float64_) {
-        std::uint64_t u = 0;
-        for (int b = 7; b >= 0; --b) u = (u << 8) | p[j * 8 + static_cast<std::size_t>(b)];
-        std::memcpy(&v, &u, 8);
-        if (!in_place) m.bases64_[z][j] = v;
-      } else {
-        std::uint32_t u = 0;
-        for (int b = 3; b >= 0; --b) u = (u << 8) | p[j * 4 + static_cast<std::size_t>(b)];
-        float f;
-        std::memcpy(&f, &u, 4);
-        if (!in_place) m.bases32_[z][j] = f;
-        v = f;
-      }
-      if (!std::isfinite(v) || std::fabs(v) > 1.0 + 1e-5)
-        return err.set(ModelError::kValue, w + ": basis entry " + std::to_string(j) + " of mode " +
-                                     std::to_string(z) + " is " + fmt_double(v) +
-                                     " (entries of orthonormal columns lie in [-1, 1])");
-    }
-    // Orthonormal columns up to the rank, zero columns beyond it.
-    const double tol = m.float64_ ? 1e-8 : 1e-4;
-    for (std::size_t i = 0; i < n_sv; ++i) {
-      const int rk = m.ranks_[i * 3 + static_cast<std::size_t>(z)];
-      for (std::size_t k = 0; k < A; ++k)
-        for (std::size_t l = 0; l <= k; ++l) {
-          double dot = 0;
-          for (std::size_t n = 0; n < N; ++n) {
-            const std::size_t a = (i * A + k) * N + n, b = (i * A + l) * N + n;
-            dot += m.float64_ ? m.bases_f64(z)[a] * m.bases_f64(z)[b]
-                              : double{m.bases_f32(z)[a]} * double{m.bases_f32(z)[b]};
-          }
-          const double want = (k == l && static_cast<int>(k) < rk) ? 1.0 : 0.0;
-          if (std::fabs(dot - want) > tol)
-            return err.set(ModelError::kValue, w + ": basis of support vector " + std::to_string(i) +
-                                         " in mode " + std::to_string(z) + " is not orthonormal " +
-                                         "up to its rank " + std::to_string(rk) + " (columns " +
-                                         std::to_string(l) + "," + std::to_string(k) + ": " +
-                                         fmt_double(dot) + ")");
-        }
-    }
-  }
-  r.expect_end();
   return !err.failed;
+}
+
+// The mode-z bases of every support vector. Borrowed (Model::view_bytes): used in place when
+// the bytes are the machine's own floats (little-endian) and aligned for them; copied
+// otherwise. Every entry must be finite and in [-1, 1] (entries of orthonormal columns).
+bool ModelParser::read_bases(Reader& r, Model& m, ParseError& err, int z) {
+  const std::string& w = r.what();
+  const std::size_t real_bytes = m.float64_ ? 8 : 4;
+  const std::size_t count = static_cast<std::size_t>(m.n_sv_) *
+                            static_cast<std::size_t>(m.alpha_store_[z]) *
+                            static_cast<std::size_t>(m.basis_rows_[z]);
+  const std::uint8_t* p = r.raw(count * real_bytes, "bases");
+  if (p == nullptr) return false;
+  const bool in_place = m.borrow_ && kLittleEndian &&
+                        reinterpret_cast<std::uintptr_t>(p) % real_bytes == 0;
+  if (in_place) {
+    if (m.float64_) m.b64_[z] = reinterpret_cast<const double*>(p);
+    else m.b32_[z] = reinterpret_cast<const float*>(p);
+  } else if (m.float64_) {
+    m.bases64_[z].resize(count);
+  } else {
+    m.bases32_[z].resize(count);
+  }
+  for (std::size_t j = 0; j < count; ++j) {
+    double v;
+    if (m.float64_) {
+      std::uint64_t u = 0;
+      for (int b = 7; b >= 0; --b) u = (u << 8) | p[j * 8 + static_cast<std::size_t>(b)];
+      std::memcpy(&v, &u, 8);
+      if (!in_place) m.bases64_[z][j] = v;
+    } else {
+      std::uint32_t u = 0;
+      for (int b = 3; b >= 0; --b) u = (u << 8) | p[j * 4 + static_cast<std::size_t>(b)];
+      float f;
+      std::memcpy(&f, &u, 4);
+      if (!in_place) m.bases32_[z][j] = f;
+      v = f;
+    }
+    if (!std::isfinite(v) || std::fabs(v) > 1.0 + 1e-5)
+      return err.set(ModelError::kValue, w + ": basis entry " + std::to_string(j) + " of mode " +
+                                   std::to_string(z) + " is " + fmt_double(v) +
+                                   " (entries of orthonormal columns lie in [-1, 1])");
+  }
+  return true;
+}
+
+// Orthonormal columns up to each support vector's rank, zero columns beyond it (to 1e-8 in
+// float64, 1e-4 in float32).
+bool ModelParser::check_orthonormal(Reader& r, Model& m, ParseError& err, int z) {
+  const std::string& w = r.what();
+  const std::size_t N = static_cast<std::size_t>(m.basis_rows_[z]);
+  const std::size_t A = static_cast<std::size_t>(m.alpha_store_[z]);
+  const double tol = m.float64_ ? 1e-8 : 1e-4;
+  for (std::size_t i = 0; i < static_cast<std::size_t>(m.n_sv_); ++i) {
+    const int rk = m.ranks_[i * 3 + static_cast<std::size_t>(z)];
+    for (std::size_t k = 0; k < A; ++k)
+      for (std::size_t l = 0; l <= k; ++l) {
+        double dot = 0;
+        for (std::size_t n = 0; n < N; ++n) {
+          const std::size_t a = (i * A + k) * N + n, b = (i * A + l) * N + n;
+          dot += m.float64_ ? m.bases_f64(z)[a] * m.bases_f64(z)[b]
+                            : double{m.bases_f32(z)[a]} * double{m.bases_f32(z)[b]};
+        }
+        const double want = (k == l && static_cast<int>(k) < rk) ? 1.0 : 0.0;
+        if (std::fabs(dot - want) > tol)
+          return err.set(ModelError::kValue, w + ": basis of support vector " + std::to_string(i) +
+                                       " in mode " + std::to_string(z) + " is not orthonormal " +
+                                       "up to its rank " + std::to_string(rk) + " (columns " +
+                                       std::to_string(l) + "," + std::to_string(k) + ": " +
+                                       fmt_double(dot) + ")");
+      }
+  }
+  return true;
 }
 
 bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
