@@ -413,3 +413,46 @@ def test_an_extra_field_over_its_size_limit_is_refused_before_it_is_read(tmp_pat
     monkeypatch.setattr(cm, "_MAX_EXTRA_BYTES", 6 * 64 * 8 - 1)  # one byte short of the field
     with pytest.raises(CampaignFormatError, match="/recordings/extra/wide: wrong shape"):
         load_campaign(p)
+
+
+def test_a_label_stored_with_another_integer_type_is_refused(tmp_path):
+    p = _good(tmp_path)
+    with h5py.File(p, "a") as f:
+        run = f["recordings/run"][()]
+        del f["recordings/run"]
+        f["recordings/run"] = run.astype(np.int8)  # expected uint8
+    with pytest.raises(CampaignFormatError, match="/recordings/run: wrong dtype int8"):
+        load_campaign(p)
+
+
+def test_repeated_reads_of_one_recording(tmp_path):
+    p = tmp_path / "c.h5"
+    sig, _, _ = _write(p)
+    with load_campaign(p) as c:
+        np.testing.assert_array_equal(np.asarray(c.subset([3, 3]).signals), sig[[3, 3]])
+        np.testing.assert_array_equal(np.asarray(c.subset([5]).signals), sig[[5]])
+
+
+def _writer(path, **kw):
+    return CampaignWriter(path, grid_shape=(1, 2), n_samples=10, sample_rate_hz=10.0,
+                          volts_per_count=1.0, modalities=["a"], source="recorded", **kw)
+
+
+def test_the_writer_checks_values_lengths_and_contact_intervals(tmp_path):
+    labels = dict(modality=0, participant=1, direction=0, run=1)
+    with _writer(tmp_path / "c.h5", contact_interval=True) as w:
+        for bad in (32768, -32769):
+            x = np.zeros((1, 2, 4), np.int32)
+            x[0, 1, 2] = bad
+            with pytest.raises(ValueError, match="values outside the int16 range"):
+                w.append(x, contact_interval=(0, 1), **labels)
+        with pytest.raises(ValueError, match=r"length 5 outside \[0, 4\]"):
+            w.append(np.zeros((1, 2, 4), np.int16), length=5, contact_interval=(0, 1), **labels)
+        for on, off in ((-1, 2), (3, 2), (0, 5)):
+            with pytest.raises(ValueError, match=rf"contact interval \[{on}, {off}\) not within \[0, 4\]"):
+                w.append(np.zeros((1, 2, 4), np.int16), contact_interval=(on, off), **labels)
+        w.append(np.zeros((1, 2, 4), np.int16), contact_interval=(0, 4), **labels)
+        w.append(np.full((1, 2, 4), 32767, np.int32), contact_interval=(2, 2), **labels)
+    c = load_campaign(tmp_path / "c.h5", in_memory=True)
+    assert c.contact_interval.tolist() == [[0, 4], [2, 2]]
+    assert int(np.asarray(c.signals).max()) == 32767
