@@ -23,7 +23,7 @@ inline constexpr int kIrqRx = 0, kIrqTx = 1;
 }  // namespace uart_reg
 
 /// Transmit ring (bytes) and receive ring sizes; powers of two.
-inline constexpr std::size_t kUartTxRing = 4096;
+inline constexpr std::size_t kUartTxRing = 2048;
 inline constexpr std::size_t kUartRxRing = 256;
 
 class Uart {

@@ -290,7 +290,7 @@ int run() {
   cfg.names_len = static_cast<std::uint16_t>(names_len);
   cfg.n_classes = static_cast<std::uint8_t>(n_classes);
   cfg.status_period_ns = 250000000;
-  cfg.control_reserve = 1024;
+  cfg.control_reserve = 512;
   static Controller ctl(cfg, port, &classifier);
 
   const std::size_t heap = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);

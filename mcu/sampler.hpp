@@ -16,12 +16,12 @@
 namespace eskin::mcu {
 
 /// Most taxels of one sample (a 4 x 4 patch) and the ring's length in samples (a power of
-/// two): 128 samples are 42.7 ms at 3 kSps, the longest the main loop may be away.
+/// two): 256 samples are 85 ms at 3 kSps, the longest the main loop may be away.
 #ifndef ESKIN_FW_MAX_TAXELS
 #define ESKIN_FW_MAX_TAXELS 16
 #endif
 #ifndef ESKIN_FW_SAMPLE_RING
-#define ESKIN_FW_SAMPLE_RING 128
+#define ESKIN_FW_SAMPLE_RING 256
 #endif
 inline constexpr std::size_t kMaxTaxels = ESKIN_FW_MAX_TAXELS;
 inline constexpr std::size_t kSampleRing = ESKIN_FW_SAMPLE_RING;

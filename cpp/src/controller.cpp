@@ -85,6 +85,7 @@ void Controller::send_info() {
 void Controller::push(const std::int16_t* sample, std::int64_t acquired_ns) {
   std::memcpy(cfg_.frame_samples + frame_fill_ * taxels_, sample, taxels_ * sizeof(std::int16_t));
   if (frame_fill_ == 0) frame_first_ = next_sample_;
+  last_sample_ = cfg_.frame_samples + frame_fill_ * taxels_;
   ++frame_fill_;
   ++next_sample_;
   if (classifier_ != nullptr) {
@@ -101,6 +102,17 @@ void Controller::push(const std::int16_t* sample, std::int64_t acquired_ns) {
 void Controller::lost(std::uint64_t n, std::int64_t now_ns) {
   if (n == 0) return;
   if (frame_fill_ > 0) send_data(now_ns);  // DATA frames hold consecutive samples
+  // The classifier's windows are in stream indices, so it sees the hole too: filled with the
+  // last sample, as the host's listener fills a short hole before it classifies.
+  if (classifier_ != nullptr && last_sample_ != nullptr) {
+    for (std::uint64_t i = 0; i < n; ++i) {
+      ++next_sample_;
+      const ClassifyStatus st = classifier_->push(last_sample_);
+      if (st == ClassifyStatus::kDecision) send_decision(now_ns);
+      else if (st != ClassifyStatus::kOk) ++classify_errors_;
+    }
+    next_sample_ -= n;
+  }
   next_sample_ += n;
   dropped_samples_ += n;
   dropped_since_data_ = dropped_since_status_ = true;

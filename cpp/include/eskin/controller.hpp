@@ -78,7 +78,8 @@ class Controller {
   /// DATA frame being filled, which goes out when full.
   void push(const std::int16_t* sample, std::int64_t acquired_ns);
   /// `n` samples were lost before they reached the controller (the acquisition ring was full):
-  /// they count as dropped, and their stream indices are skipped (the host sees the hole).
+  /// they count as dropped, and their stream indices are skipped (the host sees the hole); the
+  /// classifier sees the last sample in their place, so its windows stay in stream indices.
   void lost(std::uint64_t n, std::int64_t now_ns);
   /// The replay ended at `acquired_ns`: the last partial DATA frame goes out; with `loop` the
   /// stream goes on (the next DATA frame carries LOOP), otherwise a touch in progress is
@@ -122,6 +123,7 @@ class Controller {
   bool dropped_since_status_ = false;
   std::size_t frame_fill_ = 0;
   std::uint64_t frame_first_ = 0;
+  const std::int16_t* last_sample_ = nullptr;  // in frame_samples: the last one pushed
   std::uint64_t next_sample_ = 0;
   std::int64_t last_status_ns_ = 0;
   std::uint64_t samples_sent_ = 0;
