@@ -77,3 +77,20 @@ def error_line(exc: BaseException, file: PathLike | None = None) -> str:
             text = f"{name}: {text}"
         return text.replace("\n", " ")
     return str(exc).replace("\n", " ")
+
+
+def write_whole(path: PathLike, data: bytes) -> None:
+    """Write ``data`` as the file ``path``, whole or not at all: into a hidden file next to it,
+    flushed, then renamed over it; on any error (a full disk) the hidden file is removed and
+    ``path`` is as it was."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

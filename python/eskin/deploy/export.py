@@ -556,7 +556,9 @@ def export_model(model: Any, path: PathLike, dtype: str = "float32") -> Path:
     CompiledModel(data)  # the C++ validator must accept what we write
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data)
+    from eskin._files import write_whole
+
+    write_whole(path, data)  # a full disk leaves no partial model
     return path
 
 

@@ -264,3 +264,18 @@ def test_listen_record_onto_a_full_disk(tmp_path):
         assert kept >= 1
         held = recover_campaign(full / "live.h5", tmp_path / "saved.h5")
         assert held.recordings == kept
+
+
+def test_export_onto_a_full_disk(tmp_path):
+    """`eskin export` of a trained model: one line naming the .eskin file, nothing left."""
+    from eskin.data.simulator import simulate
+    from eskin.learn.models import save_model, train_model
+
+    campaign = simulate(tmp_path / "c.h5", participants=2, seed=0, n_jobs=1)
+    model = save_model(train_model(load_campaign(campaign), D=20, selection="md"),
+                       tmp_path / "m.joblib")
+    with _tmpfs(tmp_path / "full", "size=8k") as full:
+        (full / "filler").write_bytes(b"\0" * 4096)
+        line = _one_line(eskin("export", model, "-o", full / "m.eskin"), full / "m.eskin")
+        assert "No space left on device" in line
+        assert sorted(p.name for p in full.iterdir()) == ["filler"]  # no partial model
