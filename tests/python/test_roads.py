@@ -222,3 +222,39 @@ def test_eskin_classify_names_a_file_given_in_the_wrong_place(trained):
         assert (r.returncode, r.stdout) == (2, ""), (args, r.stdout, r.stderr)
         assert r.stderr.startswith("eskin-classify: ") and message in r.stderr, r.stderr
         assert len(r.stderr.splitlines()) == 1
+
+
+def test_listen_replay_names_the_recordings_the_link_lost_samples_of(trained):
+    """Bytes dropped on the link (fault injection, fixed seed) cost samples; eskin listen
+    --replay names the recordings they belong to, scores without them too, and its --jsonl
+    accuracy objects list them. The lost samples it names add up to the link's count."""
+    d = trained
+    eskin_cli(d, "replay", "c.h5", "-o", "lossy.eskr", "--select", "run=2")
+    sim = subprocess.Popen(
+        [str(find_executable("eskin-fw-sim")), "lossy.eskr", "--model", "m.eskin",
+         "--wait-start", "--link", "lossy.tty", "--speed", "0", "--quiet",
+         "--drop-rate", "0.0005", "--seed", "3"],
+        cwd=d, stdout=subprocess.PIPE, text=True)
+    try:
+        assert sim.stdout.readline().startswith("PTY ")
+        r = eskin_cli(d, "listen", "lossy.tty", "--model", "m.eskin", "--until-eof",
+                      "--replay", "lossy.eskr", "--jsonl", "lossy.jsonl", "--view", "plain")
+    finally:
+        sim.terminate()
+        sim.communicate(timeout=10)
+    objects = [json.loads(ln) for ln in (d / "lossy.jsonl").read_text().splitlines()]
+    stats = objects[-1]
+    scores = {o["source"]: o for o in objects if o["type"] == "accuracy"}
+    assert stats["lost_samples"] > 0 and set(scores) == {"controller", "host"}
+    for source, sc in scores.items():
+        lossy = sc["recordings_with_losses"]
+        assert lossy and all(x["lost_samples"] > 0 for x in lossy)
+        assert sum(x["lost_samples"] for x in lossy) <= stats["lost_samples"]
+        assert sc["recordings_without_losses"] == 6 - len(lossy)
+        assert sc["correct_without_losses"] == sc["correct"] - sum(x["right"] for x in lossy)
+        line = (f"  {len(lossy)} recording(s) lost samples on the link, so their decisions are "
+                f"not a fair score of the model: segment {lossy[0]['segment']} "
+                f"({lossy[0]['lost_samples']} samples lost;")
+        assert line in r.stdout
+        assert (f"  without them: {sc['correct_without_losses']}/"
+                f"{sc['recordings_without_losses']} right") in r.stdout

@@ -101,13 +101,29 @@ def replay_truth(listener: Any) -> Any:
     return truth
 
 
+def loss_lines(score: Any) -> list[str]:
+    """The recordings whose samples the link lost: their decisions rest on incomplete data, so
+    they are named, and the score is also given without them."""
+    if not score.lossy:
+        return []
+    names = list(score.class_names)
+    shown = [f"{k} ({n} samples lost; {'decided ' + names[lab] if lab >= 0 else 'no decision'}"
+             f"{', right' if right else ''})" for k, n, lab, right in score.lossy[:8]]
+    more = f", and {len(score.lossy) - 8} more" if len(score.lossy) > 8 else ""
+    return [f"  {len(score.lossy)} recording(s) lost samples on the link, so their decisions "
+            f"are not a fair score of the model: segment {', '.join(shown)}{more}",
+            f"  without them: {score.correct_without_losses}/{score.recordings_without_losses} "
+            f"right ({100 * score.accuracy_without_losses:.1f} %); eskin-fw-sim --speed 0 "
+            f"(as fast as the host reads) loses nothing"]
+
+
 def score_lines(score: Any) -> list[str]:
     """Accuracy and confusion matrix of one source against the replay's labels, as text."""
     names = list(score.class_names)
     head = (f"{score.source}: {score.correct}/{score.recordings} recordings right "
             f"({100 * score.accuracy:.1f} %), {score.dont_know} don't know, "
             f"{score.no_decision} without a decision")
-    lines = [head]
+    lines = [head, *loss_lines(score)]
     cols = [*names, "none"]
     first = max([len(n) for n in names] + [len("true \\ decided")])
     width = max(len(c) for c in cols)
@@ -388,6 +404,7 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
     out = None
     decisions: list[Any] = []
     interrupted = 0
+    lost: list[tuple[int, int]] = []
     restore = _sigterm_interrupts()
     try:
         with _user_errors():
@@ -395,7 +412,7 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
             out = open(jsonl, "w", encoding="utf-8") if jsonl is not None else None
         typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
                                              if listener.classifier is not None else ""))
-        events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions)
+        events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions, lost)
         truth = replay_truth(listener)
         with _user_errors():  # e.g. the --record file, written once the first one is due
             if live_mode:
@@ -407,7 +424,7 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
         interrupted = 143 if isinstance(exc, _Terminated) else 130  # 128 + the signal
     finally:
         restore()
-        scores = _finish(listener, decisions, out)
+        scores = _finish(listener, decisions, lost, out)
     _print_scores(scores, live_mode)
     if record is not None and record.exists() and listener.stats.recordings:
         typer.echo(f"wrote {record}")
@@ -415,14 +432,15 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
         raise typer.Exit(interrupted)
 
 
-def _finish(listener: Any, decisions: list[Any], out: Any) -> list[Any]:
+def _finish(listener: Any, decisions: list[Any], lost: list[tuple[int, int]],
+            out: Any) -> list[Any]:
     """Close the listener (finishing the recording), then write the scores against the replay
     and the final statistics to --jsonl, also after SIGINT or SIGTERM; returns the scores."""
     try:
         with _user_errors():
             listener.close()
     finally:
-        scores = _score(listener, decisions)
+        scores = _score(listener, decisions, lost)
         if out is not None:
             for sc in scores:
                 out.write(jsonl_line(sc.as_dict()))
@@ -431,23 +449,26 @@ def _finish(listener: Any, decisions: list[Any], out: Any) -> list[Any]:
     return scores
 
 
-def _kept(events: Any, decisions: list[Any]) -> Any:
-    """Pass the events on, keeping the decisions."""
-    from eskin.link.listener import Decision
+def _kept(events: Any, decisions: list[Any], lost: list[tuple[int, int]]) -> Any:
+    """Pass the events on, keeping the decisions and the stream ranges of lost samples."""
+    from eskin.link.listener import DataBlock, Decision
 
     for ev in events:
         if isinstance(ev, Decision):
             decisions.append(ev)
+        elif isinstance(ev, DataBlock) and ev.lost_before > 0:
+            lost.append((ev.first_sample - ev.lost_before, ev.first_sample))
         yield ev
 
 
-def _score(listener: Any, decisions: list[Any]) -> list[Any]:
-    """The decisions scored against the replay's true classes (none without --replay)."""
+def _score(listener: Any, decisions: list[Any], lost: list[tuple[int, int]]) -> list[Any]:
+    """The decisions scored against the replay's true classes (none without --replay), with
+    the recordings whose samples were lost (``lost``: stream ranges) named."""
     from eskin.link.scoring import score_decisions
 
     if listener.replay is None or not decisions:
         return []
-    return score_decisions(decisions, listener.replay, listener.replay_offset)
+    return score_decisions(decisions, listener.replay, listener.replay_offset, lost)
 
 
 def _print_scores(scores: list[Any], live_mode: bool) -> None:
@@ -461,6 +482,8 @@ def _print_scores(scores: list[Any], live_mode: bool) -> None:
         for sc in scores:
             names = list(sc.class_names)
             console.print(score_lines(sc)[0], style="bold", highlight=False)
+            for line in loss_lines(sc):
+                console.print(line, highlight=False)
             t = Table()
             t.add_column("true \\ decided", style="bold")
             for n in [*names, "none"]:

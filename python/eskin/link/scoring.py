@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ReplayScore", "assign_decisions", "confusion_matrix", "score_decisions", "segment_of"]
+__all__ = ["ReplayScore", "assign_decisions", "confusion_matrix", "lost_per_segment",
+           "score_decisions", "segment_of"]
 
 
 def confusion_matrix(true: np.ndarray, pred: np.ndarray, n_classes: int) -> np.ndarray:
@@ -83,10 +84,27 @@ class ReplayScore:
     dont_know: int  # kept decisions flagged "don't know" (no machine, or several, claimed)
     no_decision: int  # segments that got no decision at all
     confusion: np.ndarray  # (k, k + 1): row = true class, column = decided, last = none
+    #: the recordings some of whose samples never reached the host (a lost frame, a sample the
+    #: controller dropped): (segment index, samples lost, decided label index or -1, right);
+    #: their decisions rest on incomplete data, so the score also leaves them out
+    lossy: tuple[tuple[int, int, int, bool], ...] = ()
 
     @property
     def accuracy(self) -> float:
         return self.correct / self.recordings if self.recordings else float("nan")
+
+    @property
+    def recordings_without_losses(self) -> int:
+        return self.recordings - len(self.lossy)
+
+    @property
+    def correct_without_losses(self) -> int:
+        return self.correct - sum(1 for *_, right in self.lossy if right)
+
+    @property
+    def accuracy_without_losses(self) -> float:
+        n = self.recordings_without_losses
+        return self.correct_without_losses / n if n else float("nan")
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object ``eskin listen --jsonl`` writes for this score."""
@@ -101,18 +119,41 @@ class ReplayScore:
             "classes": list(self.class_names),
             "confusion_columns": [*self.class_names, "none"],
             "confusion": self.confusion.tolist(),
+            "recordings_with_losses": [
+                {"segment": k, "lost_samples": n,
+                 "decided": self.class_names[lab] if lab >= 0 else None, "right": right}
+                for k, n, lab, right in self.lossy],
+            "recordings_without_losses": self.recordings_without_losses,
+            "correct_without_losses": self.correct_without_losses,
+            "accuracy_without_losses": self.accuracy_without_losses,
         }
 
 
-def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0) -> list[ReplayScore]:
+def lost_per_segment(segments: np.ndarray, lost_ranges: Sequence[tuple[int, int]],
+                     offset: int = 0) -> np.ndarray:
+    """Samples of each segment inside the lost stream ranges ``[start, stop)``."""
+    starts = offset + segments["start"].astype(np.int64)
+    stops = starts + segments["length"].astype(np.int64)
+    lost = np.zeros(len(segments), np.int64)
+    for a, b in lost_ranges:
+        lost += np.maximum(0, np.minimum(stops, int(b)) - np.maximum(starts, int(a)))
+    return lost
+
+
+def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0,
+                    lost_ranges: Sequence[tuple[int, int]] = ()) -> list[ReplayScore]:
     """Score the decisions (``eskin.link.Decision``) of each source against the true labels of
     ``replay`` (an ``eskin.data.ReplayFile``) whose first sample had stream index ``offset``.
     Labels are compared by class name (a model may order its classes unlike the replay); a
     recording without a decision counts as wrong, and segments of unknown class are left out.
-    One score per source that made decisions, controller first."""
+    ``lost_ranges``: the stream ranges ``[start, stop)`` whose samples never reached the host;
+    the recordings they touch are listed in each score's ``lossy`` (their decisions rest on
+    incomplete data). One score per source that made decisions, controller first."""
     segments = replay.segments
     known = segments["label"] >= 0
     true = segments["label"][known].astype(np.int64)
+    lost = lost_per_segment(segments, lost_ranges, offset)
+    segment_ids = np.flatnonzero(known)
     names = tuple(replay.class_names)
     index = {name: k for k, name in enumerate(names)}
     scores = []
@@ -122,6 +163,8 @@ def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0) -> l
         ]
         labels, _, dk, _ = assign_decisions(mine, segments, 0, offset)
         labels, dk = labels[known], dk[known]
+        lossy = tuple((int(k), int(lost[k]), int(lab), bool(lab == t))
+                      for k, lab, t in zip(segment_ids, labels, true) if lost[k] > 0)
         scores.append(
             ReplayScore(
                 source=source,
@@ -131,6 +174,7 @@ def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0) -> l
                 dont_know=int(np.sum(dk & (labels >= 0))),
                 no_decision=int(np.sum(labels < 0)),
                 confusion=confusion_matrix(true, labels, len(names)),
+                lossy=lossy,
             )
         )
     return scores
