@@ -223,6 +223,8 @@ def run_demo(
     if list(rf.class_names) != list(camp.modalities):
         raise DemoError("replay class names differ from the campaign's")
     t0 = time.perf_counter()
+    say(f"      offline reference: the Python model touch by touch over the same "
+        f"{len(rf.segments)} recordings")
     offline = _offline_reference(model, camp, rf, test_idx)
     timings["offline"] = time.perf_counter() - t0
     t0 = time.perf_counter()
