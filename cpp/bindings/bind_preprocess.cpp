@@ -25,10 +25,10 @@ WindowConfig config_from(const F64& a) {
   return window_config_from_array(a.data(), static_cast<std::size_t>(a.shape(0)));
 }
 
-// (n, 6) int64 [start, stop, onset, offset, truncated, found] and (n,) energy
+// (n, 7) int64 [start, stop, onset, offset, truncated, found, stride] and (n,) energy
 py::tuple windows_to_arrays(const std::vector<TouchWindow>& ws) {
   const auto n = static_cast<py::ssize_t>(ws.size());
-  py::array_t<int64_t> info({n, py::ssize_t{6}});
+  py::array_t<int64_t> info({n, py::ssize_t{7}});
   py::array_t<double> energy(n);
   auto I = info.mutable_unchecked<2>();
   auto E = energy.mutable_unchecked<1>();
@@ -40,6 +40,7 @@ py::tuple windows_to_arrays(const std::vector<TouchWindow>& ws) {
     I(i, 3) = w.offset;
     I(i, 4) = w.truncated ? 1 : 0;
     I(i, 5) = w.found ? 1 : 0;
+    I(i, 6) = w.stride;
     E(i) = w.energy;
   }
   return py::make_tuple(info, energy);
@@ -209,7 +210,8 @@ class PyTouchDetector {
       const Status st = det_.subsample_last_window(D_, method_, short_, t.mutable_data());
       if (st == Status::kOk) tensor = t;
     }
-    return py::make_tuple(w.start, w.stop, w.onset, w.offset, w.energy, w.truncated, tensor);
+    return py::make_tuple(w.start, w.stop, w.onset, w.offset, w.energy, w.truncated, tensor,
+                          w.stride);
   }
 
   TouchDetector det_;
@@ -247,6 +249,7 @@ void bind_preprocess(py::module_& m) {
         d["pad_before"] = p.pad_before;
         d["pad_after"] = p.pad_after;
         d["max_window"] = p.max_window;
+        d["window_capacity"] = p.window_capacity;
         return d;
       },
       py::arg("config"), py::arg("sample_rate_hz"));

@@ -6,6 +6,7 @@
 #include <type_traits>
 
 #include "eskin/model.hpp"
+#include "decision_tables.hpp"
 #include "model_overlap.hpp"
 #if defined(ESKIN_DEVICE)
 #include "scalar_bases.hpp"
@@ -30,13 +31,6 @@ using DecisionReal = float;
 using DecisionReal = double;
 #endif
 
-// The support vectors' projection matrices (below) trade n_sv * N^2 values of RAM for speed; a
-// controller's RAM is the scarcer (they would double a small model's RAM).
-#if defined(ESKIN_DEVICE)
-constexpr bool kProjectionCache = false;
-#else
-constexpr bool kProjectionCache = true;
-#endif
 }  // namespace
 
 const char* to_string(ClassifyStatus s) noexcept {
@@ -63,34 +57,48 @@ double tensor_log_energy(const double* x, std::size_t n) noexcept {
   return std::log(mean + model_format::kLogEnergyFloor);  // log(inf) = inf: the factor is 0
 }
 
-// Machines are grouped by their alpha triple: the per-mode distances of a support vector depend
-// only on it, so they are computed once per (group, support vector) and shared by the machines.
-struct Classifier::Impl {
-  struct Group {
-    std::array<int, 3> alpha{};
-    std::vector<std::uint32_t> svs;  // support vectors used by the group's machines (sorted)
-    // Modes with few basis rows (N_z < alpha_z^2, e.g. the time mode: N = rows*cols = 16)
-    // use projections: ||V_i^T V_x||_F^2 = <P_i, P_x>_F with P = V V^T (N x N), precomputed
-    // here for the support vectors, one N^2 dot per support vector instead of alpha^2 N.
-    std::array<bool, 3> proj{};
-    std::array<std::vector<float>, 3> p32;   // (n_sv, N, N) when proj[z], float32 models
-    std::array<std::vector<double>, 3> p64;  // idem, float64 models
-    std::array<std::vector<double>, 3> px;   // the input's projection, N x N
-    std::array<std::vector<float>, 3> px32;
-  };
-
-  // P = sum_{k < a} v_k v_k^T of the N x A column-major block `v` (first a columns).
-  template <typename T, typename Out>
-  static void projection(const T* v, std::size_t N, std::size_t a, Out* P) noexcept {
-    for (std::size_t r = 0; r < N; ++r)
-      for (std::size_t c = 0; c < N; ++c) {
-        double acc = 0.0;
-        for (std::size_t k = 0; k < a; ++k)
-          acc += static_cast<double>(v[k * N + r]) * static_cast<double>(v[k * N + c]);
-        P[r * N + c] = static_cast<Out>(acc);
-      }
+std::shared_ptr<const detail::DecisionTables> detail::build_decision_tables(const Model& m) {
+  auto t = std::make_shared<DecisionTables>();
+  t->machine_group.resize(m.machines().size());
+  auto& groups = t->groups;
+  for (std::size_t k = 0; k < m.machines().size(); ++k) {
+    const auto& mm = m.machines()[k];
+    std::size_t g = 0;
+    while (g < groups.size() && groups[g].alpha != mm.alpha) ++g;
+    if (g == groups.size()) {
+      groups.emplace_back();
+      groups.back().alpha = mm.alpha;
+    }
+    t->machine_group[k] = g;
+    auto& svs = groups[g].svs;
+    svs.insert(svs.end(), mm.sv_index.begin(), mm.sv_index.end());
   }
+  for (auto& g : groups) {
+    std::sort(g.svs.begin(), g.svs.end());
+    g.svs.erase(std::unique(g.svs.begin(), g.svs.end()), g.svs.end());
+    for (int z = 0; z < 3; ++z) {
+      const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
+      const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
+      const std::size_t a = static_cast<std::size_t>(g.alpha[static_cast<std::size_t>(z)]);
+      const auto zz = static_cast<std::size_t>(z);
+      g.proj[zz] = kProjectionCache && N <= 64 && N < a * a;
+      if (!g.proj[zz]) continue;
+      if (m.is_float64()) g.p64[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
+      else g.p32[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
+      for (const std::uint32_t i : g.svs) {
+        if (m.is_float64())
+          projection(m.bases_f64(z) + i * A * N, N, a, g.p64[zz].data() + i * N * N);
+        else
+          projection(m.bases_f32(z) + i * A * N, N, a, g.p32[zz].data() + i * N * N);
+      }
+    }
+  }
+  return t;
+}
 
+// The per-classifier state: the workspace of one decision (the input's bases, projections and
+// distances); the model's tables are read through Model::decision_tables().
+struct Classifier::Impl {
   // raw: the buffers of Classifier::classify (the raw recording's tensor, the touches of the
   // window choice); a StreamClassifier's classifier only runs classify_tensor.
   Impl(const Model& m, bool raw)
@@ -108,44 +116,18 @@ struct Classifier::Impl {
         ov64(detail::select_overlap_f64()) {
     if (m.is_float64()) xb64.resize(layout.bases_size());
     else xb32.resize(layout.bases_size());
-    machine_group.resize(m.machines().size());
-    for (std::size_t k = 0; k < m.machines().size(); ++k) {
-      const auto& mm = m.machines()[k];
-      std::size_t g = 0;
-      while (g < groups.size() && groups[g].alpha != mm.alpha) ++g;
-      if (g == groups.size()) {
-        groups.emplace_back();
-        groups.back().alpha = mm.alpha;
-      }
-      machine_group[k] = g;
-      auto& svs = groups[g].svs;
-      svs.insert(svs.end(), mm.sv_index.begin(), mm.sv_index.end());
-    }
-    for (auto& g : groups) {
-      std::sort(g.svs.begin(), g.svs.end());
-      g.svs.erase(std::unique(g.svs.begin(), g.svs.end()), g.svs.end());
-      for (int z = 0; z < 3; ++z) {
-        const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
-        const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
-        const std::size_t a = static_cast<std::size_t>(g.alpha[static_cast<std::size_t>(z)]);
-        const auto zz = static_cast<std::size_t>(z);
-        g.proj[zz] = kProjectionCache && N <= 64 && N < a * a;
-        if (!g.proj[zz]) continue;
-        g.px[zz].resize(N * N);
-        if (m.is_float64()) g.p64[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
-        else {
-          g.p32[zz].resize(static_cast<std::size_t>(m.n_support()) * N * N);
-          g.px32[zz].resize(N * N);
+    const detail::DecisionTables& t = m.decision_tables();
+    // the input's projection, N x N, for the modes that use projections (largest N of them)
+    std::size_t n_proj = 0;
+    for (const auto& g : t.groups)
+      for (int z = 0; z < 3; ++z)
+        if (g.proj[static_cast<std::size_t>(z)]) {
+          const auto N = static_cast<std::size_t>(m.basis_rows(z));
+          n_proj = std::max(n_proj, N * N);
         }
-        for (const std::uint32_t i : g.svs) {
-          if (m.is_float64())
-            projection(m.bases_f64(z) + i * A * N, N, a, g.p64[zz].data() + i * N * N);
-          else
-            projection(m.bases_f32(z) + i * A * N, N, a, g.p32[zz].data() + i * N * N);
-        }
-      }
-    }
-    dist.resize(groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
+    px.resize(n_proj);
+    if (!m.is_float64()) px32.resize(n_proj);
+    dist.resize(t.groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
     if (m.has_amplitude()) energy_gap.resize(static_cast<std::size_t>(m.n_support()));
   }
 
@@ -160,8 +142,8 @@ struct Classifier::Impl {
   std::vector<double> xb64;
   std::vector<float> xb32;
   int xr[3] = {0, 0, 0};
-  std::vector<Group> groups;
-  std::vector<std::size_t> machine_group;
+  std::vector<double> px;    // the input's projection (N x N) of the current mode
+  std::vector<float> px32;
   std::vector<DecisionReal> dist;  // (group, sv, mode) squared mode distances
   std::vector<DecisionReal> energy_gap;  // (e(x) - e(sv_i))^2 per support vector (amplitude factor)
   std::vector<double> values;
@@ -222,8 +204,9 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
   if (ks != KernelStatus::ok) return ClassifyStatus::kKernel;
 
   const std::size_t n_sv = static_cast<std::size_t>(m.n_support());
-  for (std::size_t g = 0; g < s.groups.size(); ++g) {
-    auto& grp = s.groups[g];
+  const detail::DecisionTables& tables = m.decision_tables();
+  for (std::size_t g = 0; g < tables.groups.size(); ++g) {
+    const auto& grp = tables.groups[g];
     for (int z = 0; z < 3; ++z) {
       const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
       const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
@@ -232,16 +215,16 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
       const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
       const auto zz = static_cast<std::size_t>(z);
       if (grp.proj[zz]) {
-        double* px = grp.px[zz].data();
+        double* px = s.px.data();
         if (f64) {
-          Impl::projection(s.xb64.data() + xoff, N, a, px);
+          detail::projection(s.xb64.data() + xoff, N, a, px);
         } else {
-          Impl::projection(s.xb32.data() + xoff, N, a, px);
-          for (std::size_t j = 0; j < N * N; ++j) grp.px32[zz][j] = static_cast<float>(px[j]);
+          detail::projection(s.xb32.data() + xoff, N, a, px);
+          for (std::size_t j = 0; j < N * N; ++j) s.px32[j] = static_cast<float>(px[j]);
         }
         for (const std::uint32_t i : grp.svs) {
           const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, px, N * N)
-                                : s.dot32(grp.p32[zz].data() + i * N * N, grp.px32[zz].data(), N * N);
+                                : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
           const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
           s.dist[(g * n_sv + i) * 3 + zz] = static_cast<DecisionReal>(
               std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov));
@@ -268,7 +251,7 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
   }
   const auto& machines = m.machines();
   for (std::size_t k = 0; k < machines.size(); ++k)
-    s.values[k] = machine_value(machines[k], s.dist.data() + s.machine_group[k] * n_sv * 3,
+    s.values[k] = machine_value(machines[k], s.dist.data() + tables.machine_group[k] * n_sv * 3,
                                 s.energy_gap.data());
   out->n_machines = static_cast<int>(machines.size());
   out->values = s.values.data();
@@ -338,8 +321,9 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
       for (std::int64_t t = 0; t < length; ++t)
         if (!std::isfinite(x[k * T_total + t])) return ClassifyStatus::kNotFinite;
   }
-  const Status st = subsample_window(x + w.start, n_taxels, T_total, 1, w.stop - w.start, m.D(),
-                                     m.subsample(), m.short_policy(), s.tensor.data());
+  const Status st = subsample_window(x + w.start, n_taxels, T_total, w.stride, w.stop - w.start,
+                                     m.D(), m.subsample(), m.short_policy(), s.tensor.data(),
+                                     w.stride);
   if (st != Status::kOk) return ClassifyStatus::kTooShort;
   const ClassifyStatus cs = classify_tensor(s.tensor.data(), out);
   out->window_start = w.start;

@@ -11,6 +11,7 @@
 #include <limits>
 
 #include "eskin/model.hpp"
+#include "decision_tables.hpp"
 #include "raise.hpp"
 
 namespace eskin {
@@ -301,9 +302,14 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   if (!(std::isfinite(rate) && rate > 0 && rate <= 1e7))
     return err.set(ModelError::kValue, w + ": sample_rate_hz=" + fmt_double(rate) + " must be in (0, 1e7]");
   const auto& names = window_config_field_names();
-  if (n_fields != kWindowConfigSize)
+  // format version 3 adds the bounded window's field (window_samples, the last); an older file
+  // has the others and leaves it 0 (every sample up to max_window_s)
+  const std::size_t n_expected =
+      m.format_version_ >= model_format::kVersionBoundedWindow ? kWindowConfigSize : kWindowConfigSizeV2;
+  if (n_fields != n_expected)
     return err.set(ModelError::kValue, w + ": n_window_fields=" + std::to_string(n_fields) + ", expected " +
-                                 std::to_string(kWindowConfigSize) + " (the WindowConfig fields)");
+                                 std::to_string(n_expected) + " (the WindowConfig fields of format version " +
+                                 std::to_string(m.format_version_) + ")");
   std::array<double, kWindowConfigSize> values{};
   std::array<bool, kWindowConfigSize> seen{};
   for (std::uint32_t i = 0; i < n_fields; ++i) {
@@ -311,8 +317,9 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
     const double value = r.f64("window field value");
     std::size_t k = 0;
     while (k < kWindowConfigSize && name != names[k]) ++k;
-    if (k == kWindowConfigSize)
-      return err.set(ModelError::kValue, w + ": unknown window field '" + name + "'");
+    if (k >= n_expected)
+      return err.set(ModelError::kValue, w + ": unknown window field '" + name + "'" +
+                                   (k < kWindowConfigSize ? " (it needs format version 3)" : ""));
     if (seen[k]) return err.set(ModelError::kValue, w + ": window field '" + name + "' repeated");
     if (!std::isfinite(value))
       return err.set(ModelError::kValue, w + ": window field '" + name + "' = " + fmt_double(value) +
@@ -687,6 +694,8 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
                                  const std::string& origin, Model& m, ParseError& err) {
   namespace mf = model_format;
   const int n_required = m.format_version_ >= mf::kVersionAmplitude ? 5 : 4;
+  // version 3: AMPL when some machine has the amplitude factor, else absent
+  const bool ampl_optional = m.format_version_ >= mf::kVersionBoundedWindow;
   int next = 0;
   std::size_t pos = mf::kHeaderBytes;
   for (std::uint32_t s = 0; s < n_sections; ++s) {
@@ -719,7 +728,7 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
     }
     pos += padded;
   }
-  if (next < n_required)
+  if (next < n_required && !(ampl_optional && next == 4))
     return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kRequired[next]) + "' missing" +
                                   (next == 4 ? " (format version 2 has an amplitude factor)" : ""));
   if (pos != end)
@@ -744,7 +753,7 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
   if (version < mf::kMinVersion || version > mf::kVersion)
     return err.set(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
                                    " is not supported (this library reads versions " +
-                                   std::to_string(mf::kMinVersion) + " and " +
+                                   std::to_string(mf::kMinVersion) + " to " +
                                    std::to_string(mf::kVersion) + ")");
   if (header_bytes != mf::kHeaderBytes)
     return err.set(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
@@ -781,7 +790,9 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
   m.file_bytes_ = file_bytes;
   m.format_version_ = static_cast<int>(version);
   if (!parse_sections(data, file_bytes - 4, n_sections, origin, m, err)) return false;
-  return check_machines(m, origin, err);
+  if (!check_machines(m, origin, err)) return false;
+  m.tables_ = detail::build_decision_tables(m);
+  return true;
 }
 
 bool Model::parse(const std::uint8_t* data, std::size_t size, Model* out, ModelLoadError* error,

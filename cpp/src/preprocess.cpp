@@ -66,7 +66,7 @@ const std::array<const char*, kWindowConfigSize>& window_config_field_names() {
       "noise_quantile",   "warmup_s",     "min_noise_energy", "on_factor",
       "off_factor",       "release_fraction", "lookback_s", "hold_s",
       "min_duration_s",   "pad_before_s", "pad_after_s",    "max_window_s",
-      "select",           "span_fraction", "fallback"};
+      "select",           "span_fraction", "fallback",     "window_samples"};
   return names;
 }
 
@@ -75,7 +75,7 @@ std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig&
           c.noise_quantile,   c.warmup_s,         c.min_noise_energy, c.on_factor,
           c.off_factor,       c.release_fraction, c.lookback_s,     c.hold_s,
           c.min_duration_s,   c.pad_before_s,     c.pad_after_s,    c.max_window_s,
-          c.select,           c.span_fraction,    c.fallback};
+          c.select,           c.span_fraction,    c.fallback,       c.window_samples};
 }
 
 WindowConfig window_config_from_array(const double* v, std::size_t n) {
@@ -104,6 +104,7 @@ WindowConfig window_config_from_array(const double* v, std::size_t n) {
   c.select = v[16];
   c.span_fraction = v[17];
   c.fallback = v[18];
+  c.window_samples = v[19];
   return c;
 }
 
@@ -198,12 +199,28 @@ DetectorParams resolve_window_config(const WindowConfig& c, double rate) {
   }
   p.span_fraction = c.span_fraction;
   p.fallback = choice("fallback", c.fallback, 2);
+  if (c.window_samples != std::floor(c.window_samples) || c.window_samples < 0 ||
+      c.window_samples == 1 || std::fmod(c.window_samples, 2.0) != 0 ||
+      c.window_samples > static_cast<double>(kMaxWindowSamples)) {
+    bad("window_samples", c.window_samples,
+        "must be 0 (every sample) or an even integer in [2, " + std::to_string(kMaxWindowSamples) +
+            "]");
+  }
+  const auto cap = static_cast<int64_t>(c.window_samples);
+  p.window_capacity = cap == 0 ? p.max_window : std::min(cap, p.max_window);
   return p;
 }
 
 int64_t detector_stored_values(const DetectorParams& p, int64_t n_taxels) noexcept {
   const int64_t ring = p.pad_before + (p.lookback_frames + 1) * p.frame_len;
-  return (ring + p.max_window) * std::max<int64_t>(n_taxels, 0);
+  return (ring + p.window_capacity) * std::max<int64_t>(n_taxels, 0);
+}
+
+int64_t window_stride(int64_t pushed, int64_t capacity) noexcept {
+  int64_t s = 1;
+  if (capacity <= 0) return s;
+  while ((pushed + s - 1) / s > capacity) s *= 2;
+  return s;
 }
 
 void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, int64_t n_taxels) {
@@ -213,7 +230,8 @@ void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, in
   }
   const int64_t values = detector_stored_values(p, n_taxels);
   if (values > kMaxStoredValues) {
-    bad("max_window_s", cfg.max_window_s,
+    bad(cfg.window_samples > 0 ? "window_samples" : "max_window_s",
+        cfg.window_samples > 0 ? cfg.window_samples : cfg.max_window_s,
         "too large for " + std::to_string(n_taxels) + " taxels: a stream detector would store " +
             std::to_string(values) + " samples (pre-pad ring and window), the limit is " +
             std::to_string(kMaxStoredValues));
@@ -254,9 +272,43 @@ bool subsample_indices(int64_t S, int64_t D, SubsampleMethod method, int64_t* ou
 template <class T>
 Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int64_t time_stride,
                         int64_t S, int64_t D, SubsampleMethod method, ShortPolicy short_policy,
-                        double* out) noexcept {
+                        double* out, int64_t decimation) noexcept {
   if (x == nullptr || out == nullptr) return Status::kNullPointer;
-  if (D < 1 || S < 1 || n_taxels < 0) return Status::kBadArgument;
+  if (D < 1 || S < 1 || n_taxels < 0 || decimation < 1) return Status::kBadArgument;
+  if (decimation > 1) {
+    // a bounded window kept every decimation-th sample: window sample t is the kept sample
+    // t / decimation (time_stride apart); the indices are those of the S-sample window
+    const int64_t step = decimation;
+    auto at = [&](const T* xk, int64_t t) { return static_cast<double>(xk[(t / step) * time_stride]); };
+    if (S >= D) {
+      const int64_t interval = S / D;
+      const int64_t num = S - 1, den = std::max<int64_t>(D - 1, 1);
+      for (int64_t k = 0; k < n_taxels; ++k) {
+        const T* xk = x + k * taxel_stride;
+        double* ok = out + k * D;
+        for (int64_t d = 0; d < D; ++d) {
+          const int64_t t = method == SubsampleMethod::kAlgorithm2
+                                ? d * interval
+                                : (D == 1 ? 0 : (2 * d * num + den) / (2 * den));
+          ok[d] = at(xk, t);
+        }
+      }
+      return Status::kOk;
+    }
+    if (short_policy == ShortPolicy::kError) return Status::kBadArgument;
+    for (int64_t k = 0; k < n_taxels; ++k) {
+      const T* xk = x + k * taxel_stride;
+      double* ok = out + k * D;
+      for (int64_t d = 0; d < D; ++d) {
+        const int64_t num = d * (S - 1);
+        const int64_t i0 = num / (D - 1);
+        const double frac = static_cast<double>(num - i0 * (D - 1)) / static_cast<double>(D - 1);
+        const double a = at(xk, i0);
+        ok[d] = frac == 0.0 ? a : a + frac * (at(xk, i0 + 1) - a);
+      }
+    }
+    return Status::kOk;
+  }
   if (S >= D) {
     if (method == SubsampleMethod::kAlgorithm2) {
       const int64_t interval = S / D;
@@ -296,11 +348,13 @@ Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int6
 }
 
 template Status subsample_window<int16_t>(const int16_t*, int64_t, int64_t, int64_t, int64_t,
-                                          int64_t, SubsampleMethod, ShortPolicy, double*) noexcept;
+                                          int64_t, SubsampleMethod, ShortPolicy, double*,
+                                          int64_t) noexcept;
 template Status subsample_window<float>(const float*, int64_t, int64_t, int64_t, int64_t, int64_t,
-                                        SubsampleMethod, ShortPolicy, double*) noexcept;
+                                        SubsampleMethod, ShortPolicy, double*, int64_t) noexcept;
 template Status subsample_window<double>(const double*, int64_t, int64_t, int64_t, int64_t,
-                                         int64_t, SubsampleMethod, ShortPolicy, double*) noexcept;
+                                         int64_t, SubsampleMethod, ShortPolicy, double*,
+                                         int64_t) noexcept;
 
 // ---------------------------------------------------------------- streaming detector
 
@@ -326,8 +380,8 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   if (store_) {
     check_detector_buffers(p_, cfg_, n_taxels);
     ring_cap_ = p_.pad_before + (p_.lookback_frames + 1) * p_.frame_len;
-    ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), 0.0);
-    window_.assign(static_cast<std::size_t>(p_.max_window * n_taxels), 0.0);
+    ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), StoredSample{});
+    window_.assign(static_cast<std::size_t>(p_.window_capacity * n_taxels), StoredSample{});
   }
   reset();
 }
@@ -336,7 +390,8 @@ void TouchDetector::reset() noexcept {
   std::fill(dc_mean_.begin(), dc_mean_.end(), 0.0);
   std::fill(acc_.begin(), acc_.end(), 0.0);
   noise_count_ = noise_pos_ = 0;
-  window_len_ = 0;
+  window_len_ = window_kept_ = 0;
+  window_stride_ = 1;
   window_valid_ = false;
   state_ = State::kIdle;
   now_ = frame_pos_ = frames_seen_ = 0;
@@ -361,10 +416,7 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
   if (store_) {
     StoredSample* r = ring_.data() + (now_ % ring_cap_) * K;
     for (int64_t k = 0; k < K; ++k) r[k] = to_stored(x[k * taxel_stride]);
-    if (state_ == State::kActive) {
-      std::copy(r, r + K, window_.data() + window_len_ * K);
-      ++window_len_;
-    }
+    if (state_ == State::kActive) keep(r);
   }
   double* __restrict acc = acc_.data();
   if (p_.dc_alpha > 0) {
@@ -410,6 +462,22 @@ Status TouchDetector::push_block(const T* samples, int64_t n, int64_t* consumed)
   }
   if (consumed != nullptr) *consumed = i;
   return st;
+}
+
+void TouchDetector::keep(const StoredSample* sample) noexcept {
+  // the bounded window: every window_stride_-th sample is kept; when the buffer is full, every
+  // other kept sample is dropped and the stride doubles (the time resolution halves)
+  const int64_t t = window_len_++;
+  if (t % window_stride_ != 0) return;
+  const int64_t K = n_taxels_;
+  StoredSample* w = window_.data();
+  if (window_kept_ == p_.window_capacity) {
+    for (int64_t j = 1; j < window_kept_ / 2; ++j) std::copy(w + 2 * j * K, w + (2 * j + 1) * K, w + j * K);
+    window_kept_ /= 2;
+    window_stride_ *= 2;  // t = capacity * old stride = (capacity / 2) * new stride: kept
+  }
+  std::copy(sample, sample + K, w + window_kept_ * K);
+  ++window_kept_;
 }
 
 void TouchDetector::push_noise(double e) noexcept {
@@ -485,11 +553,9 @@ Status TouchDetector::on_frame() noexcept {
           peak_ = e;
           window_valid_ = false;
           if (store_) {
-            window_len_ = now_ - start_;
-            for (int64_t t = start_; t < now_; ++t) {
-              const StoredSample* r = ring_.data() + (t % ring_cap_) * n_taxels_;
-              std::copy(r, r + n_taxels_, window_.data() + (t - start_) * n_taxels_);
-            }
+            window_len_ = window_kept_ = 0;
+            window_stride_ = 1;
+            for (int64_t t = start_; t < now_; ++t) keep(ring_.data() + (t % ring_cap_) * n_taxels_);
           }
         } else {
           push_noise(e);
@@ -529,10 +595,11 @@ Status TouchDetector::finalise(bool forced) noexcept {
   w.energy = energy_;
   w.truncated = truncated;
   w.found = true;
+  w.stride = window_stride(now_ - start_, p_.window_capacity);  // = window_stride_ when storing
   state_ = forced ? State::kRefractory : State::kIdle;
   last_stop_ = w.stop;
   if (w.offset - w.onset < p_.min_duration) {
-    if (store_) window_len_ = 0;
+    if (store_) window_len_ = window_kept_ = 0;
     return Status::kOk;
   }
   last_ = w;
@@ -558,7 +625,7 @@ Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
   const StoredSample* data = last_window_data();
   if (data == nullptr) return Status::kNoWindow;
   return subsample_window(data, n_taxels_, 1, n_taxels_, last_window_length(), D, method,
-                          short_policy, out);
+                          short_policy, out, last_.stride);
 }
 
 template Status TouchDetector::push_block<int16_t>(const int16_t*, int64_t, int64_t*) noexcept;
@@ -580,7 +647,8 @@ int64_t WindowSelector::capacity_for(const DetectorParams& p, int64_t length) no
 }
 
 WindowSelector::WindowSelector(const DetectorParams& p, int64_t capacity)
-    : select_(p.select), span_fraction_(p.span_fraction), max_window_(p.max_window) {
+    : select_(p.select), span_fraction_(p.span_fraction), max_window_(p.max_window),
+      capacity_(p.window_capacity) {
   if (capacity < 1) capacity = capacity_for(p, 4 * p.max_window);
   buf_.assign(static_cast<std::size_t>(select_ == 2 ? capacity : 1), TouchWindow{});
 }
@@ -628,6 +696,8 @@ TouchWindow WindowSelector::result() const noexcept {
     out.truncated = out.truncated || w.truncated || w.stop > out.start + max_window_;
     out.stop = std::min(w.stop, out.start + max_window_);
     out.offset = std::min(w.offset, out.stop);
+    // a span of several touches is read as a bounded window of its length would keep it
+    out.stride = std::max({out.stride, w.stride, window_stride(out.stop - out.start, capacity_)});
   }
   return out;
 }
@@ -840,9 +910,9 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
         }
         if (windows_out != nullptr) windows_out[i] = w;
         const int64_t S = w.stop - w.start;
-        const Status st = subsample_window(rec + w.start, n_taxels, T_total, 1, S, opt.D,
+        const Status st = subsample_window(rec + w.start, n_taxels, T_total, w.stride, S, opt.D,
                                            opt.method, opt.short_policy,
-                                           out + i * n_taxels * opt.D);
+                                           out + i * n_taxels * opt.D, w.stride);
         if (st != Status::kOk) {
           throw std::invalid_argument("signals[" + std::to_string(i) + "]: window of S = " +
                                       std::to_string(S) + " samples is shorter than D = " +

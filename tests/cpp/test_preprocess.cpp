@@ -313,7 +313,8 @@ TEST(WindowConfig, HugeFiniteTimesAreOutOfRange) {
 // The samples a storing detector keeps grow with the grid: bounded by kMaxStoredValues, checked
 // by the constructor (a non-storing detector, as in batch preprocessing, keeps no samples).
 TEST(WindowConfig, StoredSamplesAreBoundedPerGrid) {
-  const WindowConfig c;  // 7 s at 3 kHz, and a pre-pad ring of 150 + 31 frames of 30
+  WindowConfig c;  // 7 s at 3 kHz, and a pre-pad ring of 150 + 31 frames of 30
+  c.window_samples = 0;  // unbounded: the window buffer holds max_window_s
   const auto p = eskin::resolve_window_config(c, kRate);
   EXPECT_EQ(eskin::detector_stored_values(p, 16), 16 * (150 + 31 * 30 + 21000));
   const int64_t most = eskin::kMaxStoredValues / eskin::detector_stored_values(p, 1);
@@ -519,6 +520,103 @@ TEST(StreamingEqualsBatch, StreamedTensorEqualsBatchPreprocess) {
     eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, batch.data(), &w);
     EXPECT_TRUE(same(w, det.last_window()));
     EXPECT_EQ(batch, streamed);
+  }
+}
+
+// ------------------------------------------------------------------ bounded window
+
+TEST(BoundedWindow, StrideIsTheSmallestPowerOfTwoThatFits) {
+  EXPECT_EQ(eskin::window_stride(1, 8), 1);
+  EXPECT_EQ(eskin::window_stride(8, 8), 1);
+  EXPECT_EQ(eskin::window_stride(9, 8), 2);
+  EXPECT_EQ(eskin::window_stride(16, 8), 2);
+  EXPECT_EQ(eskin::window_stride(17, 8), 4);
+  EXPECT_EQ(eskin::window_stride(1000, 0), 1);  // unbounded
+  for (int64_t n = 1; n < 5000; n += 7) {
+    const int64_t s = eskin::window_stride(n, 64);
+    EXPECT_LE((n + s - 1) / s, 64);
+    if (s > 1) EXPECT_GT((n + s / 2 - 1) / (s / 2), 64);
+  }
+}
+
+TEST(BoundedWindow, DetectorRamDoesNotGrowWithMaxWindow) {
+  WindowConfig c;
+  c.window_samples = 512;
+  for (double max_s : {1.0, 7.0, 60.0, 600.0}) {
+    c.max_window_s = max_s;
+    const auto p = eskin::resolve_window_config(c, kRate);
+    EXPECT_EQ(p.window_capacity, 512);
+    EXPECT_EQ(eskin::detector_stored_values(p, 16), 16 * (150 + 31 * 30 + 512)) << max_s;
+  }
+  c.window_samples = 0;  // every sample: grows with max_window_s
+  c.max_window_s = 60.0;
+  EXPECT_EQ(eskin::resolve_window_config(c, kRate).window_capacity, 180000);
+  for (double bad : {1.0, 3.0, -2.0, 2.5, 1e9}) {
+    c.window_samples = bad;
+    EXPECT_THROW(eskin::resolve_window_config(c, kRate), std::invalid_argument) << bad;
+  }
+}
+
+// A window far longer than the buffer (a 6 s touch in 64 kept samples, stride 512): the stream's
+// tensor equals the batch preprocessing's, which reads the recording as the buffer kept it, for
+// both subsampling methods, short windows (S < D) included.
+TEST(BoundedWindow, StreamedTensorEqualsBatchAtEveryStride) {
+  const int64_t T = 24000;
+  for (const double cap : {64.0, 256.0, 2048.0, 0.0}) {
+    for (const auto& burst : std::vector<Burst>{{3000, 21000, 90.0}, {5000, 5600, 150.0}}) {
+      WindowConfig c;
+      c.window_samples = cap;
+      const auto x = make_recording(T, {burst}, 40);
+      const auto inter = interleave(x, T);
+      for (auto method : {SubsampleMethod::kAlgorithm2, SubsampleMethod::kEven}) {
+        for (const int64_t D : {int64_t{50}, int64_t{100}, int64_t{1500}}) {
+          TouchDetector det(kTaxels, kRate, c);
+          std::vector<double> streamed(kTaxels * D);
+          TouchWindow last;
+          for (int64_t t = 0; t < T; ++t) {
+            if (det.push(inter.data() + t * kTaxels) == Status::kWindow) {
+              ASSERT_EQ(det.subsample_last_window(D, method, ShortPolicy::kInterpolate,
+                                                  streamed.data()),
+                        Status::kOk);
+              last = det.last_window();
+            }
+          }
+          if (det.flush() == Status::kWindow) {
+            ASSERT_EQ(det.subsample_last_window(D, method, ShortPolicy::kInterpolate,
+                                                streamed.data()),
+                      Status::kOk);
+            last = det.last_window();
+          }
+          ASSERT_GT(last.stop, last.start) << cap;
+          const int64_t S = last.stop - last.start;
+          if (cap > 0 && S > 2 * cap) {
+            EXPECT_GT(last.stride, 1);
+          }
+          if (cap == 0) {
+            EXPECT_EQ(last.stride, 1);
+          }
+          eskin::PreprocessOptions opt;
+          opt.D = D;
+          opt.method = method;
+          opt.config = c;
+          std::vector<double> batch(kTaxels * D);
+          TouchWindow w;
+          eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, batch.data(), &w);
+          EXPECT_TRUE(same(w, last));
+          EXPECT_EQ(w.stride, last.stride);
+          EXPECT_EQ(batch, streamed) << "capacity " << cap << " D " << D;
+          // and each value is the recording's sample at (t / stride) * stride
+          std::vector<int64_t> idx(static_cast<std::size_t>(D));
+          if (S >= D) {
+            ASSERT_TRUE(eskin::subsample_indices(S, D, method, idx.data()));
+            for (int64_t k = 0; k < kTaxels; k += 5)
+              for (int64_t d = 0; d < D; ++d)
+                EXPECT_EQ(batch[k * D + d],
+                          x[k * T + w.start + (idx[d] / w.stride) * w.stride]);
+          }
+        }
+      }
+    }
   }
 }
 

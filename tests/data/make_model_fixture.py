@@ -56,7 +56,8 @@ def fixture_spec() -> ModelSpec:
         window="energy",
         subsample="algorithm2",
         sample_rate_hz=3000.0,
-        window_config=WindowConfig(),  # the detector's defaults
+        # the detector's defaults with an unbounded window: a format version 1 file
+        window_config=WindowConfig(window_samples=0),
         meta={"note": "loader test fixture, random bases"},
     )
 

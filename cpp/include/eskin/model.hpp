@@ -22,6 +22,10 @@
 
 namespace eskin {
 
+namespace detail {
+struct DecisionTables;
+}
+
 /// What went wrong while reading a model file.
 enum class ModelError : int {
   kIo = 1,             ///< the file cannot be opened or read
@@ -53,11 +57,13 @@ struct ModelLoadError {
 namespace model_format {
 inline constexpr std::uint8_t kMagic[8] = {0x89, 'E', 'S', 'K', 'I', 'N', '\r', '\n'};
 /// Versions this library reads: 1 (the tensor kernel), 2 (adds the AMPL section: an amplitude
-/// factor on some machines). kVersion is the newest; a file is written as version 1 unless it
-/// needs the factor.
+/// factor on some machines), 3 (adds the bounded window's field window_samples to PREP; AMPL
+/// present when some machine has the factor). kVersion is the newest; a file is written in the
+/// lowest version that holds it.
 inline constexpr std::uint16_t kMinVersion = 1;
-inline constexpr std::uint16_t kVersion = 2;
+inline constexpr std::uint16_t kVersion = 3;
 inline constexpr std::uint16_t kVersionAmplitude = 2;
+inline constexpr std::uint16_t kVersionBoundedWindow = 3;
 /// Amplitude factor (format version 2): e(x) = log(mean(x^2) + kLogEnergyFloor).
 inline constexpr double kLogEnergyFloor = 1e-12;
 inline constexpr std::uint32_t kHeaderBytes = 32;
@@ -150,6 +156,9 @@ class Model {
   /// amplitude factor (format version 2), else empty.
   const std::vector<double>& sv_log_energy() const noexcept { return sv_log_energy_; }
   bool has_amplitude() const noexcept { return !sv_log_energy_.empty(); }
+  /// The decision path's read-only tables (machine groups, support-vector projections), built
+  /// once by the loader and shared by every classifier of this model and of its copies.
+  const detail::DecisionTables& decision_tables() const noexcept { return *tables_; }
 
  private:
   int rows_ = 0, cols_ = 0, D_ = 0;
@@ -174,6 +183,7 @@ class Model {
   std::size_t file_bytes_ = 0;
   int format_version_ = 1;
   std::vector<double> sv_log_energy_;
+  std::shared_ptr<const detail::DecisionTables> tables_;
 
   friend class ModelParser;
 };
@@ -208,9 +218,10 @@ struct Decision {
   bool window_found = true;        ///< false when the detector found no touch (fallback window)
 };
 
-/// Runs a Model on raw windows. Owns every buffer it needs (allocated at construction); the
-/// classify calls perform no heap allocation and throw nothing. Not thread-safe: one Classifier
-/// per thread (a Model can be shared; it must outlive its classifiers).
+/// Runs a Model on raw windows. Owns the per-decision buffers it needs (allocated at
+/// construction) and reads the model's shared tables (Model::decision_tables); the classify
+/// calls perform no heap allocation and throw nothing. Not thread-safe: one Classifier per
+/// thread (a Model can be shared; it must outlive its classifiers).
 class Classifier {
  public:
   explicit Classifier(const Model& model);
@@ -252,7 +263,9 @@ class Classifier {
 
 /// The controller's path: fed one multi-taxel sample at a time (rows*cols values, taxel
 /// (r, c) at r * cols + c), it detects each touch with the model's window detector and
-/// classifies it when it ends. No heap allocation after construction, no exceptions.
+/// classifies it when it ends. No heap allocation after construction, no exceptions. It holds
+/// the detector's sample buffers (bounded by WindowConfig::window_samples, StoredSample) and the
+/// per-decision scratch; the model's tables are shared, not copied.
 class StreamClassifier {
  public:
   explicit StreamClassifier(const Model& model);

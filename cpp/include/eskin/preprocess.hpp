@@ -49,9 +49,17 @@ struct WindowConfig {
   double span_fraction = 0.05;     // select = span ignores touches below this fraction of the
                                    // most energetic touch's energy
   double fallback = 0;             // batch, no touch: 0 whole recording, 1 error
+  // The bounded window (docs/preprocessing.md, "Bounded window"): the samples per taxel a
+  // stream keeps of a window, an even count >= 2; a longer window is kept at half the time
+  // resolution each time it fills (every 2nd, 4th, ... sample), so the detector's RAM does not
+  // grow with max_window_s. 0 = every sample up to max_window_s (model format versions 1, 2).
+  double window_samples = 1024;
 };
 
-inline constexpr std::size_t kWindowConfigSize = 19;
+inline constexpr std::size_t kWindowConfigSize = 20;
+// The fields a model file of format version 1 or 2 holds: all but window_samples (the last),
+// which such a file leaves at 0 (an unbounded window).
+inline constexpr std::size_t kWindowConfigSizeV2 = 19;
 // Field names, in the order of window_config_to_array (the serialisation order).
 const std::array<const char*, kWindowConfigSize>& window_config_field_names();
 std::array<double, kWindowConfigSize> window_config_to_array(const WindowConfig& cfg);
@@ -80,6 +88,7 @@ struct DetectorParams {
   int select = 0;
   double span_fraction = 0.0;
   int fallback = 0;
+  int64_t window_capacity = 0;  // samples per taxel the window buffer keeps (<= max_window)
 };
 DetectorParams resolve_window_config(const WindowConfig& cfg, double sample_rate_hz);
 
@@ -90,10 +99,11 @@ inline constexpr double kMaxFieldSamples = 1e13;               // |seconds * rat
 inline constexpr int64_t kMaxNoiseFrames = int64_t{1} << 20;     // noise_window_s in frames
 inline constexpr int64_t kMaxLookbackFrames = int64_t{1} << 20;  // lookback_s in frames
 inline constexpr int64_t kMaxWindowSamples = int64_t{1} << 24;   // max_window_s in samples
-// Samples (doubles) a TouchDetector with store_samples keeps: (pre-pad ring + max window) *
-// n_taxels, 256 MiB at the limit. The constructor, and the model loader for its grid, check it.
+// Samples a TouchDetector with store_samples keeps: (pre-pad ring + window buffer) * n_taxels.
+// The constructor, and the model loader for its grid, check it.
 inline constexpr int64_t kMaxStoredValues = int64_t{1} << 25;
-// The doubles a storing TouchDetector over n_taxels taxels allocates for its samples.
+// The samples (StoredSample) a storing TouchDetector over n_taxels taxels allocates:
+// (pre-pad ring + window_capacity) * n_taxels.
 int64_t detector_stored_values(const DetectorParams& p, int64_t n_taxels) noexcept;
 // Throws std::invalid_argument naming max_window_s when detector_stored_values > kMaxStoredValues.
 void check_detector_buffers(const DetectorParams& p, const WindowConfig& cfg, int64_t n_taxels);
@@ -108,16 +118,25 @@ struct TouchWindow {
   double energy = 0.0;     // sum of frame energy * frame_len over the touch's frames
   bool truncated = false;  // cut by max_window (or by the end of the stream) while still active
   bool found = true;       // batch result only: false when no touch was found (fallback window)
+  // The bounded window's decimation: the stream kept every stride-th sample of the window
+  // (window_stride of the samples it pushed since `start`); subsampling reads window sample t
+  // as sample (t / stride) * stride. 1 = every sample.
+  int64_t stride = 1;
 };
 
-// The raw samples a streaming detector keeps of the touch in progress (store_samples): double
-// on the host; on a controller (the device build, ESKIN_DEVICE) the ADC codes themselves, int16
-// (a quarter of the RAM: these buffers are the largest of the device path; a float or double
-// sample pushed there is rounded to the nearest code in [-32768, 32767]).
+// The decimation of a bounded window buffer of `capacity` samples per taxel after `pushed`
+// samples: the smallest power of two s with ceil(pushed / s) <= capacity (1 when capacity <= 0).
+int64_t window_stride(int64_t pushed, int64_t capacity) noexcept;
+
+// The raw samples a streaming detector keeps of the touch in progress (store_samples): float32
+// on the host (exact for ADC codes, and for any integer up to 2^24; a double sample is rounded
+// to float32); on a controller (the device build, ESKIN_DEVICE) the ADC codes themselves, int16
+// (these buffers are the largest of the device path; a float or double sample pushed there is
+// rounded to the nearest code in [-32768, 32767]).
 #if defined(ESKIN_DEVICE)
 using StoredSample = int16_t;
 #else
-using StoredSample = double;
+using StoredSample = float;
 #endif
 
 enum class Status : int32_t {
@@ -143,13 +162,16 @@ enum class ShortPolicy : int32_t {
 // Writes D indices to out. No allocation, no exceptions; returns false when D < 1 or S < D.
 bool subsample_indices(int64_t S, int64_t D, SubsampleMethod method, int64_t* out) noexcept;
 
-// Subsample one window: x points at the window's first sample of taxel 0; taxel k's sample t is
-// x[k*taxel_stride + t*time_stride]. Writes out[k*D + d]. Returns kBadArgument (D < 1, S < 1,
-// or S < D with kError) without writing, else kOk. No allocation, no exceptions.
+// Subsample one window of S samples: x points at the window's first sample of taxel 0; taxel
+// k's window sample t is x[k*taxel_stride + (t / decimation)*time_stride] (decimation > 1: a
+// bounded window that kept every decimation-th sample, TouchWindow::stride; the indices are
+// those of S samples, each read from the kept sample at or before it). Writes out[k*D + d].
+// Returns kBadArgument (D < 1, S < 1, decimation < 1, or S < D with kError) without writing,
+// else kOk. No allocation, no exceptions.
 template <class T>
 Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int64_t time_stride,
                         int64_t S, int64_t D, SubsampleMethod method, ShortPolicy short_policy,
-                        double* out) noexcept;
+                        double* out, int64_t decimation = 1) noexcept;
 
 // The streaming detector. Feed it one multi-taxel sample at a time (push) or a block of
 // samples (push_block); it reports a touch when it ends.
@@ -183,10 +205,12 @@ class TouchDetector {
   void reset() noexcept;
 
   const TouchWindow& last_window() const noexcept { return last_; }
-  // The raw samples of the last window (sample-major, last_window_length() x n_taxels), or
-  // nullptr when none is stored (store_samples off, or overwritten by a newer touch's onset).
+  // The raw samples kept of the last window (sample-major, n_taxels values per kept sample:
+  // every last_window_stride()-th sample of its last_window_length() samples), or nullptr when
+  // none is stored (store_samples off, or overwritten by a newer touch's onset).
   const StoredSample* last_window_data() const noexcept;
   int64_t last_window_length() const noexcept;
+  int64_t last_window_stride() const noexcept { return last_.stride; }
   // The (n_taxels x D) tensor of the last window. No allocation, no exceptions.
   Status subsample_last_window(int64_t D, SubsampleMethod method, ShortPolicy short_policy,
                                double* out) const noexcept;
@@ -208,6 +232,7 @@ class TouchDetector {
   Status on_frame() noexcept;
   Status finalise(bool forced) noexcept;
   void push_noise(double e) noexcept;
+  void keep(const StoredSample* sample) noexcept;  // the window's next sample (bounded buffer)
 
   WindowConfig cfg_;
   DetectorParams p_;
@@ -228,8 +253,10 @@ class TouchDetector {
   // raw samples: pre-pad ring (capacity pad_before + frame_len) and the window buffer
   std::vector<StoredSample> ring_;
   int64_t ring_cap_ = 0;
-  std::vector<StoredSample> window_;
-  int64_t window_len_ = 0;
+  std::vector<StoredSample> window_;  // window_capacity kept samples
+  int64_t window_len_ = 0;            // samples of the window pushed so far
+  int64_t window_kept_ = 0;           // of which kept (every window_stride_-th)
+  int64_t window_stride_ = 1;
   bool window_valid_ = false;
 
   State state_ = State::kIdle;
@@ -271,6 +298,7 @@ class WindowSelector {
   int select_;
   double span_fraction_;
   int64_t max_window_;
+  int64_t capacity_;
   std::vector<TouchWindow> buf_;
   int64_t n_ = 0;
 };

@@ -3,7 +3,9 @@
 The file format is specified in ``docs/model-format.md``. In short: a 32-byte header (magic,
 version, flags, size), four sections (preprocessing, classes, support-vector bases, machines) and a
 CRC-32 trailer; a model whose machines have an amplitude factor is format version 2 and has a
-fifth section (the support vectors' log energies and the machines' amplitude widths). Support vectors are stored as their per-mode subspace bases (all the kernel needs
+fifth section (the support vectors' log energies and the machines' amplitude widths); a model
+with a bounded touch window (``WindowConfig.window_samples`` > 0) is format version 3, whose
+preprocessing section holds that field too. Support vectors are stored as their per-mode subspace bases (all the kernel needs
 at inference), deduplicated across the machines of a one-vs-all model.
 
 Three entry points:
@@ -49,9 +51,12 @@ __all__ = [
 
 MAGIC = b"\x89ESKIN\r\n"
 #: The versions written: 1 (the tensor kernel), 2 (some machine has an amplitude factor: section
-#: AMPL). FORMAT_VERSION is the newest; each file is written in the lowest version that holds it.
-FORMAT_VERSIONS = (1, 2)
-FORMAT_VERSION = 2
+#: AMPL), 3 (a bounded touch window: the window field ``window_samples``; AMPL as needed).
+#: FORMAT_VERSION is the newest; each file is written in the lowest version that holds it.
+FORMAT_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 3
+#: The window field that format version 3 adds (older files leave it 0: every sample kept)
+_V3_WINDOW_FIELD = "window_samples"
 _MAX_LOG_ENERGY = 1e4
 _AMPLITUDE_WIDTH_RANGE = (1e-6, 1e6)
 HEADER_BYTES = 32
@@ -213,8 +218,15 @@ def _validate_amplitude(k: int, m: MachineSpec, n_sv: int) -> None:
 
 
 def format_version(spec: ModelSpec) -> int:
-    """The version a spec is written in: 2 if some machine has an amplitude factor, else 1."""
-    return 2 if any(float(m.amplitude_width) > 0 for m in spec.machines) else 1
+    """The version a spec is written in: 3 with a bounded touch window (window_samples > 0),
+    else 2 if some machine has an amplitude factor, else 1."""
+    if float(_window_fields(spec.window_config).get(_V3_WINDOW_FIELD, 0.0)) != 0.0:
+        return 3
+    return 2 if _has_amplitude(spec) else 1
+
+
+def _has_amplitude(spec: ModelSpec) -> bool:
+    return any(float(m.amplitude_width) > 0 for m in spec.machines)
 
 
 def _window_fields(cfg: Any) -> dict[str, float]:
@@ -277,7 +289,7 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
     ranks, bases = bases_fn(np.stack(unique), alpha_store)
 
     meta_fields = {"format": "eskin-model", "dtype": dtype, **spec.meta}
-    if version >= 2:  # a version-1 file's meta (and every byte of it) is as it always was
+    if _has_amplitude(spec):  # a version-1 file's meta (and every byte of it) is as it always was
         meta_fields["amplitude"] = True
         meta_fields["amplitude_widths"] = [float(m.amplitude_width) for m in spec.machines]
     meta = json.dumps(meta_fields, sort_keys=True, default=str).encode("utf-8")
@@ -287,7 +299,7 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
         _section(b"SVBS", _svbs_section(spec, len(unique), alpha_store, ranks, bases, real)),
         _section(b"MACH", _mach_section(spec, machine_terms, real)),
     ]
-    if version >= 2:
+    if _has_amplitude(spec):
         sections.append(_section(b"AMPL", _ampl_section(spec, unique)))
     sections.append(_section(b"meta", meta))
     body_len = HEADER_BYTES + sum(len(s) for s in sections)
@@ -378,6 +390,9 @@ def _ampl_section(spec: ModelSpec, unique: list[np.ndarray]) -> bytes:
 def _prep_section(spec: ModelSpec) -> bytes:
     """PREP: grid, D, window/subsampling/short modes, sample rate, window_config fields."""
     rows, cols = (int(v) for v in spec.grid_shape)
+    window_fields = _window_fields(spec.window_config)
+    if format_version(spec) < 3:  # an unbounded window: the fields of versions 1 and 2
+        window_fields.pop(_V3_WINDOW_FIELD, None)
     prep = struct.pack(
         "<IIIIIIII d",
         rows,
@@ -386,11 +401,11 @@ def _prep_section(spec: ModelSpec) -> bytes:
         _WINDOW_MODES[spec.window],
         _SUBSAMPLE[spec.subsample],
         _SHORT[spec.short],
-        len(_window_fields(spec.window_config)),
+        len(window_fields),
         0,
         float(spec.sample_rate_hz),
     )
-    for name, value in _window_fields(spec.window_config).items():
+    for name, value in window_fields.items():
         v = float(value)
         if not np.isfinite(v):
             raise ModelFormatError(f"window_config[{name!r}]={value!r} is not finite")

@@ -42,8 +42,18 @@ def frame_energies(x: np.ndarray, p: dict, dc_alpha: float, combine: str) -> np.
     return total - e.max(axis=0) if combine == "trimmed" and K > 1 else total
 
 
+def window_stride(pushed: int, capacity: int) -> int:
+    """The bounded window's decimation after ``pushed`` samples in a buffer of ``capacity``:
+    the smallest power of two s with ceil(pushed / s) <= capacity."""
+    s = 1
+    while -(-pushed // s) > capacity:
+        s *= 2
+    return s
+
+
 def detect(x: np.ndarray, sample_rate_hz: float, cfg: WindowConfig) -> list[dict]:
-    """All touches of one recording x (K, n): dicts with start, stop, onset, offset, energy."""
+    """All touches of one recording x (K, n): dicts with start, stop, onset, offset, energy,
+    truncated and stride (the bounded window's decimation)."""
     p = cfg.resolve(sample_rate_hz)
     L = p["frame_len"]
     n = x.shape[1]
@@ -72,7 +82,8 @@ def detect(x: np.ndarray, sample_rate_hz: float, cfg: WindowConfig) -> list[dict
         last_stop = stop
         if off_ - onset >= p["min_duration"]:
             touches.append(dict(start=start, stop=stop, onset=onset, offset=off_, energy=energy,
-                                truncated=truncated))
+                                truncated=truncated,
+                                stride=window_stride(now - start, p["window_capacity"])))
 
     for f, e in enumerate(e_all):
         now = (f + 1) * L
@@ -118,25 +129,32 @@ def detect(x: np.ndarray, sample_rate_hz: float, cfg: WindowConfig) -> list[dict
     return touches
 
 
-def select(touches: list[dict], length: int, cfg: WindowConfig, max_window: int) -> tuple[int, int]:
+def select(touches: list[dict], length: int, cfg: WindowConfig, p: dict) -> tuple[int, int, int]:
+    """The recording's window (start, stop, stride)."""
     if not touches:
         if cfg.fallback == "error":
             raise RuntimeError("no touch detected")
-        return 0, length
+        return 0, length, 1
     if cfg.select == "first":
-        return touches[0]["start"], touches[0]["stop"]
+        return touches[0]["start"], touches[0]["stop"], touches[0]["stride"]
     best = max(touches, key=lambda w: w["energy"])
     if cfg.select == "energy":
-        return best["start"], best["stop"]
+        return best["start"], best["stop"], best["stride"]
     kept = [w for w in touches if w["energy"] >= cfg.span_fraction * best["energy"]]
     start = kept[0]["start"]
-    return start, min(kept[-1]["stop"], start + max_window)
+    stop = min(kept[-1]["stop"], start + p["max_window"])
+    stride = max(w["stride"] for w in kept)
+    if len(kept) > 1:  # a span of several touches: read as a bounded window of its length
+        stride = max(stride, window_stride(stop - start, p["window_capacity"]))
+    return start, stop, stride
 
 
-def algorithm2(window: np.ndarray, D: int) -> np.ndarray:
-    """window (rows, cols, S >= D) -> (rows, cols, D): samples (d-1)*floor(S/D), d = 1..D."""
+def algorithm2(window: np.ndarray, D: int, stride: int = 1) -> np.ndarray:
+    """window (rows, cols, S >= D) -> (rows, cols, D): samples (d-1)*floor(S/D), d = 1..D, each
+    read from the bounded window's kept sample at or before it (every stride-th)."""
     interval = window.shape[-1] // D
-    return window[..., : interval * D : interval].astype(np.float64)
+    t = np.arange(D) * interval
+    return window[..., (t // stride) * stride].astype(np.float64)
 
 
 def preprocess(x: np.ndarray, D: int, sample_rate_hz: float = 3000.0,
@@ -147,5 +165,5 @@ def preprocess(x: np.ndarray, D: int, sample_rate_hz: float = 3000.0,
     rows, cols, T = x.shape
     length = T if length is None else length
     touches = detect(x.reshape(rows * cols, T)[:, :length], sample_rate_hz, cfg)
-    w = select(touches, length, cfg, cfg.resolve(sample_rate_hz)["max_window"])
-    return algorithm2(x[:, :, w[0] : w[1]], D), w
+    start, stop, stride = select(touches, length, cfg, cfg.resolve(sample_rate_hz))
+    return algorithm2(x[:, :, start:stop], D, stride), (start, stop)

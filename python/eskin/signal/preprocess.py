@@ -96,6 +96,13 @@ class WindowConfig:
     select: str = "span"
     span_fraction: float = 0.05
     fallback: str = "whole"
+    #: The bounded window: samples per taxel a stream keeps of a window (an even count >= 2).
+    #: A longer window is kept at half the time resolution each time the buffer fills (every
+    #: 2nd, then 4th, ... sample), and Algorithm 2's indices over the whole window read the kept
+    #: sample at or before each; the batch functions read a recording the same way, so a model
+    #: sees the same tensors in training and on a controller. 0 = every sample up to
+    #: ``max_window_s`` (the detector's RAM then grows with it). docs/preprocessing.md.
+    window_samples: float = 1024
 
     def __post_init__(self) -> None:
         for name, choices in (("combine", _COMBINE), ("select", _SELECT), ("fallback", _FALLBACK)):
@@ -199,6 +206,7 @@ class TouchWindow:
     energy: float
     truncated: bool
     tensor: Optional[np.ndarray] = None  # (rows, cols, D) when the detector was given D
+    stride: int = 1  # the bounded window kept every stride-th sample (WindowConfig.window_samples)
 
 
 @dataclass(frozen=True)
@@ -212,6 +220,7 @@ class TouchWindows:
     energy: np.ndarray
     truncated: np.ndarray
     found: np.ndarray
+    stride: np.ndarray  # the bounded window's decimation (1 = every sample)
 
     @property
     def windows(self) -> np.ndarray:
@@ -373,7 +382,7 @@ def detect_touches(
             _raise_indexed(err, i0)
         infos.append(info)
         energies.append(energy)
-    info = np.concatenate(infos) if infos else np.zeros((0, 6), np.int64)
+    info = np.concatenate(infos) if infos else np.zeros((0, 7), np.int64)
     energy = np.concatenate(energies) if energies else np.zeros(0)
     return TouchWindows(
         start=info[:, 0].copy(),
@@ -383,6 +392,7 @@ def detect_touches(
         energy=energy,
         truncated=info[:, 4].astype(bool),
         found=info[:, 5].astype(bool),
+        stride=info[:, 6].copy(),
     )
 
 
@@ -570,12 +580,12 @@ class TouchDetector:
 
     def _wrap(self, found: list) -> list[TouchWindow]:
         out = []
-        for start, stop, onset, offset, energy, truncated, tensor in found:
+        for start, stop, onset, offset, energy, truncated, tensor, stride in found:
             if tensor is not None:
                 tensor = np.asarray(tensor).reshape(self.grid[0], self.grid[1], -1)
             out.append(
                 TouchWindow(int(start), int(stop), int(onset), int(offset), float(energy),
-                            bool(truncated), tensor)
+                            bool(truncated), tensor, int(stride))
             )
         return out
 

@@ -42,10 +42,14 @@ def campaign(tmp_path_factory):
     return eskin.load_campaign(path, in_memory=True)
 
 
+# an unbounded touch window (WindowConfig.window_samples = 0): files of format versions 1 and 2
+_CFG = eskin.WindowConfig(window_samples=0)
+
+
 def _patterns(campaign, D):
     return eskin.preprocess(
         np.asarray(campaign.signals), D, lengths=np.asarray(campaign.lengths),
-        sample_rate_hz=campaign.sample_rate_hz,
+        sample_rate_hz=campaign.sample_rate_hz, config=_CFG,
     )
 
 
@@ -72,7 +76,7 @@ def _spec(campaign, D, widths, *, seed=0):
         class_names=list(campaign.modalities[: max(2, n)]),
         rule="binary" if n == 1 else "one_vs_all",
         machines=machines, D=D, grid_shape=X.shape[1:3],
-        sample_rate_hz=campaign.sample_rate_hz, window_config=eskin.WindowConfig(),
+        sample_rate_hz=campaign.sample_rate_hz, window_config=_CFG,
     ), X
 
 
@@ -285,7 +289,7 @@ def test_exported_estimators_decide_like_python(campaign, machine, n_classes, dt
     assert all(m.amplitude_width > 0 for m in spec.machines)
     data = model_to_bytes(spec, dtype)
     cm = CompiledModel(data)
-    assert cm.format_version == 2
+    assert cm.format_version == 3  # the default bounded window; AMPL as in version 2
     got = cm.classify(np.asarray(campaign.signals), np.asarray(campaign.lengths))
     F = np.asarray(est.decision_function(X), float).reshape(len(X), -1)
     _, scale = _python_decisions(spec, X)
@@ -308,8 +312,15 @@ def test_exported_estimators_decide_like_python(campaign, machine, n_classes, dt
 def test_an_estimator_without_the_factor_exports_version_1(campaign):
     est, _ = _fit(campaign, 20, "rls", 2, amplitude=None)
     assert est.amplitude_width_ == 0.0
-    spec = spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4))
+    spec = spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4), window_config=_CFG)
     assert struct.unpack_from("<H", model_to_bytes(spec), 8)[0] == 1
+    # with the default bounded window: version 3, without the AMPL section
+    spec = spec_from_estimator(est, ["a", "b"], D=20, grid_shape=(4, 4))
+    data = model_to_bytes(spec)
+    assert struct.unpack_from("<H", data, 8)[0] == 3 and b"AMPL" not in data
+    cm = CompiledModel(data)
+    assert cm.format_version == 3 and not cm.sv_log_energy.size
+    assert cm.window_config["window_samples"] == eskin.WindowConfig().window_samples
 
 
 def test_an_estimator_with_a_width_but_no_energies_is_refused(campaign):

@@ -117,10 +117,36 @@ def test_layout_header_and_checksum(campaign):
     data = model_to_bytes(spec)
     assert data[:8] == b"\x89ESKIN\r\n"
     version, header_bytes, flags, size, n_sections = struct.unpack_from("<HHIII", data, 8)
-    assert (version, header_bytes, flags, size) == (1, 32, 0, len(data))
+    # the default WindowConfig has a bounded window (window_samples): format version 3
+    assert (version, header_bytes, flags, size) == (3, 32, 0, len(data))
     assert n_sections == 5
     assert struct.unpack("<I", data[-4:])[0] == zlib.crc32(data[:-4])
     assert struct.unpack_from("<I", model_to_bytes(spec, "float64"), 12)[0] == 1  # flag float64
+
+
+def _with_version(data: bytes, version: int) -> bytes:
+    body = data[:8] + struct.pack("<H", version) + data[10:-4]
+    return body + struct.pack("<I", zlib.crc32(body) & 0xFFFFFFFF)
+
+
+def test_version_3_holds_the_bounded_window_and_older_files_load_unbounded(campaign):
+    """window_samples > 0 is written as version 3 (20 window fields); window_samples = 0 as
+    before (version 1, 19 fields), which the loader reads as an unbounded window; each version
+    is refused with the other's field count, naming the field."""
+    spec = _random_spec(campaign, 20, 3)
+    spec.window_config = eskin.WindowConfig(window_samples=256)
+    v3 = model_to_bytes(spec)
+    cm = CompiledModel(v3)
+    assert cm.format_version == 3 and cm.window_config["window_samples"] == 256
+    spec.window_config = eskin.WindowConfig(window_samples=0)
+    v1 = model_to_bytes(spec)
+    assert struct.unpack_from("<H", v1, 8)[0] == 1 and len(v1) == len(v3) - 40  # one name + f64
+    cm1 = CompiledModel(v1)
+    assert cm1.format_version == 1 and cm1.window_config["window_samples"] == 0
+    with pytest.raises(ModelFormatError, match=r"n_window_fields=20, expected 19 .*version 1"):
+        CompiledModel(_with_version(v3, 1))
+    with pytest.raises(ModelFormatError, match=r"n_window_fields=19, expected 20 .*version 3"):
+        CompiledModel(_with_version(v1, 3))
 
 
 def test_metadata_round_trips_through_the_cpp_loader(campaign):

@@ -236,7 +236,18 @@ def test_any_grid_and_rate():
     w = detect_windows(x, sample_rate_hz=rate)
     assert abs(w[0] - (2000 - 50)) <= 10 and abs(w[1] - (3000 + 50)) <= 20
     out = preprocess(x, 20, sample_rate_hz=rate)
-    np.testing.assert_array_equal(out, algorithm2_numpy(x[:, :, w[0] : w[1]], 20))
+    # a window longer than WindowConfig.window_samples (1024) is read as the bounded buffer kept
+    # it: window sample t is sample (t // stride) * stride
+    stride = int(detect_touches(x[None], sample_rate_hz=rate).stride[0])
+    assert stride == 2
+    S = w[1] - w[0]
+    kept = x[:, :, w[0] : w[1]][:, :, (np.arange(S) // stride) * stride]
+    np.testing.assert_array_equal(out, algorithm2_numpy(kept, 20))
+    unbounded = WindowConfig(window_samples=0)
+    np.testing.assert_array_equal(
+        preprocess(x, 20, sample_rate_hz=rate, config=unbounded),
+        algorithm2_numpy(x[:, :, w[0] : w[1]], 20),
+    )
 
 
 @settings(max_examples=25, deadline=None)
@@ -354,17 +365,27 @@ def test_streaming_rejects_bad_samples():
 # --------------------------------------------------------------------------- batch API
 
 
+def kept(window: np.ndarray, stride: int) -> np.ndarray:
+    """A window as the bounded buffer keeps it: sample t is sample (t // stride) * stride."""
+    S = window.shape[-1]
+    return window[..., (np.arange(S) // stride) * stride]
+
+
 def test_preprocess_batch_and_single():
     xs = np.stack([recording(21000, [(3000 + 1000 * i, 9000 + 500 * i, 120.0)], i)
                    for i in range(4)])
     out, w = preprocess(xs, 100, return_windows=True)
     assert out.shape == (4, 4, 4, 100) and out.dtype == np.float64 and w.shape == (4, 2)
     np.testing.assert_array_equal(w, detect_windows(xs))
+    stride = detect_touches(xs).stride
+    assert np.all(stride == 8)  # windows of 6000-7500 samples kept in 1024
     for i in range(4):
         np.testing.assert_array_equal(out[i], preprocess(xs[i], 100))
-        np.testing.assert_array_equal(out[i], algorithm2_numpy(xs[i, :, :, w[i, 0]:w[i, 1]], 100))
+        win = xs[i, :, :, w[i, 0]:w[i, 1]]
+        np.testing.assert_array_equal(out[i], algorithm2_numpy(kept(win, stride[i]), 100))
     even = preprocess(xs, 20, subsample="even")
-    np.testing.assert_array_equal(even[1], even_numpy(xs[1, :, :, w[1, 0]:w[1, 1]], 20))
+    win = xs[1, :, :, w[1, 0]:w[1, 1]]
+    np.testing.assert_array_equal(even[1], even_numpy(kept(win, stride[1]), 20))
     none = preprocess(xs, 20, window="none", lengths=[21000, 20000, 15000, 100])
     np.testing.assert_array_equal(none[2], algorithm2_numpy(xs[2, :, :, :15000], 20))
     # threads do not change anything
