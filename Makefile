@@ -152,10 +152,19 @@ fuzz: sanitize fuzz-listener
 # held-out recordings (tools/mcu_case.py), the device build (cmake/arm-none-eabi.cmake,
 # ESKIN_DEVICE=ON) with the model compiled in, the check of its program (no exceptions, RTTI,
 # threads, or allocation on the decision path), and the run on QEMU's mps2-an386 board, which
-# ends with the line "MCU: board=... parity=ok ...".
+# ends with the line "MCU: board=... parity=ok ..."; then the heap bound: the same model with an
+# unbounded window must be refused at construction (exit status 4, "out of memory").
+# Any model: `make mcu MODEL=m.eskin CAMPAIGN=held.h5` runs a user's model on a few recordings
+# of each class of a held-out campaign through the same check (no heap-bound case then).
+# MCU_PYTHON= (empty) skips `install` when $(PY) already imports eskin (e.g. PYTHONPATH=python).
 MCU_CASE := $(BUILD_MCU)/case
-mcu: mcu-deps install
-	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE)
+MCU_PYTHON ?= install
+MCU_CASE_ARGS = $(if $(MODEL),--model $(abspath $(MODEL)) --campaign $(abspath $(CAMPAIGN)))
+mcu: mcu-deps $(MCU_PYTHON)
+	@if [ -n "$(MODEL)$(CAMPAIGN)" ] && { [ -z "$(MODEL)" ] || [ -z "$(CAMPAIGN)" ]; }; then \
+	  echo "make mcu: MODEL=m.eskin and CAMPAIGN=held.h5 go together"; exit 2; fi
+	rm -rf $(MCU_CASE)
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE) $(MCU_CASE_ARGS)
 	$(CMAKE) -S . -B $(BUILD_MCU) -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
 	  -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
 	  -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/mcu_case.h >/dev/null
@@ -163,6 +172,18 @@ mcu: mcu-deps install
 	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-mcu.elf
 	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log
 	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok ' || { echo "make mcu: no 'MCU: ... parity=ok' line"; exit 1; }
+	@if [ -d $(MCU_CASE)/nofit ]; then \
+	  $(CMAKE) -S . -B $(BUILD_MCU)-nofit -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
+	    -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
+	    -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/nofit/mcu_case.h >/dev/null && \
+	  $(CMAKE) --build $(BUILD_MCU)-nofit >/dev/null && \
+	  { status=0; mcu/run.sh $(BUILD_MCU)-nofit/mcu/eskin-mcu.elf > $(BUILD_MCU)/mcu-nofit.log 2>&1 || status=$$?; \
+	    cat $(BUILD_MCU)/mcu-nofit.log; \
+	    if [ $$status -eq 4 ] && grep -q '^eskin-mcu: out of memory' $(BUILD_MCU)/mcu-nofit.log; then \
+	      echo "MCU heap bound: a model that does not fit is refused at construction (exit status 4)"; \
+	    else echo "make mcu: the model that does not fit was not refused (exit status $$status)"; exit 1; fi; }; \
+	fi
+	@tail -n 1 $(BUILD_MCU)/mcu.log
 
 # The controller firmware on the wire (docs/mcu.md, "The controller on the wire"): the device
 # build's eskin-fw (eskin::Controller on the board's UART, samples from a timer interrupt) runs

@@ -8,7 +8,10 @@
 // float64 decision for the same model and samples (same window, same label, decision values
 // within the stated tolerance), and the instructions of the push that made it are counted
 // (SysTick at the processor clock under QEMU -icount shift=0: one tick = 40 instructions).
-// malloc is wrapped (-Wl,--wrap=malloc): an allocation inside a push() or flush() fails the run.
+// The whole malloc family is wrapped and counted (alloc_count.c): an allocation inside a push()
+// or flush() fails the run. The heap is bounded by the stack reserve (startup.c's _sbrk): a model
+// whose stream classifier would need more is refused at construction (heap_guard.cpp: exit
+// status MCU_EXIT_HEAP); a case built for that (MCU_CASE_EXPECT_NO_FIT) checks it.
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -25,15 +28,8 @@
 #error "configure with -DESKIN_MCU_MODEL_HEADER=<header from tools/mcu_case.py>"
 #endif
 
-extern "C" {
-extern char end;  // linker script: the heap starts here
-void* __real_malloc(std::size_t n);
-static volatile bool g_counting = false;
-static volatile unsigned g_late_mallocs = 0;
-void* __wrap_malloc(std::size_t n) {
-  if (g_counting) ++g_late_mallocs;
-  return __real_malloc(n);
-}
+namespace {
+unsigned long g_late_mallocs = 0;  // malloc-family calls inside push() and flush()
 }
 
 namespace eskin::detail {
@@ -75,6 +71,11 @@ int main() {
     std::printf("a truncated model: %s (%s)\n", ok ? "accepted" : "refused", err.message.c_str());
     if (ok || err.code != eskin::ModelError::kTruncated) ++bad;
   }
+#ifdef MCU_CASE_EXPECT_NO_FIT
+  std::printf("a model whose stream classifier needs more RAM than the heap has (%u bytes up to "
+              "the stack reserve): construction must be refused\n",
+              static_cast<unsigned>(mcu_heap_capacity()));
+#endif
   const std::uint64_t c0 = mcu_ticks();
   eskin::Model model;
   eskin::ModelLoadError err;
@@ -83,8 +84,13 @@ int main() {
     return 1;
   }
   eskin::StreamClassifier sc(model);
+#ifdef MCU_CASE_EXPECT_NO_FIT
+  std::printf("MCU: the stream classifier was constructed (heap %u bytes): it should not fit\n",
+              static_cast<unsigned>(mcu_heap_used()));
+  return 1;
+#endif
   const std::uint64_t c1 = mcu_ticks();
-  const std::size_t heap = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
+  const std::size_t heap = mcu_heap_used();
   std::printf("model: %d support vectors, %d machines, D=%d, %u bytes in flash; "
               "load + construction %" PRIu32 " instructions, heap %u bytes\n",
               model.n_support(), static_cast<int>(model.machines().size()), model.D(),
@@ -134,22 +140,22 @@ int main() {
     const std::size_t n = std::fread(g_chunk, sizeof(std::int16_t) * MCU_CASE_TAXELS, kChunk, f);
     if (n == 0) break;
     for (std::size_t i = 0; i < n; ++i) {
-      g_counting = true;
+      const unsigned long a0 = mcu_alloc_calls();
       const std::uint64_t t0 = mcu_ticks();
       const eskin::ClassifyStatus st = sc.push(g_chunk + i * MCU_CASE_TAXELS);
       const std::uint64_t t1 = mcu_ticks();
-      g_counting = false;
+      g_late_mallocs += mcu_alloc_calls() - a0;
       ++samples;
       check(st, t1 - t0);
     }
   }
   std::fclose(f);
   {
-    g_counting = true;
+    const unsigned long a0 = mcu_alloc_calls();
     const std::uint64_t t0 = mcu_ticks();
     const eskin::ClassifyStatus st = sc.flush();
     const std::uint64_t t1 = mcu_ticks();
-    g_counting = false;
+    g_late_mallocs += mcu_alloc_calls() - a0;
     check(st, t1 - t0);
   }
   if (samples != MCU_CASE_N_SAMPLES) {
@@ -169,7 +175,7 @@ int main() {
   const std::size_t flash = reinterpret_cast<std::uintptr_t>(_sidata) +
                             (reinterpret_cast<std::uintptr_t>(_edata) - reinterpret_cast<std::uintptr_t>(_sdata));
   const std::size_t statics = reinterpret_cast<std::uintptr_t>(_ebss) - reinterpret_cast<std::uintptr_t>(_sdata);
-  const std::size_t heap_total = static_cast<std::size_t>(static_cast<char*>(sbrk(0)) - &end);
+  const std::size_t heap_total = mcu_heap_used();
   const std::size_t stack = mcu_stack_used();
   const std::size_t ram = statics + heap_total + stack;
   const int n_med = n_dec < MCU_CASE_MAX_DECISIONS ? n_dec : MCU_CASE_MAX_DECISIONS;
@@ -181,6 +187,8 @@ int main() {
               worst, MCU_CASE_TOLERANCE, static_cast<unsigned>(statics),
               static_cast<unsigned>(heap_total), static_cast<unsigned>(stack),
               static_cast<unsigned>(g_late_mallocs));
+  std::printf("heap bound: %u of %u bytes up to the stack reserve\n",
+              static_cast<unsigned>(heap_total), static_cast<unsigned>(mcu_heap_capacity()));
   std::printf("MCU: board=mps2-an386 decisions=%d parity=%s instr_per_decision=%" PRIu32
               " flash=%u ram=%u\n",
               n_dec, bad == 0 ? "ok" : "FAIL", static_cast<std::uint32_t>(med),

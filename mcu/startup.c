@@ -3,8 +3,16 @@
  * open the semihosting console (newlib's librdimon), run the C++ constructors and main(), and
  * report main's return value to QEMU through semihosting exit.
  * SysTick runs from the processor clock with the longest reload; its wrap-arounds are counted
- * here, so mcu_ticks() is a 64-bit count of processor clock ticks. */
+ * here, so mcu_ticks() is a 64-bit count of processor clock ticks.
+ * The heap: _sbrk (below) grows it from the end of .bss up to the stack reserve (the linker
+ * script's `end` and `_sstack`) and never further, for malloc and every allocation built on it;
+ * librdimon's own _sbrk (a weak symbol, replaced by this one) stopped only at the stack pointer.
+ * An allocation that would reach the stack reserve gets NULL (errno ENOMEM); operator new then
+ * ends the program with MCU_EXIT_HEAP (heap_guard.cpp). */
+#include <errno.h>
+#include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -12,6 +20,7 @@
 
 /* linker symbols (arrays, so that walking them is well-defined pointer arithmetic) */
 extern uint32_t _sidata[], _sdata[], _edata[], _sbss[], _ebss[], _estack[], _sstack[];
+extern char end[]; /* the heap's first byte */
 extern void __libc_init_array(void);
 extern void initialise_monitor_handles(void);
 extern int main(void);
@@ -38,6 +47,31 @@ uint64_t mcu_ticks(void) {
 }
 
 void SysTick_Handler(void) { ++systick_wraps; }
+
+static char* heap_top; /* 0 until the first _sbrk: then end + the bytes given out */
+
+void* _sbrk(ptrdiff_t incr) {
+  char* const base = end;
+  char* const limit = (char*)_sstack;
+  char* const top = heap_top ? heap_top : base;
+  if (incr > 0 ? (size_t)incr > (size_t)(limit - top) : (size_t)(-incr) > (size_t)(top - base)) {
+    errno = ENOMEM;
+    return (void*)-1;
+  }
+  heap_top = top + incr;
+  return top;
+}
+
+size_t mcu_heap_used(void) { return heap_top ? (size_t)(heap_top - end) : 0; }
+size_t mcu_heap_capacity(void) { return (size_t)((char*)_sstack - end); }
+
+void mcu_heap_exhausted(size_t request) {
+  printf("eskin-mcu: out of memory: %u more bytes would reach the stack reserve (heap %u of %u "
+         "bytes used)\n",
+         (unsigned)request, (unsigned)mcu_heap_used(), (unsigned)mcu_heap_capacity());
+  fflush(stdout);
+  _Exit(MCU_EXIT_HEAP);
+}
 
 size_t mcu_stack_used(void) {
   const volatile uint32_t* p = _sstack;

@@ -14,12 +14,19 @@ host's C++ stream classifier (float64 arithmetic) for the reference decisions. W
 * ``mcu_model.h``: the model as a C header (eskin.deploy.write_c_header: the .eskin bytes as a
   const, 8-byte aligned array, which the linker places in flash);
 * ``mcu_case.h``: the stream's path and size, and the host's decisions (window, label, values)
-  with the tolerance.
+  with the tolerance;
+* ``nofit/``: the same model with an unbounded 4 s window (``window_samples = 0``), whose
+  stream classifier needs more RAM than the heap has: the device program built from it must be
+  refused at construction (the heap bound, docs/mcu.md).
+
+Any model on any recordings: ``--model M.eskin --campaign HELD.h5`` writes the same case from a
+user's model and a few recordings of each class of a (held-out) campaign, instead of the demo's.
 
 The model's flash and RAM on the target are reported (eskin.deploy.target) before anything is
 written.
 
     python tools/mcu_case.py OUT [--D 20] [--max-window-s 0.4] [--per-class 2] [--amplitude 1.0]
+    python tools/mcu_case.py OUT --model M.eskin --campaign HELD.h5 [--per-class 2]
 """
 
 from __future__ import annotations
@@ -99,6 +106,61 @@ def build_case(
     print("\n".join(budget.report()))
     if not budget.fits:
         raise SystemExit("the MCU preset does not fit the target")
+    # the same model with an unbounded 4 s window: its stream classifier does not fit the heap
+    from dataclasses import replace
+
+    nofit = out / "nofit"
+    nofit.mkdir(exist_ok=True)
+    big = replace(model, window_config=WindowConfig(max_window_s=4.0, window_samples=0))
+    eskin.export_model(big, nofit / "model.eskin", dtype="float32")
+    write_c_header(nofit / "model.eskin", nofit / "mcu_model.h", name="mcu_model")
+    info = write_case(out, data, camp, chosen, seed=seed)
+    (nofit / "mcu_case.h").write_text(
+        "/* The heap-bound case of `make mcu` (tools/mcu_case.py). Generated: do not edit. */\n"
+        "#define MCU_CASE_EXPECT_NO_FIT 1\n"
+        + (out / "mcu_case.h").read_text().replace(
+            '#include "mcu_model.h"', f'#include {json.dumps(str((nofit / "mcu_model.h").resolve()))}'
+        )
+    )
+    return {**info, "D": D}
+
+
+def from_files(out: Path, model_path: Path, campaign_path: Path, *, per_class: int, seed: int) -> dict:
+    """The case of a user's model and a few recordings of each class of a campaign."""
+    import eskin
+    from eskin.deploy.target import device_budget
+
+    out.mkdir(parents=True, exist_ok=True)
+    data = Path(model_path).read_bytes()
+    compiled = eskin.CompiledModel(data)  # validates: a bad file is one clear line
+    camp = eskin.load_campaign(campaign_path)
+    names = list(compiled.class_names)
+    if tuple(camp.grid_shape) != tuple(compiled.grid_shape):
+        raise SystemExit(
+            f"{campaign_path}: grid {camp.grid_shape[0]}x{camp.grid_shape[1]}, the model "
+            f"{model_path} expects {compiled.grid_shape[0]}x{compiled.grid_shape[1]}"
+        )
+    chosen = []
+    labels = np.asarray(camp.modalities, dtype=object)[np.asarray(camp.modality)]
+    for c in names:
+        chosen.extend(np.flatnonzero(labels == c)[:per_class].tolist())
+    if not chosen:
+        raise SystemExit(
+            f"{campaign_path}: no recording of the model's classes ({', '.join(names)})"
+        )
+    budget = device_budget(compiled, "cortex-m4")
+    print("\n".join(budget.report()))
+    (out / "model.eskin").write_bytes(data)
+    return write_case(out, data, camp, sorted(chosen), seed=seed)
+
+
+def write_case(out: Path, data: bytes, camp, chosen: list, *, seed: int) -> dict:
+    """model.eskin's C header, the recordings `chosen` of `camp` as one stream with gaps, and the
+    host stream classifier's decisions on it (mcu_case.h)."""
+    import eskin
+    from eskin.deploy import write_c_header
+
+    compiled = eskin.CompiledModel(data)
     write_c_header(out / "model.eskin", out / "mcu_model.h", name="mcu_model")
 
     # the same recordings whole, for a host run of the same model (benchmarks/bench_mcu.py)
@@ -148,7 +210,7 @@ def build_case(
         "format_version": compiled.format_version,
         "amplitude_widths": "/".join(f"{w:.4g}" for w in compiled.amplitude_widths),
         "n_support": compiled.n_support,
-        "D": D,
+        "D": compiled.D,
         "recordings": len(chosen),
         "samples": int(samples.shape[0]),
         "decisions": len(decisions),
@@ -187,7 +249,18 @@ def main(argv: list[str] | None = None) -> int:
         help="train with the amplitude factor of this width, in spreads of the training "
         "patterns' log energy (default 1.0); 'off': the plain tensor kernel",
     )
+    ap.add_argument("--model", type=Path, default=None, help="a .eskin model instead of the demo's")
+    ap.add_argument("--campaign", type=Path, default=None, help="its held-out recordings (.h5)")
     a = ap.parse_args(argv)
+    if (a.model is None) != (a.campaign is None):
+        ap.error("--model and --campaign go together")
+    if a.model is not None:
+        for p in (a.model, a.campaign):
+            if not p.is_file():
+                ap.error(f"{p}: no such file")
+        info = from_files(a.out, a.model, a.campaign, per_class=a.per_class, seed=a.seed)
+        print("mcu case: " + ", ".join(f"{k}={v}" for k, v in info.items()))
+        return 0
     info = build_case(
         a.out,
         D=a.D,

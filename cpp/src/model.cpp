@@ -58,7 +58,9 @@ double tensor_log_energy(const double* x, std::size_t n) noexcept {
 }
 
 std::shared_ptr<const detail::DecisionTables> detail::build_decision_tables(const Model& m) {
-  auto t = std::make_shared<DecisionTables>();
+  // not make_shared: its control block names a type_info, which a -fno-rtti controller build
+  // must not reference (tools/mcu_elf_check.py)
+  std::shared_ptr<DecisionTables> t(new DecisionTables);
   t->machine_group.resize(m.machines().size());
   auto& groups = t->groups;
   for (std::size_t k = 0; k < m.machines().size(); ++k) {
