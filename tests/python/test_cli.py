@@ -325,3 +325,29 @@ def test_plot_labels_at_most_16_taxels_of_an_8x8_grid(grid8, tmp_path):
         shown = labelled_taxels(rows, cols)
         assert 0 < len(shown) <= MAX_TAXEL_LABELS and shown == sorted(set(shown))
         assert shown[0] == 0 and shown[-1] < rows * cols
+
+
+def test_train_takes_the_window_settings(one_person, tmp_path):
+    """--max-window and --window-samples reach the model's detector (and its .eskin file)."""
+    out = tmp_path / "m.eskin"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "--D", "20"]
+    r = CliRunner().invoke(app, [*args, "--max-window", "2.5", "--window-samples", "256",
+                                 "-o", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    cm = eskin.CompiledModel(out)
+    assert cm.window_config["max_window_s"] == 2.5 and cm.window_config["window_samples"] == 256
+    assert cm.format_version == 3
+
+
+@pytest.mark.parametrize(
+    "option, value, message",
+    [("--window-samples", "3", "WindowConfig.window_samples = 3: must be 0 (every sample) or an "
+      "even integer"), ("--max-window", "0.01", "WindowConfig.max_window_s = 0.01: must leave room")],
+)
+def test_train_refuses_bad_window_settings(one_person, tmp_path, option, value, message):
+    out = tmp_path / "m.eskin"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "-o", str(out)]
+    r = CliRunner().invoke(app, [*args, option, value])
+    assert r.exit_code == 2
+    assert f"error: {option}: {message}" in r.output
+    assert not out.exists()

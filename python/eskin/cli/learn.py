@@ -172,6 +172,38 @@ def _trained_digests(campaign: Path, classes: Any) -> list[str]:
         return _recording_digests(c, np.flatnonzero(np.isin(c.modality, ids)))
 
 
+MAX_WINDOW_HELP = "longest touch window in seconds (WindowConfig.max_window_s, default 7)"
+WINDOW_SAMPLES_HELP = (
+    "samples per taxel a stream keeps of a touch window (WindowConfig.window_samples, default "
+    "1024; a longer window is kept at half the time resolution each time the buffer fills; 0: "
+    "every sample, the detector's RAM growing with --max-window)"
+)
+
+
+def _preprocessing(
+    window: Window, subsample: Subsample, max_window: Optional[float], window_samples: Optional[int]
+) -> dict:
+    """train_model's preprocessing options: window, subsample and, for --max-window /
+    --window-samples, the window_config."""
+    out = {"window": window.value, "subsample": subsample.value}
+    if max_window is None and window_samples is None:
+        return out
+    from eskin.signal.preprocess import WindowConfig
+
+    fields = {}
+    if max_window is not None:
+        fields["max_window_s"] = max_window
+    if window_samples is not None:
+        fields["window_samples"] = window_samples
+    try:
+        cfg = WindowConfig(**fields)
+        cfg.resolve()  # the detector's own checks, named by field and value
+    except ValueError as exc:
+        option = "--window-samples" if "window_samples" in str(exc) else "--max-window"
+        _fail(f"{option}: {exc}")
+    return {**out, "window_config": cfg}
+
+
 def _selected_lines(model: Any) -> list[str]:
     """The setting each machine of a trained model selected, a line each."""
     lines = []
@@ -279,6 +311,8 @@ def train(
     ),
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
     subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+    max_window: Optional[float] = typer.Option(None, "--max-window", help=MAX_WINDOW_HELP),
+    window_samples: Optional[int] = typer.Option(None, help=WINDOW_SAMPLES_HELP),
     amplitude: Optional[str] = typer.Option(None, help=AMPLITUDE_HELP),
     groups: str = typer.Option(
         "participant",
@@ -323,8 +357,7 @@ def train(
         "machine": machine.value,
         "selection": selection.value,
         "D": D,
-        "window": window.value,
-        "subsample": subsample.value,
+        **_preprocessing(window, subsample, max_window, window_samples),
         "quick": quick,
         "seed": seed,
         "n_jobs": -1 if scheduler else n_jobs,

@@ -3,8 +3,8 @@
 :func:`device_budget` estimates the flash and RAM that the device build of the core
 (``ESKIN_DEVICE``, docs/mcu.md) needs for a model: flash holds the program and the ``.eskin``
 bytes (the support-vector bases are read in place, ``eskin::Model::view_bytes``); RAM holds the
-stream detector's raw-sample buffers (int16 ADC codes: the pre-onset ring and the longest
-window), the input's tensor and bases, the distance table and the model's small tables. The
+stream detector's raw-sample buffers (int16 ADC codes: the pre-onset ring and the bounded
+window buffer, ``WindowConfig.window_samples`` per taxel, or the longest window when it is 0), the input's tensor and bases, the distance table and the model's small tables. The
 terms follow the allocations of the device build; ``make mcu`` prints the measured heap beside
 the estimate for its model.
 """
@@ -103,7 +103,8 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
         np.array([cm.window_config[k] for k in _core.WINDOW_CONFIG_FIELDS]), cm.sample_rate_hz
     )
     ring = p["pad_before"] + (p["lookback_frames"] + 1) * p["frame_len"]
-    samples = (ring + p["max_window"]) * taxels * 2
+    # the window buffer: window_samples kept samples (the bounded window), or max_window when 0
+    samples = (ring + p["window_capacity"]) * taxels * 2
     detector = 2 * (2 * p["noise_frames"] + max(1, p["lookback_frames"]) + 2 * taxels) * 8
     size = taxels * D
     dims = (rows, cols, D)
@@ -117,7 +118,7 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
         size * 8 + bases * real + 2 * size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
     )
     tables = groups * cm.n_support * 3 * 4 + cm.n_support * 3 * 4 + terms * 12
-    if cm.format_version >= 2:
+    if cm.sv_log_energy.size:
         # the amplitude factor: the support vectors' log energies (double) and the classifier's
         # squared gaps to the input's (float)
         tables += cm.n_support * (8 + 4)
@@ -148,12 +149,19 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
         ]
     if sum(ram.values()) > t.ram_bytes:
         per = taxels * 2 * cm.sample_rate_hz / 10
+        ws = int(cm.window_config.get("window_samples", 0))
         advice += [
             (
-                f"the detector keeps max_window_s + lookback_s + pad_before_s of raw samples "
-                f"({samples} bytes; {per:.0f} bytes per 0.1 s): lower max_window_s "
-                f"({cm.window_config['max_window_s']:g} s) or lookback_s "
-                f"({cm.window_config['lookback_s']:g} s) in training"
+                f"the detector keeps lookback_s + pad_before_s of raw samples and a window "
+                f"buffer of {p['window_capacity']} samples per taxel ({samples} bytes in all; "
+                f"{per:.0f} bytes per 0.1 s of ring): "
+                + (
+                    f"lower --window-samples ({ws}) or lookback_s "
+                    if ws
+                    else f"bound the window with --window-samples (max_window_s "
+                    f"{cm.window_config['max_window_s']:g} s is kept whole now) or lower lookback_s "
+                )
+                + f"({cm.window_config['lookback_s']:g} s) in training"
             ),
         ]
     return DeviceBudget(t, flash, ram, advice)
