@@ -22,12 +22,12 @@ def campaign(tmp_path_factory):
     return eskin.load_campaign(path, in_memory=True)
 
 
-def _model(campaign, D, max_window_s):
+def _model(campaign, D, max_window_s, window_samples=1024):
     """A 3-class tensor-RLS with fixed hyperparameters on the first 3 participants."""
     from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS
     from eskin.learn.models import TouchModel
 
-    cfg = eskin.WindowConfig(max_window_s=max_window_s)
+    cfg = eskin.WindowConfig(max_window_s=max_window_s, window_samples=window_samples)
     X = eskin.preprocess(
         np.asarray(campaign.signals),
         D,
@@ -59,8 +59,11 @@ def test_budget_terms_follow_the_model(campaign):
     assert b.target is TARGETS["cortex-m4"]
     assert b.flash == {"model": cm.file_bytes, "program": TARGETS["cortex-m4"].program_flash_bytes}
     # the detector keeps int16 samples of 16 taxels: the pre-onset ring (pad_before 150 +
-    # (lookback 30 frames + 1) x 30 samples) and the longest window (0.5 s = 1500 samples)
-    assert b.ram["detector samples"] == (150 + 31 * 30 + 1500) * 16 * 2
+    # (lookback 30 frames + 1) x 30 samples) and the bounded window buffer (window_samples 1024
+    # of the 0.5 s = 1500 samples), or, unbounded, the longest window
+    assert b.ram["detector samples"] == (150 + 31 * 30 + 1024) * 16 * 2
+    unbounded = device_budget(CompiledModel.from_model(_model(campaign, 20, 0.5, 0)))
+    assert unbounded.ram["detector samples"] == (150 + 31 * 30 + 1500) * 16 * 2
     assert b.fits and b.flash_total < (1 << 20) and b.ram_total < (128 << 10)
     assert b.advice == []
     lines = b.report()
@@ -68,10 +71,13 @@ def test_budget_terms_follow_the_model(campaign):
 
 
 def test_a_model_too_large_gets_advice(campaign):
-    # the default detector keeps up to 7 s of raw samples: far more than 128 KB of RAM
-    big = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0)))
+    # an unbounded detector keeps up to 7 s of raw samples: far more than 128 KB of RAM; the
+    # default bounded window keeps 1024 samples per taxel of them, whatever max_window_s is
+    big = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0, 0)))
     assert not big.fits and big.ram_total > (128 << 10)
-    assert any("max_window_s" in a for a in big.advice)
+    assert any("--window-samples" in a and "max_window_s 7 s" in a for a in big.advice)
+    bounded = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0)))
+    assert bounded.fits and bounded.ram["detector samples"] == (150 + 31 * 30 + 1024) * 16 * 2
     tiny = Target("tiny", "a 64 KB part", 64 << 10, 256 << 10, 48e6, 40 << 10, 4 << 10)
     small_flash = device_budget(CompiledModel.from_model(_model(campaign, 50, 0.5)), tiny)
     assert not small_flash.fits and any("smaller D" in a for a in small_flash.advice)
@@ -107,7 +113,7 @@ def test_cli_export_target_reports_and_refuses(campaign, tmp_path):
     header = (tmp_path / "fits.h").read_text()
     assert "FITS_ALIGN static const unsigned char fits_data[" in header
     assert "alignas(8)" in header and "view_bytes" in header
-    big = save_model(_model(campaign, 20, 7.0), tmp_path / "big.joblib")
+    big = save_model(_model(campaign, 20, 7.0, 0), tmp_path / "big.joblib")
     res = _eskin("export", big, "-o", tmp_path / "big.eskin", "--target", "cortex-m4")
     assert res.returncode == 2
     assert "does not fit cortex-m4; nothing written" in res.stderr
