@@ -463,7 +463,11 @@ def test_eskin_classify_npy_and_raw_stdin(campaign, tmp_path):
 
 @pytest.mark.parametrize(
     ("which", "message"),
-    [("model", "not an eskin model"), ("input", "neither a .npy file"), ("grid", "model expects 4x4")],
+    [
+        ("model", "a .npy array (recordings), not a .eskin model"),
+        ("input", "an eskin model (.eskin), not recordings"),
+        ("grid", "model expects 4x4"),
+    ],
 )
 def test_eskin_classify_errors(campaign, tmp_path, which, message):
     exe = _eskin_classify()
