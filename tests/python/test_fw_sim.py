@@ -16,6 +16,7 @@ import pytest
 from eskin._paths import find_executable
 from eskin.data.replay import read_replay_file, write_replay_arrays
 from eskin.link.protocol import (
+    SAMPLES_PER_FRAME,
     CommandFrame,
     DataFrame,
     DecisionFrame,
@@ -137,8 +138,10 @@ def test_every_sample_arrives_intact(sim, replay):
     data = [f for f in frames if isinstance(f, DataFrame)]
     got = np.concatenate([f.samples for f in data])
     np.testing.assert_array_equal(got, rf.samples)
-    assert [f.first_sample for f in data] == list(range(0, rf.n_samples, 10))
+    # the simulator's default frame size is the one eskin.link.protocol states
+    assert [f.first_sample for f in data] == list(range(0, rf.n_samples, SAMPLES_PER_FRAME))
     info = next(f for f in frames if isinstance(f, InfoFrame))
+    assert info.samples_per_frame == SAMPLES_PER_FRAME
     assert (info.rows, info.cols, info.sample_rate_hz) == (4, 4, 3000.0)
     assert info.class_names == ("brush", "finger", "washer")
     assert info.volts_per_count == pytest.approx(2.5e-4)

@@ -331,3 +331,21 @@ def test_the_decoder_limit_is_checked(size):
         FrameDecoder(size)
     assert FrameDecoder(8).max_frame_size == 8
     assert FrameDecoder(MAX_FRAME_SIZE).max_frame_size == MAX_FRAME_SIZE
+
+
+def test_frames_are_immutable_and_sequence_numbers_start_at_zero():
+    import dataclasses
+
+    frames = [_data(), DecisionFrame(onset_sample=1, offset_sample=2, decided_sample=2, label=0,
+                                     values=(0.5,)),
+              StatusFrame(), InfoFrame(rows=4, cols=4, sample_rate_hz=3000.0), PingFrame(token=1),
+              PongFrame(token=1),
+              CommandFrame(FrameType.START)]
+    for f in frames:
+        name = dataclasses.fields(f)[0].name
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(f, name, getattr(f, name))
+    assert [f.seq for f in frames[1:]] == [0] * 6
+    dec = FrameDecoder(wait_for_delimiter=False)
+    (ping,) = dec.feed(encode_frame(PingFrame(token=7)))
+    assert ping == PingFrame(token=7) and ping.seq == 0
