@@ -580,3 +580,81 @@ TEST(SizedCodecs, HoldOnlyTheirFramesAndRefuseLargerOnes) {
   EXPECT_EQ(out[0], 0xAB);
   EXPECT_GT(full.encode(big, out.data(), out.size()), 0U);
 }
+
+// ---- checks beside the decoder's main job: each was once passed by a mutant of
+// cpp/src/protocol.cpp without a test failing (docs/testing.md).
+namespace {
+
+// A raw frame (header, payload, CRC) with its CRC recomputed after an edit.
+Bytes rechecked(Bytes raw) {
+  const std::uint32_t c = p::crc32(raw.data(), raw.size() - 4);
+  for (int i = 0; i < 4; ++i) raw[raw.size() - 4 + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(c >> (8 * i));
+  return raw;
+}
+
+// The frames a fresh decoder accepts from one raw frame, and its malformed count.
+std::pair<int, std::uint64_t> decode_raw(const Bytes& raw) {
+  Bytes e = cobs(raw);
+  e.push_back(0);
+  p::FrameDecoder dec(p::kMaxFrameSize, false);
+  int n = 0;
+  dec.feed_all(e.data(), e.size(), [&](const p::Frame&) { ++n; });
+  return {n, dec.stats().malformed};
+}
+
+// Index of the one byte in which two raw frames differ.
+std::size_t differing_byte(const Bytes& a, const Bytes& b) {
+  std::size_t at = a.size();
+  for (std::size_t i = 0; i + 4 < a.size(); ++i)
+    if (a[i] != b[i]) at = i;
+  return at;
+}
+
+}  // namespace
+
+TEST(DecoderChecks, EveryStreamStateIsAcceptedAndNoneBeyond) {
+  p::Frame f;
+  f.type = p::FrameType::status;
+  f.status.state = p::StreamState::stopped;
+  const Bytes stopped = serialize(f);
+  f.status.state = p::StreamState::finished;
+  const Bytes finished = serialize(f);
+  const std::size_t at = differing_byte(stopped, finished);
+  ASSERT_LT(at, finished.size());
+  EXPECT_EQ(decode_raw(finished), std::make_pair(1, std::uint64_t{0}));
+  Bytes beyond = finished;
+  beyond[at] = 3;
+  EXPECT_EQ(decode_raw(rechecked(beyond)), std::make_pair(0, std::uint64_t{1}));
+}
+
+TEST(DecoderChecks, InfoPayloadMustHoldExactlyItsNames) {
+  const std::string names = "a\nb";
+  p::Frame f;
+  f.type = p::FrameType::info;
+  f.info.rows = f.info.cols = 2;
+  f.info.sample_rate_hz = 100;
+  f.info.n_classes = 2;
+  f.info.names_len = static_cast<std::uint16_t>(names.size());
+  f.info.class_names = names.data();
+  const Bytes raw = serialize(f);
+  EXPECT_EQ(decode_raw(raw), std::make_pair(1, std::uint64_t{0}));
+  Bytes longer = raw;
+  longer.insert(longer.end() - 4, 'c');
+  EXPECT_EQ(decode_raw(rechecked(longer)), std::make_pair(0, std::uint64_t{1}));
+  Bytes shorter = raw;
+  shorter.erase(shorter.end() - 5);
+  EXPECT_EQ(decode_raw(rechecked(shorter)), std::make_pair(0, std::uint64_t{1}));
+}
+
+TEST(DecoderChecks, APayloadShorterThanItsTypesFixedPartIsMalformed) {
+  p::Frame f;
+  f.type = p::FrameType::status;
+  Bytes raw = serialize(f);
+  raw.erase(raw.begin() + 10, raw.begin() + 20);  // 10 bytes of the 64-byte STATUS payload
+  EXPECT_EQ(decode_raw(rechecked(raw)), std::make_pair(0, std::uint64_t{1}));
+  p::Frame ping;
+  ping.type = p::FrameType::pong;
+  Bytes short_pong = serialize(ping);
+  short_pong.erase(short_pong.begin() + 4);
+  EXPECT_EQ(decode_raw(rechecked(short_pong)), std::make_pair(0, std::uint64_t{1}));
+}

@@ -346,6 +346,7 @@ def test_frames_are_immutable_and_sequence_numbers_start_at_zero():
         with pytest.raises(dataclasses.FrozenInstanceError):
             setattr(f, name, getattr(f, name))
     assert [f.seq for f in frames[1:]] == [0] * 6
+    assert frames[2].pacing_p99_ns == 0 and frames[3].speed == 1.0  # documented defaults
     dec = FrameDecoder(wait_for_delimiter=False)
     (ping,) = dec.feed(encode_frame(PingFrame(token=7)))
     assert ping == PingFrame(token=7) and ping.seq == 0
