@@ -61,7 +61,11 @@ def _run_child(tmp_path: Path, mode: str, n: int = 6) -> tuple[subprocess.Comple
         seen += 1
     proc.send_signal({"sigint": signal.SIGINT, "sigterm": signal.SIGTERM,
                       "kill": signal.SIGKILL}[mode])
-    out, err = proc.communicate(timeout=120)
+    proc.wait(timeout=120)
+    # read through the same buffered file as readline (communicate would skip what it holds)
+    out, err = proc.stdout.read(), proc.stderr.read()
+    proc.stdout.close()
+    proc.stderr.close()
     seen += len(out.split())
     return subprocess.CompletedProcess(args, proc.returncode, out, err), seen
 
