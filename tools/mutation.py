@@ -74,7 +74,7 @@ class CppModule:
 
 
 CPP_MODULES = [
-    CppModule("cpp/src/model_format.cpp", "struct Reader", "Model Model::from_bytes", "test_model"),
+    CppModule("cpp/src/model_format.cpp", "class Reader {", "Model Model::from_bytes", "test_model"),
     CppModule("cpp/src/protocol.cpp", "std::ptrdiff_t cobs_decode(", None, "test_protocol"),
 ]
 
@@ -183,9 +183,12 @@ def strip_strings(line: str) -> str:
 def cpp_mutants(text: str, mod: CppModule) -> list[tuple[int, str, str]]:
     """(line index, operator, mutated line) for every mutant of the region."""
     lines = text.splitlines()
-    start = next(i for i, ln in enumerate(lines) if mod.start in ln)
-    end = len(lines) if mod.end is None else next(
-        i for i, ln in enumerate(lines) if mod.end in ln and i > start)
+    start = next((i for i, ln in enumerate(lines) if mod.start in ln), None)
+    end = len(lines) if mod.end is None or start is None else next(
+        (i for i, ln in enumerate(lines) if mod.end in ln and i > start), None)
+    if start is None or end is None:
+        sys.exit(f"mutation: {mod.path}: the region's markers {mod.start!r}, {mod.end!r} "
+                 "are not in the file (update CPP_MODULES)")
     out: list[tuple[int, str, str]] = []
     for i in range(start, end):
         line, code = lines[i], strip_strings(lines[i])
