@@ -1033,3 +1033,21 @@ TEST(ModelChecks, HeaderFlagsAndFileSize) {
   put_u32(odd, 16, static_cast<std::uint32_t>(odd.size()));
   EXPECT_TRUE(says(refused(odd), " is impossible")) << refused(odd);
 }
+
+TEST(ModelChecks, TheMagicAloneIsATruncatedModel) {
+  const Bytes good = fixture("float32");
+  const Bytes magic(good.begin(), good.begin() + 8);
+  EXPECT_EQ(load_error(magic), ModelError::kTruncated);
+  EXPECT_TRUE(says(load_message(magic), "truncated: 8 bytes, shorter than the 36-byte header"));
+  const Bytes seven(good.begin(), good.begin() + 7);
+  EXPECT_EQ(load_error(seven), ModelError::kNotAModel);
+}
+
+TEST(ModelChecks, ANameFillingItsFieldIsRefusedNamingTheLimit) {
+  Bytes b = fixture("float32");
+  const std::size_t names = section_offset(b, "CLAS") + 8;
+  std::fill(b.begin() + static_cast<std::ptrdiff_t>(names),
+            b.begin() + static_cast<std::ptrdiff_t>(names + 32), 'x');  // no NUL left
+  EXPECT_TRUE(says(refused(b), "'class name' must be a non-empty name of at most 31 bytes, NUL padded"))
+      << refused(b);
+}
