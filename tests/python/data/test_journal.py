@@ -253,3 +253,33 @@ def test_other_names_are_not_journals(tmp_path, name):
     with pytest.raises(ValueError, match="not a recording journal name"):
         jr.target_of(tmp_path / name)
     assert jr.target_of(tmp_path / ".a.partial") == tmp_path / "a"
+
+
+def test_a_record_with_a_damaged_magic_is_not_read(tmp_path):
+    """The CRC covers a record from its index on: its magic is checked on its own."""
+    path = write(tmp_path, 2)
+    data = bytearray(path.read_bytes())
+    second = data.rindex(jr.RECORD_MAGIC)
+    data[second : second + 4] = b"ABC1"  # sorts before REC1
+    path.write_bytes(bytes(data))
+    contents, records = read(path)
+    assert len(records) == 1 and "no record 1 where expected" in contents.dropped_reason
+
+
+def test_a_file_without_the_journal_magic_is_named_as_such(tmp_path):
+    path = write(tmp_path, 1)
+    data = bytearray(path.read_bytes())
+    data[0:8] = b"ESKJRNL0"
+    path.write_bytes(bytes(data))
+    with pytest.raises(JournalError, match="not a recording journal"):
+        read(path)
+
+
+def test_the_journal_file_mode_and_scalar_attributes(tmp_path):
+    umask = os.umask(0)
+    os.umask(umask)
+    path = write(tmp_path, 0)
+    assert path.stat().st_mode & 0o777 == 0o644 & ~umask
+    for value in (np.float32(1.5), np.array(7, np.int16)):
+        back = jr.decode_attr(json.loads(json.dumps(jr.encode_attr(value))))
+        assert not isinstance(back, np.ndarray) and back.dtype == value.dtype and back == value
