@@ -20,6 +20,7 @@ __all__ = [
     "ModelFormatError",
     "OverwriteError",
     "PeerClosedError",
+    "QemuControllerError",
     "ReplayFormatError",
     "SchedulerError",
     "SerialPortError",
@@ -101,6 +102,10 @@ class LinkStreamError(ValueError):
 
 class PeerClosedError(SerialPortError):
     """The other end of the link closed (the controller or simulator went away)."""
+
+
+class QemuControllerError(OSError):
+    """The emulated controller cannot start (no QEMU, no image, a model or replay too large)."""
 
 
 # ------------------------------------------------------------------------------- experiments, demo

@@ -23,6 +23,10 @@ import threading
 from pathlib import Path
 from typing import Optional
 
+from eskin.errors import QemuControllerError
+
+__all__ = ["QemuController", "QemuControllerError", "priority"]
+
 #: where the firmware expects the model (its flash slot) and the recording (PSRAM)
 MODEL_SLOT = 0x00040000
 MODEL_SLOT_BYTES = 0x00100000 - MODEL_SLOT - 16
@@ -35,10 +39,6 @@ _REPO = Path(__file__).resolve().parents[3]
 # write(2) on the pty and raises the TX interrupt after it. With the right to (root), QEMU runs
 # at nice -15, still under the ordinary fair scheduler (nothing can be starved for long).
 QEMU_NICE = -15
-
-
-class QemuControllerError(RuntimeError):
-    """The emulated controller cannot start (no QEMU, no image, a model or replay too large)."""
 
 
 def priority(nice: int) -> list[str]:
