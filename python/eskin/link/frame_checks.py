@@ -26,7 +26,8 @@ MAX_STREAM_INDEX = 1 << 53
 MAX_SAMPLE_RATE_HZ = 1e6
 """Sample rate of a stream: positive and at most 1 MHz."""
 MAX_SPEED = 1e6
-"""INFO's replay speed factor: positive and at most 10^6."""
+"""INFO's replay speed factor: at most 10^6; 0 is an unpaced controller (eskin-fw-sim --speed 0:
+as fast as the host reads)."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ class FrameChecks:
         checks = (
             ("sample_rate_hz", f.sample_rate_hz, 0.0, MAX_SAMPLE_RATE_HZ, False),
             ("volts_per_count", f.volts_per_count, 0.0, math.inf, True),
-            ("speed", f.speed, 0.0, MAX_SPEED, False),
+            ("speed", f.speed, 0.0, MAX_SPEED, True),  # 0: unpaced
         )
         for name, v, lo, hi, zero_ok in checks:
             if not (math.isfinite(v) and (lo < v or (zero_ok and v == lo)) and v <= hi):

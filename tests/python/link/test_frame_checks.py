@@ -171,3 +171,19 @@ def test_info_events_carry_only_accepted_infos():
     events = listener.feed(wire)
     assert [type(e) for e in events] == [Rejection, InfoEvent]
     assert listener.info.sample_rate_hz == 1500.0
+
+
+def test_an_unpaced_controller_s_info_is_accepted():
+    """eskin-fw-sim --speed 0 (unpaced, as fast as the host reads) announces speed 0 in its
+    INFO: accepted; a negative or non-finite speed is refused."""
+    import dataclasses
+
+    from eskin.link.frame_checks import FrameChecks
+    from eskin.link.protocol import InfoFrame
+
+    base = InfoFrame(rows=4, cols=4, sample_rate_hz=3000.0, volts_per_count=1e-3, speed=0.0,
+                     has_model=True, class_names=("brush", "finger", "washer"))
+    assert FrameChecks().check(base) is None
+    for bad in (-1.0, float("nan"), float("inf"), 2e6):
+        r = FrameChecks().check(dataclasses.replace(base, speed=bad))
+        assert r is not None and r.field == "speed"
