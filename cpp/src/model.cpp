@@ -108,7 +108,11 @@ struct Classifier::Impl {
                 static_cast<std::size_t>(m.D())},
                {static_cast<std::size_t>(m.alpha_store(0)), static_cast<std::size_t>(m.alpha_store(1)),
                 static_cast<std::size_t>(m.alpha_store(2))}),
+#if defined(ESKIN_DEVICE)
         ws(layout),
+#else
+        ws(layout, 1),  // one pattern per decision: no batch of scaled copies
+#endif
         detector(static_cast<std::int64_t>(m.rows()) * m.cols(), m.sample_rate_hz(),
                  m.window_config(), /*store_samples=*/false),
         tensor(raw ? static_cast<std::size_t>(m.rows()) * m.cols() * m.D() : 0),

@@ -458,8 +458,11 @@ void unfold(const double* x, const std::vector<std::size_t>& dims, std::size_t m
 
 // ---- heap-free workspace --------------------------------------------------------------------
 
-BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
+BasisWorkspace::BasisWorkspace(const BasisLayout& layout, std::size_t max_batch)
+    : layout_(layout), max_batch_(max_batch) {
   if (layout_.n_modes() < 2) detail::raise<std::invalid_argument>("BasisWorkspace needs a layout with >= 2 modes");
+  if (max_batch_ < 1 || max_batch_ > kMaxBatch)
+    detail::raise<std::invalid_argument>("BasisWorkspace: max_batch must be in [1, 8]");
   static_assert(kMaxBatch == kEigenLanes, "one pattern per eigen-solver lane");
   std::size_t qmax = 1;
   sv_off_.resize(layout_.n_modes());
@@ -468,7 +471,7 @@ BasisWorkspace::BasisWorkspace(const BasisLayout& layout) : layout_(layout) {
     sv_off_[z] = sv_count_;
     sv_count_ += layout_.q(z);
   }
-  scaled_.assign(kMaxBatch * layout_.tensor_size(), 0.0);
+  scaled_.assign(max_batch_ * layout_.tensor_size(), 0.0);
   inv_scale_.assign(kMaxBatch, 0.0);
   lanes_.assign(qmax * qmax * kEigenLanes, 0.0);
   lane_d_.assign(qmax * kEigenLanes, 0.0);
@@ -497,7 +500,7 @@ KernelStatus BasisWorkspace::compute(const double* x, double* bases, int* ranks)
 ESKIN_CLONES KernelStatus BasisWorkspace::compute_batch(const double* x, std::size_t count, double* bases,
                                            int* ranks, KernelStatus* status) noexcept {
   if (x == nullptr || bases == nullptr || ranks == nullptr || status == nullptr ||
-      count > kMaxBatch)
+      count > max_batch_)
     return KernelStatus::bad_argument;
   const std::size_t nz = layout_.n_modes(), size = layout_.tensor_size(),
                     bs = layout_.bases_size();

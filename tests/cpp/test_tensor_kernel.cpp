@@ -295,6 +295,30 @@ TEST(Workspace, BatchEqualsOnePatternAtATimeWhateverItsBatchMates) {
             KernelStatus::bad_argument);
 }
 
+// A workspace for one pattern at a time (a classifier's): the same bases as the batch one, and
+// a batch above its size is refused untouched.
+TEST(Workspace, OnePatternWorkspaceGivesTheSameBasesAndRefusesBatches) {
+  const std::vector<std::size_t> dims{4, 4, 24};
+  const BasisLayout layout(dims, {2, 3, 8});
+  const std::size_t bs = layout.bases_size();
+  const auto x = random_tensors(2, dims, 5);
+  BasisWorkspace one(layout, 1), eight(layout);
+  std::vector<double> b1(bs), b8(bs);
+  int r1[3], r8[3];
+  ASSERT_EQ(one.compute(x.data(), b1.data(), r1), KernelStatus::ok);
+  ASSERT_EQ(eight.compute(x.data(), b8.data(), r8), KernelStatus::ok);
+  EXPECT_EQ(b1, b8);
+  EXPECT_EQ(std::vector<int>(r1, r1 + 3), std::vector<int>(r8, r8 + 3));
+  std::vector<double> bases(2 * bs, -7.0);
+  std::vector<int> ranks(2 * 3);
+  std::vector<KernelStatus> status(2);
+  EXPECT_EQ(one.compute_batch(x.data(), 2, bases.data(), ranks.data(), status.data()),
+            KernelStatus::bad_argument);
+  EXPECT_EQ(bases[0], -7.0);
+  EXPECT_THROW(BasisWorkspace(layout, 0), std::invalid_argument);
+  EXPECT_THROW(BasisWorkspace(layout, 9), std::invalid_argument);
+}
+
 TEST(HeapFree, ComputeAndDistancesDoNotAllocate) {
 #ifndef ESKIN_COUNT_MALLOC
   GTEST_SKIP() << "malloc counting not available in this build";

@@ -104,7 +104,11 @@ class BasisWorkspace {
  public:
   static constexpr std::size_t kMaxBatch = 8;  ///< patterns per compute_batch() call
 
-  explicit BasisWorkspace(const BasisLayout& layout);  // allocates; may throw
+  /// max_batch (1..kMaxBatch): the most patterns one compute_batch() call takes; its scaled
+  /// copies of the patterns are allocated for that many (a classifier, one pattern per
+  /// decision, passes 1).
+  explicit BasisWorkspace(const BasisLayout& layout,
+                          std::size_t max_batch = kMaxBatch);  // allocates; may throw
   const BasisLayout& layout() const noexcept { return layout_; }
 
   /// Bases of pattern `x` (layout().tensor_size() doubles, C-order) into `bases`
@@ -117,7 +121,7 @@ class BasisWorkspace {
   /// Bases of `count` <= kMaxBatch patterns stored one after another in `x`: pattern i's bases
   /// at bases + i * bases_size(), its ranks at ranks + i * n_modes(), its status in status[i]
   /// (a failed pattern's outputs are zero-filled; the others are unaffected). Returns
-  /// bad_argument (and touches nothing) for null pointers or count > kMaxBatch, else ok.
+  /// bad_argument (and touches nothing) for null pointers or count > max_batch, else ok.
   KernelStatus compute_batch(const double* x, std::size_t count, double* bases, int* ranks,
                              KernelStatus* status) noexcept;
 
@@ -130,6 +134,7 @@ class BasisWorkspace {
   KernelStatus finish_mode(std::size_t z, const double* xs, double* g, const double* d,
                            double* out, int* rank, double* sv) noexcept;
   BasisLayout layout_;
+  std::size_t max_batch_ = kMaxBatch;
   std::size_t sv_count_ = 0;
   // per lane: scaled pattern, 1/scale; lane-interleaved matrices, eigenvalues, scratch
   std::vector<double> scaled_, inv_scale_, lanes_, lane_d_, lane_e_;
