@@ -23,6 +23,7 @@ def _names(text: str | None) -> list[str] | None:
     return None if text is None else [c.strip() for c in text.split(",") if c.strip()]
 
 
+# long: one typer option per parameter; the body is a few named steps
 def evaluate(
     campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
     out: Path = typer.Option(..., "--out", "-o", help="output folder"),
@@ -45,6 +46,11 @@ def evaluate(
     subsample: Subsample | None = typer.Option(None, help="subsampling method"),
     amplitude: str | None = typer.Option(None, help=AMPLITUDE_HELP),
     negatives: Negatives | None = typer.Option(None, help=NEGATIVES_HELP),
+    target: str | None = typer.Option(
+        None, help="also evaluate the recipe chosen under this controller's budget "
+        "(cortex-m4), in the same folds"),
+    budget: str | None = typer.Option(
+        None, help="the budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides --target's)"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -57,10 +63,12 @@ def evaluate(
     train's defaults) on all groups but the held-out ones, fold by fold, and score the
     held-out predictions: accuracy and balanced accuracy with 95 % intervals (bootstrap over
     groups), per-class recall, confusion matrix, settings per fold. Writes
-    OUT/evaluation.json, .md, .png."""
+    OUT/evaluation.json, .md, .png. With --target/--budget, the search under the budget runs
+    in the same folds and its accuracy is reported beside the unconstrained one."""
     from eskin._files import refuse_overwrite_all
     from eskin.learn.evaluation import evaluate_recipe
     from eskin.learn.evaluation_report import fold_line, summary_lines, write_evaluation
+    from eskin.data.campaign import load_campaign
     from eskin.learn.parallel import compute_backend
 
     given = {
@@ -75,12 +83,15 @@ def evaluate(
     recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
     recipe["quick"] = quick
     recipe.update(_amplitudes(amplitude))
+    budgeted, the_budget = _budgeted(campaign, target, budget, recipe, classes)
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
+            # on a cluster the folds get the recordings from here: no shared filesystem
+            data = campaign if scheduler is None else load_campaign(campaign, in_memory=True)
             result = evaluate_recipe(
-                campaign,
+                data,
                 recipe=recipe,
                 groups=groups,
                 n_folds=folds,
@@ -90,6 +101,12 @@ def evaluate(
                 n_jobs=-1 if scheduler else n_jobs,
                 on_fold=lambda record, n: typer.echo(fold_line(record, n)),
             )
+            if budgeted is not None:  # the same folds: same campaign, groups, folds, seed
+                under = evaluate_recipe(
+                    data, recipe=budgeted, groups=groups, n_folds=folds,
+                    classes=_names(classes), seed=seed, n_jobs=-1 if scheduler else n_jobs,
+                )
+                result["under_budget"] = _under_budget(under, the_budget)
         paths = write_evaluation(result, out)
     except (ValueError, OSError, KeyError, ImportError) as exc:
         from eskin._files import error_line
@@ -97,10 +114,49 @@ def evaluate(
         _fail(error_line(exc, out))
     for line in summary_lines(result):
         typer.echo(line)
+    for line in _under_budget_lines(result):
+        typer.echo(line)
     notes = sorted({n for f in result["folds"] for n in f.get("notes", [])})
     for note in notes:
         typer.echo(f"note: {note}")
     typer.echo(f"wrote {paths['json']}, {paths['md'].name} and {paths['figure'].name}")
+
+
+def _budgeted(campaign, target, budget_text, recipe, classes):
+    """(the recipe under --target/--budget, the budget), or (None, None) without them."""
+    if target is None and budget_text is None:
+        return None, None
+    from eskin.cli.learn import _budget_recipe
+
+    budgeted = {**recipe, "classes": _names(classes)}
+    the_budget, notes = _budget_recipe(campaign, target, budget_text, budgeted)
+    for note in notes:
+        typer.echo(f"note: {note}")
+    return {k: v for k, v in budgeted.items() if k != "classes"}, the_budget
+
+
+def _under_budget_lines(result: dict) -> list[str]:
+    if "under_budget" not in result:
+        return []
+    u = result["under_budget"]
+    return [
+        f"under the budget ({u['budget']}): accuracy {100 * u['accuracy']:.1f} % (95 % CI "
+        f"{100 * u['ci95'][0]:.1f}-{100 * u['ci95'][1]:.1f}), unconstrained "
+        f"{100 * result['accuracy']:.1f} %, in the same folds"
+    ]
+
+
+def _under_budget(under: dict, budget) -> dict:
+    """The budgeted evaluation's figures kept beside the unconstrained one's."""
+    return {
+        "budget": budget.describe(),
+        "accuracy": under["accuracy"],
+        "balanced_accuracy": under["balanced_accuracy"],
+        "ci95": under["ci95"],
+        "per_fold": [{"fold": f["fold"], "accuracy": f["accuracy"],
+                      "trained_with": f["trained_with"]} for f in under["folds"]],
+        "recipe": under["recipe"],
+    }
 
 
 def register(app: typer.Typer) -> None:

@@ -127,7 +127,8 @@ def _amplitudes(text: Optional[str]) -> dict[str, Any]:
 
 
 def _train_and_save(
-    campaign: Path, output: Path, recipe: dict[str, Any], scheduler: Optional[str], progress: bool
+    campaign: Path, output: Path, recipe: dict[str, Any], scheduler: Optional[str], progress: bool,
+    budget: Any = None,
 ) -> Any:
     """train_model(campaign, **recipe) on the scheduler's cluster (if any) with a progress
     display, saved to ``output``; a one-line error for bad input."""
@@ -140,6 +141,8 @@ def _train_and_save(
         with compute_backend(scheduler), progress_bar(progress) as bar:
             bar.add_task(f"training ({recipe['selection']} search)", total=None)
             model = train_model(campaign, **recipe)
+            if budget is not None:
+                model = _fitting_model(campaign, recipe, budget, model)
         model.training["recording_digests"] = sorted(_trained_digests(campaign, model.classes))
         save_model(model, output)
     except (ValueError, OSError, KeyError) as exc:
@@ -181,11 +184,12 @@ WINDOW_SAMPLES_HELP = (
 
 
 def _preprocessing(
-    window: Window, subsample: Subsample, max_window: Optional[float], window_samples: Optional[int]
+    window: Window, subsample: Optional[Subsample], max_window: Optional[float],
+    window_samples: Optional[int],
 ) -> dict:
-    """train_model's preprocessing options: window, subsample and, for --max-window /
-    --window-samples, the window_config."""
-    out = {"window": window.value, "subsample": subsample.value}
+    """train_model's preprocessing options: window, subsample (None: searched) and, for
+    --max-window / --window-samples, the window_config."""
+    out = {"window": window.value, "subsample": None if subsample is None else subsample.value}
     if max_window is None and window_samples is None:
         return out
     from eskin.signal.preprocess import WindowConfig
@@ -202,6 +206,26 @@ def _preprocessing(
         option = "--window-samples" if "window_samples" in str(exc) else "--max-window"
         _fail(f"{option}: {exc}")
     return {**out, "window_config": cfg}
+
+
+def _fitting_model(campaign: Path, recipe: dict[str, Any], budget: Any, model: Any) -> Any:
+    """``model`` if its compiled form fits ``budget``; else retrained with the support-vector
+    estimates of the search inflated (1.25x, then 1.6x), since the search's estimate of a
+    candidate's support vectors comes from its splits, not from the final fit."""
+    from eskin.deploy.export import model_to_bytes, spec_from_model
+    from eskin.deploy.target import model_fits
+    from eskin.learn.models import train_model
+    from eskin.learn.recipes import CandidateBudget
+
+    base = recipe["budget"]
+    for margin in (1.25, 1.6):
+        if model_fits(model_to_bytes(spec_from_model(model), "float32"), budget)[0]:
+            return model
+        inflated = CandidateBudget(
+            lambda c, n, m=margin: base.fits(c, int(n * m) + 1),
+            f"{base.description}, support vectors x{margin:g}")
+        model = train_model(campaign, **{**recipe, "budget": inflated})
+    return model
 
 
 def _selected_lines(model: Any) -> list[str]:
@@ -295,22 +319,28 @@ def experiment(
     )
 
 
+# long: one typer option per parameter; the body is a few named steps
 def train(
     campaign: Path = typer.Argument(..., help="campaign file (HDF5)"),
     output: Path = typer.Option(..., "-o", "--output", help="model file to write"),
-    classes: Optional[str] = typer.Option(None, help="classes to learn, e.g. brush,washer"),
-    all_classes: bool = typer.Option(False, "--all-classes", help="learn every class"),
-    machine: Machine = typer.Option(Machine.svm, help="tensor-SVM or tensor-RLS"),
+    classes: Optional[str] = typer.Option(
+        None, help="classes to learn, e.g. brush,washer (default: every class)"),
+    all_classes: bool = typer.Option(
+        False, "--all-classes", help="learn every class (the default)"),
+    machine: Optional[Machine] = typer.Option(
+        None, help="tensor-SVM or tensor-RLS (default: searched)"),
     selection: Selection = typer.Option(
         Selection.cv,
         help="cv: cross-validation over participant-grouped splits; md: Maximal "
         "Discrepancy (the paper's Algorithm 1)",
     ),
     D: Optional[int] = typer.Option(
-        None, "--D", help="subsampled window length (default 100, or the longest recording)"
+        None, "--D", help="subsampled window length (default: searched among 20, 50, 100, "
+        "capped by the longest recording)"
     ),
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
-    subsample: Subsample = typer.Option(Subsample.algorithm2, help="subsampling method"),
+    subsample: Optional[Subsample] = typer.Option(
+        None, help="subsampling method (default: searched)"),
     max_window: Optional[float] = typer.Option(None, "--max-window", help=MAX_WINDOW_HELP),
     window_samples: Optional[int] = typer.Option(None, help=WINDOW_SAMPLES_HELP),
     amplitude: Optional[str] = typer.Option(None, help=AMPLITUDE_HELP),
@@ -319,7 +349,14 @@ def train(
         help="label whose groups the cv splits keep apart: participant, run, direction or an "
         "integer extra field",
     ),
-    negatives: Optional[Negatives] = typer.Option(None, help=NEGATIVES_HELP),
+    negatives: Optional[Negatives] = typer.Option(
+        None, help=NEGATIVES_HELP + " (default: searched)"),
+    target: Optional[str] = typer.Option(
+        None, help="controller the model must fit: cortex-m4 (1 MB flash, 128 KB RAM, "
+        "1.5 M instructions per decision)"),
+    budget: Optional[str] = typer.Option(
+        None, help="the model's budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides "
+        "--target's figures)"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -328,53 +365,151 @@ def train(
     progress: bool = typer.Option(
         True, "--progress/--no-progress", help="show that the search is running (terminal)"),
 ) -> None:
-    """Select, fit on all the given recordings and save a model.
+    """Choose the recipe on the campaign, fit on all its recordings and save a model.
 
-    Default: tensor-SVM, D = 100 (or the longest recording, if shorter),
-    energy window, Algorithm 2 subsampling, the paper's grid times the
-    amplitude-aware factor (off, 1, 4), chosen by participant-grouped
-    cross-validation (stratified, with a note, without participants); each
-    one-vs-all machine sees every pattern of the other classes. On unseen
-    people of simulated campaigns: 11.3 % error against 14.4 % without the
-    factor, and 4-15 points ahead of Maximal Discrepancy (--selection md);
-    see docs/selection-study.md.
+    Default: the recipe is searched on the campaign by participant-grouped
+    cross-validation (successive halving over tensor-SVM/RLS, D 20/50/100,
+    Algorithm 2 or even subsampling, all or balanced negatives, times the
+    paper's grid and the amplitude-aware factor off/1/4); every option given
+    fixes its part. With --target or --budget only models that fit the
+    controller are chosen. Prints the chosen recipe, its inner-CV estimate,
+    the runners-up and the model's size and decision time; see
+    docs/selection-study.md.
     """
     from eskin._files import refuse_overwrite
-    from eskin.learn.evaluation_report import selection_estimate_lines
 
     amplitudes = _amplitudes(amplitude)
-    if (classes is None) == (not all_classes):
-        _fail("give exactly one of --classes a,b,... or --all-classes")
+    if classes is not None and all_classes:
+        _fail("give --classes a,b,... or --all-classes, not both")
     try:
         refuse_overwrite(output, force, inputs=(campaign,))
     except OSError as exc:
         _fail(str(exc))
-    names = None if all_classes else [c.strip() for c in classes.split(",") if c.strip()]
+    names = None if classes is None else [c.strip() for c in classes.split(",") if c.strip()]
     for note in _training_set_notes(campaign, D, selection.value):
         typer.echo(f"note: {note}")
+    given = {"machine": machine, "selection": selection, "D": D, "negatives": negatives}
     recipe = {
         "classes": names,
-        "machine": machine.value,
-        "selection": selection.value,
-        "D": D,
+        **{k: getattr(v, "value", v) for k, v in given.items()},
         **_preprocessing(window, subsample, max_window, window_samples),
         "quick": quick,
         "seed": seed,
         "n_jobs": -1 if scheduler else n_jobs,
         "group_by": groups,
         **amplitudes,
-        **({} if negatives is None else {"negatives": negatives.value}),
     }
-    model = _train_and_save(campaign, output, recipe, scheduler, progress)
+    the_budget = None
+    if target is not None or budget is not None:
+        the_budget, notes = _budget_recipe(campaign, target, budget, recipe)
+        for note in notes:
+            typer.echo(f"note: {note}")
+    model = _train_and_save(campaign, output, recipe, scheduler, progress, the_budget)
     for note in model.training.get("notes", []):
         typer.echo(f"note: {note}")
-    typer.echo(
-        f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
-        f"D={model.D}, window={model.window})"
-    )
-    for line in _selected_lines(model) + selection_estimate_lines(model):
+    for line in trained_lines(model):
+        typer.echo(line)
+    for line in _size_lines(model, the_budget):
         typer.echo(line)
     typer.echo(f"wrote {output}")
+
+
+def trained_lines(model: Any) -> list[str]:
+    """What train prints about a trained model: classes and recipe, the settings chosen, the
+    inner-CV estimate and (when the recipe was searched) the runners-up."""
+    from eskin.learn.evaluation_report import selection_estimate_lines
+
+    lines = [
+        f"classes: {', '.join(model.classes)} ({model.machine}, {model.selection}, "
+        f"D={model.D}, window={model.window})"
+    ]
+    search = model.training.get("recipe_search")
+    if search:
+        c = search["chosen"]
+        lines.append(f"recipe chosen on this campaign ({', '.join(model.training['searched'])} "
+                     f"searched): {_candidate_text(c)}")
+        lines.append(f"  inner-CV error {100 * c['cv_error']:.1f} % (+- "
+                     f"{100 * c['cv_std']:.1f} over {c['splits']} grouped splits), about "
+                     f"{c['support_vectors']} support vectors")
+        lines.append(f"  by {search['method']}; {search['evaluations']} candidate-split scores")
+        lines += _selected_lines(model)
+        if search["runners_up"]:
+            lines.append("  runners-up (best setting of each other recipe):")
+            for r in search["runners_up"]:
+                lines.append(f"    {_candidate_text(r)}: {100 * r['cv_error']:.1f} % "
+                             f"({r['splits']} splits, ~{r['support_vectors']} support vectors)")
+        lines.append("  (optimistic: the best of many candidates on these very splits; eskin "
+                     "evaluate gives a nested estimate on unseen groups)")
+        return lines
+    return lines + _selected_lines(model) + selection_estimate_lines(model)
+
+
+def _candidate_text(c: dict[str, Any]) -> str:
+    amp = "off" if c.get("amplitude") is None else f"{c['amplitude']:g}"
+    return (f"{c['machine']} D={c['D']} {c['subsample']} negatives={c['negatives']}, "
+            f"lambda={c['lambda']:g}, sigma={c['sigma']:g}, alpha={c['alpha']}, amplitude={amp}")
+
+
+def _budget_recipe(
+    campaign: Path, target: Optional[str], budget_text: Optional[str], recipe: dict[str, Any]
+) -> tuple[Any, list[str]]:
+    """The budget of --target/--budget, with the detector settings and the candidate filter it
+    implies added to ``recipe``; (budget, notes)."""
+    import numpy as np
+
+    from eskin.data.campaign import load_campaign
+    from eskin.deploy.target import candidate_budget, parse_budget, window_for_budget
+
+    try:
+        b = parse_budget(budget_text, target)
+        with load_campaign(campaign) as c:
+            rate = float(c.sample_rate_hz)
+            grid = tuple(int(v) for v in np.shape(c.recording(0))[:2])
+            n_classes = len(recipe["classes"] or set(np.asarray(c.modality).tolist()))
+        window_config, note = window_for_budget(b, grid, rate, recipe.get("window_config"))
+    except (ValueError, OSError, KeyError) as exc:
+        _fail(str(exc))
+    if recipe.get("selection", "cv") != "cv" or None not in (
+            recipe.get("machine"), recipe.get("D"), recipe.get("subsample"),
+            recipe.get("negatives")):
+        _fail("--target/--budget choose among recipes: use --selection cv and leave at least "
+              "one of --machine, --D, --subsample, --negatives to the search")
+    recipe["window_config"] = window_config
+    recipe["budget"] = candidate_budget(b, grid, rate, window_config, n_classes)
+    return b, [note] if note else []
+
+
+def _size_lines(model: Any, budget: Any) -> list[str]:
+    """The model's size and decision cost: on the budget's controller (estimated flash, RAM,
+    instructions) or, without a budget, the .eskin file and the decision time on this host."""
+    import time
+
+    import numpy as np
+
+    from eskin.deploy.export import CompiledModel, model_to_bytes, spec_from_model
+    from eskin.deploy.target import model_fits
+
+    try:
+        data = model_to_bytes(spec_from_model(model), "float32")
+    except (ValueError, TypeError) as exc:
+        return [f"model size: unknown ({exc})"]
+    cm = CompiledModel(data)
+    if budget is not None:
+        fits, fig = model_fits(data, budget)
+        return [f"on {budget.target.name}: flash {fig['flash']} of {budget.flash_bytes} B, RAM "
+                f"{fig['ram']} of {budget.ram_bytes} B, ~{fig['instructions'] / 1e6:.2f} M of "
+                f"{budget.instructions / 1e6:g} M instructions per decision (cost model)"
+                + ("" if fits else ": DOES NOT FIT")]
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((16, *model.pattern_shape))
+    cm.classify_tensors(X[:2])  # warm
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        cm.classify_tensors(X)
+        best = min(best, (time.perf_counter() - t0) / len(X))
+    return [f"model: {len(data)} bytes as .eskin float32, {cm.n_support} support vectors; one "
+            f"decision {1e3 * best:.3f} ms on this host (compiled classifier, best of 3)"]
 
 
 def predict(

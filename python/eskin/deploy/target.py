@@ -16,7 +16,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TARGETS", "DeviceBudget", "Target", "device_budget"]
+__all__ = [
+    "INSTRUCTION_CALIBRATION",
+    "TARGETS",
+    "Budget",
+    "DeviceBudget",
+    "Target",
+    "candidate_budget",
+    "decision_instructions",
+    "device_budget",
+    "instruction_model_error",
+    "parse_budget",
+    "window_for_budget",
+]
 
 
 @dataclass(frozen=True)
@@ -89,7 +101,6 @@ class DeviceBudget:
 def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudget:
     """Flash and RAM of a model (a :class:`~eskin.deploy.CompiledModel`, or ``.eskin`` bytes or
     path) on ``target`` (a name of :data:`TARGETS` or a :class:`Target`)."""
-    from eskin import _core
     from eskin.deploy.export import CompiledModel
 
     if isinstance(target, str) and target not in TARGETS:
@@ -99,37 +110,17 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
     rows, cols = cm.grid_shape
     taxels, D = rows * cols, cm.D
     real = 8 if cm.is_float64 else 4
-    p = _core.window_config_resolve(
-        np.array([cm.window_config[k] for k in _core.WINDOW_CONFIG_FIELDS]), cm.sample_rate_hz
-    )
-    ring = p["pad_before"] + (p["lookback_frames"] + 1) * p["frame_len"]
-    # the window buffer: window_samples kept samples (the bounded window), or max_window when 0
-    samples = (ring + p["window_capacity"]) * taxels * 2
-    detector = 2 * (2 * p["noise_frames"] + max(1, p["lookback_frames"]) + 2 * taxels) * 8
     size = taxels * D
     dims = (rows, cols, D)
     n_of = [size // d for d in dims]
-    q = [min(d, n) for d, n in zip(dims, n_of)]
     bases = sum(n * a for n, a in zip(n_of, cm.alpha_store))
     machines = cm.machines
     groups = len({tuple(m["alphas"]) for m in machines})
     terms = sum(len(m["coef"]) for m in machines)
-    workspace = (
-        size * 8 + bases * real + 2 * size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
-    )
-    tables = groups * cm.n_support * 3 * 4 + cm.n_support * 3 * 4 + terms * 12
-    if cm.sv_log_energy.size:
-        # the amplitude factor: the support vectors' log energies (double) and the classifier's
-        # squared gaps to the input's (float)
-        tables += cm.n_support * (8 + 4)
     flash = {"model": cm.file_bytes, "program": t.program_flash_bytes}
-    ram = {
-        "detector samples": samples,
-        "detector state": detector,
-        "input workspace": workspace,
-        "model tables": tables + _MALLOC_OVERHEAD,
-        "statics and stack": t.program_ram_bytes,
-    }
+    ram = _ram_terms(rows, cols, D, tuple(cm.alpha_store), cm.n_support, terms, groups,
+                     bool(cm.sv_log_energy.size), real, cm.window_config, cm.sample_rate_hz, t)
+    samples = ram["detector samples"]
     advice = []
     if sum(flash.values()) > t.flash_bytes:
         advice += [
@@ -148,6 +139,11 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
             else "float16 bases would halve them (not in the model format)",
         ]
     if sum(ram.values()) > t.ram_bytes:
+        from eskin import _core
+
+        p = _core.window_config_resolve(
+            np.array([cm.window_config[k] for k in _core.WINDOW_CONFIG_FIELDS]), cm.sample_rate_hz
+        )
         per = taxels * 2 * cm.sample_rate_hz / 10
         ws = int(cm.window_config.get("window_samples", 0))
         advice += [
@@ -165,3 +161,263 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
             ),
         ]
     return DeviceBudget(t, flash, ram, advice)
+
+
+# --------------------------------------------------------------------------------------------
+# instructions per decision: a cost model calibrated on QEMU counts
+
+#: QEMU counts (Cortex-M4F, mps2-an386, -icount shift=0; `benchmarks/bench_mcu.py`, table in
+#: BENCHMARKS.md): (D, support vectors, alpha_store, median instructions of the push that ends a
+#: touch). 3-class tensor-RLS models, 4x4 grid, detector windows of 0.37-0.5 s.
+INSTRUCTION_CALIBRATION: tuple[tuple[int, int, tuple[int, int, int], float], ...] = (
+    (20, 36, (1, 1, 1), 0.500e6),
+    (50, 36, (1, 1, 1), 0.667e6),
+    (100, 36, (1, 1, 1), 0.991e6),
+    (20, 84, (1, 1, 1), 0.565e6),
+    (50, 84, (1, 1, 1), 0.781e6),
+    (20, 36, (2, 2, 8), 0.813e6),
+    (50, 36, (4, 4, 16), 2.699e6),
+    (100, 36, (2, 2, 8), 1.685e6),
+)
+
+
+def _instruction_features(grid_shape, D, alphas, n_support) -> np.ndarray:
+    """What a decision's work grows with: a constant (the window's subsampling and the rest of
+    the push), D, the input's bases (sum_z N_z alpha_z, times the largest alpha: the power
+    iterations), the support vectors, and their distances (sum_z N_z alpha_z^2 multiply-adds
+    per support vector, N_z the length of a mode-z basis vector)."""
+    dims = (int(grid_shape[0]), int(grid_shape[1]), int(D))
+    size = dims[0] * dims[1] * dims[2]
+    n_of = [size // d for d in dims]
+    basis = sum(n * a for n, a in zip(n_of, alphas))
+    per_sv = sum(n * a * a for n, a in zip(n_of, alphas))
+    return np.array([1.0, D, basis * max(alphas), n_support, n_support * per_sv], dtype=float)
+
+
+def _fit(points) -> np.ndarray:
+    A = np.array([_instruction_features((4, 4), D, a, n) for D, n, a, _ in points])
+    y = np.array([p[3] for p in points])
+    return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+_COEF = _fit(INSTRUCTION_CALIBRATION)
+
+
+def decision_instructions(grid_shape, D: int, alphas, n_support: int) -> float:
+    """Estimated Cortex-M4F instructions of one decision (least squares on
+    :data:`INSTRUCTION_CALIBRATION`; its error: :func:`instruction_model_error`)."""
+    return float(_instruction_features(grid_shape, D, tuple(alphas), n_support) @ _COEF)
+
+
+def instruction_model_error() -> dict[str, float]:
+    """The cost model's relative error on the QEMU counts: largest in-sample error and largest
+    leave-one-out error (each count predicted by the model fitted without it)."""
+    pts = list(INSTRUCTION_CALIBRATION)
+    fit_err, loo_err = [], []
+    for i, (D, n, a, y) in enumerate(pts):
+        fit_err.append(abs(decision_instructions((4, 4), D, a, n) - y) / y)
+        coef = _fit(pts[:i] + pts[i + 1:])
+        loo_err.append(abs(float(_instruction_features((4, 4), D, a, n) @ coef) - y) / y)
+    return {"max_fit": max(fit_err), "max_leave_one_out": max(loo_err), "points": len(pts)}
+
+
+# --------------------------------------------------------------------------------------------
+# budgets: what a trained model may use
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Flash, RAM (bytes) and median instructions per decision a model may use on a controller;
+    the program around the model comes from ``target``."""
+
+    target: Target
+    flash_bytes: int
+    ram_bytes: int
+    instructions: float
+
+    def describe(self) -> str:
+        return (f"{self.target.name}: flash {self.flash_bytes} B, RAM {self.ram_bytes} B, "
+                f"{self.instructions / 1e6:g} M instructions per decision")
+
+
+#: instructions per decision of the targets (a decision within 10 ms at 168 MHz, CPI 1-1.5:
+#: docs/mcu.md)
+TARGET_INSTRUCTIONS = {"cortex-m4": 1.5e6}
+
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
+
+
+def _size(text: str, key: str, decimal: bool) -> float:
+    t = text.strip().upper().removesuffix("B") if not decimal else text.strip().upper()
+    unit = t[-1:] if t[-1:] in ("K", "M", "G") else ""
+    number = t[: len(t) - len(unit)]
+    try:
+        value = float(number)
+    except ValueError:
+        raise ValueError(f"--budget {key}={text}: not a number (e.g. {key}=1M, 128K)") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"--budget {key}={text}: must be positive")
+    scale = {"": 1, "K": 1e3, "M": 1e6, "G": 1e9}[unit] if decimal else _UNITS[unit]
+    return value * scale
+
+
+def parse_budget(text: str | None, target: str | None = None) -> Budget:
+    """A budget from ``--target NAME`` and/or ``--budget flash=1M,ram=128K,instr=1.5M`` (sizes
+    in binary units, instructions in decimal ones; given keys override the target's)."""
+    if target is not None and target not in TARGETS:
+        raise ValueError(f"--target {target}: unknown target (known: {', '.join(TARGETS)})")
+    base = TARGETS[target or "cortex-m4"]
+    values = {"flash": float(base.flash_bytes), "ram": float(base.ram_bytes),
+              "instr": TARGET_INSTRUCTIONS.get(base.name, 1.5e6)}
+    for item in [t for t in (text or "").split(",") if t.strip()]:
+        key, sep, value = item.partition("=")
+        key = key.strip().lower()
+        if not sep or key not in values:
+            raise ValueError(f"--budget {text}: expected flash=..,ram=..,instr=.. (got {item!r})")
+        values[key] = _size(value, key, decimal=key == "instr")
+    name = base.name if text is None else f"{base.name} (budget {text})"
+    t = Target(name, base.description, int(values["flash"]), int(values["ram"]), base.clock_hz,
+               base.program_flash_bytes, base.program_ram_bytes)
+    return Budget(t, int(values["flash"]), int(values["ram"]), float(values["instr"]))
+
+
+def _stored_alphas(grid_shape, D: int, alpha: str) -> tuple[int, ...]:
+    from eskin.learn.models import alpha_value
+
+    return alpha_value(alpha, (int(grid_shape[0]), int(grid_shape[1]), int(D)))
+
+
+def estimate_model(
+    budget: Budget, grid_shape, D: int, alphas, n_support: int, n_machines: int,
+    amplitude: bool, window_config: Any, rate: float,
+) -> dict[str, float]:
+    """Estimated flash, RAM (bytes) and instructions per decision of a float32 model of one
+    alpha group (the terms of :func:`device_budget`, the file from its sections)."""
+    rows, cols = (int(v) for v in grid_shape)
+    dims = (rows, cols, int(D))
+    size = rows * cols * int(D)
+    n_of = [size // d for d in dims]
+    bases = sum(n * a for n, a in zip(n_of, alphas))
+    terms = n_support * n_machines  # at most: every support vector in every machine
+    file_bytes = 1800 + n_support * (4 * bases + (8 if amplitude else 0)) + terms * 8
+    ram = _ram_terms(rows, cols, int(D), tuple(alphas), n_support, terms, 1, amplitude, 4,
+                     window_config, rate, budget.target)
+    return {
+        "flash": file_bytes + budget.target.program_flash_bytes,
+        "ram": sum(ram.values()),
+        "instructions": decision_instructions(grid_shape, D, alphas, n_support),
+    }
+
+
+def _ram_terms(rows, cols, D, alpha_store, n_support, terms, groups, amplitude, real,
+               window_config, rate, t: Target) -> dict[str, int]:
+    """RAM by part (bytes) of a model on the device build (see :func:`device_budget`)."""
+    from eskin import _core
+
+    taxels = rows * cols
+    if hasattr(window_config, "to_array"):  # a WindowConfig (its words as the core's codes)
+        values = np.asarray(window_config.to_array(), dtype=float)
+    else:  # a compiled model's numeric fields
+        values = np.array([window_config[k] for k in _core.WINDOW_CONFIG_FIELDS], dtype=float)
+    p = _core.window_config_resolve(values, float(rate))
+    ring = p["pad_before"] + (p["lookback_frames"] + 1) * p["frame_len"]
+    # the window buffer: window_samples kept samples (the bounded window), or max_window when 0
+    samples = (ring + p["window_capacity"]) * taxels * 2
+    detector = 2 * (2 * p["noise_frames"] + max(1, p["lookback_frames"]) + 2 * taxels) * 8
+    size = taxels * D
+    dims = (rows, cols, D)
+    n_of = [size // d for d in dims]
+    q = [min(d, n) for d, n in zip(dims, n_of)]
+    bases = sum(n * a for n, a in zip(n_of, alpha_store))
+    workspace = (
+        size * 8 + bases * real + 2 * size * 4 + 2 * max(q) ** 2 * 4 + max(n_of) * 4 + 16 * 64
+    )
+    tables = groups * n_support * 3 * 4 + n_support * 3 * 4 + terms * 12
+    if amplitude:
+        tables += n_support * (8 + 4)
+    return {
+        "detector samples": int(samples),
+        "detector state": int(detector),
+        "input workspace": int(workspace),
+        "model tables": int(tables + _MALLOC_OVERHEAD),
+        "statics and stack": int(t.program_ram_bytes),
+    }
+
+
+def window_for_budget(
+    budget: Budget, grid_shape, rate: float, window_config: Any, D_min: int = 20,
+    n_support: int = 100,
+) -> tuple[Any, str | None]:
+    """The detector settings whose raw-sample buffers leave room for a model in the budget's
+    RAM: ``window_config`` itself when it does, else with ``max_window_s`` lowered (in 0.01 s
+    steps, not below what pad_before_s and lookback_s need) until the detector and the smallest
+    model the search may choose (D ``D_min``, alpha 1, ``n_support`` support vectors) fit; the
+    search then keeps only the models that fit beside it. (settings, a note on what was
+    lowered, or None)."""
+    from eskin.signal.preprocess import WindowConfig
+
+    cfg = window_config if isinstance(window_config, WindowConfig) else (
+        WindowConfig() if window_config is None else WindowConfig.from_dict(dict(window_config)))
+    rows, cols = (int(v) for v in grid_shape)
+    alphas = _stored_alphas(grid_shape, D_min, "1")
+
+    def ram(c) -> int:
+        return sum(_ram_terms(rows, cols, D_min, alphas, n_support, 3 * n_support, 1, True, 4,
+                              c, rate, budget.target).values())
+
+    if ram(cfg) <= budget.ram_bytes:
+        return cfg, None
+    from dataclasses import replace
+
+    new = cfg
+    if getattr(cfg, "window_samples", 0):  # a bounded window: fewer kept samples per taxel
+        while new.window_samples > 128 and ram(new) > budget.ram_bytes:
+            new = replace(new, window_samples=int(new.window_samples) // 2)
+        what = f"window_samples {cfg.window_samples} -> {new.window_samples}"
+    else:  # the whole window is kept: a shorter longest window
+        step = 0.01
+        floor = cfg.pad_before_s + cfg.lookback_s + 2 * cfg.frame_s
+        while new.max_window_s - step >= floor and ram(new) > budget.ram_bytes:
+            new = replace(new, max_window_s=round(new.max_window_s - step, 6))
+        what = f"max_window_s {cfg.max_window_s:g} s -> {new.max_window_s:g} s"
+    if ram(new) > budget.ram_bytes:
+        raise ValueError(
+            f"the detector's buffers alone exceed the RAM budget ({budget.ram_bytes} B) at "
+            f"{rate:g} Hz on {rows}x{cols} taxels: raise the budget"
+        )
+    return new, (f"the detector's raw-sample buffers must leave room for a model: {what} to "
+                 f"fit {budget.describe()}")
+
+
+def candidate_budget(
+    budget: Budget, grid_shape, rate: float, window_config: Any, n_classes: int
+) -> Any:
+    """The :class:`~eskin.learn.recipes.CandidateBudget` of a budget: a candidate fits when
+    its estimated flash, RAM and instructions (:func:`estimate_model`, with its expected
+    support vectors) are within the budget."""
+    from eskin.learn.recipes import CandidateBudget
+
+    machines = 1 if n_classes == 2 else n_classes
+
+    def fits(candidate, n_support: int) -> bool:
+        D = candidate.recipe.D
+        alphas = _stored_alphas(grid_shape, D, candidate.alpha)
+        est = estimate_model(budget, grid_shape, D, alphas, n_support, machines,
+                             candidate.amplitude is not None, window_config, rate)
+        return (est["flash"] <= budget.flash_bytes and est["ram"] <= budget.ram_bytes
+                and est["instructions"] <= budget.instructions)
+
+    return CandidateBudget(fits, budget.describe())
+
+
+def model_fits(model_bytes: bytes, budget: Budget) -> tuple[bool, dict[str, float]]:
+    """Whether a compiled model fits the budget: flash and RAM from :func:`device_budget`,
+    instructions from the cost model; (fits, the three figures)."""
+    from eskin.deploy.export import CompiledModel
+
+    cm = CompiledModel(model_bytes)
+    b = device_budget(cm, budget.target)
+    instr = decision_instructions(cm.grid_shape, cm.D, tuple(cm.alpha_store), cm.n_support)
+    figures = {"flash": b.flash_total, "ram": b.ram_total, "instructions": instr}
+    return (b.flash_total <= budget.flash_bytes and b.ram_total <= budget.ram_bytes
+            and instr <= budget.instructions), figures

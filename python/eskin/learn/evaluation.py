@@ -436,13 +436,24 @@ def evaluate_recipe(
             "groups": groups,
             "scheme": "leave-one-group-out" if n_folds is None else f"{n_folds} grouped folds",
             "n_groups": len(np.unique(labels[np.concatenate([te for _, te in folds])])),
-            "recipe": _plain(recipe),
+            "recipe": _plain(_recorded(recipe)),
             "trained_with": _folds_trained_with(result["folds"]),
             "seed": int(seed),
             "seconds": time.perf_counter() - t0,
         }
     )
     return result
+
+
+def _recorded(recipe: Mapping[str, Any]) -> dict[str, Any]:
+    """The recipe as recorded in the result: a budget by its description, detector settings by
+    their fields."""
+    out = dict(recipe)
+    if out.get("budget") is not None:
+        out["budget"] = getattr(out["budget"], "description", str(out["budget"]))
+    if hasattr(out.get("window_config"), "to_dict"):
+        out["window_config"] = out["window_config"].to_dict()
+    return out
 
 
 def _run_folds(

@@ -36,6 +36,7 @@ import numpy as np
 
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import ModelFormatError, TrainingError
+from eskin.learn.recipes import ALPHA_SPEC, one_vs_all_indices
 
 MODEL_FORMAT = "eskin.touch-model"
 MODEL_FORMAT_VERSION = 1
@@ -69,8 +70,6 @@ SELECTIONS: tuple[str, ...] = ("md", "cv")
 # grid and searches (shared with eskin.experiments)
 
 
-#: grid label -> the alpha value given to the estimators (see :func:`eskin.resolve_alphas`)
-ALPHA_SPEC: dict[str, Any] = {"1": 1, "Q/2": "half", "Q": "full"}
 
 
 def alpha_value(label: str, shape: Sequence[int]) -> tuple[int, ...]:
@@ -890,22 +889,6 @@ def _selected_settings(machine: str, fitted_search: Any, ys: np.ndarray) -> dict
     }
 
 
-def _one_vs_all_indices(
-    y_all: np.ndarray, n_classes: int, negatives: str, seed: int
-) -> list[np.ndarray]:
-    """The sorted training indices of each 1-vs-all machine: its class's patterns, and all the
-    others or ("balanced") as many seeded random ones of the other classes."""
-    rng = np.random.default_rng(seed)
-    machine_indices = []
-    for k in range(n_classes):
-        pos = np.flatnonzero(y_all == k)
-        neg = np.flatnonzero(y_all != k)
-        if negatives == "balanced" and len(neg) > len(pos):
-            neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
-        machine_indices.append(np.sort(np.concatenate([pos, neg])))
-    return machine_indices
-
-
 def _select_and_fit(
     recipe: _Recipe,
     X: np.ndarray,
@@ -937,7 +920,7 @@ def _select_and_fit(
         return search.best_estimator_, grouped, selected, time.perf_counter() - t0
     from eskin.learn.estimators import OneVsAllTouchClassifier
 
-    machine_indices = _one_vs_all_indices(y_all, len(classes), recipe.negatives, recipe.seed)
+    machine_indices = one_vs_all_indices(y_all, len(classes), recipe.negatives, recipe.seed)
     estimator, grouped = fit_grouped(
         lambda g: OneVsAllTouchClassifier(estimator=search).fit(
             X, y_all, machine_indices=machine_indices, groups=g
@@ -1020,16 +1003,17 @@ def _touch_model(
     )
 
 
+# long: the public entry point documents every parameter; the body dispatches
 def train_model(
     data: Any,
     labels: Any = None,
     *,
     classes: Sequence[str] | None = None,
-    machine: str = "svm",
+    machine: str | None = None,
     selection: str = "cv",
     D: int | None = None,
     window: str = "energy",
-    subsample: str = "algorithm2",
+    subsample: str | None = None,
     window_config: Any = None,
     lambdas: Sequence[float] = PAPER_LAMBDAS,
     sigmas: Sequence[float] = PAPER_SIGMAS,
@@ -1038,7 +1022,7 @@ def train_model(
     quick: bool = False,
     md_options: Mapping[str, Any] | None = None,
     cv_options: Mapping[str, Any] | None = None,
-    negatives: str = "all",
+    negatives: str | None = None,
     runs: Sequence[int] | None = None,
     class_names: Sequence[str] | None = None,
     lengths: Sequence[int] | None = None,
@@ -1046,8 +1030,11 @@ def train_model(
     seed: int = 0,
     n_jobs: int = 1,
     group_by: str = "participant",
+    budget: Any = None,
+    recipe_options: Mapping[str, Any] | None = None,
 ) -> TouchModel:
-    """Select hyperparameters, fit on all the given data and return a :class:`TouchModel`.
+    """Select the recipe and its hyperparameters, fit on all the given data and return a
+    :class:`TouchModel`.
 
     Parameters
     ----------
@@ -1078,7 +1065,51 @@ def train_model(
     runs : only recordings of these runs (default: every recording).
     group_by : the campaign label that groups recordings in the CV selection's splits (no group
         on both sides): "participant" (default), "run", "direction" or an integer extra field.
+    budget : a :class:`~eskin.learn.recipes.CandidateBudget` (built by
+        :func:`eskin.deploy.target.candidate_budget`): only recipes and settings whose compiled
+        model fits it are chosen (CV selection with the recipe searched).
+    recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``,
+        ``first_share``, ...).
+
+    Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
+    ``negatives`` left None is searched (machine svm/rls, D 20/50/100 capped by the longest
+    training recording, subsampling algorithm2/even, negatives all/balanced) together with the
+    grid by :class:`~eskin.learn.recipes.RecipeSearch` (successive halving on the multi-class
+    error of participant-grouped splits); the chosen recipe, its estimate and the runners-up
+    are in ``training["recipe_search"]``. With all four given, or with ``selection="md"``
+    (whose bound compares settings of one recipe only; the unset ones are then svm, D 100 or
+    the longest recording, algorithm2, all), each machine selects its own setting of the grid
+    as before.
     """
+    recipe_given = dict(machine=machine, D=D, subsample=subsample, negatives=negatives)
+    common = dict(classes=classes, window=window, window_config=window_config, lambdas=lambdas,
+                  sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
+                  cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
+                  sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by)
+    if selection == "cv" and None in recipe_given.values():
+        return _train_searched(data, labels, **recipe_given, **common, budget=budget,
+                               recipe_options=recipe_options)
+    if budget is not None:
+        raise TrainingError("a budget needs the recipe searched (selection cv, and at least one "
+                            "of machine, D, subsample, negatives left to the search)")
+    return _train_fixed(data, labels, selection=selection, md_options=md_options,
+                        **recipe_given, **common)
+
+
+def _train_fixed(
+    data: Any, labels: Any, *, classes: Sequence[str] | None, machine: str | None,
+    selection: str, D: int | None, window: str, subsample: str | None, window_config: Any,
+    lambdas: Sequence[float], sigmas: Sequence[float], alphas: Sequence[str],
+    amplitudes: Sequence[float | None], quick: bool, md_options: Mapping[str, Any] | None,
+    cv_options: Mapping[str, Any] | None, negatives: str | None, runs: Sequence[int] | None,
+    class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float, seed: int,
+    n_jobs: int, group_by: str,
+) -> TouchModel:
+    """train_model with the recipe given (or Maximal Discrepancy): each machine selects its
+    own setting of the grid."""
+    machine = machine or "svm"
+    subsample = subsample or "algorithm2"
+    negatives = negatives or "all"
     recipe = _Recipe(machine, selection, D, window, subsample, negatives, seed, n_jobs, group_by)
     recipe = recipe.with_grid(quick, lambdas, sigmas, alphas, amplitudes, md_options, cv_options)
     rec, info, classes, idx, y_all, groups = _training_data(
@@ -1100,6 +1131,100 @@ def train_model(
     return _touch_model(
         recipe, classes, estimator, selected, training, rate, X.shape[1:], window_config
     )
+
+
+def _train_searched(
+    data: Any, labels: Any, *, classes: Sequence[str] | None, machine: str | None,
+    D: int | None, window: str, subsample: str | None, window_config: Any,
+    lambdas: Sequence[float], sigmas: Sequence[float], alphas: Sequence[str],
+    amplitudes: Sequence[float | None], quick: bool, cv_options: Mapping[str, Any] | None,
+    negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
+    lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
+    recipe_options: Mapping[str, Any] | None,
+) -> TouchModel:
+    """train_model with the recipe searched (see its docstring)."""
+    from eskin.learn.recipes import (
+        MACHINES as R_MACHINES, NEGATIVES, SEARCH_DS, SUBSAMPLES, RecipeSearch, recipe_space,
+    )
+
+    base = _Recipe(machine or "svm", "cv", D, window, subsample or "algorithm2",
+                   negatives or "all", seed, n_jobs, group_by)
+    base = base.with_grid(quick, lambdas, sigmas, alphas, amplitudes, None, cv_options)
+    rec, info, classes, idx, y_all, groups = _training_data(
+        data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
+    )
+    rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
+    window_config, notes = window_config_for_rate(window_config, rate)
+    notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
+    lens = np.asarray(rec.lengths)[idx]
+    recipes, cap_notes = recipe_space(
+        [machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
+        [subsample] if subsample else SUBSAMPLES, [negatives] if negatives else NEGATIVES,
+        longest=int(lens.max()) if len(lens) else None,
+    )
+    notes += sorted(set(cap_notes))
+    t0 = time.perf_counter()
+    prep = preprocess_campaign(rec, idx, sorted({r.variant for r in recipes}), window=window,
+                               config=window_config, sample_rate_hz=rate)
+    for X in prep.X.values():
+        _require_touches(X, data)
+    cv = dict(base.cv_options or {})
+    options = {"n_splits": int(cv.get("n_splits", 10)), "test_size": float(cv.get("test_size", 0.3)),
+               **dict(recipe_options or {})}
+    groups, group_notes = cv_groups("cv", groups, group_by)
+    notes += group_notes
+
+    def run(g: np.ndarray | None) -> RecipeSearch:
+        return RecipeSearch(recipes, base.lambdas, base.sigmas, base.alphas, base.amplitudes,
+                            budget=budget, seed=seed, n_jobs=n_jobs, **options).fit(
+            prep.X, y_all, g)
+
+    search, grouped = fit_grouped(run, groups, group_by, notes)
+    best = search.best_
+    chosen = replace(base, machine=best.recipe.machine, D=best.recipe.D,
+                     subsample=best.recipe.subsample, negatives=best.recipe.negatives)
+    X = prep.X[best.recipe.variant]
+    estimator, selected = _fit_candidate(best, X, y_all, classes, seed)
+    for s in selected:
+        s["selection_terms"] = {"mean_test_error": float(search.best_error_),
+                                "std_test_error": float(search.ranking_[0]["std"])}
+    training = _training_record(chosen, info, classes, y_all, grouped, notes,
+                                time.perf_counter() - t0)
+    training["recipe_search"] = search.report()
+    training["searched"] = [k for k, v in (("machine", machine), ("D", D),
+                                           ("subsample", subsample), ("negatives", negatives))
+                            if v is None]
+    return _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
+                        window_config)
+
+
+def _fit_candidate(
+    best: Any, X: np.ndarray, y_all: np.ndarray, classes: list[str], seed: int
+) -> tuple[Any, list[dict[str, Any]]]:
+    """(the fitted estimator of a recipe-search candidate, the settings of its machines)."""
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+
+    alpha = ALPHA_SPEC[best.alpha]
+    if best.recipe.machine == "svm":
+        est = TensorSVC(C=1.0 / best.lam, sigma=best.sigma, alpha=alpha, amplitude=best.amplitude)
+        params = {"C": 1.0 / best.lam, "sigma": best.sigma, "alpha": alpha,
+                  "amplitude": best.amplitude}
+    else:
+        est = TensorRLS(lam=best.lam, sigma=best.sigma, alpha=alpha, amplitude=best.amplitude)
+        params = {"lam": best.lam, "sigma": best.sigma, "alpha": alpha,
+                  "amplitude": best.amplitude}
+    if len(classes) == 2:
+        est.fit(X, y_all)
+        return est, [{**describe_params(best.recipe.machine, params, est),
+                      "n_train": int(len(y_all)), "n_positive": int(np.sum(y_all == 1))}]
+    indices = one_vs_all_indices(y_all, len(classes), best.recipe.negatives, seed)
+    ova = OneVsAllTouchClassifier(estimator=est).fit(X, y_all, machine_indices=indices)
+    selected = []
+    for k, (m, mi) in enumerate(zip(ova.estimators_, indices)):
+        selected.append({"class": classes[k],
+                         **describe_params(best.recipe.machine, params, m),
+                         "n_train": int(len(mi)), "n_positive": int(np.sum(y_all[mi] == k))})
+    return ova, selected
 
 
 # --------------------------------------------------------------------------------------------

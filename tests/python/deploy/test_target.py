@@ -119,3 +119,43 @@ def test_cli_export_target_reports_and_refuses(campaign, tmp_path):
     assert "does not fit cortex-m4; nothing written" in res.stderr
     assert "max_window_s" in res.stdout and "Traceback" not in res.stderr
     assert not (tmp_path / "big.eskin").exists()
+
+
+def test_the_instruction_model_reproduces_the_qemu_counts():
+    from eskin.deploy.target import (
+        INSTRUCTION_CALIBRATION,
+        decision_instructions,
+        instruction_model_error,
+    )
+
+    err = instruction_model_error()
+    assert err["points"] == len(INSTRUCTION_CALIBRATION) == 8
+    assert err["max_fit"] < 0.03 and err["max_leave_one_out"] < 0.05
+    for D, n_sv, alphas, count in INSTRUCTION_CALIBRATION:
+        assert decision_instructions((4, 4), D, alphas, n_sv) == pytest.approx(count, rel=0.03)
+    # more support vectors, a larger alpha or D: more work
+    base = decision_instructions((4, 4), 50, (1, 1, 1), 36)
+    assert decision_instructions((4, 4), 50, (1, 1, 1), 84) > base
+    assert decision_instructions((4, 4), 50, (2, 2, 8), 36) > base
+    assert decision_instructions((4, 4), 100, (1, 1, 1), 36) > base
+
+
+def test_the_search_estimate_matches_the_compiled_model(campaign):
+    """What the recipe search estimates for a candidate before fitting it is what
+    device_budget reads from the compiled model (same support vectors)."""
+    from eskin.deploy.target import estimate_model, parse_budget
+
+    model = _model(campaign, 20, 0.5)
+    cm = CompiledModel.from_model(model)
+    budget = parse_budget(None, "cortex-m4")
+    est = estimate_model(budget, (4, 4), 20, tuple(cm.alpha_store), cm.n_support, 3, False,
+                         model.window_config, campaign.sample_rate_hz)
+    real = device_budget(cm, budget.target)
+    assert est["ram"] == pytest.approx(real.ram_total, rel=0.01)
+    assert est["flash"] == pytest.approx(real.flash_total, rel=0.01)
+    with pytest.raises(ValueError, match="--budget ram=lots: not a number"):
+        parse_budget("ram=lots")
+    with pytest.raises(ValueError, match="expected flash=..,ram=..,instr=.."):
+        parse_budget("speed=3")
+    assert parse_budget("flash=512K,instr=2M").flash_bytes == 512 << 10
+    assert parse_budget("flash=512K,instr=2M").instructions == 2e6

@@ -278,5 +278,7 @@ def test_the_default_D_is_100_when_the_recordings_allow_it(tmp_path):
     camp = shaped_campaign(tmp_path / "c.h5", rows=2, cols=2, rate=100.0, participants=2,
                            counts=[3, 3], min_len=100, max_len=150)
     model = train_model(camp, quick=True)
-    assert model.D == 100
+    assert {r["D"] for r in model.training["recipe_search"]["recipes"]} <= {20, 50, 100}
+    assert 100 in {r["D"] for r in model.training["recipe_search"]["recipes"]}
     assert not any("samples long" in n for n in model.training["notes"])
+    assert train_model(camp, selection="md", quick=True).D == 100  # D not searched

@@ -261,6 +261,12 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
             "cv",
             "--D",
             "20",
+            "--machine",
+            "svm",
+            "--subsample",
+            "algorithm2",
+            "--negatives",
+            "all",
             "--baselines",
             "vector",
         ]
@@ -288,8 +294,8 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
     assert words in r.output
     assert words.replace("trained with", "Trained with") in (out / "evaluation.md").read_text()
     # the options it was given, as the command line spells them (not a JSON dict)
-    assert ("options given: `--D 20`, `--quick`, `--selection cv`;"
-            in (out / "evaluation.md").read_text())
+    assert ("options given: `--D 20`, `--machine svm`, `--negatives all`, `--quick`, "
+            "`--selection cv`, `--subsample algorithm2`;" in (out / "evaluation.md").read_text())
 
 
 def test_evaluate_rejects_an_unknown_group_label(sim_campaign, tmp_path):

@@ -1,0 +1,520 @@
+"""Choosing the training recipe on the user's own data: successive halving over recipes.
+
+A *recipe* is how a model is made from recordings: the machine (tensor-SVM or tensor-RLS), the
+subsampled length D, the subsampling method and the negatives each one-vs-all machine sees (all
+the other classes' patterns, or as many random ones as its class has). A *candidate* is a recipe
+with one setting of the grid (lambda, sigma, alpha, amplitude), shared by its machines.
+
+:class:`RecipeSearch` picks the candidate with the lowest **multi-class** error on
+participant-grouped cross-validation splits (no participant on both sides of a split), the error
+`eskin evaluate` measures on unseen people. Scoring every candidate on every split would cost
+the grid times the recipes (24 x 405 settings); the search instead runs **successive halving**
+(Jamieson and Talwalkar 2016; scikit-learn's ``HalvingGridSearchCV``) with the cross-validation
+splits as the resource: every candidate is scored on the first split, the best third on three
+splits, the best third of those on all of them. Every candidate is scored on the same splits in
+the same order, so the estimates of the survivors are comparable and the last round's are the
+plain ``n_splits``-fold figures. The first round samples the same share of the grid for every
+recipe (seeded), so each recipe is judged on the same settings.
+
+What is shared: the patterns are preprocessed once per (D, subsampling) and the per-mode
+distances once per (D, subsampling, alpha) for all the training patterns; every split, setting
+and machine slices the same Gram matrix (one per sigma and amplitude width). With every negative,
+the one-vs-all machines of a split share their training set: tensor-RLS solves all of them with
+one Cholesky factorisation per lambda.
+
+Fewer support vectors: among the final candidates whose error is within one held-out pattern (over
+all the splits together) of the best, the one with the fewest expected support vectors wins. A budget (:class:`CandidateBudget`, see :mod:`eskin.deploy.target` for the cost
+model) removes candidates whose compiled model would not fit the controller before they are
+ranked.
+
+Every random choice (splits, the grid sample, balanced negatives) is seeded, never taken from
+the execution order; the work of a round is cut into (D, subsampling, alpha) tasks run through
+joblib (any backend, Dask included) with the patterns shipped to the workers, so results are
+identical for any ``n_jobs`` and backend.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from eskin.errors import TrainingError
+
+__all__ = [
+    "Candidate",
+    "Recipe",
+    "RecipeSearch",
+    "recipe_space",
+]
+
+MACHINES = ("svm", "rls")
+SUBSAMPLES = ("algorithm2", "even")
+NEGATIVES = ("all", "balanced")
+#: grid label -> the alpha value given to the estimators (see :func:`eskin.resolve_alphas`)
+ALPHA_SPEC: dict[str, Any] = {"1": 1, "Q/2": "half", "Q": "full"}
+#: grids of at most this many settings are scored whole in the first round
+SMALL_GRID = 24
+#: D values searched by default (the paper's), each capped by the longest training recording
+SEARCH_DS = (20, 50, 100)
+
+
+@dataclass(frozen=True, order=True)
+class Recipe:
+    """How a model is made: machine, D, subsampling and the negatives of the one-vs-all machines."""
+
+    machine: str
+    D: int
+    subsample: str
+    negatives: str
+
+    def __post_init__(self) -> None:
+        if self.machine not in MACHINES:
+            raise TrainingError(f"machine must be 'svm' or 'rls', got {self.machine!r}")
+        if self.subsample not in SUBSAMPLES:
+            raise TrainingError(f"subsample must be one of {SUBSAMPLES}, got {self.subsample!r}")
+        if self.negatives not in NEGATIVES:
+            raise TrainingError(f"negatives must be 'all' or 'balanced', got {self.negatives!r}")
+        if int(self.D) < 1:
+            raise TrainingError(f"D must be >= 1, got {self.D}")
+
+    @property
+    def variant(self) -> tuple[int, str]:
+        return (int(self.D), self.subsample)
+
+    def label(self) -> str:
+        return f"{self.machine} D={self.D} {self.subsample} negatives={self.negatives}"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A recipe with one grid setting (alpha is a grid label: "1", "Q/2" or "Q")."""
+
+    recipe: Recipe
+    lam: float
+    sigma: float
+    alpha: str
+    amplitude: float | None
+
+    def label(self) -> str:
+        amp = "off" if self.amplitude is None else f"{self.amplitude:g}"
+        return (f"{self.recipe.label()}, lambda={self.lam:g}, sigma={self.sigma:g}, "
+                f"alpha={self.alpha}, amplitude={amp}")
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**asdict(self.recipe), "lambda": float(self.lam), "sigma": float(self.sigma),
+                "alpha": self.alpha, "amplitude": self.amplitude}
+
+
+def recipe_space(
+    machines: Sequence[str] = MACHINES,
+    Ds: Sequence[int] = SEARCH_DS,
+    subsamples: Sequence[str] = SUBSAMPLES,
+    negatives: Sequence[str] = NEGATIVES,
+    *,
+    longest: int | None = None,
+) -> tuple[list[Recipe], list[str]]:
+    """(the recipes of the given choices, notes). A D longer than ``longest`` (the longest
+    training recording, when given) becomes ``longest``: a longer D would only stretch every
+    touch by interpolation."""
+    notes = []
+    capped = []
+    for D in Ds:
+        D = int(D)
+        if longest is not None and D > longest:
+            notes.append(f"the training recordings are at most {longest} samples long: D = "
+                         f"{max(2, longest)} instead of {D}")
+            D = max(2, int(longest))
+        if D not in capped:
+            capped.append(D)
+    recipes = sorted({Recipe(m, D, s, n) for m in machines for D in capped for s in subsamples
+                      for n in negatives})
+    if not recipes:
+        raise TrainingError("the recipe search has no recipe to try")
+    return recipes, notes
+
+
+# --------------------------------------------------------------------------------------------
+# scoring candidates on splits (the work of one task: one (D, subsampling, alpha))
+
+
+def one_vs_all_indices(
+    y_all: np.ndarray, n_classes: int, negatives: str, seed: int
+) -> list[np.ndarray]:
+    """The sorted training indices of each 1-vs-all machine: its class's patterns, and all the
+    others or ("balanced") as many seeded random ones of the other classes."""
+    rng = np.random.default_rng(seed)
+    machine_indices = []
+    for k in range(n_classes):
+        pos = np.flatnonzero(y_all == k)
+        neg = np.flatnonzero(y_all != k)
+        if negatives == "balanced" and len(neg) > len(pos):
+            neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
+        machine_indices.append(np.sort(np.concatenate([pos, neg])))
+    return machine_indices
+
+
+def _machine_subsets(y: np.ndarray, n_classes: int, negatives: str, seed: int) -> list[np.ndarray]:
+    """Sorted training indices of each machine (as eskin.train_model draws them)."""
+    if n_classes == 2:
+        return [np.arange(len(y))]
+    return one_vs_all_indices(y, n_classes, negatives, seed)
+
+
+def _binary_targets(y: np.ndarray, n_classes: int) -> np.ndarray:
+    """(n, machines) -1/+1 targets: one column for two classes (+1 = class 1), else one per
+    class."""
+    if n_classes == 2:
+        return np.where(y == 1, 1.0, -1.0)[:, None]
+    return np.stack([np.where(y == k, 1.0, -1.0) for k in range(n_classes)], axis=1)
+
+
+def _predict(F: np.ndarray, n_classes: int) -> np.ndarray:
+    from eskin.learn.estimators import one_vs_all_rule
+
+    if n_classes == 2:
+        return (F[:, 0] > 0).astype(np.int64)
+    return one_vs_all_rule(F)[0]
+
+
+def _score_task(
+    dist_sum: np.ndarray,
+    energies: np.ndarray,
+    y: np.ndarray,
+    n_classes: int,
+    candidates: list[Candidate],
+    splits: list[tuple[np.ndarray, np.ndarray]],
+    split_ids: list[int],
+    seed: int,
+) -> dict[tuple[Candidate, int], tuple[float, int]]:
+    """{(candidate, split id): (multi-class held-out error, support vectors of its machines
+    together)} for candidates sharing one (D, subsampling, alpha), from the patterns' per-mode
+    distances summed over the modes and their log energies."""
+    import scipy.linalg
+
+    from eskin.learn.estimators import amplitude_factor, amplitude_width, svm_train
+    from eskin.learn.selection import _single_threaded_blas
+
+    out: dict[tuple[Candidate, int], tuple[float, int]] = {}
+    with _single_threaded_blas():
+        Y = _binary_targets(y, n_classes)
+        by_kernel: dict[tuple[float, float | None], list[Candidate]] = {}
+        for c in candidates:
+            by_kernel.setdefault((c.sigma, c.amplitude), []).append(c)
+        factors: dict[float, np.ndarray] = {}
+        for (sigma, amp), cands in sorted(by_kernel.items(), key=lambda kv: (kv[0][0],
+                                                                             kv[0][1] or 0)):
+            K = np.exp(dist_sum * (-0.5 / (sigma * sigma)))
+            if amp is not None:
+                if amp not in factors:
+                    factors[amp] = amplitude_factor(energies, energies,
+                                                    amplitude_width(amp, energies))
+                K *= factors[amp]
+            for recipe in sorted({c.recipe for c in cands}):
+                mine = [c for c in cands if c.recipe == recipe]
+                subsets = _machine_subsets(y, n_classes, recipe.negatives, seed)
+                for s in split_ids:
+                    tr, te = splits[s]
+                    res = _score_split(K, Y, y, n_classes, recipe, mine, subsets, tr, te,
+                                       svm_train, scipy.linalg)
+                    for c, r in zip(mine, res):
+                        out[(c, s)] = r
+    return out
+
+
+def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, linalg):
+    """(error, support vectors) of each candidate of one recipe and kernel on one split."""
+    trains = [np.intersect1d(tr, sub, assume_unique=True) for sub in subsets]
+    results = []
+    if recipe.machine == "rls" and recipe.negatives == "all":
+        # the machines share their training set: one factorisation per lambda for all of them
+        Ktr, Kte = K[np.ix_(tr, tr)], K[np.ix_(te, tr)]
+        for c in cands:
+            A = Ktr + c.lam * np.eye(len(tr))
+            B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=False),
+                                 Y[tr], check_finite=False)
+            F = Kte @ B
+            results.append((float(np.mean(_predict(F, n_classes) != y[te])), len(tr)))
+        return results
+    blocks = [(trk, K[np.ix_(trk, trk)], K[np.ix_(te, trk)]) for trk in trains]
+    for c in cands:
+        F = np.empty((len(te), Y.shape[1]))
+        used = np.zeros(len(y), bool)
+        for k, (trk, Ktr, Kte) in enumerate(blocks):
+            yk = Y[trk, k]
+            if recipe.machine == "rls":
+                beta = linalg.solve(Ktr + c.lam * np.eye(len(trk)), yk, assume_a="pos",
+                                    check_finite=False)
+                b, support = 0.0, np.arange(len(trk))
+            else:
+                beta, b, support = svm_train(Ktr, yk, 1.0 / c.lam)
+            F[:, k] = Kte[:, support] @ beta[support] + b
+            used[trk[support]] = True
+        results.append((float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum())))
+    return results
+
+
+# --------------------------------------------------------------------------------------------
+# the search
+
+
+@dataclass
+class CandidateBudget:
+    """Whether a candidate's compiled model fits a controller: ``fits(candidate, n_support)``
+    with the expected support vectors of the whole model (a callable built by
+    :mod:`eskin.deploy.target` from its cost model; this layer only calls it)."""
+
+    fits: Callable[[Candidate, int], bool]
+    description: str = ""
+
+
+@dataclass
+class _Row:
+    candidate: Candidate
+    errors: dict[int, float] = field(default_factory=dict)
+    support: dict[int, int] = field(default_factory=dict)
+    fits: bool = True
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(list(self.errors.values())))
+
+
+class RecipeSearch:
+    """Successive halving over recipes and grid settings by grouped cross-validation.
+
+    Parameters
+    ----------
+    recipes : the recipes to choose from (:func:`recipe_space`).
+    lambdas, sigmas, alphas, amplitudes : the grid (alpha labels "1", "Q/2", "Q"; amplitude
+        None for the paper's kernel); one setting is shared by a model's machines.
+    n_splits, test_size : the cross-validation (splits holding out ``test_size`` of the groups).
+    eta : the halving factor (each round keeps the best 1/eta and scores them on eta times as
+        many splits).
+    first_share : the share of the grid every recipe is scored on in the first round (the same
+        seeded sample for every recipe; a grid of at most :data:`SMALL_GRID` settings whole).
+    budget : optional :class:`CandidateBudget`; candidates that do not fit are dropped.
+    seed, n_jobs : seeds of every random choice; joblib workers (any backend).
+
+    Attributes after :meth:`fit`: ``best_`` (the chosen Candidate), ``best_error_``,
+    ``ranking_`` (the final round's candidates, best first: candidate, error, std, splits,
+    support vectors), ``recipe_table_`` (per recipe: its best error and on how many splits),
+    ``rounds_`` (candidates and splits per round), ``n_evaluations_`` (candidate-split scores),
+    ``splits_``, ``seconds_``.
+    """
+
+    def __init__(
+        self,
+        recipes: Sequence[Recipe],
+        lambdas: Sequence[float],
+        sigmas: Sequence[float],
+        alphas: Sequence[str],
+        amplitudes: Sequence[float | None],
+        *,
+        n_splits: int = 10,
+        test_size: float = 0.3,
+        eta: int = 3,
+        first_share: float = 0.15,
+        budget: CandidateBudget | None = None,
+        seed: int = 0,
+        n_jobs: int | None = 1,
+    ) -> None:
+        if not recipes:
+            raise TrainingError("the recipe search has no recipe to try")
+        if int(n_splits) < 1 or int(eta) < 2 or not 0 < float(first_share) <= 1:
+            raise TrainingError("n_splits must be >= 1, eta >= 2 and first_share in (0, 1]")
+        self.recipes = list(recipes)
+        self.grid = [(float(la), float(s), str(a), am) for la in lambdas for s in sigmas
+                     for a in alphas for am in amplitudes]
+        if not self.grid:
+            raise TrainingError("the grid needs at least one lambda, sigma, alpha and amplitude")
+        self.n_splits, self.test_size, self.eta = int(n_splits), float(test_size), int(eta)
+        self.first_share, self.budget = float(first_share), budget
+        self.seed, self.n_jobs = int(seed), n_jobs
+
+    # -- plan ------------------------------------------------------------------------------
+    def _splits(self, y: np.ndarray, groups: np.ndarray | None) -> list:
+        from sklearn.model_selection import (
+            GroupShuffleSplit,
+            ShuffleSplit,
+            StratifiedShuffleSplit,
+        )
+
+        idx = np.zeros(len(y))
+        if groups is not None:
+            sp = GroupShuffleSplit(self.n_splits, test_size=self.test_size,
+                                   random_state=self.seed)
+            splits = list(sp.split(idx, y, groups))
+        else:
+            sp = StratifiedShuffleSplit(self.n_splits, test_size=self.test_size,
+                                        random_state=self.seed)
+            try:
+                splits = list(sp.split(idx, y))
+            except ValueError:  # too few recordings to hold out one of each class
+                sp = ShuffleSplit(self.n_splits, test_size=self.test_size,
+                                  random_state=self.seed)
+                splits = list(sp.split(idx, y))
+        for tr, _ in splits:
+            if np.unique(y[tr]).size < np.unique(y).size:
+                raise ValueError(
+                    "a cross-validation split left one class only in its training part; "
+                    "use more groups, a smaller test_size or another random_state"
+                )
+        return [(np.sort(tr), np.sort(te)) for tr, te in splits]
+
+    def _schedule(self) -> list[int]:
+        """Splits scored after each round: 1, eta, eta^2, ..., then all n_splits (instead of
+        the last power of eta below it)."""
+        sched, r = [], 1
+        while r * self.eta <= self.n_splits:
+            sched.append(r)
+            r *= self.eta
+        return sched + [self.n_splits]
+
+    def _first_candidates(self) -> list[Candidate]:
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 22]))
+        # a small grid is scored whole (a share of it would leave each recipe a setting or two)
+        m = max(math.ceil(self.first_share * len(self.grid)), min(len(self.grid), SMALL_GRID))
+        picks = np.sort(rng.choice(len(self.grid), size=min(m, len(self.grid)), replace=False))
+        return [Candidate(r, *self.grid[i]) for r in self.recipes for i in picks]
+
+    # -- run -------------------------------------------------------------------------------
+    def fit(
+        self,
+        patterns: Mapping[tuple[int, str], np.ndarray],
+        y: np.ndarray,
+        groups: np.ndarray | None = None,
+    ) -> RecipeSearch:
+        """Run the search on ``patterns`` ({(D, subsample): (n, rows, cols, D) array} for every
+        recipe's variant), class indices ``y`` (0..k-1) and the groups the splits keep apart."""
+        from joblib import Parallel, delayed
+
+        t0 = time.perf_counter()
+        y = np.asarray(y, np.int64)
+        n_classes = int(y.max()) + 1
+        missing = {r.variant for r in self.recipes} - set(patterns)
+        if missing:
+            raise TrainingError(f"no patterns for the variants {sorted(missing)}")
+        self.splits_ = self._splits(y, groups)
+        rows = {c: _Row(c) for c in self._first_candidates()}
+        alive = list(rows)
+        distances: dict[tuple[int, str, str], tuple[np.ndarray, np.ndarray]] = {}
+        self.rounds_, self.n_evaluations_ = [], 0
+        done = 0
+        schedule = self._schedule()
+        for r, upto in enumerate(schedule):
+            new = list(range(done, upto))
+            tasks: dict[tuple[int, str, str], list[Candidate]] = {}
+            for c in alive:
+                tasks.setdefault((*c.recipe.variant, c.alpha), []).append(c)
+            for key in tasks:
+                if key not in distances:  # once per (D, subsampling, alpha), for every round
+                    distances[key] = self._distances(patterns[key[:2]], key[2])
+            results = Parallel(n_jobs=self.n_jobs)(
+                delayed(_score_task)(*distances[key], y, n_classes, cands, self.splits_, new,
+                                     self.seed)
+                for key, cands in sorted(tasks.items())
+            )
+            for res in results:
+                for (c, s), (err, nsv) in res.items():
+                    rows[c].errors[s] = err
+                    rows[c].support[s] = nsv
+            self.n_evaluations_ += len(alive) * len(new)
+            done = upto
+            if self.budget is not None:
+                for c in alive:
+                    rows[c].fits = self.budget.fits(c, self._expected_support(rows[c], len(y)))
+                fitting = [c for c in alive if rows[c].fits]
+                if not fitting:
+                    raise TrainingError(
+                        f"no candidate fits the budget ({self.budget.description}); the "
+                        f"smallest needs {min(self._expected_support(rows[c], len(y)) for c in alive)} "
+                        "support vectors: record fewer patterns per class, or raise the budget"
+                    )
+                alive = fitting
+            self.rounds_.append({"candidates": len(alive), "splits": upto})
+            alive = sorted(alive, key=lambda c: self._key(rows[c]))
+            if r < len(schedule) - 1:
+                alive = alive[: max(1, math.ceil(len(alive) / self.eta))]
+        self._finish(rows, alive, len(y))
+        self.seconds_ = time.perf_counter() - t0
+        return self
+
+    @staticmethod
+    def _distances(X: np.ndarray, alpha: str) -> tuple[np.ndarray, np.ndarray]:
+        """(the per-mode distances of the patterns summed over the modes, their log
+        energies): all a kernel of the tensor family needs (K = exp(-sum / (2 sigma^2)))."""
+        from eskin.learn.kernel import mode_distances, pattern_log_energy, resolve_alphas
+
+        d = mode_distances(X, alpha=resolve_alphas(X.shape[1:], ALPHA_SPEC[alpha]))
+        return d.sum(axis=0), pattern_log_energy(X)
+
+    def _key(self, row: _Row) -> tuple:
+        c = row.candidate
+        # ties: the simpler machine (larger lambda, larger sigma, no amplitude factor, smaller D)
+        return (row.mean, -c.lam, -c.sigma, c.amplitude is not None, c.recipe.D,
+                c.recipe.label(), c.alpha)
+
+    def _expected_support(self, row: _Row, n: int) -> int:
+        """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
+        (scaled by the share of patterns the splits trained on)."""
+        share = np.mean([len(self.splits_[s][0]) for s in row.support]) / n
+        return int(math.ceil(np.mean(list(row.support.values())) / share))
+
+    def _finish(self, rows: dict[Candidate, _Row], final: list[Candidate], n: int) -> None:
+        # equally good: less than one held-out pattern apart over all the splits together
+        tolerance = 1.0 / sum(len(te) for _, te in self.splits_)
+        best_err = rows[final[0]].mean
+        tied = [c for c in final if rows[c].mean <= best_err + tolerance + 1e-12]
+        best = min(tied, key=lambda c: (self._expected_support(rows[c], n), self._key(rows[c])))
+        self.best_ = best
+        self.best_error_ = rows[best].mean
+        self.tolerance_ = tolerance
+
+        def entry(c: Candidate) -> dict[str, Any]:
+            row = rows[c]
+            errs = np.array(list(row.errors.values()))
+            return {"candidate": c, "error": float(errs.mean()), "std": float(errs.std()),
+                    "splits": len(errs), "support_vectors": self._expected_support(row, n)}
+
+        self.ranking_ = [entry(best)] + [entry(c) for c in final if c != best]
+        table: dict[Recipe, dict[str, Any]] = {}
+        for c, row in rows.items():
+            if not row.errors or (self.budget is not None and not row.fits):
+                continue
+            e = entry(c)
+            old = table.get(c.recipe)
+            if old is None or (e["splits"], -e["error"]) > (old["splits"], -old["error"]):
+                table[c.recipe] = e
+        self.recipe_table_ = sorted(table.values(), key=lambda e: (-e["splits"], e["error"]))
+
+    # -- reports ---------------------------------------------------------------------------
+    def report(self, runners_up: int = 3) -> dict[str, Any]:
+        """JSON-friendly record: the choice, its estimate, the runners-up (the best candidate of
+        each other recipe, furthest round first), the rounds and the cost."""
+
+        def plain(e: Mapping[str, Any]) -> dict[str, Any]:
+            return {**e["candidate"].as_dict(), "cv_error": round(e["error"], 6),
+                    "cv_std": round(e["std"], 6), "splits": e["splits"],
+                    "support_vectors": e["support_vectors"]}
+
+        best = self.ranking_[0]
+        others = [e for e in self.recipe_table_ if e["candidate"].recipe != self.best_.recipe]
+        return {
+            "method": (f"successive halving over {len(self.recipes)} recipes x "
+                       f"{len(self.grid)} settings (eta {self.eta}, first round "
+                       f"{self.first_share:g} of the grid), multi-class error on "
+                       f"{self.n_splits} participant-grouped splits"),
+            "chosen": plain(best),
+            "runners_up": [plain(e) for e in others[:runners_up]],
+            "recipes": [plain(e) for e in self.recipe_table_],
+            "rounds": list(self.rounds_),
+            "evaluations": int(self.n_evaluations_),
+            "tie_tolerance": round(float(self.tolerance_), 6),
+            "budget": None if self.budget is None else self.budget.description,
+            "seconds": round(float(getattr(self, "seconds_", 0.0)), 3),
+        }
