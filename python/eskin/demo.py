@@ -178,17 +178,11 @@ def run_demo(
     (:mod:`eskin.link.qemu_controller`, docs/mcu.md), in real time (``speed`` 1), with the model
     trained to fit the part (its touch window at most 0.5 s, as `make mcu`'s).
     """
-    from eskin._progress import progress_bar
     from eskin.data.campaign import load_campaign
     from eskin.data.replay import write_replay_file
-    from eskin.data.simulator import simulate
 
     say = log or (lambda m: None)
-    if controller not in ("sim", "qemu"):
-        raise ValueError(f"controller must be 'sim' or 'qemu', got {controller!r}")
-    if controller == "qemu":
-        speed = 1.0  # the board samples in real time
-    _check_demo_args(participants, test_participants, speed)
+    speed = _check_demo_args(participants, test_participants, speed, controller)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files = demo_files(out)
@@ -196,13 +190,7 @@ def run_demo(
 
     # 1. simulate
     t0 = time.perf_counter()
-    say(f"[bold]1/5[/] simulating {participants} participants x 12 recordings "
-        f"(SIMULATED data) -> {files['campaign']}")
-    with progress_bar() as bar:  # shown on a terminal
-        task = bar.add_task("simulating", total=None)
-        simulate(files["campaign"], participants=participants, seed=seed, n_jobs=n_jobs,
-                 overwrite=True,
-                 progress=lambda done, total: bar.update(task, completed=done, total=total))
+    _simulate_campaign(files["campaign"], participants, seed, n_jobs, say)
     timings["simulate"] = time.perf_counter() - t0
     camp = load_campaign(files["campaign"])
     train_idx, test_idx = _held_out_split(camp, test_participants, max_recordings)
@@ -218,21 +206,11 @@ def run_demo(
     timings["train"] = time.perf_counter() - t0
     names = list(model.classes)
 
-    # 4. stream them through the firmware simulator and listen
     rf = write_replay_file(camp, test_idx, files["replay"], gap_s=gap_s, seed=seed)
     if list(rf.class_names) != list(camp.modalities):
         raise DemoError("replay class names differ from the campaign's")
-    t0 = time.perf_counter()
-    say(f"      offline reference: the Python model touch by touch over the same "
-        f"{len(rf.segments)} recordings")
-    offline = _offline_reference(model, camp, rf, test_idx)
-    timings["offline"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    if controller == "qemu":
-        decisions, stats, fw_stats = _stream_and_listen_qemu(camp, rf, files, compiled, say)
-    else:
-        decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
-    timings["live"] = time.perf_counter() - t0
+    offline, decisions, stats, fw_stats = _offline_and_live(
+        model, compiled, camp, rf, test_idx, files, controller, speed, timings, say)
 
     # 5. compare
     per_source = {SOURCES[0]: [d for d in decisions if d.source == "controller"],
@@ -254,6 +232,39 @@ def run_demo(
     _write_report(files["report"], result)
     say("[bold]5/5[/] comparing live and offline decisions")
     return result
+
+
+def _simulate_campaign(path: Path, participants: int, seed: int, n_jobs: int,
+                       say: Callable[[str], None]) -> None:
+    """Step 1: the SIMULATED campaign, with a progress bar on a terminal."""
+    from eskin._progress import progress_bar
+    from eskin.data.simulator import simulate
+
+    say(f"[bold]1/5[/] simulating {participants} participants x 12 recordings "
+        f"(SIMULATED data) -> {path}")
+    with progress_bar() as bar:
+        task = bar.add_task("simulating", total=None)
+        simulate(path, participants=participants, seed=seed, n_jobs=n_jobs, overwrite=True,
+                 progress=lambda done, total: bar.update(task, completed=done, total=total))
+
+
+def _offline_and_live(model: Any, compiled: Any, camp: Any, rf: Any, test_idx: np.ndarray,
+                      files: dict[str, Path], controller: str, speed: float,
+                      timings: dict[str, float], say: Callable[[str], None]) -> tuple:
+    """Steps 3-4: the offline reference over the replay stream, then the live run through the
+    controller (eskin-fw-sim or the QEMU board); their timings go into ``timings``."""
+    t0 = time.perf_counter()
+    say(f"      offline reference: the Python model touch by touch over the same "
+        f"{len(rf.segments)} recordings")
+    offline = _offline_reference(model, camp, rf, test_idx)
+    timings["offline"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if controller == "qemu":
+        decisions, stats, fw_stats = _stream_and_listen_qemu(camp, rf, files, compiled, say)
+    else:
+        decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
+    timings["live"] = time.perf_counter() - t0
+    return offline, decisions, stats, fw_stats
 
 
 def _held_out_figures(camp: Any, rf: Any, true: np.ndarray, live: np.ndarray, n_classes: int,
@@ -291,12 +302,20 @@ def _held_out_line(h: dict[str, Any]) -> str:
                    f"participants)")
 
 
-def _check_demo_args(participants: int, test_participants: int, speed: float) -> None:
+def _check_demo_args(participants: int, test_participants: int, speed: float,
+                     controller: str = "sim") -> float:
+    """Refuse impossible settings; the replay speed the run uses (the QEMU board samples in
+    real time)."""
+    if controller not in ("sim", "qemu"):
+        raise ValueError(f"controller must be 'sim' or 'qemu', got {controller!r}")
+    if controller == "qemu":
+        speed = 1.0
     if participants < 2 or not 1 <= test_participants < participants:
         raise ValueError(f"need participants >= 2 and 1 <= test_participants < participants, got "
                          f"{participants} and {test_participants}")
     if not speed >= 0:
         raise ValueError(f"speed must be >= 0 (0: as fast as the host reads), got {speed}")
+    return speed
 
 
 def demo_files(out: Path) -> dict[str, Path]:

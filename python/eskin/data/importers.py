@@ -365,6 +365,28 @@ def _csv_settings(
     return grid_shape, float(rate), None if vpc is None else float(vpc)
 
 
+def _manifest_entries(rows_: list[dict[str, str]], man: Path, folder: Path) -> list[_CsvEntry]:
+    """The manifest's lines, checked: each recording file exists, its labels parse."""
+    entries: list[_CsvEntry] = []
+    for k, row in enumerate(rows_):
+        line = k + 2
+        where = f"{man}, line {line}"
+        if not row["file"]:
+            raise ValueError(f"{where}: empty 'file'")
+        f = (folder / row["file"]).resolve()
+        if not f.is_file():
+            raise FileNotFoundError(f"{where}: recording file {row['file']!r} not found in "
+                                    f"{folder}")
+        if not row["modality"]:
+            raise ValueError(f"{where}: empty 'modality'")
+        entries.append(_CsvEntry(
+            f, row["modality"], _parse_int(row["participant"], where, "participant",
+                                           -2**31, 2**31 - 1),
+            parse_direction(row["direction"], where),
+            _parse_int(row["run"], where, "run", 0, 255), line))
+    return entries
+
+
 def import_csv_folder(
     folder: str | os.PathLike[str],
     output: str | os.PathLike[str],
@@ -423,23 +445,7 @@ def import_csv_folder(
     if n_rows < 1 or n_cols < 1:
         raise ValueError(f"grid shape must be positive, got {grid_shape}")
 
-    entries: list[_CsvEntry] = []
-    for k, row in enumerate(rows_):
-        line = k + 2
-        where = f"{man}, line {line}"
-        if not row["file"]:
-            raise ValueError(f"{where}: empty 'file'")
-        f = (folder / row["file"]).resolve()
-        if not f.is_file():
-            raise FileNotFoundError(f"{where}: recording file {row['file']!r} not found in "
-                                    f"{folder}")
-        if not row["modality"]:
-            raise ValueError(f"{where}: empty 'modality'")
-        entries.append(_CsvEntry(
-            f, row["modality"], _parse_int(row["participant"], where, "participant",
-                                           -2**31, 2**31 - 1),
-            parse_direction(row["direction"], where),
-            _parse_int(row["run"], where, "run", 0, 255), line))
+    entries = _manifest_entries(rows_, man, folder)
     names, ids = _class_ids([e.label for e in entries], modalities, str(man))
     lengths = [_count_lines(e.file) for e in entries]
     t = max(max(lengths), 1)
