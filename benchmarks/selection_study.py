@@ -879,11 +879,224 @@ def write_tables(
 
 
 # --------------------------------------------------------------------------------------------
+# the recipe search (--part search): the searched default against every fixed recipe and the
+# cortex-m4 model, on unseen participants
+#: campaigns of --part search (30 participants each, to keep the study under an hour): the
+#: simulated campaigns above at 30 people, and campaigns unlike them: pre-segmented short
+#: gestures (200 Hz, 2 s recordings, window none), a 1x4 strip at 100 Hz (pre-segmented 3 s
+#: recordings), long slow gestures (12 s), an 8x8 grid at 500 Hz
+SEARCH_CAMPAIGNS = {
+    "s-d1": ("s-d1", {"difficulty": 1.0, "participants": 30}, {}, "energy"),
+    "s-d2": ("s-d2", {"difficulty": 2.0, "participants": 30}, {}, "energy"),
+    "s-d1-none": ("s-d1", {"difficulty": 1.0, "participants": 30}, {}, "none"),
+    "s-3x5": ("s-3x5", {"difficulty": 1.0, "participants": 30}, {"rows": 3, "cols": 5},
+              "energy"),
+    "s-1kHz": (
+        "s-1kHz", {"difficulty": 1.0, "participants": 30},
+        {"sample_rate_hz": 1000.0, "bpf_lowpass_hz": 450.0, "brush_band_hz": (15.0, 450.0)},
+        "energy",
+    ),
+    "short-200Hz": (
+        "short-200Hz", {"difficulty": 1.0, "participants": 30},
+        {"sample_rate_hz": 200.0, "bpf_lowpass_hz": 90.0, "brush_band_hz": (15.0, 90.0),
+         "duration_s": 2.0, "onset_min_s": 0.05, "onset_max_s": 0.3,
+         "finger_speed_mm_s": 200.0, "brush_speed_mm_s": 300.0, "washer_speed_mm_s": 60.0},
+        "none",
+    ),
+    "strip-1x4-100Hz": (
+        "strip-1x4-100Hz", {"difficulty": 1.0, "participants": 30},
+        {"rows": 1, "cols": 4, "sample_rate_hz": 100.0, "bpf_lowpass_hz": 45.0,
+         "brush_band_hz": (15.0, 45.0), "duration_s": 3.0, "onset_min_s": 0.1,
+         "onset_max_s": 0.6, "finger_speed_mm_s": 120.0, "brush_speed_mm_s": 200.0,
+         "washer_speed_mm_s": 40.0},
+        "none",
+    ),
+    "long-12s": (
+        "long-12s", {"difficulty": 1.0, "participants": 30},
+        {"sample_rate_hz": 1000.0, "bpf_lowpass_hz": 450.0, "brush_band_hz": (15.0, 450.0),
+         "duration_s": 12.0, "finger_speed_mm_s": 25.0, "brush_speed_mm_s": 50.0,
+         "washer_speed_mm_s": 8.0},
+        "energy",
+    ),
+    "grid-8x8-500Hz": (
+        "grid-8x8-500Hz", {"difficulty": 1.0, "participants": 30},
+        {"rows": 8, "cols": 8, "pitch_mm": 5.0, "electrode_mm": 4.0, "sample_rate_hz": 500.0,
+         "bpf_lowpass_hz": 225.0, "brush_band_hz": (15.0, 225.0)},
+        "energy",
+    ),
+}
+QUICK_SEARCH_CAMPAIGNS = {
+    "q-s-d1": ("q-s-d1", {"difficulty": 1.0, "participants": 8}, {"duration_s": 4.0}, "energy"),
+}
+SEARCH_TRAIN_SHARE = 0.7
+
+
+def _heldout_error(model, test):
+    X = model.preprocess(test)
+    pred = model.predict_indices(X)[0]
+    names = list(test.modalities)
+    truth = np.array([model.classes.index(names[int(m)]) for m in np.asarray(test.modality)])
+    return float(np.mean(pred != truth))
+
+
+def _n_support(model):
+    from eskin.deploy.export import CompiledModel, model_to_bytes, spec_from_model
+
+    try:
+        return CompiledModel(model_to_bytes(spec_from_model(model), "float32")).n_support
+    except (ValueError, TypeError):
+        return None
+
+
+def search_unit(cache, name, spec, split, quick, seed):
+    """One (campaign, participant split): held-out error of the searched default, of every
+    fixed recipe (the same search with the recipe fixed: its setting chosen over the whole grid
+    by the same grouped splits), and of the --target cortex-m4 model; with support vectors and
+    the inner-CV estimates."""
+    from eskin.deploy.export import model_to_bytes, spec_from_model
+    from eskin.deploy.target import (
+        candidate_budget,
+        model_fits,
+        parse_budget,
+        window_for_budget,
+    )
+    from eskin.learn.models import (
+        DEFAULT_AMPLITUDES,
+        PAPER_ALPHAS,
+        PAPER_LAMBDAS,
+        PAPER_SIGMAS,
+        QUICK_ALPHAS,
+        QUICK_LAMBDAS,
+        QUICK_SIGMAS,
+        _fit_candidate,
+        _Recipe,
+        _touch_model,
+        preprocess_campaign,
+        train_model,
+        window_config_for_rate,
+    )
+    from eskin.learn.recipes import RecipeSearch, recipe_space
+
+    window = spec[3]
+    camp = eskin.load_campaign(campaign_path(cache, name, spec), in_memory=True)
+    part = np.asarray(camp.participant)
+    ids = np.unique(part)
+    rng = np.random.default_rng([split, 22])
+    train_ids = rng.permutation(ids)[: round(len(ids) * SEARCH_TRAIN_SHARE)]
+    train = camp.subset(np.flatnonzero(np.isin(part, train_ids)))
+    test = camp.subset(np.flatnonzero(~np.isin(part, train_ids)))
+    rows = []
+    opts = {"quick": quick, "seed": seed, "window": window}
+
+    def row(method, model, t0, extra=None):
+        rs = model.training.get("recipe_search", {}).get("chosen", {})
+        rows.append({"campaign": name, "split": split, "method": method,
+                     "error": _heldout_error(model, test),
+                     "recipe": f"{model.machine} D={model.D} {model.subsample} "
+                               f"{model.training.get('negatives')}",
+                     "inner_cv": rs.get("cv_error"), "n_support": _n_support(model),
+                     "seconds": time.perf_counter() - t0, **(extra or {})})
+
+    t0 = time.perf_counter()
+    row("searched", train_model(train, **opts), t0)
+    # --target cortex-m4, as eskin train runs it
+    budget = parse_budget(None, "cortex-m4")
+    grid_shape = tuple(int(v) for v in np.shape(camp.recording(0))[:2])
+    rate = float(camp.sample_rate_hz)
+    t0 = time.perf_counter()
+    try:
+        wc, _ = window_for_budget(budget, grid_shape, rate, None)
+        model = train_model(train, window_config=wc, budget=candidate_budget(
+            budget, grid_shape, rate, wc, len(camp.modalities)), **opts)
+        fits, fig = model_fits(model_to_bytes(spec_from_model(model), "float32"), budget)
+        row("target cortex-m4", model, t0,
+            {"fits": bool(fits), "max_window_s": float(wc.max_window_s),
+             **{k: float(v) for k, v in fig.items()}})
+    except ValueError as exc:  # TrainingError is a ValueError
+        rows.append({"campaign": name, "split": split, "method": "target cortex-m4",
+                     "error": None, "note": str(exc)})
+    # every fixed recipe: the search restricted to it, over the whole grid
+    recipes, _ = recipe_space(longest=int(np.max(train.lengths)))
+    y = np.asarray(train.modality).astype(np.int64)
+    cfg, _ = window_config_for_rate(None, rate)
+    prep = preprocess_campaign(train, np.arange(len(train)),
+                               sorted({r.variant for r in recipes}), window=window, config=cfg)
+    grid = ((QUICK_LAMBDAS, QUICK_SIGMAS, QUICK_ALPHAS) if quick
+            else (PAPER_LAMBDAS, PAPER_SIGMAS, PAPER_ALPHAS))
+    classes = [str(c) for c in camp.modalities]
+    for r in recipes:
+        t0 = time.perf_counter()
+        s = RecipeSearch([r], *grid, DEFAULT_AMPLITUDES, n_splits=3 if quick else 10,
+                         first_share=1.0, seed=seed).fit(prep.X, y, np.asarray(train.participant))
+        est, selected = _fit_candidate(s.best_, prep.X[r.variant], y, classes, seed)
+        recipe = _Recipe(r.machine, "cv", r.D, window, r.subsample, r.negatives, seed, 1,
+                         "participant")
+        model = _touch_model(recipe, classes, est, selected,
+                             {"negatives": r.negatives,
+                              "recipe_search": {"chosen": {"cv_error": s.best_error_}}},
+                             rate, prep.X[r.variant].shape[1:], cfg)
+        row(f"fixed {r.label()}", model, t0)
+    return rows
+
+
+def search_tables(path):
+    """Markdown: per campaign, held-out error (mean over splits) of the searched default, the
+    best and worst fixed recipe and the cortex-m4 model; the criteria."""
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line]
+    by = {}
+    for r in rows:
+        if r.get("error") is None:
+            continue
+        by.setdefault(r["campaign"], {}).setdefault(r["method"], []).append(100 * r["error"])
+    lines = [
+        "| campaign | splits | searched | best fixed recipe | its error | worst fixed | "
+        "cortex-m4 model | searched - best fixed | target - searched |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    fixed_means: dict[str, list[float]] = {}
+    searched_all, gaps, tgaps = [], [], []
+    for camp, methods in by.items():
+        n = len(methods.get("searched", []))
+        fixed = {m: float(np.mean(v)) for m, v in methods.items() if m.startswith("fixed ")}
+        for m, v in fixed.items():
+            fixed_means.setdefault(m, []).append(v)
+        se = float(np.mean(methods["searched"]))
+        sd = float(np.std(methods["searched"]))
+        searched_all.append(se)
+        tgt = methods.get("target cortex-m4")
+        t = float(np.mean(tgt)) if tgt else float("nan")
+        best = min(fixed, key=fixed.get)
+        gaps.append(se - fixed[best])
+        tgaps.append(t - se)
+        lines.append(
+            f"| {camp} | {n} | {se:.1f} +- {sd:.1f} | {best[6:]} | {fixed[best]:.1f} | "
+            f"{max(fixed.values()):.1f} | {t:.1f} | {gaps[-1]:+.1f} | "
+            f"{tgaps[-1]:+.1f} |"
+        )
+    avg = float(np.mean(searched_all))
+    complete = {m: v for m, v in fixed_means.items() if len(v) == len(by)}
+    best_avg = min(complete, key=lambda m: np.mean(complete[m]))
+    lines += [
+        "",
+        f"Mean over campaigns: searched {avg:.2f} %; best fixed recipe on average "
+        f"({best_avg[6:]}) {np.mean(complete[best_avg]):.2f} %.",
+        f"Searched within 2 points of the best fixed recipe on every campaign: "
+        f"{'yes' if all(g <= 2 for g in gaps) else 'no'} (largest gap {max(gaps):+.1f}); "
+        f"ahead of every fixed recipe on average: "
+        f"{'yes' if avg < np.mean(complete[best_avg]) else 'no'}; "
+        f"cortex-m4 model within 3 points of the searched default on every campaign: "
+        f"{'yes' if all(g <= 3 for g in tgaps) else 'no'} (largest {max(tgaps):+.1f}).",
+    ]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="two small campaigns, a small grid")
     ap.add_argument(
-        "--part", choices=("readings", "recipes", "all", "diagnose", "amplitude"), default="all"
+        "--part", choices=("readings", "recipes", "all", "diagnose", "amplitude", "search"),
+        default="all"
     )
     ap.add_argument(
         "--machines", default="svm,rls", help="machines of --part amplitude (comma-separated)"
@@ -914,6 +1127,25 @@ def main(argv=None):
     amplitude_file = out / "results_amplitude.jsonl"
     if args.part == "amplitude" and not args.quick and not args.campaigns:
         campaigns = {**campaigns, **OTHER_CAMPAIGNS}
+    if args.part == "search":
+        campaigns = QUICK_SEARCH_CAMPAIGNS if args.quick else SEARCH_CAMPAIGNS
+        if args.campaigns:
+            campaigns = {k: campaigns[k] for k in args.campaigns.split(",")}
+        search_file = out / "results_search.jsonl"
+        if not args.tables_only:
+            files = {}
+            for name, spec in campaigns.items():
+                files.setdefault(spec[0], (name, spec))
+            Parallel(n_jobs=args.jobs)(delayed(campaign_path)(cache, n, sp)
+                                       for n, sp in files.values())
+            tasks = [(f"S|{name}|{split}", search_unit,
+                      (cache, name, spec, split, args.quick, 100 + split), search_file)
+                     for split in range(args.splits) for name, spec in campaigns.items()]
+            run_units(tasks, args.jobs)
+        table = search_tables(search_file)
+        (out / "tables_search.md").write_text(table + "\n")
+        print(table)
+        return
     if args.part == "amplitude" and not args.tables_only:
         prepare(cache, campaigns, [(D, "algorithm2") for D in (50, 100)], args.jobs)
         machines = args.machines.split(",")
