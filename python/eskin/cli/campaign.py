@@ -93,7 +93,7 @@ def plot_cmd(
         refuse_overwrite(output, force, inputs=(path,))
         with load_campaign(path) as c:
             if not 0 <= index < len(c):
-                raise ValueError(f"--index {index}: {path} holds recordings 0 to {len(c) - 1}")
+                raise ValueError(f"--index {index} is out of range: {path} holds recordings 0 to {len(c) - 1}")
             plot_recording(c, index, output)
         typer.echo(f"wrote {output}")
 

@@ -59,5 +59,5 @@ def test_an_empty_file_name():
 @pytest.mark.parametrize("index", ["-1", "6"])
 def test_plot_index_outside_the_campaign(campaign, tmp_path, index):
     line = _one_line_error(["plot", campaign, "--index", index, "-o", tmp_path / "p.png"])
-    assert line == f"error: --index {index}: {campaign} holds recordings 0 to 5"
+    assert line == f"error: --index {index} is out of range: {campaign} holds recordings 0 to 5"
     assert not (tmp_path / "p.png").exists()
