@@ -409,8 +409,6 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
     """Stream the replay file through ``eskin-fw-sim`` (the model on board) and listen on its
     pseudo-terminal with the compiled model, recording the stream and the decisions. Returns
     the live decisions, the link statistics and the simulator's final statistics."""
-    from eskin.link.listener import Decision, LinkListener
-
     stream_s = rf.n_samples / rf.sample_rate_hz
     pace = (f"at {speed:g}x: ~{stream_s / speed:.0f} s" if speed > 0
             else "as fast as the host reads")
@@ -421,26 +419,39 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
                               "--speed", f"{speed:g}", "--tick", "10", "--wait-start",
                               "--hold", "1", "--tx-buffer", str(1 << 20),
                               "--link", str(link_path), "--quiet"])
-    decisions: list[Decision] = []
     try:
-        say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
-            f"{files['live']}")
-        with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
-                          record_source="simulated", stats_interval=None,
-                          record_attrs={"description": "SIMULATED campaign streamed over the "
-                                        "eskin-fw-sim pseudo-terminal by `eskin demo`"}) as link:
-            with open(files["decisions"], "w", encoding="utf-8") as jf:
-                for ev in link.events(until_eof=True, duration=max(60.0, 4 * stream_s / (speed or 10.0))):
-                    if isinstance(ev, Decision):
-                        decisions.append(ev)
-                        jf.write(json.dumps(ev.as_dict()) + "\n")
-                        if ev.source == "controller":
-                            say(_decision_line(ev, camp, rf))
-                stats = link.stats
-                jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
+        decisions, stats = _listen(
+            pty, camp, rf, files, compiled, say,
+            "SIMULATED campaign streamed over the eskin-fw-sim pseudo-terminal by `eskin demo`",
+            duration=max(60.0, 4 * stream_s / (speed or 10.0)))
     finally:
         fw_stats = finish_fw_sim(proc)
     return decisions, stats, fw_stats
+
+
+def _listen(pty: str, camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
+            say: Callable[[str], None], description: str, duration: float) -> tuple[list, Any]:
+    """Listen on the controller's pty with the compiled model until the stream ends, recording
+    the stream and writing every decision (and the final statistics) to decisions.jsonl.
+    Returns the live decisions and the link statistics."""
+    from eskin.link.listener import Decision, LinkListener
+
+    decisions: list[Decision] = []
+    say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
+        f"{files['live']}")
+    with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
+                      record_source="simulated", stats_interval=None,
+                      record_attrs={"description": description}) as link:
+        with open(files["decisions"], "w", encoding="utf-8") as jf:
+            for ev in link.events(until_eof=True, duration=duration):
+                if isinstance(ev, Decision):
+                    decisions.append(ev)
+                    jf.write(json.dumps(ev.as_dict()) + "\n")
+                    if ev.source == "controller":
+                        say(_decision_line(ev, camp, rf))
+            stats = link.stats
+            jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
+    return decisions, stats
 
 
 def _stream_and_listen_qemu(camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
@@ -449,36 +460,23 @@ def _stream_and_listen_qemu(camp: Any, rf: Any, files: dict[str, Path], compiled
     the model in its flash slot, the replay as its ADC, the host listening on its pty as it
     would on eskin-fw-sim's. Returns the live decisions, the link statistics and the board's
     console lines."""
-    from eskin.link.listener import Decision, LinkListener
     from eskin.link.qemu_controller import QemuController, QemuControllerError
 
     stream_s = rf.n_samples / rf.sample_rate_hz
     say(f"[bold]3/5[/] the controller firmware on QEMU (mps2-an386, Cortex-M4F) streams "
         f"{len(rf.segments)} held-out recordings ({stream_s:.0f} s of signal in real time) with "
         f"the model in its flash")
-    decisions: list[Decision] = []
     qc = QemuController(files["eskin"], files["replay"], files["campaign"].parent / "qemu")
     try:
         pty = qc.start()
     except QemuControllerError as exc:
         raise DemoError(str(exc)) from None
     try:
-        say(f"[bold]4/5[/] listening on {pty} (host model: compiled), recording to "
-            f"{files['live']}")
-        with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
-                          record_source="simulated", stats_interval=None,
-                          record_attrs={"description": "SIMULATED campaign streamed by the "
-                                        "controller firmware on QEMU by `eskin demo`"}) as link:
-            with open(files["decisions"], "w", encoding="utf-8") as jf:
-                # a busy host slows the emulated board down (docs/mcu.md): generous time
-                for ev in link.events(until_eof=True, duration=600.0 + 10 * stream_s):
-                    if isinstance(ev, Decision):
-                        decisions.append(ev)
-                        jf.write(json.dumps(ev.as_dict()) + "\n")
-                        if ev.source == "controller":
-                            say(_decision_line(ev, camp, rf))
-                stats = link.stats
-                jf.write(json.dumps({"type": "stats", **stats.as_dict()}) + "\n")
+        # a busy host slows the emulated board down (docs/mcu.md): generous time
+        decisions, stats = _listen(
+            pty, camp, rf, files, compiled, say,
+            "SIMULATED campaign streamed by the controller firmware on QEMU by `eskin demo`",
+            duration=600.0 + 10 * stream_s)
     finally:
         console = qc.stop()
     return decisions, stats, {"controller": "qemu", "console": console.splitlines()[-3:]}
