@@ -68,7 +68,6 @@ def evaluate(
     from eskin._files import refuse_overwrite_all
     from eskin.learn.evaluation import evaluate_recipe
     from eskin.learn.evaluation_report import fold_line, summary_lines, write_evaluation
-    from eskin.data.campaign import load_campaign
     from eskin.learn.parallel import compute_backend
 
     given = {
@@ -88,8 +87,7 @@ def evaluate(
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
-            # on a cluster the folds get the recordings from here: no shared filesystem
-            data = campaign if scheduler is None else load_campaign(campaign, in_memory=True)
+            data = campaign
             result = evaluate_recipe(
                 data,
                 recipe=recipe,
