@@ -106,110 +106,103 @@ std::size_t utf8_error_at(const char* s, std::size_t n) {
   return n;
 }
 
-// Little-endian reads from a bounded byte range.
+// Little-endian reads from a bounded byte range. Every read says whether it succeeded and is
+// [[nodiscard]] (the targets that build this file turn -Wunused-result into an error): a parser
+// cannot read a field and go on as if it had read it. The first failure is the one reported.
 class Reader {
  public:
   Reader(const std::uint8_t* data, std::size_t size, std::string what, ParseError& err)
       : p_(data), n_(size), what_(std::move(what)), err_(err) {}
-  bool ok() const { return !err_.failed; }
-  std::size_t pos() const { return pos_; }
   std::size_t remaining() const { return n_ - pos_; }
-  bool need(std::size_t k, const char* field) {
+  [[nodiscard]] bool need(std::size_t k, const char* field) {
     if (err_.failed) return false;
     if (k <= n_ - pos_) return true;
+    const std::size_t left = n_ - pos_;
     pos_ = n_;
     return err_.set(ModelError::kLayout, what_ + ": field '" + field + "' runs past the end of the section (" +
-                                    std::to_string(n_ - pos_) + " bytes left, " +
+                                    std::to_string(left) + " bytes left, " +
                                     std::to_string(k) + " needed)");
   }
-  std::uint32_t u32(const char* field) {
-    if (!need(4, field)) return 0;
+  [[nodiscard]] bool u32(const char* field, std::uint32_t& out) {
+    if (!need(4, field)) return false;
     std::uint32_t v = 0;
     for (int i = 3; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
     pos_ += 4;
-    return v;
+    out = v;
+    return true;
   }
-  std::int32_t i32(const char* field) {
-    const std::uint32_t u = u32(field);
-    std::int32_t v;
-    std::memcpy(&v, &u, 4);
-    return v;
+  [[nodiscard]] bool i32(const char* field, std::int32_t& out) {
+    std::uint32_t u = 0;
+    if (!u32(field, u)) return false;
+    std::memcpy(&out, &u, 4);
+    return true;
   }
-  std::uint64_t u64(const char* field) {
-    if (!need(8, field)) return 0;
+  [[nodiscard]] bool f64(const char* field, double& out) {
+    if (!need(8, field)) return false;
     std::uint64_t v = 0;
     for (int i = 7; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
     pos_ += 8;
-    return v;
+    std::memcpy(&out, &v, 8);
+    return true;
   }
-  double f64(const char* field) {
-    const std::uint64_t u = u64(field);
-    double v;
-    std::memcpy(&v, &u, 8);
-    return v;
+  [[nodiscard]] bool f32(const char* field, float& out) {
+    std::uint32_t u = 0;
+    if (!u32(field, u)) return false;
+    std::memcpy(&out, &u, 4);
+    return true;
   }
-  float f32(const char* field) {
-    const std::uint32_t u = u32(field);
-    float v;
-    std::memcpy(&v, &u, 4);
-    return v;
-  }
-  std::string name(const char* field) {
-    if (!need(model_format::kNameBytes, field)) return {};
+  [[nodiscard]] bool name(const char* field, std::string& out) {
+    if (!need(model_format::kNameBytes, field)) return false;
     const char* s = reinterpret_cast<const char*>(p_ + pos_);
     const std::size_t len = strnlen(s, model_format::kNameBytes);
-    if (len == 0 || len == model_format::kNameBytes) {
-      err_.set(ModelError::kValue, what_ + ": field '" + field + "' must be a non-empty name of at most " +
-                                   std::to_string(model_format::kNameBytes - 1) +
-                                   " bytes, NUL padded");
-      return {};
-    }
+    if (len == 0 || len == model_format::kNameBytes)
+      return err_.set(ModelError::kValue, what_ + ": field '" + field + "' must be a non-empty name of at most " +
+                                          std::to_string(model_format::kNameBytes - 1) +
+                                          " bytes, NUL padded");
     for (std::size_t i = len; i < model_format::kNameBytes; ++i)
-      if (s[i] != 0) {
-        err_.set(ModelError::kValue, what_ + ": field '" + field + "' has non-zero padding");
-        return {};
-      }
+      if (s[i] != 0) return err_.set(ModelError::kValue, what_ + ": field '" + field + "' has non-zero padding");
     for (std::size_t i = 0; i < len; ++i) {
       const unsigned char c = static_cast<unsigned char>(s[i]);
-      if (c < 0x20 || c == 0x7F) {
-        err_.set(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
-        return {};
-      }
+      if (c < 0x20 || c == 0x7F)
+        return err_.set(ModelError::kValue, what_ + ": field '" + field + "' contains control characters");
     }
     const std::size_t bad = utf8_error_at(s, len);
-    if (bad != len) {
-      err_.set(ModelError::kValue, what_ + ": field '" + field + "' is not valid UTF-8 (byte " +
-                                       std::to_string(bad) + ")");
-      return {};
-    }
-    std::string out(s, len);
+    if (bad != len)
+      return err_.set(ModelError::kValue, what_ + ": field '" + field + "' is not valid UTF-8 (byte " +
+                                              std::to_string(bad) + ")");
+    out.assign(s, len);
     pos_ += model_format::kNameBytes;
-    return out;
+    return true;
   }
   // Zero padding up to the next multiple of 8 (relative to the section start).
-  void pad8(const char* field) {
+  [[nodiscard]] bool pad8(const char* field) {
     const std::size_t k = (8 - (pos_ % 8)) % 8;
-    if (!need(k, field)) return;
+    if (!need(k, field)) return false;
     for (std::size_t i = 0; i < k; ++i)
-      if (p_[pos_ + i] != 0) {
-        err_.set(ModelError::kValue, what_ + ": non-zero padding after '" + field + "'");
-        return;
-      }
+      if (p_[pos_ + i] != 0)
+        return err_.set(ModelError::kValue, what_ + ": non-zero padding after '" + field + "'");
     pos_ += k;
+    return true;
   }
-  void zero_u32(const char* field) {
-    if (u32(field) != 0) err_.set(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
+  [[nodiscard]] bool zero_u32(const char* field) {
+    std::uint32_t v = 0;
+    if (!u32(field, v)) return false;
+    if (v != 0) return err_.set(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
+    return true;
   }
-  const std::uint8_t* raw(std::size_t k, const char* field) {
+  // k bytes to read in place (nullptr when the section is shorter).
+  [[nodiscard]] const std::uint8_t* raw(std::size_t k, const char* field) {
     if (!need(k, field)) return nullptr;
     const std::uint8_t* r = p_ + pos_;
     pos_ += k;
     return r;
   }
-  void expect_end() {
+  [[nodiscard]] bool expect_end() {
+    if (err_.failed) return false;
     if (pos_ != n_)
-      err_.set(ModelError::kLayout, what_ + ": " + std::to_string(n_ - pos_) +
-                                    " unexpected trailing bytes in the section");
+      return err_.set(ModelError::kLayout, what_ + ": " + std::to_string(n_ - pos_) +
+                                           " unexpected trailing bytes in the section");
+    return true;
   }
   const std::string& what() const { return what_; }
 
@@ -274,12 +267,12 @@ class ModelParser {
 
 bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  const std::uint32_t rows = r.u32("rows"), cols = r.u32("cols"), D = r.u32("D");
-  const std::uint32_t window = r.u32("window_mode"), sub = r.u32("subsample");
-  const std::uint32_t short_policy = r.u32("short_policy");
-  const std::uint32_t n_fields = r.u32("n_window_fields");
-  r.zero_u32("reserved");
-  const double rate = r.f64("sample_rate_hz");
+  std::uint32_t rows = 0, cols = 0, D = 0, window = 0, sub = 0, short_policy = 0, n_fields = 0;
+  double rate = 0;
+  if (!r.u32("rows", rows) || !r.u32("cols", cols) || !r.u32("D", D) || !r.u32("window_mode", window) ||
+      !r.u32("subsample", sub) || !r.u32("short_policy", short_policy) ||
+      !r.u32("n_window_fields", n_fields) || !r.zero_u32("reserved") || !r.f64("sample_rate_hz", rate))
+    return false;
   if (rows < 1 || rows > kMaxGrid || cols < 1 || cols > kMaxGrid)
     return err.set(ModelError::kValue, w + ": grid shape rows=" + std::to_string(rows) + " cols=" +
                                  std::to_string(cols) + " out of range [1, " +
@@ -313,8 +306,9 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   std::array<double, kWindowConfigSize> values{};
   std::array<bool, kWindowConfigSize> seen{};
   for (std::uint32_t i = 0; i < n_fields; ++i) {
-    const std::string name = r.name("window field name");
-    const double value = r.f64("window field value");
+    std::string name;
+    double value = 0;
+    if (!r.name("window field name", name) || !r.f64("window field value", value)) return false;
     std::size_t k = 0;
     while (k < kWindowConfigSize && name != names[k]) ++k;
     if (k >= n_expected)
@@ -334,8 +328,7 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
     seen[k] = true;
     values[k] = value;
   }
-  r.expect_end();
-  if (err.failed) return false;
+  if (!r.expect_end()) return false;
   const WindowConfig cfg = window_config_from_array(values.data(), values.size());
 #if defined(__cpp_exceptions)
   try {
@@ -362,7 +355,8 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
 
 bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  const std::uint32_t n = r.u32("n_classes"), rule = r.u32("rule");
+  std::uint32_t n = 0, rule = 0;
+  if (!r.u32("n_classes", n) || !r.u32("rule", rule)) return false;
   if (n < 2 || n > kMaxClasses)
     return err.set(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, " +
                                  std::to_string(kMaxClasses) + "]");
@@ -373,13 +367,13 @@ bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   if (!r.need(static_cast<std::size_t>(n) * model_format::kNameBytes, "class names")) return false;
   m.class_names_.clear();
   for (std::uint32_t i = 0; i < n; ++i) {
-    std::string s = r.name("class name");
+    std::string s;
+    if (!r.name("class name", s)) return false;
     for (const auto& g : m.class_names_)
       if (g == s) return err.set(ModelError::kValue, w + ": class name '" + s + "' repeated");
     m.class_names_.push_back(std::move(s));
   }
-  r.expect_end();
-  return !err.failed;
+  return r.expect_end();
 }
 
 // SVBS in four named steps: the table's shape, the ranks, each mode's bases (borrowed or
@@ -391,8 +385,7 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
     return false;
   for (int z = 0; z < 3; ++z)
     if (!read_bases(r, m, err, z) || !check_orthonormal(r, m, err, z)) return false;
-  r.expect_end();
-  return !err.failed;
+  return r.expect_end();
 }
 
 // n_modes, n_sv, the tensor dims (those of PREP), alpha_store per mode; the section must hold
@@ -400,12 +393,14 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
 bool ModelParser::read_svbs_shape(Reader& r, Model& m, ParseError& err,
                                   std::array<std::uint32_t, 3>& astore, std::uint32_t& n_sv) {
   const std::string& w = r.what();
-  const std::uint32_t Z = r.u32("n_modes");
-  n_sv = r.u32("n_sv");
+  std::uint32_t Z = 0;
+  if (!r.u32("n_modes", Z) || !r.u32("n_sv", n_sv)) return false;
   if (Z != 3) return err.set(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
   std::array<std::uint32_t, 3> dims{};
-  for (auto& d : dims) d = r.u32("dims");
-  for (auto& a : astore) a = r.u32("alpha_store");
+  for (auto& d : dims)
+    if (!r.u32("dims", d)) return false;
+  for (auto& a : astore)
+    if (!r.u32("alpha_store", a)) return false;
   const std::array<std::uint32_t, 3> expect{static_cast<std::uint32_t>(m.rows_),
                                             static_cast<std::uint32_t>(m.cols_),
                                             static_cast<std::uint32_t>(m.D_)};
@@ -437,7 +432,7 @@ bool ModelParser::read_svbs_shape(Reader& r, Model& m, ParseError& err,
                                   " bytes of ranks and bases, the section has " +
                                   std::to_string(r.remaining()));
   m.n_sv_ = static_cast<int>(n_sv);
-  return !err.failed;
+  return true;
 }
 
 // The rank of every support vector in every mode: at most its stored basis width.
@@ -447,15 +442,15 @@ bool ModelParser::read_ranks(Reader& r, Model& m, ParseError& err,
   m.ranks_.resize(static_cast<std::size_t>(n_sv) * 3);
   for (std::uint32_t i = 0; i < n_sv; ++i)
     for (int z = 0; z < 3; ++z) {
-      const std::uint32_t rk = r.u32("ranks");
+      std::uint32_t rk = 0;
+      if (!r.u32("ranks", rk)) return false;
       if (rk > astore[z])
         return err.set(ModelError::kValue, w + ": rank of support vector " + std::to_string(i) + " in mode " +
                                      std::to_string(z) + " is " + std::to_string(rk) +
                                      " > alpha_store " + std::to_string(astore[z]));
       m.ranks_[static_cast<std::size_t>(i) * 3 + static_cast<std::size_t>(z)] = static_cast<int>(rk);
     }
-  r.pad8("ranks");
-  return !err.failed;
+  return r.pad8("ranks");
 }
 
 // The mode-z bases of every support vector. Borrowed (Model::view_bytes): used in place when
@@ -533,11 +528,10 @@ bool ModelParser::check_orthonormal(Reader& r, Model& m, ParseError& err, int z)
 
 bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  const std::uint32_t n = r.u32("n_machines");
-  r.zero_u32("reserved");
+  std::uint32_t n = 0;
+  if (!r.u32("n_machines", n) || !r.zero_u32("reserved")) return false;
   const std::size_t real_bytes = m.float64_ ? 8 : 4;
   // A machine takes at least 24 + 3*16 bytes: bound n before reserving.
-  if (!r.ok()) return false;
   if (n < 1 || std::uint64_t{n} * 72 > r.remaining())
     return err.set(ModelError::kValue, w + ": n_machines=" + std::to_string(n) + " impossible for a section of " +
                                  std::to_string(r.remaining()) + " bytes");
@@ -546,17 +540,19 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   for (std::uint32_t k = 0; k < n; ++k) {
     const std::string mw = w + ": machine " + std::to_string(k);
     ModelMachine mm;
-    mm.positive = r.i32("positive_class");
-    mm.negative = r.i32("negative_class");
-    const std::uint32_t n_terms = r.u32("n_terms");
-    r.zero_u32("reserved");
-    mm.intercept = r.f64("intercept");
+    std::int32_t positive = 0, negative = 0;
+    std::uint32_t n_terms = 0;
+    if (!r.i32("positive_class", positive) || !r.i32("negative_class", negative) ||
+        !r.u32("n_terms", n_terms) || !r.zero_u32("reserved") || !r.f64("intercept", mm.intercept))
+      return false;
+    mm.positive = positive;
+    mm.negative = negative;
     if (!std::isfinite(mm.intercept))
       return err.set(ModelError::kValue, mw + ": intercept=" + fmt_double(mm.intercept) + " is not finite");
     for (int z = 0; z < 3; ++z) {
-      const std::uint32_t a = r.u32("alpha");
-      r.zero_u32("reserved");
-      const double s = r.f64("sigma");
+      std::uint32_t a = 0;
+      double s = 0;
+      if (!r.u32("alpha", a) || !r.zero_u32("reserved") || !r.f64("sigma", s)) return false;
       if (a < 1 || a > static_cast<std::uint32_t>(m.alpha_store_[z]))
         return err.set(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
                                      " out of range [1, alpha_store=" +
@@ -574,7 +570,8 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
       return false;
     mm.sv_index.resize(n_terms);
     for (std::uint32_t t = 0; t < n_terms; ++t) {
-      const std::uint32_t i = r.u32("sv_index");
+      std::uint32_t i = 0;
+      if (!r.u32("sv_index", i)) return false;
       if (i >= static_cast<std::uint32_t>(m.n_sv_))
         return err.set(ModelError::kValue, mw + ": sv_index[" + std::to_string(t) + "]=" + std::to_string(i) +
                                      " >= n_sv=" + std::to_string(m.n_sv_));
@@ -583,10 +580,13 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
                                      std::to_string(t) + ")");
       mm.sv_index[t] = i;
     }
-    r.pad8("sv_index");
+    if (!r.pad8("sv_index")) return false;
     mm.coef.resize(n_terms);
     for (std::uint32_t t = 0; t < n_terms; ++t) {
-      const double c = m.float64_ ? r.f64("coef") : static_cast<double>(r.f32("coef"));
+      double c = 0;
+      float c32 = 0;
+      if (m.float64_ ? !r.f64("coef", c) : !r.f32("coef", c32)) return false;
+      if (!m.float64_) c = static_cast<double>(c32);
       if (!std::isfinite(c))
         return err.set(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
       mm.coef[t] = c;
@@ -596,17 +596,16 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
     if (!(bound <= kMaxDecisionBound))
       return err.set(ModelError::kValue, mw + ": |intercept| + sum |coef| = " + fmt_double(bound) +
                                    " exceeds 1e+300 (decision values would overflow)");
-    r.pad8("coef");
+    if (!r.pad8("coef")) return false;
     m.machines_.push_back(std::move(mm));
   }
-  r.expect_end();
-  return !err.failed;
+  return r.expect_end();
 }
 
 bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  const std::uint32_t n_sv = r.u32("n_sv"), n_machines = r.u32("n_machines");
-  if (!r.ok()) return false;
+  std::uint32_t n_sv = 0, n_machines = 0;
+  if (!r.u32("n_sv", n_sv) || !r.u32("n_machines", n_machines)) return false;
   if (n_sv != static_cast<std::uint32_t>(m.n_sv_))
     return err.set(ModelError::kValue, w + ": n_sv=" + std::to_string(n_sv) + " differs from SVBS's n_sv=" +
                                  std::to_string(m.n_sv_));
@@ -617,7 +616,8 @@ bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   if (!r.need((std::size_t{n_sv} + n_machines) * 8, "log energies and widths")) return false;
   std::vector<double> energy(n_sv);
   for (std::uint32_t i = 0; i < n_sv; ++i) {
-    const double e = r.f64("sv_log_energy");
+    double e = 0;
+    if (!r.f64("sv_log_energy", e)) return false;
     if (!(std::fabs(e) <= kMaxLogEnergy))
       return err.set(ModelError::kValue, w + ": sv_log_energy[" + std::to_string(i) + "]=" + fmt_double(e) +
                                    " is not finite or outside [-1e+04, 1e+04]");
@@ -625,15 +625,15 @@ bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   }
   bool any = false;
   for (std::uint32_t k = 0; k < n_machines; ++k) {
-    const double a = r.f64("amplitude_width");
+    double a = 0;
+    if (!r.f64("amplitude_width", a)) return false;
     if (!(a == 0.0 || (a >= kMinAmplitudeWidth && a <= kMaxAmplitudeWidth)))
       return err.set(ModelError::kValue, w + ": machine " + std::to_string(k) + ": amplitude_width=" +
                                    fmt_double(a) + " must be 0 (no amplitude factor) or within [1e-06, 1e+06]");
     m.machines_[k].amplitude_width = a;
     any = any || a > 0.0;
   }
-  r.expect_end();
-  if (err.failed) return false;
+  if (!r.expect_end()) return false;
   if (!any)
     return err.set(ModelError::kValue, w + ": every amplitude_width is 0 (a model without the amplitude "
                                  "factor is written as format version 1)");
@@ -702,7 +702,8 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
     if (end - pos < 8)
       return err.set(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
     Reader sh(data + pos, 8, origin + ": section header", err);
-    const std::uint32_t tag = sh.u32("tag"), bytes = sh.u32("payload_bytes");
+    std::uint32_t tag = 0, bytes = 0;
+    if (!sh.u32("tag", tag) || !sh.u32("payload_bytes", bytes)) return false;
     pos += 8;
     const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
     if (padded > end - pos)
@@ -747,8 +748,10 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
     return err.set(ModelError::kTruncated, origin + ": truncated: " + std::to_string(size) +
                                      " bytes, shorter than the 36-byte header and checksum");
   Reader h(data, mf::kHeaderBytes, origin + ": header", err);
-  h.raw(8, "magic");
-  const std::uint32_t vh = h.u32("version/header_bytes");
+  std::uint32_t vh = 0, flags = 0, file_bytes = 0, n_sections = 0;
+  if (h.raw(8, "magic") == nullptr || !h.u32("version/header_bytes", vh) || !h.u32("flags", flags) ||
+      !h.u32("file_bytes", file_bytes) || !h.u32("section_count", n_sections))
+    return false;
   const std::uint32_t version = vh & 0xFFFFu, header_bytes = vh >> 16;
   if (version < mf::kMinVersion || version > mf::kVersion)
     return err.set(ModelError::kVersion, origin + ": model format version " + std::to_string(version) +
@@ -757,9 +760,6 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
                                    std::to_string(mf::kVersion) + ")");
   if (header_bytes != mf::kHeaderBytes)
     return err.set(ModelError::kLayout, origin + ": header_bytes=" + std::to_string(header_bytes) + ", expected 32");
-  const std::uint32_t flags = h.u32("flags");
-  const std::uint32_t file_bytes = h.u32("file_bytes");
-  const std::uint32_t n_sections = h.u32("section_count");
   if (file_bytes > size)
     return err.set(ModelError::kTruncated, origin + ": truncated: the header says " + std::to_string(file_bytes) +
                                      " bytes, only " + std::to_string(size) + " present");
@@ -782,9 +782,7 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
   // Checksum good: now the structure.
   if (flags & ~mf::kFlagFloat64)
     return err.set(ModelError::kValue, origin + ": unknown flags 0x" + std::to_string(flags));
-  h.zero_u32("reserved");
-  h.zero_u32("reserved");
-  if (err.failed) return false;
+  if (!h.zero_u32("reserved") || !h.zero_u32("reserved")) return false;
   m.borrow_ = borrow;
   m.float64_ = (flags & mf::kFlagFloat64) != 0;
   m.file_bytes_ = file_bytes;

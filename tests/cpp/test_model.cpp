@@ -1051,3 +1051,14 @@ TEST(ModelChecks, ANameFillingItsFieldIsRefusedNamingTheLimit) {
   EXPECT_TRUE(says(refused(b), "'class name' must be a non-empty name of at most 31 bytes, NUL padded"))
       << refused(b);
 }
+
+TEST(ModelChecks, AFieldRunningPastItsSectionNamesTheBytesLeftAndNeeded) {
+  // four class names declared in a CLAS section that holds three (96 bytes after the counts)
+  Bytes b = fixture("float32");
+  const std::size_t clas = section_offset(b, "CLAS");
+  ASSERT_EQ(get_u32(b, clas), 3u);
+  put_u32(b, clas, 4);
+  EXPECT_TRUE(says(refused(b), "section CLAS: field 'class names' runs past the end of the section "
+                               "(96 bytes left, 128 needed)"))
+      << refused(b);
+}
