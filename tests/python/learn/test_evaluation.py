@@ -449,3 +449,66 @@ def test_classes_and_runs_both_filter_the_recordings(tmp_path):
         np.testing.assert_array_equal(tested, np.flatnonzero(np.isin(mod, [0, 1])))
         with pytest.raises(EvaluationError):
             plan_folds(camp, classes=["tap", "stroke"], runs=[2], n_folds=2)
+
+
+def test_a_small_evaluation_pools_its_folds_and_scores_each_baseline_on_its_own_predictions(
+    tmp_path,
+):
+    """evaluate_recipe end to end on a small campaign (seconds): the pooled result is the folds'
+    predictions put together, a baseline's scores are those of its own predictions, and the
+    record says how it was run."""
+    from learn_data import user_campaign
+
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import evaluate_recipe
+
+    path = user_campaign(tmp_path)
+    classes = ["tap", "stroke", "press"]
+    seen: list[int] = []
+    res = evaluate_recipe(
+        str(path), recipe={"quick": True, "D": 5, "window": "none", "seed": 99},
+        n_folds=2, classes=classes, baselines=("vector",), seed=4,
+        on_fold=lambda record, n: seen.append(n),
+    )
+    assert seen == [2, 2]
+    with load_campaign(path) as camp:
+        part = np.asarray(camp.participant)
+        names = [str(m) for m in camp.modalities]
+        mod = np.asarray(camp.modality)
+    pred = res["predictions"]
+    idx, true = np.array(pred["index"]), np.array(pred["true"])
+    predicted = np.array(pred["predicted"])
+    # every recording of the chosen classes tested once, its true class by name
+    assert sorted(idx.tolist()) == np.flatnonzero(np.isin(mod, [names.index(c) for c in classes])).tolist()
+    assert [classes[t] for t in true] == [names[mod[i]] for i in idx]
+    assert pred["group"] == part[idx].tolist()
+    cm = confusion_matrix(true, predicted, 3)
+    assert res["confusion"] == cm.tolist()
+    acc, bal, recall = scores_from_confusion(cm)
+    assert res["accuracy"] == acc and res["balanced_accuracy"] == bal
+    assert res["per_class_recall"] == dict(zip(classes, recall.tolist()))
+    assert res["classes"] == classes and res["n_recordings"] == len(idx)
+    assert res["n_groups"] == 4 and res["groups"] == "participant"
+    assert res["scheme"] == "2 grouped folds" and res["seed"] == 4
+    assert res["campaign"] == str(path)
+    # the fold records in fold order, each its share of the pooled predictions, no predictions
+    # left in them
+    assert [f["fold"] for f in res["folds"]] == [0, 1]
+    offsets = np.cumsum([0] + [f["n_test"] for f in res["folds"]])
+    vector_right = 0.0
+    for f, a, b in zip(res["folds"], offsets[:-1], offsets[1:]):
+        assert f["accuracy"] == pytest.approx(np.mean(true[a:b] == predicted[a:b]))
+        assert f["test_groups"] == sorted(set(part[idx[a:b]].tolist()))
+        assert not set(f["train_groups"]) & set(f["test_groups"])
+        assert f["n_train"] + f["n_test"] == len(idx)
+        assert "y_true" not in f and "y_pred" not in f and "y_pred" not in f["baselines"]["vector"]
+        assert f["trained_with"]["D"] == 5 and f["trained_with"]["window"] == "none"
+        vector_right += f["baselines"]["vector"]["accuracy"] * f["n_test"]
+    # the baseline's pooled accuracy is that of its own fold predictions, not the recipe's
+    base = res["baselines"]["vector"]
+    assert base["accuracy"] == pytest.approx(vector_right / len(idx))
+    assert np.trace(np.array(base["confusion"])) == round(vector_right)
+    assert np.array(base["confusion"]).sum(axis=1).tolist() == cm.sum(axis=1).tolist()
+    assert res["trained_with"]["D"] == 5 and res["trained_with"]["window"] == "none"
+    assert res["recipe"] == {"quick": True, "D": 5, "window": "none"}  # seed is the evaluation's
+    assert res["seconds"] > 0
