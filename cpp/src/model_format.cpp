@@ -132,7 +132,7 @@ class Reader {
     return true;
   }
   [[nodiscard]] bool i32(const char* field, std::int32_t& out) {
-    std::uint32_t u = 0;
+    std::uint32_t u;
     if (!u32(field, u)) return false;
     std::memcpy(&out, &u, 4);
     return true;
@@ -146,7 +146,7 @@ class Reader {
     return true;
   }
   [[nodiscard]] bool f32(const char* field, float& out) {
-    std::uint32_t u = 0;
+    std::uint32_t u;
     if (!u32(field, u)) return false;
     std::memcpy(&out, &u, 4);
     return true;
@@ -185,7 +185,7 @@ class Reader {
     return true;
   }
   [[nodiscard]] bool zero_u32(const char* field) {
-    std::uint32_t v = 0;
+    std::uint32_t v;
     if (!u32(field, v)) return false;
     if (v != 0) return err_.set(ModelError::kValue, what_ + ": reserved field '" + field + "' is not 0");
     return true;
@@ -267,8 +267,8 @@ class ModelParser {
 
 bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  std::uint32_t rows = 0, cols = 0, D = 0, window = 0, sub = 0, short_policy = 0, n_fields = 0;
-  double rate = 0;
+  std::uint32_t rows, cols, D, window, sub, short_policy, n_fields;
+  double rate;
   if (!r.u32("rows", rows) || !r.u32("cols", cols) || !r.u32("D", D) || !r.u32("window_mode", window) ||
       !r.u32("subsample", sub) || !r.u32("short_policy", short_policy) ||
       !r.u32("n_window_fields", n_fields) || !r.zero_u32("reserved") || !r.f64("sample_rate_hz", rate))
@@ -307,7 +307,7 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
   std::array<bool, kWindowConfigSize> seen{};
   for (std::uint32_t i = 0; i < n_fields; ++i) {
     std::string name;
-    double value = 0;
+    double value;
     if (!r.name("window field name", name) || !r.f64("window field value", value)) return false;
     std::size_t k = 0;
     while (k < kWindowConfigSize && name != names[k]) ++k;
@@ -355,7 +355,7 @@ bool ModelParser::parse_prep(Reader& r, Model& m, ParseError& err) {
 
 bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  std::uint32_t n = 0, rule = 0;
+  std::uint32_t n, rule;
   if (!r.u32("n_classes", n) || !r.u32("rule", rule)) return false;
   if (n < 2 || n > kMaxClasses)
     return err.set(ModelError::kValue, w + ": n_classes=" + std::to_string(n) + " out of range [2, " +
@@ -380,7 +380,7 @@ bool ModelParser::parse_clas(Reader& r, Model& m, ParseError& err) {
 // copied, every entry in [-1, 1]), and their orthonormality up to each rank.
 bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
   std::array<std::uint32_t, 3> astore{};
-  std::uint32_t n_sv = 0;
+  std::uint32_t n_sv;
   if (!read_svbs_shape(r, m, err, astore, n_sv) || !read_ranks(r, m, err, astore, n_sv))
     return false;
   for (int z = 0; z < 3; ++z)
@@ -393,7 +393,7 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
 bool ModelParser::read_svbs_shape(Reader& r, Model& m, ParseError& err,
                                   std::array<std::uint32_t, 3>& astore, std::uint32_t& n_sv) {
   const std::string& w = r.what();
-  std::uint32_t Z = 0;
+  std::uint32_t Z;
   if (!r.u32("n_modes", Z) || !r.u32("n_sv", n_sv)) return false;
   if (Z != 3) return err.set(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
   std::array<std::uint32_t, 3> dims{};
@@ -442,7 +442,7 @@ bool ModelParser::read_ranks(Reader& r, Model& m, ParseError& err,
   m.ranks_.resize(static_cast<std::size_t>(n_sv) * 3);
   for (std::uint32_t i = 0; i < n_sv; ++i)
     for (int z = 0; z < 3; ++z) {
-      std::uint32_t rk = 0;
+      std::uint32_t rk;
       if (!r.u32("ranks", rk)) return false;
       if (rk > astore[z])
         return err.set(ModelError::kValue, w + ": rank of support vector " + std::to_string(i) + " in mode " +
@@ -528,7 +528,7 @@ bool ModelParser::check_orthonormal(Reader& r, Model& m, ParseError& err, int z)
 
 bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  std::uint32_t n = 0;
+  std::uint32_t n;
   if (!r.u32("n_machines", n) || !r.zero_u32("reserved")) return false;
   const std::size_t real_bytes = m.float64_ ? 8 : 4;
   // A machine takes at least 24 + 3*16 bytes: bound n before reserving.
@@ -540,8 +540,8 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
   for (std::uint32_t k = 0; k < n; ++k) {
     const std::string mw = w + ": machine " + std::to_string(k);
     ModelMachine mm;
-    std::int32_t positive = 0, negative = 0;
-    std::uint32_t n_terms = 0;
+    std::int32_t positive, negative;
+    std::uint32_t n_terms;
     if (!r.i32("positive_class", positive) || !r.i32("negative_class", negative) ||
         !r.u32("n_terms", n_terms) || !r.zero_u32("reserved") || !r.f64("intercept", mm.intercept))
       return false;
@@ -550,8 +550,8 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
     if (!std::isfinite(mm.intercept))
       return err.set(ModelError::kValue, mw + ": intercept=" + fmt_double(mm.intercept) + " is not finite");
     for (int z = 0; z < 3; ++z) {
-      std::uint32_t a = 0;
-      double s = 0;
+      std::uint32_t a;
+      double s;
       if (!r.u32("alpha", a) || !r.zero_u32("reserved") || !r.f64("sigma", s)) return false;
       if (a < 1 || a > static_cast<std::uint32_t>(m.alpha_store_[z]))
         return err.set(ModelError::kValue, mw + ": alpha[" + std::to_string(z) + "]=" + std::to_string(a) +
@@ -570,7 +570,7 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
       return false;
     mm.sv_index.resize(n_terms);
     for (std::uint32_t t = 0; t < n_terms; ++t) {
-      std::uint32_t i = 0;
+      std::uint32_t i;
       if (!r.u32("sv_index", i)) return false;
       if (i >= static_cast<std::uint32_t>(m.n_sv_))
         return err.set(ModelError::kValue, mw + ": sv_index[" + std::to_string(t) + "]=" + std::to_string(i) +
@@ -583,10 +583,14 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
     if (!r.pad8("sv_index")) return false;
     mm.coef.resize(n_terms);
     for (std::uint32_t t = 0; t < n_terms; ++t) {
-      double c = 0;
-      float c32 = 0;
-      if (m.float64_ ? !r.f64("coef", c) : !r.f32("coef", c32)) return false;
-      if (!m.float64_) c = static_cast<double>(c32);
+      double c;
+      if (m.float64_) {
+        if (!r.f64("coef", c)) return false;
+      } else {
+        float c32;
+        if (!r.f32("coef", c32)) return false;
+        c = static_cast<double>(c32);
+      }
       if (!std::isfinite(c))
         return err.set(ModelError::kValue, mw + ": coef[" + std::to_string(t) + "]=" + fmt_double(c) + " is not finite");
       mm.coef[t] = c;
@@ -604,7 +608,7 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
 
 bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   const std::string& w = r.what();
-  std::uint32_t n_sv = 0, n_machines = 0;
+  std::uint32_t n_sv, n_machines;
   if (!r.u32("n_sv", n_sv) || !r.u32("n_machines", n_machines)) return false;
   if (n_sv != static_cast<std::uint32_t>(m.n_sv_))
     return err.set(ModelError::kValue, w + ": n_sv=" + std::to_string(n_sv) + " differs from SVBS's n_sv=" +
@@ -616,7 +620,7 @@ bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   if (!r.need((std::size_t{n_sv} + n_machines) * 8, "log energies and widths")) return false;
   std::vector<double> energy(n_sv);
   for (std::uint32_t i = 0; i < n_sv; ++i) {
-    double e = 0;
+    double e;
     if (!r.f64("sv_log_energy", e)) return false;
     if (!(std::fabs(e) <= kMaxLogEnergy))
       return err.set(ModelError::kValue, w + ": sv_log_energy[" + std::to_string(i) + "]=" + fmt_double(e) +
@@ -625,7 +629,7 @@ bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   }
   bool any = false;
   for (std::uint32_t k = 0; k < n_machines; ++k) {
-    double a = 0;
+    double a;
     if (!r.f64("amplitude_width", a)) return false;
     if (!(a == 0.0 || (a >= kMinAmplitudeWidth && a <= kMaxAmplitudeWidth)))
       return err.set(ModelError::kValue, w + ": machine " + std::to_string(k) + ": amplitude_width=" +
@@ -702,7 +706,7 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
     if (end - pos < 8)
       return err.set(ModelError::kLayout, origin + ": section " + std::to_string(s) + " header runs past the end");
     Reader sh(data + pos, 8, origin + ": section header", err);
-    std::uint32_t tag = 0, bytes = 0;
+    std::uint32_t tag, bytes;
     if (!sh.u32("tag", tag) || !sh.u32("payload_bytes", bytes)) return false;
     pos += 8;
     const std::size_t padded = (std::size_t{bytes} + 7) / 8 * 8;
@@ -748,7 +752,7 @@ bool ModelParser::parse(const std::uint8_t* data, std::size_t size, const std::s
     return err.set(ModelError::kTruncated, origin + ": truncated: " + std::to_string(size) +
                                      " bytes, shorter than the 36-byte header and checksum");
   Reader h(data, mf::kHeaderBytes, origin + ": header", err);
-  std::uint32_t vh = 0, flags = 0, file_bytes = 0, n_sections = 0;
+  std::uint32_t vh, flags, file_bytes, n_sections;
   if (h.raw(8, "magic") == nullptr || !h.u32("version/header_bytes", vh) || !h.u32("flags", flags) ||
       !h.u32("file_bytes", file_bytes) || !h.u32("section_count", n_sections))
     return false;
