@@ -87,6 +87,7 @@ def evaluate(
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
+            # on a cluster, evaluate_recipe reads the recordings here and scatters them
             data = campaign
             result = evaluate_recipe(
                 data,

@@ -9,9 +9,10 @@ accuracy (the mean per-class recall), per-class recall and the confusion matrix,
 confidence interval from a bootstrap over groups (:func:`group_bootstrap_ci`).
 
 Baselines (:mod:`eskin.learn.baselines`) run in the same folds on the same subsampled patterns.
-Folds are independent tasks run through joblib, so any joblib backend runs them (Dask
-included, see :mod:`eskin.learn.parallel`); every random choice is seeded by the fold, so the
-results do not depend on where or in which order the folds run.
+Folds are independent tasks run through joblib, or on a Dask cluster (:mod:`eskin.learn.parallel`):
+there the client reads the recordings the folds use and scatters them, as arrays, to every
+worker once, so the workers never open the campaign file. Every random choice is seeded by the
+fold, so the results do not depend on where or in which order the folds run.
 """
 
 from __future__ import annotations
@@ -201,7 +202,7 @@ class FoldTask:
     """Everything one outer fold needs; picklable, so a fold can run on another machine."""
 
     number: int
-    source: Any  # a campaign path (str) or an in-memory Campaign
+    source: Any  # a campaign path (str), a Campaign, or _Parts (arrays given to run_fold)
     train_idx: np.ndarray
     test_idx: np.ndarray
     classes: tuple[str, ...]
@@ -212,10 +213,57 @@ class FoldTask:
     n_jobs: int = 1
 
 
+@dataclass(frozen=True)
+class _Parts:
+    """A campaign's settings; its per-recording arrays travel beside it (:func:`_parts`)."""
+
+    modalities: tuple[str, ...]
+    sample_rate_hz: float
+    volts_per_count: float
+    source: str
+    attrs: dict[str, Any]
+    path: str | None
+
+
+_ARRAYS = ("signals", "lengths", "modality", "participant", "direction", "run")
+
+
+def _parts(camp: Any, used: np.ndarray) -> tuple[_Parts, dict[str, Any]]:
+    """(settings, arrays) of the recordings ``used`` of ``camp``, read into memory: what a
+    worker needs to rebuild them as a Campaign (:func:`_from_parts`)."""
+    from eskin.data.limits import memory_problem
+
+    n, rows, cols, t = camp.signals.shape
+    problem = memory_problem(len(used) * rows * cols * t * 2,
+                             "sending the recordings to the cluster")
+    if problem:
+        raise EvaluationError(f"{camp.path or 'campaign'}: {problem}")
+    part = camp.subset(used).load()
+    arrays: dict[str, Any] = {k: np.asarray(getattr(part, k)) for k in _ARRAYS}
+    arrays["contact_interval"] = part.contact_interval
+    arrays["extras"] = dict(part.extras)
+    meta = _Parts(tuple(part.modalities), part.sample_rate_hz, part.volts_per_count,
+                  part.source, dict(part.attrs), part.path)
+    return meta, arrays
+
+
+def _from_parts(meta: _Parts, arrays: Mapping[str, Any]) -> Any:
+    from eskin.data.campaign import Campaign
+
+    return Campaign(
+        *(arrays[k] for k in _ARRAYS), contact_interval=arrays["contact_interval"],
+        modalities=meta.modalities, sample_rate_hz=meta.sample_rate_hz,
+        volts_per_count=meta.volts_per_count, source=meta.source, attrs=meta.attrs,
+        extras=arrays["extras"], path=meta.path, _validated=True,
+    )
+
+
 @contextlib.contextmanager
-def _opened(source: Any) -> Iterator[Any]:
-    """The campaign of a path (closed afterwards), or the given campaign."""
-    if isinstance(source, (str, Path)):
+def _opened(source: Any, arrays: Mapping[str, Any] | None = None) -> Iterator[Any]:
+    """The campaign of a path (closed afterwards), of settings and arrays, or the given one."""
+    if isinstance(source, _Parts):
+        yield _from_parts(source, arrays or {})
+    elif isinstance(source, (str, Path)):
         from eskin.data.campaign import load_campaign
 
         with load_campaign(source) as camp:
@@ -238,12 +286,14 @@ def _inner_estimate(selected: Sequence[Mapping[str, Any]]) -> float | None:
     return float(np.mean(errs)) if errs else None
 
 
-def run_fold(task: FoldTask) -> dict[str, Any]:
+def run_fold(task: FoldTask, **arrays: Any) -> dict[str, Any]:
     """Train the recipe on the fold's training groups, predict its test groups (and run the
-    baselines on the same patterns). Returns the fold's record (predictions included)."""
+    baselines on the same patterns). ``arrays``: the recordings, when ``task.source`` holds
+    only the campaign's settings (a fold on a cluster). Returns the fold's record (predictions
+    included)."""
     from eskin.learn.models import group_labels, train_model
 
-    with _opened(task.source) as camp:
+    with _opened(task.source, arrays) as camp:
         return _fold_record(task, camp, group_labels(camp, task.group_name), train_model)
 
 
@@ -408,15 +458,26 @@ def evaluate_recipe(
     written by :func:`eskin.learn.evaluation_report.write_evaluation`.
     """
     from eskin.learn.baselines import check_baselines
+    from eskin.learn.parallel import dask_client, share
 
     t0 = time.perf_counter()
     baselines = check_baselines(baselines)
+    shared: dict[str, Any] = {}
     with _opened(campaign) as camp:
         folds, names, labels = plan_folds(
             camp, groups=groups, n_folds=n_folds, classes=classes, runs=runs, seed=seed
         )
         path = camp.path
-    source = str(campaign) if isinstance(campaign, (str, Path)) else campaign
+        source = str(campaign) if isinstance(campaign, (str, Path)) else campaign
+        if dask_client() is not None:
+            # the workers get the recordings from here (no shared filesystem): the ones the
+            # folds use, scattered once to every worker; fold indices into them
+            used = np.unique(np.concatenate([np.concatenate(f) for f in folds]))
+            source, arrays = _parts(camp, used)
+            shared = share(arrays)
+    run_folds = folds
+    if shared:
+        run_folds = [(np.searchsorted(used, tr), np.searchsorted(used, te)) for tr, te in folds]
     recipe = {
         k: v
         for k, v in dict(recipe or {}).items()
@@ -426,9 +487,9 @@ def evaluate_recipe(
         FoldTask(
             k, source, tr, te, tuple(names), recipe, groups, tuple(baselines), seed, inner_jobs
         )
-        for k, (tr, te) in enumerate(folds)
+        for k, (tr, te) in enumerate(run_folds)
     ]
-    records = _run_folds(tasks, n_jobs, on_fold)
+    records = _run_folds(tasks, n_jobs, on_fold, shared)
     result = _pooled(records, folds, labels, names, baselines, seed)
     result.update(
         {
@@ -457,17 +518,18 @@ def _recorded(recipe: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _run_folds(
-    tasks: list[FoldTask], n_jobs: int, on_fold: Callable[[dict[str, Any], int], None] | None
+    tasks: list[FoldTask],
+    n_jobs: int,
+    on_fold: Callable[[dict[str, Any], int], None] | None,
+    shared: Mapping[str, Any],
 ) -> list[dict[str, Any]]:
-    """Every fold's record, in the order they finish; ``on_fold(record, n_folds)`` after each."""
-    from joblib import Parallel, delayed
+    """Every fold's record, in the order they finish; ``on_fold(record, n_folds)`` after each.
+    ``shared``: the recordings as :func:`eskin.learn.parallel.share` made them (or nothing)."""
+    from eskin.learn.parallel import run_calls
 
-    if n_jobs == 1:
-        done: Iterable[dict[str, Any]] = (run_fold(t) for t in tasks)
-    else:
-        done = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
-            delayed(run_fold)(t) for t in tasks
-        )
+    done: Iterable[dict[str, Any]] = run_calls(
+        run_fold, [((t,), shared) for t in tasks], n_jobs=n_jobs, unordered=True
+    )
     records = []
     for record in done:
         records.append(record)

@@ -6,12 +6,18 @@ makes joblib send them to a ``dask.distributed`` cluster: the address of a runni
 (``tcp://host:8786``), or ``local:N`` to start a LocalCluster of N single-threaded worker
 processes for the duration of the work. Every random choice is seeded by the piece it belongs
 to, never by where or when it runs, so the results are those of a serial run.
+
+The data reach the workers from the client, never by a path: :func:`share` scatters the arrays
+a run's tasks read to every worker once (``client.scatter(..., broadcast=True)``) and
+:func:`run_calls` submits the tasks with those futures as arguments, which each worker resolves
+from its own copy. A cluster needs no filesystem shared with the client. Without a Dask backend
+both fall back to the data in this process and joblib.
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
 from eskin.errors import SchedulerError
@@ -76,3 +82,63 @@ def compute_backend(
                 ) from None
         stack.enter_context(joblib.parallel_backend("dask", wait_for_workers_timeout=timeout_s))
         yield client
+
+
+def dask_client() -> Any | None:
+    """The ``dask.distributed`` Client that joblib's active backend sends work to (inside
+    :func:`compute_backend` or ``joblib.parallel_backend("dask")``), or None (any other backend,
+    and inside a task running on a worker)."""
+    from joblib.parallel import get_active_backend
+
+    backend, _ = get_active_backend()
+    if type(backend).__name__ != "DaskDistributedBackend":
+        return None
+    return getattr(backend, "client", None)
+
+
+def share(data: Mapping[str, Any]) -> dict[str, Any]:
+    """The values of ``data`` (numpy arrays, small containers of them) as the tasks of
+    :func:`run_calls` take them: on a Dask cluster, futures of copies scattered once to every
+    worker (``broadcast=True``); otherwise the values themselves."""
+    client = dask_client()
+    if client is None:
+        return dict(data)
+    names = list(data)
+    # a list, not the dict: scattering a dict would name the futures by its keys, and the
+    # next share() of the same names would replace this data on the cluster
+    futures = client.scatter([data[k] for k in names], broadcast=True, hash=False)
+    return dict(zip(names, futures))
+
+
+def run_calls(
+    func: Callable[..., Any],
+    calls: Iterable[tuple[tuple[Any, ...], Mapping[str, Any]]],
+    *,
+    n_jobs: int | None = 1,
+    unordered: bool = False,
+) -> Iterator[Any]:
+    """``func(*args, **kwargs)`` for every ``(args, kwargs)`` of ``calls``, results in the
+    order of ``calls`` (``unordered``: as they finish).
+
+    On a Dask cluster (:func:`dask_client`) every call is a task of its own; arguments made by
+    :func:`share` are futures that each worker resolves from its copy. Otherwise joblib runs
+    them with ``n_jobs`` (1: here, one after the other)."""
+    calls = list(calls)
+    client = dask_client()
+    if client is None:
+        if n_jobs == 1:
+            yield from (func(*a, **k) for a, k in calls)
+            return
+        from joblib import Parallel, delayed
+
+        mode = "generator_unordered" if unordered else "generator"
+        yield from Parallel(n_jobs=n_jobs, return_as=mode)(delayed(func)(*a, **k) for a, k in calls)
+        return
+    from dask.distributed import as_completed
+
+    futures = [client.submit(func, *a, pure=False, **k) for a, k in calls]
+    try:
+        for f in as_completed(futures) if unordered else futures:
+            yield f.result()
+    finally:
+        client.cancel(futures)

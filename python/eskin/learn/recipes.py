@@ -391,7 +391,7 @@ class RecipeSearch:
     ) -> RecipeSearch:
         """Run the search on ``patterns`` ({(D, subsample): (n, rows, cols, D) array} for every
         recipe's variant), class indices ``y`` (0..k-1) and the groups the splits keep apart."""
-        from joblib import Parallel, delayed
+        from eskin.learn.parallel import run_calls, share
 
         t0 = time.perf_counter()
         y = np.asarray(y, np.int64)
@@ -402,7 +402,9 @@ class RecipeSearch:
         self.splits_ = self._splits(y, groups)
         rows = {c: _Row(c) for c in self._first_candidates()}
         alive = list(rows)
-        distances: dict[tuple[int, str, str], tuple[np.ndarray, np.ndarray]] = {}
+        # the tasks' data: on a Dask cluster scattered to every worker once, for every round
+        common = share({"y": y, "splits": self.splits_})
+        distances: dict[tuple[int, str, str], dict[str, Any]] = {}
         self.rounds_, self.n_evaluations_ = [], 0
         done = 0
         schedule = self._schedule()
@@ -413,13 +415,13 @@ class RecipeSearch:
                 tasks.setdefault((*c.recipe.variant, c.alpha), []).append(c)
             for key in tasks:
                 if key not in distances:  # once per (D, subsampling, alpha), for every round
-                    distances[key] = self._distances(patterns[key[:2]], key[2])
-            results = Parallel(n_jobs=self.n_jobs)(
-                delayed(_score_task)(*distances[key], y, n_classes, cands, self.splits_, new,
-                                     self.seed)
-                for key, cands in sorted(tasks.items())
-            )
-            for res in results:
+                    dist_sum, energies = self._distances(patterns[key[:2]], key[2])
+                    distances[key] = share({"dist_sum": dist_sum, "energies": energies})
+            # one task per (D, subsampling, alpha) and split: the recipes and their inner folds
+            calls = [((), {**distances[key], **common, "n_classes": n_classes,
+                           "candidates": cands, "split_ids": [s], "seed": self.seed})
+                     for key, cands in sorted(tasks.items()) for s in new]
+            for res in run_calls(_score_task, calls, n_jobs=self.n_jobs):
                 for (c, s), (err, nsv) in res.items():
                     rows[c].errors[s] = err
                     rows[c].support[s] = nsv
