@@ -1062,3 +1062,42 @@ TEST(ModelChecks, AFieldRunningPastItsSectionNamesTheBytesLeftAndNeeded) {
                                "(96 bytes left, 128 needed)"))
       << refused(b);
 }
+
+// tests/data/model_binary_float64.eskin (tests/data/make_model_fixture.py): two classes, the
+// binary rule, one machine over all 4 support vectors.
+TEST(ModelChecks, ABinaryModelLoadsAndItsRuleIsChecked) {
+  const Bytes good = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  {
+    const Model m = Model::from_bytes(good.data(), good.size());
+    EXPECT_EQ(m.rule(), eskin::DecisionRule::kBinary);
+    EXPECT_EQ(m.class_names(), (std::vector<std::string>{"press", "tap"}));
+    ASSERT_EQ(m.machines().size(), 1u);
+    EXPECT_EQ(m.machines()[0].positive, 1);
+    EXPECT_EQ(m.machines()[0].negative, 0);
+    EXPECT_EQ(m.n_support(), 4);
+    EXPECT_EQ(m.rows(), 2);
+    EXPECT_EQ(m.cols(), 3);
+    EXPECT_EQ(m.D(), 4);
+  }
+  const std::size_t m0 = section_offset(good, "MACH") + 8;
+  {  // the classes the other way round: also a binary machine
+    Bytes b = good;
+    put_u32(b, m0, 0);
+    put_u32(b, m0 + 4, 1);
+    fix_crc(b);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    EXPECT_EQ(m.machines()[0].positive, 0);
+  }
+  Bytes same = good;
+  put_u32(same, m0 + 4, 1);  // (1, 1)
+  EXPECT_TRUE(says(refused(same), "binary machine classes (1, 1) must be (1, 0) or (0, 1)")) << refused(same);
+  Bytes ova = good;
+  put_u32(ova, section_offset(ova, "CLAS") + 4, 1);  // one_vs_all with 2 classes and 1 machine
+  EXPECT_TRUE(says(refused(ova), "one_vs_all needs one machine per class (2), got 1")) << refused(ova);
+  Bytes one = good;
+  put_u32(one, section_offset(one, "CLAS"), 1);  // one class
+  EXPECT_TRUE(says(refused(one), "n_classes=1 out of range [2, ")) << refused(one);
+  Bytes none = good;
+  put_u32(none, m0 - 8, 0);  // no machine
+  EXPECT_TRUE(says(refused(none), "n_machines=0 impossible")) << refused(none);
+}

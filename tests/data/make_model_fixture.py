@@ -1,4 +1,5 @@
-"""Write tests/data/model_small.eskin: a small valid 3-class model for the C++ loader tests.
+"""Write tests/data/model_small_*.eskin (a small valid 3-class model) and
+tests/data/model_binary_float64.eskin (a two-class model, binary rule) for the C++ loader tests.
 
 Its bases are random orthonormal columns (QR), not bases of real patterns: the loader and fuzz
 tests check the format, not the classifier. Regenerate it when the format or eskin::WindowConfig
@@ -62,12 +63,34 @@ def fixture_spec() -> ModelSpec:
     )
 
 
+def binary_spec() -> ModelSpec:
+    """A two-class model with the binary rule: one machine (positive class 1) over 4 support
+    vectors, 2x3 taxels, D = 4."""
+    rng = np.random.default_rng(2)
+    pool = rng.standard_normal((4, 2, 3, 4))
+    machine = MachineSpec(1, 0, 0.25, (2, 2, 2), (1.0, 2.0, 0.5), pool, rng.standard_normal(4))
+    return ModelSpec(
+        class_names=["press", "tap"],
+        rule="binary",
+        machines=[machine],
+        D=4,
+        grid_shape=(2, 3),
+        window="none",
+        subsample="even",
+        sample_rate_hz=1000.0,
+        window_config=WindowConfig(window_samples=0),
+    )
+
+
 def main() -> None:
     spec = fixture_spec()
     for dtype in ("float32", "float64"):
         out = Path(__file__).with_name(f"model_small_{dtype}.eskin")
         out.write_bytes(model_to_bytes(spec, dtype, bases_fn=qr_bases))
         print(out, out.stat().st_size)
+    out = Path(__file__).with_name("model_binary_float64.eskin")
+    out.write_bytes(model_to_bytes(binary_spec(), "float64", bases_fn=qr_bases))
+    print(out, out.stat().st_size)
 
 
 if __name__ == "__main__":

@@ -350,3 +350,20 @@ def test_frames_are_immutable_and_sequence_numbers_start_at_zero():
     dec = FrameDecoder(wait_for_delimiter=False)
     (ping,) = dec.feed(encode_frame(PingFrame(token=7)))
     assert ping == PingFrame(token=7) and ping.seq == 0
+
+
+def test_the_default_frame_length_is_the_simulators():
+    """SAMPLES_PER_FRAME (InfoFrame's default) is what eskin-fw-sim sends unless told otherwise,
+    as its usage says."""
+    import re
+    import subprocess
+
+    from eskin._paths import find_executable
+    from eskin.link.protocol import SAMPLES_PER_FRAME, InfoFrame
+
+    usage = subprocess.run([str(find_executable("eskin-fw-sim")), "--help"], capture_output=True,
+                           text=True, check=True).stdout
+    m = re.search(r"--samples-per-frame N\s+samples per DATA frame \(default (\d+)\)", usage)
+    assert m, usage
+    assert int(m.group(1)) == SAMPLES_PER_FRAME
+    assert InfoFrame(rows=1, cols=1, sample_rate_hz=1.0).samples_per_frame == SAMPLES_PER_FRAME
