@@ -456,3 +456,25 @@ def test_the_writer_checks_values_lengths_and_contact_intervals(tmp_path):
     c = load_campaign(tmp_path / "c.h5", in_memory=True)
     assert c.contact_interval.tolist() == [[0, 4], [2, 2]]
     assert int(np.asarray(c.signals).max()) == 32767
+
+
+def test_recovery_skips_a_chunk_of_the_wrong_size_and_says_both_sizes(tmp_path):
+    """In process (the command's tests are in test_recover_checks.py): a journal record whose
+    chunk inflates to 10 bytes, not a 2x2x100 recording's 800, is skipped and named."""
+    import zlib
+
+    from eskin.data.campaign import CampaignWriter, recover_campaign
+
+    path = tmp_path / "c.h5"
+    w = CampaignWriter(path, grid_shape=(2, 2), n_samples=100, sample_rate_hz=1000.0,
+                       volts_per_count=1e-3, modalities=["a"], source="recorded")
+    w.append(np.full((2, 2, 100), 3, np.int16), modality=0, participant=0, direction=0, run=1)
+    meta = {"length": 100, "modality": 0, "participant": 1, "direction": 0, "run": 1}
+    w._journal.append(meta, {}, zlib.compress(b"\0" * 10))
+    w._journal.release()
+    rec = recover_campaign(path)
+    assert rec.recordings == 1
+    assert rec.skipped == ("record 1: /recordings/signals: the chunk holds 10 bytes, not the 800 "
+                           "of a 2x2x100 int16 recording",)
+    with load_campaign(path, check_data=True) as c:
+        assert len(c) == 1 and (c.recording(0) == 3).all()
