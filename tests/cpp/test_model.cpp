@@ -1101,3 +1101,15 @@ TEST(ModelChecks, ABinaryModelLoadsAndItsRuleIsChecked) {
   put_u32(none, m0 - 8, 0);  // no machine
   EXPECT_TRUE(says(refused(none), "n_machines=0 impossible")) << refused(none);
 }
+
+TEST(ModelChecks, EachOneVsAllMachineNamesItsOwnClassAgainstTheRest) {
+  const Bytes good = fixture("float32");
+  const std::size_t m0 = section_offset(good, "MACH") + 8;
+  Bytes first = good;
+  put_u32(first, m0, 1);  // machine 0 claims class 1
+  EXPECT_TRUE(says(refused(first), "one_vs_all machine 0 must have positive_class=0 and negative_class=-1"))
+      << refused(first);
+  Bytes against = good;
+  put_u32(against, m0 + 4, 2);  // machine 0 against class 2 only
+  EXPECT_TRUE(says(refused(against), "one_vs_all machine 0 must have positive_class=0")) << refused(against);
+}
