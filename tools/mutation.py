@@ -27,6 +27,7 @@ Runs under `nice -n 10`; the exit status is 1 if a module is below --threshold.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import random
@@ -115,6 +116,29 @@ def copy_tree(dst: Path) -> None:
 # ------------------------------------------------------------------------------------ Python
 
 
+def annotation_spans(source: str) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """(start, end) (line, column) of every type annotation of a module: a mutant inside one
+    changes no behaviour (the modules use ``from __future__ import annotations``: annotations
+    are never evaluated), so none is run (mutmut does not make them either)."""
+    spans = []
+    for node in ast.walk(ast.parse(source)):
+        found = []
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            found.append(node.returns)
+            a = node.args
+            found += [x.annotation for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)]
+            found += [x.annotation for x in (a.vararg, a.kwarg) if x is not None]
+        elif isinstance(node, ast.AnnAssign):
+            found.append(node.annotation)
+        spans += [((n.lineno, n.col_offset), (n.end_lineno, n.end_col_offset))
+                  for n in found if n is not None]
+    return spans
+
+
+def in_annotation(pos: tuple[int, int], spans: list) -> bool:
+    return any(start <= tuple(pos) < end for start, end in spans)
+
+
 def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                survivors: list[str]) -> float:
     from cosmic_ray.work_db import WorkDB, use_db
@@ -145,7 +169,10 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                    cwd=work, env=env, check=True, capture_output=True)
     with use_db(str(session), WorkDB.Mode.open) as db:
         items = list(db.pending_work_items)
-        kept = [w for w in items if all(PYTHON_OPERATORS.match(m.operator_name) for m in w.mutations)]
+        spans = annotation_spans((work / module).read_text())
+        kept = [w for w in items
+                if all(PYTHON_OPERATORS.match(m.operator_name)
+                       and not in_annotation(m.start_pos, spans) for m in w.mutations)]
         chosen = kept
         if sample is not None and len(kept) > sample:
             chosen = random.Random(seed).sample(kept, sample)

@@ -109,6 +109,9 @@ std::size_t utf8_error_at(const char* s, std::size_t n) {
 // Little-endian reads from a bounded byte range. Every read says whether it succeeded and is
 // [[nodiscard]] (the targets that build this file turn -Wunused-result into an error): a parser
 // cannot read a field and go on as if it had read it. The first failure is the one reported.
+static_assert(sizeof(float) == sizeof(std::uint32_t) && sizeof(double) == sizeof(std::uint64_t),
+              "the format's reals are IEEE-754 binary32 and binary64");
+
 class Reader {
  public:
   Reader(const std::uint8_t* data, std::size_t size, std::string what, ParseError& err)
@@ -134,7 +137,7 @@ class Reader {
   [[nodiscard]] bool i32(const char* field, std::int32_t& out) {
     std::uint32_t u;
     if (!u32(field, u)) return false;
-    std::memcpy(&out, &u, 4);
+    std::memcpy(&out, &u, sizeof out);
     return true;
   }
   [[nodiscard]] bool f64(const char* field, double& out) {
@@ -142,13 +145,13 @@ class Reader {
     std::uint64_t v = 0;
     for (int i = 7; i >= 0; --i) v = (v << 8) | p_[pos_ + static_cast<std::size_t>(i)];
     pos_ += 8;
-    std::memcpy(&out, &v, 8);
+    std::memcpy(&out, &v, sizeof out);
     return true;
   }
   [[nodiscard]] bool f32(const char* field, float& out) {
     std::uint32_t u;
     if (!u32(field, u)) return false;
-    std::memcpy(&out, &u, 4);
+    std::memcpy(&out, &u, sizeof out);
     return true;
   }
   [[nodiscard]] bool name(const char* field, std::string& out) {
@@ -479,13 +482,13 @@ bool ModelParser::read_bases(Reader& r, Model& m, ParseError& err, int z) {
     if (m.float64_) {
       std::uint64_t u = 0;
       for (int b = 7; b >= 0; --b) u = (u << 8) | p[j * 8 + static_cast<std::size_t>(b)];
-      std::memcpy(&v, &u, 8);
+      std::memcpy(&v, &u, sizeof v);
       if (!in_place) m.bases64_[z][j] = v;
     } else {
       std::uint32_t u = 0;
       for (int b = 3; b >= 0; --b) u = (u << 8) | p[j * 4 + static_cast<std::size_t>(b)];
       float f;
-      std::memcpy(&f, &u, 4);
+      std::memcpy(&f, &u, sizeof f);
       if (!in_place) m.bases32_[z][j] = f;
       v = f;
     }

@@ -1113,3 +1113,75 @@ TEST(ModelChecks, EachOneVsAllMachineNamesItsOwnClassAgainstTheRest) {
   put_u32(against, m0 + 4, 2);  // machine 0 against class 2 only
   EXPECT_TRUE(says(refused(against), "one_vs_all machine 0 must have positive_class=0")) << refused(against);
 }
+
+// Each PREP field edited alone: at its limit the model loads, one past it is refused with the
+// field, the value and the allowed values.
+TEST(ModelChecks, PrepFieldsAtAndBeyondTheirLimits) {
+  const Bytes good = fixture("float32");
+  const std::size_t prep = section_offset(good, "PREP");
+  auto edited = [&](std::size_t off, std::uint32_t v) {
+    Bytes b = good;
+    put_u32(b, prep + off, v);
+    fix_crc(b);
+    return b;
+  };
+  struct Case { std::size_t off; std::uint32_t ok, bad; const char* says; };
+  for (const Case& c : {Case{12, 1, 2, "window_mode=2 (0 energy, 1 none)"},
+                        Case{16, 1, 2, "subsample=2 (0 algorithm2, 1 even)"},
+                        Case{20, 1, 2, "short_policy=2 (0 interpolate, 1 error)"},
+                        Case{28, 0, 1, "section PREP: reserved field 'reserved' is not 0"}}) {
+    const Bytes ok = edited(c.off, c.ok);
+    EXPECT_NO_THROW(Model::from_bytes(ok.data(), ok.size())) << c.says;
+    EXPECT_TRUE(says(load_message(edited(c.off, c.bad)), c.says)) << load_message(edited(c.off, c.bad));
+  }
+  {
+    const Bytes b = edited(12, 1);
+    EXPECT_EQ(Model::from_bytes(b.data(), b.size()).window_mode(), eskin::WindowMode::kNone);
+    const Bytes e = edited(16, 1);
+    EXPECT_EQ(Model::from_bytes(e.data(), e.size()).subsample(), eskin::SubsampleMethod::kEven);
+    const Bytes s = edited(20, 1);
+    EXPECT_EQ(Model::from_bytes(s.data(), s.size()).short_policy(), eskin::ShortPolicy::kError);
+  }
+  const std::uint32_t n_fields = get_u32(good, prep + 24);
+  EXPECT_TRUE(says(load_message(edited(24, n_fields + 1)),
+                   "n_window_fields=" + std::to_string(n_fields + 1) + ", expected " +
+                       std::to_string(n_fields) + " (the WindowConfig fields of format version 1)"))
+      << load_message(edited(24, n_fields + 1));
+  for (const double rate : {0.0, -3000.0, 1.0000001e7, std::nan(""), HUGE_VAL}) {
+    Bytes b = good;
+    put_f64(b, prep + 32, rate);
+    EXPECT_TRUE(says(refused(b), "section PREP: sample_rate_hz=")) << refused(b);
+    EXPECT_TRUE(says(refused(b), " must be in (0, 1e7]")) << refused(b);
+  }
+  {  // the rate loads as written
+    Bytes b = good;
+    put_f64(b, prep + 32, 2500.0);
+    fix_crc(b);
+    EXPECT_EQ(Model::from_bytes(b.data(), b.size()).sample_rate_hz(), 2500.0);
+  }
+}
+
+TEST(ModelChecks, HeaderFieldsAreCheckedOneByOne) {
+  const Bytes good = fixture("float32");
+  Bytes old = good;
+  old[8] = 0;  // version 0
+  EXPECT_TRUE(says(refused(old), "model format version 0 is not supported (this library reads versions 1 to "))
+      << refused(old);
+  Bytes newer = good;
+  newer[8] = 99;
+  EXPECT_EQ(load_error([&] { fix_crc(newer); return newer; }()), ModelError::kVersion);
+  Bytes hb = good;
+  hb[10] = 40;  // header_bytes
+  EXPECT_TRUE(says(refused(hb), "header_bytes=40, expected 32")) << refused(hb);
+  for (const std::size_t off : {24u, 28u}) {
+    Bytes r = good;
+    put_u32(r, off, 5);
+    EXPECT_TRUE(says(refused(r), ": header: reserved field 'reserved' is not 0")) << refused(r);
+  }
+  Bytes more = good;
+  put_u32(more, 20, get_u32(more, 20) + 1);  // one section more than the file holds
+  EXPECT_TRUE(says(refused(more), "section 5 header runs past the end")) << refused(more);
+  Bytes fewer = good;
+  put_u32(fewer, 20, get_u32(fewer, 20) - 1);  // the meta section left over
+  EXPECT_TRUE(says(refused(fewer), "bytes after the last section, before the checksum")) << refused(fewer);
+}
