@@ -11,7 +11,9 @@ this process, single-threaded (BLAS and the core), alternating when ``--repeats`
   successive halving over 24 recipes x the same grid (eskin.learn.recipes).
 
 Printed: CPU seconds of each (process time: the machine is shared, wall time is not the
-point), their ratio, and the recipe each chose with its inner-CV figure.
+point), their ratio, the recipe each chose with its inner-CV figure, and the heap one host
+``StreamClassifier`` of each exported model holds (``bench_stream_memory.per_stream``: glibc's
+heap in use around the construction of ``--streams`` streams of the loaded model).
 
     python benchmarks/bench_recipe_search.py [--participants 70] [--repeats 1]
 """
@@ -20,6 +22,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -28,7 +32,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("ESKIN_NUM_THREADS", "1")
 
 import eskin  # noqa: E402
+from eskin.deploy.export import CompiledModel, export_model  # noqa: E402
 from eskin.learn.models import train_model  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_stream_memory import per_stream  # noqa: E402
 
 FIXED = {"machine": "svm", "D": 100, "subsample": "algorithm2", "negatives": "all"}
 
@@ -46,6 +54,7 @@ def main(argv=None):
     ap.add_argument("--participants", type=int, default=70)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_bench_recipe"))
+    ap.add_argument("--streams", type=int, default=5, help="streams built per model (heap)")
     args = ap.parse_args(argv)
     path = campaign(args.cache, args.participants)
     cpu = {"fixed": [], "searched": []}
@@ -70,6 +79,15 @@ def main(argv=None):
           f"(chose {c['machine']} D={c['D']} {c['subsample']} negatives={c['negatives']}, "
           f"multi-class inner-CV error {100 * c['cv_error']:.1f} %)")
     print(f"  ratio searched / fixed: {searched / fixed:.2f}")
+    print(f"host StreamClassifier heap (mean of {args.streams} streams of the exported model):")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("fixed", "searched"):
+            data = Path(export_model(models[name], Path(tmp) / f"{name}.eskin")).read_bytes()
+            cm = CompiledModel(data)
+            model_heap, stream_heap = per_stream(data, args.streams)
+            print(f"  {name:8s}: one stream {stream_heap / 1024:.1f} KB ({stream_heap} B); "
+                  f"model {len(data)} B, {cm.n_support} support vectors, D={cm.D}, loaded "
+                  f"{model_heap / 1024:.0f} KB (shared by the streams)")
 
 
 if __name__ == "__main__":
