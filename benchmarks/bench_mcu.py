@@ -26,6 +26,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[1]
 # (D, participants simulated, detector's max_window_s, alpha: None = the quick grid's choice):
 # the detector's buffers and the input's tensor must fit 128 KB of RAM beside the rest
@@ -39,6 +41,83 @@ CONFIGS = [
     (50, 4, 0.4, "Q"),
     (100, 4, 0.37, "Q/2"),
 ]
+
+
+# --part svm: tensor-SVM models with and without the amplitude factor (what the searched default
+# and `eskin train --target cortex-m4` produce), for the cost model of eskin.deploy.target:
+# (D, participants simulated, alpha, amplitude width or None, negatives)
+SVM_CONFIGS = [
+    (20, 4, "1", 1.0, "all"),
+    (20, 8, "1", 1.0, "all"),
+    (20, 8, "1", None, "all"),
+    (50, 4, "1", 1.0, "all"),
+    (50, 6, "1", 1.0, "balanced"),
+    (20, 6, "Q/2", 1.0, "all"),
+    (100, 4, "1", 1.0, "all"),
+]
+
+
+def svm_case(out: Path, D: int, participants: int, alpha: str, amplitude, negatives: str) -> dict:
+    """A tensor-SVM model (grouped CV on the quick grid, one alpha and amplitude width) of a
+    simulated campaign and a few recordings of its last participant, held out: a `make mcu`
+    case (tools/mcu_case.from_files). Returns the model's cost-model inputs."""
+    import eskin
+    from eskin.learn.models import QUICK_LAMBDAS, QUICK_SIGMAS
+
+    out.mkdir(parents=True, exist_ok=True)
+    camp = eskin.load_campaign(eskin.simulate(out / "campaign.h5", participants=participants,
+                                              seed=5, overwrite=True))
+    held = camp.participant == np.unique(camp.participant)[-1]
+    model = eskin.train_model(
+        camp.subset(np.flatnonzero(~held)), machine="svm", selection="cv", D=D,
+        subsample="algorithm2", negatives=negatives, lambdas=QUICK_LAMBDAS, sigmas=QUICK_SIGMAS,
+        alphas=(alpha,), amplitudes=(amplitude,), seed=0, n_jobs=1,
+    )
+    eskin.export_model(model, out / "trained.eskin", dtype="float32")
+    from eskin.data.campaign import write_campaign
+
+    write_campaign(
+        out / "held.h5", [camp.recording(int(i)) for i in np.flatnonzero(held)],
+        modality=camp.modality[held], participant=camp.participant[held],
+        direction=camp.direction[held], run=camp.run[held],
+        modalities=camp.modalities, sample_rate_hz=camp.sample_rate_hz,
+        volts_per_count=camp.volts_per_count, source="simulated", overwrite=True,
+    )
+    _mcu_case().from_files(out, out / "trained.eskin", out / "held.h5", per_class=2, seed=0)
+    from eskin.deploy import CompiledModel
+
+    cm = CompiledModel(out / "model.eskin")
+    return {"D": D, "n_support": cm.n_support, "alpha_store": tuple(cm.alpha_store),
+            "terms": sum(len(m["coef"]) for m in cm.machines),
+            "amplitude": bool(cm.sv_log_energy.size), "file_bytes": cm.file_bytes}
+
+
+def main_svm(out: Path) -> None:
+    from eskin.deploy.target import decision_instructions
+
+    rows = []
+    for D, participants, alpha, amplitude, negatives in SVM_CONFIGS:
+        case = out / f"svm-D{D}-P{participants}-a{alpha.replace('/', '')}-{amplitude}-{negatives}"
+        info = svm_case(case, D, participants, alpha, amplitude, negatives)
+        dev = device_run(out / "build", case / "mcu_case.h")
+        est = decision_instructions((4, 4), D, info["alpha_store"], info["n_support"],
+                                    amplitude=info["amplitude"])
+        rows.append((info, dev, est))
+        print(f"{info}: {dev}, cost model {est:.0f}", flush=True)
+    print()
+    print("| D | support vectors | kernel terms | alpha_store | amplitude | flash | RAM | "
+          "instructions per decision (QEMU) | cost model | error | parity |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for info, dev, est in rows:
+        print(f"| {info['D']} | {info['n_support']} | {info['terms']} | {info['alpha_store']} | "
+              f"{'yes' if info['amplitude'] else 'no'} | {dev['flash']} | {dev['ram']} | "
+              f"{dev['instr']} | {est:.0f} | {100 * (est - dev['instr']) / dev['instr']:+.1f} % | "
+              f"{dev['parity']} ({dev['decisions']} decisions) |")
+    print("\nas INSTRUCTION_CALIBRATION rows (D, n_support, alpha_store, amplitude, "
+          "instructions):")
+    for info, dev, _ in rows:
+        print(f"    ({info['D']}, {info['n_support']}, {info['alpha_store']}, "
+              f"{info['amplitude']}, {dev['instr'] / 1e6:.3f}e6),")
 
 
 def _mcu_case():
@@ -130,7 +209,13 @@ def x86_instructions(model: Path, recordings: Path) -> float | None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "build" / "bench-mcu")
+    ap.add_argument("--part", choices=["rls", "svm"], default="rls",
+                    help="rls: the demo's MCU presets (CONFIGS); svm: tensor-SVM models with and "
+                    "without the amplitude factor (SVM_CONFIGS), against the cost model")
     args = ap.parse_args()
+    if args.part == "svm":
+        main_svm(args.out)
+        return
     from eskin.deploy import CompiledModel
 
     case_mod = _mcu_case()

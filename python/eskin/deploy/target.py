@@ -166,47 +166,81 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
 # --------------------------------------------------------------------------------------------
 # instructions per decision: a cost model calibrated on QEMU counts
 
-#: QEMU counts (Cortex-M4F, mps2-an386, -icount shift=0; `benchmarks/bench_mcu.py`, table in
-#: BENCHMARKS.md): (D, support vectors, alpha_store, median instructions of the push that ends a
-#: touch). 3-class tensor-RLS models, 4x4 grid, detector windows of 0.37-0.5 s.
-INSTRUCTION_CALIBRATION: tuple[tuple[int, int, tuple[int, int, int], float], ...] = (
-    (20, 36, (1, 1, 1), 0.500e6),
-    (50, 36, (1, 1, 1), 0.667e6),
-    (100, 36, (1, 1, 1), 0.991e6),
-    (20, 84, (1, 1, 1), 0.565e6),
-    (50, 84, (1, 1, 1), 0.781e6),
-    (20, 36, (2, 2, 8), 0.813e6),
-    (50, 36, (4, 4, 16), 2.699e6),
-    (100, 36, (2, 2, 8), 1.685e6),
+#: QEMU counts (Cortex-M4F, mps2-an386, -icount shift=0; tables in docs/mcu.md): (D, support
+#: vectors, alpha_store, amplitude factor, bounded detector window, median instructions of the
+#: push that ends a touch), 3-class models, 4x4 grid at 3 kHz. Rows 1-8: tensor-RLS MCU presets
+#: without the amplitude factor, every sample of a window cut to 0.37-0.5 s
+#: (`benchmarks/bench_mcu.py`); rows 9-15: tensor-SVMs with the default bounded window
+#: (`window_samples` 1024), most with the factor (`bench_mcu.py --part svm`); row 16: the model
+#: of `eskin train --target cortex-m4` on 10 simulated participants (docs/mcu.md).
+INSTRUCTION_CALIBRATION: tuple[tuple[int, int, tuple[int, int, int], bool, bool, float], ...] = (
+    (20, 36, (1, 1, 1), False, False, 0.500e6),
+    (50, 36, (1, 1, 1), False, False, 0.667e6),
+    (100, 36, (1, 1, 1), False, False, 0.991e6),
+    (20, 84, (1, 1, 1), False, False, 0.565e6),
+    (50, 84, (1, 1, 1), False, False, 0.781e6),
+    (20, 36, (2, 2, 8), False, False, 0.813e6),
+    (50, 36, (4, 4, 16), False, False, 2.699e6),
+    (100, 36, (2, 2, 8), False, False, 1.685e6),
+    (20, 35, (1, 1, 1), True, True, 0.562e6),
+    (20, 79, (1, 1, 1), True, True, 0.628e6),
+    (20, 84, (1, 1, 1), False, True, 0.584e6),
+    (50, 36, (1, 1, 1), True, True, 0.808e6),
+    (50, 58, (1, 1, 1), True, True, 0.863e6),
+    (20, 60, (2, 2, 8), True, True, 1.139e6),
+    (100, 36, (1, 1, 1), True, True, 1.257e6),
+    (20, 115, (1, 1, 1), True, True, 0.709e6),
 )
 
 
-def _instruction_features(grid_shape, D, alphas, n_support) -> np.ndarray:
+def _instruction_features(grid_shape, D, alphas, n_support, amplitude=False,
+                          bounded_window=True) -> np.ndarray:
     """What a decision's work grows with: a constant (the window's subsampling and the rest of
     the push), D, the input's bases (sum_z N_z alpha_z, times the largest alpha: the power
-    iterations), the support vectors, and their distances (sum_z N_z alpha_z^2 multiply-adds
-    per support vector, N_z the length of a mode-z basis vector)."""
+    iterations), the support vectors, their distances (sum_z N_z alpha_z^2 multiply-adds
+    per support vector, N_z the length of a mode-z basis vector), with the amplitude factor
+    one more exponential per support vector, and with the bounded window a term in D (the
+    subsampling of the touch from the bounded buffer: fitted, about 2 200 per unit of D)."""
     dims = (int(grid_shape[0]), int(grid_shape[1]), int(D))
     size = dims[0] * dims[1] * dims[2]
     n_of = [size // d for d in dims]
     basis = sum(n * a for n, a in zip(n_of, alphas))
     per_sv = sum(n * a * a for n, a in zip(n_of, alphas))
-    return np.array([1.0, D, basis * max(alphas), n_support, n_support * per_sv], dtype=float)
+    return np.array([1.0, D, basis * max(alphas), n_support, n_support * per_sv,
+                     n_support * float(bool(amplitude)), D * float(bool(bounded_window))],
+                    dtype=float)
 
 
 def _fit(points) -> np.ndarray:
-    A = np.array([_instruction_features((4, 4), D, a, n) for D, n, a, _ in points])
-    y = np.array([p[3] for p in points])
+    A = np.array([_instruction_features((4, 4), D, a, n, amp, bw)
+                  for D, n, a, amp, bw, _ in points])
+    y = np.array([p[5] for p in points])
     return np.linalg.lstsq(A, y, rcond=None)[0]
 
 
 _COEF = _fit(INSTRUCTION_CALIBRATION)
 
 
-def decision_instructions(grid_shape, D: int, alphas, n_support: int) -> float:
+def decision_instructions(
+    grid_shape, D: int, alphas, n_support: int, amplitude: bool = False,
+    bounded_window: bool = True,
+) -> float:
     """Estimated Cortex-M4F instructions of one decision (least squares on
-    :data:`INSTRUCTION_CALIBRATION`; its error: :func:`instruction_model_error`)."""
-    return float(_instruction_features(grid_shape, D, tuple(alphas), n_support) @ _COEF)
+    :data:`INSTRUCTION_CALIBRATION`; its error: :func:`instruction_model_error`);
+    ``amplitude``: the machines have the amplitude factor; ``bounded_window``: the detector
+    keeps the bounded window (``window_samples`` > 0, the default)."""
+    return float(_instruction_features(grid_shape, D, tuple(alphas), n_support, amplitude,
+                                       bounded_window) @ _COEF)
+
+
+def _bounded(window_config: Any) -> bool:
+    """Whether a window configuration (a WindowConfig, a compiled model's fields, or None for
+    the default) keeps the bounded window."""
+    if window_config is None:
+        return True
+    if isinstance(window_config, dict):
+        return float(window_config.get("window_samples", 0)) > 0
+    return float(getattr(window_config, "window_samples", 0)) > 0
 
 
 def instruction_model_error() -> dict[str, float]:
@@ -214,10 +248,11 @@ def instruction_model_error() -> dict[str, float]:
     leave-one-out error (each count predicted by the model fitted without it)."""
     pts = list(INSTRUCTION_CALIBRATION)
     fit_err, loo_err = [], []
-    for i, (D, n, a, y) in enumerate(pts):
-        fit_err.append(abs(decision_instructions((4, 4), D, a, n) - y) / y)
+    for i, (D, n, a, amp, bw, y) in enumerate(pts):
+        fit_err.append(abs(decision_instructions((4, 4), D, a, n, amp, bw) - y) / y)
         coef = _fit(pts[:i] + pts[i + 1:])
-        loo_err.append(abs(float(_instruction_features((4, 4), D, a, n) @ coef) - y) / y)
+        loo_err.append(abs(float(_instruction_features((4, 4), D, a, n, amp, bw) @ coef) - y)
+                       / y)
     return {"max_fit": max(fit_err), "max_leave_one_out": max(loo_err), "points": len(pts)}
 
 
@@ -305,7 +340,8 @@ def estimate_model(
     return {
         "flash": file_bytes + budget.target.program_flash_bytes,
         "ram": sum(ram.values()),
-        "instructions": decision_instructions(grid_shape, D, alphas, n_support),
+        "instructions": decision_instructions(grid_shape, D, alphas, n_support, amplitude,
+                                              _bounded(window_config)),
     }
 
 
@@ -417,7 +453,8 @@ def model_fits(model_bytes: bytes, budget: Budget) -> tuple[bool, dict[str, floa
 
     cm = CompiledModel(model_bytes)
     b = device_budget(cm, budget.target)
-    instr = decision_instructions(cm.grid_shape, cm.D, tuple(cm.alpha_store), cm.n_support)
+    instr = decision_instructions(cm.grid_shape, cm.D, tuple(cm.alpha_store), cm.n_support,
+                                  bool(cm.sv_log_energy.size), _bounded(cm.window_config))
     figures = {"flash": b.flash_total, "ram": b.ram_total, "instructions": instr}
     return (b.flash_total <= budget.flash_bytes and b.ram_total <= budget.ram_bytes
             and instr <= budget.instructions), figures
