@@ -289,6 +289,12 @@ def encode_frame(frame: Frame) -> bytes:
         d["values"] = [float(v) for v in d["values"]]
     elif t == FrameType.INFO:
         d["class_names"] = [str(n) for n in d["class_names"]]
+        for i, name in enumerate(d["class_names"]):
+            try:
+                name.encode("utf-8")
+            except UnicodeEncodeError as exc:
+                raise ValueError(f"InfoFrame.class_names[{i}] = {name!r} is not valid text "
+                                 f"(not encodable as UTF-8: {exc.reason})") from None
     return _p.encode(d)
 
 

@@ -254,7 +254,11 @@ class StreamReceiver:
             capacity = max(capacity, int(math.ceil(self.recorder.history_s(rate) * rate)))
         classifiers = [] if self.classifier is None else [self.classifier]
         if self.recorder is not None and self.record_policy == "touch" and not classifiers:
-            classifiers.append(HostClassifier(grid, rate))  # windows to record, no labels
+            try:
+                classifiers.append(HostClassifier(grid, rate))  # windows to record, no labels
+            except ValueError as exc:  # a rate the touch detector cannot work at
+                raise LinkStreamError(f"INFO frame: sample_rate_hz = {rate:g}: cannot detect "
+                                      f"touches in this stream ({exc})") from None
         return StreamAssembler(grid, rate=rate, history_capacity=capacity,
                                max_fill_s=self.max_fill_s, classifiers=classifiers,
                                on_touch=self._on_touch, on_restart=self._on_restart,

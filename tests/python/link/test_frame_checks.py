@@ -187,3 +187,24 @@ def test_an_unpaced_controller_s_info_is_accepted():
     for bad in (-1.0, float("nan"), float("inf"), 2e6):
         r = FrameChecks().check(dataclasses.replace(base, speed=bad))
         assert r is not None and r.field == "speed"
+
+
+def test_recording_at_a_rate_the_touch_detector_cannot_take_ends_with_one_line(tmp_path):
+    """An INFO rate inside the checked range but far below what the touch detector works at
+    (its DC cutoff is 5 Hz): `eskin listen --record` ends with one line naming the field and
+    value and the final statistics, not a ValueError traceback from the detector."""
+    wire = DELIMITER + b"".join(encode_frame(f) for f in [
+        _info(1e-300, grid=(2, 2), names=()), _data(0, grid=(2, 2))])
+    path, thread = _controller(wire)
+    out = tmp_path / "d.jsonl"
+    res = subprocess.run([sys.executable, "-m", "eskin", "listen", path, "--record",
+                          str(tmp_path / "live.h5"), "--jsonl", str(out), "--duration", "60",
+                          "--view", "plain"],
+                         capture_output=True, text=True, env=_env(), timeout=120)
+    thread.join(5)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith("error: INFO frame: sample_rate_hz = 1e-300: cannot detect "
+                                 "touches in this stream (WindowConfig.dc_cutoff_hz = 5")
+    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stdout
+    stats = json.loads(out.read_text().splitlines()[-1])
+    assert stats["type"] == "stats" and stats["frames"] == 2

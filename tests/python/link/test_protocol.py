@@ -240,6 +240,20 @@ def test_encode_frame_rejects_bad_frames():
         CommandFrame(FrameType.DATA)
 
 
+def test_class_names_are_text_both_ways():
+    """A name that is not encodable as UTF-8 (a lone surrogate) is refused by field, not by a
+    pybind11 cast error; name bytes on the wire that are not UTF-8 arrive as replacement
+    characters, never as an exception out of the decoder."""
+    with pytest.raises(ValueError, match=r"class_names\[1\] = '\\ud800' is not valid text"):
+        encode_frame(InfoFrame(2, 2, 100.0, class_names=("tap", "\ud800")))
+    raw = bytearray(cobs_decode(encode_frame(InfoFrame(2, 2, 100.0, class_names=("QQQQ",)))[:-1]))
+    at = raw.index(b"QQQQ")
+    raw[at:at + 4] = b"\xffq\xc3\x28"
+    raw[-4:] = struct.pack("<I", zlib.crc32(bytes(raw[:-4])))
+    (got,) = FrameDecoder().feed(DELIMITER + cobs_encode(bytes(raw)) + DELIMITER)
+    assert got.class_names == ("\ufffdq\ufffd(",)
+
+
 def test_reset_forgets_partial_frame():
     dec = FrameDecoder()
     dec.feed(STREAM[:100])
