@@ -8,8 +8,10 @@ OverwriteError` (a FileExistsError) with a one-line message naming the file.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Union
 
@@ -47,7 +49,25 @@ def refuse_overwrite(
         raise OverwriteError(
             f"{path}: file exists; refusing to overwrite it (use --force to replace it)"
         )
+    _check_writable(path)
     return path
+
+
+def _check_writable(path: Path) -> None:
+    """OSError naming ``path`` when its folder (or the nearest one that exists) is on a
+    read-only file system or not writable: said before a command's work, not after it (a
+    full disk can only be found by writing)."""
+    folder = path.absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        return  # cannot tell: the write will say
+    if read_only:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OSError(errno.EACCES, os.strerror(errno.EACCES), str(path))
 
 
 def refuse_overwrite_all(
@@ -79,18 +99,30 @@ def error_line(exc: BaseException, file: PathLike | None = None) -> str:
     return str(exc).replace("\n", " ")
 
 
-def write_whole(path: PathLike, data: bytes) -> None:
-    """Write ``data`` as the file ``path``, whole or not at all: into a hidden file next to it,
-    flushed, then renamed over it; on any error (a full disk) the hidden file is removed and
-    ``path`` is as it was."""
+@contextlib.contextmanager
+def whole_file(path: PathLike) -> Iterator[Path]:
+    """Write the file ``path`` whole or not at all: the block writes the hidden file it is
+    given, next to ``path``; that file is then flushed to the disk and renamed over ``path``.
+    On any error (a full or read-only disk) the hidden file is removed, ``path`` is as it was,
+    and an OSError names ``path`` (not the hidden file, and not nothing, as a failing
+    ``write`` would)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    # the hidden file keeps the suffix, which writers read the format from (matplotlib)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
+        yield tmp
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):  # (a read-only disk refuses even that)
+            tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.strerror and exc.filename in (None, str(tmp), tmp):
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
         raise
+
+
+def write_whole(path: PathLike, data: bytes) -> None:
+    """Write ``data`` as the file ``path``, whole or not at all (:func:`whole_file`)."""
+    with whole_file(path) as tmp:
+        tmp.write_bytes(data)

@@ -106,11 +106,11 @@ def evaluate(
                     classes=_names(classes), seed=seed, n_jobs=-1 if scheduler else n_jobs,
                 )
                 result["under_budget"] = _under_budget(under, the_budget)
-        paths = write_evaluation(result, out)
     except (ValueError, OSError, KeyError, ImportError) as exc:
         from eskin._files import error_line
 
         _fail(error_line(exc, out))
+    # the results first: a full disk then costs the files, not the scores
     for line in summary_lines(result):
         typer.echo(line)
     for line in _under_budget_lines(result):
@@ -118,6 +118,12 @@ def evaluate(
     notes = sorted({n for f in result["folds"] for n in f.get("notes", [])})
     for note in notes:
         typer.echo(f"note: {note}")
+    try:
+        paths = write_evaluation(result, out)
+    except (ValueError, OSError) as exc:
+        from eskin._files import error_line
+
+        _fail(error_line(exc, out))
     typer.echo(f"wrote {paths['json']}, {paths['md'].name} and {paths['figure'].name}")
 
 

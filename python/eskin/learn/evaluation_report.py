@@ -235,9 +235,13 @@ def write_evaluation(result: Mapping[str, Any], out_dir: str | Path) -> dict[str
         "md": out / "evaluation.md",
         "figure": out / "evaluation.png",
     }
-    paths["json"].write_text(json.dumps(result, indent=1))
-    plot_evaluation(result, paths["figure"])
-    paths["md"].write_text(_markdown(result, paths["figure"].name))
+    from eskin._files import whole_file, write_whole
+
+    # each file whole or not at all: a full disk leaves no truncated evaluation.json
+    write_whole(paths["json"], json.dumps(result, indent=1).encode())
+    with whole_file(paths["figure"]) as tmp:
+        plot_evaluation(result, tmp)
+    write_whole(paths["md"], _markdown(result, paths["figure"].name).encode())
     return paths
 
 

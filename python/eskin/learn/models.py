@@ -1259,7 +1259,10 @@ def save_model(model: TouchModel, path: str | Path) -> Path:
         fmt[0](model, path)
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    joblib.dump({"header": model.header(), "model": model}, path, compress=3)
+    from eskin._files import whole_file
+
+    with whole_file(path) as tmp:  # a full disk leaves no partial model, and the old one
+        joblib.dump({"header": model.header(), "model": model}, tmp, compress=3)
     return path
 
 

@@ -279,3 +279,49 @@ def test_export_onto_a_full_disk(tmp_path):
         line = _one_line(eskin("export", model, "-o", full / "m.eskin"), full / "m.eskin")
         assert "No space left on device" in line
         assert sorted(p.name for p in full.iterdir()) == ["filler"]  # no partial model
+
+
+def _fill(fs: Path) -> None:
+    """Fill a file system to its last byte."""
+    fd = os.open(fs / "filler", os.O_WRONLY | os.O_CREAT)
+    try:
+        while os.write(fd, b"\0" * 1024):
+            pass
+    except OSError as exc:
+        assert exc.errno == errno.ENOSPC
+    finally:
+        os.close(fd)
+
+
+QUICK = ("--quick", "--D", "20", "--machine", "svm", "--subsample", "algorithm2",
+         "--selection", "md")
+
+
+def test_train_and_evaluate_onto_a_full_disk_and_a_read_only_one(tmp_path):
+    """`eskin train -o` and `eskin evaluate --out`: one line naming the file; the model a
+    --force run was replacing is intact and no partial file is left; evaluate prints its scores
+    before writing, so the full disk costs the files, not the results."""
+    from eskin.data.simulator import simulate
+
+    campaign = simulate(tmp_path / "c.h5", participants=2, runs=(2,), seed=0, n_jobs=1)
+    with _tmpfs(tmp_path / "full", "size=64k") as full:
+        old = b"the model of an earlier run" * 100
+        (full / "m.joblib").write_bytes(old)
+        (full / "ev").mkdir()
+        _fill(full)
+        line = _one_line(eskin("train", campaign, *QUICK, "-o", full / "m.joblib", "--force",
+                               "--no-progress"), full / "m.joblib")
+        assert line == f"error: {full / 'm.joblib'}: No space left on device\n"
+        assert (full / "m.joblib").read_bytes() == old
+        r = eskin("evaluate", campaign, *QUICK, "--folds", "2", "--out", full / "ev")
+        line = _one_line(r, full / "ev" / "evaluation.json")
+        assert line == f"error: {full / 'ev' / 'evaluation.json'}: No space left on device\n"
+        assert "accuracy" in r.stdout
+        assert sorted(p.name for p in full.rglob("*")) == ["ev", "filler", "m.joblib"]
+    with _tmpfs(tmp_path / "ro", "size=64k,ro") as ro:
+        line = _one_line(eskin("train", campaign, *QUICK, "-o", ro / "m.joblib",
+                               "--no-progress"), ro / "m.joblib")
+        assert "Read-only file system" in line
+        line = _one_line(eskin("evaluate", campaign, *QUICK, "--folds", "2", "--out", ro / "ev"),
+                         ro / "ev")
+        assert "Read-only file system" in line
