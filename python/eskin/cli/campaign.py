@@ -186,7 +186,12 @@ def recover_cmd(
         None, "-o", "--output", help="campaign file to write (default: FILE)"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
 ) -> None:
-    """Salvage the recordings of a writer that died (kill -9, power loss, a crash)."""
+    """Salvage the recordings of a writer that died (kill -9, power loss, a crash).
+
+    Exit code 0 when every complete record of the journal is in the campaign written; 2, with
+    the same one-line summary on stderr, when some records were invalid (skipped, named by
+    index and field; the journal is then kept as .FILE.rejected) or nothing could be written.
+    A torn last record (the append a crash interrupted) is dropped and is no error."""
     from eskin._files import refuse_overwrite
     from eskin.data.campaign import recover_campaign
     from eskin.data.journal import journal_and_target
@@ -195,7 +200,11 @@ def recover_cmd(
         journal, target = journal_and_target(file)
         if journal.exists():  # else: "nothing to recover"
             refuse_overwrite(output if output is not None else target, force, inputs=(journal,))
-        typer.echo(recover_campaign(file, output, overwrite=force).message())
+        result = recover_campaign(file, output, overwrite=force)
+    if result.skipped:  # the valid records are in place, but the journal held invalid ones
+        typer.echo(f"error: {result.message()}", err=True)
+        raise typer.Exit(2)
+    typer.echo(result.message())
 
 
 def register(app: typer.Typer) -> None:

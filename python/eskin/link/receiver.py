@@ -39,7 +39,7 @@ from eskin.link.protocol import (
     StreamState,
 )
 from eskin.link.recorder import StreamRecorder
-from eskin.link.stream import StreamAssembler
+from eskin.link.stream import MAX_BRIDGED_JUMP_S, StreamAssembler
 
 __all__ = ["StreamReceiver", "unreceived_samples"]
 
@@ -93,6 +93,7 @@ class StreamReceiver:
         self._out: list[LinkEvent] = []  # events of the frames being processed
         self._counts = dict.fromkeys(_COUNTS, 0)
         self._received = self._unseen = self._tail = 0  # see unreceived_samples
+        self._tail_reset = False
 
     def reopened(self) -> None:
         """The port was reopened: partial input is dropped, the counters go on."""
@@ -295,8 +296,13 @@ class StreamReceiver:
         s, st = self.last_status, self._stream
         if (s is not None and s.state == StreamState.FINISHED and st is not None
                 and st.next is not None and s.next_sample > st.next and not self._tail):
-            # samples produced after the last one received, which no later frame revealed
-            self._tail = s.next_sample - st.next
+            tail = s.next_sample - st.next
+            if tail <= MAX_BRIDGED_JUMP_S * st.rate:
+                # samples produced after the last one received, which no later frame revealed
+                self._tail = tail
+            elif not self._tail_reset:  # more than an hour ahead: an index reset, as a jump
+                self._tail_reset = True  # between two DATA frames would be, not a loss
+                st.index_resets += 1
         if st is not None:
             st.flush()
             self._record(final=True)

@@ -60,11 +60,12 @@ def test_invalid_records_are_skipped_and_named_by_index_and_field(tmp_path):
     path = tmp_path / "c.h5"
     _journal(path, [labels for labels, _, _ in BAD])
     r = eskin("recover", path)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    lines = r.stdout.splitlines()
+    # the valid records are salvaged, but the journal held invalid ones: exit 2, one line
+    assert r.returncode == 2 and r.stdout == "", r.stdout
+    lines = r.stderr.splitlines()
     assert len(lines) == 1
     rejected = tmp_path / ".c.h5.rejected"
-    assert lines[0].startswith(f"recovered 4 complete recordings into {path}; skipped 7 "
+    assert lines[0].startswith(f"error: recovered 4 complete recordings into {path}; skipped 7 "
                                f"invalid records (record 3: /recordings/run: "), lines[0]
     for k, (_, field, problem) in enumerate(BAD):
         assert f"record {3 + k}: {field}: " in lines[0] and problem in lines[0], (k, lines[0])
@@ -99,9 +100,9 @@ def test_a_chunk_that_does_not_inflate_is_skipped(tmp_path):
     w._journal.append(meta, {}, __import__("zlib").compress(b"\0" * 10))
     w._journal.release()
     r = eskin("recover", path)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "skipped 2 invalid records (record 1: /recordings/signals: the compressed chunk " \
-        "does not inflate" in r.stdout
+        "does not inflate" in r.stderr
     assert "record 2: /recordings/signals: the chunk holds 10 bytes, not the 800 of a 2x2x100 " \
-        "int16 recording" in r.stdout
+        "int16 recording" in r.stderr
     assert len(load_campaign(path)) == 1
