@@ -1112,7 +1112,7 @@ def main(argv=None):
     ap.add_argument("--tables-only", action="store_true")
     args = ap.parse_args(argv)
     campaigns = QUICK_CAMPAIGNS if args.quick else CAMPAIGNS
-    if args.campaigns:
+    if args.campaigns and args.part != "search":  # the search part has its own campaigns
         pool = campaigns if args.quick else {**campaigns, **OTHER_CAMPAIGNS}
         campaigns = {k: pool[k] for k in args.campaigns.split(",")}
     grid = QUICK_GRID if args.quick else PAPER_GRID
