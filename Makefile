@@ -219,7 +219,7 @@ mcu-link: mcu-deps $(MCU_PY_DEP)
 	$(PY) tools/mcu_link.py replay $(MCU_CASE) $(MCU_LINK)/stream.eskr
 	set -o pipefail; PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_link.py run \
 	  --elf $(BUILD_MCU)/mcu/eskin-fw.elf --model $(MCU_CASE)/model.eskin \
-	  --replay $(MCU_LINK)/stream.eskr --out $(MCU_LINK) | tee $(MCU_LINK)/mcu-link.log
+	  --replay $(MCU_LINK)/stream.eskr --out $(MCU_LINK) --attempts 2 | tee $(MCU_LINK)/mcu-link.log
 
 # The demo needs the package and the two tools the editable install puts into $(VENV)/bin; not the
 # GoogleTest suites, nor clang.

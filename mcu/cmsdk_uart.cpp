@@ -50,15 +50,36 @@ bool Uart::write(const std::uint8_t* p, std::size_t n) {
   return true;
 }
 
-/// Puts the first byte on an idle line; the TX interrupt sends the rest.
+/// Moves bytes from the ring into the transmitter while it has room (TXFULL clear): one byte on
+/// the CMSDK UART's one-byte buffer, as many as the port takes at once where the transmitter
+/// empties at once (QEMU's model hands each byte to its character device as it is written).
+/// Returns whether a TX interrupt will follow: a byte was written, or one is still in flight.
+bool Uart::fill_transmitter() {
+  using namespace uart_reg;
+  std::uint32_t t = tx_tail_;
+  const std::uint32_t h = tx_head_;
+  bool wrote = false;
+  while (t != h && !(reg(kState) & kStateTxFull)) {
+    reg(kData) = tx_[t & (kUartTxRing - 1)];
+    ++t;
+    wrote = true;
+  }
+  bytes_sent_ = bytes_sent_ + (t - tx_tail_);
+  tx_tail_ = t;
+  return wrote || (reg(kState) & kStateTxFull) != 0;
+}
+
+/// Starts an idle transmitter with one byte; the TX interrupt sends the rest (there, at the
+/// UART's priority, the sampling timer can interrupt a long run of bytes; here interrupts are
+/// masked).
 void Uart::kick() {
   const std::uint32_t primask = irq_save();
-  if (!tx_busy_ && tx_tail_ != tx_head_) {
-    const std::uint32_t t = tx_tail_;
+  const std::uint32_t t = tx_tail_;
+  if (!tx_busy_ && t != tx_head_ && !(reg(uart_reg::kState) & uart_reg::kStateTxFull)) {
     reg(uart_reg::kData) = tx_[t & (kUartTxRing - 1)];
     tx_tail_ = t + 1;
-    tx_busy_ = true;
     bytes_sent_ = bytes_sent_ + 1;
+    tx_busy_ = true;
   }
   irq_restore(primask);
 }
@@ -66,14 +87,8 @@ void Uart::kick() {
 void Uart::on_tx_interrupt() {
   const std::uint64_t entry = g_profile ? mcu_ticks() : 0;
   reg(uart_reg::kIntStatus) = uart_reg::kIntTx;  // INTCLEAR
-  const std::uint32_t t = tx_tail_;
-  if (t != tx_head_) {
-    reg(uart_reg::kData) = tx_[t & (kUartTxRing - 1)];
-    tx_tail_ = t + 1;
-    bytes_sent_ = bytes_sent_ + 1;
-  } else {
-    tx_busy_ = false;
-  }
+  tx_interrupts_ = tx_interrupts_ + 1;
+  tx_busy_ = fill_transmitter();
   if (g_profile) isr_ticks_ = isr_ticks_ + clock_delta(entry);
 }
 

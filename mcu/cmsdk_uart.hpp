@@ -1,6 +1,8 @@
 // Interrupt-driven driver of the CMSDK APB UART (UART0 of QEMU's mps2-an386 at 0x40004000;
-// one-byte buffers, no FIFO). Transmit: bytes are queued in a ring that the TX interrupt drains,
-// one byte per interrupt (the main loop writes the first byte when the line is idle). Receive:
+// one-byte buffers, no FIFO). Transmit: bytes are queued in a ring that the TX interrupt drains
+// into the transmitter while it has room (one byte per interrupt on the hardware's one-byte
+// buffer; a whole run of bytes per interrupt on QEMU, whose transmitter empties as each byte is
+// written); the main loop starts an idle transmitter. Receive:
 // the RX interrupt moves each byte into a small ring that the main loop reads. Heap-free.
 #pragma once
 
@@ -39,6 +41,8 @@ class Uart {
   /// Receive bytes lost because the ring was full.
   std::uint32_t rx_overruns() const { return rx_overruns_; }
   std::uint64_t bytes_sent() const { return bytes_sent_; }
+  /// TX interrupts handled (each sends a run of bytes the transmitter takes).
+  std::uint32_t tx_interrupts() const { return tx_interrupts_; }
 
   /// Received bytes wait in the ring.
   bool rx_pending() const { return rx_head_ != rx_tail_; }
@@ -51,15 +55,17 @@ class Uart {
 
  private:
   void kick();
+  bool fill_transmitter();
   std::uint8_t tx_[kUartTxRing];
   volatile std::uint32_t tx_head_ = 0;  // written by the main loop
   volatile std::uint32_t tx_tail_ = 0;  // written by the TX interrupt
-  volatile bool tx_busy_ = false;       // a byte is on the line; its interrupt will follow
+  volatile bool tx_busy_ = false;       // a TX interrupt will follow (bytes are in flight)
   std::uint8_t rx_[kUartRxRing];
   volatile std::uint32_t rx_head_ = 0;  // written by the RX interrupt
   volatile std::uint32_t rx_tail_ = 0;  // written by the main loop
   volatile std::uint32_t rx_overruns_ = 0;
   volatile std::uint64_t bytes_sent_ = 0;
+  volatile std::uint32_t tx_interrupts_ = 0;
   volatile std::uint32_t isr_ticks_ = 0;
 };
 

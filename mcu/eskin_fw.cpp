@@ -357,7 +357,8 @@ int run() {
                     " ring_high_water=%" PRIu32 " decisions=%" PRIu32
                     " longest_push_ticks=%" PRIu32 " busy_ticks=%" PRIu32
                     " total_ticks=%" PRIu32 " sampler_isr_ticks=%" PRIu32
-                    " uart_isr_ticks=%" PRIu32 " uart_bytes=%" PRIu32 " encode_errors=%" PRIu32
+                    " uart_isr_ticks=%" PRIu32 " uart_tx_irqs=%" PRIu32 " uart_bytes=%" PRIu32
+                    " encode_errors=%" PRIu32
                     " clock_pair_ticks_x256=%" PRIu32 " profile=%d ticks_per_s=25000000\n",
                     static_cast<std::uint32_t>(ctl.next_sample()),
                     static_cast<std::uint32_t>(smp.lost()),
@@ -365,7 +366,7 @@ int run() {
                     static_cast<std::uint32_t>(ctl.decisions_sent()),
                     static_cast<std::uint32_t>(ls.longest_push),
                     static_cast<std::uint32_t>(busy), static_cast<std::uint32_t>(total),
-                    smp.isr_ticks(), uart.isr_ticks(),
+                    smp.isr_ticks(), uart.isr_ticks(), uart.tx_interrupts(),
                     static_cast<std::uint32_t>(uart.bytes_sent()), port.encode_errors(),
                     static_cast<std::uint32_t>(clock_pairs), g_profile ? 1 : 0);
       }

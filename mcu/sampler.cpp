@@ -14,6 +14,8 @@ constexpr std::uint32_t kCtrl = 0x00, kValue = 0x04, kReload = 0x08, kIntClear =
 constexpr std::uint32_t kCtrlEnable = 1u << 0, kCtrlIrq = 1u << 3;
 constexpr int kIrqTimer0 = 8;
 constexpr double kTimerClockHz = 25e6;
+/// Processor clock ticks (mcu_ticks: SysTick at the 25 MHz processor clock) per timer tick.
+constexpr std::uint64_t kCpuTicksPerTimerTick = 1;
 
 inline volatile std::uint32_t& reg(std::uint32_t off) {
   return *reinterpret_cast<volatile std::uint32_t*>(kTimer0 + off);
@@ -31,6 +33,7 @@ void Sampler::init(const SampleSource& source, double rate_hz) {
   const double cycles = kTimerClockHz / rate_hz;
   reload_ = static_cast<std::uint32_t>(cycles + 0.5) - 1;
   rate_hz_ = kTimerClockHz / (static_cast<double>(reload_) + 1.0);
+  period_ticks_ = (static_cast<std::uint64_t>(reload_) + 1) * kCpuTicksPerTimerTick;
   reg(kCtrl) = 0;
   reg(kIntClear) = 1;
   irq_set_priority(kIrqTimer0, 0x20);  // above the UART: sampling is never late for the link
@@ -45,6 +48,8 @@ void Sampler::start(bool rewind) {
   if (done_) return;
   reg(kReload) = reload_;
   reg(kValue) = reload_;
+  // read before the timer starts: each of its interrupts then finds its own sample due
+  next_due_ = mcu_ticks() + period_ticks_;
   running_ = true;
   reg(kCtrl) = kCtrlEnable | kCtrlIrq;
 }
@@ -70,8 +75,17 @@ std::uint32_t Sampler::take_trailing_lost() {
 }
 
 void Sampler::on_timer_interrupt() {
-  const std::uint64_t entry = mcu_ticks();  // the sample's acquisition time
-  take(entry);
+  const std::uint64_t entry = mcu_ticks();
+  reg(kIntClear) = 1;
+  // The samples due by the clock: one on time; more when this interrupt came late or stood for
+  // several periods (an emulator on a busy host). At most a ring's worth per interrupt: a longer
+  // backlog is taken by the next interrupts.
+  std::uint64_t due = next_due_;
+  for (std::size_t n = 0; due <= entry && running_ && n < kSampleRing; ++n) {
+    take(due);
+    due += period_ticks_;
+  }
+  next_due_ = due;
   if (g_profile) {
     const std::uint64_t d = mcu_ticks() - entry;  // a reading that went backwards: not counted
     if (d < (1u << 24)) isr_ticks_ = isr_ticks_ + static_cast<std::uint32_t>(d);
@@ -79,7 +93,6 @@ void Sampler::on_timer_interrupt() {
 }
 
 void Sampler::take(std::uint64_t now) {
-  reg(kIntClear) = 1;
   const std::uint64_t pos = pos_;
   if (pos >= src_.n_samples) {  // the recording is over
     reg(kCtrl) = 0;

@@ -1,6 +1,8 @@
 // The firmware's acquisition: a CMSDK APB timer (TIMER0 of mps2-an386, 0x40000000, 25 MHz)
-// interrupts at the sample rate; its handler takes one multi-taxel sample and puts it, with its
-// acquisition time, into a ring that the main loop drains (into the controller and its
+// interrupts at the sample rate; its handler takes the multi-taxel samples due by the processor
+// clock (one per interrupt when interrupts come on time; those of the periods a late or merged
+// interrupt missed as well, each with its own acquisition time, so that the stream keeps the
+// clock's rate) and puts them into a ring that the main loop drains (into the controller and its
 // StreamClassifier). The ring decouples the two: while a decision runs in the main loop, the
 // samples wait in the ring; one that finds the ring full is lost and counted, and its stream
 // index is skipped, so the host sees the hole.
@@ -70,6 +72,8 @@ class Sampler {
  private:
   void take(std::uint64_t now);
   SampleSource src_;
+  std::uint64_t period_ticks_ = 0;          // one sample period in processor clock ticks
+  volatile std::uint64_t next_due_ = 0;     // processor clock tick of the next sample
   double rate_hz_ = 0.0;
   std::uint32_t reload_ = 0;
   volatile bool running_ = false;

@@ -100,8 +100,11 @@ def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
         out["clock_pair_instructions"] = round(pair, 1)
         out["isr_instructions_per_sample"] = round(
             v["sampler_isr_ticks"] * ipt / max(v["samples"], 1) - pair)
+        # the TX handler sends a run of bytes per interrupt: its clock pair is taken off per
+        # interrupt (the RX handler's few bytes are in the same count)
+        out["uart_tx_interrupts"] = v["uart_tx_irqs"]
         out["uart_isr_instructions_per_byte"] = round(
-            v["uart_isr_ticks"] * ipt / max(v["uart_bytes"], 1) - pair)
+            (v["uart_isr_ticks"] * ipt - pair * v["uart_tx_irqs"]) / max(v["uart_bytes"], 1), 1)
         # the processor's work per sample (main loop and handlers), at the replay's rate
         per_sample = v["busy_ticks"] * ipt / max(v["samples"], 1)
         out["busy_instructions_per_sample"] = round(per_sample)
@@ -113,6 +116,22 @@ def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Runs the link up to ``--attempts`` times: again only when the one fault was samples lost
+    in the firmware's ring (the emulator fell behind real time on a busy host: QEMU carries each
+    UART byte with a write(2) on the pty), never for a CRC error or a fault without such losses.
+    Each attempt prints its lines."""
+    code = 1
+    for attempt in range(1, max(1, args.attempts) + 1):
+        code, emulator_behind = _run_once(args)
+        if code == 0 or not emulator_behind or attempt == args.attempts:
+            return code
+        print(f"mcu-link: attempt {attempt} lost samples in the firmware's ring (the emulator "
+              f"fell behind real time: is the host busy?); running again", file=sys.stderr)
+    return code
+
+
+def _run_once(args: argparse.Namespace) -> tuple[int, bool]:
+    """One run: (exit status, whether the only fault was samples lost in the firmware's ring)."""
     from eskin.data.replay import read_replay_file
     from eskin.link.qemu_controller import QemuController, QemuControllerError, priority
 
@@ -134,15 +153,15 @@ def run(args: argparse.Namespace) -> int:
                 r = subprocess.run(listen, stdout=log, stderr=subprocess.STDOUT, timeout=timeout)
     except QemuControllerError as exc:
         print(f"mcu-link: {exc}", file=sys.stderr)
-        return 2
+        return 2, False
     except subprocess.TimeoutExpired as exc:
         print(f"mcu-link: eskin listen did not finish in {exc.timeout:.0f} s (see "
               f"{out / 'listen.log'} and {out / 'qemu.log'})", file=sys.stderr)
-        return 1
+        return 1, False
     if r.returncode != 0:
         print((out / "listen.log").read_text()[-2000:], file=sys.stderr)
         print(f"mcu-link: eskin listen exited with {r.returncode}", file=sys.stderr)
-        return 1
+        return 1, False
 
     rows = [json.loads(x) for x in jsonl.read_text().splitlines() if x.strip()]
     stats = next(r for r in rows if r.get("type") == "stats")
@@ -152,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
     agree = sum((d["onset_sample"], d["offset_sample"], d["label_index"]) in host_keys for d in dev)
     fw_line = next((x for x in (out / "qemu.log").read_text(errors="replace").splitlines()
                     if x.startswith("FW: ")), None)
+    ring_lost = 0
     if fw_line is not None:
         fw = fw_measurements(fw_line, args.icount, float(rp.sample_rate_hz))
         fw["longest_latency_us"] = max((d["latency_us"] for d in dev), default=0)
@@ -161,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         fw["host_elapsed_s"] = round(el, 1)
         fw["host_samples_per_s"] = round(int(stats["samples"]) / el, 1)
         fw["host_bytes_per_s"] = round(int(stats["bytes"]) / el)
+        ring_lost = int(fw["lost_in_ring"])
         print("MCU-FW: " + json.dumps(fw))
         (out / "fw.json").write_text(json.dumps(fw, indent=1) + "\n")
     else:
@@ -170,10 +191,13 @@ def run(args: argparse.Namespace) -> int:
     n = len(dev)
     print(f"MCU-LINK: frames={stats['frames']} samples={stats['samples']} lost={lost} "
           f"crc_errors={stats['crc_errors']} decisions={n} agree={agree}/{n}")
-    ok = lost == 0 and stats["crc_errors"] == 0 and n > 0 and agree == n and len(host) == n
+    others_ok = stats["crc_errors"] == 0 and n > 0 and agree == n and len(host) == n
     if len(host) != n:
         print(f"mcu-link: the host made {len(host)} decisions, the device {n}", file=sys.stderr)
-    return 0 if ok else 1
+    if lost == 0 and others_ok:
+        return 0, False
+    # lost samples also move the windows of both sides: a disagreement then is their effect
+    return 1, ring_lost > 0 and stats["crc_errors"] == 0
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -199,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
     x.add_argument("--icount", type=int, default=None,
                    help="run QEMU with -icount shift=N (instruction counts; not real time)")
     x.add_argument("--timeout", type=float, default=None, help="seconds for eskin listen")
+    x.add_argument("--attempts", type=int, default=1,
+                   help="run again (up to N runs in all) when the only fault is samples lost in "
+                        "the firmware's ring: the emulator fell behind real time")
     a = ap.parse_args(argv)
     if a.cmd == "replay":
         info = write_replay(a.case, a.out, a.per_class, a.margin_s)

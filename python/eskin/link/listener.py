@@ -120,6 +120,14 @@ __all__ = [
 
 RECORD_POLICIES = ("touch", "segment")
 
+#: A read that returns fewer bytes than this is a trickle (a port that writes a byte at a time,
+#: such as QEMU's UART on a pseudo-terminal): the listener then waits TRICKLE_WAIT_S before the
+#: next read, so that it takes the stream in chunks instead of waking for every few bytes (at
+#: 3 kSps of a 4 x 4 patch, 105 kB/s, a 4 ms wait gathers about 420 bytes, far inside the pty's
+#: 4 KiB line buffer). It cost the host a third of a core, which the emulated board needed.
+TRICKLE_BYTES = 2048
+TRICKLE_WAIT_S = 0.004
+
 
 def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: float,
                      **non_negative: float) -> str:
@@ -397,6 +405,8 @@ class LinkListener:
                         and ev.status.state == StreamState.FINISHED):
                     finished_at = time.monotonic()
                 yield ev
+            if 0 < len(chunk) < TRICKLE_BYTES:
+                time.sleep(TRICKLE_WAIT_S)
             if self.stats_interval is not None and now - t_stats >= self.stats_interval:
                 t_stats = now
                 yield Stats(self.stats)
