@@ -1185,3 +1185,67 @@ TEST(ModelChecks, HeaderFieldsAreCheckedOneByOne) {
   put_u32(fewer, 20, get_u32(fewer, 20) - 1);  // the meta section left over
   EXPECT_TRUE(says(refused(fewer), "bytes after the last section, before the checksum")) << refused(fewer);
 }
+
+TEST(ModelChecks, AWindowFieldRunningPastPrepIsRefusedThere) {
+  // PREP shortened by its last window field (a 32-byte name and an 8-byte value)
+  Bytes b = fixture("float32");
+  const std::size_t prep = section_offset(b, "PREP");
+  put_u32(b, prep - 4, get_u32(b, prep - 4) - 40);
+  EXPECT_TRUE(says(refused(b), "section PREP: field 'window field name' runs past the end of the "
+                               "section (0 bytes left, 32 needed)"))
+      << refused(b);
+}
+
+TEST(ModelChecks, DUpToItsLimitPassesThePrepCheck) {
+  // the binary fixture's 2x3 grid: D = kMaxD keeps the tensor within its limit, so the file is
+  // refused only later, where SVBS's dims differ; one more is out of range
+  const Bytes good = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const std::size_t prep = section_offset(good, "PREP");
+  Bytes at = good;
+  put_u32(at, prep + 8, static_cast<std::uint32_t>(eskin::kMaxD));
+  EXPECT_TRUE(says(refused(at), "differ from the preprocessing's (rows, cols, D) = (2, 3, " +
+                                    std::to_string(eskin::kMaxD) + ")"))
+      << refused(at);
+  Bytes past = good;
+  put_u32(past, prep + 8, static_cast<std::uint32_t>(eskin::kMaxD + 1));
+  EXPECT_TRUE(says(refused(past), "D=" + std::to_string(eskin::kMaxD + 1) + " out of range [2, " +
+                                      std::to_string(eskin::kMaxD) + "]"))
+      << refused(past);
+}
+
+TEST(ModelChecks, AHeaderAndChecksumAloneAreNotTooShortToRead) {
+  // 36 bytes: the header (it says 8500 bytes) and a checksum; read, then found truncated
+  const Bytes good = fixture("float32");
+  Bytes b(good.begin(), good.begin() + 36);
+  EXPECT_EQ(load_error(b), ModelError::kTruncated);
+  EXPECT_TRUE(says(load_message(b), "truncated: the header says 8500 bytes, only 36 present"))
+      << load_message(b);
+}
+
+TEST(ModelChecks, VersionThreeLoadsWithoutAnAmplitudeSection) {
+  // the fixture as format version 3: its window fields and the bounded window's
+  // (window_samples = 0), no AMPL section
+  const Bytes v1 = fixture("float64");
+  const std::size_t prep = section_offset(v1, "PREP");
+  const std::uint32_t bytes = get_u32(v1, prep - 4);
+  ASSERT_EQ(bytes % 8, 0u);
+  Bytes field(32, 0);
+  const std::string name = "window_samples";
+  std::copy(name.begin(), name.end(), field.begin());
+  append_f64(field, 0.0);
+  Bytes b(v1.begin(), v1.begin() + static_cast<std::ptrdiff_t>(prep + bytes));
+  b.insert(b.end(), field.begin(), field.end());
+  b.insert(b.end(), v1.begin() + static_cast<std::ptrdiff_t>(prep + bytes), v1.end());
+  put_u32(b, prep - 4, bytes + 40);
+  put_u32(b, prep + 24, get_u32(b, prep + 24) + 1);
+  b[8] = 3;
+  put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+  fix_crc(b);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  EXPECT_EQ(m.format_version(), 3);
+  EXPECT_FALSE(m.has_amplitude());
+  EXPECT_EQ(m.window_config().window_samples, 0);
+  Bytes v2 = b;  // the same bytes as version 2 need their AMPL section (and a v1 window)
+  v2[8] = 2;
+  EXPECT_TRUE(says(refused(v2), "n_window_fields=")) << refused(v2);
+}
