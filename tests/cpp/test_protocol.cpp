@@ -658,3 +658,22 @@ TEST(DecoderChecks, APayloadShorterThanItsTypesFixedPartIsMalformed) {
   short_pong.erase(short_pong.begin() + 4);
   EXPECT_EQ(decode_raw(rechecked(short_pong)), std::make_pair(0, std::uint64_t{1}));
 }
+
+// A decoded DECISION holds its n_values values and zeros after them, whatever the decoder held
+// before (values of an earlier, longer decision are not left behind).
+TEST(DecoderChecks, DecisionValuesPastTheirCountAreZero) {
+  p::FrameDecoder dec(p::kMaxFrameSize, false);
+  for (const std::uint8_t n : {std::uint8_t{3}, std::uint8_t{1}, std::uint8_t{0}}) {
+    p::Frame f;
+    f.type = p::FrameType::decision;
+    f.decision.n_values = n;
+    for (std::size_t k = 0; k < n; ++k) f.decision.values[k] = 1.5 + static_cast<double>(k);
+    const Bytes e = encode(f);
+    ASSERT_EQ(dec.feed(e.data(), e.size()), e.size());
+    ASSERT_TRUE(dec.has_frame());
+    const auto& d = dec.frame().decision;
+    ASSERT_EQ(d.n_values, n);
+    for (std::size_t k = 0; k < p::kMaxDecisionValues; ++k)
+      EXPECT_EQ(d.values[k], k < n ? 1.5 + static_cast<double>(k) : 0.0) << int(n) << " " << k;
+  }
+}
