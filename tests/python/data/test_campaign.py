@@ -478,3 +478,123 @@ def test_recovery_skips_a_chunk_of_the_wrong_size_and_says_both_sizes(tmp_path):
                            "of a 2x2x100 int16 recording",)
     with load_campaign(path, check_data=True) as c:
         assert len(c) == 1 and (c.recording(0) == 3).all()
+
+
+def _one_recording_writer(path, **kw) -> "eskin.data.campaign.CampaignWriter":
+    from eskin.data.campaign import CampaignWriter
+
+    return CampaignWriter(path, grid_shape=(1, 2), n_samples=100, sample_rate_hz=100.0,
+                          volts_per_count=1e-3, modalities=["a", "b"], source="recorded", **kw)
+
+
+def test_a_mapping_attribute_is_stored_as_json_with_sorted_keys(tmp_path):
+    path = tmp_path / "c.h5"
+    with _one_recording_writer(path, attrs={"calibration": {"b": 1, "a": [2, 3]}}) as w:
+        w.append(np.zeros((1, 2, 10), np.int16), modality=0, participant=0, direction=0, run=1)
+    with h5py.File(path, "r") as f:
+        raw = f.attrs["calibration"]
+    assert (raw.decode() if isinstance(raw, bytes) else raw) == '{"a": [2, 3], "b": 1}'
+
+
+def test_contact_intervals_inside_the_recording_are_kept_at_either_end(tmp_path):
+    path = tmp_path / "c.h5"
+    with _one_recording_writer(path, contact_interval=True) as w:
+        for ci in [(0, 100), (3, 50), (7, 7), (40, 100)]:
+            w.append(np.zeros((1, 2, 100), np.int16), modality=1, participant=5, direction=1,
+                     run=255, contact_interval=ci)
+        for ci in [(50, 3), (-1, 10), (3, 101)]:
+            with pytest.raises(ValueError, match=r"contact interval \[.*not within"):
+                w.append(np.zeros((1, 2, 100), np.int16), modality=1, participant=5,
+                         direction=1, run=1, contact_interval=ci)
+    with load_campaign(path) as c:
+        assert np.asarray(c.contact_interval).tolist() == [[0, 100], [3, 50], [7, 7], [40, 100]]
+        assert list(c.run) == [255] * 4
+
+
+def test_run_numbers_are_0_to_255_in_the_writer(tmp_path):
+    with _one_recording_writer(tmp_path / "c.h5") as w:
+        for run in (0, 255):
+            w.append(np.zeros((1, 2, 5), np.int16), modality=0, participant=0, direction=0,
+                     run=run)
+        for run in (-1, 256):
+            with pytest.raises(ValueError, match=rf"run {run} outside \[0, 255\]"):
+                w.append(np.zeros((1, 2, 5), np.int16), modality=0, participant=0,
+                         direction=0, run=run)
+
+
+def test_several_bad_lengths_are_counted_in_the_message(tmp_path):
+    path = tmp_path / "c.h5"
+    with _one_recording_writer(path) as w:
+        for _ in range(3):
+            w.append(np.zeros((1, 2, 10), np.int16), modality=0, participant=0, direction=0, run=1)
+    with h5py.File(path, "r+") as f:
+        f["recordings/length"][1] = 500
+    with pytest.raises(CampaignFormatError, match=r"recording 1 has length 500, outside \[0, T=100\]$"):
+        load_campaign(path)
+    with h5py.File(path, "r+") as f:
+        f["recordings/length"][2] = 400
+    with pytest.raises(CampaignFormatError, match=r"length 500, outside \[0, T=100\] \(2 bad entries\)"):
+        load_campaign(path)
+
+
+def test_extras_need_one_entry_per_recording_in_memory_and_on_disk(tmp_path):
+    sig = [np.zeros((1, 2, 5), np.int16)] * 3
+    common = dict(modality=[0, 1, 0], participant=[0, 0, 1], direction=[0] * 3, run=[1] * 3,
+                  modalities=["a", "b"], sample_rate_hz=100.0, volts_per_count=1e-3,
+                  source="recorded")
+    path = write_campaign(tmp_path / "ok.h5", sig, **common,
+                          extras={"force": np.arange(6.0).reshape(3, 2), "id": np.arange(3)})
+    with load_campaign(path) as c:
+        assert np.asarray(c.extras["force"]).tolist() == [[0, 1], [2, 3], [4, 5]]
+    for bad in (np.arange(2), np.arange(4), np.float64(1.0)):
+        with pytest.raises(ValueError, match=r"extras\['id'\] must have one entry per recording \(3\)"):
+            write_campaign(tmp_path / "bad.h5", sig, **common, extras={"id": bad})
+    with h5py.File(path, "r+") as f:  # on disk: one entry short
+        del f["recordings/extra/id"]
+        f["recordings/extra/id"] = np.arange(2)
+    with pytest.raises(CampaignFormatError, match="/recordings/extra/id"):
+        load_campaign(path)
+
+
+def test_a_recording_index_past_either_end_is_refused_naming_it(tmp_path):
+    path = tmp_path / "c.h5"
+    with _one_recording_writer(path) as w:
+        for k in range(3):
+            w.append(np.full((1, 2, 5), k, np.int16), modality=0, participant=0, direction=0, run=1)
+    with load_campaign(path) as c:
+        assert c.recording(-3)[0, 0, 0] == 0 and c.recording(2)[0, 0, 0] == 2
+        for i in (3, 7, -4):
+            with pytest.raises(IndexError, match=f"recording index {i} out of range for 3 recordings"):
+                c.recording(i)
+
+
+def test_an_empty_campaign_summarises_to_zero_lengths(tmp_path):
+    path = tmp_path / "c.h5"
+    _one_recording_writer(path).close()
+    with load_campaign(path) as c:
+        s = c.summary()
+    assert s["recordings"] == 0 and s["length_min"] == 0 and s["length_median"] == 0.0
+
+
+def test_recovery_never_replaces_an_existing_output_unless_told(tmp_path):
+    from eskin.data.campaign import recover_campaign
+
+    path = tmp_path / "c.h5"
+    w = _one_recording_writer(path)
+    w.append(np.full((1, 2, 5), 4, np.int16), modality=0, participant=0, direction=0, run=1)
+    w._journal.release()
+    out = tmp_path / "out.h5"
+    out.write_bytes(b"keep me")
+    with pytest.raises(FileExistsError):
+        recover_campaign(path, out)
+    assert out.read_bytes() == b"keep me"
+    assert recover_campaign(path, out, overwrite=True).recordings == 1
+    with load_campaign(out) as c:
+        assert (c.recording(0) == 4).all()
+
+
+def test_practice_runs_are_run_1_and_second_runs_run_2():
+    """docs/dataset-format.md's numbering of /recordings/run."""
+    from eskin.data.campaign import RUN_PRACTICE, RUN_SECOND
+
+    assert (RUN_PRACTICE, RUN_SECOND) == (1, 2)
