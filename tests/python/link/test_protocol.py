@@ -381,3 +381,25 @@ def test_the_default_frame_length_is_the_simulators():
     assert m, usage
     assert int(m.group(1)) == SAMPLES_PER_FRAME
     assert InfoFrame(rows=1, cols=1, sample_rate_hz=1.0).samples_per_frame == SAMPLES_PER_FRAME
+
+
+def test_what_a_frame_does_not_say_is_zero_false_or_empty():
+    """Documented defaults: a counter, time or flag byte left out is 0, a scale 0.0 (unknown),
+    a speed 1.0 (real time); Flags.NONE has no bit, so it combines with nothing."""
+    import dataclasses
+
+    from eskin.link.protocol import PROTOCOL_VERSION
+
+    d = DecisionFrame(onset_sample=1, offset_sample=2, label=0, values=(0.5,))
+    assert (d.dont_know, d.decided_sample, d.timestamp_us, d.latency_us, d.seq, d.flags) == (
+        False, 0, 0, 0, 0, 0)
+    s = StatusFrame()
+    for f in dataclasses.fields(s):
+        if f.name != "state":
+            assert getattr(s, f.name) in (0, False), f.name
+    i = InfoFrame(rows=4, cols=4, sample_rate_hz=3000.0)
+    assert (i.volts_per_count, i.speed, i.has_model, i.class_names, i.seq, i.flags) == (
+        0.0, 1.0, False, (), 0, 0)
+    assert i.protocol_version == PROTOCOL_VERSION
+    assert int(Flags.NONE) == 0 and Flags.SYNC | Flags.NONE == Flags.SYNC
+    assert Flags(0) is Flags.NONE and not Flags.NONE
