@@ -195,3 +195,121 @@ def test_eskin_classify_raw_record_allocates_only_what_arrives():
         "eskin-classify: <stdin>: record 0: truncated samples (1000 of 8589934592 bytes)\n"
     )
     assert int(peak) < 200_000  # kB: the declared 8 GiB were never allocated
+
+
+# ---------------------------------------------------------------- the exporter's own checks
+
+
+def _binary_spec(names=("a", "b"), rule="binary", seed=0, grid=(2, 3), D=4):
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec
+
+    rng = np.random.default_rng(seed)
+    pool = rng.normal(size=(3, *grid, D))
+    machine = MachineSpec(1, 0, 0.1, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=3))
+    return ModelSpec(list(names), rule, [machine], D, grid, window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+
+
+def test_class_names_with_control_characters_are_refused_by_the_exporter():
+    from eskin.deploy.export import model_to_bytes
+
+    for bad in ("a\x1f", "a\x7f", "\x01b"):
+        with pytest.raises(ModelFormatError, match="contains control characters") as exc:
+            model_to_bytes(_binary_spec(names=(bad, "b")), "float64")
+        assert "would not load" not in str(exc.value)  # the exporter's check, not the loader's
+    for ok in ("a b", "a~", "é", " "):
+        cm = CompiledModel(model_to_bytes(_binary_spec(names=(ok, "b")), "float64"))
+        assert cm.class_names[0] == ok
+
+
+def test_a_rule_read_from_text_is_compared_by_its_value():
+    """A rule that is not the interned literal (read from a file, joined) is the same rule."""
+    from eskin.deploy.export import model_to_bytes
+
+    rule = "".join(["bin", "ary"])
+    cm = CompiledModel(model_to_bytes(_binary_spec(rule=rule), "float64"))
+    assert cm.rule == "binary"
+
+
+def test_the_format_version_is_the_newest_and_the_loaders():
+    from eskin import _core
+    from eskin.deploy.export import FORMAT_VERSION, FORMAT_VERSIONS
+
+    assert FORMAT_VERSION == max(FORMAT_VERSIONS) == _core.MODEL_FORMAT_VERSION
+
+
+def test_the_c_header_names_the_rows_and_columns_of_a_grid(tmp_path):
+    from eskin.deploy.export import write_c_header
+
+    text = write_c_header(_binary_spec(grid=(2, 3)), tmp_path / "m.h", name="m").read_text()
+    assert "#define M_ROWS 2\n" in text and "#define M_COLS 3\n" in text
+    assert "#define M_N_CLASSES 2\n" in text
+
+
+def test_one_pattern_classifies_as_the_first_of_a_batch_and_machines_keep_their_shape():
+    from eskin.deploy.export import _CompiledMachines, model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    X = np.random.default_rng(3).normal(size=(4, 2, 3, 4))
+    batch = cm.classify_tensors(X)
+    one = cm.classify_tensors(X[0])
+    assert one.decision_values.tolist() == batch.decision_values[:1].tolist()
+    assert one.labels.tolist() == batch.labels[:1].tolist()
+    machines = _CompiledMachines(cm)
+    assert machines.decision_function(X).tolist() == batch.decision_values[:, 0].tolist()
+    assert machines.predict(X).tolist() == batch.label_indices.tolist()
+
+
+def test_a_recording_that_cannot_be_classified_is_named():
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    x = np.random.default_rng(1).normal(size=(3, 2, 3, 40))
+    assert len(cm.classify(x).labels) == 3
+    x[1, 0, 0, 5] = np.nan
+    with pytest.raises(ValueError, match=r"^recording 1 cannot be classified: .*\(1 recording\(s\) failed\)"):
+        cm.classify(x)
+
+
+def test_per_recording_decisions_cover_every_recording_and_name_the_true_class(tmp_path):
+    from eskin.data.campaign import load_campaign, write_campaign
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(names=("tap", "press")), "float64"))
+    rng = np.random.default_rng(2)
+    sig = (rng.normal(size=(5, 2, 3, 60)) * 100).astype(np.int16)
+    path = write_campaign(tmp_path / "c.h5", sig, modality=[0, 1, 1, 0, 1],
+                          participant=[0] * 5, direction=[0] * 5, run=[1] * 5,
+                          modalities=["tap", "press"], sample_rate_hz=1000.0,
+                          volts_per_count=1e-3, source="recorded")
+    with load_campaign(path) as camp:
+        items = cm.predict_recordings(camp, chunk=2)
+        assert [it["index"] for it in items] == [0, 1, 2, 3, 4]
+        assert [it["true_label"] for it in items] == ["tap", "press", "press", "tap", "press"]
+        assert [it["index"] for it in cm.predict_recordings(camp, [3, 1])] == [3, 1]
+    raw = cm.predict_recordings(sig.astype(np.float64))
+    assert [it["index"] for it in raw] == [0, 1, 2, 3, 4]
+    assert all("true_label" not in it for it in raw)
+    assert [it["label"] for it in raw] == [it["label"] for it in items]
+
+
+def test_a_shared_support_vector_needs_one_log_energy_to_rounding():
+    """Two machines sharing a support vector must give it the same log energy, to a relative
+    1e-9: 1e-9 apart at e = 3 is rounding, 1e-6 apart is two different energies."""
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(5)
+    pool = rng.normal(size=(2, 2, 3, 4))
+
+    def spec(e1):
+        machines = [MachineSpec(k, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=2),
+                                amplitude_width=0.5, sv_log_energy=np.array([3.0, e]))
+                    for k, e in enumerate((3.0, e1))]
+        return ModelSpec(["a", "b"], "one_vs_all", machines, 4, (2, 3), window="none",
+                         sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+
+    CompiledModel(model_to_bytes(spec(3.0 + 1e-9), "float64"))
+    with pytest.raises(ModelFormatError, match=r"sv_log_energy\[1\]=3.000001, but the same support vector has 3.0 in machine 0"):
+        model_to_bytes(spec(3.0 + 1e-6), "float64")
