@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -465,11 +466,13 @@ def test_a_small_evaluation_pools_its_folds_and_scores_each_baseline_on_its_own_
     path = user_campaign(tmp_path)
     classes = ["tap", "stroke", "press"]
     seen: list[int] = []
+    t0 = time.perf_counter()
     res = evaluate_recipe(
         str(path), recipe={"quick": True, "D": 5, "window": "none", "seed": 99},
         n_folds=2, classes=classes, baselines=("vector",), seed=4,
         on_fold=lambda record, n: seen.append(n),
     )
+    elapsed = time.perf_counter() - t0
     assert seen == [2, 2]
     with load_campaign(path) as camp:
         part = np.asarray(camp.participant)
@@ -511,4 +514,24 @@ def test_a_small_evaluation_pools_its_folds_and_scores_each_baseline_on_its_own_
     assert np.array(base["confusion"]).sum(axis=1).tolist() == cm.sum(axis=1).tolist()
     assert res["trained_with"]["D"] == 5 and res["trained_with"]["window"] == "none"
     assert res["recipe"] == {"quick": True, "D": 5, "window": "none"}  # seed is the evaluation's
-    assert res["seconds"] > 0
+    assert 0 < res["seconds"] <= elapsed  # the evaluation's own duration, within the call's
+
+
+def test_the_interval_ends_are_the_bootstrap_percentiles_of_its_level():
+    """Ten one-recording groups, every other one right: a resample's accuracy is k/10 with k
+    binomial(10, 1/2), whose 2.5th and 97.5th percentiles are 0.2 and 0.8 (P(k <= 1) = 1.1 %,
+    P(k <= 2) = 5.5 %); level 0 gives the median, 0.5, at both ends."""
+    y_true = np.zeros(10, np.int64)
+    y_pred = np.tile([0, 1], 5)
+    groups = np.arange(10)
+    ci = group_bootstrap_ci(y_true, y_pred, groups, 2, seed=0)
+    assert ci["accuracy"] == [0.2, 0.8]
+    assert group_bootstrap_ci(y_true, y_pred, groups, 2, level=0.0, seed=0)["accuracy"] == [0.5, 0.5]
+
+
+def test_folds_default_to_seed_0():
+    groups = np.repeat(np.arange(6), 3)
+    y = np.tile([0, 1, 2], 6)
+    for k in (None, 3):
+        a, b = make_folds(groups, y, k), make_folds(groups, y, k, 0)
+        assert [te.tolist() for _, te in a] == [te.tolist() for _, te in b]
