@@ -173,6 +173,9 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
         kept = [w for w in items
                 if all(PYTHON_OPERATORS.match(m.operator_name)
                        and not in_annotation(m.start_pos, spans) for m in w.mutations)]
+        # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
+        # so that the seeded sample is the same mutants on every run
+        kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
         chosen = kept
         if sample is not None and len(kept) > sample:
             chosen = random.Random(seed).sample(kept, sample)
