@@ -598,3 +598,59 @@ def test_practice_runs_are_run_1_and_second_runs_run_2():
     from eskin.data.campaign import RUN_PRACTICE, RUN_SECOND
 
     assert (RUN_PRACTICE, RUN_SECOND) == (1, 2)
+
+
+def test_participants_span_the_whole_int32_range_in_the_writer(tmp_path):
+    path = tmp_path / "c.h5"
+    lo, hi = -(2**31), 2**31 - 1
+    with _one_recording_writer(path) as w:
+        for p in (lo, hi):
+            w.append(np.zeros((1, 2, 5), np.int16), modality=0, participant=p, direction=0, run=1)
+        for p in (lo - 1, hi + 1):
+            with pytest.raises(ValueError, match=f"participant {p} outside the int32 range"):
+                w.append(np.zeros((1, 2, 5), np.int16), modality=0, participant=p, direction=0,
+                         run=1)
+    with load_campaign(path) as c:
+        assert list(c.participant) == [lo, hi]
+
+
+def test_a_writer_needs_at_least_one_sample_per_recording(tmp_path):
+    for n in (0, -5):
+        with pytest.raises(ValueError, match=f"n_samples must be >= 1, got {n}"):
+            CampaignWriter(tmp_path / "c.h5", grid_shape=(1, 1), n_samples=n, sample_rate_hz=1.0,
+                           volts_per_count=1.0, modalities=["a"], source="recorded")
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_directions_are_numbered_as_the_format_says():
+    """docs/dataset-format.md: 0 horizontal, 1 vertical, 255 unknown."""
+    from eskin.data.campaign import (
+        DIRECTION_HORIZONTAL,
+        DIRECTION_NAMES,
+        DIRECTION_UNKNOWN,
+        DIRECTION_VERTICAL,
+    )
+
+    assert (DIRECTION_HORIZONTAL, DIRECTION_VERTICAL, DIRECTION_UNKNOWN) == (0, 1, 255)
+    assert DIRECTION_NAMES[1] == "vertical" and DIRECTION_NAMES[0] == "horizontal"
+
+
+def test_a_writer_that_fails_after_appends_keeps_them_and_one_that_failed_at_once_keeps_nothing(
+    tmp_path,
+):
+    kept, empty = tmp_path / "kept.h5", tmp_path / "empty.h5"
+    with pytest.raises(RuntimeError):
+        with _one_recording_writer(kept) as w:
+            w.append(np.full((1, 2, 5), 9, np.int16), modality=0, participant=0, direction=0, run=1)
+            raise RuntimeError("the rig fell over")
+    from eskin.data.campaign import recover_campaign
+    from eskin.data.journal import journal_path
+
+    assert journal_path(kept).exists() and not kept.exists()  # kept for `eskin recover`
+    assert recover_campaign(kept).recordings == 1
+    with load_campaign(kept) as c:
+        assert len(c) == 1 and (c.recording(0) == 9).all()
+    with pytest.raises(RuntimeError):
+        with _one_recording_writer(empty):
+            raise RuntimeError("before any recording")
+    assert not empty.exists() and not journal_path(empty).exists()

@@ -401,5 +401,7 @@ def test_what_a_frame_does_not_say_is_zero_false_or_empty():
     assert (i.volts_per_count, i.speed, i.has_model, i.class_names, i.seq, i.flags) == (
         0.0, 1.0, False, (), 0, 0)
     assert i.protocol_version == PROTOCOL_VERSION
+    for f in (PingFrame(token=1), PongFrame(token=1)):
+        assert (f.timestamp_us, f.seq, f.flags) == (0, 0, 0)
     assert int(Flags.NONE) == 0 and Flags.SYNC | Flags.NONE == Flags.SYNC
     assert Flags(0) is Flags.NONE and not Flags.NONE
