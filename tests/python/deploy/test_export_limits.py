@@ -313,3 +313,29 @@ def test_a_shared_support_vector_needs_one_log_energy_to_rounding():
     CompiledModel(model_to_bytes(spec(3.0 + 1e-9), "float64"))
     with pytest.raises(ModelFormatError, match=r"sv_log_energy\[1\]=3.000001, but the same support vector has 3.0 in machine 0"):
         model_to_bytes(spec(3.0 + 1e-6), "float64")
+
+
+def test_a_binary_machine_of_other_classes_is_refused_by_the_exporter():
+    from eskin.deploy.export import model_to_bytes
+
+    for pos, neg in ((1, 1), (0, 2), (2, 1)):
+        spec = _binary_spec()
+        spec.machines[0].positive, spec.machines[0].negative = pos, neg
+        with pytest.raises(ModelFormatError, match=rf"^binary machine classes \({pos}, {neg}\)"):
+            model_to_bytes(spec, "float64")
+
+
+def test_the_even_subsampling_is_written_as_such_and_a_recording_streams_as_its_samples():
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    spec.subsample = "even"
+    data = model_to_bytes(spec, "float64")
+    prep = _section(data, b"PREP")
+    assert struct.unpack_from("<I", data, prep + 16)[0] == 1  # subsample: 0 algorithm2, 1 even
+    cm = CompiledModel(data)
+    rec = (np.random.default_rng(4).normal(size=(2, 3, 300)) * 50).astype(np.float64)
+    rec[:, :, 100:180] += 400 * np.sin(np.linspace(0, 20, 80))
+    as_recording = cm.stream(rec)
+    as_samples = cm.stream(rec.reshape(6, 300).T)
+    assert as_recording == as_samples

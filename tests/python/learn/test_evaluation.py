@@ -535,3 +535,34 @@ def test_folds_default_to_seed_0():
     for k in (None, 3):
         a, b = make_folds(groups, y, k), make_folds(groups, y, k, 0)
         assert [te.tolist() for _, te in a] == [te.tolist() for _, te in b]
+
+
+def test_a_class_with_one_test_recording_has_a_recall_in_the_scores_and_the_interval():
+    y_true = np.array([0, 0, 0, 1, 2, 2])
+    y_pred = np.array([0, 0, 1, 1, 2, 0])
+    acc, bal, recall = scores_from_confusion(confusion_matrix(y_true, y_pred, 3))
+    assert recall.tolist() == pytest.approx([2 / 3, 1.0, 0.5])
+    assert bal == pytest.approx((2 / 3 + 1.0 + 0.5) / 3)
+    ci = group_bootstrap_ci(y_true, y_pred, np.zeros(6), 3, n_boot=20, seed=1)
+    assert ci["balanced_accuracy"] == pytest.approx([bal, bal])
+
+
+def test_grouped_folds_depend_on_the_seed():
+    groups = np.repeat(np.arange(12), 2)
+    y = np.tile([0, 1], 12)
+    plans = {tuple(tuple(te.tolist()) for _, te in make_folds(groups, y, 3, seed))
+             for seed in range(6)}
+    assert len(plans) > 1
+
+
+def test_the_recorded_recipe_and_the_inner_estimate():
+    import eskin
+    from eskin.learn.evaluation import _inner_estimate, _recorded
+
+    cfg = eskin.WindowConfig(window_samples=0)
+    rec = _recorded({"window_config": cfg, "D": 5, "budget": None})
+    assert rec["window_config"] == cfg.to_dict() and rec["D"] == 5
+    terms = [{"selection_terms": {"mean_test_error": 0.2}}, {"selection_terms": {}},
+             {"selection_terms": {"mean_test_error": 0.4}}]
+    assert _inner_estimate(terms) == pytest.approx(0.3)
+    assert _inner_estimate([{}]) is None and _inner_estimate([]) is None
