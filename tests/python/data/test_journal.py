@@ -283,3 +283,27 @@ def test_the_journal_file_mode_and_scalar_attributes(tmp_path):
     for value in (np.float32(1.5), np.array(7, np.int16)):
         back = jr.decode_attr(json.loads(json.dumps(jr.encode_attr(value))))
         assert not isinstance(back, np.ndarray) and back.dtype == value.dtype and back == value
+
+
+@pytest.mark.parametrize("attrs", [[["a"]], [["a", "x", "y"]]])
+def test_a_header_attribute_is_exactly_a_name_and_a_value(tmp_path, attrs):
+    path = write(tmp_path, 0, settings={**SETTINGS, "attrs": attrs})
+    with pytest.raises(JournalError, match="header: 'attrs' missing or malformed"):
+        read(path)
+
+
+def test_an_attribute_holding_a_pickle_is_never_unpickled():
+    """A journal is data: an object array (a pickle inside .npy) in it is refused, not run."""
+    import base64
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ValueError, match="allow_pickle"):
+        jr.decode_attr({"npy": base64.b64encode(buf.getvalue()).decode()})
+
+
+def test_the_contents_repr_leaves_out_the_record_offsets(tmp_path):
+    contents, records = read(write(tmp_path, 3))
+    assert len(contents.offsets) == 3 and len(records) == 3
+    assert "offsets" not in repr(contents)
