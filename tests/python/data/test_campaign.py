@@ -654,3 +654,12 @@ def test_a_writer_that_fails_after_appends_keeps_them_and_one_that_failed_at_onc
         with _one_recording_writer(empty):
             raise RuntimeError("before any recording")
     assert not empty.exists() and not journal_path(empty).exists()
+
+
+def test_a_modality_id_past_the_named_modalities_is_refused(tmp_path):
+    with _one_recording_writer(tmp_path / "c.h5") as w:  # modalities a, b
+        w.append(np.zeros((1, 2, 5), np.int16), modality=1, participant=0, direction=0, run=1)
+        for m in (2, 3, 200, -1):
+            with pytest.raises(ValueError, match=f"modality id {m} out of range"):
+                w.append(np.zeros((1, 2, 5), np.int16), modality=m, participant=0, direction=0,
+                         run=1)
