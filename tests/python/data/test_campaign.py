@@ -663,3 +663,13 @@ def test_a_modality_id_past_the_named_modalities_is_refused(tmp_path):
             with pytest.raises(ValueError, match=f"modality id {m} out of range"):
                 w.append(np.zeros((1, 2, 5), np.int16), modality=m, participant=0, direction=0,
                          run=1)
+
+
+def test_select_takes_its_labels_by_name_only(tmp_path):
+    path = tmp_path / "c.h5"
+    with _one_recording_writer(path) as w:
+        w.append(np.zeros((1, 2, 5), np.int16), modality=1, participant=3, direction=0, run=1)
+    with load_campaign(path) as c:
+        assert len(c.select(modality="b")) == 1 and len(c.select(participant=2)) == 0
+        with pytest.raises(TypeError):
+            c.select("b")  # a positional label would be ambiguous: refused
