@@ -144,8 +144,12 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     from cosmic_ray.work_db import WorkDB, use_db
     from cosmic_ray.work_item import TestOutcome, WorkerOutcome, WorkResult
 
-    work = OUT / "py"
-    session = OUT / (module.replace("/", "_") + ".sqlite")
+    # each module its own copy of the tree, session and configuration: runs of two modules
+    # (two invocations) never touch each other's files
+    name = module.replace("/", "_")
+    work = OUT / "py" / name
+    copy_tree(work)
+    session = OUT / (name + ".sqlite")
     session.unlink(missing_ok=True)
     env = dict(os.environ, PYTHONPATH="python", PYTHONDONTWRITEBYTECODE="1")
     env.setdefault("ESKIN_BIN_DIR", str(REPO / "build" / "dev"))
@@ -156,7 +160,7 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     if base.returncode != 0:
         sys.exit(f"mutation: the tests of {module} fail unmutated:\n{base.stdout[-3000:]}")
     timeout = 3 * (time.monotonic() - t0) + 30
-    cfg = OUT / "cosmic-ray.toml"
+    cfg = OUT / (name + ".cosmic-ray.toml")
     cfg.write_text(
         "[cosmic-ray]\n"
         f"module-path = {json.dumps(module)}\n"
@@ -190,6 +194,10 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     with use_db(str(session), WorkDB.Mode.open) as db:
         for item, result in db.completed_work_items:
             if result.worker_outcome == WorkerOutcome.SKIPPED:
+                continue
+            if result.test_outcome == TestOutcome.INCOMPETENT:  # could not be run: not counted
+                print(f"  {module}: a mutant could not be run ({result.worker_outcome.name})",
+                      file=sys.stderr, flush=True)
                 continue
             n += 1
             if result.test_outcome == TestOutcome.SURVIVED:
@@ -316,8 +324,6 @@ def main(argv: list[str] | None = None) -> int:
     survivors: list[str] = []
     scores: dict[str, float] = {}
     py = {m: t for m, t in PYTHON_MODULES.items() if not wanted or m in wanted}
-    if py:
-        copy_tree(OUT / "py")
     for module, tests in py.items():
         scores[module] = run_python(module, tests, args.sample, args.seed, survivors)
     for mod in CPP_MODULES:
