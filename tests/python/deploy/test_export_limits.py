@@ -339,3 +339,20 @@ def test_the_even_subsampling_is_written_as_such_and_a_recording_streams_as_its_
     as_recording = cm.stream(rec)
     as_samples = cm.stream(rec.reshape(6, 300).T)
     assert as_recording == as_samples
+
+
+def test_a_conflicting_log_energy_names_the_first_machine_that_gave_it():
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(6)
+    pool = rng.normal(size=(2, 2, 3, 4))
+    machines = [MachineSpec(k, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=2),
+                            amplitude_width=0.5, sv_log_energy=np.array([1.0, e]))
+                for k, e in enumerate((3.0, 3.0, 4.0))]
+    spec = ModelSpec(["a", "b", "c"], "one_vs_all", machines, 4, (2, 3), window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    with pytest.raises(ModelFormatError,
+                       match=r"^machine 2: sv_log_energy\[1\]=4.0, but the same support vector has "
+                             r"3.0 in machine 0 "):
+        model_to_bytes(spec, "float64")
