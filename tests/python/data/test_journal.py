@@ -307,3 +307,33 @@ def test_the_contents_repr_leaves_out_the_record_offsets(tmp_path):
     contents, records = read(write(tmp_path, 3))
     assert len(contents.offsets) == 3 and len(records) == 3
     assert "offsets" not in repr(contents)
+
+
+def test_a_grid_shape_is_exactly_two_integers(tmp_path):
+    for shape in ([2, 2, 2], [2, 2, 1, 1]):
+        path = write(tmp_path, 0, settings={**SETTINGS, "grid_shape": shape})
+        with pytest.raises(JournalError, match="header: 'grid_shape' missing or malformed"):
+            read(path)
+        path.unlink()
+
+
+def test_any_damaged_byte_of_a_record_body_drops_it(tmp_path):
+    """Whichever way the CRC-32 of the damaged record compares with the stored one."""
+    path = write(tmp_path, 1)
+    good = path.read_bytes()
+    body_end = len(good) - 4  # the record's CRC follows its 24-byte body
+    for k in range(body_end - 24, body_end):
+        path.write_bytes(good[:k] + bytes([good[k] ^ 0x5A]) + good[k + 1:])
+        contents, records = read(path)
+        assert records == [] and "fails its CRC-32" in contents.dropped_reason, k
+
+
+def test_a_clean_journal_drops_nothing_and_writes_durably_by_default(tmp_path):
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    assert w.durable
+    for k in range(3):
+        w.append(META, {"force": (np.float32(k), np.dtype("<f4"))}, bytes([k]) * 24)
+    w.release()
+    contents, records = read(w.path)
+    assert len(records) == 3
+    assert (contents.dropped_bytes, contents.dropped_reason, contents.skipped) == (0, "", [])
