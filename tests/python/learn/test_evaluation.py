@@ -566,3 +566,18 @@ def test_the_recorded_recipe_and_the_inner_estimate():
              {"selection_terms": {"mean_test_error": 0.4}}]
     assert _inner_estimate(terms) == pytest.approx(0.3)
     assert _inner_estimate([{}]) is None and _inner_estimate([]) is None
+
+
+def test_the_documented_number_of_resamples_is_the_one_drawn():
+    """docs/evaluation.md names the bootstrap's resample count; the code draws that many by
+    default and records it in every result."""
+    import inspect
+    import re
+
+    from eskin.learn.evaluation import CI_METHOD, N_BOOTSTRAP
+
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "evaluation.md").read_text()
+    (stated,) = {int(n) for n in re.findall(r"bootstrap over groups\*\*: (\d+) resamples", doc)}
+    assert stated == N_BOOTSTRAP
+    assert inspect.signature(group_bootstrap_ci).parameters["n_boot"].default == N_BOOTSTRAP
+    assert f"({stated} resamples" in CI_METHOD.format(n=N_BOOTSTRAP)
