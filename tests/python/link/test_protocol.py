@@ -405,3 +405,9 @@ def test_what_a_frame_does_not_say_is_zero_false_or_empty():
         assert (f.timestamp_us, f.seq, f.flags) == (0, 0, 0)
     assert int(Flags.NONE) == 0 and Flags.SYNC | Flags.NONE == Flags.SYNC
     assert Flags(0) is Flags.NONE and not Flags.NONE
+
+
+def test_reset_takes_reset_stats_by_name_only():
+    dec = FrameDecoder(wait_for_delimiter=False)
+    with pytest.raises(TypeError):
+        dec.reset(True)  # which reset? refused: only reset(reset_stats=True) clears statistics
