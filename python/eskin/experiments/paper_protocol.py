@@ -45,7 +45,7 @@ import platform
 import sys
 import time
 import zlib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -670,19 +670,21 @@ def _small_attr(v: Any) -> bool:
     return np.size(v) <= 64
 
 
+def _call(fn: Callable[..., Any], *args: Any) -> Any:
+    return fn(*args)
+
+
 def _run_tasks(
     tasks: list[tuple[Any, tuple[Any, ...]]],
     n_jobs: int,
     progress: Any,
     label: str,
 ) -> list[dict[str, Any]]:
-    from joblib import Parallel, delayed
+    from eskin.learn.parallel import run_calls
 
     results: list[dict[str, Any]] = []
     task_id = progress.add_task(label, total=len(tasks))
-    gen = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
-        delayed(fn)(*args) for fn, args in tasks
-    )
+    gen = run_calls(_call, [((fn, *args), {}) for fn, args in tasks], n_jobs=n_jobs, unordered=True)
     for res in gen:
         results.append(res)
         progress.update(task_id, advance=1)

@@ -34,13 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, ClassifierMixin, ClusterMixin, clone
 from sklearn.svm import SVC
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_is_fitted, check_random_state, validate_data
 
 from .kernel import mode_distances, pattern_log_energy, resolve_alphas
+from .parallel import run_calls
 
 __all__ = [
     "TensorSVC",
@@ -780,14 +780,23 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
             subsets = [np.asarray(ix, dtype=np.intp) for ix in machine_indices]
         if groups is not None and len(groups) != len(y):
             raise ValueError(f"groups has {len(groups)} entries for {len(y)} patterns")
-        fitted = Parallel(n_jobs=self.n_jobs)(
-            delayed(_fit_machine)(
-                estimator,
-                X[ix],
-                np.where(y[ix] == c, 1, -1),
-                None if groups is None else np.asarray(groups)[ix],
+        fitted = list(
+            run_calls(
+                _fit_machine,
+                [
+                    (
+                        (
+                            estimator,
+                            X[ix],
+                            np.where(y[ix] == c, 1, -1),
+                            None if groups is None else np.asarray(groups)[ix],
+                        ),
+                        {},
+                    )
+                    for c, ix in zip(self.classes_, subsets)
+                ],
+                n_jobs=self.n_jobs,
             )
-            for c, ix in zip(self.classes_, subsets)
         )
         self.estimators_ = [getattr(m, "best_estimator_", m) for m in fitted]
         self.searches_ = [m if hasattr(m, "best_estimator_") else None for m in fitted]

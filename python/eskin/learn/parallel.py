@@ -1,8 +1,8 @@
 """Running searches and folds on a Dask cluster: ``--scheduler ADDRESS``.
 
-Model selection and evaluation already run their independent pieces (selection blocks,
-1-vs-all machines, outer folds, experiment tasks) through joblib. :func:`compute_backend`
-makes joblib send them to a ``dask.distributed`` cluster: the address of a running scheduler
+Model selection and evaluation run their independent pieces (selection blocks, 1-vs-all
+machines, outer folds, recipes, experiment tasks) through :func:`run_calls`.
+:func:`compute_backend` makes them go to a ``dask.distributed`` cluster: the address of a running scheduler
 (``tcp://host:8786``), or ``local:N`` to start a LocalCluster of N single-threaded worker
 processes for the duration of the work. Every random choice is seeded by the piece it belongs
 to, never by where or when it runs, so the results are those of a serial run.
@@ -110,6 +110,22 @@ def share(data: Mapping[str, Any]) -> dict[str, Any]:
     return dict(zip(names, futures))
 
 
+#: an argument larger than this goes to the cluster on its own (client.scatter), not inside
+#: the task graph (distributed warns about large graphs and sends them through the scheduler)
+_SCATTER_BYTES = 100_000
+
+
+def _by_reference(client: Any, value: Any) -> Any:
+    """``value``, or a future of a copy on the cluster when it is large (futures unchanged)."""
+    from dask.distributed import Future
+    from dask.sizeof import sizeof
+
+    if isinstance(value, Future) or sizeof(value) <= _SCATTER_BYTES:
+        return value
+    # in a list: scattering a list itself would give one future per item
+    return client.scatter([value], hash=False)[0]
+
+
 def run_calls(
     func: Callable[..., Any],
     calls: Iterable[tuple[tuple[Any, ...], Mapping[str, Any]]],
@@ -121,7 +137,10 @@ def run_calls(
     order of ``calls`` (``unordered``: as they finish).
 
     On a Dask cluster (:func:`dask_client`) every call is a task of its own; arguments made by
-    :func:`share` are futures that each worker resolves from its copy. Otherwise joblib runs
+    :func:`share` are futures that each worker resolves from its copy, and any other argument
+    larger than 100 kB is scattered to the cluster on its own. joblib's Dask backend is never
+    used for the calls themselves: its cache of scattered arguments is keyed by ``id()`` and
+    raised ``KeyError`` from a weakref callback when ids were reused (joblib 1.6). Otherwise joblib runs
     them with ``n_jobs`` (1: here, one after the other)."""
     calls = list(calls)
     client = dask_client()
@@ -136,7 +155,15 @@ def run_calls(
         return
     from dask.distributed import as_completed
 
-    futures = [client.submit(func, *a, pure=False, **k) for a, k in calls]
+    futures = [
+        client.submit(
+            func,
+            *(_by_reference(client, v) for v in a),
+            pure=False,
+            **{name: _by_reference(client, v) for name, v in k.items()},
+        )
+        for a, k in calls
+    ]
     try:
         for f in as_completed(futures) if unordered else futures:
             yield f.result()

@@ -33,7 +33,6 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
-from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.model_selection import GroupShuffleSplit, ParameterGrid, StratifiedShuffleSplit
 from sklearn.utils.validation import check_is_fitted, check_random_state, validate_data
@@ -54,6 +53,7 @@ from .estimators import (
     svm_train,
 )
 from .kernel import mode_distances, pattern_log_energy, resolve_alphas
+from .parallel import run_calls
 
 __all__ = [
     "MD_READINGS",
@@ -848,12 +848,19 @@ class MaximalDiscrepancySearch(_SearchBase):
         # BLAS on one thread here too: with a threading backend the blocks' limits are
         # process-wide, and every nested limit must restore 1, not the caller's setting
         with _single_threaded_blas():
-            results = Parallel(n_jobs=self.n_jobs)(
-                delayed(_md_block)(
-                    kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, settings,
-                    self.random_state_, b,
+            results = list(
+                run_calls(
+                    _md_block,
+                    [
+                        (
+                            (kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, settings,
+                             self.random_state_, b),
+                            {},
+                        )
+                        for b, ((alphas, sigmas, amp), cfgs) in enumerate(blocks)
+                    ],
+                    n_jobs=self.n_jobs,
                 )
-                for b, ((alphas, sigmas, amp), cfgs) in enumerate(blocks)
             )
         by_index = {}
         for (_, cfgs), res in zip(blocks, results):
@@ -984,9 +991,15 @@ class CrossValidationSearch(_SearchBase):
         self.splits_ = splits
         blocks = _blocks(configs)
         with _single_threaded_blas():  # see MaximalDiscrepancySearch.fit
-            results = Parallel(n_jobs=self.n_jobs)(
-                delayed(_cv_block)(kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, splits)
-                for (alphas, sigmas, amp), cfgs in blocks
+            results = list(
+                run_calls(
+                    _cv_block,
+                    [
+                        ((kind, dists[alphas], sigmas, factors[amp], y_pm, cfgs, splits), {})
+                        for (alphas, sigmas, amp), cfgs in blocks
+                    ],
+                    n_jobs=self.n_jobs,
+                )
             )
         test_err = np.empty((len(configs), len(splits)))
         train_err = np.empty((len(configs), len(splits)))

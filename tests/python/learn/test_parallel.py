@@ -133,3 +133,23 @@ def test_without_a_cluster_the_data_stay_here_and_calls_keep_their_order():
     calls = [(("11",), {"base": b}) for b in (2, 3, 10, 16)]
     for n_jobs in (1, 2):
         assert list(run_calls(int, calls, n_jobs=n_jobs)) == [3, 4, 11, 17]
+
+
+def _sum_of(a, *, scale=1.0):
+    return float(a.sum()) * scale
+
+
+def test_large_arguments_reach_the_workers_outside_the_task_graph(client):
+    """An argument of 16 MB is scattered on its own: distributed warns about any graph over
+    10 MB (an error in this suite), and the joblib backend's id()-keyed cache is not used."""
+    import joblib
+
+    from eskin.learn.parallel import run_calls
+
+    big = np.arange(2_000_000, dtype=np.float64)  # 16 MB
+    calls = [((big,), {"scale": s}) for s in (1.0, 2.0, 3.0)]
+    serial = list(run_calls(_sum_of, calls, n_jobs=1))
+    with _deadline(), joblib.parallel_backend("dask"):
+        on_cluster = list(run_calls(_sum_of, calls, n_jobs=-1))
+        unordered = sorted(run_calls(_sum_of, calls, n_jobs=-1, unordered=True))
+    assert serial == on_cluster == unordered == [float(big.sum()) * s for s in (1, 2, 3)]
