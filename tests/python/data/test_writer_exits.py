@@ -13,6 +13,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from child_process import interruptible
 
 from eskin.data.campaign import load_campaign
 from eskin.data.journal import journal_path
@@ -54,7 +55,7 @@ def _run_child(tmp_path: Path, mode: str, n: int = 6) -> tuple[subprocess.Comple
         res = subprocess.run(args, capture_output=True, text=True, env=_env(), timeout=120)
         return res, len(res.stdout.split())
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env())
+                            env=_env(), preexec_fn=interruptible)
     seen = 0
     while seen < n:
         assert proc.stdout.readline(), proc.stderr.read()

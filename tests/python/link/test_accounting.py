@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from child_process import interruptible
 
 from eskin.data.replay import write_replay_arrays
 from eskin.link.listener import LinkListener
@@ -36,13 +37,6 @@ def replay(tmp_path_factory):
     recs = [rng.integers(-300, 300, size=(4, 4, 2000)).astype(np.int16) for _ in range(3)]
     path = tmp_path_factory.mktemp("replay") / "noise.eskr"
     return write_replay_arrays(path, recs, gap_s=0.0, seed=2)
-
-
-def interruptible() -> None:
-    """In a child before exec: Ctrl-C's default action, as in a terminal. A test run started
-    in the background by a non-interactive shell inherits SIGINT ignored, and Python keeps an
-    inherited SIG_IGN (it then raises no KeyboardInterrupt)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def start_fw_sim(exe, *args) -> tuple[subprocess.Popen, str]:
