@@ -351,3 +351,28 @@ def test_train_refuses_bad_window_settings(one_person, tmp_path, option, value, 
     assert r.exit_code == 2
     assert f"error: {option}: {message}" in r.output
     assert not out.exists()
+
+
+def test_train_bounds_the_support_vectors_and_the_compiled_model_agrees(one_person, tmp_path):
+    import numpy as np
+
+    from eskin.data.campaign import load_campaign
+    from eskin.deploy.export import CompiledModel, model_to_bytes, spec_from_model
+
+    out = tmp_path / "m.joblib"
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "--machine",
+                                 "svm", "-o", str(out), "--no-progress", "--max-support", "4"])
+    assert r.exit_code == 0, r.output
+    model = eskin.load_model(out)
+    b = model.training["support_budget"]
+    assert b == {"max_support": 4, "support_vectors_before": 6, "support_vectors": 4}
+    assert "support vectors bounded by --max-support 4: 6 -> 4" in r.output
+    cm = CompiledModel(model_to_bytes(spec_from_model(model), "float64"))
+    assert cm.n_support == 4
+    with load_campaign(one_person) as c:
+        X = model.preprocess(c)
+    np.testing.assert_allclose(cm.classify_tensors(X).decision_values,
+                               model.decision_function(X).reshape(len(X), -1), atol=1e-9)
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "-o",
+                                 str(tmp_path / "n.joblib"), "--max-support", "0"])
+    assert r.exit_code == 2 and "--max-support" in r.output

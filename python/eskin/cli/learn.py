@@ -357,6 +357,10 @@ def train(
     budget: Optional[str] = typer.Option(
         None, help="the model's budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides "
         "--target's figures)"),
+    max_support: Optional[int] = typer.Option(
+        None, "--max-support", min=1,
+        help="at most this many support vectors in the model (all machines together): each "
+        "machine is projected onto the patterns with the largest share of the coefficients"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -398,6 +402,7 @@ def train(
         "n_jobs": -1 if scheduler else n_jobs,
         "group_by": groups,
         **amplitudes,
+        **({} if max_support is None else {"max_support": max_support}),
     }
     the_budget = None
     if target is not None or budget is not None:
@@ -440,8 +445,18 @@ def trained_lines(model: Any) -> list[str]:
                              f"({r['splits']} splits, ~{r['support_vectors']} support vectors)")
         lines.append("  (optimistic: the best of many candidates on these very splits; eskin "
                      "evaluate gives a nested estimate on unseen groups)")
-        return lines
-    return lines + _selected_lines(model) + selection_estimate_lines(model)
+        return lines + _support_budget_lines(model)
+    return (lines + _selected_lines(model) + selection_estimate_lines(model)
+            + _support_budget_lines(model))
+
+
+def _support_budget_lines(model: Any) -> list[str]:
+    b = model.training.get("support_budget")
+    if not b:
+        return []
+    return [f"support vectors bounded by --max-support {b['max_support']}: "
+            f"{b['support_vectors_before']} -> {b['support_vectors']} (each machine projected "
+            f"onto the kept patterns)"]
 
 
 def _candidate_text(c: dict[str, Any]) -> str:
@@ -475,7 +490,8 @@ def _budget_recipe(
         _fail("--target/--budget choose among recipes: use --selection cv and leave at least "
               "one of --machine, --D, --subsample, --negatives to the search")
     recipe["window_config"] = window_config
-    recipe["budget"] = candidate_budget(b, grid, rate, window_config, n_classes)
+    recipe["budget"] = candidate_budget(b, grid, rate, window_config, n_classes,
+                                        recipe.get("max_support"))
     return b, [note] if note else []
 
 

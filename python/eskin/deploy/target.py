@@ -426,16 +426,20 @@ def window_for_budget(
 
 
 def candidate_budget(
-    budget: Budget, grid_shape, rate: float, window_config: Any, n_classes: int
+    budget: Budget, grid_shape, rate: float, window_config: Any, n_classes: int,
+    max_support: int | None = None,
 ) -> Any:
     """The :class:`~eskin.learn.recipes.CandidateBudget` of a budget: a candidate fits when
     its estimated flash, RAM and instructions (:func:`estimate_model`, with its expected
-    support vectors) are within the budget."""
+    support vectors, at most ``max_support`` when the model will be bounded to that many) are
+    within the budget."""
     from eskin.learn.recipes import CandidateBudget
 
     machines = 1 if n_classes == 2 else n_classes
 
     def fits(candidate, n_support: int) -> bool:
+        if max_support is not None:
+            n_support = min(int(n_support), int(max_support))
         D = candidate.recipe.D
         alphas = _stored_alphas(grid_shape, D, candidate.alpha)
         est = estimate_model(budget, grid_shape, D, alphas, n_support, machines,

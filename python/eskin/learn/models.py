@@ -1032,6 +1032,7 @@ def train_model(
     group_by: str = "participant",
     budget: Any = None,
     recipe_options: Mapping[str, Any] | None = None,
+    max_support: int | None = None,
 ) -> TouchModel:
     """Select the recipe and its hyperparameters, fit on all the given data and return a
     :class:`TouchModel`.
@@ -1070,6 +1071,10 @@ def train_model(
         model fits it are chosen (CV selection with the recipe searched).
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``,
         ``first_share``, ...).
+    max_support : at most this many distinct support vectors in the model (all machines
+        together): the fitted machines are projected onto the patterns with the largest share of
+        their coefficients (:func:`eskin.learn.support_budget.bound_support`); the selection
+        itself is unchanged. None (default): every support vector the machines keep.
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
     ``negatives`` left None is searched (machine svm/rls, D 20/50/100 capped by the longest
@@ -1086,14 +1091,35 @@ def train_model(
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
                   sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by)
+    if max_support is not None and (
+        isinstance(max_support, bool) or not isinstance(max_support, (int, np.integer))
+        or max_support < 1
+    ):
+        raise TrainingError(f"max_support must be a whole number >= 1, got {max_support!r}")
     if selection == "cv" and None in recipe_given.values():
-        return _train_searched(data, labels, **recipe_given, **common, budget=budget,
-                               recipe_options=recipe_options)
-    if budget is not None:
+        model = _train_searched(data, labels, **recipe_given, **common, budget=budget,
+                                recipe_options=recipe_options)
+    elif budget is not None:
         raise TrainingError("a budget needs the recipe searched (selection cv, and at least one "
                             "of machine, D, subsample, negatives left to the search)")
-    return _train_fixed(data, labels, selection=selection, md_options=md_options,
-                        **recipe_given, **common)
+    else:
+        model = _train_fixed(data, labels, selection=selection, md_options=md_options,
+                             **recipe_given, **common)
+    return model if max_support is None else _with_support_budget(model, int(max_support))
+
+
+def _with_support_budget(model: TouchModel, max_support: int) -> TouchModel:
+    """``model`` with at most ``max_support`` distinct support vectors, and a record of it."""
+    from eskin.learn.support_budget import bound_support, n_distinct_support
+
+    before = n_distinct_support(model.estimator)
+    model.estimator = bound_support(model.estimator, max_support)
+    model.training["support_budget"] = {
+        "max_support": max_support,
+        "support_vectors_before": before,
+        "support_vectors": n_distinct_support(model.estimator),
+    }
+    return model
 
 
 def _train_fixed(

@@ -167,3 +167,19 @@ def test_the_search_estimate_matches_the_compiled_model(campaign):
         parse_budget("speed=3")
     assert parse_budget("flash=512K,instr=2M").flash_bytes == 512 << 10
     assert parse_budget("flash=512K,instr=2M").instructions == 2e6
+
+
+def test_a_support_budget_lets_a_larger_candidate_fit(campaign):
+    """With --max-support, the search estimates a candidate's model at the bounded number of
+    support vectors: a candidate too large with 800 fits with 40, and no bound changes
+    nothing below it."""
+    from eskin.deploy.target import candidate_budget, parse_budget
+    from eskin.learn.recipes import Candidate, Recipe
+
+    budget = parse_budget(None, "cortex-m4")
+    wc = _model(campaign, 20, 0.5).window_config
+    big = Candidate(Recipe("svm", 50, "algorithm2", "all"), 0.1, 1.0, "1", None)
+    free = candidate_budget(budget, (4, 4), campaign.sample_rate_hz, wc, 3)
+    bound = candidate_budget(budget, (4, 4), campaign.sample_rate_hz, wc, 3, max_support=40)
+    assert not free.fits(big, 800) and bound.fits(big, 800)
+    assert free.fits(big, 40) == bound.fits(big, 40) == bound.fits(big, 30)

@@ -1,0 +1,164 @@
+"""Held-out error against the number of support vectors: what ``--max-support`` costs.
+
+For each campaign (the simulated campaigns of ``selection_study.py --part search``, unlike one
+another: eskin's default simulator, difficulty 2, pre-segmented short gestures at 200 Hz, a 1x4
+strip at 100 Hz, an 8x8 grid at 500 Hz, ...) and each participant split (70 % of the
+participants train, the others are unseen; the same seeded splits as the study), the searched
+default (``eskin.train_model`` with no recipe option) is trained once on the training
+participants. Its machines are then bounded to ``--budgets`` distinct support vectors in two
+ways, and each is scored on the unseen participants:
+
+- project: ``eskin.learn.support_budget.bound_support`` (what ``eskin train --max-support``
+  does): the patterns with the largest share of the coefficients are kept and every machine is
+  projected onto them;
+- drop: the same patterns kept with their own coefficients, the others removed (the naive
+  pruning the projection improves on).
+
+Printed and written (``--out``, JSON lines): campaign, split, budget, distinct support vectors
+of the model, held-out error of each way. The data are SIMULATED.
+
+    python benchmarks/support_budget.py [--campaigns s-d1,short-200Hz] [--splits 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import eskin  # noqa: E402
+from eskin.learn.models import train_model  # noqa: E402
+from eskin.learn.support_budget import (  # noqa: E402
+    _machines,
+    bound_support,
+    distinct_support,
+    kept_patterns,
+    n_distinct_support,
+)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from selection_study import (  # noqa: E402
+    SEARCH_CAMPAIGNS,
+    SEARCH_TRAIN_SHARE,
+    _heldout_error,
+    campaign_path,
+)
+
+DEFAULT_CAMPAIGNS = "s-d1,s-d2,short-200Hz,strip-1x4-100Hz,grid-8x8-500Hz"
+
+
+def dropped(estimator, max_support: int):
+    """The naive bound: keep the same patterns as bound_support, with their own coefficients."""
+    table, _, where = distinct_support(estimator)
+    keep = set(kept_patterns(estimator, max_support).tolist())
+    out = copy.deepcopy(estimator)
+    for m, idx in zip(_machines(out), where):
+        mask = np.array([i in keep for i in idx], dtype=bool)
+        m.support_vectors_ = np.ascontiguousarray(m.support_vectors_[mask])
+        m.sv_log_energy_ = np.ascontiguousarray(m.sv_log_energy_[mask])
+        m.dual_coef_ = np.ascontiguousarray(m.dual_coef_[mask])
+        m.support_ = m.support_[mask]
+    return out
+
+
+def with_estimator(model, estimator):
+    other = copy.copy(model)
+    other.estimator = estimator
+    return other
+
+
+def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> list[dict]:
+    spec = SEARCH_CAMPAIGNS[name]
+    camp = eskin.load_campaign(campaign_path(cache, name, spec), in_memory=True)
+    part = np.asarray(camp.participant)
+    ids = np.unique(part)
+    rng = np.random.default_rng([split, 22])  # the study's splits
+    train_ids = rng.permutation(ids)[: round(len(ids) * SEARCH_TRAIN_SHARE)]
+    train = camp.subset(np.flatnonzero(np.isin(part, train_ids)))
+    test = camp.subset(np.flatnonzero(~np.isin(part, train_ids)))
+    t0 = time.process_time()
+    model = train_model(train, window=spec[3], seed=seed)
+    cpu = time.process_time() - t0
+    full = n_distinct_support(model.estimator)
+    recipe = f"{model.machine} D={model.D} {model.subsample} {model.training.get('negatives')}"
+    rows = [{"campaign": name, "split": split, "budget": None, "support_vectors": full,
+             "project": _heldout_error(model, test), "drop": _heldout_error(model, test),
+             "recipe": recipe, "train_cpu_s": round(cpu, 1)}]
+    for k in budgets:
+        if k >= full:
+            continue
+        bounded = bound_support(model.estimator, k)
+        rows.append({"campaign": name, "split": split, "budget": k,
+                     "support_vectors": n_distinct_support(bounded),
+                     "project": _heldout_error(with_estimator(model, bounded), test),
+                     "drop": _heldout_error(with_estimator(model, dropped(model.estimator, k)),
+                                            test),
+                     "recipe": recipe})
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    budgets = sorted({r["budget"] for r in rows if r["budget"] is not None}, reverse=True)
+    head = ["campaign", "splits", "all: SVs", "all: error"] + [f"{k}: project / drop"
+                                                               for k in budgets]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name in dict.fromkeys(r["campaign"] for r in rows):
+        mine = [r for r in rows if r["campaign"] == name]
+        base = [r for r in mine if r["budget"] is None]
+        cells = [name, str(len(base)), f"{np.mean([r['support_vectors'] for r in base]):.0f}",
+                 f"{100 * np.mean([r['project'] for r in base]):.1f}"]
+        for k in budgets:
+            at = [r for r in mine if r["budget"] == k]
+            if len(at) != len(base):  # a split whose model had fewer support vectors
+                cells.append("-")
+                continue
+            p = 100 * np.array([r["project"] for r in at])
+            d = 100 * np.array([r["drop"] for r in at])
+            cells.append(f"{p.mean():.1f} +- {p.std():.1f} / {d.mean():.1f} +- {d.std():.1f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--campaigns", default=DEFAULT_CAMPAIGNS,
+                    help=f"comma-separated, of {', '.join(SEARCH_CAMPAIGNS)}")
+    ap.add_argument("--splits", type=int, default=2)
+    ap.add_argument("--budgets", default="64,32,16,8")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_selection_study"))
+    ap.add_argument("--out", type=Path, default=None, help="JSON lines (default: in --cache)")
+    args = ap.parse_args(argv)
+    names = [c.strip() for c in args.campaigns.split(",") if c.strip()]
+    unknown = [c for c in names if c not in SEARCH_CAMPAIGNS]
+    if unknown:
+        ap.error(f"--campaigns: unknown {unknown}; known: {', '.join(SEARCH_CAMPAIGNS)}")
+    budgets = [int(b) for b in args.budgets.split(",")]
+    out = args.out or args.cache / "results_support_budget.jsonl"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    for name in names:
+        for split in range(args.splits):
+            got = unit(args.cache, name, split, budgets, args.seed)
+            with out.open("a") as f:
+                for r in got:
+                    f.write(json.dumps(r) + "\n")
+            rows += got
+            print(f"{name} split {split}: " + ", ".join(
+                f"{r['support_vectors']} SVs {100 * r['project']:.1f}/{100 * r['drop']:.1f} %"
+                for r in got), flush=True)
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,119 @@
+"""At most N support vectors in a fitted model: a reduced set by projection.
+
+The memory and the time of a decision on the controller grow with the number of distinct
+support vectors the model stores (every machine of a 1-vs-all model reads the same table). A
+fitted kernel machine is ``f(x) = <w, phi(x)> + b`` with ``w = sum_i beta_i phi(sv_i)``.
+:func:`bound_support` keeps ``max_support`` of the model's distinct support vectors, ``S``, and
+replaces each machine's ``w`` by its orthogonal projection onto the span of ``phi(S)`` in that
+machine's own kernel: the closest function the kept patterns can express, with coefficients
+``gamma = K_SS^+ K_S,sv beta`` (``K`` the machine's kernel, amplitude factor included) and the
+intercept unchanged. No training data are needed: everything comes from the fitted machines.
+
+Which patterns are kept: the ones carrying the largest share of the machines' coefficients,
+``score_i = sum_m |beta_m,i| / sum_j |beta_m,j|`` (each machine counts equally; a pattern that is
+a support vector of several machines adds its shares), ties to the earlier pattern. This is
+the simple rule; how much accuracy it costs on unseen participants, against the number of
+support vectors, is measured by ``benchmarks/support_budget.py`` (docs/learning.md).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from .estimators import amplitude_factor, kernel_from_distances
+from .kernel import mode_distances
+
+#: singular values of K_SS below this share of the largest are treated as zero (a kept pattern
+#: the others already express adds nothing, instead of a huge pair of opposite coefficients)
+RCOND = 1e-10
+
+
+def _machines(estimator: Any) -> list[Any]:
+    return list(estimator.estimators_) if hasattr(estimator, "estimators_") else [estimator]
+
+
+def distinct_support(estimator: Any) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """(the distinct support vectors of every machine, their log energies, for each machine the
+    row of each of its support vectors in that table)."""
+    rows: dict[bytes, int] = {}
+    patterns: list[np.ndarray] = []
+    energies: list[float] = []
+    where: list[np.ndarray] = []
+    for m in _machines(estimator):
+        sv = np.asarray(m.support_vectors_, dtype=np.float64)
+        energy = getattr(m, "sv_log_energy_", None)
+        idx = np.empty(len(sv), dtype=np.intp)
+        for i, p in enumerate(sv):
+            key = np.ascontiguousarray(p).tobytes()
+            if key not in rows:
+                rows[key] = len(patterns)
+                patterns.append(p)
+                energies.append(0.0 if energy is None else float(energy[i]))
+            idx[i] = rows[key]
+        where.append(idx)
+    shape = np.shape(_machines(estimator)[0].support_vectors_)[1:]
+    table = np.array(patterns, dtype=np.float64).reshape((len(patterns), *shape))
+    return table, np.asarray(energies, dtype=np.float64), where
+
+
+def _kernel(m: Any, a: np.ndarray, ea: np.ndarray, b: np.ndarray, eb: np.ndarray) -> np.ndarray:
+    K = kernel_from_distances(mode_distances(a, b, alpha=m.alphas_), m.sigmas_)
+    factor = amplitude_factor(ea, eb, float(getattr(m, "amplitude_width_", 0.0) or 0.0))
+    return K if factor is None else K * factor
+
+
+def project_machine(m: Any, patterns: np.ndarray, energies: np.ndarray) -> None:
+    """Replace the fitted machine ``m``'s support by ``patterns`` (with their log energies),
+    its coefficients by the projection of its ``w`` onto their span (in place)."""
+    coef = np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1)
+    sv = np.asarray(m.support_vectors_, dtype=np.float64)
+    e_sv = np.asarray(getattr(m, "sv_log_energy_", np.zeros(len(sv))), dtype=np.float64)
+    if coef.size == 0 or len(patterns) == 0:
+        gamma = np.zeros(len(patterns))
+    else:
+        K_pp = _kernel(m, patterns, energies, patterns, energies)
+        rhs = _kernel(m, patterns, energies, sv, e_sv) @ coef
+        gamma = scipy.linalg.lstsq(K_pp, rhs, cond=RCOND)[0]
+    m.support_vectors_ = np.ascontiguousarray(patterns)
+    m.sv_log_energy_ = np.ascontiguousarray(energies)
+    m.dual_coef_ = np.ascontiguousarray(gamma)
+    m.support_ = np.full(len(patterns), -1, dtype=np.intp)  # no longer training rows
+
+
+def kept_patterns(estimator: Any, max_support: int) -> np.ndarray:
+    """Rows of :func:`distinct_support`'s table that :func:`bound_support` keeps (sorted)."""
+    table, _, where = distinct_support(estimator)
+    score = np.zeros(len(table))
+    for m, idx in zip(_machines(estimator), where):
+        mass = np.abs(np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1))
+        if mass.sum() > 0:
+            np.add.at(score, idx, mass / mass.sum())
+    order = np.argsort(-score, kind="stable")
+    return np.sort(order[:max_support])
+
+
+def bound_support(estimator: Any, max_support: int) -> Any:
+    """A copy of the fitted ``estimator`` (a TensorSVC/TensorRLS or a OneVsAllTouchClassifier)
+    with at most ``max_support`` distinct support vectors over all its machines (see the
+    module's docstring); the estimator itself when it already has no more."""
+    if isinstance(max_support, bool) or not isinstance(max_support, (int, np.integer)):
+        raise TypeError(f"max_support must be a whole number, got {max_support!r}")
+    if max_support < 1:
+        raise ValueError(f"max_support must be at least 1, got {max_support}")
+    table, energies, _ = distinct_support(estimator)
+    if len(table) <= max_support:
+        return estimator
+    keep = kept_patterns(estimator, int(max_support))
+    out = copy.deepcopy(estimator)
+    for m in _machines(out):
+        project_machine(m, table[keep], energies[keep])
+    return out
+
+
+def n_distinct_support(estimator: Any) -> int:
+    """The number of distinct support vectors over all the machines (what a model stores)."""
+    return len(distinct_support(estimator)[0])

@@ -1,0 +1,94 @@
+"""eskin.learn.support_budget: at most N support vectors, each machine projected onto the kept
+patterns (exact maths: orthogonality of the residual, nested kept sets, exact re-expression)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+from eskin.learn.support_budget import (
+    _kernel,
+    bound_support,
+    distinct_support,
+    kept_patterns,
+    n_distinct_support,
+    project_machine,
+)
+
+
+def _data(n=60, classes=3, seed=0):
+    rng = np.random.default_rng(seed)
+    y = np.arange(n) % classes
+    X = rng.standard_normal((n, 4, 4, 6))
+    X[:, 0, 0, :] += 1.5 * y[:, None]  # a class cue on one taxel
+    X *= (1 + 0.5 * y)[:, None, None, None]  # and in amplitude
+    return X, y
+
+
+def _rkhs_residual(m, bounded) -> float:
+    """||w - w_S||^2 in m's kernel (the amplitude factor included)."""
+    a, ea = m.support_vectors_, m.sv_log_energy_
+    b, eb = bounded.support_vectors_, bounded.sv_log_energy_
+    beta, gamma = m.dual_coef_, bounded.dual_coef_
+    return float(beta @ _kernel(m, a, ea, a, ea) @ beta - 2 * beta @ _kernel(m, a, ea, b, eb)
+                 @ gamma + gamma @ _kernel(m, b, eb, b, eb) @ gamma)
+
+
+@pytest.mark.parametrize("machine", [TensorRLS(lam=0.1, sigma=4.0, amplitude=1.0),
+                                     TensorSVC(C=10.0, sigma=4.0)])
+def test_the_residual_is_orthogonal_to_every_kept_pattern(machine):
+    X, y = _data(classes=2)
+    m = machine.fit(X, y)
+    k = n_distinct_support(m) // 3
+    bounded = bound_support(m, k)
+    assert n_distinct_support(bounded) == k and n_distinct_support(m) > k  # m itself unchanged
+    S, eS = bounded.support_vectors_, bounded.sv_log_energy_
+    # <w - w_S, phi(s)> = 0 for every kept s: the projection's defining property
+    resid = (_kernel(m, S, eS, m.support_vectors_, m.sv_log_energy_) @ m.dual_coef_
+             - _kernel(m, S, eS, S, eS) @ bounded.dual_coef_)
+    assert np.max(np.abs(resid)) < 1e-8 * max(1.0, np.max(np.abs(m.dual_coef_)))
+    assert bounded.intercept_ == m.intercept_
+
+
+def test_a_larger_budget_never_leaves_a_larger_residual():
+    X, y = _data(classes=2, seed=3)
+    m = TensorRLS(lam=0.05, sigma=2.0).fit(X, y)
+    residuals = [_rkhs_residual(m, bound_support(m, k)) for k in (2, 5, 10, 20, 40, 59)]
+    assert all(a >= b - 1e-9 for a, b in zip(residuals, residuals[1:]))  # kept sets are nested
+    assert residuals[0] > residuals[-1] > -1e-9
+    assert bound_support(m, 60) is m  # nothing to bound: the machine itself
+    for k in (2, 5, 10):
+        assert set(kept_patterns(m, k)) <= set(kept_patterns(m, 2 * k))
+
+
+def test_re_expressing_a_machine_on_its_own_support_changes_nothing():
+    X, y = _data(classes=2, seed=1)
+    m = TensorSVC(C=1.0, sigma=3.0, amplitude=4.0).fit(X, y)
+    before = m.decision_function(X)
+    order = np.random.default_rng(0).permutation(len(m.support_vectors_))
+    project_machine(m, m.support_vectors_[order], m.sv_log_energy_[order])
+    np.testing.assert_allclose(m.decision_function(X), before, atol=1e-8)
+
+
+def test_one_vs_all_machines_share_one_table_of_kept_patterns():
+    X, y = _data(n=90)
+    ova = OneVsAllTouchClassifier(estimator=TensorSVC(C=10.0, sigma=4.0)).fit(X, y)
+    total = n_distinct_support(ova)
+    bounded = bound_support(ova, 12)
+    assert n_distinct_support(bounded) == 12 < total
+    table, _, where = distinct_support(bounded)
+    assert len(table) == 12 and all(sorted(w) == list(range(12)) for w in where)
+    # the budget keeps what decides: more agreement with the full model than a budget of 3
+    full = ova.predict(X)
+    agree = [np.mean(bound_support(ova, k).predict(X) == full) for k in (3, 12, total - 1)]
+    assert agree[0] <= agree[1] <= agree[2] and agree[2] > 0.9
+
+
+@pytest.mark.parametrize("bad, error", [(0, ValueError), (-4, ValueError), (2.5, TypeError),
+                                        (True, TypeError), ("8", TypeError)])
+def test_a_bad_budget_is_named(bad, error):
+    X, y = _data(classes=2)
+    m = TensorRLS(lam=1.0, sigma=2.0).fit(X, y)
+    with pytest.raises(error, match="max_support"):
+        bound_support(m, bad)
