@@ -8,10 +8,12 @@ default (``eskin.train_model`` with no recipe option) is trained once on the tra
 participants. Its machines are then bounded to ``--budgets`` distinct support vectors in two
 ways, and each is scored on the unseen participants:
 
-- project: ``eskin.learn.support_budget.bound_support`` (what ``eskin train --max-support``
-  does): the patterns with the largest share of the coefficients are kept and every machine is
-  projected onto them;
-- drop: the same patterns kept with their own coefficients, the others removed (the naive
+- greedy: ``eskin.learn.support_budget.bound_support`` (what ``eskin train --max-support``
+  does): the patterns chosen one at a time by kernel matching pursuit, every machine projected
+  onto them;
+- coef: the patterns with the largest share of the machines' coefficients, every machine
+  projected onto them (``selection="coefficients"``);
+- drop: the patterns of "coef" with their own coefficients, the others removed (the naive
   pruning the projection improves on).
 
 Printed and written (``--out``, JSON lines): campaign, split, budget, distinct support vectors
@@ -54,12 +56,13 @@ from selection_study import (  # noqa: E402
 )
 
 DEFAULT_CAMPAIGNS = "s-d1,s-d2,short-200Hz,strip-1x4-100Hz,grid-8x8-500Hz"
+WAYS = ("greedy", "coef", "drop")
 
 
 def dropped(estimator, max_support: int):
     """The naive bound: keep the same patterns as bound_support, with their own coefficients."""
     table, _, where = distinct_support(estimator)
-    keep = set(kept_patterns(estimator, max_support).tolist())
+    keep = set(kept_patterns(estimator, max_support, "coefficients").tolist())
     out = copy.deepcopy(estimator)
     for m, idx in zip(_machines(out), where):
         mask = np.array([i in keep for i in idx], dtype=bool)
@@ -91,39 +94,38 @@ def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> l
     full = n_distinct_support(model.estimator)
     recipe = f"{model.machine} D={model.D} {model.subsample} {model.training.get('negatives')}"
     rows = [{"campaign": name, "split": split, "budget": None, "support_vectors": full,
-             "project": _heldout_error(model, test), "drop": _heldout_error(model, test),
+             **dict.fromkeys(WAYS, _heldout_error(model, test)),
              "recipe": recipe, "train_cpu_s": round(cpu, 1)}]
     for k in budgets:
         if k >= full:
             continue
-        bounded = bound_support(model.estimator, k)
+        ways = {"greedy": bound_support(model.estimator, k),
+                "coef": bound_support(model.estimator, k, "coefficients"),
+                "drop": dropped(model.estimator, k)}
         rows.append({"campaign": name, "split": split, "budget": k,
-                     "support_vectors": n_distinct_support(bounded),
-                     "project": _heldout_error(with_estimator(model, bounded), test),
-                     "drop": _heldout_error(with_estimator(model, dropped(model.estimator, k)),
-                                            test),
+                     "support_vectors": n_distinct_support(ways["greedy"]),
+                     **{w: _heldout_error(with_estimator(model, e), test)
+                        for w, e in ways.items()},
                      "recipe": recipe})
     return rows
 
 
 def table(rows: list[dict]) -> str:
     budgets = sorted({r["budget"] for r in rows if r["budget"] is not None}, reverse=True)
-    head = ["campaign", "splits", "all: SVs", "all: error"] + [f"{k}: project / drop"
+    head = ["campaign", "splits", "all: SVs", "all: error"] + [f"{k}: " + " / ".join(WAYS)
                                                                for k in budgets]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name in dict.fromkeys(r["campaign"] for r in rows):
         mine = [r for r in rows if r["campaign"] == name]
         base = [r for r in mine if r["budget"] is None]
         cells = [name, str(len(base)), f"{np.mean([r['support_vectors'] for r in base]):.0f}",
-                 f"{100 * np.mean([r['project'] for r in base]):.1f}"]
+                 f"{100 * np.mean([r['greedy'] for r in base]):.1f}"]
         for k in budgets:
             at = [r for r in mine if r["budget"] == k]
             if len(at) != len(base):  # a split whose model had fewer support vectors
                 cells.append("-")
                 continue
-            p = 100 * np.array([r["project"] for r in at])
-            d = 100 * np.array([r["drop"] for r in at])
-            cells.append(f"{p.mean():.1f} +- {p.std():.1f} / {d.mean():.1f} +- {d.std():.1f}")
+            cells.append(" / ".join(f"{100 * np.mean([r[w] for r in at]):.1f}" for w in WAYS))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -153,9 +155,9 @@ def main(argv: list[str] | None = None) -> int:
                 for r in got:
                     f.write(json.dumps(r) + "\n")
             rows += got
-            print(f"{name} split {split}: " + ", ".join(
-                f"{r['support_vectors']} SVs {100 * r['project']:.1f}/{100 * r['drop']:.1f} %"
-                for r in got), flush=True)
+            print(f"{name} split {split} ({got[0]['recipe']}): " + ", ".join(
+                f"{r['support_vectors']} SVs " + "/".join(f"{100 * r[w]:.1f}" for w in WAYS)
+                + " %" for r in got), flush=True)
     print(table(rows))
     return 0
 

@@ -9,11 +9,14 @@ machine's own kernel: the closest function the kept patterns can express, with c
 ``gamma = K_SS^+ K_S,sv beta`` (``K`` the machine's kernel, amplitude factor included) and the
 intercept unchanged. No training data are needed: everything comes from the fitted machines.
 
-Which patterns are kept: the ones carrying the largest share of the machines' coefficients,
-``score_i = sum_m |beta_m,i| / sum_j |beta_m,j|`` (each machine counts equally; a pattern that is
-a support vector of several machines adds its shares), ties to the earlier pattern. This is
-the simple rule; how much accuracy it costs on unseen participants, against the number of
-support vectors, is measured by ``benchmarks/support_budget.py`` (docs/learning.md).
+Which patterns are kept (``selection``): "greedy" (default) adds one pattern at a time, the
+one whose addition removes the most of the machines' remaining ``||w_m - P_S w_m||^2`` (each
+machine counted by its share of its own ``||w_m||^2``): kernel matching pursuit, computed with a
+pivoted Cholesky factor of each machine's kernel; "coefficients" keeps the patterns carrying
+the largest share of the machines' coefficients, ``sum_m |beta_m,i| / sum_j |beta_m,j|``. Both
+give nested sets (the kept patterns of a budget are among those of any larger one). How much
+accuracy each costs on unseen participants, against the number of support vectors, is measured
+by ``benchmarks/support_budget.py`` (docs/learning.md, "At most N support vectors").
 """
 
 from __future__ import annotations
@@ -84,19 +87,70 @@ def project_machine(m: Any, patterns: np.ndarray, energies: np.ndarray) -> None:
     m.support_ = np.full(len(patterns), -1, dtype=np.intp)  # no longer training rows
 
 
-def kept_patterns(estimator: Any, max_support: int) -> np.ndarray:
-    """Rows of :func:`distinct_support`'s table that :func:`bound_support` keeps (sorted)."""
-    table, _, where = distinct_support(estimator)
-    score = np.zeros(len(table))
+def _coefficient_order(estimator: Any, n_table: int, where: list[np.ndarray]) -> np.ndarray:
+    """Table rows by their share of the machines' coefficients, largest first."""
+    score = np.zeros(n_table)
     for m, idx in zip(_machines(estimator), where):
         mass = np.abs(np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1))
         if mass.sum() > 0:
             np.add.at(score, idx, mass / mass.sum())
-    order = np.argsort(-score, kind="stable")
-    return np.sort(order[:max_support])
+    return np.argsort(-score, kind="stable")
 
 
-def bound_support(estimator: Any, max_support: int) -> Any:
+def _greedy_order(estimator: Any, table: np.ndarray, energies: np.ndarray,
+                  where: list[np.ndarray], count: int) -> np.ndarray:
+    """The first ``count`` table rows chosen one at a time, each the one whose addition removes
+    the most of the machines' remaining ``||w_m - P_S w_m||^2`` (each machine's share of its
+    own ``||w_m||^2``): kernel matching pursuit, by a pivoted Cholesky factor per machine."""
+    n = len(table)
+    state = []
+    for m, idx in zip(_machines(estimator), where):
+        beta = np.zeros(n)
+        np.add.at(beta, idx, np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1))
+        K = _kernel(m, table, energies, table, energies)
+        resid = K @ beta  # <w - P_S w, phi(x_i)> for every row, S empty
+        norm = float(beta @ resid)
+        if norm > 0:
+            state.append((K, resid, np.diag(K).copy(), np.zeros((n, count)), norm))
+    chosen: list[int] = []
+    free = np.ones(n, dtype=bool)
+    for t in range(count):
+        gain = np.zeros(n)
+        for K, resid, diag, G, norm in state:
+            ok = diag > RCOND * np.max(np.diag(K))
+            gain[ok] += resid[ok] ** 2 / diag[ok] / norm
+        gain[~free] = -1.0
+        j = int(np.argmax(gain))  # ties: the earlier row
+        chosen.append(j)
+        free[j] = False
+        for K, resid, diag, G, _ in state:
+            if diag[j] <= RCOND * np.max(np.diag(K)):
+                continue  # phi(x_j) adds nothing for this machine
+            g = (K[:, j] - G[:, :t] @ G[j, :t]) / np.sqrt(diag[j])
+            G[:, t] = g
+            resid -= g * (resid[j] / g[j])
+            np.subtract(diag, g * g, out=diag)
+    return np.asarray(chosen, dtype=np.intp)
+
+
+#: how :func:`bound_support` chooses the kept patterns
+SELECTIONS = ("greedy", "coefficients")
+
+
+def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy") -> np.ndarray:
+    """Rows of :func:`distinct_support`'s table that :func:`bound_support` keeps (sorted)."""
+    if selection not in SELECTIONS:
+        raise ValueError(f"selection must be one of {SELECTIONS}, got {selection!r}")
+    table, energies, where = distinct_support(estimator)
+    count = min(int(max_support), len(table))
+    if selection == "coefficients":
+        order = _coefficient_order(estimator, len(table), where)[:count]
+    else:
+        order = _greedy_order(estimator, table, energies, where, count)
+    return np.sort(order)
+
+
+def bound_support(estimator: Any, max_support: int, selection: str = "greedy") -> Any:
     """A copy of the fitted ``estimator`` (a TensorSVC/TensorRLS or a OneVsAllTouchClassifier)
     with at most ``max_support`` distinct support vectors over all its machines (see the
     module's docstring); the estimator itself when it already has no more."""
@@ -107,7 +161,7 @@ def bound_support(estimator: Any, max_support: int) -> Any:
     table, energies, _ = distinct_support(estimator)
     if len(table) <= max_support:
         return estimator
-    keep = kept_patterns(estimator, int(max_support))
+    keep = kept_patterns(estimator, int(max_support), selection)
     out = copy.deepcopy(estimator)
     for m in _machines(out):
         project_machine(m, table[keep], energies[keep])

@@ -3,6 +3,8 @@ patterns (exact maths: orthogonality of the residual, nested kept sets, exact re
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -35,13 +37,14 @@ def _rkhs_residual(m, bounded) -> float:
                  @ gamma + gamma @ _kernel(m, b, eb, b, eb) @ gamma)
 
 
+@pytest.mark.parametrize("selection", ["greedy", "coefficients"])
 @pytest.mark.parametrize("machine", [TensorRLS(lam=0.1, sigma=4.0, amplitude=1.0),
                                      TensorSVC(C=10.0, sigma=4.0)])
-def test_the_residual_is_orthogonal_to_every_kept_pattern(machine):
+def test_the_residual_is_orthogonal_to_every_kept_pattern(machine, selection):
     X, y = _data(classes=2)
     m = machine.fit(X, y)
     k = n_distinct_support(m) // 3
-    bounded = bound_support(m, k)
+    bounded = bound_support(m, k, selection)
     assert n_distinct_support(bounded) == k and n_distinct_support(m) > k  # m itself unchanged
     S, eS = bounded.support_vectors_, bounded.sv_log_energy_
     # <w - w_S, phi(s)> = 0 for every kept s: the projection's defining property
@@ -51,15 +54,34 @@ def test_the_residual_is_orthogonal_to_every_kept_pattern(machine):
     assert bounded.intercept_ == m.intercept_
 
 
-def test_a_larger_budget_never_leaves_a_larger_residual():
+@pytest.mark.parametrize("selection", ["greedy", "coefficients"])
+def test_a_larger_budget_never_leaves_a_larger_residual(selection):
     X, y = _data(classes=2, seed=3)
     m = TensorRLS(lam=0.05, sigma=2.0).fit(X, y)
-    residuals = [_rkhs_residual(m, bound_support(m, k)) for k in (2, 5, 10, 20, 40, 59)]
+    residuals = [_rkhs_residual(m, bound_support(m, k, selection))
+                 for k in (2, 5, 10, 20, 40, 59)]
     assert all(a >= b - 1e-9 for a, b in zip(residuals, residuals[1:]))  # kept sets are nested
     assert residuals[0] > residuals[-1] > -1e-9
-    assert bound_support(m, 60) is m  # nothing to bound: the machine itself
+    assert bound_support(m, 60, selection) is m  # nothing to bound: the machine itself
     for k in (2, 5, 10):
-        assert set(kept_patterns(m, k)) <= set(kept_patterns(m, 2 * k))
+        assert set(kept_patterns(m, k, selection)) <= set(kept_patterns(m, 2 * k, selection))
+
+
+def test_the_greedy_first_pattern_is_the_best_single_one():
+    """With one pattern kept, matching pursuit's choice leaves the smallest residual of all."""
+    X, y = _data(classes=2, seed=4)
+    m = TensorSVC(C=10.0, sigma=3.0, amplitude=1.0).fit(X, y)
+    (first,) = kept_patterns(m, 1)
+    table, energies, _ = distinct_support(m)
+    residual = []
+    for i in range(len(table)):
+        one = copy.deepcopy(m)
+        project_machine(one, table[i:i + 1], energies[i:i + 1])
+        residual.append(_rkhs_residual(m, one))
+    assert first == int(np.argmin(residual))
+    assert min(residual) < np.median(residual)  # the choice matters on this machine
+    with pytest.raises(ValueError, match="selection must be one of"):
+        kept_patterns(m, 1, "largest")
 
 
 def test_re_expressing_a_machine_on_its_own_support_changes_nothing():
