@@ -56,7 +56,7 @@ from selection_study import (  # noqa: E402
 )
 
 DEFAULT_CAMPAIGNS = "s-d1,s-d2,short-200Hz,strip-1x4-100Hz,grid-8x8-500Hz"
-WAYS = ("greedy", "coef", "drop")
+WAYS = ("greedy", "fit", "coef", "drop")
 
 
 def dropped(estimator, max_support: int):
@@ -92,6 +92,7 @@ def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> l
     model = train_model(train, window=spec[3], seed=seed)
     cpu = time.process_time() - t0
     full = n_distinct_support(model.estimator)
+    X_train = model.preprocess(train)
     recipe = f"{model.machine} D={model.D} {model.subsample} {model.training.get('negatives')}"
     rows = [{"campaign": name, "split": split, "budget": None, "support_vectors": full,
              **dict.fromkeys(WAYS, _heldout_error(model, test)),
@@ -100,6 +101,7 @@ def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> l
         if k >= full:
             continue
         ways = {"greedy": bound_support(model.estimator, k),
+                "fit": bound_support(model.estimator, k, X_fit=X_train),
                 "coef": bound_support(model.estimator, k, "coefficients"),
                 "drop": dropped(model.estimator, k)}
         rows.append({"campaign": name, "split": split, "budget": k,

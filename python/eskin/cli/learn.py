@@ -359,8 +359,9 @@ def train(
         "--target's figures)"),
     max_support: Optional[int] = typer.Option(
         None, "--max-support", min=1,
-        help="at most this many support vectors in the model (all machines together): each "
-        "machine is projected onto the patterns with the largest share of the coefficients"),
+        help="at most this many support vectors in the model (all machines together), chosen "
+        "by kernel matching pursuit; each machine refitted on them to its decision values on "
+        "the training patterns"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -455,8 +456,8 @@ def _support_budget_lines(model: Any) -> list[str]:
     if not b:
         return []
     return [f"support vectors bounded by --max-support {b['max_support']}: "
-            f"{b['support_vectors_before']} -> {b['support_vectors']} (each machine projected "
-            f"onto the kept patterns)"]
+            f"{b['support_vectors_before']} -> {b['support_vectors']} (each machine refitted on "
+            f"the kept patterns)"]
 
 
 def _candidate_text(c: dict[str, Any]) -> str:

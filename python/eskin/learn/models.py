@@ -1072,9 +1072,10 @@ def train_model(
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``,
         ``first_share``, ...).
     max_support : at most this many distinct support vectors in the model (all machines
-        together): the fitted machines are projected onto the patterns with the largest share of
-        their coefficients (:func:`eskin.learn.support_budget.bound_support`); the selection
-        itself is unchanged. None (default): every support vector the machines keep.
+        together), chosen by kernel matching pursuit, each machine's coefficients on them fitted
+        to its decision values on the training patterns
+        (:func:`eskin.learn.support_budget.bound_support`); the selection itself is unchanged.
+        None (default): every support vector the machines keep.
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
     ``negatives`` left None is searched (machine svm/rls, D 20/50/100 capped by the longest
@@ -1096,24 +1097,28 @@ def train_model(
         or max_support < 1
     ):
         raise TrainingError(f"max_support must be a whole number >= 1, got {max_support!r}")
+    common["max_support"] = None if max_support is None else int(max_support)
     if selection == "cv" and None in recipe_given.values():
-        model = _train_searched(data, labels, **recipe_given, **common, budget=budget,
-                                recipe_options=recipe_options)
-    elif budget is not None:
+        return _train_searched(data, labels, **recipe_given, **common, budget=budget,
+                               recipe_options=recipe_options)
+    if budget is not None:
         raise TrainingError("a budget needs the recipe searched (selection cv, and at least one "
                             "of machine, D, subsample, negatives left to the search)")
-    else:
-        model = _train_fixed(data, labels, selection=selection, md_options=md_options,
-                             **recipe_given, **common)
-    return model if max_support is None else _with_support_budget(model, int(max_support))
+    return _train_fixed(data, labels, selection=selection, md_options=md_options,
+                        **recipe_given, **common)
 
 
-def _with_support_budget(model: TouchModel, max_support: int) -> TouchModel:
-    """``model`` with at most ``max_support`` distinct support vectors, and a record of it."""
+def _with_support_budget(model: TouchModel, max_support: int | None,
+                         X: np.ndarray) -> TouchModel:
+    """``model`` with at most ``max_support`` distinct support vectors (None: as it is), the
+    machines' coefficients fitted to their decision values on the training patterns ``X``,
+    and a record of it."""
     from eskin.learn.support_budget import bound_support, n_distinct_support
 
+    if max_support is None:
+        return model
     before = n_distinct_support(model.estimator)
-    model.estimator = bound_support(model.estimator, max_support)
+    model.estimator = bound_support(model.estimator, max_support, X_fit=X)
     model.training["support_budget"] = {
         "max_support": max_support,
         "support_vectors_before": before,
@@ -1129,7 +1134,7 @@ def _train_fixed(
     amplitudes: Sequence[float | None], quick: bool, md_options: Mapping[str, Any] | None,
     cv_options: Mapping[str, Any] | None, negatives: str | None, runs: Sequence[int] | None,
     class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float, seed: int,
-    n_jobs: int, group_by: str,
+    n_jobs: int, group_by: str, max_support: int | None,
 ) -> TouchModel:
     """train_model with the recipe given (or Maximal Discrepancy): each machine selects its
     own setting of the grid."""
@@ -1154,9 +1159,9 @@ def _train_fixed(
     training = _training_record(
         recipe, info, classes, y_all, grouped, notes, fit_seconds + prep_seconds
     )
-    return _touch_model(
+    return _with_support_budget(_touch_model(
         recipe, classes, estimator, selected, training, rate, X.shape[1:], window_config
-    )
+    ), max_support, X)
 
 
 def _train_searched(
@@ -1166,7 +1171,7 @@ def _train_searched(
     amplitudes: Sequence[float | None], quick: bool, cv_options: Mapping[str, Any] | None,
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
-    recipe_options: Mapping[str, Any] | None,
+    recipe_options: Mapping[str, Any] | None, max_support: int | None,
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import (
@@ -1220,8 +1225,9 @@ def _train_searched(
     training["searched"] = [k for k, v in (("machine", machine), ("D", D),
                                            ("subsample", subsample), ("negatives", negatives))
                             if v is None]
-    return _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
-                        window_config)
+    return _with_support_budget(
+        _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
+                     window_config), max_support, X)
 
 
 def _fit_candidate(

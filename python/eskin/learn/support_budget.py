@@ -7,7 +7,12 @@ fitted kernel machine is ``f(x) = <w, phi(x)> + b`` with ``w = sum_i beta_i phi(
 replaces each machine's ``w`` by its orthogonal projection onto the span of ``phi(S)`` in that
 machine's own kernel: the closest function the kept patterns can express, with coefficients
 ``gamma = K_SS^+ K_S,sv beta`` (``K`` the machine's kernel, amplitude factor included) and the
-intercept unchanged. No training data are needed: everything comes from the fitted machines.
+intercept unchanged. This needs no training data: everything comes from the fitted machines.
+With patterns to fit on (``X_fit``, what ``eskin train --max-support`` passes: the training
+patterns), each machine's coefficients on the kept patterns are instead the least-squares fit
+of its own decision values on those patterns, ``gamma = argmin ||K_X,S gamma - K_X,sv beta||``:
+the same kept patterns, coefficients that reproduce the decisions where the data are rather than
+``w`` everywhere (on simulated campaigns it loses far less accuracy at small budgets).
 
 Which patterns are kept (``selection``): "greedy" (default) adds one pattern at a time, the
 one whose addition removes the most of the machines' remaining ``||w_m - P_S w_m||^2`` (each
@@ -28,7 +33,7 @@ import numpy as np
 import scipy.linalg
 
 from .estimators import amplitude_factor, kernel_from_distances
-from .kernel import mode_distances
+from .kernel import mode_distances, pattern_log_energy
 
 #: singular values of K_SS below this share of the largest are treated as zero (a kept pattern
 #: the others already express adds nothing, instead of a huge pair of opposite coefficients)
@@ -69,14 +74,22 @@ def _kernel(m: Any, a: np.ndarray, ea: np.ndarray, b: np.ndarray, eb: np.ndarray
     return K if factor is None else K * factor
 
 
-def project_machine(m: Any, patterns: np.ndarray, energies: np.ndarray) -> None:
+def project_machine(m: Any, patterns: np.ndarray, energies: np.ndarray,
+                    X_fit: np.ndarray | None = None) -> None:
     """Replace the fitted machine ``m``'s support by ``patterns`` (with their log energies),
-    its coefficients by the projection of its ``w`` onto their span (in place)."""
+    its coefficients by the projection of its ``w`` onto their span (in place); with
+    ``X_fit`` (patterns, e.g. the training set), by the least-squares fit of its decision values
+    on them instead."""
     coef = np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1)
     sv = np.asarray(m.support_vectors_, dtype=np.float64)
     e_sv = np.asarray(getattr(m, "sv_log_energy_", np.zeros(len(sv))), dtype=np.float64)
     if coef.size == 0 or len(patterns) == 0:
         gamma = np.zeros(len(patterns))
+    elif X_fit is not None:
+        e_fit = pattern_log_energy(X_fit)
+        target = _kernel(m, X_fit, e_fit, sv, e_sv) @ coef
+        A = _kernel(m, X_fit, e_fit, patterns, energies)
+        gamma = scipy.linalg.lstsq(A, target, cond=RCOND)[0]
     else:
         K_pp = _kernel(m, patterns, energies, patterns, energies)
         rhs = _kernel(m, patterns, energies, sv, e_sv) @ coef
@@ -150,7 +163,8 @@ def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy") -
     return np.sort(order)
 
 
-def bound_support(estimator: Any, max_support: int, selection: str = "greedy") -> Any:
+def bound_support(estimator: Any, max_support: int, selection: str = "greedy",
+                  X_fit: np.ndarray | None = None) -> Any:
     """A copy of the fitted ``estimator`` (a TensorSVC/TensorRLS or a OneVsAllTouchClassifier)
     with at most ``max_support`` distinct support vectors over all its machines (see the
     module's docstring); the estimator itself when it already has no more."""
@@ -164,7 +178,7 @@ def bound_support(estimator: Any, max_support: int, selection: str = "greedy") -
     keep = kept_patterns(estimator, int(max_support), selection)
     out = copy.deepcopy(estimator)
     for m in _machines(out):
-        project_machine(m, table[keep], energies[keep])
+        project_machine(m, table[keep], energies[keep], X_fit)
     return out
 
 

@@ -114,3 +114,27 @@ def test_a_bad_budget_is_named(bad, error):
     m = TensorRLS(lam=1.0, sigma=2.0).fit(X, y)
     with pytest.raises(error, match="max_support"):
         bound_support(m, bad)
+
+
+def test_fitted_on_patterns_the_decisions_are_the_least_squares_fit():
+    """With X_fit, each machine's decision values on X_fit are the least-squares fit of the
+    full machine's on the kept patterns: the normal equations hold."""
+    X, y = _data(n=90, seed=5)
+    ova = OneVsAllTouchClassifier(estimator=TensorSVC(C=10.0, sigma=4.0, amplitude=1.0)).fit(X, y)
+    bounded = bound_support(ova, 10, X_fit=X)
+    assert n_distinct_support(bounded) == 10
+    assert np.array_equal(bounded.estimators_[0].support_vectors_,
+                          bound_support(ova, 10).estimators_[0].support_vectors_)  # same S
+    from eskin.learn.kernel import pattern_log_energy
+
+    eX = pattern_log_energy(X)
+    for full, m in zip(ova.estimators_, bounded.estimators_):
+        A = _kernel(m, X, eX, m.support_vectors_, m.sv_log_energy_)
+        r = A @ m.dual_coef_ - (full.decision_function(X) - full.intercept_)
+        assert np.max(np.abs(A.T @ r)) < 1e-7 * max(1.0, np.max(np.abs(A.T @ A)))
+        assert m.intercept_ == full.intercept_
+    # closer to the full model's decisions on X than the projection (what it minimises)
+    gap_fit = np.linalg.norm(bounded.decision_function(X) - ova.decision_function(X))
+    gap_proj = np.linalg.norm(bound_support(ova, 10).decision_function(X)
+                              - ova.decision_function(X))
+    assert gap_fit <= gap_proj
