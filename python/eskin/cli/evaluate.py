@@ -51,6 +51,9 @@ def evaluate(
         "(cortex-m4), in the same folds"),
     budget: str | None = typer.Option(
         None, help="the budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides --target's)"),
+    max_support: int | None = typer.Option(
+        None, "--max-support", min=1, help="at most this many support vectors in each fold's "
+        "model (as eskin train --max-support)"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -82,6 +85,8 @@ def evaluate(
     recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
     recipe["quick"] = quick
     recipe.update(_amplitudes(amplitude))
+    if max_support is not None:
+        recipe["max_support"] = max_support
     budgeted, the_budget = _budgeted(campaign, target, budget, recipe, classes)
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]

@@ -299,6 +299,19 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
             "`--selection cv`, `--subsample algorithm2`;" in (out / "evaluation.md").read_text())
 
 
+def test_evaluate_bounds_each_folds_support_vectors(sim_campaign, tmp_path):
+    common = ["--folds", "2", "--quick", "--D", "8", "--classes", "brush,washer", "--machine",
+              "rls", "--subsample", "even", "--negatives", "all"]
+    r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), *common,
+              "--max-support", "3"])
+    assert r.exit_code == 0, r.output
+    res = json.loads((tmp_path / "evaluation.json").read_text())
+    assert res["recipe"]["max_support"] == 3
+    for f in res["folds"]:  # tensor-RLS keeps every training pattern: bounded to 3
+        assert f["support_budget"] == {"max_support": 3, "support_vectors": 3,
+                                       "support_vectors_before": f["n_train"]}
+
+
 def test_evaluate_rejects_an_unknown_group_label(sim_campaign, tmp_path):
     r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), "--groups", "sitting"])
     assert r.exit_code == 2
