@@ -310,9 +310,13 @@ FrameDecoderBase::FrameDecoderBase(std::uint8_t* block, std::uint8_t* raw, std::
                           ? kHeaderSize + kCrcSize
                           : (max_frame_size > capacity ? capacity : max_frame_size)),
       max_block_(max_encoded_size(max_frame_size_) - 1),
+      wait_for_delimiter_(wait_for_delimiter),
       synced_(!wait_for_delimiter) {}
 
 void FrameDecoderBase::reset(bool reset_stats) {
+  // the input resumes anywhere (a reopened port): skip to the next delimiter again, or the tail
+  // of a frame would be decoded as a frame and counted as corrupted
+  synced_ = !wait_for_delimiter_;
   fill_ = 0;
   discarding_ = false;
   has_frame_ = false;

@@ -518,6 +518,28 @@ TEST(Decoder, ResetForgetsPartialInput) {
   EXPECT_EQ(dec.stats().frames, 0U);
 }
 
+TEST(Decoder, AfterResetTheTailOfAFrameIsSkippedNotCountedAsCorrupted) {
+  const Stream s = make_stream(2, 8);
+  const Bytes w = wire(s);
+  Bytes resumed(w.begin() + static_cast<std::ptrdiff_t>(w.size() / 3), w.end());
+  resumed.insert(resumed.end(), w.begin(), w.end());  // then the stream from its start
+  for (const bool wait : {true, false}) {
+    p::FrameDecoder dec(p::kMaxFrameSize, wait);
+    dec.feed_all(w.data(), w.size() / 3, [](const p::Frame&) {});
+    dec.reset();  // e.g. the port was reopened: the input resumes in the middle of a frame
+    std::size_t n = 0;
+    dec.feed_all(resumed.data(), resumed.size(), [&](const p::Frame&) { ++n; });
+    if (wait) {  // the tail up to the next delimiter is skipped, every whole frame decoded
+      EXPECT_GT(dec.stats().skipped_bytes, 0U);
+      EXPECT_EQ(dec.stats().crc_errors + dec.stats().malformed, 0U);
+      EXPECT_GE(n, 2U);
+    } else {  // decoding from the very first byte: the tail is a damaged frame
+      EXPECT_EQ(dec.stats().skipped_bytes, 0U);
+      EXPECT_EQ(dec.stats().crc_errors + dec.stats().malformed, 1U);
+    }
+  }
+}
+
 TEST(NoHeap, EncodeAndDecodeAllocateNothing) {
   const Stream s = make_stream(200, 13);
   Bytes out(p::kMaxEncodedFrameSize * 200 + 1);

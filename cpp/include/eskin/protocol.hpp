@@ -285,7 +285,8 @@ class FrameDecoderBase {
 
   const DecoderStats& stats() const { return stats_; }
   std::size_t max_frame_size() const { return max_frame_size_; }
-  /// Forgets partial input and sequence expectations (stats are kept unless reset_stats).
+  /// Forgets partial input and sequence expectations (stats are kept unless reset_stats); a
+  /// decoder that waits for a delimiter at the start waits for one again.
   void reset(bool reset_stats = false);
 
  protected:
@@ -304,6 +305,7 @@ class FrameDecoderBase {
   std::int16_t* samples_;
   std::size_t max_frame_size_;
   std::size_t max_block_;
+  bool wait_for_delimiter_;
   bool synced_;
   bool discarding_ = false;
   bool has_frame_ = false;
