@@ -411,3 +411,21 @@ def test_reset_takes_reset_stats_by_name_only():
     dec = FrameDecoder(wait_for_delimiter=False)
     with pytest.raises(TypeError):
         dec.reset(True)  # which reset? refused: only reset(reset_stats=True) clears statistics
+
+
+def test_after_reset_the_tail_of_a_frame_is_skipped_not_counted_as_corrupted():
+    """A reopened port resumes anywhere: the decoder waits for the next delimiter again."""
+    import numpy as np
+
+    from eskin.link.protocol import DataFrame, FrameDecoder, encode_frame
+
+    wire = b"\x00" + b"".join(encode_frame(DataFrame(
+        first_sample=8 * i, timestamp_us=i, samples=np.full((8, 4, 4), i, np.int16), seq=i))
+        for i in range(3))
+    dec = FrameDecoder()
+    assert [f.seq for f in dec.feed(wire[: len(wire) // 2])] == [0]  # and half of frame 1
+    dec.reset()
+    frames = dec.feed(wire[len(wire) // 2:] + wire)
+    assert [f.seq for f in frames] == [2, 0, 1, 2]  # the tail of frame 1 is skipped
+    st = dec.stats
+    assert st.crc_errors == st.malformed == 0 and st.skipped_bytes > 0
