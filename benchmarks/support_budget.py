@@ -19,7 +19,13 @@ ways, and each is scored on the unseen participants:
 Printed and written (``--out``, JSON lines): campaign, split, budget, distinct support vectors
 of the model, held-out error of each way. The data are SIMULATED.
 
+With ``--part target``: per unit, the held-out error of the searched default, of the
+``eskin train --target cortex-m4`` model, and of ``--target cortex-m4 --max-support N`` for each
+N of ``--target-supports`` (the search then estimates candidates at N support vectors, so larger
+recipes can fit).
+
     python benchmarks/support_budget.py [--campaigns s-d1,short-200Hz] [--splits 2]
+    python benchmarks/support_budget.py --part target --campaigns s-d1,s-d2 --splits 2
 """
 
 from __future__ import annotations
@@ -112,6 +118,68 @@ def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> l
     return rows
 
 
+def target_unit(cache: Path, name: str, split: int, supports: list[int], seed: int) -> list[dict]:
+    """The searched default, the `--target cortex-m4` model, and the `--target cortex-m4
+    --max-support N` models, each on the unseen participants of one split (what eskin train runs
+    for them: the detector window fitted to the budget, the search restricted to candidates
+    whose estimated compiled model fits)."""
+    from eskin.deploy.export import model_to_bytes, spec_from_model
+    from eskin.deploy.target import candidate_budget, model_fits, parse_budget, window_for_budget
+
+    spec = SEARCH_CAMPAIGNS[name]
+    camp = eskin.load_campaign(campaign_path(cache, name, spec), in_memory=True)
+    part = np.asarray(camp.participant)
+    ids = np.unique(part)
+    rng = np.random.default_rng([split, 22])  # the study's splits
+    train_ids = rng.permutation(ids)[: round(len(ids) * SEARCH_TRAIN_SHARE)]
+    train = camp.subset(np.flatnonzero(np.isin(part, train_ids)))
+    test = camp.subset(np.flatnonzero(~np.isin(part, train_ids)))
+    budget = parse_budget(None, "cortex-m4")
+    grid_shape = tuple(int(v) for v in np.shape(camp.recording(0))[:2])
+    rate = float(camp.sample_rate_hz)
+    wc, _ = window_for_budget(budget, grid_shape, rate, None)
+    rows = []
+    for label, k in [("searched", None), ("target", None),
+                     *((f"target max-support {n}", n) for n in supports)]:
+        opts = {"window": spec[3], "seed": seed, "max_support": k}
+        if label != "searched":
+            opts |= {"window_config": wc, "budget": candidate_budget(
+                budget, grid_shape, rate, wc, len(camp.modalities), k)}
+        t0 = time.process_time()
+        try:
+            model = train_model(train, **opts)
+        except ValueError as exc:  # no candidate fits
+            rows.append({"campaign": name, "split": split, "method": label, "error": None,
+                         "note": str(exc)})
+            continue
+        fits, fig = model_fits(model_to_bytes(spec_from_model(model), "float32"), budget)
+        rows.append({"campaign": name, "split": split, "method": label,
+                     "error": _heldout_error(model, test),
+                     "recipe": f"{model.machine} D={model.D} {model.subsample} "
+                               f"{model.training.get('negatives')}",
+                     "support_vectors": n_distinct_support(model.estimator),
+                     "fits": bool(fits), **{k2: float(v) for k2, v in fig.items()},
+                     "train_cpu_s": round(time.process_time() - t0, 1)})
+    return rows
+
+
+def target_table(rows: list[dict]) -> str:
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    lines = ["| campaign | splits | " + " | ".join(methods) + " |",
+             "|" + "---|" * (len(methods) + 2)]
+    for name in dict.fromkeys(r["campaign"] for r in rows):
+        cells = [name, str(len({r["split"] for r in rows if r["campaign"] == name}))]
+        for m in methods:
+            at = [r for r in rows if r["campaign"] == name and r["method"] == m]
+            if any(r["error"] is None for r in at):
+                cells.append("no model fits")
+                continue
+            cells.append(f"{100 * np.mean([r['error'] for r in at]):.1f} "
+                         f"({np.mean([r['support_vectors'] for r in at]):.0f} SVs)")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def table(rows: list[dict]) -> str:
     budgets = sorted({r["budget"] for r in rows if r["budget"] is not None}, reverse=True)
     head = ["campaign", "splits", "all: SVs", "all: error"] + [f"{k}: " + " / ".join(WAYS)
@@ -138,6 +206,11 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"comma-separated, of {', '.join(SEARCH_CAMPAIGNS)}")
     ap.add_argument("--splits", type=int, default=2)
     ap.add_argument("--budgets", default="64,32,16,8")
+    ap.add_argument("--part", choices=("curve", "target"), default="curve",
+                    help="curve: error against the support vectors of the searched default; "
+                    "target: the --target cortex-m4 model with and without --max-support "
+                    "(--target-supports)")
+    ap.add_argument("--target-supports", default="64,32")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_selection_study"))
     ap.add_argument("--out", type=Path, default=None, help="JSON lines (default: in --cache)")
@@ -147,9 +220,25 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         ap.error(f"--campaigns: unknown {unknown}; known: {', '.join(SEARCH_CAMPAIGNS)}")
     budgets = [int(b) for b in args.budgets.split(",")]
-    out = args.out or args.cache / "results_support_budget.jsonl"
+    out = args.out or args.cache / f"results_support_budget_{args.part}.jsonl"
     out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
+    if args.part == "target":
+        supports = [int(b) for b in args.target_supports.split(",")]
+        for name in names:
+            for split in range(args.splits):
+                got = target_unit(args.cache, name, split, supports, args.seed)
+                with out.open("a") as f:
+                    for r in got:
+                        f.write(json.dumps(r) + "\n")
+                rows += got
+                print(f"{name} split {split}: " + ", ".join(
+                    f"{r['method']} " + ("-" if r["error"] is None else
+                                         f"{100 * r['error']:.1f} % {r['recipe']} "
+                                         f"{r['support_vectors']} SVs")
+                    for r in got), flush=True)
+        print(target_table(rows))
+        return 0
     for name in names:
         for split in range(args.splits):
             got = unit(args.cache, name, split, budgets, args.seed)
