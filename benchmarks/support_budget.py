@@ -85,15 +85,21 @@ def with_estimator(model, estimator):
     return other
 
 
-def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> list[dict]:
+def split_campaign(cache: Path, name: str, split: int):
+    """(spec, campaign, training participants' part, unseen participants' part): the study's
+    seeded participant split of ``selection_study.py --part search``."""
     spec = SEARCH_CAMPAIGNS[name]
     camp = eskin.load_campaign(campaign_path(cache, name, spec), in_memory=True)
     part = np.asarray(camp.participant)
     ids = np.unique(part)
-    rng = np.random.default_rng([split, 22])  # the study's splits
+    rng = np.random.default_rng([split, 22])
     train_ids = rng.permutation(ids)[: round(len(ids) * SEARCH_TRAIN_SHARE)]
-    train = camp.subset(np.flatnonzero(np.isin(part, train_ids)))
-    test = camp.subset(np.flatnonzero(~np.isin(part, train_ids)))
+    return (spec, camp, camp.subset(np.flatnonzero(np.isin(part, train_ids))),
+            camp.subset(np.flatnonzero(~np.isin(part, train_ids))))
+
+
+def unit(cache: Path, name: str, split: int, budgets: list[int], seed: int) -> list[dict]:
+    spec, camp, train, test = split_campaign(cache, name, split)
     t0 = time.process_time()
     model = train_model(train, window=spec[3], seed=seed)
     cpu = time.process_time() - t0
@@ -126,14 +132,7 @@ def target_unit(cache: Path, name: str, split: int, supports: list[int], seed: i
     from eskin.deploy.export import model_to_bytes, spec_from_model
     from eskin.deploy.target import candidate_budget, model_fits, parse_budget, window_for_budget
 
-    spec = SEARCH_CAMPAIGNS[name]
-    camp = eskin.load_campaign(campaign_path(cache, name, spec), in_memory=True)
-    part = np.asarray(camp.participant)
-    ids = np.unique(part)
-    rng = np.random.default_rng([split, 22])  # the study's splits
-    train_ids = rng.permutation(ids)[: round(len(ids) * SEARCH_TRAIN_SHARE)]
-    train = camp.subset(np.flatnonzero(np.isin(part, train_ids)))
-    test = camp.subset(np.flatnonzero(~np.isin(part, train_ids)))
+    spec, camp, train, test = split_campaign(cache, name, split)
     budget = parse_budget(None, "cortex-m4")
     grid_shape = tuple(int(v) for v in np.shape(camp.recording(0))[:2])
     rate = float(camp.sample_rate_hz)
@@ -225,32 +224,33 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     if args.part == "target":
         supports = [int(b) for b in args.target_supports.split(",")]
-        for name in names:
-            for split in range(args.splits):
-                got = target_unit(args.cache, name, split, supports, args.seed)
-                with out.open("a") as f:
-                    for r in got:
-                        f.write(json.dumps(r) + "\n")
-                rows += got
-                print(f"{name} split {split}: " + ", ".join(
-                    f"{r['method']} " + ("-" if r["error"] is None else
-                                         f"{100 * r['error']:.1f} % {r['recipe']} "
-                                         f"{r['support_vectors']} SVs")
-                    for r in got), flush=True)
-        print(target_table(rows))
-        return 0
+        run, line, summary = (lambda n, k: target_unit(args.cache, n, k, supports, args.seed),
+                              _target_line, target_table)
+    else:
+        run, line, summary = (lambda n, k: unit(args.cache, n, k, budgets, args.seed),
+                              _curve_line, table)
     for name in names:
         for split in range(args.splits):
-            got = unit(args.cache, name, split, budgets, args.seed)
+            got = run(name, split)
             with out.open("a") as f:
                 for r in got:
                     f.write(json.dumps(r) + "\n")
             rows += got
-            print(f"{name} split {split} ({got[0]['recipe']}): " + ", ".join(
-                f"{r['support_vectors']} SVs " + "/".join(f"{100 * r[w]:.1f}" for w in WAYS)
-                + " %" for r in got), flush=True)
-    print(table(rows))
+            print(f"{name} split {split}: {line(got)}", flush=True)
+    print(summary(rows))
     return 0
+
+
+def _target_line(got: list[dict]) -> str:
+    return ", ".join(f"{r['method']} " + ("-" if r["error"] is None else
+                                         f"{100 * r['error']:.1f} % {r['recipe']} "
+                                         f"{r['support_vectors']} SVs") for r in got)
+
+
+def _curve_line(got: list[dict]) -> str:
+    return f"({got[0]['recipe']}) " + ", ".join(
+        f"{r['support_vectors']} SVs " + "/".join(f"{100 * r[w]:.1f}" for w in WAYS) + " %"
+        for r in got)
 
 
 if __name__ == "__main__":
