@@ -1092,12 +1092,7 @@ def train_model(
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
                   sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by)
-    if max_support is not None and (
-        isinstance(max_support, bool) or not isinstance(max_support, (int, np.integer))
-        or max_support < 1
-    ):
-        raise TrainingError(f"max_support must be a whole number >= 1, got {max_support!r}")
-    common["max_support"] = None if max_support is None else int(max_support)
+    common["max_support"] = _checked_max_support(max_support)
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
                                recipe_options=recipe_options)
@@ -1106,6 +1101,18 @@ def train_model(
                             "of machine, D, subsample, negatives left to the search)")
     return _train_fixed(data, labels, selection=selection, md_options=md_options,
                         **recipe_given, **common)
+
+
+def _checked_max_support(max_support: Any) -> int | None:
+    """None, or ``max_support`` checked (before any training: a TrainingError naming it)."""
+    from eskin.learn.support_budget import check_max_support
+
+    if max_support is None:
+        return None
+    try:
+        return check_max_support(max_support)
+    except (TypeError, ValueError) as exc:
+        raise TrainingError(str(exc)) from None
 
 
 def _with_support_budget(model: TouchModel, max_support: int | None,

@@ -163,19 +163,25 @@ def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy") -
     return np.sort(order)
 
 
+def check_max_support(max_support: Any) -> int:
+    """``max_support`` as an int; TypeError if it is not a whole number, ValueError below 1."""
+    if isinstance(max_support, bool) or not isinstance(max_support, (int, np.integer)):
+        raise TypeError(f"max_support must be a whole number, got {max_support!r}")
+    if max_support < 1:
+        raise ValueError(f"max_support must be at least 1, got {max_support}")
+    return int(max_support)
+
+
 def bound_support(estimator: Any, max_support: int, selection: str = "greedy",
                   X_fit: np.ndarray | None = None) -> Any:
     """A copy of the fitted ``estimator`` (a TensorSVC/TensorRLS or a OneVsAllTouchClassifier)
     with at most ``max_support`` distinct support vectors over all its machines (see the
     module's docstring); the estimator itself when it already has no more."""
-    if isinstance(max_support, bool) or not isinstance(max_support, (int, np.integer)):
-        raise TypeError(f"max_support must be a whole number, got {max_support!r}")
-    if max_support < 1:
-        raise ValueError(f"max_support must be at least 1, got {max_support}")
+    max_support = check_max_support(max_support)
     table, energies, _ = distinct_support(estimator)
     if len(table) <= max_support:
         return estimator
-    keep = kept_patterns(estimator, int(max_support), selection)
+    keep = kept_patterns(estimator, max_support, selection)
     out = copy.deepcopy(estimator)
     for m in _machines(out):
         project_machine(m, table[keep], energies[keep], X_fit)
