@@ -138,3 +138,26 @@ def test_fitted_on_patterns_the_decisions_are_the_least_squares_fit():
     gap_proj = np.linalg.norm(bound_support(ova, 10).decision_function(X)
                               - ova.decision_function(X))
     assert gap_fit <= gap_proj
+
+
+def test_each_greedy_pick_removes_the_most_of_the_remaining_residual():
+    """Matching pursuit step by step, against the definition: after the first t kept patterns,
+    the next is the one whose addition leaves the smallest ||w - P_S w||^2 (one machine, so no
+    weighting), computed by projecting onto every candidate set."""
+    X, y = _data(n=36, classes=2, seed=6)
+    m = TensorRLS(lam=0.1, sigma=3.0, amplitude=1.0).fit(X, y)
+    table, energies, _ = distinct_support(m)
+    chosen: list[int] = []
+    for k in range(1, 5):
+        best, best_residual = None, np.inf
+        for i in range(len(table)):
+            if i in chosen:
+                continue
+            trial = copy.deepcopy(m)
+            rows = chosen + [i]
+            project_machine(trial, table[rows], energies[rows])
+            r = _rkhs_residual(m, trial)
+            if r < best_residual - 1e-12:
+                best, best_residual = i, r
+        chosen.append(best)
+        assert sorted(chosen) == list(kept_patterns(m, k))
