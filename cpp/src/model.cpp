@@ -131,8 +131,9 @@ struct Classifier::Impl {
           const auto N = static_cast<std::size_t>(m.basis_rows(z));
           n_proj = std::max(n_proj, N * N);
         }
-    px.resize(n_proj);
-    if (!m.is_float64()) px32.resize(n_proj);
+    // in the model's precision only (a float32 model's projection is rounded from double sums)
+    if (m.is_float64()) px.resize(n_proj);
+    else px32.resize(n_proj);
     dist.resize(t.groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
     if (m.has_amplitude()) energy_gap.resize(static_cast<std::size_t>(m.n_support()));
   }
@@ -221,15 +222,10 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
       const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
       const auto zz = static_cast<std::size_t>(z);
       if (grp.proj[zz]) {
-        double* px = s.px.data();
-        if (f64) {
-          detail::projection(s.xb64.data() + xoff, N, a, px);
-        } else {
-          detail::projection(s.xb32.data() + xoff, N, a, px);
-          for (std::size_t j = 0; j < N * N; ++j) s.px32[j] = static_cast<float>(px[j]);
-        }
+        if (f64) detail::projection(s.xb64.data() + xoff, N, a, s.px.data());
+        else detail::projection(s.xb32.data() + xoff, N, a, s.px32.data());
         for (const std::uint32_t i : grp.svs) {
-          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, px, N * N)
+          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
                                 : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
           const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
           s.dist[(g * n_sv + i) * 3 + zz] = static_cast<DecisionReal>(
