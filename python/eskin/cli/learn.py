@@ -438,6 +438,11 @@ def trained_lines(model: Any) -> list[str]:
                      f"{100 * c['cv_std']:.1f} over {c['splits']} grouped splits), about "
                      f"{c['support_vectors']} support vectors")
         lines.append(f"  by {search['method']}; {search['evaluations']} candidate-split scores")
+        pref = search.get("preference")
+        if pref and pref["recipe"] != pref["lowest"]:
+            lines.append(f"  kept the preferred recipe: the lowest inner-CV error ({pref['lowest']}) "
+                         f"is {100 * pref['gap']:.1f} points lower, not significantly (p = "
+                         f"{pref['p']:.2f}, corrected paired t-test on the splits)")
         lines += _selected_lines(model)
         if search["runners_up"]:
             lines.append("  runners-up (best setting of each other recipe):")

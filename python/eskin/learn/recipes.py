@@ -22,8 +22,20 @@ and machine slices the same Gram matrix (one per sigma and amplitude width). Wit
 the one-vs-all machines of a split share their training set: tensor-RLS solves all of them with
 one Cholesky factorisation per lambda.
 
-Fewer support vectors: among the final candidates whose error is within one held-out pattern (over
-all the splits together) of the best, the one with the fewest expected support vectors wins. A budget (:class:`CandidateBudget`, see :mod:`eskin.deploy.target` for the cost
+The choice: cross-validation on a few dozen people cannot rank two dozen recipes reliably (the
+lowest of many noisy estimates is lower by luck as often as by merit), so the search keeps an
+order of preference among recipes (:func:`recipe_preference`: the larger D, then tensor-SVM,
+Algorithm 2 subsampling and every negative, the order that was best on average over the
+simulated campaigns of ``benchmarks/selection_study.py``) and chooses the most preferred recipe
+whose best candidate is **not significantly worse** than the lowest-error candidate, by the
+corrected resampled t-test of Nadeau and Bengio (2003) on the paired split errors (one-sided,
+level ``significance``): the variance of the mean difference over J random splits holding out a
+share of the groups is (1/J + n_test/n_train) times the splits' variance, not 1/J of it, as the
+splits overlap. The most preferred recipe (of those with a candidate that fits the budget) is
+the likeliest choice: the first round scores it on the whole grid, not the sample, and the best
+third of its own candidates stays in every round beside the best third of all. Within the chosen recipe, among its final candidates whose error is
+within one held-out pattern (over all the splits together) of its best, the one with the fewest
+expected support vectors wins. A budget (:class:`CandidateBudget`, see :mod:`eskin.deploy.target` for the cost
 model) removes candidates whose compiled model would not fit the controller before they are
 ranked.
 
@@ -49,6 +61,8 @@ __all__ = [
     "Candidate",
     "Recipe",
     "RecipeSearch",
+    "corrected_paired_t",
+    "recipe_preference",
     "recipe_space",
 ]
 
@@ -136,6 +150,36 @@ def recipe_space(
     if not recipes:
         raise TrainingError("the recipe search has no recipe to try")
     return recipes, notes
+
+
+def recipe_preference(recipe: Recipe) -> tuple:
+    """Sort key of the order of preference among recipes the cross-validation cannot tell
+    apart: the larger D first, then tensor-SVM before tensor-RLS, Algorithm 2 before even
+    subsampling, every negative before balanced ones."""
+    return (-int(recipe.D), MACHINES.index(recipe.machine), SUBSAMPLES.index(recipe.subsample),
+            NEGATIVES.index(recipe.negatives))
+
+
+def corrected_paired_t(diffs: Sequence[float], test_share: float) -> tuple[float, float]:
+    """(t, one-sided p) of the corrected resampled t-test (Nadeau and Bengio 2003) that the mean
+    of ``diffs`` (paired differences over J random splits, each holding out ``test_share`` of
+    the data) is above zero: t = mean / sqrt((1/J + test_share / (1 - test_share)) * var), var
+    with J - 1 degrees of freedom. A zero variance gives t = +-inf (p 0 or 1) for a non-zero
+    mean, t = 0 and p = 0.5 for a zero mean."""
+    from scipy.stats import t as student_t
+
+    d = np.asarray(diffs, dtype=np.float64)
+    J = len(d)
+    if J < 2:
+        raise TrainingError("the paired test needs at least two splits")
+    mean, var = float(d.mean()), float(d.var(ddof=1))
+    share = float(test_share)
+    se = math.sqrt((1.0 / J + share / (1.0 - share)) * var)
+    if se == 0.0:
+        t = 0.0 if mean == 0.0 else math.copysign(math.inf, mean)
+    else:
+        t = mean / se
+    return t, float(student_t.sf(t, J - 1))
 
 
 # --------------------------------------------------------------------------------------------
@@ -298,6 +342,8 @@ class RecipeSearch:
     first_share : the share of the grid every recipe is scored on in the first round (the same
         seeded sample for every recipe; a grid of at most :data:`SMALL_GRID` settings whole).
     budget : optional :class:`CandidateBudget`; candidates that do not fit are dropped.
+    significance : the level of the paired test that lets a recipe other than the most
+        preferred one be chosen (see the module docstring); None: the lowest error wins.
     seed, n_jobs : seeds of every random choice; joblib workers (any backend).
 
     Attributes after :meth:`fit`: ``best_`` (the chosen Candidate), ``best_error_``,
@@ -318,8 +364,9 @@ class RecipeSearch:
         n_splits: int = 10,
         test_size: float = 0.3,
         eta: int = 3,
-        first_share: float = 0.15,
+        first_share: float = 0.10,
         budget: CandidateBudget | None = None,
+        significance: float | None = 0.05,
         seed: int = 0,
         n_jobs: int | None = 1,
     ) -> None:
@@ -334,6 +381,9 @@ class RecipeSearch:
             raise TrainingError("the grid needs at least one lambda, sigma, alpha and amplitude")
         self.n_splits, self.test_size, self.eta = int(n_splits), float(test_size), int(eta)
         self.first_share, self.budget = float(first_share), budget
+        if significance is not None and not 0 < float(significance) < 1:
+            raise TrainingError(f"significance must be in (0, 1) or None, got {significance}")
+        self.significance = None if significance is None else float(significance)
         self.seed, self.n_jobs = int(seed), n_jobs
 
     # -- plan ------------------------------------------------------------------------------
@@ -406,12 +456,11 @@ class RecipeSearch:
         common = share({"y": y, "splits": self.splits_})
         distances: dict[tuple[int, str, str], dict[str, Any]] = {}
         self.rounds_, self.n_evaluations_ = [], 0
-        done = 0
-        schedule = self._schedule()
-        for r, upto in enumerate(schedule):
-            new = list(range(done, upto))
+
+        def score(cands: list[Candidate], split_ids: list[int]) -> list[Candidate]:
+            """Score the candidates on the splits; the ones that fit the budget."""
             tasks: dict[tuple[int, str, str], list[Candidate]] = {}
-            for c in alive:
+            for c in cands:
                 tasks.setdefault((*c.recipe.variant, c.alpha), []).append(c)
             for key in tasks:
                 if key not in distances:  # once per (D, subsampling, alpha), for every round
@@ -419,32 +468,60 @@ class RecipeSearch:
                     distances[key] = share({"dist_sum": dist_sum, "energies": energies})
             # one task per (D, subsampling, alpha) and split: the recipes and their inner folds
             calls = [((), {**distances[key], **common, "n_classes": n_classes,
-                           "candidates": cands, "split_ids": [s], "seed": self.seed})
-                     for key, cands in sorted(tasks.items()) for s in new]
+                           "candidates": group, "split_ids": [s], "seed": self.seed})
+                     for key, group in sorted(tasks.items()) for s in split_ids]
             for res in run_calls(_score_task, calls, n_jobs=self.n_jobs):
                 for (c, s), (err, nsv) in res.items():
                     rows[c].errors[s] = err
                     rows[c].support[s] = nsv
-            self.n_evaluations_ += len(alive) * len(new)
+            self.n_evaluations_ += len(cands) * len(split_ids)
+            if self.budget is None:
+                return cands
+            for c in cands:
+                rows[c].fits = self.budget.fits(c, self._expected_support(rows[c], len(y)))
+            return [c for c in cands if rows[c].fits]
+
+        done = 0
+        schedule = self._schedule()
+        for r, upto in enumerate(schedule):
+            new = list(range(done, upto))
+            scored = list(alive)
+            alive = score(alive, new)
+            if r == 0 and self.significance is not None and alive:
+                # the most preferred recipe that fits is the likeliest choice: it gets the
+                # whole grid, not the sample
+                top = min((c.recipe for c in alive), key=recipe_preference)
+                more = [Candidate(top, *g) for g in self.grid
+                        if Candidate(top, *g) not in rows]
+                for c in more:
+                    rows[c] = _Row(c)
+                scored += more
+                alive += score(more, new)
+            if not alive:
+                raise TrainingError(
+                    f"no candidate fits the budget ({self.budget.description}); the "
+                    f"smallest needs {min(self._expected_support(rows[c], len(y)) for c in scored)} "
+                    "support vectors: record fewer patterns per class, or raise the budget"
+                )
             done = upto
-            if self.budget is not None:
-                for c in alive:
-                    rows[c].fits = self.budget.fits(c, self._expected_support(rows[c], len(y)))
-                fitting = [c for c in alive if rows[c].fits]
-                if not fitting:
-                    raise TrainingError(
-                        f"no candidate fits the budget ({self.budget.description}); the "
-                        f"smallest needs {min(self._expected_support(rows[c], len(y)) for c in alive)} "
-                        "support vectors: record fewer patterns per class, or raise the budget"
-                    )
-                alive = fitting
             self.rounds_.append({"candidates": len(alive), "splits": upto})
             alive = sorted(alive, key=lambda c: self._key(rows[c]))
             if r < len(schedule) - 1:
-                alive = alive[: max(1, math.ceil(len(alive) / self.eta))]
+                alive = self._survivors(alive)
         self._finish(rows, alive, len(y))
         self.seconds_ = time.perf_counter() - t0
         return self
+
+    def _survivors(self, ranked: list[Candidate]) -> list[Candidate]:
+        """The best 1/eta of the ranked candidates and, when a preference applies, the best
+        1/eta of the most preferred recipe's own (so that it reaches the last round)."""
+        keep = ranked[: max(1, math.ceil(len(ranked) / self.eta))]
+        if self.significance is None:
+            return keep
+        top = min((c.recipe for c in ranked), key=recipe_preference)
+        mine = [c for c in ranked if c.recipe == top]
+        extra = set(mine[: max(1, math.ceil(len(mine) / self.eta))]) - set(keep)
+        return [c for c in ranked if c in extra or c in set(keep)]
 
     @staticmethod
     def _distances(X: np.ndarray, alpha: str) -> tuple[np.ndarray, np.ndarray]:
@@ -470,8 +547,13 @@ class RecipeSearch:
     def _finish(self, rows: dict[Candidate, _Row], final: list[Candidate], n: int) -> None:
         # equally good: less than one held-out pattern apart over all the splits together
         tolerance = 1.0 / sum(len(te) for _, te in self.splits_)
-        best_err = rows[final[0]].mean
-        tied = [c for c in final if rows[c].mean <= best_err + tolerance + 1e-12]
+        lowest = final[0]
+        recipe, self.preference_ = lowest.recipe, None
+        if self.significance is not None and len(self.splits_) >= 2:
+            recipe, self.preference_ = self._preferred_recipe(rows, final, tolerance)
+        mine = [c for c in final if c.recipe == recipe]
+        best_err = rows[mine[0]].mean
+        tied = [c for c in mine if rows[c].mean <= best_err + tolerance + 1e-12]
         best = min(tied, key=lambda c: (self._expected_support(rows[c], n), self._key(rows[c])))
         self.best_ = best
         self.best_error_ = rows[best].mean
@@ -481,7 +563,8 @@ class RecipeSearch:
             row = rows[c]
             errs = np.array(list(row.errors.values()))
             return {"candidate": c, "error": float(errs.mean()), "std": float(errs.std()),
-                    "splits": len(errs), "support_vectors": self._expected_support(row, n)}
+                    "splits": len(errs), "support_vectors": self._expected_support(row, n),
+                    "split_errors": [row.errors[s] for s in sorted(row.errors)]}
 
         self.ranking_ = [entry(best)] + [entry(c) for c in final if c != best]
         table: dict[Recipe, dict[str, Any]] = {}
@@ -493,6 +576,27 @@ class RecipeSearch:
             if old is None or (e["splits"], -e["error"]) > (old["splits"], -old["error"]):
                 table[c.recipe] = e
         self.recipe_table_ = sorted(table.values(), key=lambda e: (-e["splits"], e["error"]))
+
+    def _preferred_recipe(
+        self, rows: dict[Candidate, _Row], final: list[Candidate], tolerance: float
+    ) -> tuple[Recipe, dict[str, Any]]:
+        """(the most preferred recipe of the last round whose best candidate is not
+        significantly worse than the lowest-error candidate, the record of the test)."""
+        lowest = final[0]
+        share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in self.splits_]))
+        ids = sorted(rows[lowest].errors)
+        for recipe in sorted({c.recipe for c in final}, key=recipe_preference):
+            own = next(c for c in final if c.recipe == recipe)  # final is sorted by error
+            diffs = [rows[own].errors[s] - rows[lowest].errors[s] for s in ids]
+            gap = float(np.mean(diffs))
+            t, p = (0.0, 1.0) if gap <= tolerance + 1e-12 else corrected_paired_t(diffs, share)
+            if gap <= tolerance + 1e-12 or p >= self.significance:
+                return recipe, {
+                    "recipe": recipe.label(), "lowest": lowest.recipe.label(),
+                    "gap": round(gap, 6), "t": round(float(t), 4) if math.isfinite(t) else None,
+                    "p": round(float(p), 6), "significance": self.significance,
+                }
+        raise AssertionError("the lowest-error candidate's own recipe always qualifies")
 
     # -- reports ---------------------------------------------------------------------------
     def report(self, runners_up: int = 3) -> dict[str, Any]:
@@ -510,7 +614,11 @@ class RecipeSearch:
             "method": (f"successive halving over {len(self.recipes)} recipes x "
                        f"{len(self.grid)} settings (eta {self.eta}, first round "
                        f"{self.first_share:g} of the grid), multi-class error on "
-                       f"{self.n_splits} participant-grouped splits"),
+                       f"{self.n_splits} participant-grouped splits"
+                       + ("" if self.significance is None else
+                          f"; the most preferred recipe not significantly worse than the "
+                          f"lowest error (corrected paired t-test, level "
+                          f"{self.significance:g})")),
             "chosen": plain(best),
             "runners_up": [plain(e) for e in others[:runners_up]],
             "recipes": [plain(e) for e in self.recipe_table_],
@@ -518,5 +626,6 @@ class RecipeSearch:
             "evaluations": int(self.n_evaluations_),
             "tie_tolerance": round(float(self.tolerance_), 6),
             "budget": None if self.budget is None else self.budget.description,
+            "preference": getattr(self, "preference_", None),
             "seconds": round(float(getattr(self, "seconds_", 0.0)), 3),
         }

@@ -18,8 +18,11 @@ from eskin.learn.models import load_model, preprocess_campaign, train_model
 from eskin.learn.recipes import (
     CandidateBudget,
     Recipe,
+    Candidate,
     RecipeSearch,
+    corrected_paired_t,
     one_vs_all_indices,
+    recipe_preference,
     recipe_space,
 )
 
@@ -82,7 +85,7 @@ def test_successive_halving_keeps_a_third_per_round(data):
     recipes = [Recipe(m, 20, s, "all") for m in ("svm", "rls") for s in ("algorithm2", "even")]
     lams, sigmas = [0.01, 0.1, 1.0, 10.0], [0.5, 1.0, 2.0, 4.0]
     search = RecipeSearch(recipes, lams, sigmas, ["1", "Q/2"], [None, 1.0], n_splits=9,
-                          first_share=0.5, seed=1).fit(X, y, groups)
+                          first_share=0.5, significance=None, seed=1).fit(X, y, groups)
     # 4 recipes x 32 of the 64 settings; each round keeps ceil(1/3) and triples the splits
     assert [r["candidates"] for r in search.rounds_] == [128, 43, 15]
     assert [r["splits"] for r in search.rounds_] == [1, 3, 9]
@@ -96,8 +99,104 @@ def test_successive_halving_keeps_a_third_per_round(data):
     assert search.best_error_ <= best + search.tolerance_ + 1e-12
     # deterministic: the same seed gives the same choice and figures
     again = RecipeSearch(recipes, lams, sigmas, ["1", "Q/2"], [None, 1.0], n_splits=9,
-                         first_share=0.5, seed=1).fit(X, y, groups)
+                         first_share=0.5, significance=None, seed=1).fit(X, y, groups)
     assert again.best_ == search.best_ and again.report()["recipes"] == search.report()["recipes"]
+
+
+def test_recipe_preference_puts_the_larger_D_and_the_former_default_first():
+    recipes, _ = recipe_space()
+    order = sorted(recipes, key=recipe_preference)
+    assert order[0] == Recipe("svm", 100, "algorithm2", "all")
+    assert order[1] == Recipe("svm", 100, "algorithm2", "balanced")
+    assert order[2] == Recipe("svm", 100, "even", "all")
+    assert order[4] == Recipe("rls", 100, "algorithm2", "all")
+    assert [r.D for r in order] == [100] * 8 + [50] * 8 + [20] * 8
+
+
+def test_corrected_paired_t_by_hand():
+    """Nadeau and Bengio's corrected resampled t: the splits' variance times (1/J +
+    n_test/n_train), J - 1 degrees of freedom; more conservative than the naive paired t."""
+    from scipy.stats import t as student_t
+
+    d = [0.1, 0.0, 0.2, 0.1]
+    var = (0.0 + 0.01 + 0.01 + 0.0) / 3
+    t_hand = 0.1 / np.sqrt((1 / 4 + 0.3 / 0.7) * var)
+    t, p = corrected_paired_t(d, 0.3)
+    assert t == pytest.approx(t_hand, rel=1e-12)
+    assert p == pytest.approx(student_t.sf(t_hand, 3), rel=1e-12)
+    naive = 0.1 / np.sqrt(var / 4)
+    assert t < naive
+    # the sign of the mean is the direction of the one-sided test
+    t_neg, p_neg = corrected_paired_t([-x for x in d], 0.3)
+    assert t_neg == pytest.approx(-t_hand) and p_neg == pytest.approx(1 - p, rel=1e-12)
+    assert corrected_paired_t([0.05] * 5, 0.3) == (np.inf, 0.0)
+    assert corrected_paired_t([0.0] * 5, 0.3) == (0.0, 0.5)
+    with pytest.raises(TrainingError, match="at least two splits"):
+        corrected_paired_t([0.1], 0.3)
+
+
+def test_the_preferred_recipe_survives_every_round():
+    """Each round keeps the best third and, beside it, the best third of the most preferred
+    recipe's own candidates."""
+    pref, other = Recipe("svm", 50, "algorithm2", "all"), Recipe("rls", 20, "even", "all")
+    ranked = ([Candidate(other, la, 1.0, "1", None) for la in (1, 2, 3, 4, 5, 6, 7, 8)]
+              + [Candidate(pref, la, 1.0, "1", None) for la in (1, 2, 3, 4)])
+    s = RecipeSearch([pref, other], [1.0], [1.0], ["1"], [None], eta=3)
+    kept = s._survivors(ranked)
+    assert kept == ranked[:4] + ranked[8:10]
+    plain = RecipeSearch([pref, other], [1.0], [1.0], ["1"], [None], eta=3, significance=None)
+    assert plain._survivors(ranked) == ranked[:4]
+
+
+def test_the_most_preferred_recipe_is_scored_on_the_whole_grid(data):
+    """The first round samples the grid for every recipe but the most preferred one, which is
+    scored on every setting (32 here; the sample of a 32-setting grid is 24)."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "even", "all")]
+    grid = ([0.01, 0.1, 1.0, 10.0], [0.5, 1.0, 2.0, 4.0], ["1", "Q/2"], [None])
+    s = RecipeSearch(recipes, *grid, n_splits=3, first_share=0.25, seed=2).fit(X, y, groups)
+    assert s.rounds_[0]["candidates"] == 24 + 32
+    plain = RecipeSearch(recipes, *grid, n_splits=3, first_share=0.25, significance=None,
+                         seed=2).fit(X, y, groups)
+    assert plain.rounds_[0]["candidates"] == 24 + 24
+    assert s.n_evaluations_ > plain.n_evaluations_
+
+
+@pytest.mark.parametrize("significance", [0.05, 0.5, 0.999])
+def test_the_choice_is_the_most_preferred_recipe_not_significantly_worse(data, significance):
+    """Recomputed from the final round's split errors: every more preferred recipe's best
+    candidate is significantly worse than the lowest error; the chosen recipe's is not."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 50, "algorithm2", "balanced"),
+               Recipe("rls", 20, "algorithm2", "all"), Recipe("svm", 20, "even", "all")]
+    s = RecipeSearch(recipes, [0.01, 1.0], [0.5, 2.0], ["1", "Q/2"], [None], n_splits=6,
+                     first_share=1.0, significance=significance, seed=3).fit(X, y, groups)
+    final = sorted(s.ranking_, key=lambda e: e["error"])
+    lowest = final[0]
+    share = np.mean([len(te) / (len(tr) + len(te)) for tr, te in s.splits_])
+
+    def worse(recipe):
+        own = min((e for e in final if e["candidate"].recipe == recipe),
+                  key=lambda e: e["error"])
+        diffs = np.subtract(own["split_errors"], lowest["split_errors"])
+        if diffs.mean() <= s.tolerance_ + 1e-12:
+            return False
+        return corrected_paired_t(diffs, share)[1] < significance
+
+    chosen = s.best_.recipe
+    assert not worse(chosen)
+    present = {e["candidate"].recipe for e in final}
+    assert all(worse(r) for r in present if recipe_preference(r) < recipe_preference(chosen))
+    assert s.report()["preference"]["recipe"] == chosen.label()
+    # on these data the lowest error is tensor-RLS at D = 20, 2.8 points under the preferred
+    # recipe's best with p = 0.32: kept at the 5 % level, not at 50 % or 99.9 %
+    assert lowest["candidate"].recipe == recipes[1]
+    assert chosen == (recipes[0] if significance == 0.05 else recipes[1])
+    # no preference: the lowest error (up to one held-out pattern) wins
+    plain = RecipeSearch(recipes, [0.01, 1.0], [0.5, 2.0], ["1", "Q/2"], [None], n_splits=6,
+                         first_share=1.0, significance=None, seed=3).fit(X, y, groups)
+    assert plain.best_error_ <= min(e["error"] for e in plain.ranking_) + plain.tolerance_ + 1e-12
+    assert plain.report()["preference"] is None
 
 
 def test_a_budget_removes_what_does_not_fit(data):
