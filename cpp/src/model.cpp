@@ -30,6 +30,9 @@ using DecisionReal = float;
 #else
 using DecisionReal = double;
 #endif
+// The per-decision tables (distances, energy gaps) are stored in the model's precision: a float32
+// model's distances come from float32 bases, so storing them in float loses nothing they carry
+// and halves the table (the sums stay in DecisionReal).
 
 }  // namespace
 
@@ -120,6 +123,7 @@ struct Classifier::Impl {
         selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 1)),
         ov32(detail::select_overlap_f32()),
         ov64(detail::select_overlap_f64()) {
+    wide = kWideTables && m.is_float64();
     if (m.is_float64()) xb64.resize(layout.bases_size());
     else xb32.resize(layout.bases_size());
     const detail::DecisionTables& t = m.decision_tables();
@@ -134,8 +138,15 @@ struct Classifier::Impl {
     // in the model's precision only (a float32 model's projection is rounded from double sums)
     if (m.is_float64()) px.resize(n_proj);
     else px32.resize(n_proj);
-    dist.resize(t.groups.size() * static_cast<std::size_t>(m.n_support()) * 3);
-    if (m.has_amplitude()) energy_gap.resize(static_cast<std::size_t>(m.n_support()));
+    const std::size_t n_dist = t.groups.size() * static_cast<std::size_t>(m.n_support()) * 3;
+    const std::size_t n_gap = m.has_amplitude() ? static_cast<std::size_t>(m.n_support()) : 0;
+    if (wide) {
+      dist64.resize(n_dist);
+      gap64.resize(n_gap);
+    } else {
+      dist32.resize(n_dist);
+      gap32.resize(n_gap);
+    }
   }
 
   BasisLayout layout;
@@ -151,8 +162,24 @@ struct Classifier::Impl {
   int xr[3] = {0, 0, 0};
   std::vector<double> px;    // the input's projection (N x N) of the current mode
   std::vector<float> px32;
-  std::vector<DecisionReal> dist;  // (group, sv, mode) squared mode distances
-  std::vector<DecisionReal> energy_gap;  // (e(x) - e(sv_i))^2 per support vector (amplitude factor)
+  // (group, sv, mode) squared mode distances and (e(x) - e(sv_i))^2 per support vector (the
+  // amplitude factor): double for a float64 model on the host, float otherwise
+#if defined(ESKIN_DEVICE)
+  static constexpr bool kWideTables = false;
+#else
+  static constexpr bool kWideTables = true;
+#endif
+  bool wide = false;
+  std::vector<double> dist64, gap64;
+  std::vector<float> dist32, gap32;
+  void set_dist(std::size_t i, DecisionReal v) noexcept {
+    if (wide) dist64[i] = static_cast<double>(v);
+    else dist32[i] = static_cast<float>(v);
+  }
+  void set_gap(std::size_t i, DecisionReal v) noexcept {
+    if (wide) gap64[i] = static_cast<double>(v);
+    else gap32[i] = static_cast<float>(v);
+  }
   std::vector<double> values;
   // The window choice of eskin::detect_window (WindowConfig.select), the same code as the
   // batch preprocessing; its buffer (kMaxTouches) is allocated here, never per decision.
@@ -166,7 +193,8 @@ struct Classifier::Impl {
 namespace {
 // f(x) of one machine from the squared mode distances `d` of its group (sv, mode) and, for a
 // machine with an amplitude factor, the squared log-energy gaps (sv).
-double machine_value(const ModelMachine& mm, const DecisionReal* d, const DecisionReal* gap) noexcept {
+template <typename Stored>
+double machine_value(const ModelMachine& mm, const Stored* d, const Stored* gap) noexcept {
   DecisionReal w[3];
   for (int z = 0; z < 3; ++z)
     w[z] = static_cast<DecisionReal>(1.0 / (2.0 * mm.sigma[static_cast<std::size_t>(z)] *
@@ -178,15 +206,18 @@ double machine_value(const ModelMachine& mm, const DecisionReal* d, const Decisi
     const auto wa = static_cast<DecisionReal>(1.0 / (2.0 * mm.amplitude_width * mm.amplitude_width));
     for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
       const std::size_t i = mm.sv_index[t];
-      const DecisionReal* di = d + i * 3;
+      const Stored* di = d + i * 3;
       f += static_cast<DecisionReal>(mm.coef[t]) *
-           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2] + gap[i] * wa));
+           std::exp(-(static_cast<DecisionReal>(di[0]) * w[0] +
+                      static_cast<DecisionReal>(di[1]) * w[1] +
+                      static_cast<DecisionReal>(di[2]) * w[2] + static_cast<DecisionReal>(gap[i]) * wa));
     }
   } else {
     for (std::size_t t = 0; t < mm.sv_index.size(); ++t) {
-      const DecisionReal* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
+      const Stored* di = d + static_cast<std::size_t>(mm.sv_index[t]) * 3;
       f += static_cast<DecisionReal>(mm.coef[t]) *
-           std::exp(-(di[0] * w[0] + di[1] * w[1] + di[2] * w[2]));
+           std::exp(-(static_cast<DecisionReal>(di[0]) * w[0] +
+                      static_cast<DecisionReal>(di[1]) * w[1] + static_cast<DecisionReal>(di[2]) * w[2]));
     }
   }
   return static_cast<double>(f) + mm.intercept;
@@ -228,8 +259,8 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
           const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
                                 : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
           const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
-          s.dist[(g * n_sv + i) * 3 + zz] = static_cast<DecisionReal>(
-              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov));
+          s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(
+              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
         }
         continue;
       }
@@ -238,9 +269,9 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
             f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
                 : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
         const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
-        s.dist[(g * n_sv + i) * 3 + static_cast<std::size_t>(z)] =
-            std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
-                                          static_cast<DecisionReal>(rx) - DecisionReal(2) * ov);
+        s.set_dist((g * n_sv + i) * 3 + static_cast<std::size_t>(z),
+                   std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
+                                                 static_cast<DecisionReal>(rx) - DecisionReal(2) * ov));
       }
     }
   }
@@ -249,12 +280,14 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
     const double ex = tensor_log_energy(tensor, static_cast<std::size_t>(m.rows()) * m.cols() * m.D());
     const auto& e = m.sv_log_energy();
     for (std::size_t i = 0; i < n_sv; ++i)
-      s.energy_gap[i] = static_cast<DecisionReal>((ex - e[i]) * (ex - e[i]));  // inf if ex is
+      s.set_gap(i, static_cast<DecisionReal>((ex - e[i]) * (ex - e[i])));  // inf if ex is
   }
   const auto& machines = m.machines();
   for (std::size_t k = 0; k < machines.size(); ++k)
-    s.values[k] = machine_value(machines[k], s.dist.data() + tables.machine_group[k] * n_sv * 3,
-                                s.energy_gap.data());
+    s.values[k] = s.wide ? machine_value(machines[k], s.dist64.data() + tables.machine_group[k] * n_sv * 3,
+                                         s.gap64.data())
+                         : machine_value(machines[k], s.dist32.data() + tables.machine_group[k] * n_sv * 3,
+                                         s.gap32.data());
   out->n_machines = static_cast<int>(machines.size());
   out->values = s.values.data();
   if (m.rule() == DecisionRule::kBinary) {
