@@ -328,6 +328,29 @@ class _Row:
         return float(np.mean(list(self.errors.values())))
 
 
+def _preferred_recipe(
+    rows: Mapping[Candidate, _Row], final: list[Candidate], splits: list, tolerance: float,
+    significance: float,
+) -> tuple[Recipe, dict[str, Any]]:
+    """(the most preferred recipe of the last round whose best candidate is not significantly
+    worse than the lowest-error candidate ``final[0]``, the record of the test)."""
+    lowest = final[0]
+    share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in splits]))
+    ids = sorted(rows[lowest].errors)
+    for recipe in sorted({c.recipe for c in final}, key=recipe_preference):
+        own = next(c for c in final if c.recipe == recipe)  # final is sorted by error
+        diffs = [rows[own].errors[s] - rows[lowest].errors[s] for s in ids]
+        gap = float(np.mean(diffs))
+        t, p = (0.0, 1.0) if gap <= tolerance + 1e-12 else corrected_paired_t(diffs, share)
+        if gap <= tolerance + 1e-12 or p >= significance:
+            return recipe, {
+                "recipe": recipe.label(), "lowest": lowest.recipe.label(),
+                "gap": round(gap, 6), "t": round(float(t), 4) if math.isfinite(t) else None,
+                "p": round(float(p), 6), "significance": significance,
+            }
+    raise AssertionError("the lowest-error candidate's own recipe always qualifies")
+
+
 class RecipeSearch:
     """Successive halving over recipes and grid settings by grouped cross-validation.
 
@@ -550,7 +573,8 @@ class RecipeSearch:
         lowest = final[0]
         recipe, self.preference_ = lowest.recipe, None
         if self.significance is not None and len(self.splits_) >= 2:
-            recipe, self.preference_ = self._preferred_recipe(rows, final, tolerance)
+            recipe, self.preference_ = _preferred_recipe(rows, final, self.splits_, tolerance,
+                                                         self.significance)
         mine = [c for c in final if c.recipe == recipe]
         best_err = rows[mine[0]].mean
         tied = [c for c in mine if rows[c].mean <= best_err + tolerance + 1e-12]
@@ -576,27 +600,6 @@ class RecipeSearch:
             if old is None or (e["splits"], -e["error"]) > (old["splits"], -old["error"]):
                 table[c.recipe] = e
         self.recipe_table_ = sorted(table.values(), key=lambda e: (-e["splits"], e["error"]))
-
-    def _preferred_recipe(
-        self, rows: dict[Candidate, _Row], final: list[Candidate], tolerance: float
-    ) -> tuple[Recipe, dict[str, Any]]:
-        """(the most preferred recipe of the last round whose best candidate is not
-        significantly worse than the lowest-error candidate, the record of the test)."""
-        lowest = final[0]
-        share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in self.splits_]))
-        ids = sorted(rows[lowest].errors)
-        for recipe in sorted({c.recipe for c in final}, key=recipe_preference):
-            own = next(c for c in final if c.recipe == recipe)  # final is sorted by error
-            diffs = [rows[own].errors[s] - rows[lowest].errors[s] for s in ids]
-            gap = float(np.mean(diffs))
-            t, p = (0.0, 1.0) if gap <= tolerance + 1e-12 else corrected_paired_t(diffs, share)
-            if gap <= tolerance + 1e-12 or p >= self.significance:
-                return recipe, {
-                    "recipe": recipe.label(), "lowest": lowest.recipe.label(),
-                    "gap": round(gap, 6), "t": round(float(t), 4) if math.isfinite(t) else None,
-                    "p": round(float(p), 6), "significance": self.significance,
-                }
-        raise AssertionError("the lowest-error candidate's own recipe always qualifies")
 
     # -- reports ---------------------------------------------------------------------------
     def report(self, runners_up: int = 3) -> dict[str, Any]:
