@@ -439,10 +439,12 @@ def trained_lines(model: Any) -> list[str]:
                      f"{c['support_vectors']} support vectors")
         lines.append(f"  by {search['method']}; {search['evaluations']} candidate-split scores")
         pref = search.get("preference")
-        if pref and pref["recipe"] != pref["lowest"]:
-            lines.append(f"  kept the preferred recipe: the lowest inner-CV error ({pref['lowest']}) "
-                         f"is {100 * pref['gap']:.1f} points lower, not significantly (p = "
-                         f"{pref['p']:.2f}, corrected paired t-test on the splits)")
+        if pref and pref["recipe"] != pref["lowest"] and pref["gap"] > 0:
+            why = ("less than one held-out pattern" if pref.get("within_one_pattern") else
+                   f"not significantly (p = {pref['p']:.2f}, corrected paired t-test on the "
+                   "splits)")
+            lines.append(f"  kept the preferred recipe: {pref['lowest']} scored "
+                         f"{100 * pref['gap']:.1f} points lower on the inner splits, {why}")
         lines += _selected_lines(model)
         if search["runners_up"]:
             lines.append("  runners-up (best setting of each other recipe):")

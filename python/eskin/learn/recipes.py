@@ -345,7 +345,8 @@ def _preferred_recipe(
         if gap <= tolerance + 1e-12 or p >= significance:
             return recipe, {
                 "recipe": recipe.label(), "lowest": lowest.recipe.label(),
-                "gap": round(gap, 6), "t": round(float(t), 4) if math.isfinite(t) else None,
+                "gap": round(gap, 6), "within_one_pattern": bool(gap <= tolerance + 1e-12),
+                "t": round(float(t), 4) if math.isfinite(t) else None,
                 "p": round(float(p), 6), "significance": significance,
             }
     raise AssertionError("the lowest-error candidate's own recipe always qualifies")
