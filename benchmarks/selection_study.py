@@ -105,15 +105,15 @@ QUICK_GRID = {"lam": [1e-2, 1.0], "sigma": [0.5, 2.0, 8.0], "alpha": [1, "full"]
 
 # --------------------------------------------------------------------------------------------
 # data: campaigns, patterns, distances (cached)
-def campaign_path(cache: Path, name: str, spec) -> Path:
-    """Simulate run 2 of the campaign once; later runs reuse the file."""
+def campaign_path(cache: Path, name: str, spec, runs=(2,), suffix="") -> Path:
+    """Simulate run 2 (or ``runs``) of the campaign once; later runs reuse the file."""
     key, sim_args, overrides, _ = spec
-    path = cache / "campaigns" / f"{key}.h5"
+    path = cache / "campaigns" / f"{key}{suffix}.h5"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         cfg = dataclasses.replace(eskin.SimulatorConfig(), **overrides)
         tmp = path.with_suffix(".part.h5")
-        eskin.simulate(tmp, seed=11, runs=(2,), config=cfg, overwrite=True, **sim_args)
+        eskin.simulate(tmp, seed=11, runs=tuple(runs), config=cfg, overwrite=True, **sim_args)
         tmp.rename(path)
     return path
 
@@ -937,16 +937,7 @@ SEARCH_HELD_RUNS = (3, 4, 5, 6)
 
 def heldout_path(cache: Path, name: str, spec) -> Path:
     """Runs 3-6 of the campaign's participants (the same simulated people as run 2)."""
-    key, sim_args, overrides, _ = spec
-    path = cache / "campaigns" / f"{key}-held.h5"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cfg = dataclasses.replace(eskin.SimulatorConfig(), **overrides)
-        tmp = path.with_suffix(".part.h5")
-        eskin.simulate(tmp, seed=11, runs=SEARCH_HELD_RUNS, config=cfg, overwrite=True,
-                       **sim_args)
-        tmp.rename(path)
-    return path
+    return campaign_path(cache, name, spec, SEARCH_HELD_RUNS, "-held")
 
 
 class _HeldOut:
