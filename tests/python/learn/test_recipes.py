@@ -295,3 +295,10 @@ def test_cli_train_says_when_the_preference_kept_a_recipe_with_a_higher_error(si
     assert r0.exit_code == 0, r0.output
     assert load_model(tmp_path / "m0.joblib").training["recipe_search"]["preference"]["gap"] == 0
     assert "kept the preferred recipe" not in r0.output
+
+
+@pytest.mark.parametrize("level", [0, 1, 1.5, -0.1])
+def test_a_significance_outside_zero_one_is_refused(level):
+    with pytest.raises(TrainingError, match=f"significance must be in \\(0, 1\\) or None, got {level}"):
+        RecipeSearch([Recipe("svm", 20, "even", "all")], [1.0], [1.0], ["1"], [None],
+                     significance=level)
