@@ -68,9 +68,7 @@ def evaluate(
     groups), per-class recall, confusion matrix, settings per fold. Writes
     OUT/evaluation.json, .md, .png. With --target/--budget, the search under the budget runs
     in the same folds and its accuracy is reported beside the unconstrained one."""
-    from eskin._files import refuse_overwrite_all
-    from eskin.learn.evaluation import evaluate_recipe
-    from eskin.learn.evaluation_report import fold_line, summary_lines, write_evaluation
+    from eskin._files import error_line, refuse_overwrite_all
     from eskin.learn.parallel import compute_backend
 
     given = {
@@ -81,41 +79,59 @@ def evaluate(
         "subsample": subsample,
         "negatives": negatives,
     }
-    # options not given keep eskin.train_model's defaults (the recipe eskin train uses)
-    recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
-    recipe["quick"] = quick
-    recipe.update(_amplitudes(amplitude))
-    if max_support is not None:
-        recipe["max_support"] = max_support
+    recipe = _recipe_of(given, quick, amplitude, max_support)
     budgeted, the_budget = _budgeted(campaign, target, budget, recipe, classes)
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
             # on a cluster, evaluate_recipe reads the recordings here and scatters them
-            data = campaign
-            result = evaluate_recipe(
-                data,
-                recipe=recipe,
-                groups=groups,
-                n_folds=folds,
-                classes=_names(classes),
-                baselines=_names(baselines) or (),
-                seed=seed,
-                n_jobs=-1 if scheduler else n_jobs,
-                on_fold=lambda record, n: typer.echo(fold_line(record, n)),
-            )
-            if budgeted is not None:  # the same folds: same campaign, groups, folds, seed
-                under = evaluate_recipe(
-                    data, recipe=budgeted, groups=groups, n_folds=folds,
-                    classes=_names(classes), seed=seed, n_jobs=-1 if scheduler else n_jobs,
-                )
-                result["under_budget"] = _under_budget(under, the_budget)
+            result = _in_folds(campaign, recipe, budgeted, the_budget, groups=groups,
+                               n_folds=folds, classes=_names(classes),
+                               baselines=_names(baselines) or (), seed=seed,
+                               n_jobs=-1 if scheduler else n_jobs)
     except (ValueError, OSError, KeyError, ImportError) as exc:
-        from eskin._files import error_line
-
         _fail(error_line(exc, out))
-    # the results first: a full disk then costs the files, not the scores
+    _report(result, out)
+
+
+def _recipe_of(given: dict, quick: bool, amplitude: str | None,
+               max_support: int | None) -> dict:
+    """The recipe of the options given; those not given keep eskin.train_model's defaults
+    (the recipe eskin train uses)."""
+    recipe = {k: getattr(v, "value", v) for k, v in given.items() if v is not None}
+    recipe["quick"] = quick
+    recipe.update(_amplitudes(amplitude))
+    if max_support is not None:
+        recipe["max_support"] = max_support
+    return recipe
+
+
+def _in_folds(data, recipe, budgeted, the_budget, *, groups, n_folds, classes, baselines,
+              seed, n_jobs) -> dict:
+    """evaluate_recipe of the recipe, and of the recipe under the budget (when given) in the
+    same folds: same campaign, groups, folds and seed."""
+    from eskin.learn.evaluation import evaluate_recipe
+    from eskin.learn.evaluation_report import fold_line
+
+    result = evaluate_recipe(
+        data, recipe=recipe, groups=groups, n_folds=n_folds, classes=classes,
+        baselines=baselines, seed=seed, n_jobs=n_jobs,
+        on_fold=lambda record, n: typer.echo(fold_line(record, n)),
+    )
+    if budgeted is not None:
+        under = evaluate_recipe(data, recipe=budgeted, groups=groups, n_folds=n_folds,
+                                classes=classes, seed=seed, n_jobs=n_jobs)
+        result["under_budget"] = _under_budget(under, the_budget)
+    return result
+
+
+def _report(result: dict, out: Path) -> None:
+    """Print the scores, then write OUT/evaluation.* (a full disk then costs the files, not
+    the scores)."""
+    from eskin._files import error_line
+    from eskin.learn.evaluation_report import summary_lines, write_evaluation
+
     for line in summary_lines(result):
         typer.echo(line)
     for line in _under_budget_lines(result):
@@ -126,8 +142,6 @@ def evaluate(
     try:
         paths = write_evaluation(result, out)
     except (ValueError, OSError) as exc:
-        from eskin._files import error_line
-
         _fail(error_line(exc, out))
     typer.echo(f"wrote {paths['json']}, {paths['md'].name} and {paths['figure'].name}")
 

@@ -381,43 +381,43 @@ def train(
     the runners-up and the model's size and decision time; see
     docs/selection-study.md.
     """
+    amplitudes = _amplitudes(amplitude)
+    names = _train_classes(classes, all_classes, output, force, campaign)
+    _notes(_training_set_notes(campaign, D, selection.value))
+    given = {"machine": machine, "selection": selection, "D": D, "negatives": negatives}
+    recipe = {
+        "classes": names, **{k: getattr(v, "value", v) for k, v in given.items()},
+        **_preprocessing(window, subsample, max_window, window_samples),
+        "quick": quick, "seed": seed, "n_jobs": -1 if scheduler else n_jobs, "group_by": groups,
+        **amplitudes, **({} if max_support is None else {"max_support": max_support}),
+    }
+    the_budget = None
+    if target is not None or budget is not None:
+        the_budget, notes = _budget_recipe(campaign, target, budget, recipe)
+        _notes(notes)
+    model = _train_and_save(campaign, output, recipe, scheduler, progress, the_budget)
+    _notes(model.training.get("notes", []))
+    for line in trained_lines(model) + _size_lines(model, the_budget) + [f"wrote {output}"]:
+        typer.echo(line)
+
+
+def _train_classes(classes, all_classes, output, force, campaign):
+    """The --classes names (None: every class), once the options agree and OUTPUT may be
+    written."""
     from eskin._files import refuse_overwrite
 
-    amplitudes = _amplitudes(amplitude)
     if classes is not None and all_classes:
         _fail("give --classes a,b,... or --all-classes, not both")
     try:
         refuse_overwrite(output, force, inputs=(campaign,))
     except OSError as exc:
         _fail(str(exc))
-    names = None if classes is None else [c.strip() for c in classes.split(",") if c.strip()]
-    for note in _training_set_notes(campaign, D, selection.value):
+    return None if classes is None else [c.strip() for c in classes.split(",") if c.strip()]
+
+
+def _notes(notes) -> None:
+    for note in notes:
         typer.echo(f"note: {note}")
-    given = {"machine": machine, "selection": selection, "D": D, "negatives": negatives}
-    recipe = {
-        "classes": names,
-        **{k: getattr(v, "value", v) for k, v in given.items()},
-        **_preprocessing(window, subsample, max_window, window_samples),
-        "quick": quick,
-        "seed": seed,
-        "n_jobs": -1 if scheduler else n_jobs,
-        "group_by": groups,
-        **amplitudes,
-        **({} if max_support is None else {"max_support": max_support}),
-    }
-    the_budget = None
-    if target is not None or budget is not None:
-        the_budget, notes = _budget_recipe(campaign, target, budget, recipe)
-        for note in notes:
-            typer.echo(f"note: {note}")
-    model = _train_and_save(campaign, output, recipe, scheduler, progress, the_budget)
-    for note in model.training.get("notes", []):
-        typer.echo(f"note: {note}")
-    for line in trained_lines(model):
-        typer.echo(line)
-    for line in _size_lines(model, the_budget):
-        typer.echo(line)
-    typer.echo(f"wrote {output}")
 
 
 def trained_lines(model: Any) -> list[str]:

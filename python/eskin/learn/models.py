@@ -1034,65 +1034,48 @@ def train_model(
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
 ) -> TouchModel:
-    """Select the recipe and its hyperparameters, fit on all the given data and return a
-    :class:`TouchModel`.
+    """Select the recipe and its hyperparameters, fit on all the data: a :class:`TouchModel`.
 
     Parameters
     ----------
     data : a campaign path, a loaded Campaign, or raw signals (n, rows, cols, T) with ``labels``
         (class names, or integers indexing ``class_names``), ``lengths`` and ``sample_rate_hz``.
-    classes : the classes to learn (names; default: every class present). Two classes give one
-        binary machine (decision > 0 means ``classes[1]``); three or more give one 1-vs-all
-        machine per class, combined by the paper's rule (Section 5.3).
+    classes : the classes to learn (default: every class). Two give one binary machine (> 0:
+        ``classes[1]``); more give one 1-vs-all machine each (the paper's rule, Section 5.3).
     machine : "svm" (tensor-SVM, C = 1/lambda) or "rls" (tensor-RLS).
-    selection : "cv" (default: 10 random splits holding out 30 % of the groups - participants
-        unless ``group_by`` says otherwise - so no group is on both sides; stratified splits of
-        the recordings, with a note, when there are fewer than 2 groups or a grouped split would
-        leave one class out; ``cv_options`` go to :class:`~eskin.CrossValidationSearch`) or
-        "md" (Maximal Discrepancy, Algorithm 1; ``md_options`` go to
-        :class:`~eskin.MaximalDiscrepancySearch`). The default is CV because on unseen
-        participants of simulated campaigns it beat every reading of Maximal Discrepancy, by 4-5
-        points on average (the best reading) to 15 (eskin's first; docs/selection-study.md).
+    selection : "cv" (default: 10 random splits holding out 30 % of the ``group_by`` groups;
+        stratified splits of the recordings, with a note, when grouped ones are impossible;
+        ``cv_options``: :class:`~eskin.CrossValidationSearch`) or "md" (Maximal Discrepancy,
+        Algorithm 1; ``md_options``: :class:`~eskin.MaximalDiscrepancySearch`).
     D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`); D
         None (default) is 100, or the longest training recording when that is shorter.
     lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
         replaces it by a 2x2x2 grid (for tests and demos).
     amplitudes : the amplitude-aware kernel's widths searched (None: the paper's kernel; a
         number: the factor's width in spreads of the training patterns' log energy, see
-        :class:`~eskin.TensorSVC`), each multiplying the grid; the default (None, 1, 4) cut the
-        held-out error on unseen participants of simulated campaigns by 3 points.
+        :class:`~eskin.TensorSVC`), each multiplying the grid.
     negatives : what each 1-vs-all machine sees of the other classes: "all" their patterns
         (benchmarks/multiclass_study.py) or "balanced" (the paper: as many, seeded random).
-    runs : only recordings of these runs (default: every recording).
-    group_by : the campaign label that groups recordings in the CV selection's splits (no group
-        on both sides): "participant" (default), "run", "direction" or an integer extra field.
-    budget : a :class:`~eskin.learn.recipes.CandidateBudget` (built by
-        :func:`eskin.deploy.target.candidate_budget`): only recipes and settings whose compiled
-        model fits it are chosen (CV selection with the recipe searched).
-    recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``,
-        ``first_share``, ...).
+    runs : only recordings of these runs (default: all).
+    group_by : the label whose groups the CV splits keep apart: "participant" (default), "run",
+        "direction" or an integer extra field.
+    budget : a :class:`~eskin.learn.recipes.CandidateBudget`
+        (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
+    recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_support : at most this many distinct support vectors in the model (all machines
-        together), chosen by kernel matching pursuit, each machine's coefficients on them fitted
-        to its decision values on the training patterns
-        (:func:`eskin.learn.support_budget.bound_support`); the selection itself is unchanged.
-        None (default): every support vector the machines keep.
+        together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
-    ``negatives`` left None is searched (machine svm/rls, D 20/50/100 capped by the longest
-    training recording, subsampling algorithm2/even, negatives all/balanced) together with the
-    grid by :class:`~eskin.learn.recipes.RecipeSearch` (successive halving on the multi-class
-    error of participant-grouped splits); the chosen recipe, its estimate and the runners-up
-    are in ``training["recipe_search"]``. With all four given, or with ``selection="md"``
-    (whose bound compares settings of one recipe only; the unset ones are then svm, D 100 or
-    the longest recording, algorithm2, all), each machine selects its own setting of the grid
-    as before.
+    ``negatives`` left None is searched by :class:`~eskin.learn.recipes.RecipeSearch`.
+    With all four given, or ``selection="md"`` (the unset ones then svm, D 100 or the longest
+    recording, algorithm2, all), each machine selects its own setting of the grid.
     """
     recipe_given = dict(machine=machine, D=D, subsample=subsample, negatives=negatives)
     common = dict(classes=classes, window=window, window_config=window_config, lambdas=lambdas,
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
-                  sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by)
-    common["max_support"] = _checked_max_support(max_support)
+                  sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by,
+                  max_support=_checked_max_support(max_support))
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
                                recipe_options=recipe_options)
