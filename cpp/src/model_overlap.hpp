@@ -19,6 +19,11 @@ using OverlapF64 = double (*)(const double* b, const double* x, std::size_t n,
 using DotF32 = double (*)(const float* a, const float* b, std::size_t n) noexcept;
 using DotF64 = double (*)(const double* a, const double* b, std::size_t n) noexcept;
 
+/// The controller's overlap (the device build's choice): float sums over register tiles of up
+/// to 4 x 4 dot products (model_overlap.cpp); on any build, for the tests.
+double overlap_f32_tiled(const float* b, const float* x, std::size_t n,
+                         std::size_t alpha) noexcept;
+
 /// Best variants for this CPU (AVX2+FMA on x86 when available; ESKIN_KERNEL_ISA=generic forces
 /// the portable ones).
 OverlapF32 select_overlap_f32() noexcept;
