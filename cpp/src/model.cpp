@@ -34,6 +34,14 @@ using DecisionReal = double;
 // model's distances come from float32 bases, so storing them in float loses nothing they carry
 // and halves the table (the sums stay in DecisionReal).
 
+// Whether one of two subspaces of R^N (ranks r1, r2 after the cut to alpha) is all of R^N: then
+// the projection overlap is exactly the other's rank and the distance r1 + r2 - 2 ov is
+// |r1 - r2|, with no product to compute (mode 3 of a 4 x 4 grid at alpha = Q: N = 16 taxels and
+// a full-rank time unfolding on both sides, distance 0).
+inline bool spans(int r1, int r2, std::size_t N) noexcept {
+  return static_cast<std::size_t>(std::max(r1, r2)) == N;
+}
+
 }  // namespace
 
 const char* to_string(ClassifyStatus s) noexcept {
@@ -256,19 +264,27 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
         if (f64) detail::projection(s.xb64.data() + xoff, N, a, s.px.data());
         else detail::projection(s.xb32.data() + xoff, N, a, s.px32.data());
         for (const std::uint32_t i : grp.svs) {
+          const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+          if (spans(ri, rx, N)) {
+            s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(std::abs(ri - rx)));
+            continue;
+          }
           const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
                                 : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
-          const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
           s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(
               std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
         }
         continue;
       }
       for (const std::uint32_t i : grp.svs) {
+        const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+        if (spans(ri, rx, N)) {
+          s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(std::abs(ri - rx)));
+          continue;
+        }
         const auto ov = static_cast<DecisionReal>(
             f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
                 : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
-        const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
         s.set_dist((g * n_sv + i) * 3 + static_cast<std::size_t>(z),
                    std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
                                                  static_cast<DecisionReal>(rx) - DecisionReal(2) * ov));
