@@ -109,6 +109,46 @@ INSTANTIATE_TEST_SUITE_P(Shapes, ScalarBasesTest,
                          ::testing::Values(Case{20, {1, 1, 1}}, Case{20, {2, 2, 8}},
                                            Case{50, {4, 4, 16}}, Case{100, {2, 2, 8}}));
 
+TEST(ScalarBases, TheTimeModeAtAlphaQSpansOrFallsBackToItsSingularVectors) {
+  // alpha_3 = 16 = the taxels: a full-rank time unfolding spans R^16 (the identity is a basis of
+  // it, and the rank is 16); one that mixes 4 temporal sources (sin and cos of one
+  // frequency, two others) has rank 4, and its basis is the host's
+  const BasisLayout layout({4, 4, 50}, {4, 4, 16});
+  eskin::BasisWorkspace host(layout);
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<double> ref(layout.bases_size());
+  std::vector<float> b(layout.bases_size());
+  int r[3], r_ref[3];
+  const std::size_t off = layout.offset(2), n = layout.cols(2);
+  std::vector<double> x = random_tensor(layout.tensor_size(), 3);
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  ASSERT_EQ(host.compute(x.data(), ref.data(), r_ref), KernelStatus::ok);
+  EXPECT_EQ(r[2], 16);
+  EXPECT_EQ(r_ref[2], 16);
+  EXPECT_LT(projection_gap(ref.data() + off, b.data() + off, n, 16), 1e-5);
+  for (std::size_t c = 0; c < n; ++c)
+    for (std::size_t j = 0; j < n; ++j)
+      ASSERT_EQ(b[off + c * n + j], c == j ? 1.0f : 0.0f);
+  // full rank but ill-conditioned (one taxel 1e-4 of the others: beyond the quick proof of
+  // full rank, within the rank's tolerance): the sweeps find rank 16
+  for (std::size_t t = 0; t < 50; ++t) x[7 * 50 + t] *= 1e-4;
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  ASSERT_EQ(host.compute(x.data(), ref.data(), r_ref), KernelStatus::ok);
+  EXPECT_EQ(r[2], 16);
+  EXPECT_EQ(r_ref[2], 16);
+  EXPECT_LT(projection_gap(ref.data() + off, b.data() + off, n, 16), 1e-4);
+  for (std::size_t t = 0; t < 50; ++t)
+    for (std::size_t i = 0; i < 16; ++i)
+      x[i * 50 + t] = std::sin(0.2 * t + i) + (1.0 + 0.1 * i) * std::cos(0.45 * t) +
+                      (i % 3) * std::sin(1.3 * t + 0.5);
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  ASSERT_EQ(host.compute(x.data(), ref.data(), r_ref), KernelStatus::ok);
+  EXPECT_EQ(r_ref[2], 4);
+  EXPECT_EQ(r[2], 4);
+  EXPECT_LT(projection_gap(ref.data() + off, b.data() + off, n, 16), 1e-4);
+  for (std::size_t i = 4 * n; i < 16 * n; ++i) ASSERT_EQ(b[off + i], 0.0f);
+}
+
 TEST(ScalarBases, RankDeficientZeroAndNonFiniteTensors) {
   const BasisLayout layout({4, 4, 20}, {2, 2, 8});
   eskin::detail::ScalarBases<float> sb(layout);
@@ -147,11 +187,11 @@ TEST(ScalarBases, OneSidedJacobiGivesTheSingularValueDecomposition) {
   const double U[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
   const double W0[9] = {1, 0, 0, 0, c2, -s2, 0, s2, c2};
   const double L[3] = {3, 1, 2};
-  double b[9] = {}, w[9];  // column-major
+  double b[9] = {}, w[9], ws[3];  // column-major
   for (int r = 0; r < 3; ++r)
     for (int col = 0; col < 3; ++col)
       for (int k = 0; k < 3; ++k) b[col * 3 + r] += U[r * 3 + k] * L[k] * W0[col * 3 + k];
-  ASSERT_TRUE(eskin::detail::one_sided_jacobi<double>(3, b, w));
+  ASSERT_TRUE(eskin::detail::one_sided_jacobi<double>(3, b, w, ws));
   std::vector<double> norms;
   for (int j = 0; j < 3; ++j) {
     double n2 = 0, wn = 0;
