@@ -462,7 +462,9 @@ def _support_budget_lines(model: Any) -> list[str]:
     b = model.training.get("support_budget")
     if not b:
         return []
-    return [f"support vectors bounded by --max-support {b['max_support']}: "
+    by = (f"to {b['max_support']} to fit the budget" if b.get("by") == "budget"
+          else f"by --max-support {b['max_support']}")
+    return [f"support vectors bounded {by}: "
             f"{b['support_vectors_before']} -> {b['support_vectors']} (each machine refitted on "
             f"the kept patterns)"]
 

@@ -1215,9 +1215,14 @@ def _train_searched(
     training["searched"] = [k for k, v in (("machine", machine), ("D", D),
                                            ("subsample", subsample), ("negatives", negatives))
                             if v is None]
-    return _with_support_budget(
+    by_budget = search.best_bound_ is not None and (max_support is None
+                                                     or search.best_bound_ < max_support)
+    model = _with_support_budget(
         _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
-                     window_config), max_support, X)
+                     window_config), search.best_bound_ if by_budget else max_support, X)
+    if by_budget:  # bounded by the search, to the most support vectors that fit the budget
+        model.training["support_budget"]["by"] = "budget"
+    return model
 
 
 def _fit_candidate(

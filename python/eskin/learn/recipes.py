@@ -37,7 +37,11 @@ third of its own candidates stays in every round beside the best third of all. W
 within one held-out pattern (over all the splits together) of its best, the one with the fewest
 expected support vectors wins. A budget (:class:`CandidateBudget`, see :mod:`eskin.deploy.target` for the cost
 model) removes candidates whose compiled model would not fit the controller before they are
-ranked.
+ranked, or keeps one with its support vectors bounded to the most that fit (at least half of
+those it is expected to need; :func:`eskin.learn.support_budget.bound_support` after the fit).
+Under a budget the order of preference leaves D out (:func:`budget_preference`): the budget
+trades D against alpha and the support vectors, and the larger D that is safest without one
+held on to alpha 1 at D = 100 where alpha Q at D = 50 did better on unseen people.
 
 Every random choice (splits, the grid sample, balanced negatives) is seeded, never taken from
 the execution order; the work of a round is cut into (D, subsampling, alpha) tasks run through
@@ -158,6 +162,15 @@ def recipe_preference(recipe: Recipe) -> tuple:
     subsampling, every negative before balanced ones."""
     return (-int(recipe.D), MACHINES.index(recipe.machine), SUBSAMPLES.index(recipe.subsample),
             NEGATIVES.index(recipe.negatives))
+
+
+def budget_preference(recipe: Recipe) -> tuple:
+    """The order of preference under a controller's budget: :func:`recipe_preference` without
+    D. A budget trades D against alpha and the support vectors (at the cortex-m4 budget D =
+    100 fits at alpha 1 only, D = 50 at alpha Q with about 60 support vectors), so the larger D
+    is no longer the safer choice: the recipes of one machine, subsampling and negatives are
+    one family, and the family's lowest-error candidate stands for it."""
+    return recipe_preference(recipe)[1:]
 
 
 def corrected_paired_t(diffs: Sequence[float], test_share: float) -> tuple[float, float]:
@@ -314,6 +327,13 @@ class CandidateBudget:
 
     fits: Callable[[Candidate, int], bool]
     description: str = ""
+    #: optional ``largest(candidate, n_support)``: the most support vectors, at most
+    #: ``n_support``, with which the candidate's model fits (0: none). With it, a candidate
+    #: expected to need more is kept with its support vectors bounded to that many
+    #: (:func:`eskin.learn.support_budget.bound_support`), when the bound keeps at least
+    #: ``keep_share`` of them.
+    largest: Callable[[Candidate, int], int] | None = None
+    keep_share: float = 0.5
 
 
 @dataclass
@@ -322,6 +342,7 @@ class _Row:
     errors: dict[int, float] = field(default_factory=dict)
     support: dict[int, int] = field(default_factory=dict)
     fits: bool = True
+    bound: int | None = None  # support vectors the model is bounded to under the budget
 
     @property
     def mean(self) -> float:
@@ -330,15 +351,17 @@ class _Row:
 
 def _preferred_recipe(
     rows: Mapping[Candidate, _Row], final: list[Candidate], splits: list, tolerance: float,
-    significance: float,
+    significance: float, key: Callable[[Recipe], tuple] = recipe_preference,
 ) -> tuple[Recipe, dict[str, Any]]:
-    """(the most preferred recipe of the last round whose best candidate is not significantly
-    worse than the lowest-error candidate ``final[0]``, the record of the test)."""
+    """(the recipe of the best candidate of the most preferred family (recipes of one ``key``)
+    of the last round that is not significantly worse than the lowest-error candidate
+    ``final[0]``, the record of the test)."""
     lowest = final[0]
     share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in splits]))
     ids = sorted(rows[lowest].errors)
-    for recipe in sorted({c.recipe for c in final}, key=recipe_preference):
-        own = next(c for c in final if c.recipe == recipe)  # final is sorted by error
+    for family in sorted({key(c.recipe) for c in final}):
+        own = next(c for c in final if key(c.recipe) == family)  # final is sorted by error
+        recipe = own.recipe
         diffs = [rows[own].errors[s] - rows[lowest].errors[s] for s in ids]
         gap = float(np.mean(diffs))
         t, p = (0.0, 1.0) if gap <= tolerance + 1e-12 else corrected_paired_t(diffs, share)
@@ -371,6 +394,7 @@ class RecipeSearch:
     seed, n_jobs : seeds of every random choice; joblib workers (any backend).
 
     Attributes after :meth:`fit`: ``best_`` (the chosen Candidate), ``best_error_``,
+    ``best_bound_`` (the support vectors its model is bounded to under the budget, or None),
     ``ranking_`` (the final round's candidates, best first: candidate, error, std, splits,
     support vectors), ``recipe_table_`` (per recipe: its best error and on how many splits),
     ``rounds_`` (candidates and splits per round), ``n_evaluations_`` (candidate-split scores),
@@ -502,7 +526,7 @@ class RecipeSearch:
             if self.budget is None:
                 return cands
             for c in cands:
-                rows[c].fits = self.budget.fits(c, self._expected_support(rows[c], len(y)))
+                self._check_budget(rows[c], len(y))
             return [c for c in cands if rows[c].fits]
 
         done = 0
@@ -511,12 +535,13 @@ class RecipeSearch:
             new = list(range(done, upto))
             scored = list(alive)
             alive = score(alive, new)
-            if r == 0 and self.significance is not None and alive:
+            if r == 0 and self._prefers() and alive:
                 # the most preferred recipe that fits is the likeliest choice: it gets the
                 # whole grid, not the sample
-                top = min((c.recipe for c in alive), key=recipe_preference)
-                more = [Candidate(top, *g) for g in self.grid
-                        if Candidate(top, *g) not in rows]
+                key = self._preference_key()
+                top = min(key(c.recipe) for c in alive)
+                more = [Candidate(r, *g) for r in self.recipes if key(r) == top
+                        for g in self.grid if Candidate(r, *g) not in rows]
                 for c in more:
                     rows[c] = _Row(c)
                 scored += more
@@ -540,10 +565,11 @@ class RecipeSearch:
         """The best 1/eta of the ranked candidates and, when a preference applies, the best
         1/eta of the most preferred recipe's own (so that it reaches the last round)."""
         keep = ranked[: max(1, math.ceil(len(ranked) / self.eta))]
-        if self.significance is None:
+        if not self._prefers():
             return keep
-        top = min((c.recipe for c in ranked), key=recipe_preference)
-        mine = [c for c in ranked if c.recipe == top]
+        key = self._preference_key()
+        top = min(key(c.recipe) for c in ranked)
+        mine = [c for c in ranked if key(c.recipe) == top]
         extra = set(mine[: max(1, math.ceil(len(mine) / self.eta))]) - set(keep)
         return [c for c in ranked if c in extra or c in set(keep)]
 
@@ -562,6 +588,24 @@ class RecipeSearch:
         return (row.mean, -c.lam, -c.sigma, c.amplitude is not None, c.recipe.D,
                 c.recipe.label(), c.alpha)
 
+    def _prefers(self) -> bool:
+        """Whether an order of preference applies (a significance level is set)."""
+        return self.significance is not None
+
+    def _preference_key(self) -> Callable[[Recipe], tuple]:
+        """:func:`recipe_preference`, or :func:`budget_preference` under a budget."""
+        return recipe_preference if self.budget is None else budget_preference
+
+    def _check_budget(self, row: _Row, n: int) -> None:
+        """Whether the row's candidate fits the budget, as it is or bounded (``row.bound``)."""
+        expected = self._expected_support(row, n)
+        row.fits, row.bound = self.budget.fits(row.candidate, expected), None
+        if row.fits or self.budget.largest is None:
+            return
+        most = int(self.budget.largest(row.candidate, expected))
+        if most >= max(1, math.ceil(self.budget.keep_share * expected)):
+            row.fits, row.bound = True, most
+
     def _expected_support(self, row: _Row, n: int) -> int:
         """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
         (scaled by the share of patterns the splits trained on)."""
@@ -573,15 +617,17 @@ class RecipeSearch:
         tolerance = 1.0 / sum(len(te) for _, te in self.splits_)
         lowest = final[0]
         recipe, self.preference_ = lowest.recipe, None
-        if self.significance is not None and len(self.splits_) >= 2:
+        if self._prefers() and len(self.splits_) >= 2:
             recipe, self.preference_ = _preferred_recipe(rows, final, self.splits_, tolerance,
-                                                         self.significance)
+                                                         self.significance,
+                                                         self._preference_key())
         mine = [c for c in final if c.recipe == recipe]
         best_err = rows[mine[0]].mean
         tied = [c for c in mine if rows[c].mean <= best_err + tolerance + 1e-12]
         best = min(tied, key=lambda c: (self._expected_support(rows[c], n), self._key(rows[c])))
         self.best_ = best
         self.best_error_ = rows[best].mean
+        self.best_bound_ = rows[best].bound
         self.tolerance_ = tolerance
 
         def entry(c: Candidate) -> dict[str, Any]:
@@ -589,7 +635,7 @@ class RecipeSearch:
             errs = np.array(list(row.errors.values()))
             return {"candidate": c, "error": float(errs.mean()), "std": float(errs.std()),
                     "splits": len(errs), "support_vectors": self._expected_support(row, n),
-                    "split_errors": [row.errors[s] for s in sorted(row.errors)]}
+                    "support_bound": row.bound, "split_errors": [row.errors[s] for s in sorted(row.errors)]}
 
         self.ranking_ = [entry(best)] + [entry(c) for c in final if c != best]
         table: dict[Recipe, dict[str, Any]] = {}
@@ -610,7 +656,9 @@ class RecipeSearch:
         def plain(e: Mapping[str, Any]) -> dict[str, Any]:
             return {**e["candidate"].as_dict(), "cv_error": round(e["error"], 6),
                     "cv_std": round(e["std"], 6), "splits": e["splits"],
-                    "support_vectors": e["support_vectors"]}
+                    "support_vectors": e["support_vectors"],
+                    **({} if e.get("support_bound") is None
+                       else {"support_bound": e["support_bound"]})}
 
         best = self.ranking_[0]
         others = [e for e in self.recipe_table_ if e["candidate"].recipe != self.best_.recipe]

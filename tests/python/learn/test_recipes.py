@@ -20,6 +20,7 @@ from eskin.learn.recipes import (
     Recipe,
     Candidate,
     RecipeSearch,
+    budget_preference,
     corrected_paired_t,
     one_vs_all_indices,
     recipe_preference,
@@ -212,6 +213,91 @@ def test_a_budget_removes_what_does_not_fit(data):
     with pytest.raises(TrainingError, match="no candidate fits the budget"):
         RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], n_splits=2,
                      budget=nothing).fit(X, y, groups)
+
+
+def test_a_budget_keeps_a_candidate_bounded_to_what_fits(data, sim_path):
+    """With ``largest``, a candidate expected to need more support vectors than fit is kept,
+    bounded to the most that fit, when that keeps at least ``keep_share`` of them; the model
+    train_model fits is bounded to it."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all")]
+    grid = ([1.0], [1.0, 2.0], ["1"], [None])
+
+    def fits(c, n):
+        return n <= 5
+
+    def largest(c, n):
+        return min(int(n), 5)
+
+    plain = RecipeSearch(recipes, *grid, n_splits=3, first_share=1.0).fit(X, y, groups)
+    expected = plain.ranking_[0]["support_vectors"]
+    assert expected > 10  # so that the bound below is a real cut
+    s = RecipeSearch(recipes, *grid, n_splits=3, first_share=1.0,
+                     budget=CandidateBudget(fits, "5 support vectors", largest=largest,
+                                            keep_share=0.0)).fit(X, y, groups)
+    assert s.best_bound_ == 5 and s.report()["chosen"]["support_bound"] == 5
+    assert s.best_error_ == plain.best_error_  # the estimate is the unbounded candidate's
+    strict = CandidateBudget(fits, "5 support vectors", largest=largest, keep_share=0.5)
+    with pytest.raises(TrainingError, match="no candidate fits the budget"):
+        RecipeSearch(recipes, *grid, n_splits=3, first_share=1.0, budget=strict).fit(X, y, groups)
+    none = CandidateBudget(lambda c, n: False, "nothing", largest=lambda c, n: 0, keep_share=0.0)
+    with pytest.raises(TrainingError, match="no candidate fits the budget"):
+        RecipeSearch(recipes, *grid, n_splits=3, first_share=1.0, budget=none).fit(X, y, groups)
+    m = train_model(sim_path, machine="svm", D=20, subsample="algorithm2", quick=True, seed=2,
+                    budget=CandidateBudget(fits, "5", largest=largest,
+                                                               keep_share=0.0))
+    sb = m.training["support_budget"]
+    assert sb["by"] == "budget" and sb["max_support"] == 5 and sb["support_vectors"] <= 5
+    assert sb["support_vectors_before"] > 5
+
+
+def test_under_a_budget_the_preference_leaves_D_out(data):
+    """The order under a budget is the order without one, D left out: the recipes of one
+    machine, subsampling and negatives are one family, and the family's lowest-error
+    candidate stands for it (here the family is the only one, so it is the lowest error)."""
+    X, y, groups = data
+    for r in recipe_space()[0]:
+        assert budget_preference(r) == recipe_preference(r)[1:]
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("svm", 50, "algorithm2", "all")]
+    grid = ([0.01, 1.0], [0.5, 2.0], ["1", "Q/2"], [None])
+    anything = CandidateBudget(lambda c, n: True, "anything")
+    s = RecipeSearch(recipes, *grid, n_splits=6, first_share=1.0, seed=3,
+                     budget=anything).fit(X, y, groups)
+    free = RecipeSearch(recipes, *grid, n_splits=6, first_share=1.0, seed=3).fit(X, y, groups)
+    lowest = min(e["error"] for e in s.ranking_)
+    assert s.best_error_ <= lowest + s.tolerance_ + 1e-12
+    assert s.report()["preference"]["within_one_pattern"] is True
+    # without the budget the larger D is kept unless significantly worse
+    assert free.best_.recipe.D == 50
+
+
+def test_the_family_stands_for_its_recipes_under_a_budget():
+    """Split errors where the larger D of the preferred family is 10 points worse than its
+    smaller D and everything is noisy (nothing significant): without a budget the choice is the
+    larger D, under one (budget_preference) the family's best, the smaller D."""
+    from eskin.learn.recipes import _preferred_recipe, _Row
+
+    rng = np.random.default_rng(0)
+    cands = {
+        "svm50": (Candidate(Recipe("svm", 50, "algorithm2", "all"), 0.1, 1.0, "1", None), 0.30),
+        "svm20": (Candidate(Recipe("svm", 20, "algorithm2", "all"), 0.1, 1.0, "Q", None), 0.20),
+        "rls50": (Candidate(Recipe("rls", 50, "even", "all"), 0.1, 1.0, "Q", None), 0.19),
+    }
+    rows = {}
+    for c, mean in cands.values():
+        noise = rng.normal(0, 0.15, 10)
+        rows[c] = _Row(c, errors={s: mean - noise.mean() + noise[s] for s in range(10)})
+    final = sorted(rows, key=lambda c: rows[c].mean)
+    splits = [(np.arange(7), np.arange(7, 10))] * 10
+    plain, _ = _preferred_recipe(rows, final, splits, 1e-3, 0.05)
+    under, rec = _preferred_recipe(rows, final, splits, 1e-3, 0.05, key=budget_preference)
+    assert plain == cands["svm50"][0].recipe
+    assert under == cands["svm20"][0].recipe and rec["lowest"] == "rls D=50 even negatives=all"
+    anything = CandidateBudget(lambda c, n: True, "anything")
+    assert RecipeSearch([c.recipe for c, _ in cands.values()], [1.0], [1.0], ["1"], [None],
+                        budget=anything)._preference_key() is budget_preference
+    assert RecipeSearch([c.recipe for c, _ in cands.values()], [1.0], [1.0], ["1"],
+                        [None])._preference_key() is recipe_preference
 
 
 def test_train_model_searches_unset_parts_and_stores_the_choice(sim_path):
