@@ -168,45 +168,92 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
 
 #: QEMU counts (Cortex-M4F, mps2-an386, -icount shift=0; tables in docs/mcu.md): (D, support
 #: vectors, alpha_store, amplitude factor, bounded detector window, median instructions of the
-#: push that ends a touch), 3-class models, 4x4 grid at 3 kHz. Rows 1-8: tensor-RLS MCU presets
-#: without the amplitude factor, every sample of a window cut to 0.37-0.5 s
-#: (`benchmarks/bench_mcu.py`); rows 9-15: tensor-SVMs with the default bounded window
-#: (`window_samples` 1024), most with the factor (`bench_mcu.py --part svm`); row 16: the model
-#: of `eskin train --target cortex-m4` on 10 simulated participants (docs/mcu.md).
+#: push that ends a touch), 3-class models, 4x4 grid at 3 kHz. Rows 1-8: the tensor-RLS MCU presets of
+#: `benchmarks/bench_mcu.py` (the default grid's amplitude choice) and rows 9-22: tensor-SVMs of
+#: `bench_mcu.py --part svm`, alpha 1 to (4, 4, 16), with the default bounded window (``window_samples``
+#: 1024); rows 23-24: models of `eskin train --target
+#: cortex-m4` on 10 simulated participants (docs/mcu.md); rows 25-27: tensor-SVMs on the same
+#: participants with every sample of a 0.5 s window kept (``window_samples`` 0).
 INSTRUCTION_CALIBRATION: tuple[tuple[int, int, tuple[int, int, int], bool, bool, float], ...] = (
-    (20, 36, (1, 1, 1), False, False, 0.500e6),
-    (50, 36, (1, 1, 1), False, False, 0.667e6),
-    (100, 36, (1, 1, 1), False, False, 0.991e6),
-    (20, 84, (1, 1, 1), False, False, 0.565e6),
-    (50, 84, (1, 1, 1), False, False, 0.781e6),
-    (20, 36, (2, 2, 8), False, False, 0.813e6),
-    (50, 36, (4, 4, 16), False, False, 2.699e6),
-    (100, 36, (2, 2, 8), False, False, 1.685e6),
-    (20, 35, (1, 1, 1), True, True, 0.562e6),
-    (20, 79, (1, 1, 1), True, True, 0.628e6),
-    (20, 84, (1, 1, 1), False, True, 0.584e6),
-    (50, 36, (1, 1, 1), True, True, 0.808e6),
-    (50, 58, (1, 1, 1), True, True, 0.863e6),
-    (20, 60, (2, 2, 8), True, True, 1.139e6),
-    (100, 36, (1, 1, 1), True, True, 1.257e6),
-    (20, 115, (1, 1, 1), True, True, 0.709e6),
+    (20, 36, (1, 1, 1), True, True, 0.5662e6),
+    (50, 36, (1, 1, 1), True, True, 0.8143e6),
+    (100, 36, (1, 1, 1), True, True, 1.2846e6),
+    (20, 84, (1, 1, 1), True, True, 0.6332e6),
+    (50, 84, (1, 1, 1), True, True, 0.9434e6),
+    (20, 36, (2, 2, 8), False, True, 0.6278e6),
+    (50, 36, (4, 4, 16), False, True, 0.7892e6),
+    (100, 36, (2, 2, 8), False, True, 1.3586e6),
+    (20, 35, (1, 1, 1), True, True, 0.5560e6),
+    (20, 79, (1, 1, 1), True, True, 0.6241e6),
+    (20, 84, (1, 1, 1), False, True, 0.5804e6),
+    (50, 36, (1, 1, 1), True, True, 0.8032e6),
+    (50, 58, (1, 1, 1), True, True, 0.8596e6),
+    (20, 60, (2, 2, 8), True, True, 0.7957e6),
+    (100, 36, (1, 1, 1), True, True, 1.2528e6),
+    (100, 81, (1, 1, 1), True, True, 1.4744e6),
+    (50, 36, (4, 4, 16), True, True, 0.8925e6),
+    (50, 84, (4, 4, 16), True, True, 1.4384e6),
+    (20, 84, (4, 4, 16), True, True, 0.6433e6),
+    (50, 60, (2, 2, 8), True, True, 1.1322e6),
+    (100, 36, (2, 2, 8), True, True, 1.5185e6),
+    (50, 60, (4, 4, 16), False, True, 1.0606e6),
+    (50, 120, (1, 1, 1), True, True, 1.0930e6),
+    (50, 63, (4, 4, 16), True, True, 1.1989e6),
+    (20, 120, (1, 1, 1), True, False, 0.6907e6),
+    (50, 118, (1, 1, 1), True, False, 1.0077e6),
+    (20, 120, (4, 4, 16), True, False, 0.7965e6),
 )
+
+
+def _tiles(alpha: int) -> list[int]:
+    """The device's overlap tiles along one side: blocks of 4 columns, then the 1-3 left."""
+    return [4] * (alpha // 4) + ([alpha % 4] if alpha % 4 else [])
+
+
+def overlap_instructions(n: int, alpha: int) -> int:
+    """Instructions of the inner loops of one mode's overlap with one support vector on the
+    device (cpp/src/model_overlap.cpp, ``overlap_f32_single``): each tile of kb x lb dot products
+    passes once over the n entries, loading kb + lb values and doing kb * lb multiply-adds and
+    the loop's compare and branch (4 x 4: 26 instructions for 16 multiply-adds). A mode whose
+    alpha reaches n costs nothing: a full-rank subspace is all of R^n and the distance is the
+    ranks' difference (cpp/src/model.cpp); a rank-deficient one is counted as full here."""
+    if alpha >= n:
+        return 0
+    return sum(n * (kb + lb + kb * lb + 2) for kb in _tiles(alpha) for lb in _tiles(alpha))
+
+
+def _basis_terms(dims, alphas) -> tuple[float, float]:
+    """What the input's bases cost on the device (cpp/src/scalar_bases.hpp), beyond what grows
+    with D alone: the Jacobi sweeps over each mode's q x q factor (q^3; none for a mode whose
+    alpha reaches the basis length N with more rows than N, where a well-conditioned factor
+    proves full rank), and the alpha output columns formed through the QR's reflectors when
+    the unfolding has fewer rows than N (alpha L q)."""
+    size = int(np.prod(dims))
+    jacobi = columns = 0.0
+    for m, a in zip(dims, alphas):
+        n = size // m  # the basis length N of this mode
+        q, L = min(m, n), max(m, n)
+        if not (m > n and a >= n):
+            jacobi += q ** 3
+        if m <= n:
+            columns += a * L * q
+    return jacobi, columns
 
 
 def _instruction_features(grid_shape, D, alphas, n_support, amplitude=False,
                           bounded_window=True) -> np.ndarray:
-    """What a decision's work grows with: a constant (the window's subsampling and the rest of
-    the push), D, the input's bases (sum_z N_z alpha_z, times the largest alpha: the power
-    iterations), the support vectors, their distances (sum_z N_z alpha_z^2 multiply-adds
-    per support vector, N_z the length of a mode-z basis vector), with the amplitude factor
-    one more exponential per support vector, and with the bounded window a term in D (the
-    subsampling of the touch from the bounded buffer: fitted, about 2 200 per unit of D)."""
+    """What a decision's work grows with: a constant (the rest of the push), D (the window's
+    subsampling, the QR of each unfolding), the input's bases (:func:`_basis_terms`), the
+    support vectors, the inner loops of their overlaps (:func:`overlap_instructions` per
+    support vector, N_z the length of a mode-z basis vector), with the amplitude factor one
+    more exponential per support vector, and with the bounded window a term in D (the
+    subsampling of the touch from the bounded buffer: fitted)."""
     dims = (int(grid_shape[0]), int(grid_shape[1]), int(D))
     size = dims[0] * dims[1] * dims[2]
     n_of = [size // d for d in dims]
-    basis = sum(n * a for n, a in zip(n_of, alphas))
-    per_sv = sum(n * a * a for n, a in zip(n_of, alphas))
-    return np.array([1.0, D, basis * max(alphas), n_support, n_support * per_sv,
+    jacobi, columns = _basis_terms(dims, alphas)
+    per_sv = sum(overlap_instructions(n, a) for n, a in zip(n_of, alphas))
+    return np.array([1.0, D, jacobi, columns, n_support, n_support * per_sv,
                      n_support * float(bool(amplitude)), D * float(bool(bounded_window))],
                     dtype=float)
 
@@ -432,14 +479,13 @@ def candidate_budget(
     """The :class:`~eskin.learn.recipes.CandidateBudget` of a budget: a candidate fits when
     its estimated flash, RAM and instructions (:func:`estimate_model`, with its expected
     support vectors, at most ``max_support`` when the model will be bounded to that many) are
-    within the budget."""
+    within the budget. Without ``max_support`` the search may also bound a candidate itself:
+    ``largest`` gives the most support vectors with which its model still fits."""
     from eskin.learn.recipes import CandidateBudget
 
     machines = 1 if n_classes == 2 else n_classes
 
-    def fits(candidate, n_support: int) -> bool:
-        if max_support is not None:
-            n_support = min(int(n_support), int(max_support))
+    def fit_at(candidate, n_support: int) -> bool:
         D = candidate.recipe.D
         alphas = _stored_alphas(grid_shape, D, candidate.alpha)
         est = estimate_model(budget, grid_shape, D, alphas, n_support, machines,
@@ -447,7 +493,24 @@ def candidate_budget(
         return (est["flash"] <= budget.flash_bytes and est["ram"] <= budget.ram_bytes
                 and est["instructions"] <= budget.instructions)
 
-    return CandidateBudget(fits, budget.describe())
+    def fits(candidate, n_support: int) -> bool:
+        if max_support is not None:
+            n_support = min(int(n_support), int(max_support))
+        return fit_at(candidate, n_support)
+
+    def largest(candidate, n_support: int) -> int:
+        """The most support vectors (at most ``n_support``) with which the model fits; 0 when
+        not even one does (the estimates grow with the count: bisection)."""
+        if fit_at(candidate, n_support):
+            return int(n_support)
+        lo, hi = 0, int(n_support)  # fit_at(lo) or lo == 0; not fit_at(hi)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if fit_at(candidate, mid) else (lo, mid)
+        return lo if lo and fit_at(candidate, lo) else 0
+
+    return CandidateBudget(fits, budget.describe(),
+                           largest=largest if max_support is None else None)
 
 
 def model_fits(model_bytes: bytes, budget: Budget) -> tuple[bool, dict[str, float]]:
