@@ -198,6 +198,15 @@ def test_the_budget_gives_the_most_support_vectors_that_fit(campaign):
     most = b.largest(q50, 500)
     assert 20 < most < 500
     assert b.fits(q50, most) and not b.fits(q50, most + 1)
+    # the instructions keep INSTRUCTION_MARGIN of the budget free for the cost model's error
+    from eskin.deploy.target import INSTRUCTION_MARGIN, decision_instructions
+
+    def instr(n):
+        return decision_instructions((4, 4), 50, (4, 4, 16), n, True, True)
+
+    limit = 1.5e6 * (1 - INSTRUCTION_MARGIN)
+    assert 0 < INSTRUCTION_MARGIN < 0.2
+    assert instr(most) <= limit < instr(most + 1) <= 1.5e6
     assert b.largest(q50, most - 3) == most - 3
     tiny = candidate_budget(parse_budget("instr=100K", "cortex-m4"), (4, 4), rate, wc, 3)
     assert tiny.largest(q50, 500) == 0
