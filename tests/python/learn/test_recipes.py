@@ -342,6 +342,15 @@ def test_cli_train_under_a_budget(sim_path, tmp_path):
     bad = runner.invoke(app, ["train", str(sim_path), "--budget", "ram=lots", "-o",
                               str(tmp_path / "y.eskin")])
     assert bad.exit_code == 2 and "ram=lots" in bad.output and "Traceback" not in bad.output
+    # D = 50 with about 36 support vectors needs more than 0.78 M instructions: bounded to fit
+    tight = tmp_path / "tight.eskin"
+    r = runner.invoke(app, ["train", str(sim_path), "--quick", "--D", "50", "--target",
+                            "cortex-m4", "--budget", "instr=0.82M", "-o", str(tight),
+                            "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "to fit the budget:" in r.output and "--max-support" not in r.output
+    fits, fig = model_fits(tight.read_bytes(), parse_budget("instr=0.82M", "cortex-m4"))
+    assert fits and fig["instructions"] <= 0.82e6 * 0.95
 
 
 def test_evaluate_searches_in_every_fold_and_under_the_budget_in_the_same_folds(sim_path,
