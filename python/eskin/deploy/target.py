@@ -11,6 +11,8 @@ the estimate for its model.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -491,13 +493,18 @@ def candidate_budget(
 
     machines = 1 if n_classes == 2 else n_classes
 
-    def fit_at(candidate, n_support: int) -> bool:
-        D = candidate.recipe.D
-        alphas = _stored_alphas(grid_shape, D, candidate.alpha)
-        est = estimate_model(budget, grid_shape, D, alphas, n_support, machines,
-                             candidate.amplitude is not None, window_config, rate)
+    @functools.lru_cache(maxsize=None)
+    def fit_of(D: int, alpha: str, amplitude: bool, n_support: int) -> bool:
+        alphas = _stored_alphas(grid_shape, D, alpha)
+        est = estimate_model(budget, grid_shape, D, alphas, n_support, machines, amplitude,
+                             window_config, rate)
         return (est["flash"] <= budget.flash_bytes and est["ram"] <= budget.ram_bytes
                 and est["instructions"] <= budget.instructions * (1 - INSTRUCTION_MARGIN))
+
+    def fit_at(candidate, n_support: int) -> bool:
+        # what the estimate depends on (the grid's lambda and sigma do not enter it)
+        return fit_of(int(candidate.recipe.D), candidate.alpha, candidate.amplitude is not None,
+                      int(n_support))
 
     def fits(candidate, n_support: int) -> bool:
         if max_support is not None:

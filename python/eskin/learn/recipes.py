@@ -570,8 +570,8 @@ class RecipeSearch:
         key = self._preference_key()
         top = min(key(c.recipe) for c in ranked)
         mine = [c for c in ranked if key(c.recipe) == top]
-        extra = set(mine[: max(1, math.ceil(len(mine) / self.eta))]) - set(keep)
-        return [c for c in ranked if c in extra or c in set(keep)]
+        kept = set(keep) | set(mine[: max(1, math.ceil(len(mine) / self.eta))])
+        return [c for c in ranked if c in kept]
 
     @staticmethod
     def _distances(X: np.ndarray, alpha: str) -> tuple[np.ndarray, np.ndarray]:
