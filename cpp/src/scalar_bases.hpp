@@ -34,9 +34,9 @@ namespace eskin::detail {
 /// are the column norms of b and its right-singular vectors the columns of w. `norms` (n values)
 /// is workspace: the squared column norms, computed at the start of each sweep and updated by
 /// each rotation (a' = a - t g, c' = c + t g), so that a pair costs one dot product, not three.
-/// Returns false if 60 sweeps did not converge.
+/// Returns the number of sweeps (the last one rotating nothing), or -1 if 60 did not converge.
 template <class Real>
-bool one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
+int one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
   if (w != nullptr) {
     for (std::size_t i = 0; i < n * n; ++i) w[i] = Real(0);
     for (std::size_t i = 0; i < n; ++i) w[i * n + i] = Real(1);
@@ -82,9 +82,9 @@ bool one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
           wk[i] = sn * x + cs * y;
         }
       }
-    if (!rotated) return true;
+    if (!rotated) return sweep + 1;
   }
-  return false;
+  return -1;
 }
 
 template <class Real>
@@ -206,7 +206,7 @@ class ScalarBases {
       *rank = static_cast<int>(n);
       return true;
     }
-    if (!one_sided_jacobi(q, B, W, norms_.data())) return false;
+    if (one_sided_jacobi(q, B, W, norms_.data()) < 0) return false;
     for (std::size_t c = 0; c < q; ++c) {
       Real s2 = 0;
       for (std::size_t i = 0; i < q; ++i) s2 += B[c * q + i] * B[c * q + i];
