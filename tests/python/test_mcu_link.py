@@ -120,10 +120,11 @@ def test_the_firmware_serves_eskin_listen_in_real_time(firmware, tmp_path):
 
 
 def test_a_decision_longer_than_5_ms_at_168_mhz_loses_no_sample(firmware, tmp_path):
-    """A model with 80 support vectors per machine; QEMU with -icount shift=3 runs the Cortex-M4
-    at 125 M instructions per second of its clock (slower than 168 MHz), so the decision's
-    instructions span more sample periods than they would on the part."""
-    model = synthetic_model(tmp_path / "slow.eskin", n_sv=80, seed=5, max_window_s=0.4)
+    """A model with 160 support vectors per machine (about 1 M instructions per decision);
+    QEMU with -icount shift=3 runs the Cortex-M4 at 125 M instructions per second of its clock
+    (slower than 168 MHz), so the decision's instructions span more sample periods than they
+    would on the part."""
+    model = synthetic_model(tmp_path / "slow.eskin", n_sv=160, seed=5, max_window_s=0.4)
     replay = touch_replay(tmp_path / "r.eskr", 3, seed=6)
     n = read_replay_file(replay).samples.shape[0]
     line, fw = mcu_link(firmware, model, replay, tmp_path / "out", "--icount", "3")

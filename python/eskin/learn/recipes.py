@@ -349,6 +349,18 @@ class _Row:
         return float(np.mean(list(self.errors.values())))
 
 
+def _check_budget(budget: CandidateBudget, row: _Row, expected: int) -> None:
+    """Whether the row's candidate, expected to need ``expected`` support vectors, fits the
+    budget: as it is, or bounded to the most that fit (``row.bound``) when that keeps at least
+    ``budget.keep_share`` of them."""
+    row.fits, row.bound = budget.fits(row.candidate, expected), None
+    if row.fits or budget.largest is None:
+        return
+    most = int(budget.largest(row.candidate, expected))
+    if most >= max(1, math.ceil(budget.keep_share * expected)):
+        row.fits, row.bound = True, most
+
+
 def _preferred_recipe(
     rows: Mapping[Candidate, _Row], final: list[Candidate], splits: list, tolerance: float,
     significance: float, key: Callable[[Recipe], tuple] = recipe_preference,
@@ -526,7 +538,7 @@ class RecipeSearch:
             if self.budget is None:
                 return cands
             for c in cands:
-                self._check_budget(rows[c], len(y))
+                _check_budget(self.budget, rows[c], self._expected_support(rows[c], len(y)))
             return [c for c in cands if rows[c].fits]
 
         done = 0
@@ -595,16 +607,6 @@ class RecipeSearch:
     def _preference_key(self) -> Callable[[Recipe], tuple]:
         """:func:`recipe_preference`, or :func:`budget_preference` under a budget."""
         return recipe_preference if self.budget is None else budget_preference
-
-    def _check_budget(self, row: _Row, n: int) -> None:
-        """Whether the row's candidate fits the budget, as it is or bounded (``row.bound``)."""
-        expected = self._expected_support(row, n)
-        row.fits, row.bound = self.budget.fits(row.candidate, expected), None
-        if row.fits or self.budget.largest is None:
-            return
-        most = int(self.budget.largest(row.candidate, expected))
-        if most >= max(1, math.ceil(self.budget.keep_share * expected)):
-            row.fits, row.bound = True, most
 
     def _expected_support(self, row: _Row, n: int) -> int:
         """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
