@@ -260,34 +260,29 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
       const int rx = std::min(s.xr[z], static_cast<int>(a));
       const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
       const auto zz = static_cast<std::size_t>(z);
-      if (grp.proj[zz]) {
+      const bool proj = grp.proj[zz];
+      if (proj) {
         if (f64) detail::projection(s.xb64.data() + xoff, N, a, s.px.data());
         else detail::projection(s.xb32.data() + xoff, N, a, s.px32.data());
-        for (const std::uint32_t i : grp.svs) {
-          const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
-          if (spans(ri, rx, N)) {
-            s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(std::abs(ri - rx)));
-            continue;
-          }
-          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
-                                : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
-          s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(
-              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
-        }
-        continue;
       }
       for (const std::uint32_t i : grp.svs) {
+        const std::size_t at = (g * n_sv + i) * 3 + zz;
         const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
         if (spans(ri, rx, N)) {
-          s.set_dist((g * n_sv + i) * 3 + zz, static_cast<DecisionReal>(std::abs(ri - rx)));
-          continue;
+          s.set_dist(at, static_cast<DecisionReal>(std::abs(ri - rx)));
+        } else if (proj) {  // <P_sv, P_x>_F, summed in double
+          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
+                                : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
+          s.set_dist(at, static_cast<DecisionReal>(
+              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
+        } else {
+          const auto ov = static_cast<DecisionReal>(
+              f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
+                  : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
+          s.set_dist(at, std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
+                                                       static_cast<DecisionReal>(rx) -
+                                                       DecisionReal(2) * ov));
         }
-        const auto ov = static_cast<DecisionReal>(
-            f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
-                : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
-        s.set_dist((g * n_sv + i) * 3 + static_cast<std::size_t>(z),
-                   std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
-                                                 static_cast<DecisionReal>(rx) - DecisionReal(2) * ov));
       }
     }
   }

@@ -77,10 +77,11 @@ double dot_f64_generic(const double* a, const double* b, std::size_t n) noexcept
 
 // The controller's overlap (a Cortex-M4F; compiled on the host too, where the tests check it):
 // single precision throughout, double being emulated in software there. Its FPU has no lanes to
-// fill but 32 registers: the overlap is cut into tiles of up to 4 x 4 dot products, each pass over i loading KB entries of b and LB of x once
-// and feeding KB x LB multiply-adds (arm-none-eabi-gcc -O3: 8 post-incremented loads and 16
-// FMAs per pass of a 4 x 4 tile, about 1.6 instructions per multiply-add; one dot product at a
-// time took about 6, each pass loading both operands and stepping its own loop).
+// fill but 32 registers: the overlap is cut into tiles of up to 4 x 4 dot products, each pass
+// over i loading KB entries of b and LB of x once and feeding KB x LB multiply-adds
+// (arm-none-eabi-gcc -O3: 8 post-incremented loads and 16 FMAs per pass of a 4 x 4 tile, about
+// 1.6 instructions per multiply-add; one dot product at a time took about 6, each pass loading
+// both operands and stepping its own loop).
 template <int KB, int LB>
 float overlap_tile(const float* b, const float* x, std::size_t n) noexcept {
   float acc[KB][LB] = {};

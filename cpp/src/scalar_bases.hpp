@@ -29,18 +29,16 @@
 namespace eskin::detail {
 
 /// One-sided Jacobi: rotates the columns of the n x n column-major matrix `b` until they are
-/// mutually orthogonal, accumulating the rotations in `w` (set to the identity first; nullptr:
-/// not accumulated): on return b = B0 W with orthogonal columns, so the singular values of B0
-/// are the column norms of b and its right-singular vectors the columns of w. `norms` (n values)
+/// mutually orthogonal, accumulating the rotations in `w` (set to the identity first): on return
+/// b = B0 W with orthogonal columns, so the singular values of B0 are the column norms of b and
+/// its right-singular vectors the columns of w. `norms` (n values)
 /// is workspace: the squared column norms, computed at the start of each sweep and updated by
 /// each rotation (a' = a - t g, c' = c + t g), so that a pair costs one dot product, not three.
 /// Returns the number of sweeps (the last one rotating nothing), or -1 if 60 did not converge.
 template <class Real>
 int one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
-  if (w != nullptr) {
-    for (std::size_t i = 0; i < n * n; ++i) w[i] = Real(0);
-    for (std::size_t i = 0; i < n; ++i) w[i * n + i] = Real(1);
-  }
+  for (std::size_t i = 0; i < n * n; ++i) w[i] = Real(0);
+  for (std::size_t i = 0; i < n; ++i) w[i * n + i] = Real(1);
   const Real eps = std::numeric_limits<Real>::epsilon();
   Real total = 0;
   for (std::size_t i = 0; i < n * n; ++i) total += b[i] * b[i];
@@ -73,7 +71,6 @@ int one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
         }
         norms[j] = std::max(Real(0), a - t * g);
         norms[k] = std::max(Real(0), c + t * g);
-        if (w == nullptr) continue;
         Real* wj = w + j * n;
         Real* wk = w + k * n;
         for (std::size_t i = 0; i < n; ++i) {
@@ -85,6 +82,14 @@ int one_sided_jacobi(std::size_t n, Real* b, Real* w, Real* norms) noexcept {
     if (!rotated) return sweep + 1;
   }
   return -1;
+}
+
+/// The numerical rank's tolerance on squared singular values relative to the largest:
+/// max(1e-12, (16 eps)^2) (with double, the host's 1e-12).
+template <class Real>
+constexpr Real rank_tolerance() noexcept {
+  const Real e16 = Real(16) * std::numeric_limits<Real>::epsilon();
+  return std::max(Real(1e-12), e16 * e16);
 }
 
 template <class Real>
@@ -186,16 +191,6 @@ class ScalarBases {
         for (std::size_t i = c; i < L; ++i) ck[i] -= d * col[i];
       }
     }
-    // B = R (m > n: its right-singular vectors are A's) or R^T (m <= n: its right-singular
-    // vectors U_R map to A's as Q U_R), q x q column-major.
-    Real* B = b_.data();
-    for (std::size_t r = 0; r < q; ++r)
-      for (std::size_t c = 0; c < q; ++c) {
-        const Real rv = r < c ? X[c * L + r] : (r == c ? diag_[r] : Real(0));  // R(r, c)
-        if (m > n) B[c * q + r] = rv;
-        else B[r * q + c] = rv;
-      }
-    Real* W = w_.data();
     // alpha >= n = q (the time mode of a 4 x 4 grid at alpha = Q): at full rank the subspace is
     // all of R^n whatever the singular vectors, and the identity is a basis of it. A
     // well-conditioned R proves the rank without the Jacobi sweeps (see spans_all).
@@ -206,6 +201,16 @@ class ScalarBases {
       *rank = static_cast<int>(n);
       return true;
     }
+    // B = R (m > n: its right-singular vectors are A's) or R^T (m <= n: its right-singular
+    // vectors U_R map to A's as Q U_R), q x q column-major.
+    Real* B = b_.data();
+    for (std::size_t r = 0; r < q; ++r)
+      for (std::size_t c = 0; c < q; ++c) {
+        const Real rv = r < c ? X[c * L + r] : (r == c ? diag_[r] : Real(0));  // R(r, c)
+        if (m > n) B[c * q + r] = rv;
+        else B[r * q + c] = rv;
+      }
+    Real* W = w_.data();
     if (one_sided_jacobi(q, B, W, norms_.data()) < 0) return false;
     for (std::size_t c = 0; c < q; ++c) {
       Real s2 = 0;
@@ -267,15 +272,12 @@ class ScalarBases {
         t2 += tj[i] * tj[i];
       }
     }
-    const Real e16 = Real(16) * std::numeric_limits<Real>::epsilon();
-    const Real tau = std::max(Real(1e-12), e16 * e16);
     // kappa_F^2 = r2 t2 < 1 / (4096 tau)
-    return std::isfinite(t2) && r2 * t2 * Real(4096) * tau < Real(1);
+    return std::isfinite(t2) && r2 * t2 * Real(4096) * rank_tolerance<Real>() < Real(1);
   }
 
   // The squared singular values sv_[0..q) in descending order (order_; insertion sort, stable:
-  // std::stable_sort may allocate), and how many are above tau times the largest, tau = max(1e-12,
-  // (16 eps)^2).
+  // std::stable_sort may allocate), and how many are above rank_tolerance() times the largest.
   std::size_t numerical_rank(std::size_t q) noexcept {
     for (std::size_t i = 0; i < q; ++i) {
       std::size_t j = i;
@@ -283,8 +285,7 @@ class ScalarBases {
       order_[j] = i;
     }
     const Real smax = sv_[order_[0]];
-    const Real e16 = Real(16) * std::numeric_limits<Real>::epsilon();
-    const Real tau = std::max(Real(1e-12), e16 * e16);
+    const Real tau = rank_tolerance<Real>();
     std::size_t r = 0;
     while (r < q && smax > 0 && sv_[order_[r]] > tau * smax) ++r;
     return r;

@@ -170,12 +170,12 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
 
 #: QEMU counts (Cortex-M4F, mps2-an386, -icount shift=0; tables in docs/mcu.md): (D, support
 #: vectors, alpha_store, amplitude factor, bounded detector window, median instructions of the
-#: push that ends a touch), 3-class models, 4x4 grid at 3 kHz. Rows 1-8: the tensor-RLS MCU presets of
-#: `benchmarks/bench_mcu.py` (the default grid's amplitude choice) and rows 9-22: tensor-SVMs of
-#: `bench_mcu.py --part svm`, alpha 1 to (4, 4, 16), with the default bounded window (``window_samples``
-#: 1024); rows 23-24: models of `eskin train --target
-#: cortex-m4` on 10 simulated participants (docs/mcu.md); rows 25-27: tensor-SVMs on the same
-#: participants with every sample of a 0.5 s window kept (``window_samples`` 0).
+#: push that ends a touch), 3-class models, 4x4 grid at 3 kHz. Rows 1-8: the tensor-RLS MCU
+#: presets of `benchmarks/bench_mcu.py` (the default grid's amplitude choice) and rows 9-22:
+#: tensor-SVMs of `bench_mcu.py --part svm`, alpha 1 to (4, 4, 16), with the default bounded
+#: window (``window_samples`` 1024); rows 23-24: models of `eskin train --target cortex-m4` on
+#: 10 simulated participants (docs/mcu.md); rows 25-27: tensor-SVMs on the same participants
+#: with every sample of a 0.5 s window kept (``window_samples`` 0).
 INSTRUCTION_CALIBRATION: tuple[tuple[int, int, tuple[int, int, int], bool, bool, float], ...] = (
     (20, 36, (1, 1, 1), True, True, 0.5662e6),
     (50, 36, (1, 1, 1), True, True, 0.8143e6),
@@ -214,7 +214,7 @@ def _tiles(alpha: int) -> list[int]:
 
 def overlap_instructions(n: int, alpha: int) -> int:
     """Instructions of the inner loops of one mode's overlap with one support vector on the
-    device (cpp/src/model_overlap.cpp, ``overlap_f32_single``): each tile of kb x lb dot products
+    device (cpp/src/model_overlap.cpp, ``overlap_f32_tiled``): each tile of kb x lb dot products
     passes once over the n entries, loading kb + lb values and doing kb * lb multiply-adds and
     the loop's compare and branch (4 x 4: 26 instructions for 16 multiply-adds). A mode whose
     alpha reaches n costs nothing: a full-rank subspace is all of R^n and the distance is the
@@ -487,8 +487,9 @@ def candidate_budget(
     """The :class:`~eskin.learn.recipes.CandidateBudget` of a budget: a candidate fits when
     its estimated flash, RAM and instructions (:func:`estimate_model`, with its expected
     support vectors, at most ``max_support`` when the model will be bounded to that many) are
-    within the budget, the instructions :data:`INSTRUCTION_MARGIN` under it. Without ``max_support`` the search may also bound a candidate itself:
-    ``largest`` gives the most support vectors with which its model still fits."""
+    within the budget, the instructions :data:`INSTRUCTION_MARGIN` under it. Without
+    ``max_support`` the search may also bound a candidate itself: ``largest`` gives the most
+    support vectors with which its model still fits."""
     from eskin.learn.recipes import CandidateBudget
 
     machines = 1 if n_classes == 2 else n_classes
@@ -520,7 +521,7 @@ def candidate_budget(
         while hi - lo > 1:
             mid = (lo + hi) // 2
             lo, hi = (mid, hi) if fit_at(candidate, mid) else (lo, mid)
-        return lo if lo and fit_at(candidate, lo) else 0
+        return lo
 
     return CandidateBudget(fits, budget.describe(),
                            largest=largest if max_support is None else None)

@@ -547,13 +547,13 @@ class RecipeSearch:
             new = list(range(done, upto))
             scored = list(alive)
             alive = score(alive, new)
-            if r == 0 and self._prefers() and alive:
+            if r == 0 and self.significance is not None and alive:
                 # the most preferred recipe that fits is the likeliest choice: it gets the
                 # whole grid, not the sample
                 key = self._preference_key()
                 top = min(key(c.recipe) for c in alive)
-                more = [Candidate(r, *g) for r in self.recipes if key(r) == top
-                        for g in self.grid if Candidate(r, *g) not in rows]
+                more = [Candidate(rec, *g) for rec in self.recipes if key(rec) == top
+                        for g in self.grid if Candidate(rec, *g) not in rows]
                 for c in more:
                     rows[c] = _Row(c)
                 scored += more
@@ -577,7 +577,7 @@ class RecipeSearch:
         """The best 1/eta of the ranked candidates and, when a preference applies, the best
         1/eta of the most preferred recipe's own (so that it reaches the last round)."""
         keep = ranked[: max(1, math.ceil(len(ranked) / self.eta))]
-        if not self._prefers():
+        if self.significance is None:
             return keep
         key = self._preference_key()
         top = min(key(c.recipe) for c in ranked)
@@ -600,10 +600,6 @@ class RecipeSearch:
         return (row.mean, -c.lam, -c.sigma, c.amplitude is not None, c.recipe.D,
                 c.recipe.label(), c.alpha)
 
-    def _prefers(self) -> bool:
-        """Whether an order of preference applies (a significance level is set)."""
-        return self.significance is not None
-
     def _preference_key(self) -> Callable[[Recipe], tuple]:
         """:func:`recipe_preference`, or :func:`budget_preference` under a budget."""
         return recipe_preference if self.budget is None else budget_preference
@@ -619,7 +615,7 @@ class RecipeSearch:
         tolerance = 1.0 / sum(len(te) for _, te in self.splits_)
         lowest = final[0]
         recipe, self.preference_ = lowest.recipe, None
-        if self._prefers() and len(self.splits_) >= 2:
+        if self.significance is not None and len(self.splits_) >= 2:
             recipe, self.preference_ = _preferred_recipe(rows, final, self.splits_, tolerance,
                                                          self.significance,
                                                          self._preference_key())
