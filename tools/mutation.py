@@ -60,6 +60,9 @@ PYTHON_MODULES: dict[str, list[str]] = {
         # all but the two that train on a campaign first (90 s of the 2 min)
         "tests/python/deploy/test_export.py", "tests/python/deploy/test_export_limits.py", "-k",
         "not train_export_classify_matches and not cli_export_writes_model_and_header"],
+    # the recipe `eskin train` chooses and what fits a controller's budget
+    "python/eskin/learn/recipes.py": ["tests/python/learn/test_recipes.py"],
+    "python/eskin/deploy/target.py": ["tests/python/deploy/test_target.py"],
 }
 
 #: cosmic-ray operator families run (the others, e.g. swapping + for <<, make mostly mutants
@@ -83,7 +86,22 @@ class CppModule:
 CPP_MODULES = [
     CppModule("cpp/src/model_format.cpp", "class Reader {", "Model Model::from_bytes", "test_model"),
     CppModule("cpp/src/protocol.cpp", "std::ptrdiff_t cobs_decode(", None, "test_protocol"),
+    # the controller's arithmetic: the input's bases and the tiled overlap
+    CppModule("cpp/src/scalar_bases.hpp", "int one_sided_jacobi(", None, "test_scalar_bases"),
+    CppModule("cpp/src/model_overlap.cpp", "template <int KB, int LB>", "#if defined(ESKIN_DEVICE)",
+              "test_model_overlap"),
 ]
+
+
+#: This interpreter without scikit-build-core's editable-install finder (`make install` puts
+#: one in the venv, ahead of PYTHONPATH: the tests would import the work tree's eskin, not the
+#: mutated copy's): `python -c` that drops it, then runs the module or code given after it.
+PYTHON = [sys.executable, "-c",
+          "import runpy, sys; sys.meta_path[:] = [f for f in sys.meta_path "
+          "if type(f).__name__ != 'ScikitBuildRedirectingFinder']; "
+          "a = sys.argv[1:]; sys.argv = a[1:]; "
+          "runpy.run_module(a[1], run_name='__main__', alter_sys=True) if a[0] == '-m' "
+          "else exec(a[1])"]
 
 
 def nice() -> list[str]:
@@ -153,8 +171,14 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     session.unlink(missing_ok=True)
     env = dict(os.environ, PYTHONPATH="python", PYTHONDONTWRITEBYTECODE="1")
     env.setdefault("ESKIN_BIN_DIR", str(REPO / "build" / "dev"))
-    pytest = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+    pytest = [*PYTHON, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
               "-p", "no:randomly", *tests]
+    # the tests must import the copy that cosmic-ray mutates, or every mutant survives
+    where = subprocess.run([*PYTHON, "-c", "import eskin; print(eskin.__file__)"],
+                           cwd=work, env=env, capture_output=True, text=True).stdout.strip()
+    if not Path(where).resolve().is_relative_to(work.resolve()):
+        sys.exit(f"mutation: the tests would import eskin from {where or '(nowhere)'}, not from "
+                 f"the mutated copy under {work}")
     t0 = time.monotonic()
     base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
     if base.returncode != 0:
