@@ -132,8 +132,14 @@ def from_files(out: Path, model_path: Path, campaign_path: Path, *, per_class: i
 
     out.mkdir(parents=True, exist_ok=True)
     data = Path(model_path).read_bytes()
-    compiled = eskin.CompiledModel(data)  # validates: a bad file is one clear line
-    camp = eskin.load_campaign(campaign_path)
+    try:  # a damaged file is one line naming it, not a traceback
+        compiled = eskin.CompiledModel(data)
+    except ValueError as exc:
+        raise SystemExit(f"{model_path}: {exc}") from None
+    try:
+        camp = eskin.load_campaign(campaign_path)
+    except ValueError as exc:  # the campaign's errors name the file
+        raise SystemExit(str(exc)) from None
     names = list(compiled.class_names)
     if tuple(camp.grid_shape) != tuple(compiled.grid_shape):
         raise SystemExit(
