@@ -991,10 +991,9 @@ def search_unit(cache, name, spec, split, quick, seed, part="all"):
     by the same grouped splits); with support vectors and the inner-CV estimates."""
     from eskin.deploy.export import model_to_bytes, spec_from_model
     from eskin.deploy.target import (
-        candidate_budget,
         model_fits,
         parse_budget,
-        window_for_budget,
+        training_budget,
     )
     from eskin.learn.models import (
         DEFAULT_AMPLITUDES,
@@ -1053,9 +1052,9 @@ def search_unit(cache, name, spec, split, quick, seed, part="all"):
         grid_shape = tuple(int(v) for v in np.shape(camp.recording(0))[:2])
         t0 = time.perf_counter()
         try:
-            wc, _ = window_for_budget(budget, grid_shape, rate, None)
-            model = train_model(train, window_config=wc, budget=candidate_budget(
-                budget, grid_shape, rate, wc, len(camp.modalities)), **opts)
+            wc, search_budget, _ = training_budget(budget, grid_shape, rate, None,
+                                                   len(camp.modalities))
+            model = train_model(train, window_config=wc, budget=search_budget, **opts)
             fits, fig = model_fits(model_to_bytes(spec_from_model(model), "float32"), budget)
             row("target cortex-m4", model, t0,
                 {"fits": bool(fits), "max_window_s": float(wc.max_window_s),

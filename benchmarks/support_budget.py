@@ -130,20 +130,20 @@ def target_unit(cache: Path, name: str, split: int, supports: list[int], seed: i
     for them: the detector window fitted to the budget, the search restricted to candidates
     whose estimated compiled model fits)."""
     from eskin.deploy.export import model_to_bytes, spec_from_model
-    from eskin.deploy.target import candidate_budget, model_fits, parse_budget, window_for_budget
+    from eskin.deploy.target import model_fits, parse_budget, training_budget
 
     spec, camp, train, test = split_campaign(cache, name, split)
     budget = parse_budget(None, "cortex-m4")
     grid_shape = tuple(int(v) for v in np.shape(camp.recording(0))[:2])
     rate = float(camp.sample_rate_hz)
-    wc, _ = window_for_budget(budget, grid_shape, rate, None)
+    n_classes = len(camp.modalities)
     rows = []
     for label, k in [("searched", None), ("target", None),
                      *((f"target max-support {n}", n) for n in supports)]:
         opts = {"window": spec[3], "seed": seed, "max_support": k}
         if label != "searched":
-            opts |= {"window_config": wc, "budget": candidate_budget(
-                budget, grid_shape, rate, wc, len(camp.modalities), k)}
+            wc, search_budget, _ = training_budget(budget, grid_shape, rate, None, n_classes, k)
+            opts |= {"window_config": wc, "budget": search_budget}
         t0 = time.process_time()
         try:
             model = train_model(train, **opts)

@@ -483,7 +483,7 @@ def _budget_recipe(
     import numpy as np
 
     from eskin.data.campaign import load_campaign
-    from eskin.deploy.target import candidate_budget, parse_budget, window_for_budget
+    from eskin.deploy.target import parse_budget, training_budget
 
     try:
         b = parse_budget(budget_text, target)
@@ -491,7 +491,8 @@ def _budget_recipe(
             rate = float(c.sample_rate_hz)
             grid = tuple(int(v) for v in np.shape(c.recording(0))[:2])
             n_classes = len(recipe["classes"] or set(np.asarray(c.modality).tolist()))
-        window_config, note = window_for_budget(b, grid, rate, recipe.get("window_config"))
+        window_config, search_budget, note = training_budget(
+            b, grid, rate, recipe.get("window_config"), n_classes, recipe.get("max_support"))
     except (ValueError, OSError, KeyError) as exc:
         _fail(str(exc))
     if recipe.get("selection", "cv") != "cv" or None not in (
@@ -499,9 +500,7 @@ def _budget_recipe(
             recipe.get("negatives")):
         _fail("--target/--budget choose among recipes: use --selection cv and leave at least "
               "one of --machine, --D, --subsample, --negatives to the search")
-    recipe["window_config"] = window_config
-    recipe["budget"] = candidate_budget(b, grid, rate, window_config, n_classes,
-                                        recipe.get("max_support"))
+    recipe["window_config"], recipe["budget"] = window_config, search_budget
     return b, [note] if note else []
 
 

@@ -527,6 +527,18 @@ def candidate_budget(
                            largest=largest if max_support is None else None)
 
 
+def training_budget(
+    budget: Budget, grid_shape, rate: float, window_config: Any, n_classes: int,
+    max_support: int | None = None,
+) -> tuple[Any, Any, str | None]:
+    """What ``eskin train --target/--budget`` gives the recipe search: (the detector settings
+    that leave room for a model, :func:`window_for_budget`; the :class:`CandidateBudget` of the
+    candidates beside them, :func:`candidate_budget`; the note on what was lowered, or None)."""
+    config, note = window_for_budget(budget, grid_shape, rate, window_config)
+    return (config, candidate_budget(budget, grid_shape, rate, config, n_classes, max_support),
+            note)
+
+
 def model_fits(model_bytes: bytes, budget: Budget) -> tuple[bool, dict[str, float]]:
     """Whether a compiled model fits the budget: flash and RAM from :func:`device_budget`,
     instructions from the cost model; (fits, the three figures)."""
