@@ -112,9 +112,11 @@ py::tuple preprocess_py(const py::array& signals, const py::object& lengths, int
   if (!given.is_none()) {
     given_arr = I64::ensure(given);
     if (!given_arr || given_arr.ndim() != 2 || given_arr.shape(0) != b.n ||
-        given_arr.shape(1) != 2) {
-      throw std::invalid_argument("windows must be an (n, 2) integer array");
+        (given_arr.shape(1) != 2 && given_arr.shape(1) != 3)) {
+      throw std::invalid_argument(
+          "windows must be an (n, 2) [start, stop) or (n, 3) [start, stop, stride] integer array");
     }
+    opt.given_strides = given_arr.shape(1) == 3;
     given_ptr = given_arr.data();
   }
   py::array_t<double> out({static_cast<py::ssize_t>(b.n), static_cast<py::ssize_t>(b.K),

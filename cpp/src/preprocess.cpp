@@ -885,13 +885,24 @@ void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
         if (energy) {
           w = detect_one(wk.det, wk.sel, wk.block, rec, T_total, len, i);
         } else if (opt.window == WindowMode::kGiven) {
-          w.start = w.onset = given[2 * i];
-          w.stop = w.offset = given[2 * i + 1];
+          const int64_t cols = opt.given_strides ? 3 : 2;
+          w.start = w.onset = given[cols * i];
+          w.stop = w.offset = given[cols * i + 1];
           if (w.start < 0 || w.stop > len || w.stop <= w.start) {
             throw std::invalid_argument("windows[" + std::to_string(i) + "] = [" +
                                         std::to_string(w.start) + ", " + std::to_string(w.stop) +
                                         "): must satisfy 0 <= start < stop <= length = " +
                                         std::to_string(len));
+          }
+          if (opt.given_strides) {
+            w.stride = given[cols * i + 2];
+            // a decimation the bounded window can have: a power of two, at most the window
+            if (w.stride < 1 || (w.stride & (w.stride - 1)) != 0 || w.stride > w.stop - w.start) {
+              throw std::invalid_argument("windows[" + std::to_string(i) + "]: stride = " +
+                                          std::to_string(w.stride) +
+                                          ": must be a power of two in [1, stop - start = " +
+                                          std::to_string(w.stop - w.start) + "]");
+            }
           }
         } else {
           w.start = w.onset = 0;

@@ -9,6 +9,7 @@
 #include <new>
 #include <random>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "eskin/preprocess.hpp"
@@ -617,6 +618,42 @@ TEST(BoundedWindow, StreamedTensorEqualsBatchAtEveryStride) {
         }
       }
     }
+  }
+}
+
+// The detector's window handed back as a given [start, stop, stride] triple (training detects
+// once and subsamples each D from it) is read as the stream read it; as a [start, stop) pair it
+// is read sample by sample, which differs once the window was decimated.
+TEST(BoundedWindow, GivenWindowsWithTheirStrideAreReadAsTheStreamReadThem) {
+  const int64_t T = 24000, D = 50;
+  WindowConfig c;
+  c.window_samples = 64;
+  const auto x = make_recording(T, {{3000, 21000, 90.0}}, 41);
+  eskin::PreprocessOptions opt;
+  opt.D = D;
+  opt.config = c;
+  std::vector<double> energy(kTaxels * D), given(kTaxels * D), plain(kTaxels * D);
+  TouchWindow w;
+  eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, energy.data(), &w);
+  ASSERT_GT(w.stride, 1);
+  opt.window = eskin::WindowMode::kGiven;
+  opt.given_strides = true;
+  const int64_t triple[3] = {w.start, w.stop, w.stride};
+  TouchWindow used;
+  eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, given.data(), &used, triple);
+  EXPECT_EQ(used.stride, w.stride);
+  EXPECT_EQ(given, energy);
+  opt.given_strides = false;
+  eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, plain.data(), nullptr, triple);
+  EXPECT_NE(plain, energy);
+  // a stride no bounded window has is refused, naming the window and the value
+  opt.given_strides = true;
+  const int64_t bad[3] = {w.start, w.stop, 3};
+  try {
+    eskin::preprocess(x.data(), 1, kTaxels, T, nullptr, opt, plain.data(), nullptr, bad);
+    ADD_FAILURE() << "stride 3 accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("windows[0]: stride = 3"), std::string::npos) << e.what();
   }
 }
 

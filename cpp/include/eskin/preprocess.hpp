@@ -336,11 +336,16 @@ struct PreprocessOptions {
   double sample_rate_hz = 3000.0;
   WindowConfig config{};
   int n_threads = 0;
+  // WindowMode::kGiven: `given` holds [start, stop, stride] triples instead of [start, stop)
+  // pairs, stride being the bounded window's decimation the detector reported with the window
+  // (TouchWindow::stride): the window is then read as the stream read it.
+  bool given_strides = false;
 };
 
 // Preprocess n recordings: out receives n x n_taxels x D float64 values; windows_out (n
 // entries, may be nullptr) receives the window used. With WindowMode::kGiven, `given` holds n
-// [start, stop) pairs (2n values) within [0, length]. Throws std::invalid_argument.
+// [start, stop) pairs (2n values) within [0, length], read sample by sample (stride 1), or n
+// [start, stop, stride] triples with opt.given_strides. Throws std::invalid_argument.
 template <class T>
 void preprocess(const T* data, int64_t n, int64_t n_taxels, int64_t T_total,
                 const int64_t* lengths, const PreprocessOptions& opt, double* out,

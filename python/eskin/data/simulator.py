@@ -748,8 +748,10 @@ def simulate(
         "simulator_level": float(cfg.level),
         "description": "SIMULATED campaign (eskin physics-based simulator); not recorded data",
     }
+    # a taxel index (-1: none) fits int8 up to 127 taxels; larger grids (19x27) need int16
+    taxel = np.int8 if cfg.rows * cfg.cols <= 127 else np.int16
     extra_fields = {"speed_mm_s": np.float32, "force_n": np.float32, "line_mm": np.float32,
-                    "variant": np.uint8, "dead_taxel": np.int8, "noisy_taxel": np.int8,
+                    "variant": np.uint8, "dead_taxel": taxel, "noisy_taxel": taxel,
                     "clipped": np.uint8}
     variants = ["typical", "brush_pressed", "finger_tip", "finger_feather", "washer_flat"]
     attrs["variant_names"] = variants

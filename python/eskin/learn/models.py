@@ -354,14 +354,15 @@ def preprocess_campaign(
     """Preprocess the recordings ``indices`` of ``campaign`` for every (D, subsample method).
 
     ``campaign`` is a :class:`~eskin.campaign.Campaign` or an :class:`ArrayRecordings`. Touch
-    windows are detected once per recording with :func:`eskin.detect_windows` (or the whole
+    windows are detected once per recording with :func:`eskin.detect_touches` (or the whole
     recording is the window with ``window="none"``) and handed to :func:`eskin.preprocess` for
-    every variant, so detection is not repeated. Recordings are read in chunks: a lazily loaded
+    every variant with their bounded-window strides, so detection is not repeated and every
+    tensor is the one ``window="energy"`` (and a stream classifier) computes. Recordings are read in chunks: a lazily loaded
     campaign never sits in memory whole. ``short`` says what to do with a window shorter than D
     ("interpolate" or "error", see :func:`eskin.preprocess`). ``stats`` also computes the per-recording bad-taxel
     counts and window SNR used to rank outlier participants.
     """
-    from eskin.signal.preprocess import detect_windows, preprocess
+    from eskin.signal.preprocess import detect_touches, preprocess
 
     if window not in ("energy", "none"):
         raise TrainingError(f"window must be 'energy' or 'none', got {window!r}")
@@ -383,12 +384,10 @@ def preprocess_campaign(
         sel = indices[c0 : c0 + chunk]
         block, lens = _read_block(campaign, sel, lengths[sel], rows, cols)
         if window == "energy":
-            win = np.asarray(
-                detect_windows(block, lengths=lens, sample_rate_hz=rate, config=config),
-                dtype=np.int64,
-            ).reshape(len(sel), 2)
+            found = detect_touches(block, lengths=lens, sample_rate_hz=rate, config=config)
+            win = np.stack([found.start, found.stop, found.stride], axis=1).astype(np.int64)
         else:
-            win = np.stack([np.zeros_like(lens), lens], axis=1)
+            win = np.stack([np.zeros_like(lens), lens, np.ones_like(lens)], axis=1)
         for D, s in variants:
             out[(D, s)][c0 : c0 + len(sel)] = preprocess(
                 block,
@@ -400,7 +399,7 @@ def preprocess_campaign(
                 config=config,
                 short=short,
             )
-        windows[c0 : c0 + len(sel)] = win
+        windows[c0 : c0 + len(sel)] = win[:, :2]
         if stats:
             for j in range(len(sel)):
                 bad[c0 + j], snr[c0 + j] = _recording_stats(

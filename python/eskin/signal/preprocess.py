@@ -430,7 +430,11 @@ def preprocess(
     (rows, cols, D)); int16 ADC codes (kept as codes) or real values; an h5py dataset is read a
     few recordings at a time. lengths: valid samples per recording (default T).
     window: "energy" (the detector, see :class:`WindowConfig`), "none" (the whole valid
-    recording), or an (n, 2) array of given ``[start, stop)`` windows.
+    recording), an (n, 2) array of given ``[start, stop)`` windows (read sample by sample), or
+    the detector's windows with their bounded-window strides: :class:`TouchWindows` from
+    :func:`detect_touches` or an (n, 3) ``[start, stop, stride]`` array. Detected windows
+    passed back this way give exactly the tensors of ``window="energy"`` (the tensors a stream
+    classifier computes); passed as (n, 2) they lose the stride.
     subsample: "algorithm2" (the paper, default) or "even".
     short: what to do when a window has fewer than D samples: "interpolate" (linear
     interpolation at D evenly spaced points) or "error".
@@ -453,12 +457,15 @@ def preprocess(
         mode = _choice("window", window, _WINDOW_MODES)
     else:
         mode = 2
+        if isinstance(window, TouchWindows):
+            window = np.stack([window.start, window.stop, window.stride], axis=1)
         given = np.asarray(window)
-        if b.single and given.shape == (2,):
-            given = given.reshape(1, 2)
-        if given.shape != (b.n, 2) or given.dtype.kind not in "iu":
+        if b.single and given.shape in ((2,), (3,)):
+            given = given.reshape(1, -1)
+        if given.ndim != 2 or given.shape not in ((b.n, 2), (b.n, 3)) or given.dtype.kind not in "iu":
             raise ValueError(
-                f"window must be 'energy', 'none' or an integer array of shape ({b.n}, 2), "
+                f"window must be 'energy', 'none', TouchWindows or an integer array of shape "
+                f"({b.n}, 2) [start, stop) or ({b.n}, 3) [start, stop, stride], "
                 f"got {given.dtype} {given.shape}"
             )
         given = given.astype(np.int64)
