@@ -13,6 +13,8 @@ whole recipe search; ``--quick`` for the 19x27 grid), exports it as float32 and 
 - stream: the held-out recordings played as one replay stream (``eskin replay``'s) through the
   compiled StreamClassifier: each touch whose window is a recording's batch window (not a span
   of several touches) has its values compared with the batch decision;
+- "don't know": the share of held-out recordings the model flags, its error on all of them,
+  on those it decides and on those it flags;
 - fw-sim (the built-in campaign, ``--fw-sim``): the same replay file through the real
   ``eskin-fw-sim`` (model on board) and ``eskin listen``; the controller's decisions are
   compared with the host stream's, touch by touch (values travel as float32 on the wire).
@@ -77,6 +79,15 @@ def values(predictions) -> np.ndarray:
     return np.array([p["decision_values"] for p in predictions], dtype=np.float64)
 
 
+def reject_cells(predictions) -> str:
+    """Flagged share, error on the decided and on the flagged recordings (python engine)."""
+    wrong = np.array([p["label"] != p["true_label"] for p in predictions])
+    flag = np.array([p["dont_know"] for p in predictions])
+    dec = 100 * wrong[~flag].mean() if (~flag).any() else float("nan")
+    fl = 100 * wrong[flag].mean() if flag.any() else float("nan")
+    return (f"{100 * flag.mean():.0f} % | {100 * wrong.mean():.1f} % | {dec:.1f} % | {fl:.1f} %")
+
+
 def stream_check(compiled: CompiledModel, replay_path: Path, batch) -> tuple[int, int, float]:
     """(touches compared, touches over 1e-9, worst difference) of the replay stream."""
     rp = read_replay_file(replay_path)
@@ -131,6 +142,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin-parity"))
     ap.add_argument("--participants", type=int, default=12, help="training participants")
+    ap.add_argument("--held", type=int, default=None,
+                    help="held-out participants (default: half the training participants)")
     ap.add_argument("--only", default=None, help="comma-separated campaign names")
     ap.add_argument("--fw-sim", action="store_true", help="also the firmware road (built-in)")
     a = ap.parse_args()
@@ -138,14 +151,16 @@ def main() -> None:
     chosen = campaigns()
     if a.only:
         chosen = {k: v for k, v in chosen.items() if k in a.only.split(",")}
-    print(f"eskin {eskin.__version__}; held-out recordings of {a.participants // 2} participants")
+    held_n = a.held or max(1, a.participants // 2)
+    print(f"eskin {eskin.__version__}; held-out recordings of {held_n} participants")
     print("| campaign | model | recordings | python vs cpp f32: over 1e-6 (worst) | "
-          "f64: over 1e-9 (worst) | stream touches compared: over 1e-9 (worst) |")
-    print("|---|---|---|---|---|---|")
+          "f64: over 1e-9 (worst) | stream touches compared: over 1e-9 (worst) | "
+          "don't know | error | error decided | error flagged |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, (sim, over, window) in chosen.items():
         t0 = time.perf_counter()
         train = simulated(a.cache, name, sim, over, a.participants, 21)
-        test = simulated(a.cache, name, sim, over, max(1, a.participants // 2), 22)
+        test = simulated(a.cache, name, sim, over, held_n, 22)
         model = train_model(load_campaign(train), window=window, quick=name.startswith("19x27"))
         held = load_campaign(test)
         cells = []
@@ -157,13 +172,13 @@ def main() -> None:
             diff = np.abs(values(py) - values(cpp)).max(axis=1)
             cells.append(f"{int((diff > TOL[dtype]).sum())} ({diff.max():.2g})")
             if dtype == "float64":
-                compiled64, batch = CompiledModel(path), cpp
+                compiled64, batch, rejects = CompiledModel(path), cpp, reject_cells(py)
         replay = write_replay_file(held, None, a.cache / f"{name}-held.eskr", seed=1).path
         n, bad, worst = stream_check(compiled64, replay, batch)
         label = (f"{model.machine} D={model.D} {model.subsample} "
                  f"window_samples={model.window_config.window_samples:g}")
         print(f"| {name} | {label} | {len(held)} | {cells[0]} | {cells[1]} | "
-              f"{n}: {bad} ({worst:.2g}) |", flush=True)
+              f"{n}: {bad} ({worst:.2g}) | {rejects} |", flush=True)
         if a.fw_sim and name == "built-in":
             f32 = a.cache / f"{name}-float32.eskin"
             print(f"  fw-sim ({name}, float32 on board): "
