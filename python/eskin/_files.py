@@ -13,7 +13,7 @@ import errno
 import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Union
+from typing import Any, Union
 
 from eskin.errors import OverwriteError
 
@@ -126,3 +126,17 @@ def write_whole(path: PathLike, data: bytes) -> None:
     """Write ``data`` as the file ``path``, whole or not at all (:func:`whole_file`)."""
     with whole_file(path) as tmp:
         tmp.write_bytes(data)
+
+
+def reserve_space(f: Any, nbytes: int) -> None:
+    """Reserve ``nbytes`` on the disk for the open file ``f`` before writing it: a disk that
+    cannot hold the file says so (OSError ENOSPC, or EFBIG past the process's file size
+    limit) before a byte is written. A file system that cannot reserve space (EOPNOTSUPP,
+    EINVAL) is left to say it at the write."""
+    if nbytes <= 0 or not hasattr(os, "posix_fallocate"):
+        return
+    try:
+        os.posix_fallocate(f.fileno(), 0, nbytes)
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            raise

@@ -23,6 +23,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from eskin._files import reserve_space, whole_file
 from eskin.errors import ReplayFormatError
 
 __all__ = [
@@ -147,7 +148,8 @@ def write_replay_arrays(
     head = _replay_head(segments, names, start, rows, cols, sample_rate_hz, volts_per_count)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
+    with whole_file(path) as tmp, open(tmp, "wb") as f:
+        reserve_space(f, (0 if _raw else len(head)) + start * rows * cols * 2)
         if not _raw:
             f.write(head)
         for chunk in _stream_chunks(recs, gaps, gap):
@@ -377,11 +379,17 @@ def write_recordings_npy(
         )
     rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0]))).shape[:2])
     shape = (idx.size, rows, cols, int(lengths[0]))
-    out = np.lib.format.open_memmap(Path(path), mode="w+", dtype="<i2", shape=shape)
-    for k, i in enumerate(idx):
-        out[k] = campaign.recording(int(i))
-    out.flush()
-    del out
+    header = {"descr": "<i2", "fortran_order": False, "shape": shape}
+    # ordinary buffered writes, not a memory map: a full disk is an OSError, not a SIGBUS
+    with whole_file(path) as tmp, open(tmp, "wb") as f:
+        np.lib.format.write_array_header_1_0(f, header)
+        reserve_space(f, f.tell() + 2 * math.prod(shape))
+        for i in idx:
+            r = np.ascontiguousarray(campaign.recording(int(i)), dtype="<i2")
+            if r.shape != shape[1:]:
+                raise ValueError(f"{path}: recording {int(i)} has shape {r.shape}, expected "
+                                 f"{shape[1:]}")
+            f.write(r.tobytes())
     return shape
 
 
@@ -392,7 +400,7 @@ def write_raw_records(
     16-byte header ('ESKR', u16 rows, u16 cols, u32 T, u32 0) and its int16 samples in C order
     (rows, cols, T). Returns the number of records."""
     idx = _chosen(campaign, indices)
-    with open(path, "wb") as f:
+    with whole_file(path) as tmp, open(tmp, "wb") as f:
         for i in idx:
             r = np.ascontiguousarray(campaign.recording(int(i)), dtype="<i2")
             f.write(_RAW_RECORD.pack(RAW_RECORD_MAGIC, r.shape[0], r.shape[1], r.shape[2], 0))

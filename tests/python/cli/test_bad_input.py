@@ -3,6 +3,14 @@ exit code 2 (the command line as a user runs it: the real `eskin` app)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import resource
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -61,3 +69,83 @@ def test_plot_index_outside_the_campaign(campaign, tmp_path, index):
     line = _one_line_error(["plot", campaign, "--index", index, "-o", tmp_path / "p.png"])
     assert line == f"error: --index {index} is out of range: {campaign} holds recordings 0 to 5"
     assert not (tmp_path / "p.png").exists()
+
+
+# ------------------------------------------------------------------ a full disk, a real process
+
+REPO = Path(__file__).resolve().parents[3]
+REPLAY_FORMATS = ("replay", "npy", "records", "raw")
+
+
+def eskin(*args, preexec_fn=None) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO / "python") + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "eskin", *map(str, args)], capture_output=True,
+                          text=True, env=env, timeout=120, preexec_fn=preexec_fn)
+
+
+def _one_line_exit_2(r: subprocess.CompletedProcess, name: Path) -> str:
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)  # not 135 (SIGBUS)
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr + r.stdout, r.stderr
+    assert r.stderr.startswith(f"error: {name}: "), r.stderr
+    return r.stderr.strip()
+
+
+@contextlib.contextmanager
+def _tmpfs(where: Path, size: str):
+    where.mkdir()
+    try:
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                           capture_output=True, text=True)
+    except OSError:
+        r = None
+    if r is None or r.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+@pytest.mark.parametrize("fmt", REPLAY_FORMATS)
+def test_replay_onto_a_full_disk(campaign, tmp_path, fmt):
+    """A 32 KiB tmpfs: the .npy (77 KB) was written through a memory map, which a full tmpfs
+    kills with SIGBUS, leaving a sparse file of the full size under the target name; the other
+    formats were left truncated under it. Now: one line, exit 2, nothing under any name."""
+    with _tmpfs(tmp_path / "full", "32k") as full:
+        out = full / f"b.{fmt}"
+        line = _one_line_exit_2(eskin("replay", campaign, "-o", out, "--format", fmt), out)
+        assert line == f"error: {out}: No space left on device"
+        assert sorted(full.iterdir()) == []
+
+
+def _file_size_limit(limit: int):
+    def set_limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit, write gives EFBIG
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return set_limit
+
+
+@pytest.mark.parametrize("fmt", REPLAY_FORMATS)
+def test_replay_past_the_file_size_limit(campaign, tmp_path, fmt):
+    """The same without a tmpfs (no root needed): a process limited to files of 32 KiB."""
+    out = tmp_path / "out" / f"b.{fmt}"
+    out.parent.mkdir()
+    r = eskin("replay", campaign, "-o", out, "--format", fmt,
+              preexec_fn=_file_size_limit(32 << 10))
+    assert _one_line_exit_2(r, out) == f"error: {out}: File too large"
+    assert sorted(out.parent.iterdir()) == []
+
+
+@pytest.mark.parametrize("fmt", ["npy", "raw"])
+def test_replay_force_keeps_the_old_file_when_the_new_one_cannot_be_written(
+        campaign, tmp_path, fmt):
+    out = tmp_path / "out" / f"b.{fmt}"
+    out.parent.mkdir()
+    out.write_bytes(b"an earlier replay")
+    r = eskin("replay", campaign, "-o", out, "--format", fmt, "--force",
+              preexec_fn=_file_size_limit(32 << 10))
+    _one_line_exit_2(r, out)
+    assert out.read_bytes() == b"an earlier replay"
+    assert sorted(p.name for p in out.parent.iterdir()) == [out.name]
