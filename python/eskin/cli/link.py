@@ -138,6 +138,7 @@ def stats_line(s: Any) -> str:
             f"crc_errors={s.crc_errors} malformed={s.malformed} oversize={s.oversize} "
             f"sequence_gaps={s.sequence_gaps} lost_frames={s.lost_frames} "
             f"lost_samples={s.lost_samples} absurd_frames={s.absurd_frames} "
+            f"unexpected_frames={s.unexpected_frames} "
             f"overrun_frames={s.overrun_frames} "
             f"controller_dropped={s.controller_dropped_samples} "
             f"controller_overruns={s.controller_overrun_events} "
@@ -157,6 +158,7 @@ def stats_table(s: Any, title: str = "link statistics") -> Any:
         ("CRC errors", str(s.crc_errors)),
         ("malformed / oversize", f"{s.malformed} / {s.oversize}"),
         ("absurd frames (refused fields)", str(s.absurd_frames)),
+        ("unexpected frames (host commands)", str(s.unexpected_frames)),
         ("sequence gaps (frames)", f"{s.sequence_gaps} ({s.lost_frames})"),
         ("lost samples", str(s.lost_samples)),
         ("DATA frames flagged overrun", str(s.overrun_frames)),

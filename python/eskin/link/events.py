@@ -103,14 +103,17 @@ class LinkStats(DecoderStats):
     ``sample_index_resets``, and ``rejected``) are this host's; the ``controller_*`` ones are
     the controller's cumulative counters from its last STATUS. ``absurd_frames``: frames sound
     on the wire whose fields were refused (each also a :class:`Rejection` event);
-    ``nonfinite_decisions``: decisions with a NaN or infinite decision value (kept, and
-    written as ``null`` by ``--jsonl``). Every frame decoded is a DATA, DECISION, STATUS, INFO
-    or PONG frame used, or an absurd one: ``frames`` = ``data_frames`` used + decisions from
-    the controller + ``status_frames`` + INFO frames + ``pong_frames`` + ``absurd_frames``.
+    ``unexpected_frames``: sound frames of a type only a host sends (START, STOP, PING,
+    INFO_REQUEST), skipped; ``nonfinite_decisions``: decisions with a NaN or infinite decision
+    value (kept, and written as ``null`` by ``--jsonl``). Every frame decoded is a DATA,
+    DECISION, STATUS, INFO or PONG frame used, an absurd one or an unexpected one: ``frames`` =
+    ``data_frames`` used + decisions from the controller + ``status_frames`` + INFO frames +
+    ``pong_frames`` + ``absurd_frames`` + ``unexpected_frames``.
     """
 
     elapsed_s: float = 0.0
     absurd_frames: int = 0
+    unexpected_frames: int = 0
     nonfinite_decisions: int = 0
     pong_frames: int = 0
     overrun_frames: int = 0

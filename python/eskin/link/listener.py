@@ -22,8 +22,9 @@ Events, in arrival order:
 * :class:`Rejection` - a frame sound on the wire (COBS, CRC-32, layout) but with a field no
   controller sends (a sample index of 2^63, a rate of NaN, a grid unlike the stream's, a class
   index past the controller's class names): counted in ``absurd_frames`` and left out
-  (:mod:`eskin.link.frame_checks`); a frame the stream cannot go on after (an INFO grid the
-  host model cannot take) ends :meth:`LinkListener.events` with
+  (:mod:`eskin.link.frame_checks`); a frame only a host sends (START, STOP, PING,
+  INFO_REQUEST) is counted in ``unexpected_frames`` and left out; a frame the stream cannot go
+  on after (an INFO of another protocol version, an INFO grid the host model cannot take) ends :meth:`LinkListener.events` with
   :class:`~eskin.errors.LinkStreamError` after the final :class:`Stats`;
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 

@@ -29,10 +29,10 @@ from eskin.link.events import (
 from eskin.link.frame_checks import FrameChecks, GridVote, Rejection
 from eskin.link.host_classifier import HostClassifier, Touch
 from eskin.link.protocol import (
+    PROTOCOL_VERSION,
     DataFrame,
     DecisionFrame,
     FrameDecoder,
-    FrameType,
     InfoFrame,
     PongFrame,
     StatusFrame,
@@ -46,8 +46,8 @@ __all__ = ["StreamReceiver", "unreceived_samples"]
 MAX_HISTORY_BYTES = 256 << 20
 """The recent samples kept for the taxel activity view, at most (the ``history_s`` seconds
 asked for, fewer at very high rates and grids); recording keeps what its recordings need."""
-_COUNTS = ("absurd_frames", "nonfinite_decisions", "pong_frames", "overrun_frames",
-           "status_frames", "decisions_controller", "decisions_host")
+_COUNTS = ("absurd_frames", "unexpected_frames", "nonfinite_decisions", "pong_frames",
+           "overrun_frames", "status_frames", "decisions_controller", "decisions_host")
 
 
 def unreceived_samples(status: StatusFrame, received: int, reconnects: int,
@@ -154,7 +154,10 @@ class StreamReceiver:
         self._out = out = []
         data_run: list[DataFrame] = []
         for f in frames:
-            problem = self._checks.check(f)
+            # an INFO of another protocol version ends the stream (in _on_info) whatever its
+            # fields say: they are laid out by another version's rules
+            foreign = isinstance(f, InfoFrame) and f.protocol_version != PROTOCOL_VERSION
+            problem = None if foreign else self._checks.check(f)
             if problem is None and isinstance(f, DataFrame):
                 problem = self._grid_vote.check(f, self._checks.info)
             if problem is not None:
@@ -199,9 +202,8 @@ class StreamReceiver:
             self._on_info(f)
         elif isinstance(f, PongFrame):
             self._counts["pong_frames"] += 1
-        else:  # a command frame: controllers never send one
-            self._reject(Rejection(FrameType(_frame_type(f)).name, "type", _frame_type(f),
-                                   "a host command, not a controller frame"))
+        else:  # a host's frame (START, STOP, PING, INFO_REQUEST): controllers never send one
+            self._counts["unexpected_frames"] += 1
 
     def _decision(self, d: Decision) -> None:
         if not all(math.isfinite(v) for v in d.values):
@@ -210,6 +212,12 @@ class StreamReceiver:
         self._out.append(d)
 
     def _on_info(self, f: InfoFrame) -> None:
+        if f.protocol_version != PROTOCOL_VERSION:
+            raise LinkStreamError(
+                f"INFO frame: protocol_version = {int(f.protocol_version)}: this host speaks "
+                f"version {PROTOCOL_VERSION} of the eskin wire protocol and cannot read the "
+                f"controller's frames (update eskin or the controller's firmware so that "
+                f"they match)")
         grid = (int(f.rows), int(f.cols))
         if self.classifier is not None and tuple(self.classifier.grid) != grid:
             raise LinkStreamError(
@@ -308,7 +316,3 @@ class StreamReceiver:
             self._record(final=True)
         self._out = []
         return out
-
-
-def _frame_type(f: Any) -> int:
-    return int(getattr(f, "command", 0))

@@ -230,3 +230,49 @@ def test_a_final_status_an_age_ahead_is_an_index_reset_not_a_loss():
     listener.finish()
     assert listener.stats.lost_samples == 20 + 3_600_000
     assert listener.stats.sample_index_resets == 0
+
+
+def _listen(wire: bytes, out: Path) -> subprocess.CompletedProcess:
+    path, thread = _controller(wire)
+    res = subprocess.run([sys.executable, "-m", "eskin", "listen", path, "--jsonl", str(out),
+                          "--until-eof", "--duration", "60", "--view", "plain"],
+                         capture_output=True, text=True, env=_env(), timeout=120)
+    thread.join(5)
+    return res
+
+
+def test_host_frames_from_the_controller_are_counted_and_skipped(tmp_path):
+    """A sound PING (and START, STOP, INFO_REQUEST) reaching the host ended `eskin listen` with
+    "0 is not a valid FrameType"; it is counted in unexpected_frames and the stream goes on."""
+    from eskin.link.protocol import CommandFrame, FrameType, PingFrame
+
+    host_frames = [PingFrame(7, 123), CommandFrame(FrameType.START),
+                   CommandFrame(FrameType.STOP), CommandFrame(FrameType.INFO_REQUEST)]
+    data = [_data(k) for k in range(0, 200, 10)]
+    frames = [_info(), data[0], host_frames[0], *data[1:10], *host_frames[1:], *data[10:],
+              StatusFrame(next_sample=200, samples_sent=200, state=StreamState.FINISHED,
+                          connections=1)]
+    out = tmp_path / "d.jsonl"
+    res = _listen(DELIMITER + b"".join(encode_frame(f) for f in frames), out)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    assert "unexpected_frames=4" in res.stdout
+    stats = json.loads(out.read_text().splitlines()[-1])
+    assert stats["type"] == "stats" and stats["unexpected_frames"] == 4
+    assert stats["absurd_frames"] == 0 and stats["frames"] == len(frames)
+    assert stats["samples"] == 200 and stats["lost_samples"] == 0
+
+
+def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_path):
+    import dataclasses
+
+    foreign = dataclasses.replace(_info(), protocol_version=99)
+    frames = [_info(), *[_data(k) for k in range(0, 50, 10)], foreign,
+              *[_data(k) for k in range(50, 100, 10)]]
+    out = tmp_path / "d.jsonl"
+    res = _listen(DELIMITER + b"".join(encode_frame(f) for f in frames), out)
+    assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
+    assert res.stderr == ("error: INFO frame: protocol_version = 99: this host speaks version 1 "
+                          "of the eskin wire protocol and cannot read the controller's frames "
+                          "(update eskin or the controller's firmware so that they match)\n")
+    stats = json.loads(out.read_text().splitlines()[-1])
+    assert stats["type"] == "stats" and stats["samples"] >= 50  # the final statistics

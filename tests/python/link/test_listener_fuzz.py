@@ -33,9 +33,12 @@ from eskin.link.protocol import (
     DELIMITER,
     MAX_DECISION_VALUES,
     MAX_FRAME_SIZE,
+    CommandFrame,
     DataFrame,
     DecisionFrame,
+    FrameType,
     InfoFrame,
+    PingFrame,
     PongFrame,
     StatusFrame,
     StreamState,
@@ -151,7 +154,10 @@ def _info(src: _Bytes) -> InfoFrame:
 
 _MAKERS = (lambda s: [_data_frame(s)], lambda s: [_data_frame(s)], _run, _run,
            lambda s: [_decision(s)], lambda s: [_status(s)], lambda s: [_info(s)],
-           lambda s: [PongFrame(s.uint(4), s.uint(8))])
+           lambda s: [PongFrame(s.uint(4), s.uint(8))],
+           lambda s: [PingFrame(s.uint(4), s.uint(8))],
+           lambda s: [CommandFrame((FrameType.START, FrameType.STOP,
+                                    FrameType.INFO_REQUEST)[s.u8() % 3])])
 
 
 def frames_from(blob: bytes) -> tuple[list, list[int]]:
@@ -202,7 +208,9 @@ def test_no_frame_field_breaks_the_listener_and_the_counts_add_up(blob):
     # every frame sent arrived (nothing was damaged on the way) and is either used or refused
     assert s.frames == len(sent) and s.crc_errors == s.malformed == s.oversize == 0
     assert s.frames == (kinds[DataBlock] + kinds[Decision] + kinds[StatusEvent]
-                        + kinds[InfoEvent] + s.pong_frames + s.absurd_frames)
+                        + kinds[InfoEvent] + s.pong_frames + s.absurd_frames
+                        + s.unexpected_frames)
+    assert s.unexpected_frames == sum(isinstance(f, (PingFrame, CommandFrame)) for f in sent)
     assert s.pong_frames == pongs and s.absurd_frames == kinds[Rejection]
     assert s.decisions_controller == kinds[Decision] and s.decisions_host == 0
     assert s.status_frames == kinds[StatusEvent]
