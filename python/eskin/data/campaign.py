@@ -658,6 +658,7 @@ def _load_open(f: Any, where: str) -> Campaign:
         raise CampaignFormatError(
             where, "/recordings/signals", f"empty taxel grid {rows}x{cols}")
     check_sizes(where, n, rows, cols, t)
+    _check_stored(where, sig)
     arrays: dict[str, Any] = {}
     for name in (*_LABEL_FIELDS, *_OPTIONAL_FIELDS):
         if name in grp:
@@ -722,6 +723,54 @@ def check_sizes(where: str | None, n: int, rows: int, cols: int, t: int) -> None
     if problem:
         raise CampaignFormatError(
             where, "/recordings/signals", f"shape {(n, rows, cols, t)}: {problem}")
+
+
+def _check_stored(where: str, sig: Any) -> None:
+    """Refuse a signals dataset that declares more samples than its stored chunks can hold
+    (:func:`eskin.data.limits.stored_size_problem`), before reading any: an 11 KB file can
+    declare 24 recordings of 64x64x100000 samples in chunks never written, which read as zeros
+    for minutes. Data kept outside the file (allowed by ``allow_external``) is not measured."""
+    from eskin.data.limits import filter_ratio, stored_size_problem
+
+    if sig.is_virtual or sig.external:
+        return
+    try:
+        plist = sig.id.get_create_plist()
+        filters = [int(plist.get_filter(i)[0]) for i in range(plist.get_nfilters())]
+        ratio = filter_ratio(filters)
+        stored, backed = _stored_chunks(sig, ratio)
+        file_bytes = os.path.getsize(sig.file.filename)
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise CampaignFormatError(where, "/recordings/signals",
+                                  f"cannot read its storage layout ({exc})") from exc
+    stored = min(stored, file_bytes)
+    problem = stored_size_problem(sig.size * 2, min(backed, stored * ratio), stored, filters)
+    if problem:
+        raise CampaignFormatError(where, "/recordings/signals", f"shape {sig.shape}: {problem}")
+
+
+def _stored_chunks(sig: Any, ratio: int) -> tuple[int, int]:
+    """(bytes stored, bytes of samples they can hold) of a dataset: per chunk, the smaller of
+    its samples inside the dataset and ``ratio`` times its stored bytes."""
+    if sig.chunks is None:  # contiguous: no filters, and the whole extent or nothing stored
+        stored = int(sig.id.get_storage_size())
+        return stored, stored
+    shape, chunks, itemsize = sig.shape, sig.chunks, sig.dtype.itemsize
+    totals = [0, 0]
+
+    def visit(info: Any) -> None:
+        inside = itemsize
+        for c, s, o in zip(chunks, shape, info.chunk_offset):
+            inside *= max(0, min(c, s - o))
+        totals[0] += int(info.size)
+        totals[1] += min(inside, int(info.size) * ratio)
+
+    if hasattr(sig.id, "chunk_iter"):  # HDF5 1.12.3 and later: one pass in C
+        sig.id.chunk_iter(visit)
+    else:
+        for k in range(sig.id.get_num_chunks()):
+            visit(sig.id.get_chunk_info(k))
+    return totals[0], totals[1]
 
 
 # --------------------------------------------------------------------------- writing

@@ -76,3 +76,41 @@ def size_problem(value: int, limit: int, what: str) -> str | None:
     if value > limit:
         return f"{what} {value:,} is over the limit of {limit:,} (docs/dataset-format.md)"
     return None
+
+
+#: How many times smaller than its samples the stored bytes of a dataset can be, at most, after
+#: each HDF5 filter (by filter id). Deflate (gzip) shrinks at most 1032 times (the format's
+#: longest match, 258 bytes, costs at least 2 bits); LZF at most 88 times (264 bytes in 3);
+#: shuffle and the Fletcher-32 checksum do not shrink. Any other filter (szip, scale-offset,
+#: n-bit, a plugin) is given FILTER_RATIO_UNKNOWN.
+FILTER_RATIOS = {1: 1032, 2: 1, 3: 1, 32000: 88}
+FILTER_RATIO_UNKNOWN = 1 << 16
+FILTER_NAMES = {1: "gzip", 2: "shuffle", 3: "fletcher32", 4: "szip", 5: "nbit",
+                6: "scaleoffset", 32000: "lzf"}
+UNSTORED_BYTES = 1 << 26
+"""Bytes of samples a file may declare beyond what its stored bytes can hold (64 MiB: chunks
+never written read as zeros, and reading that many takes a fraction of a second)."""
+
+
+def filter_ratio(filters: list[int]) -> int:
+    """How many times its stored bytes a chunk passed through HDF5 ``filters`` (ids, in
+    order) can hold, at most."""
+    ratio = 1
+    for fid in filters:
+        ratio *= FILTER_RATIOS.get(fid, FILTER_RATIO_UNKNOWN)
+    return ratio
+
+
+def stored_size_problem(declared: int, backed: int, stored: int,
+                        filters: list[int]) -> str | None:
+    """Why ``declared`` bytes of samples are refused when the file's ``stored`` bytes of them
+    (with these HDF5 ``filters``) can hold only ``backed`` of them (each chunk at most
+    :func:`filter_ratio` times its stored bytes; a chunk never written holds nothing and reads
+    as zeros), or None when all but :data:`UNSTORED_BYTES` are backed. Such a file would be
+    read as gigabytes of zeros, for minutes."""
+    if declared <= backed + UNSTORED_BYTES:
+        return None
+    names = "+".join(FILTER_NAMES.get(fid, f"filter {fid}") for fid in filters) or "none"
+    return (f"declares {declared:,} bytes of samples but the file stores {stored:,} bytes of "
+            f"them, which hold at most {backed:,} (filters: {names}; a chunk never written "
+            f"holds none); the file is damaged or was not written whole")

@@ -149,3 +149,39 @@ def test_replay_force_keeps_the_old_file_when_the_new_one_cannot_be_written(
     _one_line_exit_2(r, out)
     assert out.read_bytes() == b"an earlier replay"
     assert sorted(p.name for p in out.parent.iterdir()) == [out.name]
+
+
+# ------------------------------------------------------- declared sizes the file cannot hold
+
+
+def _unwritten_campaign(path: Path) -> Path:
+    """11 KB declaring 24 recordings of 64x64x100000 samples (19.7 GB) in gzip chunks never
+    written: within every size limit; `info --check`, `plot` and `replay` read zeros for 60-90 s."""
+    write_campaign(path, np.zeros((24, 4, 4, 10), np.int16), modality=[0, 1, 2] * 8,
+                   participant=[1] * 24, direction=[0] * 24, run=[1] * 24,
+                   modalities=["brush", "finger", "washer"], sample_rate_hz=3000.0,
+                   volts_per_count=1e-3, source="recorded")
+    with h5py.File(path, "a") as f:
+        del f["recordings/signals"]
+        f["recordings"].create_dataset("signals", shape=(24, 64, 64, 100_000), dtype=np.int16,
+                                       chunks=(1, 64, 64, 2000), compression="gzip",
+                                       shuffle=True)
+        f["recordings/length"][...] = 100_000
+    return path
+
+
+@pytest.mark.parametrize("command", [["info", "--check"], ["plot", "-o", "p.png"],
+                                     ["replay", "-o", "r.eskr"]])
+def test_a_campaign_declaring_more_than_it_stores(tmp_path, command):
+    import time
+
+    p = _unwritten_campaign(tmp_path / "huge.h5")
+    assert p.stat().st_size < 20_000
+    args = [a if not a.endswith((".png", ".eskr")) else str(tmp_path / a) for a in command]
+    start = time.perf_counter()
+    line = _one_line_error([args[0], p, *args[1:]])
+    assert time.perf_counter() - start < 5.0
+    assert line.startswith(f"error: {p}: /recordings/signals: shape (24, 64, 64, 100000): "
+                           f"declares 19,660,800,000 bytes of samples but the file stores 0 "
+                           f"bytes of them")
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["huge.h5"]

@@ -108,3 +108,68 @@ def test_preprocess_huge_D_is_a_value_error_not_a_memory_error(monkeypatch):
         preprocess(x, D=100)
     monkeypatch.setattr(limits, "available_memory", lambda: 30_000)
     assert preprocess(x, D=100, window="none").shape == (2, 4, 4, 100)
+
+
+def _unwritten(path, n=24, shape=(64, 64, 100_000)):
+    """A campaign of 11 KB declaring ``n`` recordings of ``shape`` (19.7 GB), gzip chunks
+    never written: every size limit passes, and reading it took minutes."""
+    p = _declared(path, (n, *shape))
+    with h5py.File(p, "a") as f:
+        del f["recordings/signals"]
+        f["recordings"].create_dataset("signals", shape=(n, *shape), dtype=np.int16,
+                                       chunks=(1, *shape[:2], 2000), compression="gzip",
+                                       shuffle=True)
+        f["recordings/length"][...] = shape[2]
+    return p
+
+
+def test_a_declaration_the_stored_bytes_cannot_hold_is_refused_at_once(tmp_path):
+    import time
+
+    p = _unwritten(tmp_path / "huge.h5")
+    assert p.stat().st_size < 20_000
+    start = time.perf_counter()
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(p)
+    assert time.perf_counter() - start < 1.0
+    assert str(info.value) == (
+        f"{p}: /recordings/signals: shape (24, 64, 64, 100000): declares 19,660,800,000 bytes "
+        f"of samples but the file stores 0 bytes of them, which hold at most 0 (filters: "
+        f"shuffle+gzip; a chunk never written holds none); the file is damaged or was not "
+        f"written whole")
+
+
+def test_one_written_recording_does_not_vouch_for_the_others(tmp_path):
+    p = _unwritten(tmp_path / "one.h5", n=40, shape=(16, 16, 50_000))
+    with h5py.File(p, "a") as f:
+        f["recordings/signals"][0] = np.random.default_rng(0).integers(
+            -500, 500, (16, 16, 50_000), dtype=np.int16)
+    with pytest.raises(CampaignFormatError, match=r"declares 1,024,000,000 bytes of samples but "
+                       r"the file stores [0-9,]+ bytes of them, which hold at most"):
+        load_campaign(p)
+
+
+def test_the_bound_of_each_compression():
+    assert limits.filter_ratio([]) == 1 and limits.filter_ratio([2, 1]) == 1032
+    assert limits.filter_ratio([32000]) == 88 and limits.filter_ratio([3, 1]) == 1032
+    assert limits.filter_ratio([307]) == limits.FILTER_RATIO_UNKNOWN  # a plugin (bzip2)
+    free = limits.UNSTORED_BYTES
+    assert limits.stored_size_problem(10**9 + free, 10**9, 10**9, []) is None
+    assert limits.stored_size_problem(10**9 + free + 1, 10**9, 10**9, []).startswith(
+        "declares 1,067,108,865 bytes of samples but the file stores 1,000,000,000 bytes of "
+        "them, which hold at most 1,000,000,000 (filters: none; a chunk never written holds "
+        "none)")
+
+
+def test_the_most_compressible_campaign_a_writer_makes_is_accepted(tmp_path):
+    """All zeros, gzip at level 9 (about 1030 times smaller): under the bound, and over the
+    64 MiB that need no stored bytes."""
+    with CampaignWriter(tmp_path / "z.h5", grid_shape=(8, 8), n_samples=200_000,
+                        sample_rate_hz=3000.0, volts_per_count=1e-3, modalities=["a", "b"],
+                        source="recorded", compression_level=9, durable=False) as w:
+        for i in range(4):
+            w.append(np.zeros((8, 8, 200_000), np.int16), modality=i % 2, participant=1,
+                     direction=0, run=1)
+    with load_campaign(tmp_path / "z.h5", check_data=True) as c:
+        assert c.signals.shape == (4, 8, 8, 200_000)
+        assert np.prod(c.signals.shape) * 2 > limits.UNSTORED_BYTES
