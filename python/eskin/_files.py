@@ -26,7 +26,11 @@ def same_file(a: PathLike, b: PathLike) -> bool:
     try:
         return os.path.samefile(a, b)
     except OSError:  # one of them does not exist (yet): compare where they would be
+        pass
+    try:
         return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):  # a symbolic link loop: compare the names
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def refuse_overwrite(

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from eskin.data import limits
 from eskin.errors import CampaignFormatError
 
 FORMAT = "eskin-campaign"
@@ -197,6 +198,12 @@ def _check_attrs(where: str | None, attrs: Mapping[str, Any]) -> dict[str, Any]:
             raise CampaignFormatError(
                 where, f"attribute {name!r}", f"must be a positive finite number, got {v!r}")
         dec[name] = float(v)
+    if not limits.MIN_SAMPLE_RATE_HZ <= dec["sample_rate_hz"] <= limits.MAX_SAMPLE_RATE_HZ:
+        raise CampaignFormatError(
+            where, "attribute 'sample_rate_hz'",
+            f"{dec['sample_rate_hz']:g} Hz is outside the sample rates eskin reads, "
+            f"{limits.MIN_SAMPLE_RATE_HZ:g} Hz to {limits.MAX_SAMPLE_RATE_HZ:g} Hz "
+            f"(docs/dataset-format.md)")
     mods = dec["modalities"]
     if isinstance(mods, str):
         mods = [mods]
@@ -542,6 +549,12 @@ def load_campaign(path: str | os.PathLike[str], *, in_memory: bool = False,
 
     path = Path(path)
     where = str(path)
+    try:
+        os.stat(path)
+    except FileNotFoundError:
+        pass
+    except OSError as exc:  # a symbolic link loop, a folder without permission, ...
+        raise OSError(exc.errno, exc.strerror, where) from None
     if not path.exists():
         from eskin.data.journal import journal_path
 

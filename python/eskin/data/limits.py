@@ -25,6 +25,10 @@ MAX_D = 100_000
 """Samples of a subsampled window, D (the core's ``kMaxD``)."""
 MAX_RECORDING_BYTES = 1 << 30
 """Bytes of one recording as int16 (rows x cols x T x 2): a recording is read whole."""
+MIN_SAMPLE_RATE_HZ = 0.1
+"""Sample rate of a campaign, at least (one sample every 10 s)."""
+MAX_SAMPLE_RATE_HZ = 1e6
+"""Sample rate of a campaign, and of a stream on the link, at most (1 MHz)."""
 
 
 def available_memory() -> int | None:

@@ -16,15 +16,13 @@ import math
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from eskin.data.limits import MAX_GRID_SIDE, MAX_TAXELS
+from eskin.data.limits import MAX_GRID_SIDE, MAX_SAMPLE_RATE_HZ, MAX_TAXELS
 from eskin.link.protocol import DataFrame, DecisionFrame, InfoFrame, StatusFrame
 
 __all__ = ["MAX_SAMPLE_RATE_HZ", "MAX_STREAM_INDEX", "FrameChecks", "GridVote", "Rejection"]
 
 MAX_STREAM_INDEX = 1 << 53
 """Sample indices and sample counts: below 2^53 (exact as a float; 95,000 years at 3 kHz)."""
-MAX_SAMPLE_RATE_HZ = 1e6
-"""Sample rate of a stream: positive and at most 1 MHz."""
 MAX_SPEED = 1e6
 """INFO's replay speed factor: at most 10^6; 0 is an unpaced controller (eskin-fw-sim --speed 0:
 as fast as the host reads)."""

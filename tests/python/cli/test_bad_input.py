@@ -185,3 +185,30 @@ def test_a_campaign_declaring_more_than_it_stores(tmp_path, command):
                            f"declares 19,660,800,000 bytes of samples but the file stores 0 "
                            f"bytes of them")
     assert sorted(q.name for q in tmp_path.iterdir()) == ["huge.h5"]
+
+
+# --------------------------------------------------------------- symbolic link loops, rates
+
+
+@pytest.mark.parametrize("command", [["plot", "-o", "x.png"], ["replay", "-o", "x.eskr"],
+                                     ["info", "--check"]])
+def test_a_symbolic_link_loop(tmp_path, command):
+    loop = tmp_path / "loop.h5"
+    loop.symlink_to("loop.h5")
+    args = [a if not a.endswith((".png", ".eskr")) else str(tmp_path / a) for a in command]
+    line = _one_line_error([args[0], loop, *args[1:]])
+    assert line == f"error: {loop}: Too many levels of symbolic links"
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["loop.h5"]
+
+
+@pytest.mark.parametrize("rate", [1e300, 1e-300])
+@pytest.mark.parametrize("command", [["replay", "-o", "r.eskr"], ["replay", "-o", "r.raw"],
+                                     ["info"]])
+def test_a_sample_rate_outside_the_range_eskin_reads(campaign, tmp_path, rate, command):
+    with h5py.File(campaign, "a") as f:
+        f.attrs["sample_rate_hz"] = rate
+    args = [a if not a.endswith((".raw", ".eskr")) else str(tmp_path / a) for a in command]
+    line = _one_line_error([args[0], campaign, *args[1:]])
+    assert line == (f"error: {campaign}: attribute 'sample_rate_hz': {rate:g} Hz is outside "
+                    f"the sample rates eskin reads, 0.1 Hz to 1e+06 Hz (docs/dataset-format.md)")
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["c.h5"]

@@ -228,6 +228,11 @@ BAD_CASES = {
                    "attribute 'source'", "must be one of"),
     "negative rate": (lambda f: f.attrs.__setitem__("sample_rate_hz", -3.0),
                       "attribute 'sample_rate_hz'", "positive"),
+    "rate 1e300": (lambda f: f.attrs.__setitem__("sample_rate_hz", 1e300),
+                   "attribute 'sample_rate_hz'",
+                   "1e+300 Hz is outside the sample rates eskin reads, 0.1 Hz to 1e+06 Hz"),
+    "rate 1e-300": (lambda f: f.attrs.__setitem__("sample_rate_hz", 1e-300),
+                    "attribute 'sample_rate_hz'", "1e-300 Hz is outside the sample rates"),
     "float signals": (_replace("signals", np.zeros((6, 4, 4, 500), np.float32)),
                       "/recordings/signals", "wrong dtype float32"),
     "3-axis signals": (_replace("signals", np.zeros((6, 16, 500), np.int16)),
@@ -261,6 +266,25 @@ def test_bad_file_gives_clear_error(tmp_path, case):
     assert isinstance(err, ValueError)
     assert str(p) in str(err) and field in str(err) and problem in str(err), str(err)
     assert err.field == field
+
+
+@pytest.mark.parametrize("rate", [1e300, 1e-300, 0.05, 2e6])
+def test_the_writer_refuses_a_rate_the_loader_would_refuse(tmp_path, rate):
+    with pytest.raises(CampaignFormatError, match=r"attribute 'sample_rate_hz': .* Hz is outside "
+                       r"the sample rates eskin reads, 0.1 Hz to 1e\+06 Hz"):
+        CampaignWriter(tmp_path / "w.h5", n_samples=10, sample_rate_hz=rate,
+                       volts_per_count=1.0, modalities=["x"], source="recorded")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_symbolic_link_loop_is_an_os_error_naming_it(tmp_path):
+    import errno
+
+    p = tmp_path / "loop.h5"
+    p.symlink_to("loop.h5")
+    with pytest.raises(OSError) as info:
+        load_campaign(p)
+    assert info.value.errno == errno.ELOOP and info.value.filename == str(p)
 
 
 def test_foreign_hdf5(tmp_path):
