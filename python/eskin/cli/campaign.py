@@ -74,7 +74,10 @@ def info_cmd(
     with _user_errors(), load_campaign(_named(file), check_data=check) as c:
         _print_info(c)
         if check:
-            typer.echo(f"check: OK, the data of all {len(c)} recordings read back intact")
+            from eskin.data.integrity import check_report
+
+            for line in check_report(c.path):
+                typer.echo(line)
 
 
 def plot_cmd(
