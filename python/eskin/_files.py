@@ -113,6 +113,7 @@ def whole_file(path: PathLike) -> Iterator[Path]:
     path = Path(path)
     # the hidden file keeps the suffix, which writers read the format from (matplotlib)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    remove_stale(path.parent, f".{path.stem}.", f".tmp{path.suffix}")
     try:
         yield tmp
         with open(tmp, "rb+") as f:
@@ -144,3 +145,36 @@ def reserve_space(f: Any, nbytes: int) -> None:
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
             raise
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: alive, another user's
+        return True
+    return True
+
+
+def remove_stale(folder: Path, head: str, tail: str) -> list[Path]:
+    """Delete the hidden files ``head + PID + tail`` in ``folder`` that a process left when it
+    was killed while writing (SIGKILL, or SIGTERM where nothing turns it into an exception:
+    no cleanup runs) and that no living process is writing: their PID is not a process now.
+    Called before writing the same target again; returns the files deleted."""
+    removed = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    for name in names:
+        middle = name[len(head):len(name) - len(tail)] if len(name) > len(head) + len(tail) else ""
+        if not (name.startswith(head) and name.endswith(tail) and middle.isdigit()):
+            continue
+        pid = int(middle)
+        if pid == os.getpid() or _alive(pid):
+            continue
+        with contextlib.suppress(OSError):
+            os.unlink(folder / name)
+            removed.append(folder / name)
+    return removed

@@ -101,6 +101,18 @@ def plot_cmd(
         typer.echo(f"wrote {output}")
 
 
+def _grid(rows: Optional[int], cols: Optional[int]) -> Optional[tuple[int, int]]:
+    """--rows and --cols: both (a grid of at least 1 x 1) or neither."""
+    for name, value in (("--rows", rows), ("--cols", cols)):
+        if value is not None and value < 1:
+            raise ValueError(f"{name} {value}: a grid has at least 1 taxel row and column")
+    if (rows is None) != (cols is None):
+        given, other = ("--rows", "--cols") if cols is None else ("--cols", "--rows")
+        raise ValueError(f"{given} {rows if cols is None else cols} needs {other} too (the grid "
+                         f"is rows x cols)")
+    return None if rows is None or cols is None else (rows, cols)
+
+
 def import_csv_cmd(
     folder: Path = typer.Argument(..., help="folder with one CSV per recording"),
     output: Path = typer.Option(..., "-o", "--output", help="campaign file to write"),
@@ -134,12 +146,12 @@ def import_csv_cmd(
     from eskin.data.importers import import_csv_folder
 
     with _user_errors():
+        grid = _grid(rows, cols)
         inputs = [manifest or folder / "manifest.csv"]
         inputs += [p for p in folder.iterdir() if p.is_file()] if folder.is_dir() else []
         refuse_overwrite(output, force, inputs=inputs)
         import_csv_folder(
-            folder, output, manifest=manifest,
-            grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+            folder, output, manifest=manifest, grid_shape=grid,
             sample_rate_hz=rate, volts_per_count=volts_per_count,
             modalities=modalities.split(",") if modalities else None, overwrite=force,
             time_column=time_column, time_unit=time_unit)
@@ -172,10 +184,10 @@ def import_tdms_cmd(
     from eskin.data.importers import import_tdms
 
     with _user_errors():
+        grid = _grid(rows, cols)
         refuse_overwrite(output, force, inputs=files)
         import_tdms(
-            files, output,
-            grid_shape=(rows, cols) if rows is not None and cols is not None else None,
+            files, output, grid_shape=grid,
             sample_rate_hz=rate, volts_per_count=volts_per_count,
             modalities=modalities.split(",") if modalities else None, overwrite=force)
         with load_campaign(output) as c:

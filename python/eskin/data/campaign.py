@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from eskin._files import remove_stale
 from eskin.data import limits
 from eskin.errors import CampaignFormatError
 
@@ -1291,6 +1292,8 @@ def _build_and_place(journal: Path, output: Path, overwrite: bool, held: Any) ->
     tmp = output.with_name(f".{output.name}.{os.getpid()}.building")
     kept = None
     with LockedJournal(journal, lock=held is None) as reader:
+        # what a builder killed during its close left (no cleanup runs on SIGKILL or SIGTERM)
+        remove_stale(output.parent, f".{output.name}.", ".building")
         contents = reader.read()
         try:
             # the writer's own records were checked by append; recovery checks them all

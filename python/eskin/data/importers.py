@@ -79,6 +79,7 @@ def find_time_column(names: Sequence[str], path: Path, time_column: str | None =
                              f"has {', '.join(map(repr, names[:8]))}"
                              f"{', ...' if len(names) > 8 else ''}")
         k = lower.index(want)
+        _check_unit(path, names[k], time_unit)
         unit = time_unit or TIME_COLUMNS.get(want)
         if unit is None and want not in TIME_COLUMNS:
             raise ValueError(f"{path}: time column {names[k]!r}: its name does not say its "
@@ -86,8 +87,35 @@ def find_time_column(names: Sequence[str], path: Path, time_column: str | None =
         return TimeColumn(k, names[k], unit)
     for k, n in enumerate(lower):
         if n in TIME_COLUMNS:
+            _check_unit(path, names[k], time_unit)
             return TimeColumn(k, names[k], time_unit or TIME_COLUMNS[n])
     return None
+
+
+#: the unit a time column's name states by its suffix (time_ms, t_us, elapsed_s) or whole
+#: (ms, millis, seconds); a bare "t", "time" or "timestamp" states none
+_UNIT_WORDS = {"s": ("s", "sec", "secs", "seconds"), "ms": ("ms", "millis", "milliseconds"),
+               "us": ("us", "micros", "microseconds")}
+
+
+def unit_in_name(name: str) -> str | None:
+    """The unit ("s", "ms", "us") a column name states, or None."""
+    low = name.strip().lower()
+    last = low.replace("-", "_").replace(" ", "_").rsplit("_", 1)[-1]
+    for unit, words in _UNIT_WORDS.items():
+        if low in words or (last != low and last in words):
+            return unit
+    return None
+
+
+def _check_unit(path: Path, name: str, time_unit: str | None) -> None:
+    """Refuse a --time-unit that contradicts the unit the column's name states (time_ms read
+    as seconds gives a rate 1000 times too low, without a word)."""
+    stated = unit_in_name(name)
+    if time_unit is not None and stated is not None and stated != time_unit:
+        raise ValueError(f"{path}: time column {name!r}: its name says {stated}, --time-unit "
+                         f"says {time_unit}; give --time-unit {stated} (or leave it out), or "
+                         f"name the column by its unit")
 #: the grid taken when none is given and a recording has 16 taxels: the paper's sensor
 DEFAULT_GRID = (4, 4)
 

@@ -353,11 +353,18 @@ def parse_budget(text: str | None, target: str | None = None) -> Budget:
     base = TARGETS[target or "cortex-m4"]
     values = {"flash": float(base.flash_bytes), "ram": float(base.ram_bytes),
               "instr": TARGET_INSTRUCTIONS.get(base.name, 1.5e6)}
+    if text is not None and not any(t.strip() for t in text.split(",")):
+        raise ValueError(f"--budget {text!r} is empty: give flash=..,ram=..,instr=.. (or "
+                         f"leave --budget out for the target's own budget)")
+    given: set[str] = set()
     for item in [t for t in (text or "").split(",") if t.strip()]:
         key, sep, value = item.partition("=")
         key = key.strip().lower()
         if not sep or key not in values:
             raise ValueError(f"--budget {text}: expected flash=..,ram=..,instr=.. (got {item!r})")
+        if key in given:
+            raise ValueError(f"--budget {text}: {key} is given twice")
+        given.add(key)
         values[key] = _size(value, key, decimal=key == "instr")
     name = base.name if text is None else f"{base.name} (budget {text})"
     t = Target(name, base.description, int(values["flash"]), int(values["ram"]), base.clock_hz,

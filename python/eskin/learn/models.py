@@ -1307,6 +1307,9 @@ def load_model(path: str | Path) -> TouchModel:
     fmt = _format_for(path)
     if fmt is not None:
         return fmt[1](path)
+    kind = _other_kind(path)
+    if kind is not None:
+        raise ModelFormatError(f"{path} is not an eskin model file: it is {kind}")
     try:
         with _renamed_modules():
             obj = joblib.load(path)
@@ -1334,6 +1337,46 @@ def load_model(path: str | Path) -> TouchModel:
     if list(model.classes) != list(header.get("classes", [])) or int(model.D) != header.get("D"):
         raise ModelFormatError(f"{path}: the header does not match the model it holds")
     return model
+
+
+#: the first bytes of the other files eskin reads and writes, and what to call them
+_SIGNATURES = (
+    (b"\x89HDF\r\n\x1a\n", "an HDF5 file, not a model"),
+    (b"\x89ESKIN\r\n", "an exported model (eskin export); name it .eskin to load it"),
+    (b"ESKREPLY", "a replay file (eskin replay), not a model"),
+    (b"ESKJRNL1", "a campaign writer's journal (eskin recover turns it into a campaign)"),
+    (b"\x93NUMPY", "a numpy .npy array, not a model"),
+)
+
+
+def _other_kind(path: Path) -> str | None:
+    """What a file that is not a joblib model is, from its first bytes (None: maybe a model)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None
+    for magic, kind in _SIGNATURES:
+        if head.startswith(magic):
+            return _campaign_or(path, kind) if magic.startswith(b"\x89HDF") else kind
+    return None
+
+
+def _campaign_or(path: Path, kind: str) -> str:
+    """'an eskin campaign (...)' when the HDF5 file ``path`` says it is one, else ``kind``."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+    except (OSError, RuntimeError, ValueError):
+        return kind
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode("utf-8", "replace")
+    if fmt == "eskin-campaign":
+        return ("an eskin campaign (a model is trained from one: `eskin train CAMPAIGN -o "
+                "MODEL.joblib`)")
+    return kind
 
 
 #: modules whose classes model files written before the package's layers pickled by these paths

@@ -212,3 +212,40 @@ def test_a_sample_rate_outside_the_range_eskin_reads(campaign, tmp_path, rate, c
     assert line == (f"error: {campaign}: attribute 'sample_rate_hz': {rate:g} Hz is outside "
                     f"the sample rates eskin reads, 0.1 Hz to 1e+06 Hz (docs/dataset-format.md)")
     assert sorted(q.name for q in tmp_path.iterdir()) == ["c.h5"]
+
+
+# ---------------------------------------------------------------------- smaller refusals
+
+
+@pytest.mark.parametrize("budget,line", [
+    ("flash=1M,flash=2M", "error: --budget flash=1M,flash=2M: flash is given twice"),
+    ("", "error: --budget '' is empty: give flash=..,ram=..,instr=.. (or leave --budget out "
+         "for the target's own budget)"),
+])
+def test_train_budget_repeated_or_empty(campaign, tmp_path, budget, line):
+    assert _one_line_error(["train", campaign, "-o", tmp_path / "m.joblib", "--budget",
+                            budget]) == line
+    assert not (tmp_path / "m.joblib").exists()
+
+
+@pytest.mark.parametrize("command", [["export", "-o", "m.eskin"], ["predict"]])
+def test_a_campaign_given_as_a_model(campaign, tmp_path, command):
+    """`eskin export CAMPAIGN` said "KeyError: 72" (joblib reading an HDF5 file)."""
+    args = [a if not a.endswith(".eskin") else str(tmp_path / a) for a in command]
+    rest = [campaign] if args[0] == "predict" else []
+    line = _one_line_error([args[0], campaign, *rest, *args[1:]])
+    assert line == (f"error: {campaign} is not an eskin model file: it is an eskin campaign (a "
+                    f"model is trained from one: `eskin train CAMPAIGN -o MODEL.joblib`)")
+    assert not (tmp_path / "m.eskin").exists()
+
+
+def test_a_hidden_file_of_a_killed_writer_is_removed_by_the_next_write(campaign, tmp_path):
+    """`eskin replay -o r.eskr` killed before its rename leaves `.r.<pid>.tmp.eskr` (SIGKILL,
+    SIGTERM: no cleanup runs); the next write of r.eskr removes it when its process is gone."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".r.{dead.pid}.tmp.eskr"
+    stale.write_bytes(b"half a replay")
+    r = CliRunner().invoke(app, ["replay", str(campaign), "-o", str(tmp_path / "r.eskr")])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5", "r.eskr"]

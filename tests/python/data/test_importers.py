@@ -357,3 +357,56 @@ def test_cli_import_csv_volts_need_volts_per_count(tmp_path):
 
     help_text = " ".join(CliRunner().invoke(app, ["import-csv", "--help"]).output.split())
     assert "Integer counts are imported as they are" in help_text.replace("│ ", "")
+
+
+@pytest.mark.parametrize("name,unit", [("time_ms", "s"), ("Timestamp_us", "ms"),
+                                       ("elapsed_s", "ms"), ("millis", "us")])
+def test_cli_import_csv_refuses_a_time_unit_the_column_name_contradicts(tmp_path, name, unit):
+    """--time-unit s on a column named time_ms made a 1 Hz campaign without a word."""
+    folder, _ = _csv_folder(tmp_path, time_col=True)
+    _retime(folder, name, 1e-3)
+    out = tmp_path / "c.h5"
+    for args in (["--time-unit", unit], ["--time-column", name, "--time-unit", unit]):
+        r = _import(folder, out, *args)
+        assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+        from eskin.data.importers import unit_in_name
+
+        stated = unit_in_name(name)
+        assert r.output == (
+            f"error: {folder / 'r00.csv'}: time column {name!r}: its name says {stated}, "
+            f"--time-unit says {unit}; give --time-unit {stated} (or leave it out), or name "
+            f"the column by its unit\n")
+        assert not out.exists()
+
+
+def test_unit_in_name():
+    from eskin.data.importers import unit_in_name
+
+    assert [unit_in_name(n) for n in ("time_ms", "T_US", "elapsed_s", "ms", "seconds",
+                                      "time-ms", "t", "time", "timestamp", "clock", "samples",
+                                      "status")] == [
+        "ms", "us", "s", "ms", "s", "ms", None, None, None, None, None, None]
+
+
+@pytest.mark.parametrize("args,line", [
+    (["--rows", "0", "--cols", "4"], "--rows 0: a grid has at least 1 taxel row and column"),
+    (["--rows", "4", "--cols", "-2"], "--cols -2: a grid has at least 1 taxel row and column"),
+    (["--rows", "0"], "--rows 0: a grid has at least 1 taxel row and column"),
+    (["--rows", "4"], "--rows 4 needs --cols too (the grid is rows x cols)"),
+    (["--cols", "4"], "--cols 4 needs --rows too (the grid is rows x cols)"),
+])
+def test_cli_import_csv_and_tdms_refuse_a_partial_or_empty_grid(tmp_path, args, line):
+    """--rows 0 (or --rows alone) was ignored: the grid came from elsewhere, without a word."""
+    folder, _ = _csv_folder(tmp_path)
+    out = tmp_path / "c.h5"
+    r = _import(folder, out, *args)
+    assert (r.exit_code, r.output) == (2, f"error: {line}\n")
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    tdms = tmp_path / "r.tdms"
+    _tdms(tdms, _recs())
+    r = CliRunner().invoke(app, ["import-tdms", str(tdms), "-o", str(out), *args])
+    assert (r.exit_code, r.output) == (2, f"error: {line}\n")
+    assert not out.exists()

@@ -151,3 +151,52 @@ def test_discard_on_error_leaves_nothing(tmp_path):
             w.append(np.zeros((4, 4, 8), np.int16), modality="b", participant=0, direction=0,
                      run=1)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+CLOSING_CHILD = textwrap.dedent("""
+    import sys, numpy as np
+    from eskin.data.campaign import CampaignWriter
+    rng = np.random.default_rng(0)
+    x = rng.integers(-3000, 3000, (8, 8, 20000)).astype(np.int16)
+    with CampaignWriter(sys.argv[1], grid_shape=(8, 8), n_samples=20000, sample_rate_hz=1000.0,
+                        volts_per_count=1e-3, modalities=["brush"], source="recorded",
+                        compression_level=None, durable=False) as w:
+        for i in range(40):
+            w.append(x, modality=0, participant=i, direction=0, run=1)
+        print("closing", flush=True)
+""")
+
+
+def test_a_kill_during_close_leaves_a_building_file_that_the_next_write_removes(tmp_path):
+    """SIGKILL while close() builds the campaign (no cleanup can run) left
+    `.c.h5.<pid>.building` behind for good; the next write to c.h5 (here `eskin recover`)
+    removes it, since its process is gone, and keeps one whose process is alive."""
+    script = tmp_path / "child.py"
+    script.write_text(CLOSING_CHILD)
+    target = tmp_path / "c.h5"
+    proc = subprocess.Popen([sys.executable, str(script), str(target)], stdout=subprocess.PIPE,
+                            text=True, env=_env())
+    building = tmp_path / f".c.h5.{proc.pid}.building"
+    assert proc.stdout.readline() == "closing\n"
+    while not building.exists() and proc.poll() is None:
+        pass
+    proc.kill()
+    proc.communicate(timeout=60)
+    if not building.exists():
+        pytest.skip("the close finished before the kill (a very fast disk)")
+    assert not target.exists() and journal_path(target).exists()
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        living = tmp_path / f".c.h5.{alive.pid}.building"
+        living.write_bytes(b"another process's file in progress")
+        r = subprocess.run([sys.executable, "-m", "eskin", "recover", str(target)],
+                           capture_output=True, text=True, env=_env(), timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert not building.exists() and living.exists()
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            ["c.h5", "child.py", living.name])
+    finally:
+        alive.kill()
+        alive.wait()
+    with load_campaign(target) as c:
+        assert len(c) == 40

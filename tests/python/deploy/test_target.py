@@ -212,3 +212,20 @@ def test_the_budget_gives_the_most_support_vectors_that_fit(campaign):
     assert tiny.largest(q50, 500) == 0
     assert candidate_budget(parse_budget(None, "cortex-m4"), (4, 4), rate, wc, 3,
                             max_support=40).largest is None
+
+
+@pytest.mark.parametrize("text,problem", [
+    ("flash=1M,flash=2M", "--budget flash=1M,flash=2M: flash is given twice"),
+    ("ram=64K,RAM=128K", "--budget ram=64K,RAM=128K: ram is given twice"),
+    ("", "--budget '' is empty: give flash=..,ram=..,instr=.. (or leave --budget out for the "
+         "target's own budget)"),
+    (" , ", "--budget ' , ' is empty: "),
+])
+def test_a_repeated_key_or_an_empty_budget_is_refused(text, problem):
+    """`--budget flash=1M,flash=2M` took the last, `--budget ""` meant the target's budget."""
+    from eskin.deploy.target import parse_budget
+
+    with pytest.raises(ValueError) as info:
+        parse_budget(text)
+    assert str(info.value).startswith(problem)
+    assert parse_budget("flash=1M,").flash_bytes == 1 << 20  # a trailing comma is no entry

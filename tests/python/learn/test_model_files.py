@@ -72,3 +72,47 @@ def test_a_file_that_names_an_unknown_eskin_module_is_a_model_format_error(tmp_p
     )
     with pytest.raises(ValueError, match="bad.joblib is not an eskin model file"):
         load_model(path)
+
+
+def test_the_other_files_of_eskin_are_named_not_unpickled(tmp_path):
+    """A campaign, a replay, a journal, an array or an exported model given where a model
+    file goes: one line saying what it is (a campaign was "cannot be read: KeyError: 72")."""
+    from eskin.data.campaign import CampaignWriter, write_campaign
+    from eskin.data.replay import write_replay_arrays
+    from eskin.deploy.export import export_model
+    from eskin.errors import ModelFormatError
+
+    rng = np.random.default_rng(0)
+    sig = rng.integers(-99, 99, (2, 2, 2, 50)).astype(np.int16)
+    files = {
+        "c.h5": (write_campaign(tmp_path / "c.h5", sig, modality=[0, 1], participant=[1, 1],
+                                direction=[0, 0], run=[1, 1], modalities=["a", "b"],
+                                sample_rate_hz=1000.0, volts_per_count=1.0,
+                                source="recorded"),
+                 "an eskin campaign (a model is trained from one: `eskin train CAMPAIGN -o "
+                 "MODEL.joblib`)"),
+        "r.model": (write_replay_arrays(tmp_path / "r.model", list(sig)).path,
+                    "a replay file (eskin replay), not a model"),
+        "a.joblib": (tmp_path / "a.joblib", "a numpy .npy array, not a model"),
+        "m.bin": (tmp_path / "m.bin", "an exported model (eskin export); name it .eskin to "
+                                      "load it"),
+        "other.h5": (tmp_path / "other.h5", "an HDF5 file, not a model"),
+    }
+    np.save(tmp_path / "a.npy", sig)
+    (tmp_path / "a.npy").rename(tmp_path / "a.joblib")
+    export_model(_model(), tmp_path / "m.eskin").rename(tmp_path / "m.bin")
+    import h5py
+
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["x"] = np.arange(3)
+    with pytest.raises(RuntimeError), CampaignWriter(
+            tmp_path / "j.h5", grid_shape=(2, 2), n_samples=50, sample_rate_hz=1000.0,
+            volts_per_count=1.0, modalities=["a"], source="recorded") as w:
+        w.append(sig[0], modality=0, participant=1, direction=0, run=1)
+        raise RuntimeError("stop: the journal is kept")
+    files["j"] = (tmp_path / ".j.h5.partial", "a campaign writer's journal (eskin recover "
+                                              "turns it into a campaign)")
+    for name, (path, kind) in files.items():
+        with pytest.raises(ModelFormatError) as info:
+            load_model(path)
+        assert str(info.value) == f"{path} is not an eskin model file: it is {kind}", name
