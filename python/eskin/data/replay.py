@@ -24,6 +24,7 @@ from typing import Any, Optional
 import numpy as np
 
 from eskin._files import reserve_space, whole_file
+from eskin.data.limits import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ
 from eskin.errors import ReplayFormatError
 
 __all__ = [
@@ -130,8 +131,9 @@ def write_replay_arrays(
     labels_a, names, contacts, rec_idx = _segment_fields(
         n, labels, class_names, contact_intervals, recording_indices
     )
-    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
-        raise ValueError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+    if not MIN_SAMPLE_RATE_HZ <= sample_rate_hz <= MAX_SAMPLE_RATE_HZ:  # NaN too
+        raise ValueError(f"sample_rate_hz must be {MIN_SAMPLE_RATE_HZ:g} to "
+                         f"{MAX_SAMPLE_RATE_HZ:g} Hz, got {sample_rate_hz:g}")
     if not (math.isfinite(volts_per_count) and volts_per_count > 0):
         raise ValueError(f"volts_per_count must be finite and > 0, got {volts_per_count}")
     if not (math.isfinite(gap_s) and 0 <= gap_s <= MAX_GAP_S):
@@ -450,8 +452,9 @@ def _check_header(path: Path, rows: int, cols: int, rate: float, vpc: float) -> 
     """The header's grid and scales: what the writer accepts, nothing else."""
     if not (1 <= rows <= 255 and 1 <= cols <= 255):
         raise ReplayFormatError(f"{path}: grid: {rows}x{cols} is not within 1..255 x 1..255")
-    if not (math.isfinite(rate) and rate > 0):
-        raise ReplayFormatError(f"{path}: sample_rate_hz: {rate!r} is not a finite number > 0")
+    if not MIN_SAMPLE_RATE_HZ <= rate <= MAX_SAMPLE_RATE_HZ:
+        raise ReplayFormatError(f"{path}: sample_rate_hz: {rate!r} is not a rate of "
+                                f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz")
     if not (math.isfinite(vpc) and vpc > 0):
         raise ReplayFormatError(f"{path}: volts_per_count: {vpc!r} is not a finite number > 0")
 

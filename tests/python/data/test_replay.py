@@ -135,8 +135,13 @@ def _patched(tmp_path, name, edits):
 
 SEG1 = 56 + 48  # the second segment: start u64, length u64, onset i64, offset i64, label i32
 BAD_REPLAYS = {
-    "rate inf": ([(32, "<d", float("inf"))], "sample_rate_hz: inf is not a finite number > 0"),
-    "rate 0": ([(32, "<d", 0.0)], "sample_rate_hz: 0.0 is not a finite number > 0"),
+    "rate inf": ([(32, "<d", float("inf"))], "sample_rate_hz: inf is not a rate of 0.1 to "
+                 "1e+06 Hz"),
+    "rate 0": ([(32, "<d", 0.0)], "sample_rate_hz: 0.0 is not a rate of 0.1 to 1e+06 Hz"),
+    "rate 1e300": ([(32, "<d", 1e300)], "sample_rate_hz: 1e+300 is not a rate of 0.1 to "
+                   "1e+06 Hz"),
+    "rate 1e-300": ([(32, "<d", 1e-300)], "sample_rate_hz: 1e-300 is not a rate of 0.1 to "
+                    "1e+06 Hz"),
     "volts NaN": ([(40, "<d", float("nan"))], "volts_per_count: nan is not a finite number > 0"),
     "grid 4096": ([(24, "<H", 4096)], "grid: 4096x3 is not within 1..255 x 1..255"),
     "segment past the end": ([(SEG1, "<Q", 2**63)], "segment 1: start 9223372036854775808 + "
@@ -174,8 +179,10 @@ def test_listen_with_a_bad_replay_is_a_one_line_error(tmp_path):
 
 def test_writer_refuses_non_finite_scales(tmp_path):
     ok = [np.zeros((2, 2, 10), np.int16)]
-    with pytest.raises(ValueError, match="sample_rate_hz must be finite"):
-        write_replay_arrays(tmp_path / "e.eskr", ok, sample_rate_hz=float("inf"))
+    for rate in (float("inf"), float("nan"), 1e300, 1e-300):
+        with pytest.raises(ValueError, match=r"sample_rate_hz must be 0.1 to 1e\+06 Hz, got "):
+            write_replay_arrays(tmp_path / "e.eskr", ok, sample_rate_hz=rate)
+    assert list(tmp_path.iterdir()) == []
     with pytest.raises(ValueError, match="volts_per_count must be finite"):
         write_replay_arrays(tmp_path / "e.eskr", ok, volts_per_count=float("nan"))
 
