@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
@@ -32,6 +32,14 @@ def simulate_cmd(
     seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
     difficulty: Optional[float] = typer.Option(
         None, help="0 = clean, 1 = calibrated to the paper's error ranges (default), 2 = harder"),
+    grid: Optional[str] = typer.Option(
+        None, help="taxel grid ROWSxCOLS over the same sensed area (default 4x4)"),
+    rate: Optional[float] = typer.Option(None, help="samples per second (default 3000)"),
+    duration: Optional[float] = typer.Option(
+        None, help="seconds per recording (default 7)"),
+    modalities: Optional[str] = typer.Option(
+        None, help="gestures, comma-separated: brush, finger, washer (the default three) and "
+        "press (a press-and-hold: fingertip pressed, held 0.5 s, released)"),
     jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
@@ -45,16 +53,47 @@ def simulate_cmd(
     from eskin.data.simulator import simulate
 
     with _user_errors():
+        cfg = _acquisition(grid, rate, duration, modalities)
         refuse_overwrite(output, force)
         t0 = time.perf_counter()
         n_jobs = jobs if jobs > 0 else (os.cpu_count() or 1)
         with progress_bar(not quiet) as bar:
             task = bar.add_task("simulating recordings", total=None)
             simulate(output, participants=participants, seed=seed, difficulty=difficulty,
-                     n_jobs=n_jobs, overwrite=force,
+                     config=cfg, n_jobs=n_jobs, overwrite=force,
                      progress=lambda done, total: bar.update(task, completed=done, total=total))
-        typer.echo(f"wrote {output}: {participants * 12} SIMULATED recordings "
+        n = participants * 4 * (3 if cfg is None else len(cfg.modalities))
+        typer.echo(f"wrote {output}: {n} SIMULATED recordings "
                    f"in {time.perf_counter() - t0:.1f} s")
+
+
+def _acquisition(grid: Optional[str], rate: Optional[float], duration: Optional[float],
+                 modalities: Optional[str]) -> Any:
+    """The simulator settings of --grid, --rate, --duration, --modalities (None: none given);
+    a bad value is a ValueError naming the option."""
+    if grid is None and rate is None and duration is None and modalities is None:
+        return None
+    from eskin.data.simulator import acquisition_config
+
+    shape = None
+    if grid is not None:
+        try:
+            shape = tuple(int(v) for v in grid.lower().split("x"))
+            if len(shape) != 2:
+                raise ValueError
+        except ValueError:
+            raise ValueError(f"--grid {grid}: expected ROWSxCOLS, e.g. 8x8") from None
+    names = None if modalities is None else tuple(
+        m.strip() for m in modalities.split(",") if m.strip())
+    for option, value, kw in (("--grid", grid, {"grid": shape}), ("--rate", rate, {"rate_hz": rate}),
+                              ("--duration", duration, {"duration_s": duration}),
+                              ("--modalities", modalities, {"modalities": names})):
+        if value is not None:
+            try:
+                acquisition_config(**kw)
+            except ValueError as exc:
+                raise ValueError(f"{option} {value}: {exc}") from None
+    return acquisition_config(grid=shape, rate_hz=rate, duration_s=duration, modalities=names)
 
 
 def _named(file: str) -> Path:

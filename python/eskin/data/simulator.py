@@ -34,7 +34,10 @@ from scipy import signal as sps
 from scipy.special import erf
 
 MODALITIES = ("brush", "finger", "washer")
-BRUSH, FINGER, WASHER = 0, 1, 2
+#: every gesture the simulator can make: the paper's three, and a press-and-hold (a fingertip
+#: pressed down, held still, released; see docs/simulator.md)
+GESTURES = (*MODALITIES, "press")
+BRUSH, FINGER, WASHER, PRESS = 0, 1, 2, 3
 
 # the calibrated difficulty: the default of simulate() and SimulatorConfig
 DEFAULT_DIFFICULTY = 1.0
@@ -113,6 +116,14 @@ class SimulatorConfig:
     washer_defects: tuple[tuple[float, float], ...] = (
         (0.4, 0.45), (1.9, 0.25), (3.3, 0.6), (5.1, 0.3))  # (angle rad, relative height)
     washer_defect_mm: float = 0.4
+    # --- press-and-hold (the "press" gesture): a fingertip pressed, held still, released
+    press_force_n: float = 2.0
+    press_rise_s: float = 0.15  # the press, minimum-jerk
+    press_hold_s: float = 0.5  # held still: a piezo sensor sees (almost) nothing
+    press_release_s: float = 0.1
+    press_tremor: float = 0.1  # tremor while holding, relative to the participant's sliding one
+    # --- the gestures recorded, in campaign order (names of GESTURES)
+    modalities: tuple[str, ...] = MODALITIES
     # --- atypical gestures (probability per participant and modality, scaled by difficulty)
     p_brush_pressed: float = 0.07
     p_finger_tip: float = 0.10
@@ -135,6 +146,14 @@ class SimulatorConfig:
             raise ValueError(f"oversample must be >= 1, got {self.oversample}")
         if not 2 <= self.adc_bits <= 16:
             raise ValueError(f"adc_bits must be in [2, 16] (stored as int16), got {self.adc_bits}")
+        unknown = [m for m in self.modalities if m not in GESTURES]
+        if unknown or not self.modalities or len(set(self.modalities)) != len(self.modalities):
+            raise ValueError(f"SimulatorConfig.modalities = {self.modalities!r}: distinct names "
+                             f"of {GESTURES}, at least one")
+        for name in ("press_rise_s", "press_hold_s", "press_release_s", "press_force_n"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"SimulatorConfig.{name} must be positive, got {v!r}")
         if self.electrode_mm > self.pitch_mm:
             raise ValueError("electrode_mm must not exceed pitch_mm (electrodes would overlap)")
         nyq = self.sample_rate_hz * self.oversample / 2
@@ -164,12 +183,45 @@ class SimulatorConfig:
     @classmethod
     def from_json(cls, text: str) -> SimulatorConfig:
         d = json.loads(text)
-        for k in ("brush_band_hz",):
+        for k in ("brush_band_hz", "modalities"):
             if k in d:
                 d[k] = tuple(d[k])
         if "washer_defects" in d:
             d["washer_defects"] = tuple(tuple(x) for x in d["washer_defects"])
         return cls(**d)
+
+
+def acquisition_config(config: SimulatorConfig | None = None, *,
+                       grid: tuple[int, int] | None = None, rate_hz: float | None = None,
+                       duration_s: float | None = None,
+                       modalities: tuple[str, ...] | None = None) -> SimulatorConfig:
+    """``config`` (default the paper's) with another grid, rate, duration or gestures.
+
+    A grid keeps the paper's sensed area (the 4 x 4 electrodes' 44 mm span, 8 mm electrodes at
+    12 mm pitch): its pitch and electrodes scale by 4 / max(rows, cols). A rate whose
+    simulation Nyquist (``oversample`` x rate / 2) is not above the front end's 1.5 kHz low-pass
+    moves the low-pass to 0.8 of that Nyquist (the DAQ's anti-alias filter)."""
+    cfg = config or SimulatorConfig()
+    changes: dict[str, Any] = {}
+    if grid is not None:
+        rows, cols = (int(v) for v in grid)
+        if not (1 <= rows <= 255 and 1 <= cols <= 255):
+            raise ValueError(f"grid {rows}x{cols}: rows and columns must be in 1..255")
+        scale = 4.0 / max(rows, cols)
+        changes.update(rows=rows, cols=cols, pitch_mm=12.0 * scale, electrode_mm=8.0 * scale)
+    if rate_hz is not None:
+        if not (math.isfinite(rate_hz) and 10.0 <= rate_hz <= 100_000.0):
+            raise ValueError(f"rate {rate_hz:g} Hz: must be in [10, 100000] Hz")
+        nyq = float(rate_hz) * cfg.oversample / 2
+        changes.update(sample_rate_hz=float(rate_hz),
+                       bpf_lowpass_hz=min(cfg.bpf_lowpass_hz, 0.8 * nyq))
+    if duration_s is not None:
+        if not (math.isfinite(duration_s) and 1.0 <= duration_s <= 60.0):
+            raise ValueError(f"duration {duration_s:g} s: must be in [1, 60] s")
+        changes["duration_s"] = float(duration_s)
+    if modalities is not None:
+        changes["modalities"] = tuple(str(m) for m in modalities)
+    return dataclasses.replace(cfg, **changes)
 
 
 # --------------------------------------------------------------------------- styles
@@ -295,6 +347,46 @@ class RecordingTruth:
     dead_taxel: int = -1
     noisy_taxel: int = -1
     clipped: bool = False
+
+
+# --------------------------------------------------------------------------- press-and-hold
+
+
+def _press_path(cfg: SimulatorConfig, rng: np.random.Generator, style: ParticipantStyle,
+                jitter: float) -> dict[str, Any]:
+    """Where and when a press-and-hold happens: a point on the grid, held still (the path of
+    a stroke that does not move: ``t_move`` is the hold), timings jittered per recording."""
+    half = min(max(cfg.rows, cfg.cols) * cfg.pitch_mm / 2, cfg.disc_diameter_mm / 2) * 0.6
+    line, u = (float(v) for v in rng.uniform(-half, half, 2))
+    t_press = cfg.press_rise_s * math.exp(rng.normal(0.0, 0.5 * jitter))
+    t_hold = cfg.press_hold_s * math.exp(rng.normal(0.0, 0.5 * jitter))
+    t_release = cfg.press_release_s * math.exp(rng.normal(0.0, 0.5 * jitter))
+    # the envelope reaches full force 0.8 t_press after the onset and holds t_move from there
+    fixed = 0.8 * t_press + t_hold + t_release
+    onset = max(0.1, style.onset_s * math.exp(rng.normal(0.0, 0.5 * jitter + 0.1)))
+    onset = min(onset, max(0.05, cfg.duration_s - 0.25 - fixed))
+    return dict(line=line, u0=u, u1=u, speed=0.0, strokes=1, onset=onset, t_press=t_press,
+                t_release=t_release, t_pause=0.0, t_move=t_hold)
+
+
+def _press_envelope(cfg: SimulatorConfig, p: dict[str, Any], style: ParticipantStyle,
+                    t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Relative normal force of a press-and-hold: a minimum-jerk rise, a hold, a release. A
+    finger resting on the skin trembles far less than one stroking it (``press_tremor`` of
+    the participant's tremor), so the hold is quiet for a piezo sensor, which sees changes."""
+    up = _smoothstep((t - p["onset"]) / p["t_press"])
+    t_end = p["onset"] + 0.8 * p["t_press"] + p["t_move"]
+    down = 1.0 - _smoothstep((t - t_end) / p["t_release"])
+    tremor = cfg.press_tremor * style.tremor
+    return up * down * (1.0 + tremor * np.sin(2 * np.pi * style.tremor_hz * t
+                                                 + rng.uniform(0, 6.3)))
+
+
+def _press_axes(cfg: SimulatorConfig, style: ParticipantStyle, force: float
+                ) -> tuple[float, float]:
+    """Contact sigmas (along, across) of a pressed fingertip: half a sliding pad's size."""
+    a = 0.5 * cfg.finger_semi_axis_mm * style.finger_size * max(force, 0.05) ** (1 / 3)
+    return a / 2.0, cfg.finger_aspect * a / 2.0
 
 
 # --------------------------------------------------------------------------- the simulator
@@ -496,11 +588,12 @@ class _Chain:
                direction: int, run: int) -> tuple[np.ndarray, RecordingTruth]:
         cfg = self.cfg
         d = cfg.level
+        modality = GESTURES.index(cfg.modalities[modality])  # the gesture of this campaign id
         practice = run == 1
         jitter = cfg.gesture_jitter_sigma * d * (cfg.practice_jitter_factor if practice else 1.0)
         variant = "typical"
         for key in {BRUSH: ("brush_pressed",), FINGER: ("finger_tip", "finger_feather"),
-                    WASHER: ("washer_flat",)}[modality]:
+                    WASHER: ("washer_flat",), PRESS: ()}[modality]:
             habit = style.atypical.get(key, False)
             if practice:  # during practice, habits are less settled
                 habit = habit if rng.random() < 0.7 else rng.random() < 0.5 * getattr(
@@ -508,19 +601,26 @@ class _Chain:
             if habit:
                 variant = key
                 break
-        p = self._path(rng, style, modality, direction, jitter, variant)
+        if modality == PRESS:
+            p = _press_path(cfg, rng, style, jitter)
+        else:
+            p = self._path(rng, style, modality, direction, jitter, variant)
         base_force = {BRUSH: cfg.brush_force_n, FINGER: cfg.finger_force_n,
-                      WASHER: cfg.washer_force_n}[modality]
+                      WASHER: cfg.washer_force_n, PRESS: cfg.press_force_n}[modality]
         if variant == "finger_feather":
             base_force *= 0.2
-        force = base_force * style.force[modality] * math.exp(rng.normal(0.0, jitter))
+        habit_of = FINGER if modality == PRESS else modality  # a press is made with a finger
+        force = base_force * style.force[habit_of] * math.exp(rng.normal(0.0, jitter))
 
         u_coarse = self._along(p, self.t_coarse, rng, jitter)
         u_fine = np.interp(self.t_fine, self.t_coarse, u_coarse)
         speed_fine = np.abs(np.gradient(u_fine)) * self.fs_fine
         moving = np.clip(speed_fine / (0.2 * p["speed"] + 1e-9), 0.0, 1.0)
 
-        if modality == FINGER:
+        if modality == PRESS:  # a finger: its force multiplier, a fingertip's contact
+            contacts = [_Contact(force * _press_envelope(cfg, p, style, self.t_fine, rng), 0.0,
+                                 0.0, *_press_axes(cfg, style, force))]
+        elif modality == FINGER:
             contacts = self._finger(rng, style, p, force, variant, speed_fine, moving)
         elif modality == BRUSH:
             contacts = self._brush(rng, style, p, force, variant, moving)
@@ -650,10 +750,11 @@ class _Sensor:
 # --------------------------------------------------------------------------- campaign
 
 
-def _job_list(participants: int, runs: tuple[int, ...]) -> list[tuple[int, int, int, int]]:
+def _job_list(participants: int, runs: tuple[int, ...],
+              n_modalities: int = len(MODALITIES)) -> list[tuple[int, int, int, int]]:
     """(participant, run, modality, direction) in the paper's acquisition order."""
     return [(p, r, m, d) for p in range(1, participants + 1) for r in runs
-            for m in range(len(MODALITIES)) for d in (0, 1)]
+            for m in range(n_modalities) for d in (0, 1)]
 
 
 def _simulate_one(args: tuple[Any, ...]) -> tuple[Any, RecordingTruth]:
@@ -693,7 +794,7 @@ def iter_recordings(participants: int = 70, seed: int = 0, *,
     With ``n_jobs`` > 1, joblib worker processes simulate ahead while the caller consumes.
     """
     cfg = config or SimulatorConfig()
-    jobs = _job_list(int(participants), tuple(runs))
+    jobs = _job_list(int(participants), tuple(runs), len(cfg.modalities))
     if n_jobs <= 1:
         for job in jobs:
             yield (job, *_simulate_one((cfg, seed, job, *_encode)))
@@ -723,9 +824,9 @@ def simulate(
 ) -> Path:
     """Simulate a campaign and write it to ``path`` (an eskin campaign file, source="simulated").
 
-    ``participants`` x 3 modalities x 2 directions x ``len(runs)`` recordings, in the paper's
-    order (per participant: run 1 then run 2; per run: brush, finger, washer; horizontal then
-    vertical). ``difficulty`` (default: the calibrated value, see docs/simulator.md) overrides
+    ``participants`` x the modalities (``config.modalities``, default the paper's three) x 2
+    directions x ``len(runs)`` recordings, in the paper's order (per participant: run 1 then
+    run 2; per run: brush, finger, washer; horizontal then vertical). ``difficulty`` (default: the calibrated value, see docs/simulator.md) overrides
     ``config.difficulty``. Same arguments -> identical file content, whatever ``n_jobs``.
     Writes the true contact interval of each recording and the simulator settings
     (``simulator_config`` JSON attribute).
@@ -739,7 +840,7 @@ def simulate(
     cfg = config or SimulatorConfig()
     if difficulty is not None:
         cfg = dataclasses.replace(cfg, difficulty=float(difficulty))
-    total = int(participants) * len(MODALITIES) * 2 * len(runs)
+    total = int(participants) * len(cfg.modalities) * 2 * len(runs)
     attrs = {
         "simulator_config": cfg.to_json(),
         "simulator_seed": int(seed),
@@ -757,7 +858,7 @@ def simulate(
     attrs["variant_names"] = variants
     with CampaignWriter(path, grid_shape=(cfg.rows, cfg.cols), n_samples=cfg.n_samples,
                         sample_rate_hz=cfg.sample_rate_hz, volts_per_count=cfg.volts_per_count,
-                        modalities=list(MODALITIES), source="simulated", attrs=attrs,
+                        modalities=list(cfg.modalities), source="simulated", attrs=attrs,
                         contact_interval=True, overwrite=overwrite,
                         extra_fields=extra_fields, durable=False, on_error="discard") as w:
         for k, ((participant, run, modality, direction), rec, truth) in enumerate(

@@ -179,3 +179,93 @@ def test_modalities_separable_but_not_trivially(tmp_path):
     for k in range(3):
         recall = float(np.mean(pred[y == k] == k))
         assert 1 / 3 < recall < 1.0, (k, recall)
+
+
+# ------------------------------------------------------------------ press-and-hold, other grids
+
+
+def press_campaign(path, participants=1, **changes):
+    from eskin.data.simulator import acquisition_config
+
+    cfg = acquisition_config(grid=(8, 8), rate_hz=1000.0, duration_s=3.0,
+                             modalities=("finger", "press"))
+    simulate(path, participants=participants, seed=11, config=dataclasses.replace(cfg, **changes))
+    return path
+
+
+def frame_energy(rec: np.ndarray, frame: int) -> np.ndarray:
+    """Energy per frame of the recording less its 0.1 s moving mean, summed over the taxels."""
+    from scipy.ndimage import uniform_filter1d
+
+    x = rec.reshape(-1, rec.shape[-1]).astype(float)
+    x = x - uniform_filter1d(x, 10 * frame + 1, axis=1)
+    n = x.shape[1] // frame * frame
+    return (x[:, :n] ** 2).reshape(x.shape[0], -1, frame).mean(axis=2).sum(axis=0)
+
+
+def test_press_and_hold_is_two_bursts_with_a_quiet_hold(tmp_path):
+    with load_campaign(press_campaign(tmp_path / "p.h5")) as c:
+        assert c.modalities == ["finger", "press"] and len(c) == 8
+        assert c.signals.shape[1:] == (8, 8, 3000) and c.sample_rate_hz == 1000.0
+        cfg = SimulatorConfig.from_json(c.attrs["simulator_config"])
+        assert cfg.modalities == ("finger", "press") and cfg.press_hold_s == 0.5
+        for i in np.flatnonzero(c.modality == 1):
+            e = frame_energy(c.recording(int(i)), 10)  # 10 ms frames
+            on, off = (int(v) // 10 for v in c.contact_interval[i])
+            quiet = np.median(e[: max(on - 5, 5)])
+            # the press (its first 0.15 s) and the release (the end) are loud
+            assert e[on : on + 15].max() > 50 * quiet and e[off - 15 : off + 5].max() > 50 * quiet
+            # the middle of the 0.5 s hold is quiet: the sensor sees changes, not force
+            mid = (on + off) // 2
+            assert np.median(e[mid - 10 : mid + 10]) < 3 * quiet
+
+
+def test_the_press_has_no_tremor_of_a_sliding_finger_when_told(tmp_path):
+    # press_tremor scales the participant's tremor: a resting finger's is a tenth of it
+    loud = press_campaign(tmp_path / "loud.h5", press_tremor=10.0)
+    quiet = press_campaign(tmp_path / "quiet.h5")
+    held = []
+    for path in (loud, quiet):
+        with load_campaign(path) as c:
+            i = int(np.flatnonzero(c.modality == 1)[0])
+            e = frame_energy(c.recording(i), 10)
+            on, off = (int(v) // 10 for v in c.contact_interval[i])
+            held.append(np.median(e[(on + off) // 2 - 10 : (on + off) // 2 + 10]))
+    assert held[0] > 10 * held[1]
+
+
+def test_acquisition_config_keeps_the_sensed_area_and_checks_values():
+    from eskin.data.simulator import acquisition_config
+
+    cfg = acquisition_config(grid=(8, 8), rate_hz=1000.0)
+    assert (cfg.rows, cfg.cols, cfg.pitch_mm, cfg.electrode_mm) == (8, 8, 6.0, 4.0)
+    assert cfg.bpf_lowpass_hz == 800.0  # below the simulation's 1 kHz Nyquist
+    assert acquisition_config() == SimulatorConfig()
+    for kw, text in (({"grid": (0, 4)}, "grid 0x4"), ({"rate_hz": 5.0}, "rate 5 Hz"),
+                     ({"duration_s": 0.5}, "duration 0.5 s"),
+                     ({"modalities": ("finger", "glove")}, "modalities")):
+        with pytest.raises(ValueError, match=text):
+            acquisition_config(**kw)
+    with pytest.raises(ValueError, match="press_hold_s must be positive"):
+        SimulatorConfig(press_hold_s=0.0)
+
+
+def test_cli_simulate_a_press_campaign_and_its_errors(tmp_path):
+    from typer.testing import CliRunner
+
+    from eskin.cli import app
+
+    out = tmp_path / "p.h5"
+    r = CliRunner().invoke(app, ["simulate", "-o", str(out), "--participants", "1", "--grid",
+                                 "8x8", "--rate", "1000", "--duration", "3", "--modalities",
+                                 "finger,press", "-q"])
+    assert r.exit_code == 0, r.output
+    assert "8 SIMULATED recordings" in r.output
+    with load_campaign(out) as c:
+        assert c.modalities == ["finger", "press"] and c.signals.shape[1:] == (8, 8, 3000)
+    for args, text in ((["--grid", "8"], "--grid 8: expected ROWSxCOLS"),
+                       (["--rate", "1"], "--rate 1.0: rate 1 Hz: must be in [10, 100000] Hz"),
+                       (["--modalities", "press,glove"], "--modalities press,glove: ")):
+        r = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "x.h5"), *args, "-q"])
+        assert r.exit_code == 2 and text in r.output and "Traceback" not in r.output
+        assert not (tmp_path / "x.h5").exists()
