@@ -376,3 +376,47 @@ def test_train_bounds_the_support_vectors_and_the_compiled_model_agrees(one_pers
     r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "-o",
                                  str(tmp_path / "n.joblib"), "--max-support", "0"])
     assert r.exit_code == 2 and "--max-support" in r.output
+
+
+def test_train_takes_the_detector_thresholds_and_a_given_hold(one_person, tmp_path):
+    """--hold, --on-factor and --off-factor reach the model's detector; a given hold is kept."""
+    out = tmp_path / "m.eskin"
+    args = ["train", str(one_person), "--classes", "brush,washer", "--quick", "--D", "20"]
+    r = CliRunner().invoke(app, [*args, "--hold", "0.25", "--on-factor", "5", "--off-factor",
+                                 "2.5", "-o", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    cfg = eskin.CompiledModel(out).window_config
+    assert (cfg["hold_s"], cfg["on_factor"], cfg["off_factor"]) == (0.25, 5.0, 2.5)
+
+
+@pytest.mark.parametrize("command", ["train", "evaluate"])
+@pytest.mark.parametrize(
+    "option, value, message",
+    [("--hold", "-1", "WindowConfig.hold_s = -1: must be >= 0"),
+     ("--on-factor", "1", "WindowConfig.on_factor = 1: must be >= off_factor = 2 (hysteresis)"),
+     ("--off-factor", "5", "WindowConfig.on_factor = 4: must be >= off_factor = 5 (hysteresis)"),
+     ("--hold", "nan", "WindowConfig.hold_s = nan: must be finite")],
+)
+def test_bad_detector_settings_are_one_line_errors(one_person, tmp_path, command, option, value,
+                                                    message):
+    out = tmp_path / ("m.eskin" if command == "train" else "ev")
+    r = CliRunner().invoke(app, [command, str(one_person), "--quick", "-o", str(out), option,
+                                 value])
+    assert r.exit_code == 2 and r.output == f"error: {option}: {message}\n", r.output
+    assert not out.exists()
+
+
+def test_train_chooses_the_hold_of_a_press_and_hold_campaign_and_says_why(tmp_path):
+    from eskin.data.simulator import acquisition_config, simulate
+
+    cfg = acquisition_config(grid=(8, 8), rate_hz=1000.0, duration_s=3.0,
+                             modalities=("finger", "press"))
+    simulate(tmp_path / "p.h5", participants=2, seed=3, config=cfg)
+    out = tmp_path / "m.eskin"
+    r = CliRunner().invoke(app, ["train", str(tmp_path / "p.h5"), "--quick", "--D", "20",
+                                 "-o", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    note = next(ln for ln in r.output.splitlines() if ln.startswith("note: hold_s = "))
+    assert note.startswith("note: hold_s = 0.6 s: at 0.15 s, ") and "2+ live touches" in note
+    assert note.endswith("now 16 of 16 give one")
+    assert eskin.CompiledModel(out).window_config["hold_s"] == 0.6

@@ -183,27 +183,51 @@ WINDOW_SAMPLES_HELP = (
 )
 
 
+HOLD_HELP = (
+    "seconds of quiet that end a touch (WindowConfig.hold_s; default: chosen on the training "
+    "recordings so that one gesture gives one live touch, from 0.15 s up)")
+ON_FACTOR_HELP = "touch onset threshold, times the noise floor (WindowConfig.on_factor, default 4)"
+OFF_FACTOR_HELP = (
+    "touch continuation threshold, times the noise floor (WindowConfig.off_factor, default 2; "
+    "at most --on-factor)")
+
+#: detector options -> WindowConfig fields
+DETECTOR_OPTIONS = {"--max-window": "max_window_s", "--window-samples": "window_samples",
+                    "--hold": "hold_s", "--on-factor": "on_factor", "--off-factor": "off_factor"}
+
+
 def _preprocessing(
-    window: Window, subsample: Optional[Subsample], max_window: Optional[float],
-    window_samples: Optional[int],
+    window: Window, subsample: Optional[Subsample], max_window: Optional[float] = None,
+    window_samples: Optional[int] = None, *, hold: Optional[float] = None,
+    on_factor: Optional[float] = None, off_factor: Optional[float] = None,
 ) -> dict:
-    """train_model's preprocessing options: window, subsample (None: searched) and, for
-    --max-window / --window-samples, the window_config."""
-    out = {"window": window.value, "subsample": None if subsample is None else subsample.value}
-    if max_window is None and window_samples is None:
+    """train_model's preprocessing options: window, subsample (None: searched) and the
+    detector's (:func:`_detector`)."""
+    out: dict[str, Any] = {"window": window.value,
+                           "subsample": None if subsample is None else subsample.value}
+    return {**out, **_detector(max_window, window_samples, hold, on_factor, off_factor)}
+
+
+def _detector(max_window: Optional[float], window_samples: Optional[int],
+              hold: Optional[float], on_factor: Optional[float],
+              off_factor: Optional[float]) -> dict:
+    """train_model's options for the detector options given (--max-window, --window-samples,
+    --hold, --on-factor, --off-factor): the window_config, and choose_hold False with --hold
+    (the hold time is then the user's). A bad value fails with one line naming the option and
+    the value."""
+    given = dict(zip(DETECTOR_OPTIONS, (max_window, window_samples, hold, on_factor, off_factor)))
+    fields = {DETECTOR_OPTIONS[o]: v for o, v in given.items() if v is not None}
+    out: dict[str, Any] = {} if hold is None else {"choose_hold": False}
+    if not fields:
         return out
     from eskin.signal.preprocess import WindowConfig
 
-    fields = {}
-    if max_window is not None:
-        fields["max_window_s"] = max_window
-    if window_samples is not None:
-        fields["window_samples"] = window_samples
     try:
         cfg = WindowConfig(**fields)
         cfg.resolve()  # the detector's own checks, named by field and value
     except ValueError as exc:
-        option = "--window-samples" if "window_samples" in str(exc) else "--max-window"
+        named = [o for o, f in DETECTOR_OPTIONS.items() if f in str(exc) and f in fields]
+        option = named[0] if named else next(o for o in given if given[o] is not None)
         _fail(f"{option}: {exc}")
     return {**out, "window_config": cfg}
 
@@ -343,6 +367,9 @@ def train(
         None, help="subsampling method (default: searched)"),
     max_window: Optional[float] = typer.Option(None, "--max-window", help=MAX_WINDOW_HELP),
     window_samples: Optional[int] = typer.Option(None, help=WINDOW_SAMPLES_HELP),
+    hold: Optional[float] = typer.Option(None, "--hold", help=HOLD_HELP),
+    on_factor: Optional[float] = typer.Option(None, "--on-factor", help=ON_FACTOR_HELP),
+    off_factor: Optional[float] = typer.Option(None, "--off-factor", help=OFF_FACTOR_HELP),
     amplitude: Optional[str] = typer.Option(None, help=AMPLITUDE_HELP),
     groups: str = typer.Option(
         "participant",
@@ -387,7 +414,8 @@ def train(
     given = {"machine": machine, "selection": selection, "D": D, "negatives": negatives}
     recipe = {
         "classes": names, **{k: getattr(v, "value", v) for k, v in given.items()},
-        **_preprocessing(window, subsample, max_window, window_samples),
+        **_preprocessing(window, subsample, max_window, window_samples, hold=hold,
+                         on_factor=on_factor, off_factor=off_factor),
         "quick": quick, "seed": seed, "n_jobs": -1 if scheduler else n_jobs, "group_by": groups,
         **amplitudes, **({} if max_support is None else {"max_support": max_support}),
     }

@@ -1032,6 +1032,7 @@ def train_model(
     budget: Any = None,
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
+    choose_hold: bool = True,
 ) -> TouchModel:
     """Select the recipe and its hyperparameters, fit on all the data: a :class:`TouchModel`.
 
@@ -1063,6 +1064,9 @@ def train_model(
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_support : at most this many distinct support vectors in the model (all machines
         together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.
+    choose_hold : with the energy window, choose ``window_config.hold_s`` so that one training
+        recording gives one live touch (:func:`eskin.learn.live_windows.choose_hold`); False
+        keeps the given hold and only notes when live touches split.
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
     ``negatives`` left None is searched by :class:`~eskin.learn.recipes.RecipeSearch`.
@@ -1074,7 +1078,7 @@ def train_model(
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
                   sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by,
-                  max_support=_checked_max_support(max_support))
+                  max_support=_checked_max_support(max_support), choose_hold=choose_hold)
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
                                recipe_options=recipe_options)
@@ -1123,7 +1127,7 @@ def _train_fixed(
     amplitudes: Sequence[float | None], quick: bool, md_options: Mapping[str, Any] | None,
     cv_options: Mapping[str, Any] | None, negatives: str | None, runs: Sequence[int] | None,
     class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float, seed: int,
-    n_jobs: int, group_by: str, max_support: int | None,
+    n_jobs: int, group_by: str, max_support: int | None, choose_hold: bool,
 ) -> TouchModel:
     """train_model with the recipe given (or Maximal Discrepancy): each machine selects its
     own setting of the grid."""
@@ -1140,6 +1144,7 @@ def _train_fixed(
     # window="none": the compiled classifier builds its detector from them)
     window_config, notes = window_config_for_rate(window_config, rate)
     notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
+    window_config, live = _live_hold(rec, idx, window_config, rate, window, choose_hold, notes)
     recipe = _default_D(recipe, rec, idx, notes)
     X, prep_seconds = _training_patterns(data, rec, idx, recipe, window_config, rate)
     estimator, grouped, selected, fit_seconds = _select_and_fit(
@@ -1148,6 +1153,7 @@ def _train_fixed(
     training = _training_record(
         recipe, info, classes, y_all, grouped, notes, fit_seconds + prep_seconds
     )
+    training["live_touches"] = live
     return _with_support_budget(_touch_model(
         recipe, classes, estimator, selected, training, rate, X.shape[1:], window_config
     ), max_support, X)
@@ -1160,7 +1166,7 @@ def _train_searched(
     amplitudes: Sequence[float | None], quick: bool, cv_options: Mapping[str, Any] | None,
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
-    recipe_options: Mapping[str, Any] | None, max_support: int | None,
+    recipe_options: Mapping[str, Any] | None, max_support: int | None, choose_hold: bool,
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import (
@@ -1176,6 +1182,7 @@ def _train_searched(
     rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
     window_config, notes = window_config_for_rate(window_config, rate)
     notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
+    window_config, live = _live_hold(rec, idx, window_config, rate, window, choose_hold, notes)
     lens = np.asarray(rec.lengths)[idx]
     recipes, cap_notes = recipe_space(
         [machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
@@ -1210,6 +1217,7 @@ def _train_searched(
                                 "std_test_error": float(search.ranking_[0]["std"])}
     training = _training_record(chosen, info, classes, y_all, grouped, notes,
                                 time.perf_counter() - t0)
+    training["live_touches"] = live
     training["recipe_search"] = search.report()
     training["searched"] = [k for k, v in (("machine", machine), ("D", D),
                                            ("subsample", subsample), ("negatives", negatives))
@@ -1222,6 +1230,19 @@ def _train_searched(
     if by_budget:  # bounded by the search, to the most support vectors that fit the budget
         model.training["support_budget"]["by"] = "budget"
     return model
+
+
+def _live_hold(rec: Any, idx: np.ndarray, window_config: Any, rate: float, window: str,
+               choose: bool, notes: list[str]) -> tuple[Any, dict[str, Any] | None]:
+    """(window_config with the hold time chosen for one live touch per training recording,
+    the record of the choice); notes added to ``notes``. Nothing to choose with window none."""
+    if window != "energy":
+        return window_config, None
+    from eskin.learn.live_windows import choose_hold
+
+    choice = choose_hold(rec, idx, window_config, rate, choose=choose)
+    notes += choice.notes
+    return choice.config, choice.record
 
 
 def _fit_candidate(
