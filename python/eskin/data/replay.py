@@ -118,8 +118,13 @@ def write_replay_arrays(
     """Write recordings (each int16 (rows, cols, length)) as one replay stream.
 
     A gap of ``gap_s`` seconds of quiet noise precedes every recording (and follows the last),
-    with standard deviation ``noise_counts`` (default: estimated from the recordings' first
-    tenth), from a generator seeded with ``seed``. The gap is centred on ``baseline`` (per
+    from a generator seeded with ``seed``, with standard deviation ``noise_counts`` or, by
+    default, per taxel the quiet noise of the recordings it joins (the smaller of the standard
+    deviations, linear trend removed, of a recording's first and last tenth), ramping
+    geometrically from the one to the other: recordings of one campaign can differ severalfold in
+    noise, and a stream detector that has learnt a quiet recording's floor would take a louder
+    gap for a touch, while a geometric ramp changes by the same ratio every second, which the
+    detector's running noise floor follows (up to about 4x in amplitude over a 2 s gap). The gap is centred on ``baseline`` (per
     taxel) when it is given; by default it ramps, per taxel, from the level at which the
     previous recording ends to the level at which the next one starts (medians of 10 ms), so
     that recording boundaries carry no step.
@@ -163,12 +168,13 @@ def _stream_chunks(recs: list[np.ndarray], gaps: _QuietGaps, gap: int) -> Iterat
     """The stream's bytes in order (int16 little-endian, one sample of every taxel after
     another): a quiet gap, then each recording followed by its gap."""
     n = len(recs)
-    yield gaps.quiet(gap, None, gaps.edge_level(recs[0], True)).tobytes()
+    yield gaps.quiet(gap, None, gaps.edge_level(recs[0], True), None, 0).tobytes()
     for i, r in enumerate(recs):
         clipped = np.clip(r, -32768, 32767).astype("<i2")
         yield np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes()
         nxt = gaps.edge_level(recs[i + 1], True) if i + 1 < n else None
-        yield gaps.quiet(gap, gaps.edge_level(r, False), nxt).tobytes()
+        yield gaps.quiet(gap, gaps.edge_level(r, False), nxt, i,
+                         i + 1 if i + 1 < n else None).tobytes()
 
 
 def _check_recordings(recs: list[np.ndarray]) -> tuple[int, int]:
@@ -241,6 +247,8 @@ class _QuietGaps:
         if self.noise < 0:
             raise ValueError(f"noise_counts must be >= 0, got {self.noise}")
         self.shape = (int(grid[0]), int(grid[1]))
+        # per recording and taxel, its quiet noise (None: one level, noise_counts, for all)
+        self.levels = None if noise_counts is not None else [_taxel_noise(r) for r in recs]
         self.edge = max(1, int(round(0.01 * sample_rate_hz)))
         self.rng = np.random.default_rng(seed)
 
@@ -250,8 +258,19 @@ class _QuietGaps:
         part = r[:, :, :k] if first else r[:, :, -k:]
         return np.median(part.astype(np.float64), axis=2)
 
+    def _noise(self, length: int, a: Optional[int], b: Optional[int]) -> Any:
+        """The gap's noise std: ``noise_counts``, or per taxel a geometric ramp from the quiet
+        noise of recording ``a`` to that of recording ``b`` (one of them may be None)."""
+        if self.levels is None:
+            return self.noise
+        sa = np.maximum(self.levels[b if a is None else a], 0.1)
+        sb = np.maximum(self.levels[a if b is None else b], 0.1)
+        u = np.linspace(0.0, 1.0, length)[:, None, None]
+        return sa[None] ** (1.0 - u) * sb[None] ** u
+
     def quiet(
-        self, length: int, prev: Optional[np.ndarray], nxt: Optional[np.ndarray]
+        self, length: int, prev: Optional[np.ndarray], nxt: Optional[np.ndarray],
+        prev_rec: Optional[int] = None, next_rec: Optional[int] = None,
     ) -> np.ndarray:
         # With a fixed baseline the gap is flat; otherwise it ramps from where the previous
         # recording ends to where the next one starts, so that no step (which a touch
@@ -264,8 +283,23 @@ class _QuietGaps:
             b = prev if nxt is None else nxt
             t = np.linspace(0.0, 1.0, length)[:, None, None]
             level = a[None] * (1.0 - t) + b[None] * t
-        z = level + self.noise * self.rng.standard_normal((length, rows, cols))
+        noise = self._noise(length, prev_rec, next_rec)
+        z = level + noise * self.rng.standard_normal((length, rows, cols))
         return np.clip(np.rint(z), -32768, 32767).astype("<i2")
+
+
+def _taxel_noise(r: np.ndarray) -> np.ndarray:
+    """Per taxel (rows, cols), a recording's quiet noise in counts: the smaller of the standard
+    deviations of its first and last tenth (at most 300 samples each, linear trend removed),
+    so that a touch near one end does not count as noise."""
+    q = max(2, min(300, r.shape[-1] // 10))
+    out = []
+    for part in (r[..., :q], r[..., -q:]):
+        x = np.asarray(part, np.float64)
+        t = np.arange(x.shape[-1]) - (x.shape[-1] - 1) / 2
+        slope = (x * t).sum(axis=-1, keepdims=True) / max(float((t * t).sum()), 1e-12)
+        out.append(np.std(x - slope * t, axis=-1))
+    return np.minimum(out[0], out[1])
 
 
 def _replay_head(

@@ -235,3 +235,34 @@ def test_raw_records_keep_each_length(tmp_path):
         np.testing.assert_array_equal(body, sig[i, ..., :n])
         pos += 16 + 32 * n
     assert pos == len(raw)
+
+
+def test_default_gap_noise_ramps_between_the_recordings_noise(tmp_path):
+    # recordings of one campaign can differ severalfold in noise (another day, another hum): a gap
+    # at one level for all would be loud next to a quiet recording, and a stream detector that
+    # has learnt the quiet recording's floor would take it for a touch
+    from eskin.signal.preprocess import TouchDetector
+
+    rng = np.random.default_rng(4)
+    fs = 1000.0
+    recs = [np.rint(rng.normal(0, s, (4, 4, 3000))).astype(np.int16) for s in (2.0, 8.0, 2.0)]
+    rf = write_replay_arrays(tmp_path / "n.eskr", recs, gap_s=2.0, sample_rate_hz=fs, seed=1)
+    x = np.asarray(rf.samples, dtype=float)
+
+    def noise(a, b, s=x):  # per taxel over time (the gap's level ramps too)
+        return float(s[a:b].std(axis=0).mean())
+
+    gap = int(rf.segments["start"][1]) - 2000  # the gap from the quiet to the loud recording
+    assert 1.5 < noise(gap, gap + 20) < 4.0  # starts at the quiet recording's noise
+    assert 6.5 < noise(gap + 1980, gap + 2000) < 10.0  # ends at the loud one's
+    # geometrically: the same ratio every second, which a detector's noise floor follows
+    assert 3.2 < noise(gap + 990, gap + 1010) < 4.8
+    back = int(rf.segments["start"][2]) - 2000  # and back down
+    assert noise(back, back + 20) > 6.5 and noise(back + 1980, back + 2000) < 3.0
+    det = TouchDetector((4, 4), fs)
+    assert det.push(x.reshape(len(x), -1)) + det.flush() == []  # no touch anywhere
+    # a noise level given is the level of every gap
+    flat = write_replay_arrays(tmp_path / "f.eskr", recs, gap_s=2.0, sample_rate_hz=fs, seed=1,
+                               noise_counts=5.0)
+    y = np.asarray(flat.samples, dtype=float)
+    assert 4.0 < noise(gap, gap + 100, y) < 6.0 and 4.0 < noise(gap + 1900, gap + 2000, y) < 6.0
