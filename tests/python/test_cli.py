@@ -420,3 +420,38 @@ def test_train_chooses_the_hold_of_a_press_and_hold_campaign_and_says_why(tmp_pa
     assert note.startswith("note: hold_s = 0.6 s: at 0.15 s, ") and "2+ live touches" in note
     assert note.endswith("now 16 of 16 give one")
     assert eskin.CompiledModel(out).window_config["hold_s"] == 0.6
+
+
+def test_evaluate_reports_the_live_figure_beside_the_per_recording_one(tmp_path):
+    import json
+
+    from eskin.data.simulator import acquisition_config, simulate
+
+    cfg = acquisition_config(grid=(8, 8), rate_hz=1000.0, duration_s=3.0,
+                             modalities=("finger", "press"))
+    simulate(tmp_path / "p.h5", participants=3, seed=3, config=cfg)
+    args = ["evaluate", str(tmp_path / "p.h5"), "--quick", "--machine", "svm", "--D", "20",
+            "--subsample", "algorithm2", "--negatives", "all"]
+    r = CliRunner().invoke(app, [*args, "-o", str(tmp_path / "ev")])
+    assert r.exit_code == 0, r.output
+    result = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    live = result["live"]
+    assert live["recordings"] == result["n_recordings"] == 24 and live["hold_s"] == 0.6
+    assert live["touches"] == 24 and live["split"] == live["missed"] == live["spurious"] == 0
+    assert len(live["per_recording"]["touches"]) == 24
+    assert all("live" in f and "per_recording" not in f["live"] for f in result["folds"])
+    lines = r.output.splitlines()
+    at = next(i for i, ln in enumerate(lines) if ln.startswith("live: each fold's held-out"))
+    assert lines[at + 1].startswith(f"  accuracy live {100 * live['accuracy']:.1f} %, per "
+                                    f"recording {100 * result['accuracy']:.1f} %")
+    assert lines[at + 2].startswith("  touches per recording 1.00 (24 on 24 recordings): 0 split")
+    assert "## Live: the stream a controller sees" in (tmp_path / "ev" / "evaluation.md").read_text()
+    # at the default hold, given, the presses split live; --no-live leaves the figure out
+    r = CliRunner().invoke(app, [*args, "--hold", "0.15", "-o", str(tmp_path / "ev15")])
+    assert r.exit_code == 0, r.output
+    live15 = json.loads((tmp_path / "ev15" / "evaluation.json").read_text())["live"]
+    assert live15["hold_s"] == 0.15 and live15["split"] > 0 and live15["touches"] > 24
+    assert any(ln.startswith("note: hold_s = 0.15 s (given): ") for ln in r.output.splitlines())
+    r = CliRunner().invoke(app, [*args, "--no-live", "-o", str(tmp_path / "none")])
+    assert r.exit_code == 0 and "live:" not in r.output
+    assert "live" not in json.loads((tmp_path / "none" / "evaluation.json").read_text())

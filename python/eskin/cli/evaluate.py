@@ -8,13 +8,19 @@ import typer
 
 from eskin.cli.learn import (
     AMPLITUDE_HELP,
+    HOLD_HELP,
+    MAX_WINDOW_HELP,
     NEGATIVES_HELP,
+    OFF_FACTOR_HELP,
+    ON_FACTOR_HELP,
+    WINDOW_SAMPLES_HELP,
     Machine,
     Negatives,
     Selection,
     Subsample,
     Window,
     _amplitudes,
+    _detector,
     _fail,
 )
 
@@ -44,6 +50,11 @@ def evaluate(
     D: int | None = typer.Option(None, "--D", help="subsampled window length"),
     window: Window | None = typer.Option(None, help="touch-window detector, or none"),
     subsample: Subsample | None = typer.Option(None, help="subsampling method"),
+    max_window: float | None = typer.Option(None, "--max-window", help=MAX_WINDOW_HELP),
+    window_samples: int | None = typer.Option(None, help=WINDOW_SAMPLES_HELP),
+    hold: float | None = typer.Option(None, "--hold", help=HOLD_HELP),
+    on_factor: float | None = typer.Option(None, "--on-factor", help=ON_FACTOR_HELP),
+    off_factor: float | None = typer.Option(None, "--off-factor", help=OFF_FACTOR_HELP),
     amplitude: str | None = typer.Option(None, help=AMPLITUDE_HELP),
     negatives: Negatives | None = typer.Option(None, help=NEGATIVES_HELP),
     target: str | None = typer.Option(
@@ -54,6 +65,9 @@ def evaluate(
     max_support: int | None = typer.Option(
         None, "--max-support", min=1, help="at most this many support vectors in each fold's "
         "model (as eskin train --max-support)"),
+    live: bool = typer.Option(
+        True, "--live/--no-live", help="also play each fold's held-out recordings as one "
+        "stream through its compiled stream classifier and score the live decisions"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -66,8 +80,12 @@ def evaluate(
     train's defaults) on all groups but the held-out ones, fold by fold, and score the
     held-out predictions: accuracy and balanced accuracy with 95 % intervals (bootstrap over
     groups), per-class recall, confusion matrix, settings per fold. Writes
-    OUT/evaluation.json, .md, .png. With --target/--budget, the search under the budget runs
-    in the same folds and its accuracy is reported beside the unconstrained one."""
+    OUT/evaluation.json, .md, .png. The live figure (--live, the default) plays each fold's
+    held-out recordings as one stream (as eskin replay --gap 2 writes it) through the fold's
+    compiled stream classifier, as a controller would run it, and scores every touch it
+    decides: accuracy, touches per recording, splits, misses, spurious touches. With
+    --target/--budget, the search under the budget runs in the same folds and its accuracy is
+    reported beside the unconstrained one."""
     from eskin._files import error_line, refuse_overwrite_all
     from eskin.learn.parallel import compute_backend
 
@@ -80,6 +98,7 @@ def evaluate(
         "negatives": negatives,
     }
     recipe = _recipe_of(given, quick, amplitude, max_support)
+    recipe.update(_detector(max_window, window_samples, hold, on_factor, off_factor))
     budgeted, the_budget = _budgeted(campaign, target, budget, recipe, classes)
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
@@ -89,7 +108,7 @@ def evaluate(
             result = _in_folds(campaign, recipe, budgeted, the_budget, groups=groups,
                                n_folds=folds, classes=_names(classes),
                                baselines=_names(baselines) or (), seed=seed,
-                               n_jobs=-1 if scheduler else n_jobs)
+                               n_jobs=-1 if scheduler else n_jobs, live=live)
     except (ValueError, OSError, KeyError, ImportError) as exc:
         _fail(error_line(exc, out))
     _report(result, out)
@@ -108,16 +127,19 @@ def _recipe_of(given: dict, quick: bool, amplitude: str | None,
 
 
 def _in_folds(data, recipe, budgeted, the_budget, *, groups, n_folds, classes, baselines,
-              seed, n_jobs) -> dict:
-    """evaluate_recipe of the recipe, and of the recipe under the budget (when given) in the
-    same folds: same campaign, groups, folds and seed."""
+              seed, n_jobs, live=True) -> dict:
+    """evaluate_recipe of the recipe (with the live figure unless ``live`` is False), and of
+    the recipe under the budget (when given) in the same folds: same campaign, groups, folds
+    and seed."""
     from eskin.learn.evaluation import evaluate_recipe
     from eskin.learn.evaluation_report import fold_line
+    from eskin.link.live_scores import LiveScoring
 
     result = evaluate_recipe(
         data, recipe=recipe, groups=groups, n_folds=n_folds, classes=classes,
         baselines=baselines, seed=seed, n_jobs=n_jobs,
         on_fold=lambda record, n: typer.echo(fold_line(record, n)),
+        live=LiveScoring() if live else None,
     )
     if budgeted is not None:
         under = evaluate_recipe(data, recipe=budgeted, groups=groups, n_folds=n_folds,

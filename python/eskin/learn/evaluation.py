@@ -211,6 +211,9 @@ class FoldTask:
     baselines: tuple[str, ...]
     seed: int
     n_jobs: int = 1
+    #: the live figure, when asked for: an object with ``fold(model, test campaign, classes,
+    #: seed) -> dict`` (eskin.link.live_scores.LiveScoring; this layer never imports it)
+    live: Any = None
 
 
 @dataclass(frozen=True)
@@ -327,6 +330,8 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         "y_pred": pred.astype(np.int64).tolist(),
         "baselines": {},
     }
+    if task.live is not None:
+        record["live"] = task.live.fold(model, test, task.classes, task.seed)
     if task.baselines:
         from eskin.learn.baselines import run_baseline
 
@@ -357,6 +362,7 @@ def trained_with(model: Any) -> dict[str, Any]:
         "subsample": model.subsample,
         "amplitudes": list(training.get("grid", {}).get("amplitudes", [None])),
         "negatives": training.get("negatives"),
+        "hold_s": getattr(model.window_config, "hold_s", None),
         "eskin_version": training.get("eskin_version"),
     }
 
@@ -448,6 +454,7 @@ def evaluate_recipe(
     n_jobs: int = 1,
     inner_jobs: int = 1,
     on_fold: Callable[[dict[str, Any], int], None] | None = None,
+    live: Any = None,
 ) -> dict[str, Any]:
     """Nested group-disjoint evaluation of ``recipe`` (keyword arguments of
     :func:`eskin.train_model`) on ``campaign`` (a path or a loaded campaign).
@@ -455,7 +462,9 @@ def evaluate_recipe(
     ``groups`` names the label that makes the folds (default participant); ``n_folds=None``
     is leave-one-group-out. Folds run as joblib tasks (``n_jobs``; the active joblib backend,
     e.g. Dask, decides where), each training with ``inner_jobs`` workers; ``on_fold(record,
-    n_folds)`` is called as each fold finishes. Returns the result
+    n_folds)`` is called as each fold finishes. ``live``: the live figure's scorer
+    (:class:`eskin.link.live_scores.LiveScoring`), run in every fold on its held-out recordings
+    and pooled into ``result["live"]``. Returns the result
     written by :func:`eskin.learn.evaluation_report.write_evaluation`.
     """
     from eskin.learn.baselines import check_baselines
@@ -486,12 +495,15 @@ def evaluate_recipe(
     }
     tasks = [
         FoldTask(
-            k, source, tr, te, tuple(names), recipe, groups, tuple(baselines), seed, inner_jobs
+            k, source, tr, te, tuple(names), recipe, groups, tuple(baselines), seed, inner_jobs,
+            live,
         )
         for k, (tr, te) in enumerate(run_folds)
     ]
     records = _run_folds(tasks, n_jobs, on_fold, shared)
     result = _pooled(records, folds, labels, names, baselines, seed)
+    if live is not None:
+        result["live"] = live.pool([r["live"] for r in sorted(records, key=lambda r: r["fold"])])
     result.update(
         {
             "campaign": path,
@@ -542,6 +554,8 @@ def _run_folds(
 def _without_predictions(record: dict[str, Any]) -> dict[str, Any]:
     """A copy of a fold record less its per-recording predictions (its own and its baselines')."""
     out = {k: v for k, v in record.items() if k not in ("y_true", "y_pred")}
+    if "live" in record:
+        out["live"] = {k: v for k, v in record["live"].items() if k != "per_recording"}
     if "baselines" in record:
         out["baselines"] = {
             name: {k: v for k, v in b.items() if k != "y_pred"}

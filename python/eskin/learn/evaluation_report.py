@@ -50,7 +50,8 @@ def describe_trained_with(settings: Mapping[str, Any]) -> str:
         f"{settings.get('selection')} selection, D = {settings.get('D')}, "
         f"window {settings.get('window')}, {settings.get('subsample')} subsampling, "
         f"amplitude factor {_amplitude_text(settings.get('amplitudes', [None]))}, "
-        f"negatives {settings.get('negatives')} (eskin {settings.get('eskin_version')})"
+        + (f"{_hold_text(settings['hold_s'])}, " if settings.get("hold_s") is not None else "")
+        + f"negatives {settings.get('negatives')} (eskin {settings.get('eskin_version')})"
     )
 
 
@@ -113,6 +114,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"  {r['fold'] + 1:3d} test {result['groups']} {_groups(r['test_groups'])}: "
             f"{_pct(r['accuracy'])} of {r['n_test']}{base} | {fold_settings(r)}"
         )
+    lines += live_lines(result)
     for name, b in result.get("baselines", {}).items():
         lines.append(
             f"baseline {name}: accuracy {_pct(b['accuracy'])} {_ci(b['ci95'])}, balanced "
@@ -123,10 +125,60 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
 
 def fold_line(record: Mapping[str, Any], n_folds: int) -> str:
     """A fold that has just finished, on one line (printed while the evaluation runs)."""
+    live = record.get("live")
+    live_text = "" if not live else (
+        f", live {_pct(live['correct'] / live['recordings'] if live['recordings'] else None)}"
+        f" ({live['touches']} touches)")
     return (
         f"fold {record['fold'] + 1}/{n_folds} (test {_groups(record['test_groups'])}): "
-        f"{_pct(record['accuracy'])} of {record['n_test']} ({record['seconds']:.0f} s)"
+        f"{_pct(record['accuracy'])} of {record['n_test']}{live_text} "
+        f"({record['seconds']:.0f} s)"
     )
+
+
+def _hold_text(hold: Any) -> str:
+    if isinstance(hold, list):
+        return "hold_s " + ", ".join(f"{h:g}" for h in hold) + " s (by fold)"
+    return f"hold_s {hold:g} s"
+
+
+def live_lines(result: Mapping[str, Any]) -> list[str]:
+    """What ``eskin evaluate`` prints of the live figure (none without one)."""
+    live = result.get("live")
+    if not live:
+        return []
+    n = live["recordings"]
+    return [
+        (f"live: each fold's held-out recordings as one stream ({live['gap_s']:g} s of quiet "
+         f"between them) through its compiled stream classifier, {_hold_text(live['hold_s'])}"),
+        (f"  accuracy live {_pct(live['accuracy'])}, per recording {_pct(result['accuracy'])}"
+         f" (one decision kept per recording; none counts as wrong)"),
+        (f"  touches per recording {live['touches_per_recording']:.2f} ({live['touches']} on "
+         f"{n} recordings): {live['split']} split (2+ touches), {live['missed']} missed "
+         f"(none), {live['spurious']} spurious in the gaps; {live['dont_know']} \"don't "
+         f"know\""),
+    ]
+
+
+def _live_markdown(result: Mapping[str, Any]) -> list[str]:
+    live = result.get("live")
+    if not live:
+        return []
+    rows = ["", "## Live: the stream a controller sees", "",
+            (f"Each fold's held-out recordings were played as one continuous stream "
+             f"({live['gap_s']:g} s of quiet between recordings, as `eskin replay --gap "
+             f"{live['gap_s']:g}` writes it) through the fold's compiled stream classifier "
+             f"({_hold_text(live['hold_s'])}). Every touch the detector ended is a decision; "
+             f"the one kept for a recording is the one on its contact (`eskin listen --replay` "
+             f"scores the same way)."), "",
+            "| | per recording | live |", "| --- | ---: | ---: |",
+            f"| accuracy | {_pct(result['accuracy'])} | {_pct(live['accuracy'])} |",
+            f"| touches per recording | 1 | {live['touches_per_recording']:.2f} |",
+            f"| recordings split (2+ touches) | - | {live['split']} of {live['recordings']} |",
+            f"| recordings missed (no touch) | - | {live['missed']} |",
+            f"| spurious touches in the gaps | - | {live['spurious']} |",
+            f"| \"don't know\" decisions kept | - | {live['dont_know']} |"]
+    return rows
 
 
 def _groups(values: list[int]) -> str:
@@ -159,6 +211,7 @@ def _markdown(result: Mapping[str, Any], figure: str) -> str:
             f"| baseline {name} | {_pct(b['accuracy'])} | {_ci(b['ci95'])} | "
             f"{_pct(b['balanced_accuracy'])} | {_ci(b['ci95_balanced_accuracy'])} |"
         )
+    rows += _live_markdown(result)
     rows += ["", f"Intervals: {result['ci_method']}.", "", "## Per-class recall and confusion", ""]
     rows.append("| true \\ predicted | " + " | ".join(classes) + " | recall |")
     rows.append("| --- |" + " ---: |" * (len(classes) + 1))
