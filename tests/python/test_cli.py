@@ -441,6 +441,9 @@ def test_evaluate_reports_the_live_figure_beside_the_per_recording_one(tmp_path)
     assert len(live["per_recording"]["touches"]) == 24
     assert all("live" in f and "per_recording" not in f["live"] for f in result["folds"])
     lines = r.output.splitlines()
+    (note,) = [ln for ln in lines if ln.startswith("note: hold_s")]  # one line for all folds
+    assert note.startswith("note: hold_s = 0.6 s (chosen) in 3 of 3 folds: at 0.15 s, ")
+    assert note.endswith("at 0.6 s, 16 give one")
     at = next(i for i, ln in enumerate(lines) if ln.startswith("live: each fold's held-out"))
     assert lines[at + 1].startswith(f"  accuracy live {100 * live['accuracy']:.1f} %, per "
                                     f"recording {100 * result['accuracy']:.1f} %")
@@ -451,7 +454,8 @@ def test_evaluate_reports_the_live_figure_beside_the_per_recording_one(tmp_path)
     assert r.exit_code == 0, r.output
     live15 = json.loads((tmp_path / "ev15" / "evaluation.json").read_text())["live"]
     assert live15["hold_s"] == 0.15 and live15["split"] > 0 and live15["touches"] > 24
-    assert any(ln.startswith("note: hold_s = 0.15 s (given): ") for ln in r.output.splitlines())
+    assert any(ln.startswith("note: hold_s = 0.15 s (given) in 3 of 3 folds: at 0.15 s, ")
+               for ln in r.output.splitlines())
     r = CliRunner().invoke(app, [*args, "--no-live", "-o", str(tmp_path / "none")])
     assert r.exit_code == 0 and "live:" not in r.output
     assert "live" not in json.loads((tmp_path / "none" / "evaluation.json").read_text())

@@ -152,14 +152,16 @@ def _report(result: dict, out: Path) -> None:
     """Print the scores, then write OUT/evaluation.* (a full disk then costs the files, not
     the scores)."""
     from eskin._files import error_line
-    from eskin.learn.evaluation_report import summary_lines, write_evaluation
+    from eskin.learn.evaluation_report import hold_choice_lines, summary_lines, write_evaluation
 
     for line in summary_lines(result):
         typer.echo(line)
     for line in _under_budget_lines(result):
         typer.echo(line)
-    notes = sorted({n for f in result["folds"] for n in f.get("notes", [])})
-    for note in notes:
+    # the hold time each fold chose, summed up (one note per fold would repeat it)
+    notes = sorted({n for f in result["folds"] for n in f.get("notes", [])
+                    if not n.startswith("hold_s = ")})
+    for note in hold_choice_lines(result) + notes:
         typer.echo(f"note: {note}")
     try:
         paths = write_evaluation(result, out)

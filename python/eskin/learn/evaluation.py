@@ -325,6 +325,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         "trained_with": trained_with(model),
         "inner_cv_error": _inner_estimate(model.selected),
         "notes": list(model.training.get("notes", [])),
+        "live_touches": _plain(model.training.get("live_touches")),
         "support_budget": model.training.get("support_budget"),
         "y_true": y_test.tolist(),
         "y_pred": pred.astype(np.int64).tolist(),

@@ -160,6 +160,36 @@ def live_lines(result: Mapping[str, Any]) -> list[str]:
     ]
 
 
+def _span(values: list[int]) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo}" if lo == hi else f"{lo} to {hi}"
+
+
+def hold_choice_lines(result: Mapping[str, Any]) -> list[str]:
+    """The hold times the folds' training chose (``eskin.learn.live_windows``), one line per
+    hold instead of one note per fold: in how many folds, and how many training recordings
+    per fold split into 2+ live touches at the first hold tried and at the one chosen."""
+    records = [f["live_touches"] for f in result.get("folds", []) if f.get("live_touches")]
+    lines = []
+    for hold in sorted({r["hold_s"] for r in records}):
+        mine = [r for r in records if r["hold_s"] == hold]
+        first = [next(iter(r["tried"].values())) for r in mine]
+        start = next(iter(mine[0]["tried"]))
+        if all(r["split"] == 0 and r["none"] == 0 for r in first):
+            continue  # one touch per recording at the hold the folds started from
+        n = _span([r["recordings"] for r in mine])
+        how = "chosen" if mine[0]["chosen"] else "given"
+        short = [r for r in mine if r["one"] < r["share"] * r["recordings"]]
+        why = "" if not short else (
+            f" (in {len(short)} of them no hold up to {max(float(h) for h in short[0]['tried']):g}"
+            f" s gave one touch on {100 * short[0]['share']:.0f} % of the recordings)")
+        lines.append(
+            f"hold_s = {hold:g} s ({how}) in {len(mine)} of {len(records)} folds: at {start} s, "
+            f"{_span([r['split'] for r in first])} of {n} training recordings per fold gave 2+ "
+            f"live touches; at {hold:g} s, {_span([r['one'] for r in mine])} give one{why}")
+    return lines
+
+
 def _live_markdown(result: Mapping[str, Any]) -> list[str]:
     live = result.get("live")
     if not live:

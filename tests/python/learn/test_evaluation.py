@@ -594,3 +594,24 @@ def test_the_documented_number_of_resamples_is_the_one_drawn():
     assert stated == N_BOOTSTRAP
     assert inspect.signature(group_bootstrap_ci).parameters["n_boot"].default == N_BOOTSTRAP
     assert f"({stated} resamples" in CI_METHOD.format(n=N_BOOTSTRAP)
+
+
+def test_the_hold_each_fold_chose_is_one_line_per_hold():
+    from eskin.learn.evaluation_report import hold_choice_lines
+
+    def fold(hold, split, one, chosen=True, n=40):
+        tried = {"0.15": {"recordings": n, "one": n - split, "split": split, "none": 0}}
+        if hold != 0.15:
+            tried[f"{hold:g}"] = {"recordings": n, "one": one, "split": n - one, "none": 0}
+        return {"live_touches": {"hold_s": hold, "chosen": chosen, "share": 0.95,
+                                 "recordings": n, "one": one, "split": n - one, "none": 0,
+                                 "tried": tried}}
+
+    result = {"folds": [fold(0.6, 10, 40), fold(0.6, 12, 39), fold(0.15, 0, 40), {}]}
+    assert hold_choice_lines(result) == [
+        "hold_s = 0.6 s (chosen) in 2 of 3 folds: at 0.15 s, 10 to 12 of 40 training "
+        "recordings per fold gave 2+ live touches; at 0.6 s, 39 to 40 give one"]
+    result = {"folds": [fold(1.5, 20, 30)]}
+    assert hold_choice_lines(result)[0].endswith(
+        "at 1.5 s, 30 give one (in 1 of them no hold up to 1.5 s gave one touch on 95 % of the "
+        "recordings)")
