@@ -178,15 +178,20 @@ def hold_choice_lines(result: Mapping[str, Any]) -> list[str]:
         if all(r["split"] == 0 and r["none"] == 0 for r in first):
             continue  # one touch per recording at the hold the folds started from
         n = _span([r["recordings"] for r in mine])
-        how = "chosen" if mine[0]["chosen"] else "given"
+        split = _span([r["split"] for r in first])
+        if not mine[0]["chosen"]:
+            lines.append(f"hold_s = {hold:g} s (given) in {len(mine)} of {len(records)} folds: "
+                         f"{split} of {n} training recordings per fold gave 2+ live touches "
+                         f"(a longer --hold merges them)")
+            continue
         short = [r for r in mine if r["one"] < r["share"] * r["recordings"]]
         why = "" if not short else (
             f" (in {len(short)} of them no hold up to {max(float(h) for h in short[0]['tried']):g}"
             f" s gave one touch on {100 * short[0]['share']:.0f} % of the recordings)")
         lines.append(
-            f"hold_s = {hold:g} s ({how}) in {len(mine)} of {len(records)} folds: at {start} s, "
-            f"{_span([r['split'] for r in first])} of {n} training recordings per fold gave 2+ "
-            f"live touches; at {hold:g} s, {_span([r['one'] for r in mine])} give one{why}")
+            f"hold_s = {hold:g} s (chosen) in {len(mine)} of {len(records)} folds: at {start} s, "
+            f"{split} of {n} training recordings per fold gave 2+ live touches; at {hold:g} s, "
+            f"{_span([r['one'] for r in mine])} give one{why}")
     return lines
 
 

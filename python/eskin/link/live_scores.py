@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -53,8 +54,6 @@ def score_stream(decisions: Sequence[Any], replay: Any, classes: Sequence[str]) 
     ``spurious`` in the gaps, ``correct``, ``dont_know``), the score ``eskin listen --replay``
     prints (``score``) and, per recording in replay order, ``touches`` and ``decided`` (index
     into ``classes`` of the decision kept, -1 for none or a class outside ``classes``)."""
-    from dataclasses import replace
-
     from eskin.link.scoring import assign_decisions, score_decisions, segment_of
 
     segments = replay.segments

@@ -611,6 +611,10 @@ def test_the_hold_each_fold_chose_is_one_line_per_hold():
     assert hold_choice_lines(result) == [
         "hold_s = 0.6 s (chosen) in 2 of 3 folds: at 0.15 s, 10 to 12 of 40 training "
         "recordings per fold gave 2+ live touches; at 0.6 s, 39 to 40 give one"]
+    given = {"folds": [fold(0.15, 8, 32, chosen=False)] * 2}
+    assert hold_choice_lines(given) == [
+        "hold_s = 0.15 s (given) in 2 of 2 folds: 8 of 40 training recordings per fold gave 2+ "
+        "live touches (a longer --hold merges them)"]
     result = {"folds": [fold(1.5, 20, 30)]}
     assert hold_choice_lines(result)[0].endswith(
         "at 1.5 s, 30 give one (in 1 of them no hold up to 1.5 s gave one touch on 95 % of the "
