@@ -51,8 +51,9 @@ py::tuple classify_batch(Classifier& clf, py::array_t<Scalar, py::array::c_style
   const std::size_t nm = m.machines().size();
   py::array_t<std::int32_t> labels(n), status(n);
   py::array_t<bool> dont_know(n), found(n);
-  py::array_t<double> values({n, static_cast<py::ssize_t>(nm)});
+  py::array_t<double> values({n, static_cast<py::ssize_t>(nm)}), confidence(n);
   py::array_t<std::int64_t> windows({n, py::ssize_t{2}});
+  auto conf = confidence.mutable_unchecked<1>();
   auto lab = labels.mutable_unchecked<1>();
   auto st = status.mutable_unchecked<1>();
   auto dk = dont_know.mutable_unchecked<1>();
@@ -71,6 +72,7 @@ py::tuple classify_batch(Classifier& clf, py::array_t<Scalar, py::array::c_style
       const bool ok = s == ClassifyStatus::kOk;
       lab(i) = ok ? d.label : -1;
       dk(i) = ok && d.dont_know;
+      conf(i) = ok ? d.confidence : std::numeric_limits<double>::quiet_NaN();
       fd(i) = ok && d.window_found;
       win(i, 0) = d.window_start;
       win(i, 1) = d.window_stop;
@@ -78,7 +80,7 @@ py::tuple classify_batch(Classifier& clf, py::array_t<Scalar, py::array::c_style
         val(i, static_cast<py::ssize_t>(k)) = ok ? d.values[k] : std::numeric_limits<double>::quiet_NaN();
     }
   }
-  return py::make_tuple(labels, values, dont_know, status, windows, found);
+  return py::make_tuple(labels, values, dont_know, status, windows, found, confidence);
 }
 
 }  // namespace
@@ -177,7 +179,11 @@ void bind_model(py::module_& m) {
       })
       .def_property_readonly("file_bytes", &Model::file_bytes)
       .def_property_readonly("format_version", &Model::format_version,
-                             "1, or 2 when some machine has an amplitude factor")
+                             "1 to 4, the version the model was written in")
+      .def_property_readonly("calibrated", &Model::calibrated,
+                             "True: the calibrated rule (CALB); False: the paper's rule")
+      .def_property_readonly("reject_threshold", &Model::reject_threshold,
+                             "the calibrated rule's threshold on the confidence (0 without CALB)")
       .def_property_readonly("sv_log_energy", &Model::sv_log_energy,
                              "log energy of each support vector (format version 2), else []")
       .def_property_readonly("machines", [](const Model& mm) {
@@ -192,6 +198,8 @@ void bind_model(py::module_& m) {
           d["sv_index"] = k.sv_index;
           d["coef"] = k.coef;
           d["amplitude_width"] = k.amplitude_width;
+          d["calib_slope"] = k.calib_slope;
+          d["calib_offset"] = k.calib_offset;
           out.append(d);
         }
         return out;
@@ -211,7 +219,8 @@ void bind_model(py::module_& m) {
           },
           py::arg("signals"), py::arg("lengths") = py::none(),
           "signals (n, rows, cols, T) int16/float32/float64 -> (labels, values (n, n_machines), "
-          "dont_know, status, windows (n, 2), window_found); status 0 = ok.")
+          "dont_know, status, windows (n, 2), window_found, confidence); status 0 = ok; confidence "
+          "NaN under the paper's rule.")
       .def(
           "classify_tensors",
           [](Classifier& c, py::array_t<double, py::array::c_style | py::array::forcecast> x) {
@@ -225,7 +234,8 @@ void bind_model(py::module_& m) {
             const std::size_t sz = static_cast<std::size_t>(mm.rows()) * mm.cols() * mm.D();
             py::array_t<std::int32_t> labels(n), status(n);
             py::array_t<bool> dont_know(n);
-            py::array_t<double> values({n, static_cast<py::ssize_t>(nm)});
+            py::array_t<double> values({n, static_cast<py::ssize_t>(nm)}), confidence(n);
+            auto conf = confidence.mutable_unchecked<1>();
             auto lab = labels.mutable_unchecked<1>();
             auto st = status.mutable_unchecked<1>();
             auto dk = dont_know.mutable_unchecked<1>();
@@ -240,11 +250,12 @@ void bind_model(py::module_& m) {
                 st(i) = static_cast<std::int32_t>(s);
                 lab(i) = ok ? d.label : -1;
                 dk(i) = ok && d.dont_know;
+                conf(i) = ok ? d.confidence : std::numeric_limits<double>::quiet_NaN();
                 for (std::size_t k = 0; k < nm; ++k)
                   val(i, static_cast<py::ssize_t>(k)) = ok ? d.values[k] : std::numeric_limits<double>::quiet_NaN();
               }
             }
-            return py::make_tuple(labels, values, dont_know, status);
+            return py::make_tuple(labels, values, dont_know, status, confidence);
           },
           py::arg("tensors"))
       .def(
@@ -351,6 +362,7 @@ void bind_model(py::module_& m) {
               if (std::get<2>(e) == ClassifyStatus::kDecision) {
                 d["label"] = dec.label;
                 d["dont_know"] = dec.dont_know;
+                d["confidence"] = dec.confidence;
                 d["values"] = std::get<4>(e);
                 d["window"] = py::make_tuple(dec.window_start, dec.window_stop);
               }

@@ -61,6 +61,49 @@ const char* to_string(ClassifyStatus s) noexcept {
 
 const char* overlap_kernel_name() noexcept { return detail::overlap_kernel_name(); }
 
+double log_sigmoid(double z) noexcept {
+  // -softplus(-z) = -(max(-z, 0) + log1p(exp(-|z|))): no overflow for any finite z
+  return -(std::max(-z, 0.0) + std::log1p(std::exp(-std::fabs(z))));
+}
+
+namespace {
+// The calibrated rule (format version 4, docs/model-format.md "Decision"), in double on every
+// target: l_k = log sigmoid(a_k f_k + b_k) per machine (a binary model: its machine's class
+// and the other, l = log sigmoid(+-z)); label = the largest l (the first on ties); confidence
+// = its normalised score 1 / sum_k exp(l_k - l_label); "don't know" when below the threshold.
+// Two passes over the values, no buffer.
+void calibrated_rule(const Model& m, const double* values, Decision* out) noexcept {
+  const auto& machines = m.machines();
+  int label;
+  double sum;
+  if (m.rule() == DecisionRule::kBinary) {
+    const auto& mm = machines[0];
+    const double z = mm.calib_slope * values[0] + mm.calib_offset;
+    const double lp = log_sigmoid(z), ln = log_sigmoid(-z);
+    label = lp > ln ? mm.positive : mm.negative;
+    sum = 1.0 + std::exp(-std::fabs(lp - ln));
+  } else {
+    std::size_t best = 0;
+    double lbest = 0.0;
+    for (std::size_t k = 0; k < machines.size(); ++k) {
+      const double l = log_sigmoid(machines[k].calib_slope * values[k] + machines[k].calib_offset);
+      if (k == 0 || l > lbest) {
+        best = k;
+        lbest = l;
+      }
+    }
+    sum = 0.0;
+    for (std::size_t k = 0; k < machines.size(); ++k)
+      sum += std::exp(log_sigmoid(machines[k].calib_slope * values[k] + machines[k].calib_offset) -
+                      lbest);
+    label = machines[best].positive;
+  }
+  out->label = label;
+  out->confidence = 1.0 / sum;
+  out->dont_know = out->confidence < m.reject_threshold();
+}
+}  // namespace
+
 double tensor_log_energy(const double* x, std::size_t n) noexcept {
   double sum = 0.0;
   for (std::size_t i = 0; i < n; ++i) sum += x[i] * x[i];
@@ -301,10 +344,13 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
                                          s.gap32.data());
   out->n_machines = static_cast<int>(machines.size());
   out->values = s.values.data();
-  if (m.rule() == DecisionRule::kBinary) {
+  if (m.calibrated()) {
+    calibrated_rule(m, s.values.data(), out);
+  } else if (m.rule() == DecisionRule::kBinary) {
     const auto& mm = machines[0];
     out->label = s.values[0] > 0 ? mm.positive : mm.negative;
     out->dont_know = false;
+    out->confidence = std::numeric_limits<double>::quiet_NaN();
   } else {
     // Paper rule: exactly one machine claims (f > 0) -> that class; otherwise the largest f,
     // flagged as "don't know" (no claim, or several).
@@ -324,6 +370,7 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
       out->label = machines[best].positive;
       out->dont_know = true;
     }
+    out->confidence = std::numeric_limits<double>::quiet_NaN();
   }
   return ClassifyStatus::kOk;
 }

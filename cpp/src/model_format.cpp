@@ -262,6 +262,7 @@ class ModelParser {
   static bool check_orthonormal(Reader& r, Model& m, ParseError& err, int z);
   static bool parse_mach(Reader& r, Model& m, ParseError& err);
   static bool parse_ampl(Reader& r, Model& m, ParseError& err);
+  static bool parse_calb(Reader& r, Model& m, ParseError& err);
   static bool parse_required(int which, Reader& r, Model& m, ParseError& err);
   static bool parse_sections(const std::uint8_t* data, std::size_t end, std::uint32_t n_sections,
                              const std::string& origin, Model& m, ParseError& err);
@@ -648,6 +649,40 @@ bool ModelParser::parse_ampl(Reader& r, Model& m, ParseError& err) {
   return true;
 }
 
+bool ModelParser::parse_calb(Reader& r, Model& m, ParseError& err) {
+  namespace mf = model_format;
+  const std::string& w = r.what();
+  std::uint32_t rule, n_machines;
+  double threshold;
+  if (!r.u32("rule", rule) || !r.u32("n_machines", n_machines) || !r.f64("threshold", threshold))
+    return false;
+  if (rule != mf::kCalibratedRule)
+    return err.set(ModelError::kValue, w + ": rule=" + std::to_string(rule) + " is unknown (1: calibrated; a "
+                                 "model with the paper's rule has no CALB section)");
+  if (n_machines != m.machines_.size())
+    return err.set(ModelError::kValue, w + ": n_machines=" + std::to_string(n_machines) +
+                                 " differs from MACH's n_machines=" + std::to_string(m.machines_.size()));
+  if (!(threshold >= 0.0 && threshold <= 1.0))
+    return err.set(ModelError::kValue, w + ": threshold=" + fmt_double(threshold) + " must be within [0, 1]");
+  if (!r.need(std::size_t{n_machines} * 16, "slopes and offsets")) return false;
+  for (std::uint32_t k = 0; k < n_machines; ++k) {
+    double a, b;
+    if (!r.f64("slope", a) || !r.f64("offset", b)) return false;
+    if (!(a >= 0.0 && a <= mf::kMaxCalibration))
+      return err.set(ModelError::kValue, w + ": machine " + std::to_string(k) + ": slope=" + fmt_double(a) +
+                                   " must be within [0, 1e+06]");
+    if (!(std::fabs(b) <= mf::kMaxCalibration))
+      return err.set(ModelError::kValue, w + ": machine " + std::to_string(k) + ": offset=" + fmt_double(b) +
+                                   " must be finite and within [-1e+06, 1e+06]");
+    m.machines_[k].calib_slope = a;
+    m.machines_[k].calib_offset = b;
+  }
+  if (!r.expect_end()) return false;
+  m.calibrated_ = true;
+  m.reject_threshold_ = threshold;
+  return true;
+}
+
 bool ModelParser::check_machines(Model& m, const std::string& origin, ParseError& err) {
   const int nc = static_cast<int>(m.class_names_.size());
   const int nm = static_cast<int>(m.machines_.size());
@@ -680,9 +715,10 @@ bool ModelParser::check_machines(Model& m, const std::string& origin, ParseError
 }
 
 namespace {
-// The required sections in their order: version 1 has the first four, version 2 all five.
-constexpr std::uint32_t kRequired[5] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
-                                        tag_of("MACH"), tag_of("AMPL")};
+// The required sections in their order: version 1 has the first four, versions 2 and 3 AMPL
+// too (optional in 3), version 4 CALB after them.
+constexpr std::uint32_t kRequired[6] = {tag_of("PREP"), tag_of("CLAS"), tag_of("SVBS"),
+                                        tag_of("MACH"), tag_of("AMPL"), tag_of("CALB")};
 }  // namespace
 
 bool ModelParser::parse_required(int which, Reader& r, Model& m, ParseError& err) {
@@ -691,7 +727,8 @@ bool ModelParser::parse_required(int which, Reader& r, Model& m, ParseError& err
     case 1: return parse_clas(r, m, err);
     case 2: return parse_svbs(r, m, err);
     case 3: return parse_mach(r, m, err);
-    default: return parse_ampl(r, m, err);
+    case 4: return parse_ampl(r, m, err);
+    default: return parse_calb(r, m, err);
   }
 }
 
@@ -700,9 +737,10 @@ bool ModelParser::parse_required(int which, Reader& r, Model& m, ParseError& err
 bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std::uint32_t n_sections,
                                  const std::string& origin, Model& m, ParseError& err) {
   namespace mf = model_format;
-  const int n_required = m.format_version_ >= mf::kVersionAmplitude ? 5 : 4;
-  // version 3: AMPL when some machine has the amplitude factor, else absent
-  const bool ampl_optional = m.format_version_ >= mf::kVersionBoundedWindow;
+  const int version = m.format_version_;
+  const int n_required = version >= mf::kVersionCalibration ? 6 : version >= mf::kVersionAmplitude ? 5 : 4;
+  // version 3 and later: AMPL when some machine has the amplitude factor, else absent
+  const bool ampl_optional = version >= mf::kVersionBoundedWindow;
   int next = 0;
   std::size_t pos = mf::kHeaderBytes;
   for (std::uint32_t s = 0; s < n_sections; ++s) {
@@ -721,6 +759,7 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
         return err.set(ModelError::kValue, origin + ": non-zero padding after section '" + tag_str(tag) + "'");
     Reader r(data + pos, bytes, origin + ": section " + tag_str(tag), err);
     const char first = static_cast<char>(tag & 0xFF);
+    if (ampl_optional && next == 4 && n_required == 6 && tag == kRequired[5]) next = 5;  // no AMPL
     if (first >= 'a' && first <= 'z') {
       // ancillary section (e.g. "meta"): skipped
     } else if (next < n_required && tag == kRequired[next]) {
@@ -728,17 +767,24 @@ bool ModelParser::parse_sections(const std::uint8_t* data, std::size_t end, std:
       ++next;
     } else if (tag == kRequired[4] && n_required == 4) {
       return err.set(ModelError::kLayout, origin + ": section 'AMPL' (the amplitude factor) is not allowed "
-                                    "in format version " + std::to_string(m.format_version_) +
+                                    "in format version " + std::to_string(version) +
                                     " (it needs version 2)");
+    } else if (tag == kRequired[5] && n_required < 6) {
+      return err.set(ModelError::kLayout, origin + ": section 'CALB' (the calibrated decision rule) is not "
+                                    "allowed in format version " + std::to_string(version) +
+                                    " (it needs version 4)");
     } else {
       return err.set(ModelError::kLayout, origin + ": unexpected section '" + tag_str(tag) + "' (expected '" +
                                     (next < n_required ? tag_str(kRequired[next]) : std::string("end")) + "')");
     }
     pos += padded;
   }
-  if (next < n_required && !(ampl_optional && next == 4))
-    return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kRequired[next]) + "' missing" +
-                                  (next == 4 ? " (format version 2 has an amplitude factor)" : ""));
+  if (next < n_required && !(ampl_optional && next == 4 && n_required == 5)) {
+    const int missing = (ampl_optional && next == 4) ? 5 : next;
+    return err.set(ModelError::kLayout, origin + ": required section '" + tag_str(kRequired[missing]) + "' missing" +
+                                  (missing == 4 ? " (format version 2 has an amplitude factor)" : "") +
+                                  (missing == 5 ? " (format version 4 has the calibrated rule)" : ""));
+  }
   if (pos != end)
     return err.set(ModelError::kLayout, origin + ": " + std::to_string(end - pos) +
                                   " bytes after the last section, before the checksum");

@@ -79,6 +79,11 @@ class Model:
     def alpha_store(self) -> tuple[int, int, int]:
         ...
     @property
+    def calibrated(self) -> bool:
+        """
+        True: the calibrated rule (CALB); False: the paper's rule
+        """
+    @property
     def class_names(self) -> list[str]:
         ...
     @property
@@ -90,7 +95,7 @@ class Model:
     @property
     def format_version(self) -> int:
         """
-        1, or 2 when some machine has an amplitude factor
+        1 to 4, the version the model was written in
         """
     @property
     def is_float64(self) -> bool:
@@ -101,6 +106,11 @@ class Model:
     @property
     def n_support(self) -> int:
         ...
+    @property
+    def reject_threshold(self) -> float:
+        """
+        the calibrated rule's threshold on the confidence (0 without CALB)
+        """
     @property
     def rows(self) -> int:
         ...
@@ -135,9 +145,9 @@ class Classifier:
         ...
     def classify(self, signals: numpy.ndarray, lengths: typing.Any = None) -> tuple:
         """
-        signals (n, rows, cols, T) int16/float32/float64 -> (labels, values (n, n_machines), dont_know, status, windows (n, 2), window_found); status 0 = ok.
+        signals (n, rows, cols, T) int16/float32/float64 -> (labels, values (n, n_machines), dont_know, status, windows (n, 2), window_found, confidence); status 0 = ok; confidence NaN under the paper's rule.
         """
-    def classify_tensors(self, tensors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64]) -> tuple[numpy.typing.NDArray[numpy.int32], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.bool], numpy.typing.NDArray[numpy.int32]]:
+    def classify_tensors(self, tensors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64]) -> tuple[numpy.typing.NDArray[numpy.int32], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.bool], numpy.typing.NDArray[numpy.int32], numpy.typing.NDArray[numpy.float64]]:
         ...
     def time_classify(self, signals: typing.Annotated[numpy.typing.ArrayLike, numpy.int16], repeats: typing.SupportsInt | typing.SupportsIndex = 1) -> numpy.typing.NDArray[numpy.float64]:
         ...

@@ -11,6 +11,7 @@
 #include <new>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -227,12 +228,12 @@ TEST(ModelLoad, ForeignFile) {
 }
 
 TEST(ModelLoad, WrongVersion) {
-  for (const std::uint8_t v : {0, 4, 200}) {
+  for (const std::uint8_t v : {0, 5, 200}) {
     Bytes b = fixture("float32");
     b[8] = v;  // CRC left stale: the version is reported, not the checksum
     EXPECT_EQ(load_error(b), ModelError::kVersion);
     EXPECT_NE(load_message(b).find("model format version " + std::to_string(v) +
-                                   " is not supported (this library reads versions 1 to 3)"),
+                                   " is not supported (this library reads versions 1 to 4)"),
               std::string::npos)
         << load_message(b);
   }
@@ -1222,13 +1223,13 @@ TEST(ModelChecks, AHeaderAndChecksumAloneAreNotTooShortToRead) {
       << load_message(b);
 }
 
-TEST(ModelChecks, VersionThreeLoadsWithoutAnAmplitudeSection) {
-  // the fixture as format version 3: its window fields and the bounded window's
-  // (window_samples = 0), no AMPL section
-  const Bytes v1 = fixture("float64");
+namespace {
+// A version-1 file as format version 3: its window fields and the bounded window's
+// (window_samples = 0), no AMPL section.
+Bytes as_version3(const Bytes& v1) {
   const std::size_t prep = section_offset(v1, "PREP");
   const std::uint32_t bytes = get_u32(v1, prep - 4);
-  ASSERT_EQ(bytes % 8, 0u);
+  EXPECT_EQ(bytes % 8, 0u);
   Bytes field(32, 0);
   const std::string name = "window_samples";
   std::copy(name.begin(), name.end(), field.begin());
@@ -1241,6 +1242,12 @@ TEST(ModelChecks, VersionThreeLoadsWithoutAnAmplitudeSection) {
   b[8] = 3;
   put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
   fix_crc(b);
+  return b;
+}
+}  // namespace
+
+TEST(ModelChecks, VersionThreeLoadsWithoutAnAmplitudeSection) {
+  const Bytes b = as_version3(fixture("float64"));
   const Model m = Model::from_bytes(b.data(), b.size());
   EXPECT_EQ(m.format_version(), 3);
   EXPECT_FALSE(m.has_amplitude());
@@ -1248,4 +1255,188 @@ TEST(ModelChecks, VersionThreeLoadsWithoutAnAmplitudeSection) {
   Bytes v2 = b;  // the same bytes as version 2 need their AMPL section (and a v1 window)
   v2[8] = 2;
   EXPECT_TRUE(says(refused(v2), "n_window_fields=")) << refused(v2);
+}
+
+// ---- the calibrated rule (format version 4, section CALB)
+
+namespace {
+Bytes calb_payload(std::uint32_t rule, double threshold, const std::vector<double>& slopes,
+                   const std::vector<double>& offsets) {
+  Bytes p;
+  append_u32(p, rule);
+  append_u32(p, static_cast<std::uint32_t>(slopes.size()));
+  append_f64(p, threshold);
+  for (std::size_t k = 0; k < slopes.size(); ++k) {
+    append_f64(p, slopes[k]);
+    append_f64(p, offsets[k]);
+  }
+  return p;
+}
+const std::vector<double> kSlopes = {2.0, 0.5, 1.5};
+const std::vector<double> kOffsets = {-1.0, 0.25, 0.0};
+Bytes fixture_calibrated(const char* dtype, double threshold = 0.6,
+                         const std::vector<double>& slopes = kSlopes,
+                         const std::vector<double>& offsets = kOffsets, std::uint32_t rule = 1,
+                         std::uint16_t version = 4) {
+  return with_section_after_mach(as_version3(fixture(dtype)), "CALB",
+                                 calb_payload(rule, threshold, slopes, offsets), version);
+}
+}  // namespace
+
+TEST(ModelCalibration, AnOldFileKeepsThePapersRule) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  EXPECT_FALSE(m.calibrated());
+  eskin::Classifier clf(m);
+  eskin::Decision d;
+  const std::vector<double> x = random_tensor(m, 1.0, 3);
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  EXPECT_TRUE(std::isnan(d.confidence));
+  int claims = 0;
+  for (int k = 0; k < 3; ++k) claims += d.values[k] > 0;
+  EXPECT_EQ(d.dont_know, claims != 1);
+}
+
+// Label, confidence and flag equal the rule computed the plain way (p_k, q_k = p_k / sum p).
+// Steep sigmoids centred on the fixture's values spread the confidences of random tensors; the
+// threshold is their median, so both sides of it are exercised.
+TEST(ModelCalibration, DecisionEqualsTheFormula) {
+  const std::vector<double> slopes = {1000.0, 1000.0, 1000.0}, offsets = {100.6, -0.4, -100.6};
+  for (const char* dtype : {"float32", "float64"}) {
+    std::vector<std::vector<double>> xs;
+    for (unsigned seed = 0; seed < 40; ++seed) {
+      const Bytes b0 = fixture(dtype);
+      xs.push_back(random_tensor(Model::from_bytes(b0.data(), b0.size()), 0.5 + 0.1 * seed, seed));
+    }
+    std::vector<double> conf;
+    {
+      const Bytes b = fixture_calibrated(dtype, 0.5, slopes, offsets);
+      const Model m = Model::from_bytes(b.data(), b.size());
+      eskin::Classifier clf(m);
+      for (const auto& x : xs) {
+        eskin::Decision d;
+        ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+        conf.push_back(d.confidence);
+      }
+    }
+    std::vector<double> sorted = conf;
+    std::sort(sorted.begin(), sorted.end());
+    const double t = sorted[sorted.size() / 2];
+    const Bytes b = fixture_calibrated(dtype, t, slopes, offsets);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    ASSERT_TRUE(m.calibrated());
+    EXPECT_EQ(m.format_version(), 4);
+    EXPECT_EQ(m.reject_threshold(), t);
+    eskin::Classifier clf(m);
+    int flagged = 0, decided = 0;
+    std::vector<int> labels(3, 0);
+    for (const auto& x : xs) {
+      eskin::Decision d;
+      ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+      double p[3], sum = 0.0;
+      int best = 0;
+      for (int k = 0; k < 3; ++k) {
+        const auto kk = static_cast<std::size_t>(k);
+        p[k] = 1.0 / (1.0 + std::exp(-(slopes[kk] * d.values[k] + offsets[kk])));
+        sum += p[k];
+        if (p[k] > p[best]) best = k;
+      }
+      EXPECT_EQ(d.label, best) << dtype;
+      EXPECT_NEAR(d.confidence, p[best] / sum, 1e-12);
+      if (std::fabs(p[best] / sum - t) > 1e-12) EXPECT_EQ(d.dont_know, p[best] / sum < t);
+      (d.dont_know ? flagged : decided) += 1;
+      labels[static_cast<std::size_t>(best)] += 1;
+    }
+    EXPECT_EQ(flagged, 20) << dtype;  // below the median of 40 distinct confidences
+    EXPECT_EQ(decided, 20) << dtype;
+    EXPECT_GT(sorted.back() - sorted.front(), 0.05) << dtype;
+  }
+}
+
+TEST(ModelCalibration, ThresholdZeroNeverFlagsAndOneAlwaysFlags) {
+  for (const double t : {0.0, 1.0}) {
+    const Bytes b = fixture_calibrated("float64", t);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    for (unsigned seed = 0; seed < 10; ++seed) {
+      const std::vector<double> x = random_tensor(m, 1.0, seed);
+      eskin::Decision d;
+      ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+      EXPECT_GE(d.confidence, 1.0 / 3.0 - 1e-15);
+      EXPECT_LE(d.confidence, 1.0);
+      // confidence 1 exactly would not be flagged by t = 1; these inputs never reach it
+      EXPECT_EQ(d.dont_know, t == 1.0) << seed;
+    }
+  }
+}
+
+TEST(ModelCalibration, ExtremeSlopesGiveAFiniteConfidence) {
+  const Bytes b = fixture_calibrated("float64", 0.5, {1e6, 1e6, 1e6}, {-1e6, -1e6, -1e6});
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x = random_tensor(m, 1.0, 5);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  EXPECT_TRUE(std::isfinite(d.confidence));
+  EXPECT_GE(d.confidence, 1.0 / 3.0 - 1e-15);
+}
+
+TEST(ModelCalibration, StreamDecidesAsBatchWithoutAllocating) {
+  const Bytes b = fixture_calibrated("float32", 0.5);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  eskin::StreamClassifier sc(m);
+  const std::int64_t T = 12000;
+  const auto x = synthetic_recording(T, 4000, 7000, 2);
+  eskin::Decision batch;
+  ASSERT_EQ(clf.classify(x.data(), 4, 4, T, T, &batch), eskin::ClassifyStatus::kOk);
+  std::int16_t sample[16];
+  int decisions = 0;
+  g_allocations = 0;
+  g_counting = true;
+  for (std::int64_t t = 0; t < T; ++t) {
+    for (int k = 0; k < 16; ++k) sample[k] = x[static_cast<std::size_t>(k * T + t)];
+    if (sc.push(sample) == eskin::ClassifyStatus::kDecision) {
+      ++decisions;
+      EXPECT_EQ(sc.decision().label, batch.label);
+      EXPECT_EQ(sc.decision().dont_know, batch.dont_know);
+      EXPECT_NEAR(sc.decision().confidence, batch.confidence, 1e-12);
+    }
+  }
+  g_counting = false;
+  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(decisions, 1);
+  EXPECT_TRUE(std::isfinite(batch.confidence));
+}
+
+TEST(ModelCalibration, BadCalbSectionsAreRefusedNamingFieldAndValue) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  struct Case {
+    Bytes bytes;
+    ModelError code;
+    std::string part;
+  };
+  const std::vector<Case> cases = {
+      {fixture_calibrated("float64", 1.5), ModelError::kValue, "section CALB: threshold=1.5 must be within [0, 1]"},
+      {fixture_calibrated("float64", nan), ModelError::kValue, "section CALB: threshold=nan"},
+      {fixture_calibrated("float64", 0.5, {2.0, nan, 1.0}), ModelError::kValue,
+       "section CALB: machine 1: slope=nan must be within [0, 1e+06]"},
+      {fixture_calibrated("float64", 0.5, {2.0, -1.0, 1.0}), ModelError::kValue,
+       "section CALB: machine 1: slope=-1 must be within [0, 1e+06]"},
+      {fixture_calibrated("float64", 0.5, kSlopes, {0.0, 0.0, 2e6}), ModelError::kValue,
+       "section CALB: machine 2: offset=2000000 must be finite"},
+      {fixture_calibrated("float64", 0.5, {1.0, 1.0}, {0.0, 0.0}), ModelError::kValue,
+       "section CALB: n_machines=2 differs from MACH's n_machines=3"},
+      {fixture_calibrated("float64", 0.5, kSlopes, kOffsets, 2), ModelError::kValue,
+       "section CALB: rule=2 is unknown"},
+      {fixture_calibrated("float64", 0.5, kSlopes, kOffsets, 1, 3), ModelError::kLayout,
+       "section 'CALB' (the calibrated decision rule) is not allowed in format version 3"},
+  };
+  for (const Case& c : cases) {
+    EXPECT_EQ(load_error(c.bytes), c.code) << load_message(c.bytes);
+    EXPECT_TRUE(says(load_message(c.bytes), c.part)) << load_message(c.bytes);
+  }
+  Bytes v4 = as_version3(fixture("float64"));  // version 4 without its CALB section
+  v4[8] = 4;
+  EXPECT_TRUE(says(refused(v4), "required section 'CALB' missing")) << refused(v4);
 }

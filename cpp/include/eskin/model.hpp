@@ -11,6 +11,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -58,12 +59,17 @@ namespace model_format {
 inline constexpr std::uint8_t kMagic[8] = {0x89, 'E', 'S', 'K', 'I', 'N', '\r', '\n'};
 /// Versions this library reads: 1 (the tensor kernel), 2 (adds the AMPL section: an amplitude
 /// factor on some machines), 3 (adds the bounded window's field window_samples to PREP; AMPL
-/// present when some machine has the factor). kVersion is the newest; a file is written in the
-/// lowest version that holds it.
+/// present when some machine has the factor), 4 (adds the CALB section: the calibrated decision
+/// rule). kVersion is the newest; a file is written in the lowest version that holds it.
 inline constexpr std::uint16_t kMinVersion = 1;
-inline constexpr std::uint16_t kVersion = 3;
+inline constexpr std::uint16_t kVersion = 4;
 inline constexpr std::uint16_t kVersionAmplitude = 2;
 inline constexpr std::uint16_t kVersionBoundedWindow = 3;
+inline constexpr std::uint16_t kVersionCalibration = 4;
+/// CALB's rule field: the one calibrated rule (per-machine sigmoid, normalised, threshold).
+inline constexpr std::uint32_t kCalibratedRule = 1;
+/// Largest CALB slope and |offset|: with |f| <= 1e300 (MACH's bound) a*f + b stays finite.
+inline constexpr double kMaxCalibration = 1e6;
 /// Amplitude factor (format version 2): e(x) = log(mean(x^2) + kLogEnergyFloor).
 inline constexpr double kLogEnergyFloor = 1e-12;
 inline constexpr std::uint32_t kHeaderBytes = 32;
@@ -89,7 +95,13 @@ struct ModelMachine {
   std::vector<std::uint32_t> sv_index;  ///< rows of the model's support-vector table
   std::vector<double> coef;             ///< dual coefficients, as stored (float32 or float64)
   double amplitude_width = 0.0;         ///< w of the amplitude factor; 0 = no factor
+  /// Calibrated rule (format version 4, CALB): p = 1 / (1 + exp(-(slope * f + offset))).
+  double calib_slope = 0.0;
+  double calib_offset = 0.0;
 };
+
+/// log(1 / (1 + exp(-z))), finite for every finite z (the calibrated rule's one formula).
+double log_sigmoid(double z) noexcept;
 
 /// Log energy of a (rows, cols, D) tensor of n entries: log(mean(x^2) + 1e-12), in double;
 /// +inf when the mean square overflows.
@@ -131,6 +143,11 @@ class Model {
   DecisionRule rule() const noexcept { return rule_; }
   const std::vector<std::string>& class_names() const noexcept { return class_names_; }
   const std::vector<ModelMachine>& machines() const noexcept { return machines_; }
+  /// True when the model carries the calibrated decision rule (section CALB, format version
+  /// 4): label = the largest calibrated score, "don't know" = confidence < reject_threshold().
+  /// False: the paper's rule (docs/model-format.md, "Decision").
+  bool calibrated() const noexcept { return calibrated_; }
+  double reject_threshold() const noexcept { return reject_threshold_; }
 
   // support-vector table: bases stored with alpha_store(z) columns per mode
   bool is_float64() const noexcept { return float64_; }
@@ -150,7 +167,7 @@ class Model {
     return bases64_[z].empty() ? b64_[z] : bases64_[z].data();
   }
   std::size_t file_bytes() const noexcept { return file_bytes_; }
-  /// 1, or 2 when some machine has an amplitude factor (section AMPL).
+  /// 1 to 4 (docs/model-format.md): the version the file was written in.
   int format_version() const noexcept { return format_version_; }
   /// Log energy e(sv_i) of each support vector (n_support() entries) when the model has an
   /// amplitude factor (format version 2), else empty.
@@ -183,6 +200,8 @@ class Model {
   std::size_t file_bytes_ = 0;
   int format_version_ = 1;
   std::vector<double> sv_log_energy_;
+  bool calibrated_ = false;
+  double reject_threshold_ = 0.0;
   std::shared_ptr<const detail::DecisionTables> tables_;
 
   friend class ModelParser;
@@ -210,7 +229,12 @@ const char* overlap_kernel_name() noexcept;
 /// One decision. `values` points into the classifier that produced it (valid until its next call).
 struct Decision {
   int label = -1;                  ///< class index into Model::class_names(), -1 if no decision
-  bool dont_know = false;          ///< one-vs-all: no machine, or more than one, claims the pattern
+  /// the paper's rule: one-vs-all and no machine, or more than one, claims the pattern;
+  /// the calibrated rule: confidence < the model's reject threshold
+  bool dont_know = false;
+  /// the calibrated rule: the normalised calibrated score of the label, in (0, 1]; NaN under
+  /// the paper's rule
+  double confidence = std::numeric_limits<double>::quiet_NaN();
   int n_machines = 0;              ///< entries in `values`
   const double* values = nullptr;  ///< per-machine decision values f_k(x)
   std::int64_t window_start = 0;   ///< window used, [start, stop) in samples of the input/stream

@@ -25,6 +25,11 @@ class Window(str, Enum):
     none = "none"
 
 
+class Decision(str, Enum):
+    calibrated = "calibrated"
+    paper = "paper"
+
+
 class Engine(str, Enum):
     python = "python"
     cpp = "cpp"
@@ -91,6 +96,25 @@ def _prediction_table(model: Any, preds: list[dict[str, Any]]) -> list[str]:
         lines.append(f"{p['index']:5d}  {str(p['label']).ljust(w_label)}  "
                      f"{str(p.get('true_label', '-')).ljust(w_label)}  {vals}{flag}")
     return lines
+
+
+def _dont_know_lines(preds: list[dict[str, Any]], classes: list[str]) -> list[str]:
+    """The flagged share and the error rates on the decided and the flagged recordings."""
+    from eskin.learn.models import error_rate
+
+    flagged = [p for p in preds if p.get("dont_know")]
+    if not flagged:
+        return ["don't know: none flagged"]
+    decided = [p for p in preds if not p.get("dont_know")]
+    e_dec, n_dec = error_rate(decided, classes)
+    e_flag, n_flag = error_rate(flagged, classes)
+    parts = [f"don't know: {len(flagged)} of {len(preds)} flagged "
+             f"({100 * len(flagged) / len(preds):.1f} %)"]
+    if n_dec:
+        parts.append(f"error {100 * e_dec:.2f} % on the {n_dec} decided")
+    if n_flag:
+        parts.append(f"{100 * e_flag:.2f} % on the {n_flag} flagged")
+    return ["; ".join(parts)]
 
 
 def _fail(message: str) -> NoReturn:
@@ -389,6 +413,15 @@ def train(
         help="at most this many support vectors in the model (all machines together), chosen "
         "by kernel matching pursuit; each machine refitted on them to its decision values on "
         "the training patterns"),
+    decision: Decision = typer.Option(
+        Decision.calibrated, help="calibrated: a sigmoid per machine fitted on out-of-fold "
+        "decision values, the label of the largest calibrated score, \"don't know\" below a "
+        "confidence threshold (docs/learning.md); paper: the paper's rule (one machine claims "
+        "the touch, else \"don't know\")"),
+    reject: float = typer.Option(
+        0.1, "--reject", min=0.0, max=0.99,
+        help="calibrated rule: the fraction of (out-of-fold) training touches flagged \"don't "
+        "know\"; 0 never flags"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
@@ -418,6 +451,7 @@ def train(
                          on_factor=on_factor, off_factor=off_factor),
         "quick": quick, "seed": seed, "n_jobs": -1 if scheduler else n_jobs, "group_by": groups,
         **amplitudes, **({} if max_support is None else {"max_support": max_support}),
+        "decision": decision.value, "reject": reject,
     }
     the_budget = None
     if target is not None or budget is not None:
@@ -481,9 +515,25 @@ def trained_lines(model: Any) -> list[str]:
                              f"({r['splits']} splits, ~{r['support_vectors']} support vectors)")
         lines.append("  (optimistic: the best of many candidates on these very splits; eskin "
                      "evaluate gives a nested estimate on unseen groups)")
-        return lines + _support_budget_lines(model)
+        return lines + _support_budget_lines(model) + _decision_lines(model)
     return (lines + _selected_lines(model) + selection_estimate_lines(model)
-            + _support_budget_lines(model))
+            + _support_budget_lines(model) + _decision_lines(model))
+
+
+def _decision_lines(model: Any) -> list[str]:
+    """What train prints about the decision rule."""
+    d = model.training.get("decision")
+    if not d:
+        return []
+    if d.get("rule") == "paper":
+        return ["decision: the paper's rule (a touch is \"don't know\" unless exactly one "
+                "machine claims it)"]
+    decided = d.get("oof_error_decided")
+    return [f"decision: calibrated, \"don't know\" below confidence {d['threshold']:.4f} "
+            f"(--reject {d['reject']:g}); out of fold ({d['folds']} folds): "
+            f"{100 * d['oof_flagged']:.1f} % flagged, error {100 * d['oof_error']:.1f} % "
+            f"overall" + ("" if decided is None else
+                          f", {100 * decided:.1f} % on the decided touches")]
 
 
 def _support_budget_lines(model: Any) -> list[str]:
@@ -604,6 +654,8 @@ def predict(
     err, n = error_rate(preds, model.classes)
     if n:
         typer.echo(f"error rate: {100 * err:.2f} % ({n} recordings of the model's classes)")
+        for line in _dont_know_lines(preds, model.classes):
+            typer.echo(line)
     else:
         typer.echo("error rate: unknown (no labelled recording of the model's classes)")
     trained = set(getattr(model, "training", {}).get("recording_digests", ()))

@@ -5,7 +5,8 @@ version, flags, size), four sections (preprocessing, classes, support-vector bas
 CRC-32 trailer; a model whose machines have an amplitude factor is format version 2 and has a
 fifth section (the support vectors' log energies and the machines' amplitude widths); a model
 with a bounded touch window (``WindowConfig.window_samples`` > 0) is format version 3, whose
-preprocessing section holds that field too. Support vectors are stored as their per-mode subspace bases (all the kernel needs
+preprocessing section holds that field too; a model with the calibrated decision rule is format
+version 4 and has a section CALB (the machines' sigmoids and the confidence threshold). Support vectors are stored as their per-mode subspace bases (all the kernel needs
 at inference), deduplicated across the machines of a one-vs-all model.
 
 Three entry points:
@@ -51,10 +52,14 @@ __all__ = [
 
 MAGIC = b"\x89ESKIN\r\n"
 #: The versions written: 1 (the tensor kernel), 2 (some machine has an amplitude factor: section
-#: AMPL), 3 (a bounded touch window: the window field ``window_samples``; AMPL as needed).
+#: AMPL), 3 (a bounded touch window: the window field ``window_samples``; AMPL as needed),
+#: 4 (the calibrated decision rule: section CALB; the fields of version 3).
 #: FORMAT_VERSION is the newest; each file is written in the lowest version that holds it.
-FORMAT_VERSIONS = (1, 2, 3)
-FORMAT_VERSION = 3
+FORMAT_VERSIONS = (1, 2, 3, 4)
+FORMAT_VERSION = 4
+#: CALB's rule field (the one calibrated rule) and its bound on slopes and offsets
+_CALIBRATED_RULE = 1
+_MAX_CALIBRATION = 1e6
 #: The window field that format version 3 adds (older files leave it 0: every sample kept)
 _V3_WINDOW_FIELD = "window_samples"
 _MAX_LOG_ENERGY = 1e4
@@ -110,6 +115,9 @@ class ModelSpec:
     sample_rate_hz: float = 3000.0
     window_config: Any = None  # eskin.WindowConfig (or its fields as a mapping); None = default
     meta: dict[str, Any] = field(default_factory=dict)
+    #: the calibrated decision rule (an eskin.learn.calibration.Calibration: ``slopes``,
+    #: ``offsets``, ``threshold``); None: the paper's rule
+    calibration: Any = None
 
 
 # ----------------------------------------------------------------------------- validation
@@ -218,8 +226,10 @@ def _validate_amplitude(k: int, m: MachineSpec, n_sv: int) -> None:
 
 
 def format_version(spec: ModelSpec) -> int:
-    """The version a spec is written in: 3 with a bounded touch window (window_samples > 0),
-    else 2 if some machine has an amplitude factor, else 1."""
+    """The version a spec is written in: 4 with the calibrated rule, else 3 with a bounded
+    touch window (window_samples > 0), else 2 if some machine has an amplitude factor, else 1."""
+    if spec.calibration is not None:
+        return 4
     if float(_window_fields(spec.window_config).get(_V3_WINDOW_FIELD, 0.0)) != 0.0:
         return 3
     return 2 if _has_amplitude(spec) else 1
@@ -301,6 +311,8 @@ def model_to_bytes(spec: ModelSpec, dtype: str = "float32", *, bases_fn=None) ->
     ]
     if _has_amplitude(spec):
         sections.append(_section(b"AMPL", _ampl_section(spec, unique)))
+    if spec.calibration is not None:
+        sections.append(_section(b"CALB", _calb_section(spec)))
     sections.append(_section(b"meta", meta))
     body_len = HEADER_BYTES + sum(len(s) for s in sections)
     flags = FLAG_FLOAT64 if dtype == "float64" else 0
@@ -385,6 +397,28 @@ def _ampl_section(spec: ModelSpec, unique: list[np.ndarray]) -> bytes:
         + energy.astype("<f8").tobytes()
         + widths.tobytes()
     )
+
+
+def _calb_section(spec: ModelSpec) -> bytes:
+    """CALB (format version 4): the rule, the confidence threshold, each machine's sigmoid."""
+    cal = spec.calibration
+    a = [float(v) for v in cal.slopes]
+    b = [float(v) for v in cal.offsets]
+    if len(a) != len(spec.machines) or len(b) != len(spec.machines):
+        raise ModelFormatError(
+            f"calibration: {len(a)} slopes and {len(b)} offsets for {len(spec.machines)} machines"
+        )
+    t = float(cal.threshold)
+    if not 0.0 <= t <= 1.0:
+        raise ModelFormatError(f"calibration: threshold={t!r} must be within [0, 1]")
+    for k, (ak, bk) in enumerate(zip(a, b)):
+        if not (0.0 <= ak <= _MAX_CALIBRATION and abs(bk) <= _MAX_CALIBRATION):
+            raise ModelFormatError(
+                f"calibration: machine {k}: slope={ak!r}, offset={bk!r} must be within "
+                f"[0, {_MAX_CALIBRATION:g}] and [-{_MAX_CALIBRATION:g}, {_MAX_CALIBRATION:g}]"
+            )
+    out = struct.pack("<IId", _CALIBRATED_RULE, len(a), t)
+    return out + b"".join(struct.pack("<dd", ak, bk) for ak, bk in zip(a, b))
 
 
 def _prep_section(spec: ModelSpec) -> bytes:
@@ -487,6 +521,7 @@ def spec_from_estimator(
     sample_rate_hz: float = 3000.0,
     window_config: Any = None,
     meta: dict[str, Any] | None = None,
+    calibration: Any = None,
 ) -> ModelSpec:
     """The :class:`ModelSpec` of a fitted estimator and the preprocessing it was trained with.
 
@@ -531,6 +566,7 @@ def spec_from_estimator(
         sample_rate_hz=float(sample_rate_hz),
         window_config=window_config,
         meta={"eskin_version": eskin.__version__, "classes": classes, **dict(meta or {})},
+        calibration=calibration,
     )
 
 
@@ -557,6 +593,7 @@ def spec_from_model(model: Any) -> ModelSpec:
         window_config=getattr(model, "window_config", None),
         meta={"machine": getattr(model, "machine", None),
               "selection": getattr(model, "selection", None)},
+        calibration=getattr(model, "calibration", None),
     )
 
 
@@ -666,7 +703,7 @@ class CompiledDecisions:
 
     ``labels``: class names; ``label_indices``: indices into the model's classes;
     ``decision_values``: (n, n_machines) (one machine for a binary model, > 0 meaning the second
-    class); ``dont_know``: one-vs-all flags; ``windows``: (n, 2) the [start, stop) touch window
+    class); ``dont_know``: the rule's flags; ``windows``: (n, 2) the [start, stop) touch window
     used, in samples; ``window_found``: False where the detector found no touch (the whole
     recording was used).
     """
@@ -677,6 +714,8 @@ class CompiledDecisions:
     dont_know: np.ndarray
     windows: np.ndarray
     window_found: np.ndarray
+    #: the calibrated rule's confidence in each label (NaN under the paper's rule)
+    confidence: np.ndarray | None = None
 
 
 _STATUS = {
@@ -735,6 +774,21 @@ class CompiledModel:
     file_bytes = property(lambda self: int(self._model.file_bytes))
     machines = property(lambda self: list(self._model.machines))
     format_version = property(lambda self: int(self._model.format_version))
+    #: "calibrated" (format version 4, section CALB) or "paper"
+    decision_rule = property(lambda self: "calibrated" if self._model.calibrated else "paper")
+
+    def calibration(self) -> Any:
+        """The model's calibrated rule as an eskin.learn.calibration.Calibration (``reject``
+        NaN: a file holds the threshold, not the fraction it was chosen for), or None."""
+        if not self._model.calibrated:
+            return None
+        from eskin.learn.calibration import Calibration
+
+        ms = self._model.machines
+        return Calibration(tuple(float(m["calib_slope"]) for m in ms),
+                           tuple(float(m["calib_offset"]) for m in ms),
+                           float(self._model.reject_threshold), float("nan"),
+                           self.rule == "binary")
     #: e() of each support vector (format version 2), else an empty array
     sv_log_energy = property(lambda self: np.asarray(self._model.sv_log_energy, dtype=np.float64))
     #: each machine's amplitude width (0: no amplitude factor)
@@ -767,23 +821,23 @@ class CompiledModel:
         with the model's own preprocessing (touch window, subsampling to D) in C++.
         ``lengths``: valid samples of each recording (default T)."""
         x = self._signals(signals)
-        lab, val, dk, status, win, found = self._clf.classify(
+        lab, val, dk, status, win, found, conf = self._clf.classify(
             x, None if lengths is None else np.asarray(lengths, dtype=np.int64)
         )
-        return self._decisions(lab, val, dk, status, win, found)
+        return self._decisions(lab, val, dk, status, win, found, conf)
 
     def classify_tensors(self, X: Any) -> CompiledDecisions:
         """Classify already preprocessed patterns (n, rows, cols, D) (the machines only)."""
         X = np.asarray(X, dtype=np.float64)
         if X.ndim == 3:
             X = X[None]
-        lab, val, dk, status = self._clf.classify_tensors(np.ascontiguousarray(X))
+        lab, val, dk, status, conf = self._clf.classify_tensors(np.ascontiguousarray(X))
         n = len(lab)
         return self._decisions(
-            lab, val, dk, status, np.zeros((n, 2), np.int64), np.ones(n, bool)
+            lab, val, dk, status, np.zeros((n, 2), np.int64), np.ones(n, bool), conf
         )
 
-    def _decisions(self, lab, val, dk, status, win, found) -> CompiledDecisions:
+    def _decisions(self, lab, val, dk, status, win, found, conf) -> CompiledDecisions:
         bad = np.flatnonzero(np.asarray(status) != 0)
         if bad.size:
             i = int(bad[0])
@@ -794,7 +848,8 @@ class CompiledModel:
         lab = np.asarray(lab, dtype=np.int64)
         names = np.asarray(self.class_names, dtype=object)[lab]
         return CompiledDecisions(names, lab, np.asarray(val), np.asarray(dk, bool),
-                                 np.asarray(win), np.asarray(found, bool))
+                                 np.asarray(win), np.asarray(found, bool),
+                                 np.asarray(conf, dtype=np.float64))
 
     def decision_function(self, signals: Any, lengths: Any = None) -> np.ndarray:
         """Decision values of raw recordings: (n,) for a binary model, (n, n_classes) otherwise."""
@@ -836,6 +891,8 @@ class CompiledModel:
                     "label": str(d.labels[j]),
                     "decision_values": [float(v) for v in d.decision_values[j]],
                     "dont_know": bool(d.dont_know[j]),
+                    "confidence": (float(d.confidence[j]) if np.isfinite(d.confidence[j])
+                                   else None),
                     "window": [int(d.windows[j, 0]), int(d.windows[j, 1])],
                 }
                 m = int(modality[i]) if i < len(modality) else -1
@@ -926,6 +983,7 @@ def _load_eskin(path: Path) -> Any:
         grid_shape=cm.grid_shape,
         window_config=cfg,
         training={"source": str(path), "format": "eskin-model"},
+        calibration=cm.calibration(),
     )
 
 

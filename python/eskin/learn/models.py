@@ -464,6 +464,9 @@ class TouchModel:
     selected: list[dict[str, Any]] = field(default_factory=list)
     selection_report: dict[str, Any] = field(default_factory=dict)
     training: dict[str, Any] = field(default_factory=dict)
+    #: the calibrated decision rule (:class:`eskin.learn.calibration.Calibration`); None: the
+    #: paper's rule (a model trained with --decision paper, or before the calibrated rule)
+    calibration: Any = None
 
     @property
     def n_classes(self) -> int:
@@ -538,15 +541,26 @@ class TouchModel:
         """(n,) decision values for a binary model (> 0: classes[1]), (n, k) otherwise."""
         return np.asarray(self.estimator.decision_function(self._check_patterns(X)), float)
 
-    def predict_indices(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(class indices, decision values, don't-know flags) for preprocessed patterns."""
+    def decide(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(class indices, decision values, don't-know flags, confidences) for preprocessed
+        patterns: by the calibrated rule when the model has one (confidence: the label's
+        normalised calibrated score), else by the paper's (confidence NaN)."""
         X = self._check_patterns(X)
         F = np.asarray(self.estimator.decision_function(X), float)
+        cal = getattr(self, "calibration", None)
+        if cal is not None:
+            pred, conf, dk = cal.decide(F)
+            return pred.astype(np.int64), F, dk, conf
+        nan = np.full(len(F), np.nan)
         if self.is_binary:
-            return (F > 0).astype(np.int64), F, np.zeros(len(F), bool)
+            return (F > 0).astype(np.int64), F, np.zeros(len(F), bool), nan
         pred = np.asarray(self.estimator.predict(X)).astype(np.int64)
         dk = np.asarray(getattr(self.estimator, "dont_know_", np.zeros(len(pred), bool)), bool)
-        return pred, F, dk
+        return pred, F, dk, nan
+
+    def predict_indices(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(class indices, decision values, don't-know flags) for preprocessed patterns."""
+        return self.decide(X)[:3]
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """Class names of preprocessed patterns."""
@@ -559,15 +573,17 @@ class TouchModel:
 
         Each item: ``index`` (recording position in ``data``), ``label``, ``decision_values``
         (a list: one value for a binary model, > 0 meaning classes[1]; one per class
-        otherwise), ``dont_know`` (1-vs-all: no machine or several claimed the pattern), and
-        ``true_label`` when ``data`` is a campaign whose modality names are known.
+        otherwise), ``dont_know`` (the calibrated rule: confidence below the model's threshold;
+        the paper's: no machine or several claimed the pattern), ``confidence`` (the calibrated
+        rule's confidence in the label, None under the paper's rule), and ``true_label`` when
+        ``data`` is a campaign whose modality names are known.
         """
         rec = (
             data if hasattr(data, "recording") else ArrayRecordings(data, None, self.sample_rate_hz)
         )
         idx = np.arange(len(rec)) if indices is None else np.asarray(indices, np.int64)
         X = self.preprocess(rec, idx)
-        pred, F, dk = self.predict_indices(X)
+        pred, F, dk, conf = self.decide(X)
         names = list(getattr(rec, "modalities", []) or [])
         mod = np.asarray(getattr(rec, "modality", np.full(len(rec), -1)))
         out = []
@@ -577,6 +593,7 @@ class TouchModel:
                 "label": self.classes[int(pred[j])],
                 "decision_values": [float(v) for v in np.atleast_1d(F[j])],
                 "dont_know": bool(dk[j]),
+                "confidence": float(conf[j]) if np.isfinite(conf[j]) else None,
             }
             m = int(mod[i]) if i < len(mod) else -1
             if names and 0 <= m < len(names):
@@ -1033,6 +1050,8 @@ def train_model(
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
     choose_hold: bool = True,
+    decision: str = "calibrated",
+    reject: float = 0.1,
 ) -> TouchModel:
     """Select the recipe and its hyperparameters, fit on all the data: a :class:`TouchModel`.
 
@@ -1067,6 +1086,11 @@ def train_model(
     choose_hold : with the energy window, choose ``window_config.hold_s`` so that one training
         recording gives one live touch (:func:`eskin.learn.live_windows.choose_hold`); False
         keeps the given hold and only notes when live touches split.
+    decision : "calibrated" (default: :mod:`eskin.learn.calibration`, a sigmoid per machine
+        fitted on out-of-fold decision values, the label of the largest calibrated score,
+        "don't know" below a confidence threshold) or "paper" (Section 5.3).
+    reject : the calibrated rule's fraction of (out-of-fold) training touches flagged "don't
+        know", in [0, 1); 0 never flags.
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
     ``negatives`` left None is searched by :class:`~eskin.learn.recipes.RecipeSearch`.
@@ -1078,7 +1102,8 @@ def train_model(
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
                   sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by,
-                  max_support=_checked_max_support(max_support), choose_hold=choose_hold)
+                  max_support=_checked_max_support(max_support), choose_hold=choose_hold,
+                  rule=_checked_rule(decision, reject))
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
                                recipe_options=recipe_options)
@@ -1087,6 +1112,44 @@ def train_model(
                             "of machine, D, subsample, negatives left to the search)")
     return _train_fixed(data, labels, selection=selection, md_options=md_options,
                         **recipe_given, **common)
+
+
+def _checked_rule(decision: Any, reject: Any) -> tuple[str, float]:
+    """(decision rule, reject fraction), checked before any training."""
+    from eskin.learn.calibration import DECISION_RULES
+
+    if decision not in DECISION_RULES:
+        raise TrainingError(f"decision must be one of {DECISION_RULES}, got {decision!r}")
+    try:
+        r = float(reject)
+    except (TypeError, ValueError):
+        raise TrainingError(f"reject must be a number in [0, 1), got {reject!r}") from None
+    if not 0 <= r < 1:
+        raise TrainingError(f"reject must be in [0, 1), got {reject!r}")
+    return str(decision), r
+
+
+def _with_calibration(model: TouchModel, estimator: Any, X: np.ndarray, y_all: np.ndarray,
+                      groups: np.ndarray | None, negatives: str, seed: int, n_jobs: int,
+                      rule: tuple[str, float]) -> TouchModel:
+    """``model`` with the calibrated rule fitted on out-of-fold values of ``estimator`` (the
+    fitted machines, before any support budget), or as it is for the paper's rule."""
+    from eskin.learn import calibration as cal
+
+    decision, reject = rule
+    if decision == "paper":
+        model.training["decision"] = {"rule": "paper"}
+        return model
+    t0 = time.perf_counter()
+    binary = len(model.classes) == 2
+    indices = None if binary else one_vs_all_indices(y_all, len(model.classes), negatives, seed)
+    notes = model.training.setdefault("notes", [])
+    F, n_folds = cal.out_of_fold_values(estimator, X, y_all, groups, machine_indices=indices,
+                                        seed=seed, n_jobs=n_jobs, notes=notes)
+    model.calibration = cal.fit_calibration(F, y_all, reject, binary=binary, n_folds=n_folds)
+    model.training["decision"] = {**model.calibration.report,
+                                  "seconds": time.perf_counter() - t0}
+    return model
 
 
 def _checked_max_support(max_support: Any) -> int | None:
@@ -1128,6 +1191,7 @@ def _train_fixed(
     cv_options: Mapping[str, Any] | None, negatives: str | None, runs: Sequence[int] | None,
     class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float, seed: int,
     n_jobs: int, group_by: str, max_support: int | None, choose_hold: bool,
+    rule: tuple[str, float],
 ) -> TouchModel:
     """train_model with the recipe given (or Maximal Discrepancy): each machine selects its
     own setting of the grid."""
@@ -1154,9 +1218,11 @@ def _train_fixed(
         recipe, info, classes, y_all, grouped, notes, fit_seconds + prep_seconds
     )
     training["live_touches"] = live
-    return _with_support_budget(_touch_model(
-        recipe, classes, estimator, selected, training, rate, X.shape[1:], window_config
-    ), max_support, X)
+    model = _touch_model(recipe, classes, estimator, selected, training, rate, X.shape[1:],
+                         window_config)
+    model = _with_calibration(model, estimator, X, y_all, groups, recipe.negatives, recipe.seed,
+                              n_jobs, rule)
+    return _with_support_budget(model, max_support, X)
 
 
 def _train_searched(
@@ -1167,6 +1233,7 @@ def _train_searched(
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
     recipe_options: Mapping[str, Any] | None, max_support: int | None, choose_hold: bool,
+    rule: tuple[str, float],
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import (
@@ -1224,9 +1291,11 @@ def _train_searched(
                             if v is None]
     by_budget = search.best_bound_ is not None and (max_support is None
                                                      or search.best_bound_ < max_support)
-    model = _with_support_budget(
+    model = _with_calibration(
         _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
-                     window_config), search.best_bound_ if by_budget else max_support, X)
+                     window_config), estimator, X, y_all, groups if grouped else None,
+        chosen.negatives, seed, n_jobs, rule)
+    model = _with_support_budget(model, search.best_bound_ if by_budget else max_support, X)
     if by_budget:  # bounded by the search, to the most support vectors that fit the budget
         model.training["support_budget"]["by"] = "budget"
     return model
