@@ -1274,6 +1274,8 @@ def _train_searched(
             prep.X, y_all, g)
 
     search, grouped = fit_grouped(run, groups, group_by, notes)
+    if search.collapse_note():
+        notes.append(f"recipe search: {search.collapse_note()}")
     best = search.best_
     chosen = replace(base, machine=best.recipe.machine, D=best.recipe.D,
                      subsample=best.recipe.subsample, negatives=best.recipe.negatives)

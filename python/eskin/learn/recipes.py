@@ -79,6 +79,21 @@ ALPHA_SPEC: dict[str, Any] = {"1": 1, "Q/2": "half", "Q": "full"}
 SMALL_GRID = 24
 #: D values searched by default (the paper's), each capped by the longest training recording
 SEARCH_DS = (20, 50, 100)
+#: A machine whose decision values on a split's held-out patterns all lie within this of its
+#: intercept (the targets are +-1, so this is a thousandth of the label scale) tells those
+#: patterns nothing apart: its kernel has collapsed (sigma too small for the patterns'
+#: distances, every held-out kernel value near 0), and the label would be decided by noise. Such
+#: a candidate's split counts as error 1.0.
+COLLAPSE_TOLERANCE = 1e-3
+
+
+def collapsed(F: np.ndarray, intercepts: np.ndarray) -> bool:
+    """Whether some machine's held-out values ``F[:, k]`` all lie within
+    :data:`COLLAPSE_TOLERANCE` of its intercept."""
+    if F.shape[0] == 0:
+        return False
+    spread = np.max(np.abs(F - np.asarray(intercepts, dtype=np.float64)[None, :]), axis=0)
+    return bool(np.any(spread < COLLAPSE_TOLERANCE))
 
 
 @dataclass(frozen=True, order=True)
@@ -247,9 +262,9 @@ def _score_task(
     splits: list[tuple[np.ndarray, np.ndarray]],
     split_ids: list[int],
     seed: int,
-) -> dict[tuple[Candidate, int], tuple[float, int]]:
+) -> dict[tuple[Candidate, int], tuple[float, int, bool]]:
     """{(candidate, split id): (multi-class held-out error, support vectors of its machines
-    together)} for candidates sharing one (D, subsampling, alpha), from the patterns' per-mode
+    together, whether a machine's kernel collapsed)} for candidates sharing one (D, subsampling, alpha), from the patterns' per-mode
     distances summed over the modes and their log energies."""
     import scipy.linalg
 
@@ -284,7 +299,8 @@ def _score_task(
 
 
 def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, linalg):
-    """(error, support vectors) of each candidate of one recipe and kernel on one split."""
+    """(error, support vectors, whether a machine collapsed) of each candidate of one recipe
+    and kernel on one split."""
     trains = [np.intersect1d(tr, sub, assume_unique=True) for sub in subsets]
     results = []
     if recipe.machine == "rls" and recipe.negatives == "all":
@@ -295,11 +311,13 @@ def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, 
             B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=False),
                                  Y[tr], check_finite=False)
             F = Kte @ B
-            results.append((float(np.mean(_predict(F, n_classes) != y[te])), len(tr)))
+            results.append((float(np.mean(_predict(F, n_classes) != y[te])), len(tr),
+                            collapsed(F, np.zeros(F.shape[1]))))
         return results
     blocks = [(trk, K[np.ix_(trk, trk)], K[np.ix_(te, trk)]) for trk in trains]
     for c in cands:
         F = np.empty((len(te), Y.shape[1]))
+        b0 = np.zeros(Y.shape[1])
         used = np.zeros(len(y), bool)
         for k, (trk, Ktr, Kte) in enumerate(blocks):
             yk = Y[trk, k]
@@ -310,8 +328,10 @@ def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, 
             else:
                 beta, b, support = svm_train(Ktr, yk, 1.0 / c.lam)
             F[:, k] = Kte[:, support] @ beta[support] + b
+            b0[k] = b
             used[trk[support]] = True
-        results.append((float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum())))
+        results.append((float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum()),
+                        collapsed(F, b0)))
     return results
 
 
@@ -343,10 +363,32 @@ class _Row:
     support: dict[int, int] = field(default_factory=dict)
     fits: bool = True
     bound: int | None = None  # support vectors the model is bounded to under the budget
+    collapsed: set[int] = field(default_factory=set)  # splits where a machine's kernel collapsed
 
     @property
     def mean(self) -> float:
         return float(np.mean(list(self.errors.values())))
+
+
+def _record_scores(rows: Mapping[Candidate, _Row],
+                   res: Mapping[tuple[Candidate, int], tuple[float, int, bool]]) -> None:
+    """A task's scores into the rows; a split where a machine's kernel collapsed counts as
+    error 1.0."""
+    for (c, s), (err, nsv, flat) in res.items():
+        rows[c].errors[s] = 1.0 if flat else err
+        rows[c].support[s] = nsv
+        if flat:
+            rows[c].collapsed.add(s)
+
+
+def _collapse_note(collapsed: Sequence[tuple[Candidate, list[int]]]) -> str | None:
+    """The note on the candidates whose kernel collapsed on some split, or None."""
+    if not collapsed:
+        return None
+    n, splits = len(collapsed), sum(len(s) for _, s in collapsed)
+    return (f"{n} candidate{'s' if n != 1 else ''} had a collapsed kernel on {splits} "
+            f"split{'s' if splits != 1 else ''} (a machine's held-out decision values all within "
+            f"{COLLAPSE_TOLERANCE:g} of its intercept), counted as error 1.0 there")
 
 
 def _check_budget(budget: CandidateBudget, row: _Row, expected: int) -> None:
@@ -531,9 +573,7 @@ class RecipeSearch:
                            "candidates": group, "split_ids": [s], "seed": self.seed})
                      for key, group in sorted(tasks.items()) for s in split_ids]
             for res in run_calls(_score_task, calls, n_jobs=self.n_jobs):
-                for (c, s), (err, nsv) in res.items():
-                    rows[c].errors[s] = err
-                    rows[c].support[s] = nsv
+                _record_scores(rows, res)
             self.n_evaluations_ += len(cands) * len(split_ids)
             if self.budget is None:
                 return cands
@@ -570,6 +610,7 @@ class RecipeSearch:
             if r < len(schedule) - 1:
                 alive = self._survivors(alive)
         self._finish(rows, alive, len(y))
+        self.collapsed_ = [(r.candidate, sorted(r.collapsed)) for r in rows.values() if r.collapsed]
         self.seconds_ = time.perf_counter() - t0
         return self
 
@@ -647,6 +688,10 @@ class RecipeSearch:
         self.recipe_table_ = sorted(table.values(), key=lambda e: (-e["splits"], e["error"]))
 
     # -- reports ---------------------------------------------------------------------------
+    def collapse_note(self) -> str | None:
+        """What the search says when some candidate's kernel collapsed, else None."""
+        return _collapse_note(getattr(self, "collapsed_", []))
+
     def report(self, runners_up: int = 3) -> dict[str, Any]:
         """JSON-friendly record: the choice, its estimate, the runners-up (the best candidate of
         each other recipe, furthest round first), the rounds and the cost."""
@@ -677,5 +722,6 @@ class RecipeSearch:
             "tie_tolerance": round(float(self.tolerance_), 6),
             "budget": None if self.budget is None else self.budget.description,
             "preference": getattr(self, "preference_", None),
+            "collapsed": self.collapse_note(),
             "seconds": round(float(getattr(self, "seconds_", 0.0)), 3),
         }

@@ -398,3 +398,37 @@ def test_a_significance_outside_zero_one_is_refused(level):
     with pytest.raises(TrainingError, match=f"significance must be in \\(0, 1\\) or None, got {level}"):
         RecipeSearch([Recipe("svm", 20, "even", "all")], [1.0], [1.0], ["1"], [None],
                      significance=level)
+
+
+def test_collapsed_means_some_machine_held_out_values_sit_at_its_intercept():
+    from eskin.learn.recipes import COLLAPSE_TOLERANCE, collapsed
+
+    rng = np.random.default_rng(0)
+    b = np.array([-0.8, -1.0, 0.0])
+    spread = b + rng.normal(0, 0.5, (20, 3))
+    assert not collapsed(spread, b)
+    flat = spread.copy()
+    flat[:, 1] = b[1] + rng.uniform(-0.5, 0.5, 20) * COLLAPSE_TOLERANCE
+    assert collapsed(flat, b)
+    assert not collapsed(np.zeros((0, 3)), b)
+
+
+def test_a_candidate_whose_kernel_collapsed_is_counted_against_and_said(data):
+    """sigma = 0.001 makes every held-out kernel value ~0: each machine then answers its
+    intercept for every held-out pattern, and the argmax would decide by noise. Such candidates
+    score error 1.0 on those splits, the search says so, and a working sigma wins."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "algorithm2", "all")]
+    search = RecipeSearch(recipes, [0.1], [0.001, 1.0], ["Q/2"], [None], n_splits=3,
+                          first_share=1.0, significance=None, seed=2).fit(X, y, groups)
+    flat = {c for c, _ in search.collapsed_}
+    assert flat and all(c.sigma == 0.001 for c in flat)
+    assert search.best_.sigma == 1.0 and search.best_error_ < 1.0
+    note = search.report()["collapsed"]
+    assert note.startswith(f"{len(flat)} candidate") and "counted as error 1.0" in note
+    only_flat = RecipeSearch(recipes[:1], [0.1], [0.001], ["Q/2"], [None], n_splits=3,
+                             first_share=1.0, significance=None, seed=2).fit(X, y, groups)
+    assert only_flat.best_error_ == 1.0
+    fine = RecipeSearch(recipes[:1], [0.1], [1.0], ["Q/2"], [None], n_splits=3,
+                        first_share=1.0, significance=None, seed=2).fit(X, y, groups)
+    assert fine.collapsed_ == [] and fine.report()["collapsed"] is None
