@@ -69,8 +69,9 @@ def _fmt_values(values: Any) -> str:
 
 
 #: what the "?" after a label means, wherever a decision is shown
-DONT_KNOW_NOTE = ("? = don't know: no machine, or more than one, claimed the touch; the label is "
-                  "the machine with the largest decision value")
+DONT_KNOW_NOTE = ("? = don't know: the model's confidence in the label is below its threshold "
+                  "(calibrated rule), or no machine, or more than one, claimed the touch (the "
+                  "paper's rule, for models trained with --decision paper)")
 
 
 def decision_line(d: Any, rate: float, truth: Any = None) -> str:
@@ -315,8 +316,9 @@ def listen_cmd(
 ) -> None:
     """Listen to the skin controller: live decisions, link statistics, taxel activity.
 
-    A label followed by "?" is a "don't know": no machine, or more than one, claimed the
-    touch (the label is the machine with the largest decision value)."""
+    A label followed by "?" is a "don't know": the model's confidence in the label is below
+    its threshold (the calibrated rule), or, for a model with the paper's rule, no machine, or
+    more than one, claimed the touch."""
     _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
             force, view)
 
