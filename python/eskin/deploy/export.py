@@ -905,7 +905,8 @@ class CompiledModel:
         """Run the streaming classifier over samples (n_samples, rows*cols) (or a recording
         (rows, cols, T)), one sample at a time as the controller would. Returns the events:
         dicts with ``sample`` (samples seen when it happened), ``status_name`` and, for
-        decisions, ``label`` (a class name), ``dont_know``, ``values`` and ``window``; with
+        decisions, ``label`` (a class name), ``dont_know``, ``confidence`` (the calibrated
+        rule's, None under the paper's rule), ``values`` and ``window``; with
         ``timed``, ``push_ns``: the wall time of the push that made the event (the latency from
         the touch's last sample to its label)."""
         from eskin import _core
@@ -918,6 +919,8 @@ class CompiledModel:
         for e in events:
             if "label" in e:
                 e["label"] = self.class_names[e["label"]]
+            if "confidence" in e and not np.isfinite(e["confidence"]):
+                e["confidence"] = None  # the paper's rule has no confidence
         return events
 
 
