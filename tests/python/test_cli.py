@@ -336,7 +336,12 @@ def test_train_takes_the_window_settings(one_person, tmp_path):
     assert r.exit_code == 0, r.output
     cm = eskin.CompiledModel(out)
     assert cm.window_config["max_window_s"] == 2.5 and cm.window_config["window_samples"] == 256
-    assert cm.format_version == 3
+    assert cm.format_version == 4 and cm.decision_rule == "calibrated"  # version 3's fields
+    paper = tmp_path / "paper.eskin"
+    r = CliRunner().invoke(app, [*args, "--max-window", "2.5", "--window-samples", "256",
+                                 "--decision", "paper", "-o", str(paper), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert eskin.CompiledModel(paper).format_version == 3
 
 
 @pytest.mark.parametrize(

@@ -173,6 +173,8 @@ def _fold_values(machines: list[Any], X: np.ndarray, targets: np.ndarray,
     out = np.empty((len(te), len(machines)))
     for k, m in enumerate(machines):
         trk = np.intersect1d(tr, subsets[k], assume_unique=True)
+        if np.unique(targets[trk, k]).size < 2:  # a small balanced subset: the fold's whole part
+            trk = tr
         fitted = clone(m).fit(X[trk], targets[trk, k])
         out[:, k] = np.asarray(fitted.decision_function(X[te]), dtype=np.float64).reshape(-1)
     return out
@@ -188,7 +190,8 @@ def out_of_fold_values(
     ``estimator``: a fitted binary machine (class indices ``y`` 0/1, f > 0 meaning 1) or a
     OneVsAllTouchClassifier (``estimators_``: machine k claims class k), each machine retrained
     with its own settings on the folds' training parts (machine k only on ``machine_indices[k]``
-    when given, as it was trained)."""
+    when given, as it was trained; the fold's whole training part when its share of that subset
+    lacks one side)."""
     from eskin.learn.parallel import run_calls
 
     y = np.asarray(y, dtype=np.int64)

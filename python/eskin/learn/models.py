@@ -1144,9 +1144,15 @@ def _with_calibration(model: TouchModel, estimator: Any, X: np.ndarray, y_all: n
     binary = len(model.classes) == 2
     indices = None if binary else one_vs_all_indices(y_all, len(model.classes), negatives, seed)
     notes = model.training.setdefault("notes", [])
-    F, n_folds = cal.out_of_fold_values(estimator, X, y_all, groups, machine_indices=indices,
-                                        seed=seed, n_jobs=n_jobs, notes=notes)
-    model.calibration = cal.fit_calibration(F, y_all, reject, binary=binary, n_folds=n_folds)
+    try:
+        F, n_folds = cal.out_of_fold_values(estimator, X, y_all, groups, machine_indices=indices,
+                                            seed=seed, n_jobs=n_jobs, notes=notes)
+        model.calibration = cal.fit_calibration(F, y_all, reject, binary=binary, n_folds=n_folds)
+    except TrainingError as exc:
+        notes.append(f"the calibrated rule cannot be fitted ({exc}): the model keeps the "
+                     "paper's rule")
+        model.training["decision"] = {"rule": "paper", "calibration_failed": str(exc)}
+        return model
     model.training["decision"] = {**model.calibration.report,
                                   "seconds": time.perf_counter() - t0}
     return model

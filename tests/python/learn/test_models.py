@@ -114,9 +114,17 @@ def test_cli_train_predict_json(sim_path, tmp_path):
         assert set(p) >= {"index", "label", "decision_values", "true_label", "dont_know"}
         assert len(p["decision_values"]) == 3
         assert p["label"] in ("brush", "finger", "washer")
-        if not p["dont_know"]:
-            assert sum(v > 0 for v in p["decision_values"]) == 1
-        assert p["label"] == ["brush", "finger", "washer"][int(np.argmax(p["decision_values"]))]
+    # the calibrated rule (the default): the label of the largest calibrated score, flagged
+    # below the model's confidence threshold
+    from eskin.learn.calibration import calibrated_decision
+
+    cal = load_model(model).calibration
+    F = np.array([p["decision_values"] for p in preds])
+    idx, conf, dk = calibrated_decision(F, cal.slopes, cal.offsets, cal.threshold, False)
+    assert [p["label"] for p in preds] == [["brush", "finger", "washer"][i] for i in idx]
+    assert [p["dont_know"] for p in preds] == dk.tolist()
+    np.testing.assert_allclose([p["confidence"] for p in preds], conf, rtol=1e-12)
+    assert "don't know:" in res.output
 
 
 def test_user_campaign_end_to_end(user_path, tmp_path):
