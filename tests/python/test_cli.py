@@ -465,3 +465,33 @@ def test_evaluate_reports_the_live_figure_beside_the_per_recording_one(tmp_path)
     r = CliRunner().invoke(app, [*args, "--no-live", "-o", str(tmp_path / "none")])
     assert r.exit_code == 0 and "live:" not in r.output
     assert "live" not in json.loads((tmp_path / "none" / "evaluation.json").read_text())
+
+
+@pytest.mark.parametrize("reject", ["0", "0.5"])
+def test_train_reject_sets_the_share_of_touches_flagged(one_person, tmp_path, reject):
+    """--reject 0 never flags a touch; --reject 0.5 flags about half of the out-of-fold ones
+    (printed by train) and predict reports the flagged share."""
+    import json
+
+    out, preds = tmp_path / "m.joblib", tmp_path / "p.json"
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "--reject",
+                                 reject, "-o", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert f"(--reject {float(reject):g})" in r.output
+    model = eskin.load_model(out)
+    assert model.calibration.reject == float(reject)
+    assert model.training["decision"]["oof_flagged"] == pytest.approx(float(reject), abs=1 / 6)
+    r = CliRunner().invoke(app, ["predict", str(out), str(one_person), "--json", str(preds)])
+    assert r.exit_code == 0, r.output
+    flagged = [p["dont_know"] for p in json.loads(preds.read_text())]
+    if reject == "0":
+        assert not any(flagged) and "don't know: none flagged" in r.output
+    else:
+        assert model.calibration.threshold > 0
+        assert "don't know:" in r.output
+
+
+def test_train_refuses_a_reject_share_of_one(one_person, tmp_path):
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "--reject",
+                                 "1", "-o", str(tmp_path / "m.joblib"), "--no-progress"])
+    assert r.exit_code == 2 and "--reject" in r.output
