@@ -36,6 +36,7 @@ import numpy as np
 
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import ModelFormatError, TrainingError
+from eskin.learn.calibration import DEFAULT_REJECT
 from eskin.learn.recipes import ALPHA_SPEC, one_vs_all_indices
 
 MODEL_FORMAT = "eskin.touch-model"
@@ -1051,7 +1052,7 @@ def train_model(
     max_support: int | None = None,
     choose_hold: bool = True,
     decision: str = "calibrated",
-    reject: float = 0.1,
+    reject: float = DEFAULT_REJECT,
 ) -> TouchModel:
     """Select the recipe and its hyperparameters, fit on all the data: a :class:`TouchModel`.
 
