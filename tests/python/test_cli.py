@@ -453,7 +453,8 @@ def test_evaluate_reports_the_live_figure_beside_the_per_recording_one(tmp_path)
     assert lines[at + 1].startswith(f"  accuracy live {100 * live['accuracy']:.1f} %, per "
                                     f"recording {100 * result['accuracy']:.1f} %")
     assert lines[at + 2].startswith("  touches per recording 1.00 (24 on 24 recordings): 0 split")
-    assert "## Live: the stream a controller sees" in (tmp_path / "ev" / "evaluation.md").read_text()
+    report = (tmp_path / "ev" / "evaluation.md").read_text()
+    assert "## Live: the stream a controller sees" in report
     # at the default hold, given, the presses split live; --no-live leaves the figure out
     r = CliRunner().invoke(app, [*args, "--hold", "0.15", "-o", str(tmp_path / "ev15")])
     assert r.exit_code == 0, r.output

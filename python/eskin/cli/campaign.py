@@ -85,7 +85,8 @@ def _acquisition(grid: Optional[str], rate: Optional[float], duration: Optional[
             raise ValueError(f"--grid {grid}: expected ROWSxCOLS, e.g. 8x8") from None
     names = None if modalities is None else tuple(
         m.strip() for m in modalities.split(",") if m.strip())
-    for option, value, kw in (("--grid", grid, {"grid": shape}), ("--rate", rate, {"rate_hz": rate}),
+    for option, value, kw in (("--grid", grid, {"grid": shape}),
+                              ("--rate", rate, {"rate_hz": rate}),
                               ("--duration", duration, {"duration_s": duration}),
                               ("--modalities", modalities, {"modalities": names})):
         if value is not None:

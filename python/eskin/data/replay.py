@@ -124,8 +124,8 @@ def write_replay_arrays(
     geometrically from the one to the other: recordings of one campaign can differ severalfold in
     noise, and a stream detector that has learnt a quiet recording's floor would take a louder
     gap for a touch, while a geometric ramp changes by the same ratio every second, which the
-    detector's running noise floor follows (up to about 4x in amplitude over a 2 s gap). The gap is centred on ``baseline`` (per
-    taxel) when it is given; by default it ramps, per taxel, from the level at which the
+    detector's running noise floor follows (up to about 4x in amplitude over a 2 s gap). The
+    gap is centred on ``baseline`` (per taxel) when it is given; by default it ramps, per taxel, from the level at which the
     previous recording ends to the level at which the next one starts (medians of 10 ms), so
     that recording boundaries carry no step.
     """
