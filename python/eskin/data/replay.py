@@ -125,9 +125,9 @@ def write_replay_arrays(
     noise, and a stream detector that has learnt a quiet recording's floor would take a louder
     gap for a touch, while a geometric ramp changes by the same ratio every second, which the
     detector's running noise floor follows (up to about 4x in amplitude over a 2 s gap). The
-    gap is centred on ``baseline`` (per taxel) when it is given; by default it ramps, per taxel, from the level at which the
-    previous recording ends to the level at which the next one starts (medians of 10 ms), so
-    that recording boundaries carry no step.
+    gap is centred on ``baseline`` (per taxel) when it is given; by default it ramps, per taxel,
+    from the level at which the previous recording ends to the level at which the next one
+    starts (medians of 10 ms), so that recording boundaries carry no step.
     """
     path = Path(path)
     recs = [np.asarray(r) for r in recordings]
