@@ -826,8 +826,8 @@ def simulate(
 
     ``participants`` x the modalities (``config.modalities``, default the paper's three) x 2
     directions x ``len(runs)`` recordings, in the paper's order (per participant: run 1 then
-    run 2; per run: brush, finger, washer; horizontal then vertical). ``difficulty`` (default: the calibrated value, see docs/simulator.md) overrides
-    ``config.difficulty``. Same arguments -> identical file content, whatever ``n_jobs``.
+    run 2; per run: brush, finger, washer; horizontal then vertical). ``difficulty``
+    (default: the calibrated value, see docs/simulator.md) overrides ``config.difficulty``. Same arguments -> identical file content, whatever ``n_jobs``.
     Writes the true contact interval of each recording and the simulator settings
     (``simulator_config`` JSON attribute).
     """
