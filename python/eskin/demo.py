@@ -40,7 +40,7 @@ from typing import Any, Optional
 import numpy as np
 
 from eskin.errors import DemoError
-from eskin.link.scoring import assign_decisions, confusion_matrix
+from eskin.link.scoring import assign_decisions, confusion_matrix, score_decisions
 
 __all__ = ["DemoError", "DemoResult", "assign_decisions", "confusion_matrix",
            "offline_stream_decisions", "run_demo", "start_fw_sim"]
@@ -222,7 +222,7 @@ def run_demo(
                                  participants, seed, machine, quick)
     summary = _summary(camp, train_idx, test_idx, speed, stats, fw_stats, len(offline.touches),
                        cmp.extras[SOURCES[0]], timings, files)
-    summary.insert(0, _held_out_line(held_out))
+    summary[0:0] = [_held_out_line(held_out), *_live_lines(per_source[SOURCES[0]], rf, held_out)]
     result = DemoResult(
         class_names=names, true_labels=offline.true, labels=cmp.labels, values=cmp.values,
         confusion=cmp.confusion, error_rates=cmp.error_rates, agreement=cmp.agreement,
@@ -284,6 +284,15 @@ def _held_out_figures(camp: Any, rf: Any, true: np.ndarray, live: np.ndarray, n_
     return {"live_error": float(np.mean(live != true)), "live_error_ci95": [1 - ci[1], 1 - ci[0]],
             "recordings": int(len(true)), "participants": int(len(np.unique(people))),
             "evaluate": dict(ref) if same else None}
+
+
+def _live_lines(decisions: list, rf: Any, held_out: dict[str, Any]) -> list[str]:
+    """The controller's live path in the words ``eskin listen --replay`` and ``eskin evaluate``
+    use (touches, splits, misses, spurious touches, "don't know" and the error on the decided
+    and the flagged recordings); also kept in ``held_out["live"]``."""
+    live = score_decisions(decisions, rf)
+    held_out["live"] = live[0].as_dict() if live else None
+    return ["live " + sc.live_line() for sc in live]
 
 
 def _held_out_line(h: dict[str, Any]) -> str:

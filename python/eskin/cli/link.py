@@ -124,7 +124,7 @@ def score_lines(score: Any) -> list[str]:
     head = (f"{score.source}: {score.correct}/{score.recordings} recordings right "
             f"({100 * score.accuracy:.1f} %), {score.dont_know} don't know, "
             f"{score.no_decision} without a decision")
-    lines = [head, *loss_lines(score)]
+    lines = [head, "  live " + score.live_line().split(": ", 1)[1], *loss_lines(score)]
     cols = [*names, "none"]
     first = max([len(n) for n in names] + [len("true \\ decided")])
     width = max(len(c) for c in cols)

@@ -157,7 +157,14 @@ def live_lines(result: Mapping[str, Any]) -> list[str]:
          f"{n} recordings): {live['split']} split (2+ touches), {live['missed']} missed "
          f"(none), {live['spurious']} spurious in the gaps; {live['dont_know']} \"don't "
          f"know\""),
+        (f"  error live {_pct(_minus(live['accuracy']))} overall, "
+         f"{_pct(live.get('error_decided'))} on the decided recordings, "
+         f"{_pct(live.get('error_flagged'))} on those flagged \"don't know\""),
     ]
+
+
+def _minus(accuracy: Any) -> Any:
+    return None if accuracy is None else 1 - accuracy
 
 
 def _span(values: list[int]) -> str:

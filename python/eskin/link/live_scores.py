@@ -54,16 +54,14 @@ def score_stream(decisions: Sequence[Any], replay: Any, classes: Sequence[str]) 
     ``spurious`` in the gaps, ``correct``, ``dont_know``), the score ``eskin listen --replay``
     prints (``score``) and, per recording in replay order, ``touches`` and ``decided`` (index
     into ``classes`` of the decision kept, -1 for none or a class outside ``classes``)."""
-    from eskin.link.scoring import assign_decisions, score_decisions, segment_of
+    from eskin.link.scoring import assign_decisions, score_decisions, touches_per_segment
 
     segments = replay.segments
     index = {name: k for k, name in enumerate(replay.class_names)}
     mapped = [replace(d, label_index=index.get(d.label, -1)) for d in decisions]
     labels, _, dk, _ = assign_decisions(mapped, segments, 0)
     # every touch counts on the recording its window overlaps most (assign_decisions' rule)
-    where = np.array([segment_of(replay, d.onset_sample, d.offset_sample) for d in decisions],
-                     np.int64)
-    touches = np.bincount(where[where >= 0], minlength=len(segments)).astype(np.int64)
+    touches, spurious = touches_per_segment(decisions, replay)
     names = [replay.class_names[k] if k >= 0 else None for k in labels]
     decided = np.array([list(classes).index(n) if n in classes else -1 for n in names], np.int64)
     scores = score_decisions(list(decisions), replay)
@@ -73,9 +71,10 @@ def score_stream(decisions: Sequence[Any], replay: Any, classes: Sequence[str]) 
         "touches": int(touches.sum()),
         "split": int(np.sum(touches > 1)),
         "missed": int(np.sum(touches == 0)),
-        "spurious": int(np.sum(where < 0)),
+        "spurious": spurious,
         "correct": int(score["correct"]) if score else 0,
         "dont_know": int(np.sum(dk & (labels >= 0))),
+        "dont_know_right": int(score["dont_know_right"]) if score else 0,
         "score": score,
         "per_recording": {"touches": touches.tolist(), "decided": decided.tolist(),
                           "dont_know": dk.astype(bool).tolist()},
@@ -116,10 +115,16 @@ class LiveScoring:
     def pool(folds: Sequence[dict[str, Any]]) -> dict[str, Any]:
         """The folds' live figures together: counts summed, accuracy (kept decision right,
         over the recordings), touches per recording, the per-recording lists in fold order."""
-        keys = ("recordings", "touches", "split", "missed", "spurious", "correct", "dont_know")
+        keys = ("recordings", "touches", "split", "missed", "spurious", "correct", "dont_know",
+                "dont_know_right")
         out: dict[str, Any] = {k: int(sum(f[k] for f in folds)) for k in keys}
         n = out["recordings"]
         out["accuracy"] = _pct(out["correct"], n)
+        decided = n - out["missed"] - out["dont_know"]
+        out["error_decided"] = (None if not decided
+                                else 1 - (out["correct"] - out["dont_know_right"]) / decided)
+        out["error_flagged"] = (None if not out["dont_know"]
+                                else 1 - out["dont_know_right"] / out["dont_know"])
         out["touches_per_recording"] = _pct(out["touches"], n)
         out["gap_s"] = folds[0]["gap_s"] if folds else None
         holds = sorted({f["hold_s"] for f in folds})

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ReplayScore", "assign_decisions", "confusion_matrix", "lost_per_segment",
-           "score_decisions", "segment_of"]
+           "score_decisions", "segment_of", "touches_per_segment"]
 
 
 def confusion_matrix(true: np.ndarray, pred: np.ndarray, n_classes: int) -> np.ndarray:
@@ -88,10 +88,35 @@ class ReplayScore:
     #: controller dropped): (segment index, samples lost, decided label index or -1, right);
     #: their decisions rest on incomplete data, so the score also leaves them out
     lossy: tuple[tuple[int, int, int, bool], ...] = ()
+    #: the live path's view of the segments: every decision of the source counts on the
+    #: segment its window overlaps most (``touches`` in all), ``split`` segments got more than
+    #: one, ``missed`` none, ``spurious`` decisions overlap no segment (in the quiet gaps)
+    touches: int = 0
+    split: int = 0
+    missed: int = 0
+    spurious: int = 0
+    #: kept decisions flagged "don't know" that were right nonetheless
+    dont_know_right: int = 0
 
     @property
     def accuracy(self) -> float:
         return self.correct / self.recordings if self.recordings else float("nan")
+
+    @property
+    def decided(self) -> int:
+        """Segments whose kept decision is not flagged "don't know"."""
+        return self.recordings - self.no_decision - self.dont_know
+
+    @property
+    def error_decided(self) -> float:
+        """The error on the decided segments (NaN when there is none)."""
+        right = self.correct - self.dont_know_right
+        return 1 - right / self.decided if self.decided else float("nan")
+
+    @property
+    def error_flagged(self) -> float:
+        """The error on the segments whose kept decision is flagged "don't know"."""
+        return 1 - self.dont_know_right / self.dont_know if self.dont_know else float("nan")
 
     @property
     def recordings_without_losses(self) -> int:
@@ -126,7 +151,25 @@ class ReplayScore:
             "recordings_without_losses": self.recordings_without_losses,
             "correct_without_losses": self.correct_without_losses,
             "accuracy_without_losses": self.accuracy_without_losses,
+            "touches": self.touches,
+            "split": self.split,
+            "missed": self.missed,
+            "spurious": self.spurious,
+            "dont_know_right": self.dont_know_right,
+            "error_decided": self.error_decided,
+            "error_flagged": self.error_flagged,
         }
+
+    def live_line(self) -> str:
+        """The live path in one line, as ``eskin listen --replay``, ``eskin demo`` and ``eskin
+        evaluate`` print it: touches per recording, splits, misses, spurious touches, and how
+        the decided and the "don't know" recordings fare."""
+        pct = lambda v: "-" if v != v else f"{100 * v:.1f} %"  # noqa: E731 (NaN: none)
+        return (f"{self.source}: {self.touches} touches on {self.recordings} recordings "
+                f"({self.split} split, {self.missed} missed), {self.spurious} in the gaps; "
+                f"{self.dont_know} of {self.recordings - self.no_decision} decisions \"don't "
+                f"know\"; error {pct(1 - self.accuracy)} overall, {pct(self.error_decided)} on "
+                f"the decided, {pct(self.error_flagged)} on the flagged")
 
 
 def lost_per_segment(segments: np.ndarray, lost_ranges: Sequence[tuple[int, int]],
@@ -162,6 +205,8 @@ def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0,
             replace(d, label_index=index.get(d.label, -1)) for d in decisions if d.source == source
         ]
         labels, _, dk, _ = assign_decisions(mine, segments, 0, offset)
+        touches, spurious = touches_per_segment(mine, replay, offset)
+        touches = touches[known]
         labels, dk = labels[known], dk[known]
         lossy = tuple((int(k), int(lost[k]), int(lab), bool(lab == t))
                       for k, lab, t in zip(segment_ids, labels, true) if lost[k] > 0)
@@ -175,9 +220,24 @@ def score_decisions(decisions: Sequence[Any], replay: Any, offset: int = 0,
                 no_decision=int(np.sum(labels < 0)),
                 confusion=confusion_matrix(true, labels, len(names)),
                 lossy=lossy,
+                touches=int(touches.sum()),
+                split=int(np.sum(touches > 1)),
+                missed=int(np.sum(touches == 0)),
+                spurious=spurious,
+                dont_know_right=int(np.sum(dk & (labels >= 0) & (labels == true))),
             )
         )
     return scores
+
+
+def touches_per_segment(decisions: Sequence[Any], replay: Any, offset: int = 0
+                        ) -> tuple[np.ndarray, int]:
+    """(touches on each replay segment, touches in the gaps): every decision counts on the
+    segment its window ``[onset, offset)`` overlaps most (:func:`segment_of`)."""
+    where = np.array([segment_of(replay, d.onset_sample, d.offset_sample, offset)
+                      for d in decisions], np.int64).reshape(-1)
+    counts = np.bincount(where[where >= 0], minlength=len(replay.segments)).astype(np.int64)
+    return counts, int(np.sum(where < 0))
 
 
 def segment_of(replay: Any, onset: int, offset_sample: int, stream_offset: int = 0) -> int:

@@ -50,17 +50,27 @@ def test_score_stream_counts_splits_misses_and_spurious_touches(tmp_path):
         "recordings": 4, "touches": 4, "split": 1, "missed": 1, "spurious": 1, "correct": 2,
         "dont_know": 1}
     # the score eskin listen --replay prints, from the same code
-    assert out["score"] == score_decisions(decisions, rf)[0].as_dict()
+    score = score_decisions(decisions, rf)[0]
+    assert out["score"] == score.as_dict()
+    assert (score.touches, score.split, score.missed, score.spurious) == (4, 1, 1, 1)
+    # decided: recording 0 (right); flagged: recording 2 (right); recording 3's class is not
+    # the replay's, so it has no decision, like recording 1
+    assert score.dont_know_right == 1 and score.error_decided == 0 and score.error_flagged == 0
+    assert score.live_line() == (
+        'host: 4 touches on 4 recordings (1 split, 1 missed), 1 in the gaps; 1 of 2 decisions '
+        '"don\'t know"; error 50.0 % overall, 0.0 % on the decided, 0.0 % on the flagged')
 
 
 def test_pool_adds_the_folds_up():
     fold = {"recordings": 4, "touches": 5, "split": 1, "missed": 0, "spurious": 1, "correct": 3,
-            "dont_know": 0, "gap_s": 2.0, "hold_s": 0.6,
+            "dont_know": 1, "dont_know_right": 0, "gap_s": 2.0, "hold_s": 0.6,
             "per_recording": {"touches": [1, 2, 1, 1], "decided": [0, 1, 1, 0],
-                              "dont_know": [False] * 4}}
-    other = {**fold, "hold_s": 0.3, "correct": 4}
+                              "dont_know": [False, False, False, True]}}
+    other = {**fold, "hold_s": 0.3, "correct": 4, "dont_know_right": 1}
     pooled = LiveScoring.pool([fold, other])
     assert pooled["recordings"] == 8 and pooled["correct"] == 7 and pooled["accuracy"] == 7 / 8
+    # 6 decided recordings, all right; 2 flagged, 1 of them right
+    assert pooled["error_decided"] == 0 and pooled["error_flagged"] == 0.5
     assert pooled["touches_per_recording"] == 10 / 8 and pooled["hold_s"] == [0.3, 0.6]
     assert pooled["per_recording"]["touches"] == [1, 2, 1, 1] * 2
 
