@@ -312,7 +312,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         **task.recipe,
     )
     X_test = model.preprocess(test)
-    pred, _, _ = model.predict_indices(X_test)
+    pred, _, dont_know = model.predict_indices(X_test)
     y_test = _class_ids(camp, task.test_idx, task.classes)
     record = {
         "fold": task.number,
@@ -329,6 +329,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         "support_budget": model.training.get("support_budget"),
         "y_true": y_test.tolist(),
         "y_pred": pred.astype(np.int64).tolist(),
+        "dont_know": np.asarray(dont_know, bool).tolist(),
         "baselines": {},
     }
     if task.live is not None:
@@ -554,7 +555,7 @@ def _run_folds(
 
 def _without_predictions(record: dict[str, Any]) -> dict[str, Any]:
     """A copy of a fold record less its per-recording predictions (its own and its baselines')."""
-    out = {k: v for k, v in record.items() if k not in ("y_true", "y_pred")}
+    out = {k: v for k, v in record.items() if k not in ("y_true", "y_pred", "dont_know")}
     if "live" in record:
         out["live"] = {k: v for k, v in record["live"].items() if k != "per_recording"}
     if "baselines" in record:
@@ -598,4 +599,21 @@ def _pooled(
         "true": y_true.tolist(),
         "predicted": y_pred.tolist(),
     }
+    if all("dont_know" in r for r in records):
+        flagged = np.concatenate([np.asarray(r["dont_know"], bool) for r in records])
+        result["predictions"]["dont_know"] = flagged.tolist()
+        result["dont_know"] = dont_know_scores(y_true, y_pred, flagged)
     return result
+
+
+def dont_know_scores(y_true: np.ndarray, y_pred: np.ndarray, flagged: np.ndarray) -> dict:
+    """The share of "don't know" decisions and the accuracy on the decided and the flagged
+    recordings (None where there are none)."""
+    right = np.asarray(y_true) == np.asarray(y_pred)
+    flagged = np.asarray(flagged, bool)
+    return {
+        "flagged": float(flagged.mean()) if flagged.size else 0.0,
+        "n_flagged": int(flagged.sum()),
+        "accuracy_decided": float(right[~flagged].mean()) if (~flagged).any() else None,
+        "accuracy_flagged": float(right[flagged].mean()) if flagged.any() else None,
+    }

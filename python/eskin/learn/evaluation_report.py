@@ -101,6 +101,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
         + (f"; rough with only {result['n_groups']} groups)" if result["n_groups"] < 10 else ")"),
         "per-class recall: "
         + ", ".join(f"{c} {_pct(r)}" for c, r in result["per_class_recall"].items()),
+        *_dont_know_lines(result.get("dont_know")),
         "confusion (rows true, columns predicted):",
     ]
     width = max(len(c) for c in classes) + 1
@@ -121,6 +122,15 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{_pct(b['balanced_accuracy'])} {_ci(b['ci95_balanced_accuracy'])}"
         )
     return lines
+
+
+def _dont_know_lines(dk: Mapping[str, Any] | None) -> list[str]:
+    """The share of "don't know" decisions and the accuracy on each side, when recorded."""
+    if not dk:
+        return []
+    return [f"don't know        {_pct(dk['flagged'])} flagged ({dk['n_flagged']}); accuracy "
+            f"{_pct(dk['accuracy_decided'])} on the decided, {_pct(dk['accuracy_flagged'])} on "
+            "the flagged"]
 
 
 def fold_line(record: Mapping[str, Any], n_folds: int) -> str:

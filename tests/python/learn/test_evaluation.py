@@ -619,3 +619,24 @@ def test_the_hold_each_fold_chose_is_one_line_per_hold():
     assert hold_choice_lines(result)[0].endswith(
         "at 1.5 s, 30 give one (in 1 of them no hold up to 1.5 s gave one touch on 95 % of the "
         "recordings)")
+
+
+def test_pooled_dont_know_flags_give_the_accuracy_on_each_side():
+    from eskin.learn.evaluation import _pooled
+    from eskin.learn.evaluation_report import _dont_know_lines
+
+    folds = [(np.array([2, 3]), np.array([0, 1])), (np.array([0, 1]), np.array([2, 3]))]
+    records = [
+        {"fold": 0, "accuracy": 1.0, "y_true": np.array([0, 0]), "y_pred": np.array([0, 0]),
+         "dont_know": [False, True], "baselines": {}},
+        {"fold": 1, "accuracy": 0.5, "y_true": np.array([1, 1]), "y_pred": np.array([1, 0]),
+         "dont_know": [False, True], "baselines": {}},
+    ]
+    result = _pooled(records, folds, np.array([7, 7, 8, 8]), ["a", "b"], [], seed=0)
+    assert result["predictions"]["dont_know"] == [False, True, False, True]
+    assert result["dont_know"] == {"flagged": 0.5, "n_flagged": 2, "accuracy_decided": 1.0,
+                                   "accuracy_flagged": 0.5}
+    assert all("dont_know" not in f for f in result["folds"])
+    assert _dont_know_lines(result["dont_know"]) == [
+        "don't know        50.0 % flagged (2); accuracy 100.0 % on the decided, 50.0 % on the "
+        "flagged"]
