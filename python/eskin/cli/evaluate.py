@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from eskin.cli.learn import (
+    Decision,
     AMPLITUDE_HELP,
     HOLD_HELP,
     MAX_WINDOW_HELP,
@@ -68,6 +69,12 @@ def evaluate(
     live: bool = typer.Option(
         True, "--live/--no-live", help="also play each fold's held-out recordings as one "
         "stream through its compiled stream classifier and score the live decisions"),
+    decision: Decision | None = typer.Option(
+        None, help="calibrated (default) or paper: the decision rule (as eskin train "
+        "--decision)"),
+    reject: float | None = typer.Option(
+        None, "--reject", min=0.0, max=0.99, help="the calibrated rule's share of touches "
+        "flagged \"don't know\" (as eskin train --reject; default 0.1)"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
@@ -99,6 +106,10 @@ def evaluate(
     }
     recipe = _recipe_of(given, quick, amplitude, max_support)
     recipe.update(_detector(max_window, window_samples, hold, on_factor, off_factor))
+    if reject is not None:
+        recipe["reject"] = reject
+    if decision is not None:
+        recipe["decision"] = decision.value
     budgeted, the_budget = _budgeted(campaign, target, budget, recipe, classes)
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]

@@ -640,3 +640,21 @@ def test_pooled_dont_know_flags_give_the_accuracy_on_each_side():
     assert _dont_know_lines(result["dont_know"]) == [
         "don't know        50.0 % flagged (2); accuracy 100.0 % on the decided, 50.0 % on the "
         "flagged"]
+
+
+@pytest.mark.parametrize("extra, flagged", [(["--reject", "0"], 0.0), (["--decision", "paper"], None)])
+def test_evaluate_passes_the_decision_rule_to_the_folds(sim_campaign, tmp_path, extra, flagged):
+    """--reject and --decision reach each fold's model: --reject 0 flags no held-out touch;
+    --decision paper is recorded and each held-out recording has its flag."""
+    out = tmp_path / "ev"
+    r = _run(["evaluate", str(sim_campaign), "--out", str(out), "--folds", "2", "--quick",
+              "--D", "20", "--machine", "rls", "--subsample", "even", "--negatives", "all",
+              *extra])
+    assert r.exit_code == 0, r.output
+    res = json.loads((out / "evaluation.json").read_text())
+    assert "don't know" in r.output
+    if flagged is not None:
+        assert res["dont_know"]["flagged"] == flagged and res["dont_know"]["n_flagged"] == 0
+    else:
+        assert res["recipe"]["decision"] == "paper"
+        assert len(res["predictions"]["dont_know"]) == res["n_recordings"]
