@@ -312,7 +312,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         **task.recipe,
     )
     X_test = model.preprocess(test)
-    pred, _, dont_know = model.predict_indices(X_test)
+    pred, _, dont_know, confidence = model.decide(X_test)
     y_test = _class_ids(camp, task.test_idx, task.classes)
     record = {
         "fold": task.number,
@@ -330,6 +330,7 @@ def _fold_record(task: FoldTask, camp: Any, groups: np.ndarray, train_model: Any
         "y_true": y_test.tolist(),
         "y_pred": pred.astype(np.int64).tolist(),
         "dont_know": np.asarray(dont_know, bool).tolist(),
+        "confidence": [float(c) if np.isfinite(c) else None for c in confidence],
         "baselines": {},
     }
     if task.live is not None:
@@ -555,7 +556,8 @@ def _run_folds(
 
 def _without_predictions(record: dict[str, Any]) -> dict[str, Any]:
     """A copy of a fold record less its per-recording predictions (its own and its baselines')."""
-    out = {k: v for k, v in record.items() if k not in ("y_true", "y_pred", "dont_know")}
+    out = {k: v for k, v in record.items()
+           if k not in ("y_true", "y_pred", "dont_know", "confidence")}
     if "live" in record:
         out["live"] = {k: v for k, v in record["live"].items() if k != "per_recording"}
     if "baselines" in record:
@@ -603,7 +605,30 @@ def _pooled(
         flagged = np.concatenate([np.asarray(r["dont_know"], bool) for r in records])
         result["predictions"]["dont_know"] = flagged.tolist()
         result["dont_know"] = dont_know_scores(y_true, y_pred, flagged)
+    confidence = [c for r in records for c in r.get("confidence", [None] * len(r["y_true"]))]
+    if confidence and all(c is not None for c in confidence):
+        result["predictions"]["confidence"] = confidence
+        result["risk_coverage"] = risk_coverage(y_true, y_pred, np.asarray(confidence))
     return result
+
+
+def risk_coverage(y_true: np.ndarray, y_pred: np.ndarray, confidence: np.ndarray,
+                  points: int = 20) -> dict[str, list[float]]:
+    """The risk-coverage curve of selective classification: decide only the most confident
+    recordings (a share ``coverage`` of them) and flag the rest "don't know"; ``error`` is the
+    error on the decided ones, at coverages 1/points, 2/points, ..., 1 (ties in confidence are
+    broken by recording order). A confidence that ranks errors last gives a curve that falls
+    as the coverage shrinks; an uninformative one stays flat at the overall error."""
+    right = np.asarray(y_true) == np.asarray(y_pred)
+    order = np.argsort(-np.asarray(confidence, float), kind="stable")
+    cum_wrong = np.cumsum(~right[order])
+    n = len(right)
+    coverage, error = [], []
+    for k in range(1, points + 1):
+        m = max(1, int(round(n * k / points)))
+        coverage.append(m / n)
+        error.append(float(cum_wrong[m - 1] / m))
+    return {"coverage": coverage, "error": error}
 
 
 def dont_know_scores(y_true: np.ndarray, y_pred: np.ndarray, flagged: np.ndarray) -> dict:

@@ -102,6 +102,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
         "per-class recall: "
         + ", ".join(f"{c} {_pct(r)}" for c, r in result["per_class_recall"].items()),
         *_dont_know_lines(result.get("dont_know")),
+        *risk_coverage_lines(result.get("risk_coverage")),
         "confusion (rows true, columns predicted):",
     ]
     width = max(len(c) for c in classes) + 1
@@ -122,6 +123,18 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{_pct(b['balanced_accuracy'])} {_ci(b['ci95_balanced_accuracy'])}"
         )
     return lines
+
+
+def risk_coverage_lines(rc: Mapping[str, Any] | None) -> list[str]:
+    """The risk-coverage curve at 100, 90, 80 and 50 % coverage, one line (none without it)."""
+    if not rc:
+        return []
+    cov, err = np.asarray(rc["coverage"]), np.asarray(rc["error"])
+    picked = sorted({int(np.argmin(np.abs(cov - c))) for c in (1.0, 0.9, 0.8, 0.5)},
+                    reverse=True)
+    return ["risk-coverage     error " + ", ".join(
+        f"{_pct(err[i])} at {100 * cov[i]:.0f} %" for i in picked)
+        + " coverage (the most confident decided, the rest flagged)"]
 
 
 def _dont_know_lines(dk: Mapping[str, Any] | None) -> list[str]:
@@ -264,6 +277,7 @@ def _markdown(result: Mapping[str, Any], figure: str) -> str:
             f"{_pct(b['balanced_accuracy'])} | {_ci(b['ci95_balanced_accuracy'])} |"
         )
     rows += _live_markdown(result)
+    rows += _risk_coverage_markdown(result)
     rows += ["", f"Intervals: {result['ci_method']}.", "", "## Per-class recall and confusion", ""]
     rows.append("| true \\ predicted | " + " | ".join(classes) + " | recall |")
     rows.append("| --- |" + " ---: |" * (len(classes) + 1))
@@ -282,6 +296,23 @@ def _markdown(result: Mapping[str, Any], figure: str) -> str:
     return "\n".join(rows)
 
 
+def _risk_coverage_markdown(result: Mapping[str, Any]) -> list[str]:
+    """"Don't know" and the risk-coverage curve (none without a calibrated confidence)."""
+    rc, dk = result.get("risk_coverage"), result.get("dont_know")
+    if not rc:
+        return []
+    rows = ["", "## \"Don't know\" and the risk-coverage curve", ""]
+    if dk:
+        rows += [f"The model's threshold flags {_pct(dk['flagged'])} of the held-out recordings "
+                 f"({dk['n_flagged']}): accuracy {_pct(dk['accuracy_decided'])} on the decided, "
+                 f"{_pct(dk['accuracy_flagged'])} on the flagged.", ""]
+    rows += ["Deciding only the most confident share (coverage) of the recordings:", "",
+             "| coverage | " + " | ".join(f"{100 * c:.0f} %" for c in rc["coverage"][4::5])
+             + " |", "| --- |" + " ---: |" * len(rc["coverage"][4::5]),
+             "| error on the decided | " + " | ".join(_pct(e) for e in rc["error"][4::5]) + " |"]
+    return rows
+
+
 def plot_evaluation(result: Mapping[str, Any], path: Path) -> Path:
     """Accuracy per fold (recipe and baselines) and the pooled confusion matrix (row-normalised)."""
     import matplotlib
@@ -291,7 +322,13 @@ def plot_evaluation(result: Mapping[str, Any], path: Path) -> Path:
 
     folds = result["folds"]
     classes = list(result["classes"])
-    fig, (ax, axc) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
+    rc = result.get("risk_coverage")
+    ratios = [1.6, 1] + ([1] if rc else [])
+    fig, axes = plt.subplots(1, len(ratios), figsize=(11 + 4 * bool(rc), 4.2),
+                             gridspec_kw={"width_ratios": ratios})
+    ax, axc = axes[0], axes[1]
+    if rc:
+        _plot_risk_coverage(axes[2], rc, result)
     x = np.arange(len(folds))
     series = [("tensor recipe", [r["accuracy"] for r in folds])]
     series += [
@@ -329,6 +366,23 @@ def plot_evaluation(result: Mapping[str, Any], path: Path) -> Path:
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def _plot_risk_coverage(ax: Any, rc: Mapping[str, Any], result: Mapping[str, Any]) -> None:
+    """Error on the decided recordings against the share decided (most confident first)."""
+    ax.plot(np.asarray(rc["coverage"]), np.asarray(rc["error"]), marker="o", ms=3,
+            label="calibrated confidence")
+    ax.axhline(1 - result["accuracy"], color="k", lw=0.8, ls="--", label="all decided")
+    dk = result.get("dont_know")
+    if dk and dk.get("accuracy_decided") is not None:
+        ax.plot([1 - dk["flagged"]], [1 - dk["accuracy_decided"]], "s", color="C3",
+                label="the model's threshold")
+    ax.set_xlabel("coverage (share decided)")
+    ax.set_ylabel("error on the decided")
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, max(0.05, 1.1 * max(rc["error"])))
+    ax.set_title("risk-coverage", fontsize=8)
+    ax.legend(fontsize=7)
 
 
 def write_evaluation(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, Path]:

@@ -658,3 +658,48 @@ def test_evaluate_passes_the_decision_rule_to_the_folds(sim_campaign, tmp_path, 
     else:
         assert res["recipe"]["decision"] == "paper"
         assert len(res["predictions"]["dont_know"]) == res["n_recordings"]
+
+
+def test_risk_coverage_decides_the_most_confident_first():
+    from eskin.learn.evaluation import risk_coverage
+
+    y_true = np.array([0, 0, 0, 0, 1, 1, 1, 1, 1, 1])
+    y_pred = np.array([0, 0, 0, 0, 1, 1, 1, 1, 0, 0])  # the last two wrong
+    informative = np.linspace(1.0, 0.1, 10)  # the wrong ones least confident
+    rc = risk_coverage(y_true, y_pred, informative, points=10)
+    assert rc["coverage"] == [k / 10 for k in range(1, 11)]
+    assert rc["error"] == [0.0] * 8 + [1 / 9, 0.2]
+    reversed_ = risk_coverage(y_true, y_pred, informative[::-1], points=10)
+    assert reversed_["error"][:2] == [1.0, 1.0] and reversed_["error"][-1] == 0.2
+    # ties keep the recordings' order; the full coverage is the overall error
+    flat = risk_coverage(y_true, y_pred, np.ones(10), points=5)
+    assert flat["error"] == [0.0, 0.0, 0.0, 0.0, 0.2]
+
+
+def test_pooled_confidences_give_a_risk_coverage_curve_and_its_report():
+    from eskin.learn.evaluation import _pooled
+    from eskin.learn.evaluation_report import _risk_coverage_markdown, risk_coverage_lines
+
+    folds = [(np.array([2, 3]), np.array([0, 1])), (np.array([0, 1]), np.array([2, 3]))]
+    records = [
+        {"fold": 0, "accuracy": 1.0, "y_true": np.array([0, 0]), "y_pred": np.array([0, 0]),
+         "dont_know": [False, True], "confidence": [0.9, 0.4], "baselines": {}},
+        {"fold": 1, "accuracy": 0.5, "y_true": np.array([1, 1]), "y_pred": np.array([1, 0]),
+         "dont_know": [False, True], "confidence": [0.8, 0.3], "baselines": {}},
+    ]
+    result = _pooled(records, folds, np.array([7, 7, 8, 8]), ["a", "b"], [], seed=0)
+    assert result["predictions"]["confidence"] == [0.9, 0.4, 0.8, 0.3]
+    rc = result["risk_coverage"]
+    assert rc["coverage"][-1] == 1.0 and rc["error"][-1] == 0.25
+    assert rc["error"][9] == 0.0  # half the recordings: the two most confident, both right
+    assert all("confidence" not in f for f in result["folds"])
+    assert risk_coverage_lines(rc) == [
+        "risk-coverage     error 25.0 % at 100 %, 0.0 % at 75 %, 0.0 % at 50 % coverage (the "
+        "most confident decided, the rest flagged)"]
+    md = "\n".join(_risk_coverage_markdown(result))
+    assert "## \"Don't know\" and the risk-coverage curve" in md
+    assert "| error on the decided | 0.0 % | 0.0 % | 0.0 % | 25.0 % |" in md
+    # a fold without confidences (the paper's rule) leaves the curve out
+    records[1]["confidence"] = [None, None]
+    assert "risk_coverage" not in _pooled(records, folds, np.array([7, 7, 8, 8]), ["a", "b"],
+                                          [], seed=0)
