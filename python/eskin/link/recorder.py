@@ -61,9 +61,13 @@ class StreamRecorder:
 
     def size_problem(self, grid: tuple[int, int], rate: float) -> Optional[str]:
         """Why recordings of this grid and rate cannot be written (over the campaign format's
-        size limits, or the memory), or None."""
+        size limits, a rate outside its range, or the memory), or None."""
         from eskin.data.campaign import check_sizes
+        from eskin.data.limits import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ
 
+        if not MIN_SAMPLE_RATE_HZ <= rate <= MAX_SAMPLE_RATE_HZ:
+            return (f"a campaign's sample rate is {MIN_SAMPLE_RATE_HZ:g} to "
+                    f"{MAX_SAMPLE_RATE_HZ:g} Hz")
         seconds = self.history_s(rate) - 1.0
         try:
             check_sizes(str(self.path), 0, grid[0], grid[1], int(math.ceil(seconds * rate)) + 1)

@@ -75,7 +75,8 @@ def test_invalid_records_are_skipped_and_named_by_index_and_field(tmp_path):
         assert (c.recording(3) == 7).all() and c.run[3] == 2 and c.modality[3] == 0
     assert not journal_path(path).exists() and rejected.exists()
     r = eskin("info", path, "--check")
-    assert r.returncode == 0 and "every chunk matched its checksum" in r.stdout, r.stderr
+    assert r.returncode == 0 and ("check: read the data of all 4 recordings; every chunk "
+                                  "matched its checksum") in r.stdout, r.stderr
 
 
 def test_contents_are_known_before_the_records_are_read(tmp_path):

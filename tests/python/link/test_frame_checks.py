@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from eskin.link.listener import DataBlock, InfoEvent, LinkListener, Rejection
 from eskin.link.protocol import (
@@ -276,3 +277,18 @@ def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_p
                           "(update eskin or the controller's firmware so that they match)\n")
     stats = json.loads(out.read_text().splitlines()[-1])
     assert stats["type"] == "stats" and stats["samples"] >= 50  # the final statistics
+
+
+def test_recording_a_stream_slower_than_a_campaign_may_be(tmp_path):
+    """An INFO rate the link accepts (0.05 Hz) but a campaign refuses (0.1 Hz to 1 MHz): with
+    --record, the stream ends with one line naming the rate, before any campaign is written."""
+    from eskin.errors import LinkStreamError
+
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None,
+                            record=tmp_path / "live.h5", context_s=0.01)
+    with pytest.raises(LinkStreamError, match=r"^INFO frame: sample_rate_hz = 0.05: cannot "
+                       r"record this stream \(a campaign's sample rate is 0.1 to 1e\+06 Hz\)"):
+        listener.feed(DELIMITER + b"".join(encode_frame(f) for f in [
+            _info(0.05, grid=(2, 2), names=()), _data(0, grid=(2, 2))]))
+    listener.close()
+    assert not (tmp_path / "live.h5").exists()
