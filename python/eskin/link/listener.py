@@ -24,8 +24,9 @@ Events, in arrival order:
   index past the controller's class names): counted in ``absurd_frames`` and left out
   (:mod:`eskin.link.frame_checks`); a frame only a host sends (START, STOP, PING,
   INFO_REQUEST) is counted in ``unexpected_frames`` and left out; a frame the stream cannot go
-  on after (an INFO of another protocol version, an INFO grid the host model cannot take) ends :meth:`LinkListener.events` with
-  :class:`~eskin.errors.LinkStreamError` after the final :class:`Stats`;
+  on after (an INFO of another protocol version, an INFO grid the host model cannot take)
+  ends :meth:`LinkListener.events` with :class:`~eskin.errors.LinkStreamError` after the
+  final :class:`Stats`;
 * :class:`Stats` - the link statistics, every ``stats_interval`` seconds and once at the end.
 
 Host decisions. With ``model=`` (a ``.eskin`` file, a saved TouchModel, or a loaded
