@@ -191,11 +191,13 @@ def test_an_unpaced_controller_s_info_is_accepted():
 
 
 def test_recording_at_a_rate_the_touch_detector_cannot_take_ends_with_one_line(tmp_path):
-    """An INFO rate inside the checked range but far below what the touch detector works at
-    (its DC cutoff is 5 Hz): `eskin listen --record` ends with one line naming the field and
-    value and the final statistics, not a ValueError traceback from the detector."""
+    """An INFO rate inside the checked range, and one a campaign may have, but far below what
+    the touch detector works at (its DC cutoff is 5 Hz): `eskin listen --record` ends with one
+    line naming the field and value and the final statistics, not a ValueError traceback from
+    the detector. (1e-300 Hz, below what a campaign may have, is refused before the detector:
+    test_recording_a_stream_slower_than_a_campaign_may_be.)"""
     wire = DELIMITER + b"".join(encode_frame(f) for f in [
-        _info(1e-300, grid=(2, 2), names=()), _data(0, grid=(2, 2))])
+        _info(1.0, grid=(2, 2), names=()), _data(0, grid=(2, 2))])
     path, thread = _controller(wire)
     out = tmp_path / "d.jsonl"
     res = subprocess.run([sys.executable, "-m", "eskin", "listen", path, "--record",
@@ -204,7 +206,7 @@ def test_recording_at_a_rate_the_touch_detector_cannot_take_ends_with_one_line(t
                          capture_output=True, text=True, env=_env(), timeout=120)
     thread.join(5)
     assert res.returncode == 2, res.stderr
-    assert res.stderr.startswith("error: INFO frame: sample_rate_hz = 1e-300: cannot detect "
+    assert res.stderr.startswith("error: INFO frame: sample_rate_hz = 1: cannot detect "
                                  "touches in this stream (WindowConfig.dc_cutoff_hz = 5")
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stdout
     stats = json.loads(out.read_text().splitlines()[-1])
