@@ -3,7 +3,6 @@ exit code 2 (the command line as a user runs it: the real `eskin` app)."""
 
 from __future__ import annotations
 
-import contextlib
 import os
 import resource
 import signal
@@ -14,6 +13,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from tmpfs import mounted_tmpfs
 from typer.testing import CliRunner
 
 from eskin.cli import app
@@ -91,28 +91,12 @@ def _one_line_exit_2(r: subprocess.CompletedProcess, name: Path) -> str:
     return r.stderr.strip()
 
 
-@contextlib.contextmanager
-def _tmpfs(where: Path, size: str):
-    where.mkdir()
-    try:
-        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
-                           capture_output=True, text=True)
-    except OSError:
-        r = None
-    if r is None or r.returncode != 0:
-        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True)
-
-
 @pytest.mark.parametrize("fmt", REPLAY_FORMATS)
 def test_replay_onto_a_full_disk(campaign, tmp_path, fmt):
     """A 32 KiB tmpfs: the .npy (77 KB) was written through a memory map, which a full tmpfs
     kills with SIGBUS, leaving a sparse file of the full size under the target name; the other
     formats were left truncated under it. Now: one line, exit 2, nothing under any name."""
-    with _tmpfs(tmp_path / "full", "32k") as full:
+    with mounted_tmpfs(tmp_path / "full", "size=32k") as full:
         out = full / f"b.{fmt}"
         line = _one_line_exit_2(eskin("replay", campaign, "-o", out, "--format", fmt), out)
         assert line == f"error: {out}: No space left on device"

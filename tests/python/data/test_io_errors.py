@@ -14,7 +14,6 @@ on a read-only one (mounted for the test; skipped where mounting is not allowed)
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
 import subprocess
@@ -24,6 +23,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from tmpfs import mounted_tmpfs
 
 from eskin.data.campaign import CampaignWriter, load_campaign, recover_campaign
 from eskin.data.journal import journal_path
@@ -168,22 +168,6 @@ def test_recovery_keeps_the_journal_until_the_campaign_is_in_place(tmp_path, mon
 # ----------------------------------------------------------------- real file systems, the CLI
 
 
-@contextlib.contextmanager
-def _tmpfs(where: Path, options: str):
-    where.mkdir()
-    try:
-        r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
-                           capture_output=True, text=True)
-    except OSError:
-        r = None
-    if r is None or r.returncode != 0:
-        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True)
-
-
 def eskin(*args) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO / "python") + os.pathsep + env.get("PYTHONPATH", "")
@@ -214,7 +198,7 @@ def test_a_full_disk_through_the_command_line(tmp_path):
             for i in range(4):
                 w.append(c.recording(i), modality=0, participant=i, direction=0, run=1)
         raise RuntimeError("stop")
-    with _tmpfs(tmp_path / "full", "size=256k") as full:
+    with mounted_tmpfs(tmp_path / "full", "size=256k") as full:
         line = _one_line(eskin("recover", tmp_path / "j.h5", "-o", full / "r.h5"), full / "r.h5")
         assert "cannot write the campaign file" in line and "the journal is kept" in line
         assert len(load_campaign(recover_campaign(tmp_path / "j.h5").output)) == 4
@@ -225,7 +209,7 @@ def test_a_full_disk_through_the_command_line(tmp_path):
 
 
 def test_a_read_only_disk_through_the_command_line(tmp_path):
-    with _tmpfs(tmp_path / "ro", "size=1m,ro") as ro:
+    with mounted_tmpfs(tmp_path / "ro", "size=1m,ro") as ro:
         line = _one_line(eskin("simulate", "-o", ro / "s.h5", "--participants", "1", "-j", "1"),
                          ro)
         assert "Read-only file system" in line
@@ -244,7 +228,7 @@ def test_listen_record_onto_a_full_disk(tmp_path):
     recs = [rng.integers(-3000, 3000, (4, 4, 3000)).astype(np.int16) for _ in range(6)]
     replay = write_replay_arrays(tmp_path / "noise.eskr", recs, labels=[0, 1, 2] * 2,
                                  class_names=("a", "b", "c"), gap_s=0.05, seed=2)
-    with _tmpfs(tmp_path / "full", "size=200k") as full:
+    with mounted_tmpfs(tmp_path / "full", "size=200k") as full:
         sim = subprocess.Popen([find_executable("eskin-fw-sim"), str(replay.path), "--speed",
                                 "10", "--wait-start", "--quiet", "--tx-buffer", str(1 << 22)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -274,7 +258,7 @@ def test_export_onto_a_full_disk(tmp_path):
     campaign = simulate(tmp_path / "c.h5", participants=2, seed=0, n_jobs=1)
     model = save_model(train_model(load_campaign(campaign), D=20, selection="md"),
                        tmp_path / "m.joblib")
-    with _tmpfs(tmp_path / "full", "size=8k") as full:
+    with mounted_tmpfs(tmp_path / "full", "size=8k") as full:
         (full / "filler").write_bytes(b"\0" * 4096)
         line = _one_line(eskin("export", model, "-o", full / "m.eskin"), full / "m.eskin")
         assert "No space left on device" in line
@@ -304,7 +288,7 @@ def test_train_and_evaluate_onto_a_full_disk_and_a_read_only_one(tmp_path):
     from eskin.data.simulator import simulate
 
     campaign = simulate(tmp_path / "c.h5", participants=2, runs=(2,), seed=0, n_jobs=1)
-    with _tmpfs(tmp_path / "full", "size=64k") as full:
+    with mounted_tmpfs(tmp_path / "full", "size=64k") as full:
         old = b"the model of an earlier run" * 100
         (full / "m.joblib").write_bytes(old)
         (full / "ev").mkdir()
@@ -318,7 +302,7 @@ def test_train_and_evaluate_onto_a_full_disk_and_a_read_only_one(tmp_path):
         assert line == f"error: {full / 'ev' / 'evaluation.json'}: No space left on device\n"
         assert "accuracy" in r.stdout
         assert sorted(p.name for p in full.rglob("*")) == ["ev", "filler", "m.joblib"]
-    with _tmpfs(tmp_path / "ro", "size=64k,ro") as ro:
+    with mounted_tmpfs(tmp_path / "ro", "size=64k,ro") as ro:
         line = _one_line(eskin("train", campaign, *QUICK, "-o", ro / "m.joblib",
                                "--no-progress"), ro / "m.joblib")
         assert "Read-only file system" in line
