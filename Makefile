@@ -204,19 +204,27 @@ mcu: mcu-deps $(MCU_PYTHON)
 # held-out recordings of its campaign (4 per class); the host's unmodified `eskin listen
 # PTY --model M --replay R` receives the stream, and the run ends with the line
 # "MCU-LINK: frames=... samples=... lost=0 crc_errors=0 decisions=n agree=n/n".
+# Any model: `make mcu-link MODEL=m.eskin CAMPAIGN=held.h5` puts a user's model in the flash slot
+# and 4 recordings of each of its classes from the held-out campaign (each cut to the touch
+# window the model's detector finds) on the board's ADC.
 # MCU_PY_DEP= (empty) runs it with the package from python/ (PYTHONPATH) instead of installing it.
 MCU_LINK := $(BUILD_MCU)/link
 MCU_PY_DEP ?= install
 mcu-link: mcu-deps $(MCU_PY_DEP)
-	@test -f $(MCU_CASE)/model.eskin -a -f $(MCU_CASE)/campaign.h5 || \
-	  PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE)
+	@if [ -n "$(MODEL)$(CAMPAIGN)" ] && { [ -z "$(MODEL)" ] || [ -z "$(CAMPAIGN)" ]; }; then \
+	  echo "make mcu-link: MODEL=m.eskin and CAMPAIGN=held.h5 go together"; exit 2; fi
+	@if [ -n "$(MODEL)" ]; then rm -rf $(MCU_CASE) && \
+	  PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE) $(MCU_CASE_ARGS); \
+	else test -f $(MCU_CASE)/model.eskin -a -f $(MCU_CASE)/campaign.h5 || \
+	  PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_case.py $(MCU_CASE); fi
 	$(CMAKE) -S . -B $(BUILD_MCU) -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
 	  -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
 	  -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/mcu_case.h >/dev/null
 	$(CMAKE) --build $(BUILD_MCU) --target eskin-fw
 	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-fw.elf
 	@mkdir -p $(MCU_LINK)
-	$(PY) tools/mcu_link.py replay $(MCU_CASE) $(MCU_LINK)/stream.eskr
+	$(PY) tools/mcu_link.py replay $(MCU_CASE) $(MCU_LINK)/stream.eskr \
+	  $(if $(MODEL),--campaign $(abspath $(CAMPAIGN)))
 	set -o pipefail; PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) tools/mcu_link.py run \
 	  --elf $(BUILD_MCU)/mcu/eskin-fw.elf --model $(MCU_CASE)/model.eskin \
 	  --replay $(MCU_LINK)/stream.eskr --out $(MCU_LINK) --attempts 2 | tee $(MCU_LINK)/mcu-link.log

@@ -2,11 +2,14 @@
 
 Two steps:
 
-``python tools/mcu_link.py replay CASE OUT.eskr [--per-class 4] [--margin-s 0.5]``
+``python tools/mcu_link.py replay CASE OUT.eskr [--per-class 4] [--margin-s 0.5] [--campaign HELD.h5]``
     writes the held-out stream of `make mcu`'s case (tools/mcu_case.py): from its campaign
     (``CASE/campaign.h5``), the recordings of the participant the model was not trained on
     (the last one), ``--per-class`` of each class, each cut to its contact interval and
-    ``--margin-s`` seconds of quiet on either side, with 0.5 s gaps (SIMULATED data).
+    ``--margin-s`` seconds of quiet on either side, with 0.5 s gaps (SIMULATED data). With
+    ``--campaign HELD.h5`` (``make mcu-link MODEL=... CAMPAIGN=...``): ``--per-class``
+    recordings of each of the case's model's classes from that campaign, each cut to the touch
+    window the model's own detector finds, with the same margin.
 
 ``python tools/mcu_link.py run --elf eskin-fw.elf --model M.eskin --replay R.eskr [--out DIR]``
     starts ``qemu-system-arm -M mps2-an386`` with the firmware on ``-serial pty`` in real time
@@ -75,6 +78,47 @@ def write_replay(case: Path, out: Path, per_class: int, margin_s: float) -> dict
         recording_indices=chosen, gap_s=0.5, seed=0)
     n = sum(r.shape[-1] for r in recs) + int(round(0.5 * rate)) * (len(recs) + 1)
     return {"recordings": len(chosen), "classes": len(set(labels)), "seconds": n / rate}
+
+
+def write_user_replay(case: Path, campaign: Path, out: Path, per_class: int,
+                      margin_s: float) -> dict:
+    """The stream of a user's held-out campaign for the case's model (``CASE/model.eskin``, from
+    ``tools/mcu_case.py --model M --campaign HELD``): ``per_class`` recordings of each of the
+    model's classes, each cut to the touch window the model's own detector finds in it (a
+    user's campaign has no contact intervals) with ``margin_s`` seconds on either side, so that
+    the stream fits the board's memory; 0.5 s gaps."""
+    import eskin
+    from eskin.data.replay import write_replay_arrays
+    from eskin.signal.preprocess import WindowConfig, detect_touches
+
+    compiled = eskin.CompiledModel(case / "model.eskin")
+    config = WindowConfig.from_array(
+        np.array([compiled.window_config[k] for k in WindowConfig.field_names()]))
+    try:
+        camp = eskin.load_campaign(campaign)
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"{campaign}: {exc}") from None
+    names = np.asarray(camp.modalities, dtype=object)[np.asarray(camp.modality)]
+    chosen = sorted(i for c in compiled.class_names
+                    for i in np.flatnonzero(names == c)[:per_class].tolist())
+    if not chosen:
+        raise SystemExit(f"{campaign}: no recording of the model's classes "
+                         f"({', '.join(compiled.class_names)})")
+    rate = float(camp.sample_rate_hz)
+    margin = int(round(margin_s * rate))
+    recs, labels = [], []
+    for i in chosen:
+        sig = np.asarray(camp.recording(i))[..., : int(camp.lengths[i])]
+        w = detect_touches(sig[None], sample_rate_hz=rate, config=config)
+        a, b = max(0, int(w.start[0]) - margin), min(sig.shape[-1], int(w.stop[0]) + margin)
+        recs.append(np.ascontiguousarray(sig[..., a:b]).astype(np.int16))
+        labels.append(list(camp.modalities).index(names[i]))
+    write_replay_arrays(out, recs, labels=labels, class_names=list(camp.modalities),
+                        sample_rate_hz=rate, volts_per_count=float(camp.volts_per_count),
+                        recording_indices=chosen, gap_s=0.5, seed=0)
+    n = sum(r.shape[-1] for r in recs) + int(round(0.5 * rate)) * (len(recs) + 1)
+    return {"recordings": len(chosen), "classes": len(set(labels)), "seconds": n / rate,
+            "source": str(campaign)}
 
 
 def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
@@ -215,6 +259,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("out", type=Path)
     r.add_argument("--per-class", type=int, default=4)
     r.add_argument("--margin-s", type=float, default=0.5)
+    r.add_argument("--campaign", type=Path, default=None,
+                   help="a user's held-out campaign for the case's model (make mcu-link "
+                        "MODEL=... CAMPAIGN=...) instead of the case's own")
     x = sub.add_parser("run", help="QEMU + eskin listen, then the MCU-LINK line")
     x.add_argument("--elf", type=Path, required=True)
     x.add_argument("--model", type=Path, required=True)
@@ -228,6 +275,11 @@ def main(argv: list[str] | None = None) -> int:
                         "the firmware's ring: the emulator fell behind real time")
     a = ap.parse_args(argv)
     if a.cmd == "replay":
+        if a.campaign is not None:
+            info = write_user_replay(a.case, a.campaign, a.out, a.per_class, a.margin_s)
+            print(f"{a.out}: {info['recordings']} recordings of {info['classes']} classes of "
+                  f"{info['source']}, {info['seconds']:.1f} s at the campaign's rate")
+            return 0
         info = write_replay(a.case, a.out, a.per_class, a.margin_s)
         print(f"{a.out}: {info['recordings']} held-out recordings of {info['classes']} classes, "
               f"{info['seconds']:.1f} s at the campaign's rate (SIMULATED data)")
