@@ -16,6 +16,7 @@
 #include <exception>
 #include <memory>
 #include <new>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -210,6 +211,19 @@ class PacingStats {
 
 /// Queue bytes DATA frames leave free for control frames (DECISION, STATUS, INFO, PONG).
 constexpr std::size_t kControlReserve = 1024;
+// INFO's class-name field: the bytes the simulator announces at most
+constexpr std::size_t kMaxNamesBytes = 2048;
+
+// The class names a controller would announce, checked before it starts: names that INFO cannot
+// carry as they are end the run with one line naming where they come from (exit status 2).
+void check_class_names(const std::vector<std::string>& names, const std::string& where) {
+  std::vector<char> buf(kMaxNamesBytes);
+  if (proto::pack_class_names(names.data(), names.size(), buf.data(), buf.size()) < 0) {
+    input_error(where + ": its " + std::to_string(names.size()) +
+                " class names do not fit one INFO frame (" + std::to_string(kMaxNamesBytes) +
+                " bytes, at most 255 names, none holding a newline)");
+  }
+}
 
 std::uint32_t clamp_u32(std::int64_t v) {
   return static_cast<std::uint32_t>(std::clamp<std::int64_t>(v, 0, 0xFFFFFFFFLL));
@@ -319,14 +333,16 @@ class Simulator final : public ControllerPort {
   static std::int64_t steady_ns() { return eskin::fwsim::now_ns(); }
 
   void make_controller() {
-    names_joined_.clear();
-    std::size_t n = 0;
-    for (const auto& c : class_names_) {
-      if (n == 255 || names_joined_.size() + c.size() + 1 > 2048) break;
-      if (n) names_joined_ += '\n';
-      names_joined_ += c;
-      ++n;
+    names_joined_.assign(kMaxNamesBytes, '\0');
+    const std::ptrdiff_t len = eskin::protocol::pack_class_names(
+        class_names_.data(), class_names_.size(), names_joined_.data(), names_joined_.size());
+    if (len < 0) {
+      throw std::runtime_error(
+          std::to_string(class_names_.size()) + " class names do not fit one INFO frame (" +
+          std::to_string(kMaxNamesBytes) + " bytes, at most 255 names, none holding a newline)");
     }
+    names_joined_.resize(static_cast<std::size_t>(len));
+    const std::size_t n = class_names_.size();
     ControllerConfig cfg;
     cfg.rows = static_cast<std::uint8_t>(src_.rows());
     cfg.cols = static_cast<std::uint8_t>(src_.cols());
@@ -475,9 +491,15 @@ int main_impl(int argc, char** argv) {
                   std::to_string(model->cols()) + " grid, the input has " +
                   std::to_string(src.rows()) + "x" + std::to_string(src.cols()));
   }
+  // the names INFO announces: the model's, else the input's
+  if (model)
+    check_class_names(model->class_names(), "--model " + o.model);
+  else
+    check_class_names(src.class_names(), o.input);
 #else
   if (!o.model.empty())
     usage_error("--model: this build has no on-board classifier (eskin/model.hpp)");
+  check_class_names(src.class_names(), o.input);
 #endif
 
   PtyLink link(o.tx_buffer, o.faults);

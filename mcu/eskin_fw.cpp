@@ -263,14 +263,16 @@ int run() {
   }
   static eskin::StreamClassifier classifier(model);
 
-  std::size_t names_len = 0, n_classes = 0;
-  for (const auto& c : model.class_names()) {
-    if (n_classes == 255 || names_len + c.size() + (n_classes ? 1 : 0) > kMaxNames) break;
-    if (n_classes) g_names[names_len++] = '\n';
-    std::memcpy(g_names + names_len, c.data(), c.size());
-    names_len += c.size();
-    ++n_classes;
+  const auto& names = model.class_names();
+  const std::ptrdiff_t names_len =
+      proto::pack_class_names(names.data(), names.size(), g_names, kMaxNames);
+  if (names_len < 0) {
+    std::printf("eskin-fw: the model's %u class names do not fit one INFO frame (%u bytes, at "
+                "most 255 names, none holding a newline)\n",
+                static_cast<unsigned>(names.size()), static_cast<unsigned>(kMaxNames));
+    return 2;
   }
+  const std::size_t n_classes = names.size();
 
   Uart& uart = uart0();
   uart.init();

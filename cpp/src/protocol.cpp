@@ -504,4 +504,19 @@ bool FrameDecoderBase::parse(std::size_t len) {
   return false;
 }
 
+std::ptrdiff_t pack_class_names(const std::string* names, std::size_t n, char* out,
+                                std::size_t capacity) noexcept {
+  if (n > 255 || (n > 0 && (names == nullptr || out == nullptr))) return -1;
+  std::size_t len = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::string& c = names[i];
+    if (c.find('\n') != std::string::npos) return -1;
+    const std::size_t need = c.size() + (i ? 1 : 0);
+    if (need > capacity - len) return -1;
+    if (i) out[len++] = '\n';
+    for (char ch : c) out[len++] = ch;
+  }
+  return static_cast<std::ptrdiff_t>(len);
+}
+
 }  // namespace eskin::protocol

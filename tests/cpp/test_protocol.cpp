@@ -699,3 +699,22 @@ TEST(DecoderChecks, DecisionValuesPastTheirCountAreZero) {
       EXPECT_EQ(d.values[k], k < n ? 1.5 + static_cast<double>(k) : 0.0) << int(n) << " " << k;
   }
 }
+
+// INFO's class names: joined by '\n' when they all fit as they are; otherwise -1 and nothing a
+// controller could announce as a shortened list.
+TEST(ClassNames, PackedWholeOrRefused) {
+  using eskin::protocol::pack_class_names;
+  const std::vector<std::string> names = {"brush", "finger", "washer"};
+  char out[32];
+  ASSERT_EQ(pack_class_names(names.data(), names.size(), out, sizeof out), 19);
+  EXPECT_EQ(std::string(out, 19), "brush\nfinger\nwasher");
+  EXPECT_EQ(pack_class_names(names.data(), names.size(), out, 19), 19);  // exactly full
+  EXPECT_EQ(pack_class_names(names.data(), names.size(), out, 18), -1);  // one byte short
+  EXPECT_EQ(pack_class_names(names.data(), 0, nullptr, 0), 0);
+  const std::vector<std::string> newline = {"a", "b\nc"};
+  EXPECT_EQ(pack_class_names(newline.data(), newline.size(), out, sizeof out), -1);
+  const std::vector<std::string> many(256, "x");
+  std::vector<char> big(4096);
+  EXPECT_EQ(pack_class_names(many.data(), many.size(), big.data(), big.size()), -1);
+  EXPECT_EQ(pack_class_names(many.data(), 255, big.data(), big.size()), 255 * 2 - 1);
+}

@@ -496,3 +496,19 @@ def test_forced_end_of_replay_decision_counts_its_classification_time(sim, tmp_p
     assert last.end_sample == len(arr)
     assert d.timestamp_us - d.latency_us - last.timestamp_us in (0, 1)
     assert d.timestamp_us >= last.timestamp_us
+
+
+def test_class_names_that_info_cannot_carry_are_refused_not_shortened(fw_sim, tmp_path):
+    """A replay whose class names overrun one INFO frame: one line naming the file, exit 2 (the
+    simulator announced the names that fitted and dropped the rest without a word)."""
+    names = [f"gesture-{k:03d}-" + "x" * 80 for k in range(30)]  # 30 x 92 bytes: over 2048
+    rng = np.random.default_rng(1)
+    recs = [rng.integers(-50, 50, (2, 2, 500)).astype(np.int16) for _ in range(2)]
+    path = tmp_path / "long_names.eskr"
+    write_replay_arrays(path, recs, labels=[0, 29], class_names=names, gap_s=0.1, seed=0)
+    out = subprocess.run([str(fw_sim), str(path), "--quiet"], capture_output=True, text=True,
+                         timeout=20)
+    assert out.returncode == 2, out.stderr
+    assert out.stderr == (f"eskin-fw-sim: {path}: its 30 class names do not fit one INFO frame "
+                          "(2048 bytes, at most 255 names, none holding a newline)\n")
+    assert out.stdout == ""  # refused before the pty opens

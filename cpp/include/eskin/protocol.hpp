@@ -11,6 +11,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <string>
 
 #include "eskin/crc32.hpp"
 
@@ -126,6 +127,14 @@ struct InfoPayload {
   std::uint16_t names_len = 0;       // bytes of class names
   const char* class_names = nullptr; // names_len bytes, UTF-8, names separated by '\n'
 };
+
+/// INFO's class-name field: `n` names joined by '\n' into out[0, capacity). Returns the bytes
+/// written, or -1 (nothing announced) when they cannot all be sent as they are: more than 255
+/// names, a name holding '\n', or more than `capacity` bytes. One packing for every controller
+/// (eskin-fw-sim, the device firmware): a model whose names do not fit is refused, never
+/// announced with a shortened list. No allocation, no exceptions.
+std::ptrdiff_t pack_class_names(const std::string* names, std::size_t n, char* out,
+                                std::size_t capacity) noexcept;
 
 struct PingPayload {
   std::uint32_t token = 0;
