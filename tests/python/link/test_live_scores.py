@@ -40,11 +40,12 @@ def test_score_stream_counts_splits_misses_and_spurious_touches(tmp_path):
         decision(s[0] + 500, s[0] + 900, "a"),  # (this one overlaps it most: kept)
         decision(s[1] - 600, s[1] - 200, "a"),  # in the gap before recording 1: spurious
         decision(s[2] + 200, s[2] + 800, "a", dont_know=True),  # recording 2, right, unsure
-        decision(s[3] + 100, s[3] + 900, "c"),  # recording 3: a class the figure does not have
+        # recording 3: a class the figure does not have (no decision, so not "don't know")
+        decision(s[3] + 100, s[3] + 900, "c", dont_know=True),
     ]
     out = score_stream(decisions, rf, ["a", "b"])
     assert out["per_recording"] == {"touches": [2, 0, 1, 1], "decided": [0, -1, 0, -1],
-                                    "dont_know": [False, False, True, False]}
+                                    "dont_know": [False, False, True, True]}
     assert {k: out[k] for k in ("recordings", "touches", "split", "missed", "spurious",
                                 "correct", "dont_know")} == {
         "recordings": 4, "touches": 4, "split": 1, "missed": 1, "spurious": 1, "correct": 2,
