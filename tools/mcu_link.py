@@ -12,9 +12,9 @@ Two steps:
     window the model's own detector finds, with the same margin.
 
 ``python tools/mcu_link.py run --elf eskin-fw.elf --model M.eskin --replay R.eskr [--out DIR]``
-    starts ``qemu-system-arm -M mps2-an386`` with the firmware on ``-serial pty`` in real time
-    (no ``-icount``, unless ``--icount SHIFT`` is given for instruction counts), the model in
-    the firmware's flash slot and the replay in PSRAM (``-device loader``), runs
+    starts ``qemu-system-arm -M mps2-an386`` with the firmware on ``-serial pty`` under
+    ``-icount shift=3`` (``--icount N`` for another shift; ``--realtime`` for none), the model
+    in the firmware's flash slot and the replay in PSRAM (``-device loader``), runs
     ``eskin listen PTY --model M --replay R --until-eof --jsonl DIR/listen.jsonl`` against it
     and ends with one line::
 
@@ -26,6 +26,15 @@ Two steps:
     own classifier (same model) on the same received stream. Before it, a line ``MCU-FW: ...``
     gives the firmware's own measurements (docs/mcu.md). Exit status 0 only with every sample
     received, none lost, no CRC error, at least one decision and every decision agreeing.
+
+Why ``-icount`` by default: the board's clock then counts the processor's instructions (2^N ns
+each; shift 3 is a Cortex-M4 at 125 M instructions per second, slower than the 168 MHz part),
+so the sampling timer and the firmware's work share one clock and whether the firmware keeps up
+does not depend on how busy the host is; the host receives the same stream, only at the pace
+QEMU manages (about 2.5x the stream's duration on a 2-core machine). In real time
+(``--realtime``) the board's clock is the host's: a host that deschedules QEMU for longer than
+the sample ring lasts (256 samples, 85 ms at 3 kSps) makes samples due that the firmware never
+had the processor for, and they are lost in its ring although the firmware is fast enough.
 
 QEMU's pty discards what the board writes while no host has it open and notices a host only by
 polling; the firmware therefore streams only after the host's START (eskin listen sends START
@@ -43,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 TICK_HZ = 25e6  # SysTick at the processor clock
+DEFAULT_ICOUNT = 3  # 8 ns per instruction: a Cortex-M4 at 125 M instructions per second
 LISTEN_NICE = -10  # the listener's priority when permitted (QEMU's: eskin.link.qemu_controller)
 
 
@@ -160,14 +170,15 @@ def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Runs the link up to ``--attempts`` times: again only when the one fault was samples lost
-    in the firmware's ring (the emulator fell behind real time on a busy host: QEMU carries each
-    UART byte with a write(2) on the pty), never for a CRC error or a fault without such losses.
-    Each attempt prints its lines."""
+    """Runs the link up to ``--attempts`` times: again only in real time (``--realtime``) and
+    only when the one fault was samples lost in the firmware's ring (the emulator fell behind
+    real time on a busy host: QEMU carries each UART byte with a write(2) on the pty), never for
+    a CRC error or a fault without such losses. Each attempt prints its lines."""
     code = 1
     for attempt in range(1, max(1, args.attempts) + 1):
         code, emulator_behind = _run_once(args)
-        if code == 0 or not emulator_behind or attempt == args.attempts:
+        if code == 0 or not emulator_behind or args.icount is not None \
+                or attempt == args.attempts:
             return code
         print(f"mcu-link: attempt {attempt} lost samples in the firmware's ring (the emulator "
               f"fell behind real time: is the host busy?); running again", file=sys.stderr)
@@ -192,7 +203,9 @@ def _run_once(args: argparse.Namespace) -> tuple[int, bool]:
                 sys.executable, "-m", "eskin", "listen", qc.pty, "--model", str(args.model),
                 "--replay", str(args.replay), "--until-eof", "--jsonl", str(jsonl), "--force",
                 "--view", "plain"]
-            timeout = args.timeout if args.timeout else 120 + 4 * stream_s
+            # under -icount the stream comes at QEMU's pace: about 2.5x its duration when idle
+            pace = 4 if args.icount is None else 10
+            timeout = args.timeout if args.timeout else 120 + pace * stream_s
             with open(out / "listen.log", "wb") as log:
                 r = subprocess.run(listen, stdout=log, stderr=subprocess.STDOUT, timeout=timeout)
     except QemuControllerError as exc:
@@ -267,13 +280,19 @@ def main(argv: list[str] | None = None) -> int:
     x.add_argument("--model", type=Path, required=True)
     x.add_argument("--replay", type=Path, required=True)
     x.add_argument("--out", type=Path, default=Path("build/mcu/link"))
-    x.add_argument("--icount", type=int, default=None,
-                   help="run QEMU with -icount shift=N (instruction counts; not real time)")
+    x.add_argument("--icount", type=int, default=DEFAULT_ICOUNT,
+                   help="run QEMU with -icount shift=N: the board's clock counts instructions, "
+                        "2^N ns each (default %(default)s: 125 M instructions per second)")
+    x.add_argument("--realtime", action="store_true",
+                   help="run QEMU without -icount: the board's clock is the host's, and a busy "
+                        "host can make the firmware lose samples it would have kept")
     x.add_argument("--timeout", type=float, default=None, help="seconds for eskin listen")
     x.add_argument("--attempts", type=int, default=1,
                    help="run again (up to N runs in all) when the only fault is samples lost in "
-                        "the firmware's ring: the emulator fell behind real time")
+                        "the firmware's ring: the emulator fell behind real time (--realtime only)")
     a = ap.parse_args(argv)
+    if a.cmd == "run" and a.realtime:
+        a.icount = None
     if a.cmd == "replay":
         if a.campaign is not None:
             info = write_user_replay(a.case, a.campaign, a.out, a.per_class, a.margin_s)
