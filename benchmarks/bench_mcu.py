@@ -69,7 +69,7 @@ def svm_case(out: Path, D: int, participants: int, alpha: str, amplitude, negati
     simulated campaign and a few recordings of its last participant, held out: a `make mcu`
     case (tools/mcu_case.from_files). Returns the model's cost-model inputs."""
     import eskin
-    from eskin.learn.models import QUICK_LAMBDAS, QUICK_SIGMAS
+    from eskin.learn.grids import QUICK_LAMBDAS, QUICK_SIGMAS
 
     out.mkdir(parents=True, exist_ok=True)
     camp = eskin.load_campaign(eskin.simulate(out / "campaign.h5", participants=participants,

@@ -33,7 +33,7 @@ os.environ.setdefault("ESKIN_NUM_THREADS", "1")
 
 import eskin  # noqa: E402
 from eskin.deploy.export import CompiledModel, export_model  # noqa: E402
-from eskin.learn.models import train_model  # noqa: E402
+from eskin.learn.training import train_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_stream_memory import per_stream  # noqa: E402

@@ -28,7 +28,7 @@ import numpy as np
 
 import eskin
 from eskin.deploy.export import CompiledModel, model_to_bytes, spec_from_model
-from eskin.learn.models import train_model
+from eskin.learn.training import train_model
 
 PAPER = {"amplitudes": (None,), "negatives": "balanced"}
 

@@ -40,7 +40,8 @@ from eskin._paths import find_executable
 from eskin.data.campaign import load_campaign
 from eskin.data.replay import read_replay_file, write_replay_file
 from eskin.deploy.export import CompiledModel, export_model
-from eskin.learn.models import load_model, train_model
+from eskin.learn.models import load_model
+from eskin.learn.training import train_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from selection_study import CAMPAIGNS, OTHER_CAMPAIGNS  # noqa: E402

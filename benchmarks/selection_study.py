@@ -123,7 +123,7 @@ def patterns(cache: Path, name: str, spec, D: int, subsample: str):
     window = spec[3]
     path = cache / "patterns" / f"{name}-D{D}-{subsample}-{window}.npz"
     if not path.exists():
-        from eskin.learn.models import preprocess_campaign
+        from eskin.learn.training_set import preprocess_campaign
 
         camp = eskin.load_campaign(campaign_path(cache, name, spec))
         idx = np.arange(len(camp.modality))
@@ -995,7 +995,7 @@ def search_unit(cache, name, spec, split, quick, seed, part="all"):
         parse_budget,
         training_budget,
     )
-    from eskin.learn.models import (
+    from eskin.learn.grids import (
         DEFAULT_AMPLITUDES,
         PAPER_ALPHAS,
         PAPER_LAMBDAS,
@@ -1003,13 +1003,9 @@ def search_unit(cache, name, spec, split, quick, seed, part="all"):
         QUICK_ALPHAS,
         QUICK_LAMBDAS,
         QUICK_SIGMAS,
-        _fit_candidate,
-        _Recipe,
-        _touch_model,
-        preprocess_campaign,
-        train_model,
-        window_config_for_rate,
     )
+    from eskin.learn.training import _fit_candidate, _Recipe, _touch_model, train_model
+    from eskin.learn.training_set import preprocess_campaign, window_config_for_rate
     from eskin.learn.recipes import RecipeSearch, recipe_space
 
     window = spec[3]

@@ -44,7 +44,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import eskin  # noqa: E402
-from eskin.learn.models import train_model  # noqa: E402
+from eskin.learn.training import train_model  # noqa: E402
 from eskin.learn.support_budget import (  # noqa: E402
     _machines,
     bound_support,

@@ -75,7 +75,7 @@ def build_case(
         chosen.extend(test_idx[camp.modality[test_idx] == c][:per_class].tolist())
     chosen = sorted(chosen)
     # the quick grid (2 lambdas x 2 sigmas x alpha in {1, Q/2}), or one alpha forced
-    from eskin.learn.models import QUICK_LAMBDAS, QUICK_SIGMAS
+    from eskin.learn.grids import QUICK_LAMBDAS, QUICK_SIGMAS
 
     grid = (
         {"quick": True}

@@ -3,7 +3,7 @@
 1. simulate a campaign (SIMULATED data, :func:`eskin.simulate`);
 2. train a 3-class model with ``eskin train``'s default recipe (tensor-SVM, or tensor-RLS,
    selected by participant-grouped cross-validation) on some participants
-   (:func:`eskin.learn.models.train_model`), save it and export it to a ``.eskin`` file
+   (:func:`eskin.learn.training.train_model`), save it and export it to a ``.eskin`` file
    (:func:`eskin.deploy.export.export_model`);
 3. write the held-out participants' recordings as a replay file
    (:func:`eskin.data.replay.write_replay_file`) and start the firmware simulator ``eskin-fw-sim`` on
@@ -363,7 +363,7 @@ def _train_and_export(train: Any, files: dict[str, Path], machine: str, quick: b
         from eskin._progress import progress_bar
         from eskin.deploy import save_model
         from eskin.deploy.export import CompiledModel, export_model
-        from eskin.learn.models import train_model
+        from eskin.learn.training import train_model
     except ImportError as exc:
         raise DemoError(
             f"a part of the pipeline is missing from this installation ({exc})") from None

@@ -17,7 +17,9 @@ import pytest
 from eskin.data.campaign import load_campaign
 from eskin.data.simulator import SimulatorConfig, simulate
 from eskin.deploy.export import CompiledModel, export_model
-from eskin.learn.models import load_model, preprocess_campaign, train_model
+from eskin.learn.models import load_model
+from eskin.learn.training import train_model
+from eskin.learn.training_set import preprocess_campaign
 from eskin.signal.preprocess import TouchDetector, WindowConfig, detect_touches, preprocess
 
 # (rows, cols, rate Hz, recording s, window_samples, D): windows of hundreds to thousands of

@@ -140,7 +140,7 @@ AMPLITUDE_HELP = (
 
 def _amplitudes(text: Optional[str]) -> dict[str, Any]:
     """``{"amplitudes": ...}`` for train_model from --amplitude, or {} (its default)."""
-    from eskin.learn.models import parse_amplitudes
+    from eskin.learn.grids import parse_amplitudes
 
     if text is None:
         return {}
@@ -158,7 +158,7 @@ def _train_and_save(
     display, saved to ``output``; a one-line error for bad input."""
     from eskin._progress import progress_bar
     from eskin.deploy import save_model
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
     from eskin.learn.parallel import compute_backend
 
     try:
@@ -262,7 +262,7 @@ def _fitting_model(campaign: Path, recipe: dict[str, Any], budget: Any, model: A
     candidate's support vectors comes from its splits, not from the final fit."""
     from eskin.deploy.export import model_to_bytes, spec_from_model
     from eskin.deploy.target import model_fits
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
     from eskin.learn.recipes import CandidateBudget
 
     base = recipe["budget"]

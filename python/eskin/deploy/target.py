@@ -373,7 +373,7 @@ def parse_budget(text: str | None, target: str | None = None) -> Budget:
 
 
 def _stored_alphas(grid_shape, D: int, alpha: str) -> tuple[int, ...]:
-    from eskin.learn.models import alpha_value
+    from eskin.learn.grids import alpha_value
 
     return alpha_value(alpha, (int(grid_shape[0]), int(grid_shape[1]), int(D)))
 

@@ -56,7 +56,7 @@ import numpy as np
 from eskin._progress import progress_bar
 from eskin.errors import ExperimentError
 from eskin.experiments.paper_tables import PAPER_DS, PAPER_PROBLEMS
-from eskin.learn.models import (
+from eskin.learn.grids import (
     MACHINES,
     PAPER_ALPHAS,
     PAPER_LAMBDAS,
@@ -68,10 +68,10 @@ from eskin.learn.models import (
     fit_search,
     make_search,
     param_grid,
-    preprocess_campaign,
     selected_row,
     selection_table,
 )
+from eskin.learn.training_set import preprocess_campaign
 
 SCHEMA = "eskin.experiment/1"
 

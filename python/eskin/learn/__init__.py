@@ -22,19 +22,10 @@ from .kernel import (
     resolve_alphas,
     tensor_kernel,
 )
-from .models import (
-    ArrayRecordings,
-    ModelFormatError,
-    Prepared,
-    TouchModel,
-    TrainingError,
-    error_rate,
-    load_model,
-    preprocess_campaign,
-    register_model_format,
-    save_model,
-    train_model,
-)
+from eskin.errors import ModelFormatError, TrainingError
+from .models import TouchModel, error_rate, load_model, register_model_format, save_model
+from .training import train_model
+from .training_set import ArrayRecordings, Prepared, preprocess_campaign
 from .selection import (
     MD_READINGS,
     PAPER_GRID,

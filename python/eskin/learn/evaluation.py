@@ -294,7 +294,8 @@ def run_fold(task: FoldTask, **arrays: Any) -> dict[str, Any]:
     baselines on the same patterns). ``arrays``: the recordings, when ``task.source`` holds
     only the campaign's settings (a fold on a cluster). Returns the fold's record (predictions
     included)."""
-    from eskin.learn.models import group_labels, train_model
+    from eskin.learn.training import train_model
+    from eskin.learn.training_set import group_labels
 
     with _opened(task.source, arrays) as camp:
         return _fold_record(task, camp, group_labels(camp, task.group_name), train_model)
@@ -424,7 +425,7 @@ def plan_folds(
     seed: int = 0,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[str], np.ndarray]:
     """(folds as campaign indices, class names, group label of every recording)."""
-    from eskin.learn.models import group_labels
+    from eskin.learn.training_set import group_labels
 
     idx, names = _recordings(campaign, classes, runs)
     labels = group_labels(campaign, groups)

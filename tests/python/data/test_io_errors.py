@@ -253,7 +253,8 @@ def test_listen_record_onto_a_full_disk(tmp_path):
 def test_export_onto_a_full_disk(tmp_path):
     """`eskin export` of a trained model: one line naming the .eskin file, nothing left."""
     from eskin.data.simulator import simulate
-    from eskin.learn.models import save_model, train_model
+    from eskin.learn.models import save_model
+    from eskin.learn.training import train_model
 
     campaign = simulate(tmp_path / "c.h5", participants=2, seed=0, n_jobs=1)
     model = save_model(train_model(load_campaign(campaign), D=20, selection="md"),

@@ -14,7 +14,8 @@ from learn_data import small_simulated
 
 from eskin.deploy.export import CompiledModel, ModelFormatError, export_model, model_to_bytes
 from eskin.deploy.export import spec_from_model
-from eskin.learn.models import load_model, save_model, train_model
+from eskin.learn.models import load_model, save_model
+from eskin.learn.training import train_model
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 

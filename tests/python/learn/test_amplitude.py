@@ -9,7 +9,7 @@ from sklearn.base import clone
 import eskin
 from eskin.errors import TrainingError
 from eskin.learn.estimators import MIN_ENERGY_SPREAD, TensorRLS, TensorSVC
-from eskin.learn.models import param_grid, parse_amplitudes
+from eskin.learn.grids import param_grid, parse_amplitudes
 from eskin.learn.selection import CrossValidationSearch, MaximalDiscrepancySearch
 
 SHAPE = (3, 3, 8)

@@ -252,7 +252,8 @@ def test_the_experiment_report_says_when_the_detector_was_adapted_to_the_rate(tm
 def test_the_defaults_train_on_gestures_shorter_than_the_default_D(tmp_path):
     """eskin train with no options on 10 Hz gestures of 3 to 10 frames: D becomes the longest
     recording, with a note; evaluate and predict run on the model."""
-    from eskin.learn.models import DEFAULT_D, load_model
+    from eskin.learn.grids import DEFAULT_D
+    from eskin.learn.models import load_model
 
     camp = shaped_campaign(
         tmp_path / "c.h5", rows=19, cols=27, rate=10.0, participants=3, min_len=3, max_len=10
@@ -273,7 +274,7 @@ def test_the_defaults_train_on_gestures_shorter_than_the_default_D(tmp_path):
 
 
 def test_the_default_D_is_100_when_the_recordings_allow_it(tmp_path):
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
 
     camp = shaped_campaign(tmp_path / "c.h5", rows=2, cols=2, rate=100.0, participants=2,
                            counts=[3, 3], min_len=100, max_len=150)

@@ -18,7 +18,7 @@ from eskin.learn.calibration import (
     log_sigmoid,
     out_of_fold_values,
 )
-from eskin.learn.models import train_model
+from eskin.learn.training import train_model
 
 
 @pytest.fixture(scope="module")

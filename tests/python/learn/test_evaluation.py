@@ -287,7 +287,7 @@ def test_evaluate_command_on_a_simulated_campaign(sim_campaign, tmp_path):
         "machine": "svm", "selection": "cv", "D": 20, "window": "energy",
         "subsample": "algorithm2",
     }
-    from eskin.learn.models import DEFAULT_AMPLITUDES
+    from eskin.learn.grids import DEFAULT_AMPLITUDES
 
     assert ran["amplitudes"] == list(DEFAULT_AMPLITUDES) and ran["negatives"] == "all"
     assert all(f["trained_with"]["D"] == 20 for f in res["folds"])

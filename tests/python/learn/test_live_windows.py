@@ -82,7 +82,7 @@ def test_the_grid_starts_at_the_detector_default():
 
 
 def test_train_model_chooses_the_hold_and_keeps_a_given_one(press):
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
 
     kw = dict(machine="svm", D=20, subsample="algorithm2", negatives="all", quick=True, seed=0)
     model = train_model(press, **kw)

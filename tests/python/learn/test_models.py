@@ -13,15 +13,9 @@ from learn_data import USER_CLASSES, small_simulated, user_campaign
 from typer.testing import CliRunner
 
 from eskin.cli import app
-from eskin.learn.models import (
-    ModelFormatError,
-    TouchModel,
-    TrainingError,
-    error_rate,
-    load_model,
-    save_model,
-    train_model,
-)
+from eskin.errors import ModelFormatError, TrainingError
+from eskin.learn.models import TouchModel, error_rate, load_model, save_model
+from eskin.learn.training import train_model
 
 runner = CliRunner()
 

@@ -108,7 +108,7 @@ def test_the_recipe_search_on_two_worker_processes_matches_the_serial_run(
     import joblib
     from dask.distributed import get_task_stream
 
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
 
     kw = {"classes": ["brush", "finger", "washer"], "quick": True, "D": 8, "seed": 2}
     serial = train_model(campaign_without_file, n_jobs=1, **kw)

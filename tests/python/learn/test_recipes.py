@@ -14,7 +14,9 @@ from typer.testing import CliRunner
 from eskin.cli import app
 from eskin.errors import TrainingError
 from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
-from eskin.learn.models import load_model, preprocess_campaign, train_model
+from eskin.learn.models import load_model
+from eskin.learn.training import train_model
+from eskin.learn.training_set import preprocess_campaign
 from eskin.learn.recipes import (
     CandidateBudget,
     Recipe,

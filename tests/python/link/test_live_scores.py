@@ -92,7 +92,7 @@ def press(tmp_path_factory) -> Path:
 
 def fold_model(campaign, **kw):
     """A model of the participants other than TEST_PARTICIPANT, and their campaign."""
-    from eskin.learn.models import train_model
+    from eskin.learn.training import train_model
 
     test = np.flatnonzero(np.asarray(campaign.participant) == TEST_PARTICIPANT)
     train = np.setdiff1d(np.arange(len(campaign)), test)
