@@ -281,9 +281,18 @@ class Simulator final : public ControllerPort {
           break;
       }
     }
-    // last words: a final STATUS, and a bounded wait for the host to take what is queued
-    ctl_->send_status();
-    const std::int64_t give_up = steady_ns() + 1000000000LL;
+    // last words: what is queued goes out first (a bounded wait), then the decisions still
+    // waiting for room, the rest of them counted as dropped, and a final STATUS; then a bounded
+    // wait for the host to take it all
+    std::int64_t give_up = steady_ns() + 1000000000LL;
+    while (link_.queued() > 0 && link_.host_connected() && steady_ns() < give_up) {
+      if (!link_.flush_tx()) break;
+      link_.wait_io(5, true);
+      bool rc, dc;
+      link_.update_host(rc, dc);
+    }
+    ctl_->shutdown();
+    give_up = steady_ns() + 1000000000LL;
     while (link_.queued() > 0 && link_.host_connected() && steady_ns() < give_up) {
       if (!link_.flush_tx()) break;
       link_.wait_io(5, true);
@@ -328,6 +337,15 @@ class Simulator final : public ControllerPort {
     anchor_sample_ = ctl_->next_sample();
   }
   void on_decision_sent(std::uint32_t latency_us) override { latencies_us_.push_back(latency_us); }
+  void on_decision_dropped(const proto::DecisionPayload& d) override {
+    if (o_.quiet) return;
+    std::fprintf(stderr,
+                 "eskin-fw-sim: decision on touch [%llu, %llu) dropped (%s); %llu dropped so far\n",
+                 static_cast<unsigned long long>(d.onset_sample),
+                 static_cast<unsigned long long>(d.offset_sample),
+                 link_.host_connected() ? "the output is full" : "no host",
+                 static_cast<unsigned long long>(ctl_->decisions_dropped()));
+  }
 
  private:
   static std::int64_t steady_ns() { return eskin::fwsim::now_ns(); }
@@ -430,7 +448,8 @@ class Simulator final : public ControllerPort {
         "\"overrun_events\": %u, \"faults_injected\": %llu, \"bytes_written\": %llu, "
         "\"rx_errors\": %u, \"connections\": %u, \"pacing_wakeups\": %llu, \"pacing_p50_ns\": %lld, "
         "\"pacing_p99_ns\": %lld, \"pacing_max_ns\": %lld, \"decisions_made\": %llu, "
-        "\"decisions_sent\": %llu, \"classify_errors\": %llu, \"latency_p50_us\": %.0f, "
+        "\"decisions_sent\": %llu, \"decisions_dropped\": %llu, \"frames_dropped\": %llu, "
+        "\"classify_errors\": %llu, \"latency_p50_us\": %.0f, "
         "\"latency_p99_us\": %.0f, \"latency_max_us\": %.0f, \"elapsed_s\": %.6f, "
         "\"origin_ns\": %lld, \"realtime\": %s}\n",
         static_cast<unsigned long long>(c.next_sample()),
@@ -443,6 +462,8 @@ class Simulator final : public ControllerPort {
         static_cast<long long>(pacing_.percentile_ns(0.99)), static_cast<long long>(pacing_.max_ns()),
         static_cast<unsigned long long>(c.decisions_made()),
         static_cast<unsigned long long>(c.decisions_sent()),
+        static_cast<unsigned long long>(c.decisions_dropped()),
+        static_cast<unsigned long long>(c.frames_dropped()),
         static_cast<unsigned long long>(c.classify_errors()), pct(0.5), pct(0.99),
         lat.empty() ? 0.0 : static_cast<double>(lat.back()),
         static_cast<double>(steady_ns() - origin_) * 1e-9, static_cast<long long>(origin_),

@@ -357,6 +357,8 @@ int run() {
         const std::uint64_t busy = total - ls.idle_ticks;
         std::printf("FW: samples=%" PRIu32 " lost=%" PRIu32 " dropped=%" PRIu32
                     " ring_high_water=%" PRIu32 " decisions=%" PRIu32
+                    " decisions_made=%" PRIu32 " decisions_dropped=%" PRIu32
+                    " frames_dropped=%" PRIu32
                     " longest_push_ticks=%" PRIu32 " busy_ticks=%" PRIu32
                     " total_ticks=%" PRIu32 " sampler_isr_ticks=%" PRIu32
                     " uart_isr_ticks=%" PRIu32 " uart_tx_irqs=%" PRIu32 " uart_bytes=%" PRIu32
@@ -366,6 +368,9 @@ int run() {
                     static_cast<std::uint32_t>(smp.lost()),
                     static_cast<std::uint32_t>(ctl.dropped_samples()), smp.high_water(),
                     static_cast<std::uint32_t>(ctl.decisions_sent()),
+                    static_cast<std::uint32_t>(ctl.decisions_made()),
+                    static_cast<std::uint32_t>(ctl.decisions_dropped()),
+                    static_cast<std::uint32_t>(ctl.frames_dropped()),
                     static_cast<std::uint32_t>(ls.longest_push),
                     static_cast<std::uint32_t>(busy), static_cast<std::uint32_t>(total),
                     smp.isr_ticks(), uart.isr_ticks(), uart.tx_interrupts(),

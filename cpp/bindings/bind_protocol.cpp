@@ -105,6 +105,8 @@ py::dict frame_to_dict(const Frame& f) {
       d["state"] = static_cast<int>(p.state);
       d["host_connected"] = p.host_connected != 0;
       d["connections"] = p.connections;
+      d["decisions_dropped"] = p.decisions_dropped;
+      d["frames_dropped"] = p.frames_dropped;
       break;
     }
     case FrameType::info: {
@@ -216,6 +218,8 @@ py::bytes encode_dict(const py::dict& d) {
       p.state = static_cast<protocol::StreamState>(get_checked<std::uint8_t>(d, "state", 0, 0, 2));
       p.host_connected = get(d, "host_connected", false) ? 1 : 0;
       p.connections = get_checked<std::uint16_t>(d, "connections", 0, 0, 65535);
+      p.decisions_dropped = get_checked<std::uint32_t>(d, "decisions_dropped", 0, 0, kU32);
+      p.frames_dropped = get_checked<std::uint32_t>(d, "frames_dropped", 0, 0, kU32);
       break;
     }
     case FrameType::info: {

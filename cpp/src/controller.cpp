@@ -65,6 +65,14 @@ bool Controller::queue(proto::Frame& f, std::size_t reserve) {
   return ok;
 }
 
+/// STATUS, INFO and PONG: they leave room for a DECISION, and one that does not fit while a
+/// host is there is counted.
+bool Controller::queue_control(proto::Frame& f) {
+  if (queue(f, cfg_.decision_reserve)) return true;
+  if (port_.host_connected()) ++frames_dropped_;
+  return false;
+}
+
 void Controller::send_info() {
   proto::Frame f;
   f.type = proto::FrameType::info;
@@ -79,7 +87,7 @@ void Controller::send_info() {
   p.n_classes = cfg_.n_classes;
   p.names_len = cfg_.names_len;
   p.class_names = cfg_.class_names;
-  queue(f);
+  queue_control(f);
 }
 
 void Controller::push(const std::int16_t* sample, std::int64_t acquired_ns) {
@@ -136,9 +144,7 @@ void Controller::end_of_replay(std::int64_t acquired_ns, bool loop) {
 
 void Controller::send_decision(std::int64_t acquired_ns) {
   const Decision& d = classifier_->decision();
-  proto::Frame f;
-  f.type = proto::FrameType::decision;
-  auto& p = f.decision;
+  proto::DecisionPayload p;
   p.onset_sample = static_cast<std::uint64_t>(d.window_start > 0 ? d.window_start : 0);
   p.offset_sample = static_cast<std::uint64_t>(d.window_stop > 0 ? d.window_stop : 0);
   p.decided_sample = next_sample_ == 0 ? 0 : next_sample_ - 1;
@@ -153,10 +159,47 @@ void Controller::send_decision(std::int64_t acquired_ns) {
   p.timestamp_us = us_since_origin(t);
   p.latency_us = clamp_u32((t - acquired_ns) / 1000);
   ++decisions_made_;
-  // DATA leaves room for control frames, so a decision is queued even while samples drop.
-  if (!queue(f)) return;
-  ++decisions_sent_;
-  port_.on_decision_sent(p.latency_us);
+  if (!port_.host_connected()) {  // nobody to tell: like the samples, it is dropped
+    drop_decision(p);
+    return;
+  }
+  // Decisions go out in the order they were made: behind the ones still waiting, if any. A
+  // decision that finds the waiting queue full is dropped (the older ones keep their places).
+  if (pending_count_ == kPendingDecisions) flush_pending();
+  if (pending_count_ == kPendingDecisions) {
+    drop_decision(p);
+    return;
+  }
+  pending_[(pending_head_ + pending_count_) % kPendingDecisions] = p;
+  ++pending_count_;
+  flush_pending();
+}
+
+/// Queues the decisions waiting for room, oldest first, with no reserve: a decision may take
+/// the last byte of the port's output. True when none is left waiting. Without a host they
+/// are dropped.
+bool Controller::flush_pending() {
+  while (pending_count_ > 0) {
+    const proto::DecisionPayload& p = pending_[pending_head_];
+    if (!port_.host_connected()) {
+      drop_decision(p);
+    } else {
+      proto::Frame f;
+      f.type = proto::FrameType::decision;
+      f.decision = p;
+      if (!queue(f)) return false;
+      ++decisions_sent_;
+      port_.on_decision_sent(p.latency_us);
+    }
+    pending_head_ = (pending_head_ + 1) % kPendingDecisions;
+    --pending_count_;
+  }
+  return true;
+}
+
+void Controller::drop_decision(const proto::DecisionPayload& p) {
+  ++decisions_dropped_;
+  port_.on_decision_dropped(p);
 }
 
 void Controller::send_data(std::int64_t acquired_ns) {
@@ -172,7 +215,9 @@ void Controller::send_data(std::int64_t acquired_ns) {
                                       (loop_flag_ ? proto::flags::kLoop : 0));
   const std::size_t n = frame_fill_;
   frame_fill_ = 0;
-  if (queue(f, cfg_.control_reserve)) {
+  // a decision still waiting for room goes first: no DATA frame overtakes it
+  const bool room = pending_count_ == 0 || flush_pending();
+  if (room && queue(f, cfg_.control_reserve)) {
     samples_sent_ += n;
     dropped_since_data_ = false;
     loop_flag_ = false;
@@ -186,7 +231,8 @@ void Controller::send_data(std::int64_t acquired_ns) {
   }
 }
 
-void Controller::send_status() {
+bool Controller::send_status() {
+  flush_pending();  // a STATUS follows the decisions it counts as sent when it can
   proto::Frame f;
   f.type = proto::FrameType::status;
   auto& s = f.status;
@@ -197,6 +243,8 @@ void Controller::send_status() {
   s.dropped_samples = dropped_samples_;
   s.overrun_events = overrun_events_;
   s.decisions_sent = static_cast<std::uint32_t>(decisions_sent_);
+  s.decisions_dropped = static_cast<std::uint32_t>(decisions_dropped_);
+  s.frames_dropped = static_cast<std::uint32_t>(frames_dropped_);
   port_.fill_status(s);
   s.state = finished_ ? proto::StreamState::finished
             : streaming_ ? proto::StreamState::streaming
@@ -204,11 +252,24 @@ void Controller::send_status() {
   s.host_connected = port_.host_connected() ? 1 : 0;
   s.connections = static_cast<std::uint16_t>(connections_ < 65535 ? connections_ : 65535);
   f.flags = dropped_since_status_ ? proto::flags::kOverrun : 0;
-  if (queue(f)) dropped_since_status_ = false;
   last_status_ns_ = t;
+  if (!queue_control(f)) return false;
+  dropped_since_status_ = false;
+  return true;
+}
+
+void Controller::shutdown() {
+  flush_pending();
+  while (pending_count_ > 0) {
+    drop_decision(pending_[pending_head_]);
+    pending_head_ = (pending_head_ + 1) % kPendingDecisions;
+    --pending_count_;
+  }
+  send_status();
 }
 
 void Controller::poll() {
+  if (pending_count_ > 0) flush_pending();
   if (cfg_.status_period_ns > 0 && port_.now_ns() - last_status_ns_ >= cfg_.status_period_ns)
     send_status();
 }
@@ -228,7 +289,7 @@ void Controller::on_command(const proto::Frame& f) {
       r.type = proto::FrameType::pong;
       r.ping.token = f.ping.token;
       r.ping.timestamp_us = us_since_origin(port_.now_ns());
-      queue(r);
+      queue_control(r);
       break;
     }
     case proto::FrameType::info_request:

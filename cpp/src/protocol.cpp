@@ -252,6 +252,8 @@ std::size_t serialize_frame(const Frame& f, std::uint8_t* raw, std::size_t cap,
       w.u8(static_cast<std::uint8_t>(s.state));
       w.u8(s.host_connected);
       w.u16(s.connections);
+      w.u32(s.decisions_dropped);
+      w.u32(s.frames_dropped);
       break;
     }
     case FrameType::info: {
@@ -472,6 +474,8 @@ bool FrameDecoderBase::parse(std::size_t len) {
       s.state = static_cast<StreamState>(state);
       s.host_connected = r.u8();
       s.connections = r.u16();
+      s.decisions_dropped = r.u32();
+      s.frames_dropped = r.u32();
       return true;
     }
     case FrameType::info: {

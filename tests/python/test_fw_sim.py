@@ -512,3 +512,88 @@ def test_class_names_that_info_cannot_carry_are_refused_not_shortened(fw_sim, tm
     assert out.stderr == (f"eskin-fw-sim: {path}: its 30 class names do not fit one INFO frame "
                           "(2048 bytes, at most 255 names, none holding a newline)\n")
     assert out.stdout == ""  # refused before the pty opens
+
+
+def test_a_host_that_stops_reading_loses_no_decision_or_sample_without_a_count(fw_sim, tmp_path):
+    """The transmitter starved: a small queue (2 KiB) and a host (eskin.LinkListener) that
+    stops reading after the first decision until the simulator says it dropped one. Every
+    decision the controller made is received or counted in STATUS's decisions_dropped, every
+    sample received or counted lost, exactly: the host's counts and the controller's add up."""
+    import queue
+    import threading
+
+    from eskin.deploy.export import CompiledModel
+    from eskin.link.events import Decision, Stats
+    from eskin.link.listener import LinkListener
+
+    rng = np.random.default_rng(5)
+    recs = []
+    for _ in range(14):
+        r = rng.normal(0, 300, size=(4, 4, 900))
+        r[:, :, 300:600] *= 20
+        recs.append(np.clip(r, -32768, 32767).astype(np.int16))
+    path = write_replay_arrays(tmp_path / "touches.eskr", recs, labels=[k % 3 for k in range(14)],
+                               class_names=["brush", "finger", "washer"], gap_s=0.1, seed=6)
+    rf = read_replay_file(path.path)
+    model = small_model(tmp_path / "m.eskin")
+    offline = [e for e in CompiledModel(model).stream(
+        np.asarray(rf.samples).reshape(rf.n_samples, -1)) if e["status_name"] == "decision"]
+    assert len(offline) == 14
+
+    proc = subprocess.Popen(
+        [str(fw_sim), str(path.path), "--model", str(model), "--wait-start", "--speed", "2",
+         "--tx-buffer", "2048", "--status-ms", "20"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stderr], daemon=True).start()
+    try:
+        pty_path = proc.stdout.readline().split()[1]
+        decisions, final = [], None
+        with LinkListener(pty_path, stats_interval=None) as link:
+            events = link.events(duration=120)
+            for ev in events:
+                if isinstance(ev, Decision) and ev.source == "controller":
+                    decisions.append(ev)
+                    break
+            # the host stops reading until the simulator drops a decision (an event, with a
+            # deadline), then reads to the end
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                try:
+                    line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+                except queue.Empty:
+                    break
+                if "dropped (the output is full)" in line:
+                    break
+            else:
+                raise AssertionError("the simulator dropped no decision")
+            for ev in events:
+                if isinstance(ev, Decision) and ev.source == "controller":
+                    decisions.append(ev)
+                elif isinstance(ev, Stats):
+                    final = ev.stats
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    stats = json.loads([x for x in out.splitlines() if x.startswith("STATS ")][-1][6:])
+    s = final
+    assert s is not None and s.controller_state == "finished"
+    # decisions: made (the model's 14) = received + counted dropped, none still waiting
+    assert stats["decisions_made"] == 14
+    assert s.controller_decisions_dropped == stats["decisions_dropped"] > 0
+    assert len(decisions) == s.decisions_controller == s.controller_decisions_sent
+    assert len(decisions) + s.controller_decisions_dropped == 14
+    assert len(decisions) >= 2
+    # the ones received are the model's, in order
+    got = [(d.onset_sample, d.offset_sample, d.label) for d in decisions]
+    want = [(*e["window"], e["label"]) for e in offline]
+    assert all(g in want for g in got) and got == sorted(got)
+    # samples: produced = received + lost, and every loss was the controller's own drop
+    assert stats["samples_produced"] == rf.n_samples
+    assert s.samples + s.lost_samples == rf.n_samples
+    assert s.lost_samples == s.controller_dropped_samples == stats["dropped_samples"] > 0
+    assert s.crc_errors == s.malformed == s.lost_frames == 0
+    assert s.controller_frames_dropped == stats["frames_dropped"]

@@ -6,6 +6,14 @@
 //
 // Heap-free, exception-free and portable: no POSIX, no iostreams, no containers. The controller
 // never blocks and never waits: the port decides what to do with a frame that does not fit.
+//
+// Nothing is lost without a count. A frame's place in the port's output goes by priority:
+// DECISION first (it may take the last byte), then STATUS, INFO and PONG (they leave room for
+// one DECISION), then DATA (it leaves `control_reserve`). A decision that finds no room waits
+// in a small queue of its own and goes out before any later DATA frame; one that cannot wait
+// (the queue is full, or no host is there) is counted in `decisions_dropped`, samples that are
+// not sent in `dropped_samples`, and the other frames that do not fit in `frames_dropped`:
+// all three in STATUS.
 #pragma once
 
 #include <cstddef>
@@ -37,6 +45,8 @@ class ControllerPort {
   virtual void on_stream_start(bool again) { (void)again; }
   /// A DECISION frame was queued with this latency.
   virtual void on_decision_sent(std::uint32_t latency_us) { (void)latency_us; }
+  /// A decision could not be queued and never will be (counted in `decisions_dropped`).
+  virtual void on_decision_dropped(const protocol::DecisionPayload& decision) { (void)decision; }
 
  protected:
   ~ControllerPort() = default;
@@ -59,6 +69,8 @@ struct ControllerConfig {
   std::int64_t status_period_ns = 250000000;
   /// Queue bytes DATA frames leave free for control frames (DECISION, STATUS, INFO, PONG).
   std::size_t control_reserve = 1024;
+  /// Queue bytes STATUS, INFO and PONG frames leave free for a DECISION.
+  std::size_t decision_reserve = protocol::kMaxEncodedDecisionSize;
 };
 
 class Controller {
@@ -85,9 +97,14 @@ class Controller {
   /// stream goes on (the next DATA frame carries LOOP), otherwise a touch in progress is
   /// decided and a STATUS (state finished) follows every DATA frame.
   void end_of_replay(std::int64_t acquired_ns, bool loop);
-  /// Periodic work: a STATUS when its period has passed.
+  /// Periodic work: the decisions waiting for room first, then a STATUS when its period has
+  /// passed.
   void poll();
-  void send_status();
+  /// Queues a STATUS (false when it did not fit, counted in `frames_dropped`).
+  bool send_status();
+  /// The controller stops for good (its owner exits): the decisions still waiting for room
+  /// get a last chance, the rest count as dropped, and a final STATUS is queued.
+  void shutdown();
 
   bool streaming() const { return streaming_; }
   bool finished() const { return finished_; }
@@ -98,6 +115,10 @@ class Controller {
   std::uint32_t connections() const { return connections_; }
   std::uint64_t decisions_made() const { return decisions_made_; }
   std::uint64_t decisions_sent() const { return decisions_sent_; }
+  std::uint64_t decisions_dropped() const { return decisions_dropped_; }
+  /// Decisions made but not yet queued (waiting for room in the port's output).
+  std::size_t decisions_pending() const { return pending_count_; }
+  std::uint64_t frames_dropped() const { return frames_dropped_; }
   std::uint64_t classify_errors() const { return classify_errors_; }
   std::uint64_t unexpected_frames() const { return unexpected_frames_; }
 
@@ -107,7 +128,10 @@ class Controller {
   void send_info();
   void send_data(std::int64_t acquired_ns);
   void send_decision(std::int64_t acquired_ns);
+  bool flush_pending();
+  void drop_decision(const protocol::DecisionPayload& p);
   bool queue(protocol::Frame& f, std::size_t reserve = 0);
+  bool queue_control(protocol::Frame& f);
   std::uint64_t us_since_origin(std::int64_t t_ns) const;
 
   ControllerConfig cfg_;
@@ -134,6 +158,13 @@ class Controller {
   std::uint64_t decisions_made_ = 0;
   std::uint64_t decisions_sent_ = 0;
   std::uint64_t classify_errors_ = 0;
+  std::uint64_t decisions_dropped_ = 0;
+  std::uint64_t frames_dropped_ = 0;
+  // decisions waiting for room, oldest first (a ring)
+  static constexpr std::size_t kPendingDecisions = 4;
+  protocol::DecisionPayload pending_[kPendingDecisions];
+  std::size_t pending_head_ = 0;
+  std::size_t pending_count_ = 0;
 };
 
 }  // namespace eskin

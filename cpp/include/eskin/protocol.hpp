@@ -17,7 +17,7 @@
 
 namespace eskin::protocol {
 
-inline constexpr std::uint16_t kProtocolVersion = 1;
+inline constexpr std::uint16_t kProtocolVersion = 2;
 inline constexpr std::uint8_t kDelimiter = 0x00;
 
 /// Size of the common header (type, flags, seq) and of the CRC trailer.
@@ -62,9 +62,13 @@ inline constexpr std::uint8_t kLoop = 0x04;
 /// Fixed payload sizes (bytes after the 4-byte header, before the CRC).
 inline constexpr std::size_t kDataFixedSize = 20;      // + n_samples * rows * cols * 2
 inline constexpr std::size_t kDecisionFixedSize = 40;  // + n_values * 8
-inline constexpr std::size_t kStatusSize = 64;
+inline constexpr std::size_t kStatusSize = 72;
 inline constexpr std::size_t kInfoFixedSize = 34;      // + names_len
 inline constexpr std::size_t kPingSize = 12;           // PING and PONG
+/// Bytes on the wire of the largest DECISION frame (16 values), COBS and delimiter included:
+/// what a controller's other frames leave free so that a decision always finds room.
+inline constexpr std::size_t kMaxEncodedDecisionSize = max_encoded_size(
+    kHeaderSize + kDecisionFixedSize + 8 * kMaxDecisionValues + kCrcSize);
 
 /// Largest number of samples of `taxels` taxels that fits one DATA frame.
 constexpr std::size_t max_samples_per_frame(std::size_t taxels) {
@@ -112,6 +116,8 @@ struct StatusPayload {
   StreamState state = StreamState::stopped;
   std::uint8_t host_connected = 0;
   std::uint16_t connections = 0;     // host connections so far, this one included (0: unknown)
+  std::uint32_t decisions_dropped = 0;  // decisions made but never queued (no room, or no host)
+  std::uint32_t frames_dropped = 0;     // STATUS, INFO, PONG frames not queued (no room)
 };
 
 struct InfoPayload {

@@ -143,6 +143,8 @@ def stats_line(s: Any) -> str:
             f"overrun_frames={s.overrun_frames} "
             f"controller_dropped={s.controller_dropped_samples} "
             f"controller_overruns={s.controller_overrun_events} "
+            f"controller_decisions_dropped={s.controller_decisions_dropped} "
+            f"controller_frames_dropped={s.controller_frames_dropped} "
             f"decisions controller={s.decisions_controller} host={s.decisions_host}")
 
 
@@ -171,6 +173,9 @@ def stats_table(s: Any, title: str = "link statistics") -> Any:
                                         f"{s.controller_pacing_p99_us:.0f} us"),
         ("controller state", s.controller_state),
         ("decisions controller / host", f"{s.decisions_controller} / {s.decisions_host}"),
+        ("controller decisions sent / dropped", f"{s.controller_decisions_sent} / "
+                                                f"{s.controller_decisions_dropped}"),
+        ("controller frames dropped (STATUS, INFO, PONG)", str(s.controller_frames_dropped)),
         ("disconnects / reconnects", f"{s.disconnects} / {s.reconnects}"),
     ]
     if s.recordings:

@@ -129,6 +129,8 @@ class LinkStats(DecoderStats):
     controller_rx_errors: int = 0
     controller_faults_injected: int = 0
     controller_decisions_sent: int = 0
+    controller_decisions_dropped: int = 0
+    controller_frames_dropped: int = 0
     controller_pacing_p50_us: float = 0.0
     controller_pacing_p99_us: float = 0.0
     controller_state: str = "unknown"

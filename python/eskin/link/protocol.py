@@ -168,6 +168,8 @@ class StatusFrame:
     state: StreamState = StreamState.STOPPED
     host_connected: bool = False
     connections: int = 0
+    decisions_dropped: int = 0
+    frames_dropped: int = 0
     seq: int = 0
     flags: int = 0
 

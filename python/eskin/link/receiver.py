@@ -111,6 +111,8 @@ class StreamReceiver:
                      controller_rx_errors=s.rx_errors,
                      controller_faults_injected=s.faults_injected,
                      controller_decisions_sent=s.decisions_sent,
+                     controller_decisions_dropped=s.decisions_dropped,
+                     controller_frames_dropped=s.frames_dropped,
                      controller_pacing_p50_us=s.pacing_p50_ns / 1000.0,
                      controller_pacing_p99_us=s.pacing_p99_ns / 1000.0,
                      controller_state=StreamState(s.state).name.lower())

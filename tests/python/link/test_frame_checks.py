@@ -265,20 +265,44 @@ def test_host_frames_from_the_controller_are_counted_and_skipped(tmp_path):
     assert stats["samples"] == 200 and stats["lost_samples"] == 0
 
 
-def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_path):
+def _version1_status(seq: int) -> bytes:
+    """A STATUS frame as a version-1 controller lays it out: 64 bytes of payload (version 2
+    added decisions_dropped and frames_dropped)."""
+    import struct
+    import zlib
+
+    from eskin.link.protocol import cobs_encode
+
+    payload = struct.pack("<QQQQIIIIIIIBBH", 1000, 200, 200, 0, 0, 0, 0, 1, 0, 0, 0, 2, 1, 1)
+    assert len(payload) == 64
+    raw = bytes([0x03, 0, seq & 0xFF, seq >> 8]) + payload
+    return cobs_encode(raw + zlib.crc32(raw).to_bytes(4, "little")) + DELIMITER
+
+
+@pytest.mark.parametrize("version", [1, 99])
+def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_path, version):
+    """An older controller (version 1, whose STATUS is shorter) or a newer one: its STATUS is
+    refused as malformed, never read by this version's layout, and its INFO ends the stream."""
     import dataclasses
 
-    foreign = dataclasses.replace(_info(), protocol_version=99)
-    frames = [_info(), *[_data(k) for k in range(0, 50, 10)], foreign,
-              *[_data(k) for k in range(50, 100, 10)]]
+    from eskin.link.protocol import PROTOCOL_VERSION
+
+    assert PROTOCOL_VERSION == 2
+    foreign = dataclasses.replace(_info(), protocol_version=version)
+    frames = [_info(), *[_data(k) for k in range(0, 50, 10)]]
+    wire = (DELIMITER + b"".join(encode_frame(f) for f in frames) + _version1_status(6)
+            + encode_frame(foreign) + b"".join(encode_frame(_data(k)) for k in range(50, 100, 10)))
     out = tmp_path / "d.jsonl"
-    res = _listen(DELIMITER + b"".join(encode_frame(f) for f in frames), out)
+    res = _listen(wire, out)
     assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
-    assert res.stderr == ("error: INFO frame: protocol_version = 99: this host speaks version 1 "
-                          "of the eskin wire protocol and cannot read the controller's frames "
-                          "(update eskin or the controller's firmware so that they match)\n")
+    assert res.stderr == (f"error: INFO frame: protocol_version = {version}: this host speaks "
+                          "version 2 of the eskin wire protocol and cannot read the controller's "
+                          "frames (update eskin or the controller's firmware so that they "
+                          "match)\n")
     stats = json.loads(out.read_text().splitlines()[-1])
     assert stats["type"] == "stats" and stats["samples"] >= 50  # the final statistics
+    assert stats["malformed"] == 1 and stats["status_frames"] == 0
+    assert stats["controller_state"] == "unknown"
 
 
 def test_recording_a_stream_slower_than_a_campaign_may_be(tmp_path):
