@@ -204,7 +204,7 @@ mcu: mcu-deps $(MCU_PYTHON)
 # the firmware keeps up does not depend on the host's load) with the model of `make mcu`'s case in its flash slot and 12
 # held-out recordings of its campaign (4 per class); the host's unmodified `eskin listen
 # PTY --model M --replay R` receives the stream, and the run ends with the line
-# "MCU-LINK: frames=... samples=... lost=0 crc_errors=0 decisions=n agree=n/n".
+# "MCU-LINK: frames=... samples=... lost=0 crc_errors=0 decisions=n decisions_dropped=0 agree=n/n".
 # Any model: `make mcu-link MODEL=m.eskin CAMPAIGN=held.h5` puts a user's model in the flash slot
 # and 4 recordings of each of its classes from the held-out campaign (each cut to the touch
 # window the model's detector finds) on the board's ADC.

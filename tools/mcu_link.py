@@ -142,6 +142,8 @@ def fw_measurements(line: str, icount: int | None, rate_hz: float) -> dict:
         "samples": v["samples"], "lost_in_ring": v["lost"], "dropped": v["dropped"],
         "ring_high_water": v["ring_high_water"], "decisions": v["decisions"],
         "uart_bytes": v["uart_bytes"], "encode_errors": v["encode_errors"],
+        "decisions_made": v["decisions_made"], "decisions_dropped": v["decisions_dropped"],
+        "frames_dropped": v["frames_dropped"],
     }
     if icount is not None and v["profile"]:
         # the board's clock counts instructions here; in real time it is QEMU's SysTick, which
@@ -246,9 +248,12 @@ def _run_once(args: argparse.Namespace) -> tuple[int, bool]:
     n_samples = int(rp.samples.shape[0])
     lost = max(int(stats["lost_samples"]), n_samples - int(stats["samples"]))
     n = len(dev)
+    dropped = int(stats.get("controller_decisions_dropped", 0))
     print(f"MCU-LINK: frames={stats['frames']} samples={stats['samples']} lost={lost} "
-          f"crc_errors={stats['crc_errors']} decisions={n} agree={agree}/{n}")
-    others_ok = stats["crc_errors"] == 0 and n > 0 and agree == n and len(host) == n
+          f"crc_errors={stats['crc_errors']} decisions={n} decisions_dropped={dropped} "
+          f"agree={agree}/{n}")
+    others_ok = (stats["crc_errors"] == 0 and n > 0 and agree == n and len(host) == n
+                 and dropped == 0)
     if len(host) != n:
         print(f"mcu-link: the host made {len(host)} decisions, the device {n}", file=sys.stderr)
     if lost == 0 and others_ok:

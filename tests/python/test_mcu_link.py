@@ -111,7 +111,7 @@ def test_the_firmware_serves_eskin_listen(firmware, tmp_path):
     line, fw = mcu_link(firmware, model, replay, tmp_path / "out")
     k = len(windows)
     assert line == (f"MCU-LINK: frames={line.split('frames=')[1].split()[0]} samples={n} lost=0 "
-                    f"crc_errors=0 decisions={k} agree={k}/{k}")
+                    f"crc_errors=0 decisions={k} decisions_dropped=0 agree={k}/{k}")
     assert fw["samples"] == n and fw["lost_in_ring"] == 0 and fw["dropped"] == 0
     rows = [json.loads(x) for x in (tmp_path / "out" / "listen.jsonl").read_text().splitlines()]
     dev = [(r["onset_sample"], r["offset_sample"]) for r in rows
@@ -128,10 +128,11 @@ def test_a_decision_longer_than_5_ms_at_168_mhz_loses_no_sample(firmware, tmp_pa
     replay = touch_replay(tmp_path / "r.eskr", 3, seed=6)
     n = read_replay_file(replay).samples.shape[0]
     line, fw = mcu_link(firmware, model, replay, tmp_path / "out", "--icount", "3")
-    assert " lost=0 crc_errors=0 decisions=3 agree=3/3" in line, line
+    assert " lost=0 crc_errors=0 decisions=3 decisions_dropped=0 agree=3/3" in line, line
     assert f" samples={n} " in line
     # the longest push (a decision) took more than 5 ms' worth of 168 MHz instructions, and the
     # samples that came meanwhile waited in the ring
     assert fw["longest_push_instructions"] > 5e-3 * 168e6, fw
     assert fw["ring_high_water"] > 5e-3 * 3000, fw
     assert fw["lost_in_ring"] == 0 and fw["dropped"] == 0
+
