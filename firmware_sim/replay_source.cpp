@@ -7,37 +7,14 @@
 
 #include <cerrno>
 #include <cstring>
-#include <cmath>
-#include <sstream>
 
 #include "eskin/npy.hpp"
 #include "eskin/protocol.hpp"
+#include "eskin/replay_format.hpp"
 
 namespace eskin::fwsim {
 
 namespace {
-
-std::uint64_t rd_u(const std::uint8_t* p, int n) {
-  std::uint64_t v = 0;
-  for (int i = 0; i < n; ++i) v |= static_cast<std::uint64_t>(p[i]) << (8 * i);
-  return v;
-}
-
-double rd_f64(const std::uint8_t* p) {
-  const std::uint64_t bits = rd_u(p, 8);
-  double v;
-  std::memcpy(&v, &bits, sizeof v);
-  return v;
-}
-
-constexpr double kMaxSampleRate = 1e7;
-
-std::string fmt_double(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
-}
 
 bool host_is_little_endian() {
   const std::uint16_t one = 1;
@@ -105,82 +82,35 @@ bool ReplaySource::open_bytes(const std::uint8_t* p, std::size_t size, int grid_
 }
 
 bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::string& error) {
-  constexpr std::size_t kHeader = 56, kSegment = 48;
-  if (size < kHeader) {
-    error = "truncated header";
+  // the core's reader of the format: the rules of every reader (eskin/replay_format.hpp)
+  replay::ReplayHeader h;
+  replay::ReplayError e;
+  if (replay::check_replay(p, size, replay::SizeRule::exact, &h, &e) != replay::ReplayStatus::ok) {
+    char line[256];
+    error = replay::format_error(e, line, sizeof line);
     return false;
   }
-  const auto version = rd_u(p + 8, 4);
-  const auto data_offset = rd_u(p + 12, 4);
-  const auto total = rd_u(p + 16, 8);
-  const auto rows = rd_u(p + 24, 2), cols = rd_u(p + 26, 2);
-  const auto n_seg = rd_u(p + 28, 4);
-  const double rate = rd_f64(p + 32), vpc = rd_f64(p + 40);
-  const auto names_len = rd_u(p + 48, 4);
-  const auto crc = static_cast<std::uint32_t>(rd_u(p + 52, 4));
-  if (version != 1) {
-    error = "replay version " + std::to_string(version) + ", this simulator reads version 1";
+  if (h.n_samples == 0) {
+    error = "n_samples = 0: no samples to stream";
     return false;
   }
-  if (data_offset % 8 != 0 || data_offset > size ||
-      data_offset < kHeader + n_seg * kSegment + names_len) {
-    error = "bad data_offset " + std::to_string(data_offset) + " (n_segments " +
-            std::to_string(n_seg) + ", names_len " + std::to_string(names_len) + ", file of " +
-            std::to_string(size) + " bytes)";
-    return false;
-  }
-  std::uint32_t c = protocol::crc32(p, 52);
-  const std::uint8_t zero[4] = {0, 0, 0, 0};
-  c = protocol::crc32(zero, 4, c);
-  c = protocol::crc32(p + kHeader, data_offset - kHeader, c);
-  if (c != crc) {
-    error = "header checksum mismatch (corrupted file)";
-    return false;
-  }
-  if (rows < 1 || rows > 255 || cols < 1 || cols > 255) {
-    error = "bad grid " + std::to_string(rows) + "x" + std::to_string(cols) + " (1..255 each)";
-    return false;
-  }
-  if (!(std::isfinite(rate) && rate > 0.0 && rate <= kMaxSampleRate)) {
-    error = "sample_rate_hz = " + fmt_double(rate) + " must be in (0, 1e7]";
-    return false;
-  }
-  if (!(std::isfinite(vpc) && vpc > 0.0)) {
-    error = "volts_per_count = " + fmt_double(vpc) + " must be finite and > 0";
-    return false;
-  }
-  // n_samples against the bytes present before any product (which could wrap around)
-  const std::uint64_t bytes_per_sample = rows * cols * 2;
-  if (total > (size - data_offset) / bytes_per_sample ||
-      data_offset + total * bytes_per_sample != size) {
-    error = "n_samples = " + std::to_string(total) + " of " + std::to_string(rows) + "x" +
-            std::to_string(cols) + " taxels does not match the " + std::to_string(size - data_offset) +
-            " bytes of samples in the file";
-    return false;
-  }
-  rows_ = static_cast<int>(rows);
-  cols_ = static_cast<int>(cols);
-  n_samples_ = total;
-  sample_rate_hz_ = rate;
-  volts_per_count_ = vpc;
-  for (std::uint64_t i = 0; i < n_seg; ++i) {
-    const std::uint8_t* s = p + kHeader + i * kSegment;
+  rows_ = h.rows;
+  cols_ = h.cols;
+  n_samples_ = h.n_samples;
+  sample_rate_hz_ = h.sample_rate_hz;
+  volts_per_count_ = h.volts_per_count;
+  for (std::uint32_t i = 0; i < h.n_segments; ++i) {
+    const replay::ReplaySegment s = replay::segment(h, i);
     ReplaySegment seg;
-    seg.start = rd_u(s, 8);
-    seg.length = rd_u(s + 8, 8);
-    seg.label = static_cast<std::int32_t>(rd_u(s + 32, 4));
-    if (seg.start > total || seg.length > total - seg.start) {
-      error = "segment " + std::to_string(i) + ": start " + std::to_string(seg.start) +
-              " + length " + std::to_string(seg.length) + " runs past n_samples = " +
-              std::to_string(total);
-      return false;
-    }
+    seg.start = s.start;
+    seg.length = s.length;
+    seg.label = s.label;
     segments_.push_back(seg);
   }
-  const char* names = reinterpret_cast<const char*>(p + kHeader + n_seg * kSegment);
-  if (names_len > 0) {
-    std::string all(names, names_len), cur;
-    for (char ch : all) {
+  if (h.names_len > 0) {
+    std::string cur;
+    for (std::uint32_t i = 0; i < h.names_len; ++i) {
+      const char ch = h.class_names[i];
       if (ch == '\n') {
         class_names_.push_back(cur);
         cur.clear();
@@ -190,11 +120,7 @@ bool ReplaySource::open_eskr(const std::uint8_t* p, std::size_t size, std::strin
     }
     class_names_.push_back(cur);
   }
-  if (n_samples_ == 0) {
-    error = "no samples";
-    return false;
-  }
-  data_ = reinterpret_cast<const std::int16_t*>(p + data_offset);
+  data_ = h.samples;
   return true;
 }
 

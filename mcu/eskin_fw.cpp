@@ -31,6 +31,7 @@
 #include "eskin/controller.hpp"
 #include "eskin/model.hpp"
 #include "eskin/protocol.hpp"
+#include "eskin/replay_format.hpp"
 #include "mcu_board.h"
 #include "sampler.hpp"
 
@@ -82,6 +83,7 @@ constexpr std::uintptr_t kModelSlot = 0x00040000u;   // 256 KB into the 1 MB of 
 constexpr std::uintptr_t kFlashEnd = 0x00100000u;
 constexpr std::uint32_t kModelMagic = 0x4D4B5345u;   // "ESKM"
 constexpr std::uintptr_t kReplayAddress = 0x21000000u;  // PSRAM
+constexpr std::size_t kReplaySize = 16u << 20;            // the 16 MB of PSRAM
 constexpr std::uint64_t kNsPerTick = 40;             // SysTick at the 25 MHz processor clock
 constexpr std::uint16_t kSamplesPerFrame = 10;
 
@@ -111,17 +113,9 @@ std::uint32_t le32(const std::uint8_t* p) {
   return static_cast<std::uint32_t>(p[0]) | (static_cast<std::uint32_t>(p[1]) << 8) |
          (static_cast<std::uint32_t>(p[2]) << 16) | (static_cast<std::uint32_t>(p[3]) << 24);
 }
-std::uint64_t le64(const std::uint8_t* p) {
-  return static_cast<std::uint64_t>(le32(p)) | (static_cast<std::uint64_t>(le32(p + 4)) << 32);
-}
-double f64(const std::uint8_t* p) {
-  const std::uint64_t bits = le64(p);
-  double v;
-  std::memcpy(&v, &bits, sizeof v);
-  return v;
-}
-
-/// The replay file QEMU loaded (docs/wire-protocol.md, "Replay file").
+/// The replay file QEMU loaded (docs/wire-protocol.md, "Replay file"), checked by the core's
+/// reader of the format (eskin/replay_format.hpp: the rules of every reader) against the PSRAM
+/// that holds it: a bad file is refused with one line on the console, never streamed.
 struct Replay {
   SampleSource source;
   int rows = 0, cols = 0;
@@ -132,19 +126,26 @@ Replay read_replay() {
   const auto* p = reinterpret_cast<const std::uint8_t*>(kReplayAddress);
   if (std::memcmp(p, "ESKREPLY", 8) != 0)
     fail("no replay file (.eskr) at 0x21000000: load one with -device loader");
+  replay::ReplayHeader h;
+  replay::ReplayError e;
+  if (replay::check_replay(p, kReplaySize, replay::SizeRule::at_most, &h, &e) !=
+      replay::ReplayStatus::ok) {
+    char line[200];
+    std::printf("eskin-fw: the replay at 0x21000000 is refused: %s\n",
+                replay::format_error(e, line, sizeof line));
+    std::exit(2);
+  }
   Replay r;
-  const std::uint32_t data_offset = le32(p + 12);
-  r.source.n_samples = le64(p + 16);
-  r.rows = p[24] | (p[25] << 8);
-  r.cols = p[26] | (p[27] << 8);
-  r.rate_hz = f64(p + 32);
-  r.volts_per_count = f64(p + 40);
+  r.source.n_samples = h.n_samples;
+  r.rows = h.rows;
+  r.cols = h.cols;
+  r.rate_hz = h.sample_rate_hz;
+  r.volts_per_count = h.volts_per_count;
   r.source.taxels = static_cast<std::size_t>(r.rows) * static_cast<std::size_t>(r.cols);
-  if (r.source.taxels == 0 || r.source.taxels > kMaxTaxels)
+  if (r.source.taxels > kMaxTaxels)
     fail("replay: the grid has more taxels than the firmware's ESKIN_FW_MAX_TAXELS");
-  if (!(r.rate_hz > 0.0 && r.rate_hz <= 50000.0)) fail("replay: sample_rate_hz not in (0, 50000]");
-  if (data_offset % 8 != 0) fail("replay: data_offset is not a multiple of 8");
-  r.source.samples = reinterpret_cast<const std::int16_t*>(p + data_offset);
+  if (h.n_samples == 0) fail("replay: n_samples = 0: no samples to stream");
+  r.source.samples = h.samples;
   return r;
 }
 

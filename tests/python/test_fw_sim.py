@@ -597,3 +597,95 @@ def test_a_host_that_stops_reading_loses_no_decision_or_sample_without_a_count(f
     assert s.lost_samples == s.controller_dropped_samples == stats["dropped_samples"] > 0
     assert s.crc_errors == s.malformed == s.lost_frames == 0
     assert s.controller_frames_dropped == stats["frames_dropped"]
+
+
+# one corruption per rule of the replay format: (edits (offset, struct format, value), the
+# field eskin-fw-sim names, the start of the Python reader's message)
+_SEG1 = 56 + 48
+REPLAY_CORRUPTIONS = {
+    "magic": ([(0, "<B", ord("X"))], "not an eskin replay file (magic", "not an eskin replay file"),
+    "version 2": ([(8, "<I", 2)], "version", "replay version 2"),
+    "data_offset odd": ([(12, "<I", None)], "data_offset", "bad data offset"),
+    "grid 0": ([(26, "<H", 0)], "grid", "grid: 2x0"),
+    "grid 4096": ([(24, "<H", 4096)], "grid", "grid: 4096x3"),
+    "rate 0.05": ([(32, "<d", 0.05)], "sample_rate_hz", "sample_rate_hz: 0.05 is not a rate"),
+    "rate 2e6": ([(32, "<d", 2e6)], "sample_rate_hz", "sample_rate_hz: 2000000.0 is not"),
+    "rate 5e6": ([(32, "<d", 5e6)], "sample_rate_hz", "sample_rate_hz: 5000000.0 is not"),
+    "rate nan": ([(32, "<d", float("nan"))], "sample_rate_hz", "sample_rate_hz: nan"),
+    "volts 0": ([(40, "<d", 0.0)], "volts_per_count", "volts_per_count: 0.0"),
+    "n_samples + 1": ([(16, "<Q", None)], "size", "size "),
+    "names not UTF-8": ([(56 + 2 * 48, "<B", 0xFF)], "class_names", "class names: not valid"),
+    "empty segment": ([(_SEG1 + 8, "<Q", 0)], "segment 1", "segment 1: length 0"),
+    "segment past the end": ([(_SEG1, "<Q", 2**63)], "segment 1", "segment 1: start 92233"),
+    "label 7": ([(_SEG1 + 32, "<i", 7)], "segment 1", "segment 1: label 7"),
+    "contact past length": ([(_SEG1 + 24, "<q", 61)], "segment 1", "segment 1: contact"),
+}
+
+
+def _corrupted_replay(tmp_path, name, edits, crc=True):
+    """A valid replay file (the Python writer's) with fields replaced and, with ``crc``, the
+    header CRC recomputed so that only the edited field is wrong."""
+    import struct
+    import zlib
+
+    rng = np.random.default_rng(0)
+    recs = [rng.integers(-5, 5, size=(2, 3, n)).astype(np.int16) for n in (40, 60)]
+    p = tmp_path / name
+    write_replay_arrays(p, recs, labels=[0, 1], class_names=["a", "b"], gap_s=0.01,
+                        contact_intervals=[[1, 30], [0, 60]])
+    raw = bytearray(p.read_bytes())
+    for offset, fmt, value in edits:
+        if value is None:  # one more than the field holds
+            value = struct.unpack_from(fmt, raw, offset)[0] + (4 if offset == 12 else 1)
+        struct.pack_into(fmt, raw, offset, value)
+    if crc:
+        data_offset = struct.unpack_from("<I", raw, 12)[0]
+        struct.pack_into("<I", raw, 52, 0)
+        struct.pack_into("<I", raw, 52, zlib.crc32(bytes(raw[:min(data_offset, len(raw))])))
+    p.write_bytes(bytes(raw))
+    return p
+
+
+@pytest.mark.parametrize("case", sorted(REPLAY_CORRUPTIONS) + ["crc", "one byte short"])
+def test_python_and_the_compiled_reader_refuse_the_same_replays(fw_sim, tmp_path, case):
+    """The replay format has one rule set: eskin.read_replay_file and the core's reader (here in
+    eskin-fw-sim, which refuses with one line naming the file, the field and the value, exit
+    status 2) refuse the same corrupted files, for the same field."""
+    from eskin.data.replay import ReplayFormatError
+
+    if case == "crc":
+        p = _corrupted_replay(tmp_path, "bad.eskr", [(60, "<B", 0x55)], crc=False)
+        field, python = "crc", "header checksum mismatch"
+    elif case == "one byte short":
+        p = _corrupted_replay(tmp_path, "bad.eskr", [])
+        p.write_bytes(p.read_bytes()[:-1])
+        field, python = "size", "size "
+    else:
+        edits, field, python = REPLAY_CORRUPTIONS[case]
+        p = _corrupted_replay(tmp_path, "bad.eskr", edits)
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value).startswith(f"{p}: {python}"), str(info.value)
+    r = subprocess.run([str(fw_sim), str(p)], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2, r.stderr
+    assert r.stdout == ""
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(f"eskin-fw-sim: {p}: {field}"), r.stderr
+    if field in ("version", "data_offset", "grid", "sample_rate_hz", "volts_per_count", "size"):
+        assert f"{field} = " in r.stderr, r.stderr  # the value is named
+
+
+def test_python_and_the_compiled_reader_accept_the_same_edge_rates(fw_sim, tmp_path):
+    """0.1 Hz and 1 MHz, the ends of the range, are accepted by both readers: eskin-fw-sim
+    opens its port (its first line) instead of refusing the file."""
+    for rate in (0.1, 1e6):
+        p = _corrupted_replay(tmp_path, f"r{rate}.eskr", [(32, "<d", rate)])
+        assert read_replay_file(p).sample_rate_hz == rate
+        proc = subprocess.Popen([str(fw_sim), str(p), "--wait-start", "--quiet"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            first = proc.stdout.readline()
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=30)
+        assert first.startswith("PTY "), err
+        assert proc.returncode == 0, err

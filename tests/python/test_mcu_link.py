@@ -136,3 +136,35 @@ def test_a_decision_longer_than_5_ms_at_168_mhz_loses_no_sample(firmware, tmp_pa
     assert fw["ring_high_water"] > 5e-3 * 3000, fw
     assert fw["lost_in_ring"] == 0 and fw["dropped"] == 0
 
+
+@pytest.mark.parametrize("field, offset, fmt, value", [
+    ("crc", 60, "<B", 0x55),            # the board read no CRC before
+    ("sample_rate_hz", 32, "<d", 2e6),  # above the format's 1 MHz
+    ("version", 8, "<I", 2),
+])
+def test_the_board_refuses_a_bad_replay_with_one_line(firmware, tmp_path, field, offset, fmt,
+                                                      value):
+    """The firmware checks the replay QEMU loaded with the core's reader of the format (the
+    Python reader's rules): a bad file is one console line naming the field and the value, and
+    the board stops (exit status 2) instead of streaming it."""
+    import struct
+    import zlib
+
+    from eskin.link.qemu_controller import model_slot_image, qemu_command
+
+    model = synthetic_model(tmp_path / "m.eskin", 4, seed=3)
+    replay = touch_replay(tmp_path / "r.eskr", 1, seed=4)
+    raw = bytearray(replay.read_bytes())
+    struct.pack_into(fmt, raw, offset, value)
+    if field != "crc":
+        data_offset = struct.unpack_from("<I", raw, 12)[0]
+        struct.pack_into("<I", raw, 52, 0)
+        struct.pack_into("<I", raw, 52, zlib.crc32(bytes(raw[:data_offset])))
+    replay.write_bytes(bytes(raw))
+    slot = model_slot_image(model, tmp_path / "slot.bin")
+    r = subprocess.run(qemu_command(firmware, slot, replay), capture_output=True, text=True,
+                       timeout=120, stdin=subprocess.DEVNULL)
+    lines = [x for x in r.stdout.splitlines() if x.startswith("eskin-fw:")]
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert len(lines) == 1, r.stdout
+    assert lines[0].startswith(f"eskin-fw: the replay at 0x21000000 is refused: {field} = "), lines
