@@ -595,7 +595,7 @@ def test_a_host_that_stops_reading_loses_no_decision_or_sample_without_a_count(f
     assert stats["samples_produced"] == rf.n_samples
     assert s.samples + s.lost_samples == rf.n_samples
     assert s.lost_samples == s.controller_dropped_samples == stats["dropped_samples"] > 0
-    assert s.crc_errors == s.malformed == s.lost_frames == 0
+    assert s.crc_errors == s.malformed == s.lost_frames == s.lost_decisions == 0
     assert s.controller_frames_dropped == stats["frames_dropped"]
 
 

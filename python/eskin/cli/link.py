@@ -138,7 +138,8 @@ def stats_line(s: Any) -> str:
     return (f"stats frames={s.frames} bytes={s.bytes} samples={s.samples} "
             f"crc_errors={s.crc_errors} malformed={s.malformed} oversize={s.oversize} "
             f"sequence_gaps={s.sequence_gaps} lost_frames={s.lost_frames} "
-            f"lost_samples={s.lost_samples} absurd_frames={s.absurd_frames} "
+            f"lost_samples={s.lost_samples} lost_decisions={s.lost_decisions} "
+            f"absurd_frames={s.absurd_frames} "
             f"unexpected_frames={s.unexpected_frames} "
             f"overrun_frames={s.overrun_frames} "
             f"controller_dropped={s.controller_dropped_samples} "
@@ -175,6 +176,7 @@ def stats_table(s: Any, title: str = "link statistics") -> Any:
         ("decisions controller / host", f"{s.decisions_controller} / {s.decisions_host}"),
         ("controller decisions sent / dropped", f"{s.controller_decisions_sent} / "
                                                 f"{s.controller_decisions_dropped}"),
+        ("decisions sent but not received", str(s.lost_decisions)),
         ("controller frames dropped (STATUS, INFO, PONG)", str(s.controller_frames_dropped)),
         ("disconnects / reconnects", f"{s.disconnects} / {s.reconnects}"),
     ]

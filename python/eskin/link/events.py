@@ -109,6 +109,13 @@ class LinkStats(DecoderStats):
     DECISION, STATUS, INFO or PONG frame used, an absurd one or an unexpected one: ``frames`` =
     ``data_frames`` used + decisions from the controller + ``status_frames`` + INFO frames +
     ``pong_frames`` + ``absurd_frames`` + ``unexpected_frames``.
+
+    ``lost_decisions``: DECISION frames the controller sent that this host did not take (lost
+    on the link or refused), known from a STATUS sent while the controller is not streaming
+    (:func:`eskin.link.receiver.unreceived_decisions`); with the controller's own
+    ``controller_decisions_dropped`` (decisions it could not send), every decision it made is
+    accounted for: made = ``decisions_controller`` + ``lost_decisions`` +
+    ``controller_decisions_dropped`` once it has stopped.
     """
 
     elapsed_s: float = 0.0
@@ -128,6 +135,7 @@ class LinkStats(DecoderStats):
     controller_overrun_events: int = 0
     controller_rx_errors: int = 0
     controller_faults_injected: int = 0
+    lost_decisions: int = 0
     controller_decisions_sent: int = 0
     controller_decisions_dropped: int = 0
     controller_frames_dropped: int = 0

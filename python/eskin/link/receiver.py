@@ -41,7 +41,7 @@ from eskin.link.protocol import (
 from eskin.link.recorder import StreamRecorder
 from eskin.link.stream import MAX_BRIDGED_JUMP_S, StreamAssembler
 
-__all__ = ["StreamReceiver", "unreceived_samples"]
+__all__ = ["StreamReceiver", "unreceived_decisions", "unreceived_samples"]
 
 MAX_HISTORY_BYTES = 256 << 20
 """The recent samples kept for the taxel activity view, at most (the ``history_s`` seconds
@@ -66,6 +66,20 @@ def unreceived_samples(status: StatusFrame, received: int, reconnects: int,
     if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
         return known
     return max(known, status.samples_sent - received)
+
+
+def unreceived_decisions(status: StatusFrame, received: int, reconnects: int,
+                         known: int = 0) -> int:
+    """DECISION frames the controller sent that never arrived (lost on the link, or refused
+    as absurd), from its STATUS's ``decisions_sent``, under the rule of
+    :func:`unreceived_samples`: a STATUS sent while the controller is not streaming follows
+    every frame it sent before it, when every frame went to this host. ``received``: the
+    controller's decisions the host took before this STATUS. The decisions the controller
+    could not send at all are its own count, ``decisions_dropped``."""
+    sessions = 1 + reconnects
+    if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
+        return known
+    return max(known, status.decisions_sent - received)
 
 
 class StreamReceiver:
@@ -93,6 +107,7 @@ class StreamReceiver:
         self._out: list[LinkEvent] = []  # events of the frames being processed
         self._counts = dict.fromkeys(_COUNTS, 0)
         self._received = self._unseen = self._tail = 0  # see unreceived_samples
+        self._lost_decisions = 0  # see unreceived_decisions
         self._tail_reset = False
 
     def reopened(self) -> None:
@@ -121,6 +136,7 @@ class StreamReceiver:
         st = self._stream
         d["lost_samples"] = max((st.lost_samples if st else 0) + self._tail, self._unseen)
         d["sample_index_resets"] = st.index_resets if st else 0
+        d["lost_decisions"] = self._lost_decisions
         d["recordings"] = self.recorder.recordings if self.recorder else 0
         d.update(elapsed_s=elapsed_s, disconnects=disconnects, reconnects=self.reconnects)
         return LinkStats(**d, **self._counts)
@@ -199,6 +215,8 @@ class StreamReceiver:
             self._counts["status_frames"] += 1
             self._unseen = unreceived_samples(f, self._received, self.reconnects,
                                               self._unseen)
+            self._lost_decisions = unreceived_decisions(
+                f, self._counts["decisions_controller"], self.reconnects, self._lost_decisions)
             self._out.append(StatusEvent(f))
         elif isinstance(f, InfoFrame):
             self._on_info(f)

@@ -301,3 +301,22 @@ def test_listen_record_onto_an_existing_file_is_one_line(fw_sim, tmp_path):
         f"error: {out}: file exists; refusing to overwrite it (use --force to replace it)"
     ], res.stderr
     assert out.read_bytes() == b"someone's data"
+
+
+def test_decisions_sent_but_not_received_are_counted():
+    """A controller's STATUS (finished) says it sent 3 decisions and 2 dropped; 1 arrived: the
+    host counts 2 lost on the link, beside the controller's 2 dropped."""
+    from eskin.link.protocol import DecisionFrame
+
+    dec = DecisionFrame(onset_sample=2, offset_sample=8, label=-1, decided_sample=9, seq=1)
+    data = DataFrame(0, 0, np.zeros((10, 2, 2), np.int16), seq=0)
+    status = StatusFrame(next_sample=10, samples_sent=10, decisions_sent=3, decisions_dropped=2,
+                         state=StreamState.FINISHED, host_connected=True, connections=1, seq=4)
+    path, thread = _controller_on_a_pty(
+        DELIMITER + b"".join(encode_frame(f) for f in (data, dec, status)))
+    with LinkListener(path, stats_interval=None) as link:
+        events = list(link.events(duration=10.0))
+    thread.join(5)
+    s = events[-1].stats
+    assert (s.decisions_controller, s.lost_decisions, s.controller_decisions_dropped) == (1, 2, 2)
+    assert s.controller_decisions_sent == 3 and s.lost_frames == 2  # seq 2, 3 missing
