@@ -106,8 +106,6 @@ TEST(ReplayFormat, EachRuleRefusesItsCorruptionNamingTheValue) {
     rp::ReplayStatus status;
     const char* message;
   };
-  const double inf = std::numeric_limits<double>::infinity();
-  (void)inf;
   const Case cases[] = {
       {"magic", [](Bytes& b) { b[0] = 'X'; }, rp::ReplayStatus::bad_magic, "magic: "},
       {"short", [](Bytes& b) { b.resize(40); }, rp::ReplayStatus::bad_magic, "magic: "},
