@@ -78,6 +78,7 @@ options:
   --wait-start         stream only after the host sends START (default: stream at once)
   --status-ms MS       STATUS period in wall-clock ms (default 250)
   --tx-buffer BYTES    transmit queue size (default 16384); when full, samples are dropped
+                       and decisions wait (at most 4), every loss counted in STATUS
   --model MODEL        run the streaming classifier (.eskin model file) and send DECISION frames
   --grid RxC           grid of a 2-d .npy input (default 4x4)
   --drop-rate P        fault injection: drop each byte with probability P
