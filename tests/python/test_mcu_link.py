@@ -168,3 +168,55 @@ def test_the_board_refuses_a_bad_replay_with_one_line(firmware, tmp_path, field,
     assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
     assert len(lines) == 1, r.stdout
     assert lines[0].startswith(f"eskin-fw: the replay at 0x21000000 is refused: {field} = "), lines
+
+
+def test_a_host_that_stops_reading_loses_nothing_uncounted_on_the_board(firmware, tmp_path):
+    """The board's transmitter starved: the host (eskin.LinkListener) stops reading the pty
+    after the first decision until the board has played its whole replay (its FW: line), then
+    reads to the end. QEMU's UART then holds bytes the pty cannot take, the firmware's 2 KiB
+    ring fills, and DATA, STATUS and decisions find no room: every decision the board made is
+    received or counted in STATUS's decisions_dropped, every sample received or counted lost,
+    exactly."""
+    import time
+
+    from eskin.link.events import Decision, Stats
+    from eskin.link.listener import LinkListener
+    from eskin.link.qemu_controller import QemuController
+
+    model = synthetic_model(tmp_path / "m.eskin", n_sv=6, seed=1)
+    replay = touch_replay(tmp_path / "r.eskr", 10, seed=7)
+    n = int(read_replay_file(replay).samples.shape[0])
+    got, final = [], None
+    with QemuController(model, replay, tmp_path / "q", elf=firmware, icount=3) as qc:
+        with LinkListener(qc.pty, stats_interval=None) as link:
+            events = link.events(until_eof=True, duration=400)
+            for ev in events:
+                if isinstance(ev, Decision) and ev.source == "controller":
+                    got.append(ev)
+                    break
+            # the host reads nothing until the board says its replay is over (an event in its
+            # console log, with a deadline)
+            deadline = time.monotonic() + 300
+            while "FW: " not in qc.console():
+                assert time.monotonic() < deadline and qc.running(), qc.console()[-2000:]
+                time.sleep(0.1)
+            for ev in events:
+                if isinstance(ev, Decision) and ev.source == "controller":
+                    got.append(ev)
+                elif isinstance(ev, Stats):
+                    final = ev.stats
+        console = qc.console()
+    fw_line = next(x for x in console.splitlines() if x.startswith("FW: "))
+    fw = {k: int(v) for k, v in (t.split("=", 1) for t in fw_line.split()[1:])}
+    s = final
+    assert s is not None and s.controller_state == "finished", console[-2000:]
+    assert fw["samples"] == n
+    # decisions: every one the board made was received or counted dropped
+    assert fw["decisions_made"] >= 10
+    assert len(got) == s.decisions_controller == s.controller_decisions_sent
+    assert len(got) + s.controller_decisions_dropped == fw["decisions_made"], (fw, s)
+    assert s.controller_decisions_dropped > 0 and s.lost_decisions == 0
+    # samples: received + lost = produced, and the losses are the board's own drops
+    assert s.samples + s.lost_samples == n
+    assert s.lost_samples == s.controller_dropped_samples > 0
+    assert s.crc_errors == s.malformed == 0

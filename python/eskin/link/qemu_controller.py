@@ -155,6 +155,8 @@ class QemuController:
                 proc.wait()
         if self._reader is not None:
             self._reader.join(10)
+        if proc is not None and proc.stdout is not None and not proc.stdout.closed:
+            proc.stdout.close()  # the console's pipe (its reader has ended with QEMU)
         return self.console()
 
     def __enter__(self) -> "QemuController":
