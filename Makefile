@@ -166,7 +166,11 @@ fuzz: sanitize fuzz-listener
 # ESKIN_DEVICE=ON) with the model compiled in, the check of its program (no exceptions, RTTI,
 # threads, or allocation on the decision path), and the run on QEMU's mps2-an386 board, which
 # ends with the line "MCU: board=... parity=ok ..."; then the heap bound: the same model with an
-# unbounded window must be refused at construction (exit status 4, "out of memory").
+# unbounded window must be refused at construction (exit status 4, "out of memory"); then the
+# stack: the decision's need, bounded from the linked image's frames (tools/mcu_stack.py), is
+# written into each program, which refuses to construct the classifier below a caller that
+# leaves less (eskin-mcu-deep, exit status 5), and without that rule the stack's MPU guard stops
+# the overrun (eskin-mcu-overrun, exit status 5); the MCU line ends with stack=used/size.
 # Any model: `make mcu MODEL=m.eskin CAMPAIGN=held.h5` runs a user's model on a few recordings
 # of each class of a held-out campaign through the same check (no heap-bound case then).
 # MCU_PYTHON= (empty) skips `install` when $(PY) already imports eskin (e.g. PYTHONPATH=python).
@@ -182,9 +186,19 @@ mcu: mcu-deps $(MCU_PYTHON)
 	  -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \
 	  -DESKIN_MCU_MODEL_HEADER=$(CURDIR)/$(MCU_CASE)/mcu_case.h >/dev/null
 	$(CMAKE) --build $(BUILD_MCU)
+	$(CMAKE) --build $(BUILD_MCU) --target eskin-mcu-deep eskin-mcu-overrun
 	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-mcu.elf
+	for p in eskin-mcu eskin-mcu-deep eskin-mcu-overrun; do \
+	  $(PY) tools/mcu_stack.py $(BUILD_MCU)/mcu/$$p.elf --write > /dev/null || exit 1; done
 	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log
-	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok ' || { echo "make mcu: no 'MCU: ... parity=ok' line"; exit 1; }
+	@tail -n 1 $(BUILD_MCU)/mcu.log | grep -q '^MCU: .* parity=ok .* stack=[0-9]*/[0-9]*$$' || { echo "make mcu: no 'MCU: ... parity=ok ... stack=' line"; exit 1; }
+	@for c in deep:'eskin-mcu: stack: a decision needs' overrun:'eskin-mcu: stack overflow'; do \
+	  p=eskin-mcu-$${c%%:*}; status=0; \
+	  mcu/run.sh $(BUILD_MCU)/mcu/$$p.elf > $(BUILD_MCU)/$$p.log 2>&1 || status=$$?; \
+	  tail -n 1 $(BUILD_MCU)/$$p.log; \
+	  if [ $$status -ne 5 ] || ! grep -q "^$${c#*:}" $(BUILD_MCU)/$$p.log; then \
+	    echo "make mcu: $$p should have ended with exit status 5 and '$${c#*:}' (status $$status)"; exit 1; fi; \
+	done; echo "MCU stack: a caller leaving less than a decision needs is refused at construction; without that rule the guard stops the overrun (exit status 5)"
 	@if [ -d $(MCU_CASE)/nofit ]; then \
 	  $(CMAKE) -S . -B $(BUILD_MCU)-nofit -G Ninja -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake \
 	    -DESKIN_DEVICE=ON -DCMAKE_BUILD_TYPE=Release \

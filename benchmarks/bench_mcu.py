@@ -24,6 +24,7 @@ import importlib.util
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +160,9 @@ def device_run(build: Path, header: Path) -> dict:
     )
     if res.returncode != 0:
         raise SystemExit(f"the device build failed:\n{res.stdout[-3000:]}{res.stderr[-2000:]}")
+    # the decision's stack need, written into the image (the program refuses to run without)
+    subprocess.run([sys.executable, str(REPO / "tools/mcu_stack.py"),
+                    str(build / "mcu/eskin-mcu.elf"), "--write"], check=True, capture_output=True)
     res = subprocess.run(
         [str(REPO / "mcu/run.sh"), str(build / "mcu/eskin-mcu.elf")],
         capture_output=True,
@@ -168,7 +172,7 @@ def device_run(build: Path, header: Path) -> dict:
     last = res.stdout.strip().splitlines()[-1] if res.stdout.strip() else ""
     m = re.match(
         r"MCU: board=(\S+) decisions=(\d+) parity=(\w+) instr_per_decision=(\d+) "
-        r"flash=(\d+) ram=(\d+)$",
+        r"flash=(\d+) ram=(\d+) stack=(\d+)/(\d+)$",
         last,
     )
     if m is None:
@@ -180,6 +184,8 @@ def device_run(build: Path, header: Path) -> dict:
         "instr": int(m.group(4)),
         "flash": int(m.group(5)),
         "ram": int(m.group(6)),
+        "stack": int(m.group(7)),
+        "stack_size": int(m.group(8)),
         "per_sample": int(det.group(1)) if det else 0,
     }
 

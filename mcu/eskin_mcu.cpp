@@ -12,6 +12,14 @@
 // or flush() fails the run. The heap is bounded by the stack reserve (startup.c's _sbrk): a model
 // whose stream classifier would need more is refused at construction (heap_guard.cpp: exit
 // status MCU_EXIT_HEAP); a case built for that (MCU_CASE_EXPECT_NO_FIT) checks it.
+// The stack: a decision needs at most mcu_decision_stack() bytes (the linked image's deepest
+// chain of frames from push/flush plus an interrupt's, tools/mcu_stack.py --write); the
+// classifier is constructed only where that much is left below the frame that will push
+// (otherwise exit status MCU_EXIT_STACK), the canary above the stack's guard is checked after
+// each decision and at the end, and the high-water mark is printed as stack=used/size. A case
+// built with MCU_CASE_DEEP_CALLER=N runs the classifier below an N-byte frame (a deep caller):
+// it must be refused at construction; with MCU_CASE_SKIP_STACK_RULE too it is not, and its
+// decision must trip the guard (MCU_EXIT_STACK).
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -27,6 +35,8 @@
 #else
 #error "configure with -DESKIN_MCU_MODEL_HEADER=<header from tools/mcu_case.py>"
 #endif
+
+extern std::uint32_t _sidata[], _sdata[], _edata[], _ebss[];  // the linker script's symbols
 
 namespace {
 unsigned long g_late_mallocs = 0;  // malloc-family calls inside push() and flush()
@@ -59,6 +69,11 @@ std::uint32_t median(std::uint32_t* v, int n) {
 
 }  // namespace
 
+namespace {
+int run(const eskin::Model& model, int bad, std::uint64_t c0);
+
+}  // namespace
+
 int main() {
   std::setvbuf(stdout, nullptr, _IONBF, 0);
   int bad = 0;
@@ -83,6 +98,38 @@ int main() {
     std::printf("the model is refused: %s\n", err.message.c_str());
     return 1;
   }
+  return run(model, bad, c0);
+}
+
+namespace {
+__attribute__((noinline)) int run(const eskin::Model& model, int bad, std::uint64_t c0) {
+#ifdef MCU_CASE_DEEP_CALLER
+  {
+    // a deep caller: hold all but 64 bytes less than a decision needs, for the rest of run()
+    const std::size_t want = mcu_decision_stack() - 64, have = mcu_stack_free();
+    if (have > want) {
+      auto* hold = static_cast<volatile unsigned char*>(__builtin_alloca(have - want));
+      hold[0] = 1;
+      hold[have - want - 1] = 1;
+    }
+  }
+#endif
+  {
+    // the stack rule: the decision's need must fit what is left below this frame (said without
+    // printf, whose own frames may not fit what is left)
+    const std::size_t need = mcu_decision_stack(), left = mcu_stack_free();
+#if !defined(MCU_CASE_SKIP_STACK_RULE) && !defined(MCU_CASE_EXPECT_NO_FIT)
+    // (the heap-bound case never decides: its image has no decision to measure)
+    if (need == 0 || need > left) {
+      mcu_stack_refused(need, left);
+      return MCU_EXIT_STACK;
+    }
+#endif
+#ifndef MCU_CASE_EXPECT_NO_FIT
+    std::printf("stack rule: a decision needs %u bytes, %u are left below the caller\n",
+                static_cast<unsigned>(need), static_cast<unsigned>(left));
+#endif
+  }
   eskin::StreamClassifier sc(model);
 #ifdef MCU_CASE_EXPECT_NO_FIT
   std::printf("MCU: the stream classifier was constructed (heap %u bytes): it should not fit\n",
@@ -102,7 +149,7 @@ int main() {
     std::printf("cannot open %s\n", MCU_CASE_STREAM);
     return 1;
   }
-  int n_dec = 0;
+  int n_dec = 0, stack_bad = 0;
   double worst = 0.0;
   std::uint64_t other_ticks = 0, samples = 0;
   auto check = [&](eskin::ClassifyStatus st, std::uint64_t ticks) {
@@ -123,6 +170,10 @@ int main() {
       return;
     }
     g_decision_ticks[k] = static_cast<std::uint32_t>(ticks);
+    if (!mcu_stack_intact()) {
+      std::printf("decision %d: the stack's canary above its guard was overwritten\n", k);
+      ++stack_bad;
+    }
     const McuCaseDecision& want = mcu_case_decisions[k];
     double diff = 0.0;
     for (int m = 0; m < d.n_machines; ++m) diff = std::fmax(diff, std::fabs(d.values[m] - want.values[m]));
@@ -171,12 +222,15 @@ int main() {
     std::printf("%u heap allocations after construction\n", static_cast<unsigned>(g_late_mallocs));
     ++bad;
   }
-  extern std::uint32_t _sidata[], _sdata[], _edata[], _ebss[];
   const std::size_t flash = reinterpret_cast<std::uintptr_t>(_sidata) +
                             (reinterpret_cast<std::uintptr_t>(_edata) - reinterpret_cast<std::uintptr_t>(_sdata));
   const std::size_t statics = reinterpret_cast<std::uintptr_t>(_ebss) - reinterpret_cast<std::uintptr_t>(_sdata);
   const std::size_t heap_total = mcu_heap_used();
   const std::size_t stack = mcu_stack_used();
+  if (!mcu_stack_intact()) {
+    std::printf("eskin-mcu: stack overflow: the canary above the guard was overwritten\n");
+    ++stack_bad;
+  }
   const std::size_t ram = statics + heap_total + stack;
   const int n_med = n_dec < MCU_CASE_MAX_DECISIONS ? n_dec : MCU_CASE_MAX_DECISIONS;
   const std::uint64_t med = std::uint64_t{median(g_decision_ticks, n_med)} * kInstrPerTick;
@@ -189,9 +243,15 @@ int main() {
               static_cast<unsigned>(g_late_mallocs));
   std::printf("heap bound: %u of %u bytes up to the stack reserve\n",
               static_cast<unsigned>(heap_total), static_cast<unsigned>(mcu_heap_capacity()));
+  std::printf("stack: %u of %u bytes used (high-water mark; the lowest %u are the guard)\n",
+              static_cast<unsigned>(stack), static_cast<unsigned>(mcu_stack_size()),
+              static_cast<unsigned>(MCU_STACK_GUARD_BYTES));
   std::printf("MCU: board=mps2-an386 decisions=%d parity=%s instr_per_decision=%" PRIu32
-              " flash=%u ram=%u\n",
+              " flash=%u ram=%u stack=%u/%u\n",
               n_dec, bad == 0 ? "ok" : "FAIL", static_cast<std::uint32_t>(med),
-              static_cast<unsigned>(flash), static_cast<unsigned>(ram));
+              static_cast<unsigned>(flash), static_cast<unsigned>(ram),
+              static_cast<unsigned>(stack), static_cast<unsigned>(mcu_stack_size()));
+  if (stack_bad) return MCU_EXIT_STACK;
   return bad == 0 ? 0 : 1;
 }
+}  // namespace

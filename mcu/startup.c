@@ -8,7 +8,12 @@
  * script's `end` and `_sstack`) and never further, for malloc and every allocation built on it;
  * librdimon's own _sbrk (a weak symbol, replaced by this one) stopped only at the stack pointer.
  * An allocation that would reach the stack reserve gets NULL (errno ENOMEM); operator new then
- * ends the program with MCU_EXIT_HEAP (heap_guard.cpp). */
+ * ends the program with MCU_EXIT_HEAP (heap_guard.cpp).
+ * The stack: painted at reset (its high-water mark, mcu_stack_used), and guarded: the MPU's
+ * region 0 makes its lowest MCU_STACK_GUARD_BYTES inaccessible, so a push or a frame's store
+ * that reaches them faults, and the MemManage handler (on a fresh stack) says so and ends the
+ * program with MCU_EXIT_STACK; the painted words just above the guard are a canary
+ * (mcu_stack_intact) the program checks at each decision and at the end. */
 #include <errno.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -29,6 +34,20 @@ extern int main(void);
 #define SYST_CSR (*(volatile uint32_t*)0xE000E010u)
 #define SYST_RVR (*(volatile uint32_t*)0xE000E014u)
 #define SYST_CVR (*(volatile uint32_t*)0xE000E018u)
+#define SCB_SHCSR (*(volatile uint32_t*)0xE000ED24u)
+#define SCB_CFSR (*(volatile uint32_t*)0xE000ED28u)
+#define SCB_MMFAR (*(volatile uint32_t*)0xE000ED34u)
+#define MPU_CTRL (*(volatile uint32_t*)0xE000ED94u)
+#define MPU_RNR (*(volatile uint32_t*)0xE000ED98u)
+#define MPU_RBAR (*(volatile uint32_t*)0xE000ED9Cu)
+#define MPU_RASR (*(volatile uint32_t*)0xE000EDA0u)
+
+#define STACK_PAINT 0xDEADBEEFu
+#define CANARY_WORDS 8u /* painted words above the guard that must stay painted */
+
+/* The decision's stack need in bytes (tools/mcu_stack.py --write stores it here, in flash,
+ * after the link; 0: not measured, and the test program then refuses every model). */
+__attribute__((used)) const volatile uint32_t mcu_decision_stack_need = 0;
 
 static volatile uint32_t systick_wraps;
 
@@ -73,10 +92,84 @@ void mcu_heap_exhausted(size_t request) {
   _Exit(MCU_EXIT_HEAP);
 }
 
+/* the lowest word the stack may use: above the MPU guard */
+static const volatile uint32_t* stack_floor(void) {
+  return (const volatile uint32_t*)((uintptr_t)_sstack + MCU_STACK_GUARD_BYTES);
+}
+
 size_t mcu_stack_used(void) {
-  const volatile uint32_t* p = _sstack;
-  while ((uintptr_t)p < (uintptr_t)_estack && *p == 0xDEADBEEFu) ++p;
+  const volatile uint32_t* p = stack_floor();
+  while ((uintptr_t)p < (uintptr_t)_estack && *p == STACK_PAINT) ++p;
   return (size_t)((uintptr_t)_estack - (uintptr_t)p);
+}
+
+size_t mcu_stack_size(void) { return (size_t)((uintptr_t)_estack - (uintptr_t)_sstack); }
+
+size_t mcu_stack_free(void) {
+  uintptr_t sp;
+  __asm volatile("mov %0, sp" : "=r"(sp));
+  const uintptr_t floor = (uintptr_t)stack_floor() + CANARY_WORDS * 4u;
+  return sp > floor ? (size_t)(sp - floor) : 0;
+}
+
+int mcu_stack_intact(void) {
+  const volatile uint32_t* p = stack_floor();
+  for (unsigned i = 0; i < CANARY_WORDS; ++i)
+    if (p[i] != STACK_PAINT) return 0;
+  return 1;
+}
+
+size_t mcu_decision_stack(void) { return (size_t)mcu_decision_stack_need; }
+
+/* Semihosting SYS_WRITE0 (no library call: the fault paths use it). */
+static void say(const char* msg) {
+  register int op __asm("r0") = 0x04;
+  register const char* arg __asm("r1") = msg;
+  __asm volatile("bkpt 0xab" : : "r"(op), "r"(arg) : "memory");
+}
+
+__attribute__((noinline)) static char* put_uint(char* out, uint32_t v, int base) {
+  char tmp[12];
+  int n = 0;
+  do {
+    tmp[n++] = "0123456789abcdef"[v % (uint32_t)base];
+    v /= (uint32_t)base;
+  } while (v);
+  while (n) *out++ = tmp[--n];
+  return out;
+}
+
+__attribute__((noinline)) static char* put_str(char* out, const char* s) {
+  while (*s) *out++ = *s++;
+  return out;
+}
+
+void mcu_stack_refused(size_t need, size_t left) {
+  static char msg[200];
+  char* p = msg;
+  p = put_str(p, "eskin-mcu: stack: a decision needs ");
+  p = put_uint(p, (uint32_t)need, 10);
+  p = put_str(p, need ? " bytes of stack, " : " bytes of stack (not measured: tools/mcu_stack.py "
+                                              "--write), ");
+  p = put_uint(p, (uint32_t)left, 10);
+  p = put_str(p, " are left below the classifier's caller (");
+  p = put_uint(p, (uint32_t)mcu_stack_size(), 10);
+  p = put_str(p, "-byte stack): the classifier is not constructed\n");
+  *p = 0;
+  say(msg);
+}
+
+/* The guard: MPU region 0, MCU_STACK_GUARD_BYTES at _sstack, no access, never executed; the
+ * default memory map everywhere else (PRIVDEFENA); MemManage faults enabled (not escalated). */
+static void guard_stack(void) {
+  MPU_RNR = 0;
+  MPU_RBAR = (uint32_t)(uintptr_t)_sstack;
+  uint32_t log2 = 0;
+  while ((1u << log2) < MCU_STACK_GUARD_BYTES) ++log2;
+  MPU_RASR = (1u << 28) /* XN */ | (0u << 24) /* AP: no access */ | ((log2 - 1u) << 1) | 1u;
+  MPU_CTRL = 4u /* PRIVDEFENA */ | 1u /* ENABLE */;
+  SCB_SHCSR |= 1u << 16; /* MEMFAULTENA */
+  __asm volatile("dsb\n isb" ::: "memory");
 }
 
 __attribute__((naked, noreturn)) void Reset_Handler(void) {
@@ -99,7 +192,8 @@ __attribute__((noreturn, used)) void mcu_start(void) {
   uintptr_t sp;
   __asm volatile("mov %0, sp" : "=r"(sp));
   const size_t n_paint = (size_t)(sp - 256 - (uintptr_t)_sstack) / 4;
-  for (size_t i = 0; i < n_paint; ++i) ((volatile uint32_t*)_sstack)[i] = 0xDEADBEEFu;
+  for (size_t i = 0; i < n_paint; ++i) ((volatile uint32_t*)_sstack)[i] = STACK_PAINT;
+  guard_stack();
   SYST_RVR = 0xFFFFFFu;
   SYST_CVR = 0;
   SYST_CSR = 7u; /* enable, interrupt on wrap, processor clock */
@@ -110,15 +204,47 @@ __attribute__((noreturn, used)) void mcu_start(void) {
 
 /* A fault: say so on the semihosting console (SYS_WRITE0, no library call) and stop. */
 static void fault(void) {
-  static const char msg[] = "eskin-mcu: processor fault\n";
-  register int op __asm("r0") = 0x04;
-  register const char* arg __asm("r1") = msg;
-  __asm volatile("bkpt 0xab" : : "r"(op), "r"(arg) : "memory");
+  say("eskin-mcu: processor fault\n");
   _Exit(3);
 }
+
+/* A memory-protection fault: the stack guard's (a store or an exception's stacking into it), or
+ * another. Entered on a fresh stack (MemManage_Handler): the old one may be the fault. */
+__attribute__((noreturn, used)) void mcu_memory_fault(void) {
+  const uint32_t cfsr = SCB_CFSR;
+  const uint32_t addr = SCB_MMFAR;
+  const uint32_t lo = (uint32_t)(uintptr_t)_sstack;
+  const int stacking = (cfsr & (1u << 4)) != 0; /* MSTKERR */
+  const int in_guard = (cfsr & (1u << 7)) && addr >= lo && addr < lo + MCU_STACK_GUARD_BYTES;
+  char msg[160];
+  char* p = msg;
+  if (stacking || in_guard) {
+    p = put_str(p, "eskin-mcu: stack overflow: ");
+    p = put_str(p, stacking ? "an exception's stacking" : "a store at 0x");
+    if (!stacking) p = put_uint(p, addr, 16);
+    p = put_str(p, " reached the guard below the ");
+    p = put_uint(p, (uint32_t)mcu_stack_size(), 10);
+    p = put_str(p, "-byte stack\n");
+    *p = 0;
+    say(msg);
+    _Exit(MCU_EXIT_STACK);
+  }
+  p = put_str(p, "eskin-mcu: memory protection fault (CFSR 0x");
+  p = put_uint(p, cfsr, 16);
+  p = put_str(p, ")\n");
+  *p = 0;
+  say(msg);
+  _Exit(3);
+}
+
 void NMI_Handler(void) { fault(); }
 void HardFault_Handler(void) { fault(); }
-void MemManage_Handler(void) { fault(); }
+__attribute__((naked)) void MemManage_Handler(void) {
+  __asm volatile(
+      "ldr r0, =_estack\n" /* a fresh stack: the old one may be what faulted */
+      "mov sp, r0\n"
+      "b mcu_memory_fault\n");
+}
 void BusFault_Handler(void) { fault(); }
 void UsageFault_Handler(void) { fault(); }
 

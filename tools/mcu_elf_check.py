@@ -9,6 +9,9 @@
    from ``arm-none-eabi-objdump -d``) from ``eskin::StreamClassifier::push`` and ``flush`` reaches
    neither ``malloc`` nor ``operator new`` (nor ``free``/``realloc``). The classifier's indirect
    calls (the overlap kernels chosen at construction) are listed: they are leaf functions.
+3. The stack (tools/mcu_stack.py): every frame of the program has a static size no larger than
+   the stack's guard, and the decision's deepest chain of frames (with the interrupts') has no
+   recursion; its size is printed.
 
 Prints one line per check and exits 1 if one fails.
 """
@@ -19,6 +22,7 @@ import re
 import subprocess
 import sys
 from collections import defaultdict
+from pathlib import Path
 
 FORBIDDEN = (
     "__cxa_throw",
@@ -122,6 +126,19 @@ def main(argv: list[str]) -> int:
             f"ok: no allocation reachable from StreamClassifier::push/flush ({len(seen)} "
             f"functions; indirect calls only in {', '.join(ind) or 'none'})"
         )
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import mcu_stack
+
+    try:
+        img = mcu_stack.read_image(elf)
+        need, path, irq = mcu_stack.decision_need(img)
+        largest, where = mcu_stack.check_guard(img)
+        print(f"ok: a decision needs at most {need} bytes of stack ({irq} of them for the "
+              f"interrupts); the largest frame, {largest} bytes, is within the "
+              f"{mcu_stack.guard_bytes()}-byte guard")
+    except mcu_stack.StackError as exc:
+        ok = False
+        print(f"FAIL: {exc}")
     return 0 if ok else 1
 
 
