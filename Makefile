@@ -188,6 +188,7 @@ mcu: mcu-deps $(MCU_PYTHON)
 	$(CMAKE) --build $(BUILD_MCU)
 	$(CMAKE) --build $(BUILD_MCU) --target eskin-mcu-deep eskin-mcu-overrun
 	$(PY) tools/mcu_elf_check.py $(BUILD_MCU)/mcu/eskin-mcu.elf
+	$(PY) tools/mcu_image_size.py $(BUILD_MCU)/mcu/eskin-mcu.elf --check python/eskin/deploy/cortex_m4_program.json
 	for p in eskin-mcu eskin-mcu-deep eskin-mcu-overrun; do \
 	  $(PY) tools/mcu_stack.py $(BUILD_MCU)/mcu/$$p.elf --write > /dev/null || exit 1; done
 	set -o pipefail; mcu/run.sh $(BUILD_MCU)/mcu/eskin-mcu.elf | tee $(BUILD_MCU)/mcu.log

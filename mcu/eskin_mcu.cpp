@@ -53,7 +53,8 @@ namespace eskin::detail {
 namespace {
 
 constexpr std::uint64_t kInstrPerTick = 40;  // 1 ns per instruction, SysTick at 25 MHz
-constexpr int kChunk = 64;                   // samples read from the host per semihosting call
+// samples read from the host per semihosting call: 1024 taxel values (2 KB) whatever the grid
+constexpr int kChunk = (1024 + MCU_CASE_TAXELS - 1) / MCU_CASE_TAXELS;
 std::int16_t g_chunk[kChunk * MCU_CASE_TAXELS];
 std::uint32_t g_decision_ticks[MCU_CASE_MAX_DECISIONS];
 

@@ -12,6 +12,7 @@ the estimate for its model.
 from __future__ import annotations
 
 import functools
+import json
 
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,6 +30,7 @@ __all__ = [
     "device_budget",
     "instruction_model_error",
     "parse_budget",
+    "program_image",
     "window_for_budget",
 ]
 
@@ -46,6 +48,19 @@ class Target:
     program_ram_bytes: int  # statics and the reserved stack
 
 
+def program_image(target: str = "cortex-m4") -> dict[str, Any]:
+    """The device program around a model, measured on its linked image
+    (``tools/mcu_image_size.py --write``, shipped as ``cortex_m4_program.json``): its flash
+    without the model (``program_flash_bytes``), its statics (``program_statics_bytes``; both
+    rounded up to a whole KiB), its stack reserve (``stack_bytes``) and what was measured."""
+    from importlib.resources import files
+
+    name = target.replace("-", "_") + "_program.json"
+    return json.loads(files("eskin.deploy").joinpath(name).read_text())
+
+
+_PROGRAM = program_image("cortex-m4")
+
 TARGETS: dict[str, Target] = {
     "cortex-m4": Target(
         name="cortex-m4",
@@ -53,9 +68,10 @@ TARGETS: dict[str, Target] = {
         flash_bytes=1 << 20,
         ram_bytes=128 << 10,
         clock_hz=168e6,
-        # the `make mcu` program without its model (core, newlib-nano with printf, semihosting)
-        program_flash_bytes=116 << 10,
-        program_ram_bytes=(3 << 10) + (8 << 10),
+        # the `make mcu` program without its model (core, newlib-nano with printf, semihosting),
+        # from its linked image; statics and the stack reserve
+        program_flash_bytes=int(_PROGRAM["program_flash_bytes"]),
+        program_ram_bytes=int(_PROGRAM["program_statics_bytes"]) + int(_PROGRAM["stack_bytes"]),
     ),
 }
 

@@ -1,8 +1,10 @@
-"""The device program's stack (docs/mcu.md, "The stack"): tools/mcu_stack.py's bound from the
-linked image's frames, and, on QEMU's mps2-an386, the rule at construction (a caller leaving
-less stack than a decision needs is refused), the guard (an overrun ends the run with exit
-status 5, never silently) and the high-water mark on the MCU line. The QEMU leg is skipped only
-when qemu-system-arm is not installed; it cross-builds into build/mcu-stack-test."""
+"""The linked device program (docs/mcu.md, "The stack" and "Models that fit"): its stack
+(tools/mcu_stack.py's bound from the image's frames and, on QEMU's mps2-an386, the rule at
+construction: a caller leaving less stack than a decision needs is refused; the guard: an
+overrun ends the run with exit status 5, never silently; the high-water mark on the MCU line),
+and its size against the figures the package ships for eskin.deploy.device_budget
+(tools/mcu_image_size.py). The image legs are skipped only when qemu-system-arm is not
+installed; they cross-build into build/mcu-stack-test."""
 
 from __future__ import annotations
 
@@ -19,16 +21,17 @@ import pytest
 REPO = next(p for p in Path(__file__).resolve().parents if (p / "README.md").is_file())
 
 
-def _tool():
-    spec = importlib.util.spec_from_file_location("mcu_stack", REPO / "tools" / "mcu_stack.py")
+def _tool(name: str):
+    spec = importlib.util.spec_from_file_location(name, REPO / "tools" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     assert spec.loader is not None
-    sys.modules["mcu_stack"] = mod  # its dataclass looks its module up
+    sys.modules[name] = mod  # its dataclass looks its module up
     spec.loader.exec_module(mod)
     return mod
 
 
-ms = _tool()
+ms = _tool("mcu_stack")
+size_tool = _tool("mcu_image_size")
 PUSH = "_ZN5eskin16StreamClassifier4pushEPKs"
 FLUSH = "_ZN5eskin16StreamClassifier5flushEv"
 
@@ -102,7 +105,7 @@ def _cmake() -> str:
 
 
 @pytest.fixture(scope="module")
-def programs(tmp_path_factory) -> dict[str, Path]:
+def programs() -> dict[str, Path]:
     """eskin-mcu and its two stack cases, built with a small model of random support vectors
     and a stream without touches (tools/mcu_case.py's header format)."""
     if shutil.which("qemu-system-arm") is None:
@@ -113,7 +116,8 @@ def programs(tmp_path_factory) -> dict[str, Path]:
     from eskin.deploy import write_c_header
     from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
 
-    case = tmp_path_factory.mktemp("case")
+    case = BUILD / "case"
+    case.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(3)
     pool = rng.standard_normal((12, 4, 4, 20))
     machines = [MachineSpec(k, -1, 0.1 * k, (2, 2, 4), (1.0, 0.5, 2.0), pool[k:k + 8],
@@ -196,3 +200,23 @@ def test_without_the_rule_the_overrun_reaches_the_guard(programs):
     assert status == 5, out
     assert "eskin-mcu: stack overflow:" in out and "reached the guard" in out
     assert "MCU:" not in out
+
+
+def test_the_shipped_program_size_is_the_linked_images(programs):
+    """device_budget's program (flash without the model, statics, stack) is the linked image's,
+    rounded up to a whole KiB: never below it, never more than that rounding above."""
+    from eskin.deploy import CompiledModel, device_budget
+    from eskin.deploy.target import TARGETS, program_image
+
+    shipped = program_image("cortex-m4")
+    m = size_tool.measure(programs["eskin-mcu"])
+    assert 0 < m["model"] and m["program"] > 64 << 10
+    assert m["program"] <= shipped["program_flash_bytes"] < m["program"] + 1024
+    assert m["statics"] <= shipped["program_statics_bytes"] < m["statics"] + 1024
+    assert m["stack"] == shipped["stack_bytes"] == 8192
+    t = TARGETS["cortex-m4"]
+    assert t.program_flash_bytes == shipped["program_flash_bytes"]
+    assert t.program_ram_bytes == shipped["program_statics_bytes"] + shipped["stack_bytes"]
+    # the budget's flash of the model compiled into the image is never below the image's
+    model = CompiledModel((BUILD / "case" / "model.eskin").read_bytes())
+    assert device_budget(model, "cortex-m4").flash_total >= m["flash"] - m["case"]
