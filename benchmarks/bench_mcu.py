@@ -109,7 +109,7 @@ def main_svm(out: Path) -> None:
         info = svm_case(case, D, participants, alpha, amplitude, negatives)
         dev = device_run(out / "build", case / "mcu_case.h")
         est = decision_instructions((4, 4), D, info["alpha_store"], info["n_support"],
-                                    amplitude=info["amplitude"])
+                                    amplitude=info["amplitude"], terms=info["terms"])
         rows.append((info, dev, est))
         print(f"{info}: {dev}, cost model {est:.0f}", flush=True)
     print()
@@ -178,6 +178,7 @@ def device_run(build: Path, header: Path) -> dict:
     if m is None:
         raise SystemExit(f"the device run did not end with the MCU line:\n{res.stdout[-2000:]}")
     det = re.search(r"(\d+) instructions per sample on average", res.stdout)
+    big = re.search(r"instructions per decision: median \d+, largest (\d+)", res.stdout)
     return {
         "decisions": int(m.group(2)),
         "parity": m.group(3),
@@ -187,6 +188,7 @@ def device_run(build: Path, header: Path) -> dict:
         "stack": int(m.group(7)),
         "stack_size": int(m.group(8)),
         "per_sample": int(det.group(1)) if det else 0,
+        "instr_max": int(big.group(1)) if big else int(m.group(4)),
     }
 
 

@@ -235,6 +235,9 @@ __attribute__((noinline)) int run(const eskin::Model& model, int bad, std::uint6
   const std::size_t ram = statics + heap_total + stack;
   const int n_med = n_dec < MCU_CASE_MAX_DECISIONS ? n_dec : MCU_CASE_MAX_DECISIONS;
   const std::uint64_t med = std::uint64_t{median(g_decision_ticks, n_med)} * kInstrPerTick;
+  const std::uint64_t largest = n_med ? std::uint64_t{g_decision_ticks[n_med - 1]} * kInstrPerTick : 0;
+  std::printf("instructions per decision: median %" PRIu32 ", largest %" PRIu32 "\n",
+              static_cast<std::uint32_t>(med), static_cast<std::uint32_t>(largest));
   std::printf("other samples: %" PRIu32 " instructions per sample on average (detector)\n",
               static_cast<std::uint32_t>(samples ? other_ticks * kInstrPerTick / samples : 0));
   std::printf("largest |decision value - host| %.3g (tolerance %.3g); RAM: static %u + heap %u "

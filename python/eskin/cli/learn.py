@@ -590,7 +590,7 @@ def _size_lines(model: Any, budget: Any) -> list[str]:
     import numpy as np
 
     from eskin.deploy.export import CompiledModel, model_to_bytes, spec_from_model
-    from eskin.deploy.target import model_fits
+    from eskin.deploy.target import INSTRUCTION_MARGIN, model_fits
 
     try:
         data = model_to_bytes(spec_from_model(model), "float32")
@@ -600,8 +600,9 @@ def _size_lines(model: Any, budget: Any) -> list[str]:
     if budget is not None:
         fits, fig = model_fits(data, budget)
         return [f"on {budget.target.name}: flash {fig['flash']} of {budget.flash_bytes} B, RAM "
-                f"{fig['ram']} of {budget.ram_bytes} B, ~{fig['instructions'] / 1e6:.2f} M of "
-                f"{budget.instructions / 1e6:g} M instructions per decision (cost model)"
+                f"{fig['ram']} of {budget.ram_bytes} B, at most {fig['instructions'] / 1e6:.2f} M "
+                f"of {budget.instructions / 1e6:g} M instructions per decision (cost model: "
+                f"{fig['estimate'] / 1e6:.2f} M + {100 * INSTRUCTION_MARGIN:.0f} % margin)"
                 + ("" if fits else ": DOES NOT FIT")]
     rng = np.random.default_rng(0)
     X = rng.standard_normal((16, *model.pattern_shape))
