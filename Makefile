@@ -11,9 +11,10 @@ JOBS ?= $(shell nproc)
 # its packages is missing):
 #   make demo (and every build): a C++17 compiler and Eigen
 APT_PACKAGES := build-essential libeigen3-dev
-#   make test: GoogleTest (ctest), valgrind (instruction counts of benchmarks/bench_inference.py)
-#   and pkg-config (a test builds against the installed C++ library with it)
-APT_TEST_PACKAGES := libgtest-dev valgrind pkg-config
+#   make test: GoogleTest (ctest), valgrind (instruction counts of benchmarks/bench_inference.py),
+#   pkg-config (a test builds against the installed C++ library with it), and chromium with
+#   chromium-driver (the live page of `eskin listen --web` tested in a headless browser)
+APT_TEST_PACKAGES := libgtest-dev valgrind pkg-config chromium chromium-driver
 #   make test's sanitizer and fuzzing leg (check-sanitizers, sanitize, fuzz): clang, its runtime
 #   libraries and libFuzzer
 APT_SANITIZE_PACKAGES := clang libclang-rt-14-dev libfuzzer-14-dev

@@ -16,7 +16,7 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, NamedTuple, Optional
 
 import typer
 
@@ -320,6 +320,15 @@ def listen_cmd(
     view: str = typer.Option(
         "auto", help="live (rich view), plain (one line per event) or auto (live on a "
                      "terminal)"),
+    web: Optional[str] = typer.Option(
+        None, "--web", metavar="[HOST:]PORT", help="also serve a live page (heat map, traces, "
+        "decisions, statistics) at http://HOST:PORT/ (HOST: 127.0.0.1 unless given; PORT 0: "
+        "any free port); read-only"),
+    web_public: bool = typer.Option(
+        False, "--web-public", help="allow --web to bind a non-loopback address (the page is "
+        "then readable by other machines)"),
+    web_grace: float = typer.Option(
+        3.0, "--web-grace", help="seconds the page stays served after the listener stops"),
 ) -> None:
     """Listen to the skin controller: live decisions, link statistics, taxel activity.
 
@@ -327,7 +336,7 @@ def listen_cmd(
     its threshold (the calibrated rule), or, for a model with the paper's rule, no machine, or
     more than one, claimed the touch."""
     _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
-            force, view)
+            force, view, WebOptions(web, web_public, web_grace))
 
 
 def demo_cmd(
@@ -399,19 +408,64 @@ def register(app: typer.Typer) -> None:
     app.command("demo")(demo_cmd)
 
 
+class WebOptions(NamedTuple):
+    """`eskin listen --web [HOST:]PORT --web-public --web-grace S` (address None: no page)."""
+
+    address: Optional[str] = None
+    public: bool = False
+    grace_s: float = 3.0
+
+
+def _start_web(options: WebOptions, listener: Any) -> Any:
+    """The live page's server for ``listener`` (None without --web); raises ValueError naming
+    the option and its value for a bad address, one not allowed or one in use."""
+    if options.address is None:
+        return None
+    from eskin.link.web import LiveState, WebServer, parse_web_address
+
+    if not (math.isfinite(options.grace_s) and options.grace_s >= 0):
+        raise ValueError(f"--web-grace {options.grace_s}: must be a number of seconds >= 0")
+    host, web_port = parse_web_address(options.address, options.public)
+    state = LiveState(listener.path, replay=listener.replay, replay_offset=listener.replay_offset)
+    server = WebServer(state, host, web_port, public=options.public).start()
+    typer.echo(f"live page: {server.url} (read-only)")
+    return server
+
+
+def _stop_web(server: Any, scores: list[Any], stats: Any, grace_s: float) -> None:
+    """Tell the pages the listener stopped (with the scores and final statistics), serve them
+    ``grace_s`` more seconds, close."""
+    if server is None:
+        return
+    summary = [line for sc in scores for line in score_lines(sc)] + [stats_line(stats)]
+    server.state.observe_stats(stats)
+    server.stop(summary, grace_s)
+
+
 def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, record: Any,
-            replay: Any, reconnect: bool, backend: str, force: bool, view: str) -> None:
+            replay: Any, reconnect: bool, backend: str, force: bool, view: str,
+            web: WebOptions = WebOptions()) -> None:
     """`eskin listen`: run the listener until it ends, then score and report."""
     from eskin._files import refuse_overwrite_all
     from eskin.link.listener import LinkListener
 
     live_mode = _live_mode(duration, view)
+    if web.address is not None:
+        with _user_errors():  # a bad --web value ends the command before anything opens
+            from eskin.link.web import parse_web_address
+
+            parse_web_address(web.address, web.public)
     with _user_errors():
         outputs = [p for p in (record, jsonl) if p is not None]
         refuse_overwrite_all(outputs, force, inputs=(model, replay))
         listener = LinkListener(port, model=model, backend=backend, record=record,
                                 replay=replay, reconnect=reconnect, overwrite=force,
                                 stats_interval=0.25 if live_mode else 5.0)
+        try:
+            page = _start_web(web, listener)
+        except BaseException:
+            listener.close()
+            raise
     out = None
     decisions: list[Any] = []
     interrupted = 0
@@ -424,6 +478,8 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
         typer.echo(f"listening on {port}" + (f" (host model: {listener.classifier.kind})"
                                              if listener.classifier is not None else ""))
         events = _kept(listener.events(duration=duration, until_eof=until_eof), decisions, lost)
+        if page is not None:
+            events = page.state.observed(events, lambda: listener.stats)
         truth = replay_truth(listener)
         with _user_errors():  # e.g. the --record file, written once the first one is due
             if live_mode:
@@ -436,9 +492,12 @@ def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, r
     finally:
         restore()
         scores = _finish(listener, decisions, lost, out)
+        if sys.exc_info()[0] is not None:  # ending with an error: the pages are told at once
+            _stop_web(page, scores, listener.stats, 0.0)
     _print_scores(scores, live_mode)
     if record is not None and record.exists() and listener.stats.recordings:
         typer.echo(f"wrote {record}")
+    _stop_web(page, scores, listener.stats, web.grace_s)
     if interrupted:
         raise typer.Exit(interrupted)
 
