@@ -168,6 +168,7 @@ def run_demo(
     gap_s: float = 0.5,
     log: Optional[Callable[[str], None]] = None,
     controller: str = "sim",
+    live_page: Any = None,
 ) -> DemoResult:
     """Run the demo in folder ``out`` (created; its files are replaced). See the module doc.
 
@@ -179,6 +180,8 @@ def run_demo(
     simulator ``eskin-fw-sim``) or "qemu": the controller's firmware on QEMU's Cortex-M4F board
     (:mod:`eskin.link.qemu_controller`, docs/mcu.md), in real time (``speed`` 1), with the model
     trained to fit the part (its touch window at most 0.5 s, as `make mcu`'s).
+    ``live_page``: an :class:`eskin.link.web.LiveState` a live page's server shows (`eskin
+    demo --web`): the listener's events go to it as well.
     """
     from eskin.data.campaign import load_campaign
     from eskin.data.replay import write_replay_file
@@ -212,7 +215,7 @@ def run_demo(
     if list(rf.class_names) != list(camp.modalities):
         raise DemoError("replay class names differ from the campaign's")
     offline, decisions, stats, fw_stats = _offline_and_live(
-        model, compiled, camp, rf, test_idx, files, controller, speed, timings, say)
+        model, compiled, camp, rf, test_idx, files, controller, speed, timings, say, live_page)
 
     # 5. compare
     per_source = {SOURCES[0]: [d for d in decisions if d.source == "controller"],
@@ -252,7 +255,8 @@ def _simulate_campaign(path: Path, participants: int, seed: int, n_jobs: int,
 
 def _offline_and_live(model: Any, compiled: Any, camp: Any, rf: Any, test_idx: np.ndarray,
                       files: dict[str, Path], controller: str, speed: float,
-                      timings: dict[str, float], say: Callable[[str], None]) -> tuple:
+                      timings: dict[str, float], say: Callable[[str], None],
+                      live_page: Any = None) -> tuple:
     """Steps 3-4: the offline reference over the replay stream, then the live run through the
     controller (eskin-fw-sim or the QEMU board); their timings go into ``timings``."""
     t0 = time.perf_counter()
@@ -262,9 +266,11 @@ def _offline_and_live(model: Any, compiled: Any, camp: Any, rf: Any, test_idx: n
     timings["offline"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     if controller == "qemu":
-        decisions, stats, fw_stats = _stream_and_listen_qemu(camp, rf, files, compiled, say)
+        decisions, stats, fw_stats = _stream_and_listen_qemu(camp, rf, files, compiled, say,
+                                                             live_page)
     else:
-        decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say)
+        decisions, stats, fw_stats = _stream_and_listen(camp, rf, files, compiled, speed, say,
+                                                        live_page)
     timings["live"] = time.perf_counter() - t0
     return offline, decisions, stats, fw_stats
 
@@ -416,7 +422,8 @@ def _offline_reference(model: Any, camp: Any, rf: Any, test_idx: np.ndarray) -> 
 
 
 def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
-                       speed: float, say: Callable[[str], None]) -> tuple[list, Any, dict]:
+                       speed: float, say: Callable[[str], None],
+                       live_page: Any = None) -> tuple[list, Any, dict]:
     """Stream the replay file through ``eskin-fw-sim`` (the model on board) and listen on its
     pseudo-terminal with the compiled model, recording the stream and the decisions. Returns
     the live decisions, the link statistics and the simulator's final statistics."""
@@ -434,17 +441,19 @@ def _stream_and_listen(camp: Any, rf: Any, files: dict[str, Path], compiled: Any
         decisions, stats = _listen(
             pty, camp, rf, files, compiled, say,
             "SIMULATED campaign streamed over the eskin-fw-sim pseudo-terminal by `eskin demo`",
-            duration=max(60.0, 4 * stream_s / (speed or 10.0)))
+            duration=max(60.0, 4 * stream_s / (speed or 10.0)), live_page=live_page)
     finally:
         fw_stats = finish_fw_sim(proc)
     return decisions, stats, fw_stats
 
 
 def _listen(pty: str, camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
-            say: Callable[[str], None], description: str, duration: float) -> tuple[list, Any]:
+            say: Callable[[str], None], description: str, duration: float,
+            live_page: Any = None) -> tuple[list, Any]:
     """Listen on the controller's pty with the compiled model until the stream ends, recording
-    the stream and writing every decision (and the final statistics) to decisions.jsonl.
-    Returns the live decisions and the link statistics."""
+    the stream and writing every decision (and the final statistics) to decisions.jsonl; the
+    events also go to ``live_page`` (a LiveState) when given. Returns the live decisions and
+    the link statistics."""
     from eskin.link.listener import Decision, LinkListener
 
     decisions: list[Decision] = []
@@ -453,8 +462,12 @@ def _listen(pty: str, camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
     with LinkListener(pty, model=compiled, replay=rf, record=files["live"], overwrite=True,
                       record_source="simulated", stats_interval=None,
                       record_attrs={"description": description}) as link:
+        events = link.events(until_eof=True, duration=duration)
+        if live_page is not None:
+            live_page.port, live_page.replay = pty, rf
+            events = live_page.observed(events, lambda: link.stats)
         with open(files["decisions"], "w", encoding="utf-8") as jf:
-            for ev in link.events(until_eof=True, duration=duration):
+            for ev in events:
                 if isinstance(ev, Decision):
                     decisions.append(ev)
                     jf.write(json.dumps(ev.as_dict()) + "\n")
@@ -466,7 +479,8 @@ def _listen(pty: str, camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
 
 
 def _stream_and_listen_qemu(camp: Any, rf: Any, files: dict[str, Path], compiled: Any,
-                            say: Callable[[str], None]) -> tuple[list, Any, dict]:
+                            say: Callable[[str], None],
+                            live_page: Any = None) -> tuple[list, Any, dict]:
     """The live part against the controller's firmware on QEMU (eskin.link.qemu_controller):
     the model in its flash slot, the replay as its ADC, the host listening on its pty as it
     would on eskin-fw-sim's. Returns the live decisions, the link statistics and the board's
@@ -487,7 +501,7 @@ def _stream_and_listen_qemu(camp: Any, rf: Any, files: dict[str, Path], compiled
         decisions, stats = _listen(
             pty, camp, rf, files, compiled, say,
             "SIMULATED campaign streamed by the controller firmware on QEMU by `eskin demo`",
-            duration=600.0 + 10 * stream_s)
+            duration=600.0 + 10 * stream_s, live_page=live_page)
     finally:
         console = qc.stop()
     return decisions, stats, {"controller": "qemu", "console": console.splitlines()[-3:]}

@@ -90,3 +90,44 @@ def test_demo_command_prints_the_held_out_error_beside_eskin_evaluates(tmp_path)
     line = _held_out_line({**h, "evaluate": EVALUATE_REFERENCE})
     assert "eskin evaluate, same recipe and campaign, 5 participant-disjoint folds: 18.3 % " \
            "[13.8 %, 23.3 %] on all 240 recordings" in line.replace("%", " %")
+
+
+@pytest.mark.slow
+def test_demo_web_shows_its_stream_on_the_live_page(tmp_path):
+    """`eskin demo --web 127.0.0.1:0`: the demo's listener feeds a live page; once the stream
+    is over the page holds every live decision of decisions.jsonl and the demo's summary."""
+    pytest.importorskip("eskin.learn.models", reason="the learning stack is not installed")
+    import re
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from web_data import child_env, stop
+
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-m", "eskin", "demo", "--out", str(out),
+                             "--participants", "2", "--test-participants", "1", "--quick",
+                             "--recordings", "3", "--speed", "4", "--jobs", "1", "--web", "127.0.0.1:0",
+                             "--web-grace", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    try:
+        line = proc.stdout.readline()
+        url = re.match(r"live page: (http://\S+)", line).group(1)
+        deadline = time.monotonic() + 240
+        while True:
+            with urllib.request.urlopen(url + "state.json", timeout=10) as r:
+                state = json.loads(r.read())
+            if state["status"] == "stopped":
+                break
+            assert time.monotonic() < deadline and proc.poll() is None, state["status"]
+            time.sleep(0.2)
+        jl = [json.loads(x) for x in (out / "decisions.jsonl").read_text().splitlines()]
+        live = [(d["source"], d["label"], d["onset_sample"]) for d in jl if d["type"] == "decision"]
+        assert [(d["source"], d["label"], d["onset"]) for d in state["decisions"]] == live
+        assert any("held-out error" in s for s in state["summary"])
+        assert state["stats"]["lost_samples"] == 0
+    finally:
+        proc.terminate()
+        stop(proc)

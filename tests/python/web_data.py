@@ -103,4 +103,8 @@ def stop(proc: subprocess.Popen, timeout: float = 30.0) -> tuple[str, str]:
         return proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         proc.kill()
-        return proc.communicate()
+        proc.wait()
+        for pipe in (proc.stdout, proc.stderr):  # a grandchild may still hold them open
+            if pipe is not None:
+                pipe.close()
+        return "", ""

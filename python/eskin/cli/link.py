@@ -358,24 +358,41 @@ def demo_cmd(
         "sim", "--controller", help="sim: the simulator eskin-fw-sim; qemu: the controller "
         "firmware on QEMU's Cortex-M4F board (make mcu-link builds it; real time, a model "
         "trained to fit the part)"),
+    web: Optional[str] = typer.Option(
+        None, "--web", metavar="[HOST:]PORT", help="show the live stream on a page at "
+        "http://HOST:PORT/ as `eskin listen --web` does (try --speed 1 to watch it)"),
+    web_public: bool = typer.Option(
+        False, "--web-public", help="allow --web to bind a non-loopback address"),
+    web_grace: float = typer.Option(
+        10.0, "--web-grace", help="seconds the page stays served after the stream ends"),
 ) -> None:
     """The whole pipeline on the built-in simulated campaign, over a real pseudo-terminal.
     Its own files in --out are replaced; a folder holding other files needs --force."""
     from eskin.demo import DemoError, run_demo
 
     console = report_console()
+    options = WebOptions(web, web_public, web_grace)
     with _user_errors():
         _check_demo_folder(out, force)
-        try:
-            result = run_demo(out, participants=participants,
-                              test_participants=test_participants, speed=speed, seed=seed,
-                              n_jobs=jobs, quick=quick, machine=machine,
-                              max_recordings=recordings, log=lambda m: console.print(m),
-                              controller=controller)
-        except DemoError as exc:
-            console.print(f"[bold red]demo failed:[/] {exc}")
-            raise typer.Exit(1) from None
+        page = _start_web(options, None)
+    try:
+        with _user_errors():
+            try:
+                result = run_demo(out, participants=participants,
+                                  test_participants=test_participants, speed=speed, seed=seed,
+                                  n_jobs=jobs, quick=quick, machine=machine,
+                                  max_recordings=recordings, log=lambda m: console.print(m),
+                                  controller=controller,
+                                  live_page=page.state if page is not None else None)
+            except DemoError as exc:
+                console.print(f"[bold red]demo failed:[/] {exc}")
+                raise typer.Exit(1) from None
+    finally:
+        if page is not None and sys.exc_info()[0] is not None:
+            page.stop(grace_s=0.0)
     _print_demo(console, result)
+    if page is not None:
+        page.stop(list(result.summary), options.grace_s)
     if not result.agree:
         console.print(f"[bold red]demo failed: live and offline decisions disagree:[/] "
                       f"{result.disagreement}")
@@ -417,8 +434,9 @@ class WebOptions(NamedTuple):
 
 
 def _start_web(options: WebOptions, listener: Any) -> Any:
-    """The live page's server for ``listener`` (None without --web); raises ValueError naming
-    the option and its value for a bad address, one not allowed or one in use."""
+    """The live page's server for ``listener`` (None: one that `eskin demo` starts later), or
+    None without --web; raises ValueError naming the option and its value for a bad address,
+    one not allowed or one in use."""
     if options.address is None:
         return None
     from eskin.link.web import LiveState, WebServer, parse_web_address
@@ -426,7 +444,9 @@ def _start_web(options: WebOptions, listener: Any) -> Any:
     if not (math.isfinite(options.grace_s) and options.grace_s >= 0):
         raise ValueError(f"--web-grace {options.grace_s}: must be a number of seconds >= 0")
     host, web_port = parse_web_address(options.address, options.public)
-    state = LiveState(listener.path, replay=listener.replay, replay_offset=listener.replay_offset)
+    state = (LiveState() if listener is None else
+             LiveState(listener.path, replay=listener.replay,
+                       replay_offset=listener.replay_offset))
     server = WebServer(state, host, web_port, public=options.public).start()
     typer.echo(f"live page: {server.url} (read-only)")
     return server

@@ -141,6 +141,7 @@ def heat_at(driver, test, timeout: float = 30.0) -> np.ndarray:
     return wait_until(shot, timeout, "a heat map in the wanted state")[0]
 
 
+@pytest.mark.slow
 def test_the_page_follows_the_stream_reloads_and_says_stopped(browser, case):
     model, replay = case
     sim, pty = start_fw_sim(replay, "--model", model, "--speed", 1, "--wait-start")
