@@ -176,12 +176,9 @@ def run_demo(
     (all their recordings, or ``max_recordings`` of them spread over the classes) at ``speed`` x
     real time (0: as fast as the host reads, which loses nothing); ``machine`` is "svm"
     (tensor-SVM) or "rls" (tensor-RLS); ``quick`` trains on a 2x2x2 grid instead of the
-    paper's 135 configurations. ``controller`` is "sim" (the
-    simulator ``eskin-fw-sim``) or "qemu": the controller's firmware on QEMU's Cortex-M4F board
-    (:mod:`eskin.link.qemu_controller`, docs/mcu.md), in real time (``speed`` 1), with the model
-    trained to fit the part (its touch window at most 0.5 s, as `make mcu`'s).
-    ``live_page``: an :class:`eskin.link.web.LiveState` a live page's server shows (`eskin
-    demo --web`): the listener's events go to it as well.
+    paper's 135 configurations. ``controller`` is "sim" (``eskin-fw-sim``) or "qemu": the
+    controller's firmware on QEMU's Cortex-M4F board (docs/mcu.md), in real time, the model
+    trained to fit the part (window <= 0.5 s); ``live_page``: a LiveState (eskin.link.web) fed too.
     """
     from eskin.data.campaign import load_campaign
     from eskin.data.replay import write_replay_file
