@@ -392,7 +392,7 @@ def demo_cmd(
             page.stop(grace_s=0.0)
     _print_demo(console, result)
     if page is not None:
-        page.stop(list(result.summary), options.grace_s)
+        _stop_web(page, [], result.stats, options.grace_s, summary=list(result.summary))
     if not result.agree:
         console.print(f"[bold red]demo failed: live and offline decisions disagree:[/] "
                       f"{result.disagreement}")
@@ -452,14 +452,21 @@ def _start_web(options: WebOptions, listener: Any) -> Any:
     return server
 
 
-def _stop_web(server: Any, scores: list[Any], stats: Any, grace_s: float) -> None:
-    """Tell the pages the listener stopped (with the scores and final statistics), serve them
-    ``grace_s`` more seconds, close."""
+def _stop_web(server: Any, scores: list[Any], stats: Any, grace_s: float,
+              summary: Optional[list[str]] = None) -> None:
+    """Tell the pages the listener stopped (with the scores, or ``summary``, and the final
+    statistics), serve them ``grace_s`` more seconds, close."""
     if server is None:
         return
-    summary = [line for sc in scores for line in score_lines(sc)] + [stats_line(stats)]
+    if summary is None:
+        summary = [line for sc in scores for line in score_lines(sc)] + [stats_line(stats)]
     server.state.observe_stats(stats)
-    server.stop(summary, grace_s)
+    if grace_s > 0:
+        typer.echo(f"live page: showing the final state for {grace_s:g} s (Ctrl-C ends it)")
+    try:
+        server.stop(summary, grace_s)
+    except KeyboardInterrupt:
+        pass  # the server's thread ends with the process
 
 
 def _listen(port: str, model: Any, jsonl: Any, duration: Any, until_eof: bool, record: Any,

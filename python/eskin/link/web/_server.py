@@ -220,6 +220,8 @@ class WebServer:
         """Serve the final state for the grace period, then close the pages' sockets."""
         await asyncio.sleep(self._grace_s)
         for q in list(self._clients):
+            while not q.empty():  # what a slow page has not taken yet: it is closing
+                q.get_nowait()
             q.put_nowait(None)
         deadline = time.monotonic() + 2.0
         while self._clients and time.monotonic() < deadline:
