@@ -28,7 +28,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "python"))
 from web_data import make_case  # noqa: E402  (the tests' small real model and replay)
 
-from eskin.link.listener import LinkListener  # noqa: E402
+from eskin.link.listener import DataBlock, LinkListener  # noqa: E402
 from eskin.link.web import LiveState, WebServer  # noqa: E402
 
 
@@ -79,7 +79,8 @@ def cpu_of(proc: subprocess.Popen) -> float:
     return total
 
 
-def run(model: Path, replay: Path, speed: float, page: bool, nice: int = 0) -> dict:
+def run(model: Path, replay: Path, speed: float, page: bool, nice: int = 0,
+        tick_hz: float = 15.0) -> dict:
     sim, pty = start_sim(replay, "--model", model, "--speed", speed, "--tick", 10,
                          "--wait-start")
     server = browser = None
@@ -87,7 +88,7 @@ def run(model: Path, replay: Path, speed: float, page: bool, nice: int = 0) -> d
     state = LiveState(pty) if page else None
     try:
         if state is not None:
-            server = WebServer(state, "127.0.0.1", 0).start()
+            server = WebServer(state, "127.0.0.1", 0, tick_hz=tick_hz).start()
             browser = open_page(server.url, nice)
             deadline = time.monotonic() + 60
             while server.clients == 0:  # the page has loaded and holds its WebSocket
@@ -102,13 +103,15 @@ def run(model: Path, replay: Path, speed: float, page: bool, nice: int = 0) -> d
             events = link.events(until_eof=True, duration=600)
             if state is not None:
                 events = state.observed(events, lambda: link.stats)
-            for _ in events:
-                pass
+            holes = []  # (seconds into the run, samples lost) of the first holes
+            for ev in events:
+                if isinstance(ev, DataBlock) and ev.lost_before and len(holes) < 4:
+                    holes.append((round(time.perf_counter() - t_wall, 2), ev.lost_before))
             cpu, wall = time.thread_time() - t_cpu, time.perf_counter() - t_wall
             stats = link.stats
         out = {"speed": speed, "page": page, "nice": nice, "samples": stats.samples,
                "lost": stats.lost_samples, "dropped": stats.controller_dropped_samples,
-               "wall_s": wall, "listener_cpu_s": cpu}
+               "wall_s": wall, "listener_cpu_s": cpu, "holes": holes}
         if server is not None and state is not None:
             clients = server.clients
             server.stop()  # its thread's CPU time is final once it has ended
@@ -134,6 +137,7 @@ def main() -> None:
     ap.add_argument("--nice", type=int, default=0,
                     help="also run each speed with the page open in a chromium run under "
                          "`nice -n N` (the listener keeps the processor first)")
+    ap.add_argument("--tick-hz", type=float, default=15.0, help="display frames a second")
     args = ap.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="bench-web-"))
     model, replay = make_case(folder, recordings=max(1, int(args.seconds / 1.4)))
@@ -142,7 +146,7 @@ def main() -> None:
     rows = []
     for speed in (float(s) for s in args.speeds.split(",")):
         for page, nice in ((False, 0), (True, 0), *([(True, args.nice)] if args.nice else [])):
-            r = run(model, replay, speed, page, nice)
+            r = run(model, replay, speed, page, nice, args.tick_hz)
             rows.append(r)
             extra = ""
             if page:
@@ -153,7 +157,8 @@ def main() -> None:
             case = f"page open{f' (nice {nice})' if nice else ''}" if page else "no page"
             print(f"speed {speed:g} {case:<19}: "
                   f"samples {r['samples']} lost {r['lost']} dropped {r['dropped']} "
-                  f"wall {r['wall_s']:.1f} s listener cpu {r['listener_cpu_s']:.2f} s{extra}",
+                  f"wall {r['wall_s']:.1f} s listener cpu {r['listener_cpu_s']:.2f} s{extra}"
+                  + (f"; first holes (s into the run, samples) {r['holes']}" if r["holes"] else ""),
                   flush=True)
     print("\nsummary:")
     for s in sorted({r["speed"] for r in rows}):
