@@ -65,7 +65,7 @@ def browser():
 
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
-    return make_case(tmp_path_factory.mktemp("web"), recordings=9)
+    return make_case(tmp_path_factory.mktemp("web"), recordings=15)
 
 
 class Lines:
@@ -171,7 +171,7 @@ def test_the_page_follows_the_stream_reloads_and_says_stopped(browser, case):
         n = len(page_labels(browser))
         wait_until(lambda: len(page_labels(browser)) > n, 30, "a decision after the reload")
         # the listener ends with the replay: the page says so, with the final scores
-        out.wait_for(r"^host: \d+/9 recordings right", 90)
+        out.wait_for(r"^host: \d+/15 recordings right", 120)
         wait_until(lambda: status_text(browser).startswith("stopped"), 30, "stopped")
         summary = browser.find_element("id", "summary").text
         assert "controller: " in summary and "recordings right" in summary
@@ -192,10 +192,10 @@ def test_the_first_html_holds_the_decisions_so_far(case):
                                "--web-grace", 60)
     out = Lines(listen)
     try:
-        out.wait_for(r"^host: \d+/9 recordings right", 90)  # the stream is over
+        out.wait_for(r"^host: \d+/15 recordings right", 120)  # the stream is over
         decisions = [re.search(r"label=(\w+)", line).group(1)
                      for line in out.lines if line.startswith("decision ")]
-        assert len(decisions) >= 18
+        assert len(decisions) >= 30
         dom = subprocess.run([browser_path, *chromium_flags(), "--dump-dom",
                               "--virtual-time-budget=5000", url],
                              capture_output=True, text=True, timeout=60).stdout
