@@ -29,7 +29,8 @@ BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
 .PHONY: all deps test-deps sanitize-deps mcu-deps mcu mcu-link venv venv-test install cpp ctest pytest \
-  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz fuzz-listener mutation
+  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz fuzz-listener mutation \
+  mutation-deps mutation-diff
 
 all: install cpp
 
@@ -269,12 +270,26 @@ devtest: dev venv-test
 
 # Mutation testing of the modules that guard data and results (docs/testing.md; not part of
 # `make test`): cosmic-ray for the Python modules, tools/mutation.py's own mutator for the C++
-# model loader and frame decoder. One line per module, "MUTATION: module=... mutants=N
-# killed=K ..."; MUTATION_SAMPLE mutants of each module run (a seeded sample; empty: all).
+# ones. It prints its seed first ("MUTATION: seed=N": a fresh one each run, MUTATION_SEED=N runs
+# the same sample again), then one line per module, "MUTATION: module=... mutants=N killed=K
+# score=... ci95=[lo, hi] ...". MUTATION_SAMPLE mutants of each module run (a random sample;
+# empty or `all`: every mutant); MUTATION_ONLY=path,path runs only those modules.
+# `make mutation-diff` (BASE=rev, default the merge-base with main, or HEAD~1 on main): only the
+# mutants on the lines the change touches, committed or not (all of them unless MUTATION_SAMPLE
+# is given), as a check before handing a change over.
 MUTATION_SAMPLE ?= 20
-mutation: dev venv-test
+MUTATION_SEED ?=
+MUTATION_ONLY ?=
+BASE ?=
+MUTATION_ARGS = $(if $(MUTATION_SEED),--seed $(MUTATION_SEED)) $(if $(MUTATION_ONLY),--only $(MUTATION_ONLY))
+mutation-deps: dev venv-test
 	$(PIP) install -q $$($(PY) -c "import tomllib;print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
-	ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) tools/mutation.py $(if $(MUTATION_SAMPLE),--sample $(MUTATION_SAMPLE))
+
+mutation: mutation-deps
+	ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) tools/mutation.py --sample "$(or $(MUTATION_SAMPLE),all)" $(MUTATION_ARGS)
+
+mutation-diff: mutation-deps
+	ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) tools/mutation.py --diff $(BASE) --sample "$(if $(filter command line environment,$(origin MUTATION_SAMPLE)),$(or $(MUTATION_SAMPLE),all),all)" $(MUTATION_ARGS)
 
 clean:
 	rm -rf build python/eskin/_core*.so

@@ -15,11 +15,16 @@ mutant is *killed*) or pass (it *survives*: a missing test, or a change that alt
   is not a mutant (not counted).
 
 Every module's mutants are all generated; with --sample N (the default of `make mutation`) a
-seeded random N of them run, and the line says so. Output, one line per module:
+random N of them run, drawn with the seed the run prints first (``MUTATION: seed=<n>``: a fresh
+one on each run unless --seed gives it, so that no test suite is tuned to one sample; the same
+seed and the same source give the same sample again). --sample all runs every mutant. --diff REV
+keeps only the mutants on the lines that differ between REV and the work tree (``git diff
+-U0``: `make mutation-diff`). Output, one line per module:
 
-    MUTATION: module=<path> mutants=<n> killed=<k> generated=<g>
+    MUTATION: module=<path> mutants=<n> killed=<k> score=<k/n> ci95=[lo, hi] generated=<g>
 
-and build/mutation/survivors.txt lists each survivor (file, line, operator, the changed text).
+(ci95: the Wilson score interval of the module's kill rate, from the mutants that ran) and
+build/mutation/survivors.txt lists each survivor (file, line, operator, the changed text).
 Timeouts (a mutant that makes the tests hang, 3x the unmutated run plus 30 s) count as killed.
 Runs under `nice -n 10`; the exit status is 1 if a module is below --threshold.
 """
@@ -29,6 +34,7 @@ from __future__ import annotations
 import argparse
 import ast
 import json
+import math
 import os
 import random
 import re
@@ -63,6 +69,16 @@ PYTHON_MODULES: dict[str, list[str]] = {
     # the recipe `eskin train` chooses and what fits a controller's budget
     "python/eskin/learn/recipes.py": ["tests/python/learn/test_recipes.py"],
     "python/eskin/deploy/target.py": ["tests/python/deploy/test_target.py"],
+    # the replay file eskin-fw-sim streams: writer and reader
+    "python/eskin/data/replay.py": ["tests/python/data/test_replay.py"],
+    # bytes -> checked frames -> events and the link's counters (the two tests of
+    # test_accounting.py that stream through eskin-fw-sim, 20 s each, are left to `make test`)
+    "python/eskin/link/receiver.py": [
+        "tests/python/link/test_listener.py", "tests/python/link/test_frame_checks.py",
+        "tests/python/link/test_accounting.py::test_lost_samples_reconcile_with_the_controller_count"],
+    # the calibrated decision rule of a model: fitted here, written by the exporter
+    "python/eskin/learn/calibration.py": [
+        "tests/python/learn/test_calibration.py", "tests/python/deploy/test_export_calibration.py"],
 }
 
 #: cosmic-ray operator families run (the others, e.g. swapping + for <<, make mostly mutants
@@ -80,16 +96,19 @@ class CppModule:
     path: str
     start: str  # the mutated region: from the line holding `start`
     end: str | None  # ... to the line before the one holding `end` (None: end of file)
-    target: str  # the GoogleTest executable that covers it
+    targets: tuple[str, ...]  # the GoogleTest executables that cover it (tests/cpp/<target>.cpp)
 
 
 CPP_MODULES = [
-    CppModule("cpp/src/model_format.cpp", "class Reader {", "Model Model::from_bytes", "test_model"),
-    CppModule("cpp/src/protocol.cpp", "std::ptrdiff_t cobs_decode(", None, "test_protocol"),
+    CppModule("cpp/src/model_format.cpp", "class Reader {", "Model Model::from_bytes",
+              ("test_model",)),
+    CppModule("cpp/src/protocol.cpp", "std::ptrdiff_t cobs_decode(", None, ("test_protocol",)),
+    # the decision path of a loaded model: tables, machines, the calibrated rule, the stream
+    CppModule("cpp/src/model.cpp", "inline bool spans(", None, ("test_model",)),
     # the controller's arithmetic: the input's bases and the tiled overlap
-    CppModule("cpp/src/scalar_bases.hpp", "int one_sided_jacobi(", None, "test_scalar_bases"),
+    CppModule("cpp/src/scalar_bases.hpp", "int one_sided_jacobi(", None, ("test_scalar_bases",)),
     CppModule("cpp/src/model_overlap.cpp", "template <int KB, int LB>", "#if defined(ESKIN_DEVICE)",
-              "test_model_overlap"),
+              ("test_model_overlap",)),
 ]
 
 
@@ -108,12 +127,75 @@ def nice() -> list[str]:
     return ["nice", "-n", "10"] if shutil.which("nice") else []
 
 
-def report(module: str, n: int, killed: int, generated: int, sampled: bool) -> float:
-    score = killed / n if n else 0.0
-    note = " (a seeded sample of the generated mutants)" if sampled else ""
-    print(f"MUTATION: module={module} mutants={n} killed={killed} generated={generated}"
-          f"  # score {score:.2f}{note}", flush=True)
-    return score
+def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """The Wilson score interval (95 % by default) of a rate of k successes in n trials."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    centre = p + z * z / (2 * n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    den = 1 + z * z / n
+    return max(0.0, (centre - half) / den), min(1.0, (centre + half) / den)
+
+
+def report(module: str, n: int, killed: int, generated: int, note: str = "") -> float | None:
+    """Prints the module's line; its score (None when no mutant ran)."""
+    lo, hi = wilson(killed, n)
+    score = f"{killed / n:.2f}" if n else "-"
+    print(f"MUTATION: module={module} mutants={n} killed={killed} score={score} "
+          f"ci95=[{lo:.2f}, {hi:.2f}] generated={generated}{note}", flush=True)
+    return killed / n if n else None
+
+
+def choose(mutants: list, sample: int | None, seed: int, module: str) -> list:
+    """The mutants that run: all of them, or a random ``sample`` drawn with ``seed`` (each
+    module its own draw: two modules of the same size do not get the same positions), in the
+    module's order."""
+    if sample is None or len(mutants) <= sample:
+        return list(mutants)
+    picked = sorted(random.Random(f"{seed}/{module}").sample(range(len(mutants)), sample))
+    return [mutants[i] for i in picked]
+
+
+def changed_lines(diff: str) -> dict[str, set[int]]:
+    """The lines of the new side of a ``git diff -U0`` that a change touches, by file: the
+    added or changed lines, and around a deletion the lines on either side of it."""
+    out: dict[str, set[int]] = {}
+    current: set[int] | None = None
+    for line in diff.splitlines():
+        if line.startswith("+++ "):
+            path = line[4:].strip()
+            current = None if path == "/dev/null" else out.setdefault(
+                path[2:] if path.startswith("b/") else path, set())
+        elif line.startswith("@@ ") and current is not None:
+            m = re.match(r"@@ -\d+(?:,\d+)? \+(\d+)(?:,(\d+))? @@", line)
+            if m is None:
+                continue
+            start, count = int(m.group(1)), int(m.group(2) or 1)
+            if count == 0:  # a deletion after line `start`
+                current.update(x for x in (start, start + 1) if x > 0)
+            else:
+                current.update(range(start, start + count))
+    return out
+
+
+def default_base() -> str:
+    """The merge-base of HEAD with main, or HEAD~1 when HEAD is on main (or there is none)."""
+    def git(*a: str) -> str:
+        r = subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True)
+        return r.stdout.strip() if r.returncode == 0 else ""
+    head = git("rev-parse", "HEAD")
+    base = git("merge-base", "HEAD", "main")
+    return base if base and base != head else "HEAD~1"
+
+
+def diff_lines(base: str) -> dict[str, set[int]]:
+    """The lines of the work tree (committed or not) that differ from ``base``, by file."""
+    r = subprocess.run(["git", "diff", "-U0", "--no-color", "--no-ext-diff", base, "--"],
+                       cwd=REPO, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"mutation: git diff {base}: {r.stderr.strip()}")
+    return changed_lines(r.stdout)
 
 
 def copy_tree(dst: Path) -> None:
@@ -158,7 +240,8 @@ def in_annotation(pos: tuple[int, int], spans: list) -> bool:
 
 
 def run_python(module: str, tests: list[str], sample: int | None, seed: int,
-               survivors: list[str]) -> float:
+               survivors: list[str], lines: set[int] | None = None) -> float | None:
+    """Runs the module's mutants (those on ``lines`` only, when given); its score."""
     from cosmic_ray.work_db import WorkDB, use_db
     from cosmic_ray.work_item import TestOutcome, WorkerOutcome, WorkResult
 
@@ -179,19 +262,18 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     if not Path(where).resolve().is_relative_to(work.resolve()):
         sys.exit(f"mutation: the tests would import eskin from {where or '(nowhere)'}, not from "
                  f"the mutated copy under {work}")
-    t0 = time.monotonic()
-    base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
-    if base.returncode != 0:
-        sys.exit(f"mutation: the tests of {module} fail unmutated:\n{base.stdout[-3000:]}")
-    timeout = 3 * (time.monotonic() - t0) + 30
     cfg = OUT / (name + ".cosmic-ray.toml")
-    cfg.write_text(
-        "[cosmic-ray]\n"
-        f"module-path = {json.dumps(module)}\n"
-        f"timeout = {timeout:.0f}\n"
-        "excluded-modules = []\n"
-        f"test-command = {json.dumps(shlex.join(nice() + pytest))}\n"
-        '\n[cosmic-ray.distributor]\nname = "local"\n')
+
+    def config(timeout: float) -> None:
+        cfg.write_text(
+            "[cosmic-ray]\n"
+            f"module-path = {json.dumps(module)}\n"
+            f"timeout = {timeout:.0f}\n"
+            "excluded-modules = []\n"
+            f"test-command = {json.dumps(shlex.join(nice() + pytest))}\n"
+            '\n[cosmic-ray.distributor]\nname = "local"\n')
+
+    config(60)  # the real timeout is written once the unmutated run has been timed
     cosmic_ray = str(Path(sys.executable).parent / "cosmic-ray")
     subprocess.run([cosmic_ray, "init", str(cfg), str(session)],
                    cwd=work, env=env, check=True, capture_output=True)
@@ -200,21 +282,29 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
         spans = annotation_spans((work / module).read_text())
         kept = [w for w in items
                 if all(PYTHON_OPERATORS.match(m.operator_name)
-                       and not in_annotation(m.start_pos, spans) for m in w.mutations)]
+                       and not in_annotation(m.start_pos, spans)
+                       and (lines is None or m.start_pos[0] in lines) for m in w.mutations)]
         # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
-        # so that the seeded sample is the same mutants on every run
+        # so that a seed draws the same mutants of the same source on every run
         kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
-        chosen = kept
-        if sample is not None and len(kept) > sample:
-            chosen = random.Random(seed).sample(kept, sample)
+        chosen = choose(kept, sample, seed, module)
         ids = {w.job_id for w in chosen}
         skip = [w.job_id for w in items if w.job_id not in ids]
         if skip:
             db.set_multiple_results(skip, WorkResult(output="not run",
                                                      worker_outcome=WorkerOutcome.SKIPPED))
+    note = "" if lines is None else " (on the changed lines)"
+    if not chosen:
+        return report(module, 0, 0, len(kept), note)
+    t0 = time.monotonic()
+    base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
+    if base.returncode != 0:
+        sys.exit(f"mutation: the tests of {module} fail unmutated:\n{base.stdout[-3000:]}")
+    config(3 * (time.monotonic() - t0) + 30)
     subprocess.run([cosmic_ray, "exec", str(cfg), str(session)], cwd=work, env=env, check=True,
                    capture_output=True)
     n = killed = 0
+    text = (work / module).read_text().splitlines()
     with use_db(str(session), WorkDB.Mode.open) as db:
         for item, result in db.completed_work_items:
             if result.worker_outcome == WorkerOutcome.SKIPPED:
@@ -226,12 +316,12 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
             n += 1
             if result.test_outcome == TestOutcome.SURVIVED:
                 for m in item.mutations:
-                    line = (work / module).read_text().splitlines()[m.start_pos[0] - 1].strip()
                     survivors.append(f"{module}:{m.start_pos[0]} {m.operator_name} "
-                                     f"#{m.occurrence}: {line}")
+                                     f"#{m.occurrence}: {text[m.start_pos[0] - 1].strip()}")
+                    print(f"  {survivors[-1]}: survived", file=sys.stderr, flush=True)
             else:
                 killed += 1
-    return report(module, n, killed, len(kept), len(chosen) < len(kept))
+    return report(module, n, killed, len(kept), note)
 
 
 # --------------------------------------------------------------------------------------- C++
@@ -258,7 +348,19 @@ def cpp_mutants(text: str, mod: CppModule) -> list[tuple[int, str, str]]:
         sys.exit(f"mutation: {mod.path}: the region's markers {mod.start!r}, {mod.end!r} "
                  "are not in the file (update CPP_MODULES)")
     out: list[tuple[int, str, str]] = []
-    for i in range(start, end):
+    # the branches a host build does not compile (#if defined(ESKIN_DEVICE), the controller's
+    # build): a mutant there is run by no host test, so none is made
+    branches: list[bool] = []  # per open #if: whether its current branch is device-only
+    for i, ln in enumerate(lines[:end]):
+        d = ln.strip()
+        if d.startswith("#if"):
+            branches.append(bool(re.match(r"#\s*(if\s+defined\s*\(?\s*|ifdef\s+)ESKIN_DEVICE\b", d)))
+        elif d.startswith("#else") and branches:
+            branches[-1] = False
+        elif d.startswith("#endif") and branches:
+            branches.pop()
+        if i < start or any(branches):
+            continue
         line, code = lines[i], strip_strings(lines[i])
         if code.lstrip().startswith(("#", "/*", "*")):
             continue
@@ -278,7 +380,10 @@ def cpp_mutants(text: str, mod: CppModule) -> list[tuple[int, str, str]]:
     return out
 
 
-def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str]) -> float:
+def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
+            lines: set[int] | None = None) -> float | None:
+    """Runs the file's mutants (those on ``lines`` only, when given); its score. One C++ run
+    at a time: the copy and its Debug build (build/mutation/cpp-*) are shared."""
     src = OUT / "cpp-src"
     build = OUT / "cpp-build"
     copy_tree(src)  # file times kept: the build redoes only what changed
@@ -294,29 +399,33 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str])
     target.write_text(original)
 
     def build_and_test(timeout: float | None) -> str:
-        b = subprocess.run(nice() + [ninja, "-C", str(build), mod.target], capture_output=True)
+        b = subprocess.run(nice() + [ninja, "-C", str(build), *mod.targets], capture_output=True)
         if b.returncode != 0:
             return "no-compile"
-        try:
-            t = subprocess.run(nice() + [str(build / mod.target), "--gtest_brief=1"],
-                               capture_output=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            return "timeout"
-        return "pass" if t.returncode == 0 else "fail"
+        for t in mod.targets:
+            try:
+                r = subprocess.run(nice() + [str(build / t), "--gtest_brief=1"],
+                                   capture_output=True, timeout=timeout)
+            except subprocess.TimeoutExpired:
+                return "timeout"
+            if r.returncode != 0:
+                return "fail"
+        return "pass"
 
+    mutants = [m for m in cpp_mutants(original, mod) if lines is None or m[0] + 1 in lines]
+    chosen = choose(mutants, sample, seed, mod.path)
+    note = "" if lines is None else " (on the changed lines)"
+    if not chosen:
+        return report(mod.path, 0, 0, len(mutants), note)
     t0 = time.monotonic()
     if build_and_test(None) != "pass":
-        sys.exit(f"mutation: {mod.target} fails unmutated")
+        sys.exit(f"mutation: {', '.join(mod.targets)} fail unmutated")
     timeout = 3 * (time.monotonic() - t0) + 30
-    mutants = cpp_mutants(original, mod)
-    chosen = mutants
-    if sample is not None and len(mutants) > sample:
-        chosen = random.Random(seed).sample(mutants, sample)
-    lines = original.splitlines(keepends=True)
+    text = original.splitlines(keepends=True)
     n = killed = 0
     try:
         for i, op, new in chosen:
-            mutated = lines.copy()
+            mutated = text.copy()
             mutated[i] = new + "\n"
             target.write_text("".join(mutated))
             outcome = build_and_test(timeout)
@@ -331,32 +440,76 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str])
                   file=sys.stderr, flush=True)
     finally:
         target.write_text(original)
-    return report(mod.path, n, killed, len(mutants), len(chosen) < len(mutants))
+    return report(mod.path, n, killed, len(mutants), note)
+
+
+def modules() -> list[str]:
+    """Every module mutation testing covers, Python then C++."""
+    return [*PYTHON_MODULES, *(m.path for m in CPP_MODULES)]
+
+
+def sample_size(text: str) -> int | None:
+    if text.strip().lower() in ("", "all"):
+        return None
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError("a sample of at least one mutant, or 'all'")
+    return n
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", action="append", help="only this module (repeatable)")
-    ap.add_argument("--sample", type=int, default=None,
-                    help="run a seeded random N of each module's mutants (default: all)")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", action="append", default=[],
+                    help="only these modules (comma-separated paths; repeatable)")
+    ap.add_argument("--sample", type=sample_size, default=None,
+                    help="run a random N of each module's mutants ('all' or empty: every one; "
+                         "default: all)")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="the seed of the sample (default: a fresh one, printed)")
+    ap.add_argument("--diff", nargs="?", const="", default=None, metavar="REV",
+                    help="only the mutants on the lines that differ from REV (default: the "
+                         "merge-base with main, or HEAD~1 on main)")
     ap.add_argument("--threshold", type=float, default=0.85)
     args = ap.parse_args(argv)
+    wanted = [m for arg in args.only for m in arg.split(",") if m.strip()]
+    wanted = [m.strip() for m in wanted]
+    unknown = [m for m in wanted if m not in modules()]
+    if unknown:
+        print(f"mutation: not a module of tools/mutation.py: {', '.join(unknown)} (the modules: "
+              f"{', '.join(modules())})", file=sys.stderr)
+        return 2
+    seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "big")
+    print(f"MUTATION: seed={seed}", flush=True)
+    changed: dict[str, set[int]] | None = None
+    if args.diff is not None:
+        base = args.diff or default_base()
+        changed = diff_lines(base)
+        print(f"mutation: the lines that differ from {base}", flush=True)
+        for path in sorted(changed):
+            if path.endswith((".py", ".cpp", ".hpp")) and path.startswith(
+                    ("python/eskin/", "cpp/")) and path not in modules():
+                print(f"mutation: {path} changed; it is not a module of tools/mutation.py",
+                      flush=True)
     OUT.mkdir(parents=True, exist_ok=True)
-    wanted = set(args.only or [])
     t0 = time.monotonic()
     survivors: list[str] = []
-    scores: dict[str, float] = {}
-    py = {m: t for m, t in PYTHON_MODULES.items() if not wanted or m in wanted}
-    for module, tests in py.items():
-        scores[module] = run_python(module, tests, args.sample, args.seed, survivors)
-    for mod in CPP_MODULES:
-        if not wanted or mod.path in wanted:
-            scores[mod.path] = run_cpp(mod, args.sample, args.seed, survivors)
+    scores: dict[str, float | None] = {}
+    for module in modules():
+        if wanted and module not in wanted:
+            continue
+        lines = None if changed is None else changed.get(module, set())
+        if lines is not None and not lines:
+            continue
+        if module in PYTHON_MODULES:
+            scores[module] = run_python(module, PYTHON_MODULES[module], args.sample, seed,
+                                        survivors, lines)
+        else:
+            mod = next(m for m in CPP_MODULES if m.path == module)
+            scores[module] = run_cpp(mod, args.sample, seed, survivors, lines)
     (OUT / "survivors.txt").write_text("".join(s + "\n" for s in survivors))
-    print(f"mutation: {len(scores)} modules in {time.monotonic() - t0:.0f} s; "
+    print(f"mutation: {len(scores)} modules in {time.monotonic() - t0:.0f} s (seed {seed}); "
           f"{len(survivors)} survivors in {OUT / 'survivors.txt'}")
-    return 0 if all(s >= args.threshold for s in scores.values()) else 1
+    return 0 if all(s is None or s >= args.threshold for s in scores.values()) else 1
 
 
 if __name__ == "__main__":
