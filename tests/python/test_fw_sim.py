@@ -31,6 +31,7 @@ from eskin.link.protocol import (
     encode_frame,
 )
 from eskin.link.serial_port import PeerClosedError, SerialPort
+from waiting import wait_until
 
 START = encode_frame(CommandFrame(FrameType.START))
 # Paced tests that expect no drops give the simulator a queue that outlasts a host stalled by a
@@ -219,13 +220,14 @@ def test_slow_host_makes_the_sim_drop_not_block(sim, replay):
         port.write(START)
         # paced, the simulator sleeps in poll only while it waits for START or after the end of
         # the replay; bytes waiting on the port show it has started, so this is the end
-        deadline = time.monotonic() + 60
-        polls = 0
-        while polls < 5:
-            assert time.monotonic() < deadline, "the simulator never went idle"
+        polls = [0]
+
+        def idle() -> bool:  # five looks in a row
             started = port.in_waiting > 0
-            polls = polls + 1 if started and blocked_in_poll(s.proc.pid) else 0
-            time.sleep(0.01)
+            polls[0] = polls[0] + 1 if started and blocked_in_poll(s.proc.pid) else 0
+            return polls[0] >= 5
+
+        wait_until(idle, what="the simulator to go idle")
         frames: list = []
         while not any(isinstance(f, StatusFrame) and f.state == StreamState.FINISHED
                       for f in frames):
@@ -254,7 +256,10 @@ def test_host_disconnect_and_reconnect(sim, replay):
     while time.monotonic() < end:
         frames += dec.feed(port.read(65536, timeout=0.05))
     port.close()
-    time.sleep(0.25)  # the host is away; the controller keeps sampling
+    # the host is away while the controller goes on sampling: for 20 of its pacing wake-ups
+    woke = context_switches(s.proc.pid)[0]
+    wait_until(lambda: context_switches(s.proc.pid)[0] >= woke + 20,
+               what="the simulator to sample on without its host")
     with SerialPort(s.path) as port:
         frames += read_until_closed(port, dec)
     stats = s.stats()
@@ -270,7 +275,10 @@ def test_host_disconnect_and_reconnect(sim, replay):
 def test_joining_mid_stream(sim, replay):
     rf = read_replay_file(replay)
     s = sim(replay, "--speed", "4", *BIG_QUEUE)  # streams at once, nobody listening yet
-    time.sleep(0.3)
+    # the host joins after 20 of the controller's pacing wake-ups
+    woke = context_switches(s.proc.pid)[0]
+    wait_until(lambda: context_switches(s.proc.pid)[0] >= woke + 20,
+               what="the simulator to stream without a host")
     with SerialPort(s.path) as port:
         dec = FrameDecoder()
         frames = read_until_closed(port, dec)
@@ -446,13 +454,15 @@ def test_no_host_means_no_busy_waiting(sim, replay):
     unpaced = sim(replay, "--speed", "0", "--loop")
     procs = {"--wait-start": waiting.proc, "paced --loop": paced.proc, "--speed 0 --loop": unpaced.proc}
     before = {k: context_switches(p.pid) for k, p in procs.items()}
-    deadline = time.monotonic() + 60
-    while True:
-        now = {k: context_switches(p.pid) for k, p in procs.items()}
-        slept = {k: now[k][0] - before[k][0] for k in procs}
-        if min(slept.values()) >= 200 or time.monotonic() > deadline:
-            break
-        time.sleep(0.05)
+    now: dict = {}
+    slept: dict = {}
+
+    def woke_200_times() -> bool:
+        now.update({k: context_switches(p.pid) for k, p in procs.items()})
+        slept.update({k: now[k][0] - before[k][0] for k in procs})
+        return min(slept.values()) >= 200
+
+    wait_until(woke_200_times, interval=0.05, required=False)
     assert all(p.poll() is None for p in procs.values())
     preempted = {k: now[k][1] - before[k][1] for k in procs}
     assert min(slept.values()) >= 200, (slept, preempted)

@@ -106,6 +106,8 @@ def test_kill_9_mid_append_loses_at_most_the_recording_in_flight(tmp_path):
         proc = _fork(_writer_child, path, child)
         child.close()
         assert parent.recv() == "open"
+        # not synchronisation: the kill lands at a random point of the writes (the behaviour
+        # under test), drawn from the seeded generator
         time.sleep(float(rng.uniform(0.0, 0.06)))
         os.kill(proc.pid, signal.SIGKILL)
         proc.join()

@@ -185,6 +185,7 @@ def test_a_kill_during_close_leaves_a_building_file_that_the_next_write_removes(
     if not building.exists():
         pytest.skip("the close finished before the kill (a very fast disk)")
     assert not target.exists() and journal_path(target).exists()
+    # a process that is alive for the whole test (it is killed at the end), not a wait
     alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         living = tmp_path / f".c.h5.{alive.pid}.building"

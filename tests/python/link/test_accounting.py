@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from child_process import interruptible
+from waiting import wait_until, wait_until_read
 
 from eskin.data.replay import write_replay_arrays
 from eskin.link.listener import LinkListener
@@ -118,19 +119,19 @@ def _controller_on_a_pty(frames: bytes):
     path = os.ttyname(slave)
     os.close(slave)
 
+    def host_wrote() -> bool:  # the host opened the port and sent START
+        r, _, _ = select.select([master], [], [], 0.05)
+        try:
+            return bool(r and os.read(master, 4096))
+        except OSError:  # EIO: not open yet
+            return False
+
     def run():
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            r, _, _ = select.select([master], [], [], 0.05)
-            try:
-                if r and os.read(master, 4096):
-                    break  # the host opened the port and sent START
-            except OSError:
-                time.sleep(0.02)
+        wait_until(host_wrote, timeout=20, what="the host's START", interval=0.02)
         view = memoryview(frames)
         while view:
             view = view[os.write(master, view) :]
-        time.sleep(0.2)
+        wait_until_read(path)
         os.close(master)
 
     t = threading.Thread(target=run, daemon=True)

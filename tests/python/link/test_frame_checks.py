@@ -11,7 +11,6 @@ import select
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from eskin.link.protocol import (
     StreamState,
     encode_frame,
 )
+from waiting import wait_until, wait_until_read
 
 REPO = Path(__file__).resolve().parents[3]
 NAMES = ("brush", "finger", "washer")
@@ -38,6 +38,15 @@ def _env() -> dict[str, str]:
     return env
 
 
+def _host_wrote(master: int) -> bool:
+    """Whether the host end of the pty has written something (its START) since the last call."""
+    r, _, _ = select.select([master], [], [], 0.05)
+    try:
+        return bool(r and os.read(master, 4096))
+    except OSError:  # EIO: the host has not opened the port yet
+        return False
+
+
 def _controller(wire: bytes) -> tuple[str, threading.Thread]:
     """A pty whose controller end sends ``wire`` once the host has written (its START)."""
     master, slave = os.openpty()
@@ -45,18 +54,11 @@ def _controller(wire: bytes) -> tuple[str, threading.Thread]:
     os.close(slave)
 
     def run() -> None:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            r, _, _ = select.select([master], [], [], 0.05)
-            try:
-                if r and os.read(master, 4096):
-                    break
-            except OSError:
-                time.sleep(0.02)
+        wait_until(lambda: _host_wrote(master), what="the host's START", interval=0.02)
         view = memoryview(wire)
         while view:
             view = view[os.write(master, view):]
-        time.sleep(1.0)
+        wait_until_read(path)
         os.close(master)
 
     t = threading.Thread(target=run, daemon=True)

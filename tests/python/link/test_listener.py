@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,7 @@ from eskin.link.protocol import (
     StreamState,
     encode_frame,
 )
+from waiting import wait_until, wait_until_read
 
 SPF = 10  # samples per DATA frame
 
@@ -116,18 +116,19 @@ def wait_for_start(state, master: int | None = None, timeout: float = 20.0) -> l
     master = state["master"] if master is None else master
     dec = FrameDecoder()
     seen: list = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not state["done"].is_set():
+
+    def started() -> bool:
+        if state["done"].is_set():
+            return True
         r, _, _ = select.select([master], [], [], 0.05)
-        if not r:
-            continue
-        try:
-            seen += dec.feed(os.read(master, 4096))
-        except OSError:  # EIO: no slave end open yet
-            time.sleep(0.02)
-            continue
-        if any(getattr(f, "command", None) == FrameType.START for f in seen):
-            return seen
+        if r:
+            try:
+                seen.extend(dec.feed(os.read(master, 4096)))
+            except OSError:  # EIO: no slave end open yet
+                return False
+        return any(getattr(f, "command", None) == FrameType.START for f in seen)
+
+    wait_until(started, timeout=timeout, what="the host's START", interval=0.02, required=False)
     return seen
 
 
@@ -297,7 +298,7 @@ def test_peer_close_and_reconnect_on_the_same_path(pty, tmp_path):
         def controller():
             wait_for_start(state)
             write_all(state["master"], DELIMITER + b"".join(frames[:15]))
-            time.sleep(0.2)
+            wait_until_read(path)
             os.close(state["master"])  # the controller goes away ...
             master, slave = os.openpty()  # ... and comes back on a new pty behind the same link
             os.unlink(path)
@@ -327,7 +328,7 @@ def test_peer_close_without_reconnect_ends_the_events(pty):
         def controller():
             wait_for_start(state)
             write_all(state["master"], DELIMITER + b"".join(frames))
-            time.sleep(0.1)
+            wait_until_read(path)
             os.close(state["master"])
 
         start_thread(state, controller)

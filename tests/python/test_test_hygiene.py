@@ -1,0 +1,58 @@
+"""The tests wait for events, not for time: no test sleeps to let something happen (a process
+start, bytes arrive, a peer read what it was sent) but waits for it with a deadline
+(tests/python/waiting.py). The few sleeps left are the behaviour under test, each listed here
+with its reason; a new one fails this test until it is replaced by a wait or justified here."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+TESTS = REPO / "tests"
+
+SLEEP = re.compile(r"\b(sleep|usleep|nanosleep|sleep_for|sleep_until)\s*\(")
+
+#: (file, the line, stripped) -> why it is not a wait for an event
+ALLOWED = {
+    ("tests/python/waiting.py", "time.sleep(interval)  # the poll interval of this wait"):
+        "the poll interval of the one waiting helper",
+    ("tests/python/data/test_campaign_recovery.py",
+     "time.sleep(float(rng.uniform(0.0, 0.06)))"):
+        "the SIGKILL lands at a seeded random point of the writes: the behaviour under test",
+    ("tests/python/data/test_writer_exits.py",
+     'alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])'):
+        "a living process whose pid the test needs (killed at the end), not a wait",
+}
+
+
+def sleeps() -> set[tuple[str, str]]:
+    found = set()
+    for path in sorted(TESTS.rglob("*")):
+        if (path.suffix not in (".py", ".cpp", ".hpp", ".sh") or "corpus" in path.parts
+                or path == Path(__file__).resolve()):  # this file names the sleeps it finds
+            continue
+        for line in path.read_text(errors="replace").splitlines():
+            code = line.split("//")[0] if path.suffix in (".cpp", ".hpp") else line
+            if SLEEP.search(code) and not code.lstrip().startswith("#"):
+                found.add((str(path.relative_to(REPO)), line.strip()))
+    return found
+
+
+def test_no_test_sleeps_but_the_listed_ones():
+    unlisted = sorted(sleeps() - set(ALLOWED))
+    assert not unlisted, ("a sleep in a test: wait for the event instead (tests/python/"
+                          f"waiting.py: wait_until), or list it in ALLOWED with why: {unlisted}")
+
+
+def test_every_listed_sleep_is_still_there():
+    assert not sorted(set(ALLOWED) - sleeps())
+
+
+def test_the_pattern_finds_the_sleeps_it_is_for():
+    for line in ("time.sleep(0.2)", "sleep(1)", "std::this_thread::sleep_for(10ms);",
+                 "usleep(1000);", "await asyncio.sleep (0.1)"):
+        assert SLEEP.search(line), line
+    for line in ("the simulator sleeps in poll", "a sleeper gives up the CPU"):
+        assert not SLEEP.search(line), line
+
