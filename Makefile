@@ -18,8 +18,8 @@ APT_TEST_PACKAGES := libgtest-dev valgrind pkg-config chromium chromium-driver
 #   make test's sanitizer and fuzzing leg (check-sanitizers, sanitize, fuzz): clang, its runtime
 #   libraries and libFuzzer
 APT_SANITIZE_PACKAGES := clang libclang-rt-14-dev libfuzzer-14-dev
-# The Cortex-M4F cross toolchain and the board emulator of `make mcu` (a separate list: the rest of
-# the build does not need them).
+# The Cortex-M4F cross toolchain and the board emulator of `make mcu` and of `make test`'s
+# firmware-on-QEMU test (tests/python/test_mcu_link.py; `make demo` does not need them).
 APT_MCU_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib \
   qemu-system-arm
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
@@ -114,7 +114,8 @@ cpp: test-deps venv
 ctest: cpp
 	cd $(BUILD_CPP) && "$(CURDIR)/$(VENV)/bin/ctest" --output-on-failure -j $(JOBS)
 
-pytest: install venv-test
+# mcu-deps: tests/python/test_mcu_link.py runs the firmware on QEMU (it fails under CI without it)
+pytest: install venv-test mcu-deps
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
 
 test: ctest pytest check-sanitizers
@@ -264,7 +265,7 @@ dev: test-deps venv
 	  -Dpybind11_DIR=$$($(PY) -m pybind11 --cmakedir) >/dev/null
 	$(CMAKE) --build $(BUILD_DEV) -j $(JOBS)
 
-devtest: dev venv-test
+devtest: dev venv-test mcu-deps
 	cd $(BUILD_DEV) && ctest --output-on-failure -j $(JOBS)
 	PYTHONPATH=python ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_DEV)" $(PY) -m pytest -q tests/python
 

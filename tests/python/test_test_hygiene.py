@@ -1,11 +1,15 @@
 """The tests wait for events, not for time: no test sleeps to let something happen (a process
 start, bytes arrive, a peer read what it was sent) but waits for it with a deadline
 (tests/python/waiting.py). The few sleeps left are the behaviour under test, each listed here
-with its reason; a new one fails this test until it is replaced by a wait or justified here."""
+with its reason; a new one fails this test until it is replaced by a wait or justified here.
+And a test that needs a tool `make test` installs (QEMU) does not pass CI by skipping."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -56,3 +60,25 @@ def test_the_pattern_finds_the_sleeps_it_is_for():
     for line in ("the simulator sleeps in poll", "a sleeper gives up the CPU"):
         assert not SLEEP.search(line), line
 
+
+def _mcu_link_tests_without_qemu(ci: str | None) -> subprocess.CompletedProcess:
+    """tests/python/test_mcu_link.py run where qemu-system-arm cannot be found (a PATH of the
+    venv's tools only)."""
+    env = {k: v for k, v in os.environ.items() if k != "CI"}
+    env["PATH"] = str(Path(sys.executable).parent)
+    env["PYTHONPATH"] = str(REPO / "python")
+    if ci is not None:
+        env["CI"] = ci
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           "-p", "no:randomly", "-x", "tests/python/test_mcu_link.py"],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_without_qemu_the_firmware_tests_skip_but_fail_under_ci():
+    here = _mcu_link_tests_without_qemu(None)
+    assert here.returncode == 0 and " skipped" in here.stdout and " passed" not in here.stdout, \
+        here.stdout[-2000:]
+    r = _mcu_link_tests_without_qemu("true")
+    assert r.returncode == 1 and re.search(r"\b1 (failed|error)\b", r.stdout) \
+        and " skipped" not in r.stdout, r.stdout[-2000:]
+    assert "qemu-system-arm is not installed (make mcu-deps); CI must run this test" in r.stdout
