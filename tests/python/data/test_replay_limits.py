@@ -1,0 +1,166 @@
+"""The replay file's limits at their edges, each through both copies of its rule: the writer
+(``write_replay_arrays``) and the reader (``read_replay_file``)."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from eskin.data.replay import ReplayFormatError, read_replay_file, write_replay_arrays
+
+
+def _recs(n: int = 2, grid=(2, 3), length: int = 20) -> list[np.ndarray]:
+    rng = np.random.default_rng(11)
+    return [rng.integers(-5, 5, size=(*grid, length)).astype(np.int16) for _ in range(n)]
+
+
+def _rewrite(path, edit) -> None:
+    """The file with ``edit(raw)`` applied to its bytes and its header CRC made right again."""
+    raw = bytearray(path.read_bytes())
+    edit(raw)
+    data_offset = struct.unpack_from("<I", raw, 12)[0]
+    struct.pack_into("<I", raw, 52, 0)
+    struct.pack_into("<I", raw, 52, zlib.crc32(bytes(raw[:data_offset])))
+    path.write_bytes(bytes(raw))
+
+
+def test_255_class_names_are_written_and_read_back_exactly(tmp_path):
+    names = [f"c{k}" for k in range(255)]
+    p = tmp_path / "255.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 254], class_names=names, gap_s=0.01)
+    rf = read_replay_file(p)
+    assert rf.class_names == tuple(names)
+    assert rf.segments["label"].tolist() == [0, 254]
+
+
+def test_256_class_names_are_refused_by_the_writer(tmp_path):
+    with pytest.raises(ValueError, match=r"^at most 255 class names, got 256$"):
+        write_replay_arrays(tmp_path / "256.eskr", _recs(), labels=[0, 1],
+                            class_names=[f"c{k}" for k in range(256)], gap_s=0.01)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_256_class_names_are_refused_by_the_reader(tmp_path):
+    # 255 names, the last one "zz": its second byte made a newline gives 256 names ("z", "")
+    # in the same number of bytes
+    names = [f"c{k}" for k in range(254)] + ["zz"]
+    p = tmp_path / "256.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=names, gap_s=0.01)
+
+    def split_last(raw: bytearray) -> None:
+        at = bytes(raw).index(b"\nzz") + 2
+        raw[at] = ord("\n")
+
+    _rewrite(p, split_last)
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: class names: 256 names, at most 255"
+
+
+def test_a_label_is_a_class_index_exactly_below_the_number_of_names(tmp_path):
+    p = tmp_path / "ok.eskr"
+    write_replay_arrays(p, _recs(), labels=[-1, 2], class_names=["a", "b", "c"], gap_s=0.01)
+    assert read_replay_file(p).segments["label"].tolist() == [-1, 2]
+    with pytest.raises(ValueError, match=r"labels must be -1 or index class_names \(3 names\)"):
+        write_replay_arrays(tmp_path / "w.eskr", _recs(), labels=[0, 3],
+                            class_names=["a", "b", "c"], gap_s=0.01)
+    with pytest.raises(ValueError, match=r"labels must be -1 or index class_names"):
+        write_replay_arrays(tmp_path / "w.eskr", _recs(), labels=[-2, 0],
+                            class_names=["a", "b", "c"], gap_s=0.01)
+
+
+@pytest.mark.parametrize("grid", [(1, 1), (255, 1), (1, 255)])
+def test_the_grid_edges_are_written_and_read(tmp_path, grid):
+    p = tmp_path / "g.eskr"
+    write_replay_arrays(p, _recs(1, grid, 8), labels=[0], class_names=["a"], gap_s=0.01)
+    rf = read_replay_file(p)
+    assert rf.samples.shape[1:] == grid
+    assert rf.n_samples == rf.samples.shape[0]
+
+
+@pytest.mark.parametrize("grid", [(256, 1), (1, 256)])
+def test_a_grid_past_255_is_refused_by_the_writer(tmp_path, grid):
+    with pytest.raises(ValueError, match=r"is not within 1\.\.255 x 1\.\.255"):
+        write_replay_arrays(tmp_path / "g.eskr", _recs(1, grid, 8), labels=[0],
+                            class_names=["a"], gap_s=0.01)
+
+
+@pytest.mark.parametrize("field, offset", [("rows", 24), ("cols", 26)])
+@pytest.mark.parametrize("value", [0, 256])
+def test_a_grid_outside_1_to_255_is_refused_by_the_reader(tmp_path, field, offset, value):
+    p = tmp_path / "g.eskr"
+    write_replay_arrays(p, _recs(1, (2, 3), 8), labels=[0], class_names=["a"], gap_s=0.01)
+    _rewrite(p, lambda raw: struct.pack_into("<H", raw, offset, value))
+    grid = f"{value}x3" if field == "rows" else f"2x{value}"
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: grid: {grid} is not within 1..255 x 1..255"
+
+
+SEG1 = 56 + 48  # the second segment: start u64, length u64, onset i64, offset i64, label i32
+
+
+def _with_contact(tmp_path, onset: int, offset: int):
+    """A file of two recordings of 20 samples, the second's contact interval set as given."""
+    p = tmp_path / "c.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01,
+                        contact_intervals=[[1, 10], [2, 12]])
+
+    def edit(raw: bytearray) -> None:
+        struct.pack_into("<qq", raw, SEG1 + 16, onset, offset)
+
+    _rewrite(p, edit)
+    return p
+
+
+@pytest.mark.parametrize("onset, offset", [(-1, -1), (0, 20), (5, 5), (0, 0), (20, 20)])
+def test_a_contact_within_its_recording_or_unknown_is_read(tmp_path, onset, offset):
+    rf = read_replay_file(_with_contact(tmp_path, onset, offset))
+    seg = rf.segments[1]
+    assert (int(seg["contact_onset"]), int(seg["contact_offset"])) == (onset, offset)
+
+
+@pytest.mark.parametrize("onset, offset", [(-1, 5), (5, -1), (-2, 5), (-1, 0), (10, 5), (0, 21),
+                                           (21, 21)])
+def test_a_contact_half_unknown_reversed_or_past_its_recording_is_refused(tmp_path, onset, offset):
+    p = _with_contact(tmp_path, onset, offset)
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == (
+        f"{p}: segment 1: contact interval [{onset}, {offset}) is neither -1/-1 nor within "
+        f"[0, length 20] with onset <= offset (1 bad segments)")
+
+
+@pytest.mark.parametrize("vpc", [0.0, -0.5, -2.0])
+def test_a_volts_per_count_not_above_zero_is_refused_by_the_reader(tmp_path, vpc):
+    p = tmp_path / "v.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    _rewrite(p, lambda raw: struct.pack_into("<d", raw, 40, vpc))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: volts_per_count: {vpc!r} is not a finite number > 0"
+
+
+@pytest.mark.parametrize("n_labels", [1, 3])
+def test_labels_are_exactly_one_per_recording(tmp_path, n_labels):
+    with pytest.raises(ValueError, match=rf"^labels must have one entry per recording \(2\), "
+                                         rf"got \({n_labels},\)$"):
+        write_replay_arrays(tmp_path / "l.eskr", _recs(), labels=list(range(n_labels)),
+                            class_names=["a", "b", "c"], gap_s=0.01)
+
+
+def test_quiet_gaps_of_zero_noise_are_the_baseline_and_negative_noise_is_refused(tmp_path):
+    recs = _recs()
+    rf = write_replay_arrays(tmp_path / "q.eskr", recs, labels=[0, 1], class_names=["a", "b"],
+                             gap_s=0.01, noise_counts=0.0, baseline=np.full((2, 3), 7.0))
+    first = int(rf.segments[0]["start"])
+    assert first > 0
+    # the first gap ramps from the baseline to the first recording's edge, with no noise: it
+    # starts at the baseline exactly
+    assert (np.asarray(rf.samples[0]) == 7).all()
+    with pytest.raises(ValueError, match=r"^noise_counts must be >= 0, got -0\.1$"):
+        write_replay_arrays(tmp_path / "n.eskr", recs, labels=[0, 1], class_names=["a", "b"],
+                            gap_s=0.01, noise_counts=-0.1)
