@@ -1440,3 +1440,93 @@ TEST(ModelCalibration, BadCalbSectionsAreRefusedNamingFieldAndValue) {
   v4[8] = 4;
   EXPECT_TRUE(says(refused(v4), "required section 'CALB' missing")) << refused(v4);
 }
+
+// ---- machines of different alpha in one model: each machine's distances come from its own
+// cut of the bases (the decision tables group machines by alpha)
+
+namespace {
+// The fixture with machine `k`'s alpha of mode `z` set to `a` (the CRC fixed).
+Bytes with_machine_alpha(Bytes b, std::size_t k, int z, std::uint32_t a) {
+  const std::size_t mach = section_offset(b, "MACH");
+  std::size_t pos = mach + 8;  // machine 0
+  for (std::size_t i = 0; i < k; ++i) {
+    // a machine (docs/model-format.md, MACH): 24 bytes of fields (n_terms at 8), three
+    // {u32 alpha, u32 reserved, f64 sigma}, then its n_terms indices (u32, padded to 8) and
+    // coefficients (f64 in a float64 model)
+    const std::uint32_t n_terms = get_u32(b, pos + 8);
+    pos += 24 + 48 + (n_terms * 4 + 7) / 8 * 8 + n_terms * 8;
+  }
+  put_u32(b, pos + 24 + 16 * static_cast<std::size_t>(z), a);
+  fix_crc(b);
+  return b;
+}
+}  // namespace
+
+TEST(ModelDecision, MachinesOfDifferentAlphaEachUseTheirOwn) {
+  const Bytes base = fixture("float64");
+  const Model m0 = Model::from_bytes(base.data(), base.size());
+  ASSERT_EQ(m0.machines().size(), 3u);
+  // machine 0: alpha (1, 2, 4); machine 1: (2, 2, 4) as stored; machine 2: (2, 2, 3)
+  const Bytes b = with_machine_alpha(with_machine_alpha(base, 0, 0, 1), 2, 2, 3);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.machines()[0].alpha[0], 1);
+  ASSERT_EQ(m.machines()[1].alpha[0], 2);
+  ASSERT_EQ(m.machines()[2].alpha[2], 3);
+  eskin::Classifier clf(m);
+  for (const unsigned seed : {3u, 4u}) {
+    const std::vector<double> x = random_tensor(m, 1.0, seed);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const std::vector<double> want = hand_decision(m, x);
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
+  }
+}
+
+// ---- the calibrated rule of a binary model: one machine, z = a f + b; the label is its
+// positive class when z > 0 and its negative class otherwise, the confidence sigmoid(|z|)
+
+TEST(ModelCalibration, ABinaryModelsDecisionEqualsTheFormula) {
+  const Bytes v1 = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Model plain = Model::from_bytes(v1.data(), v1.size());
+  ASSERT_EQ(plain.rule(), eskin::DecisionRule::kBinary);
+  ASSERT_EQ(plain.machines().size(), 1u);
+  const int positive = plain.machines()[0].positive, negative = plain.machines()[0].negative;
+  ASSERT_NE(positive, negative);
+  // the machine's values on random tensors; a steep sigmoid centred on their median
+  std::vector<std::vector<double>> xs;
+  std::vector<double> f;
+  eskin::Classifier c0(plain);
+  for (unsigned seed = 0; seed < 30; ++seed) {
+    xs.push_back(random_tensor(plain, 0.5 + 0.1 * seed, 100 + seed));
+    eskin::Decision d;
+    ASSERT_EQ(c0.classify_tensor(xs.back().data(), &d), eskin::ClassifyStatus::kOk);
+    f.push_back(d.values[0]);
+  }
+  std::vector<double> sorted = f;
+  std::sort(sorted.begin(), sorted.end());
+  const double centre = 0.5 * (sorted[14] + sorted[15]);
+  const double slope = 20.0 / (sorted.back() - sorted.front()), offset = -slope * centre;
+  const double threshold = 0.9;
+  const Bytes b = with_section_after_mach(as_version3(v1), "CALB",
+                                          calb_payload(1, threshold, {slope}, {offset}), 4);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_TRUE(m.calibrated());
+  eskin::Classifier clf(m);
+  int pos = 0, neg = 0, flagged = 0;
+  for (std::size_t i = 0; i < xs.size(); ++i) {
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(xs[i].data(), &d), eskin::ClassifyStatus::kOk);
+    EXPECT_EQ(d.values[0], f[i]);
+    const double z = slope * f[i] + offset;
+    EXPECT_EQ(d.label, z > 0 ? positive : negative) << i;
+    EXPECT_NEAR(d.confidence, 1.0 / (1.0 + std::exp(-std::fabs(z))), 1e-12) << i;
+    EXPECT_EQ(d.dont_know, d.confidence < threshold) << i;
+    (z > 0 ? pos : neg) += 1;
+    flagged += d.dont_know;
+  }
+  EXPECT_EQ(pos, 15);  // both labels, and both sides of the threshold
+  EXPECT_EQ(neg, 15);
+  EXPECT_GT(flagged, 0);
+  EXPECT_LT(flagged, 30);
+}
