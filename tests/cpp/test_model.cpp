@@ -1530,3 +1530,55 @@ TEST(ModelCalibration, ABinaryModelsDecisionEqualsTheFormula) {
   EXPECT_GT(flagged, 0);
   EXPECT_LT(flagged, 30);
 }
+
+// ---- the projection route: a time mode (N = 16 rows) cut to alpha 5 and 6 uses the cached
+// projections P = V V^T on the host (N < alpha^2); tests/data/model_projection_*.eskin, two
+// machines of different alpha
+
+TEST(ModelDecision, TheProjectionRouteEqualsTheHandComputation) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_projection_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.machines().size(), 2u);
+  ASSERT_EQ(m.basis_rows(2), 16);
+  ASSERT_EQ(m.machines()[0].alpha[2], 5);
+  ASSERT_EQ(m.machines()[1].alpha[2], 6);
+  eskin::Classifier clf(m);
+  for (const unsigned seed : {1u, 2u, 3u}) {
+    const std::vector<double> x = random_tensor(m, 1.0, seed);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const std::vector<double> want = hand_decision(m, x);
+    for (int k = 0; k < 2; ++k)
+      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
+  }
+  // the float32 model of the same description decides as the float64 one, to float precision
+  const Bytes b32 = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_projection_float32.eskin");
+  const Model m32 = Model::from_bytes(b32.data(), b32.size());
+  eskin::Classifier c32(m32);
+  const std::vector<double> x = random_tensor(m, 1.0, 9);
+  eskin::Decision d64, d32;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d64), eskin::ClassifyStatus::kOk);
+  ASSERT_EQ(c32.classify_tensor(x.data(), &d32), eskin::ClassifyStatus::kOk);
+  for (int k = 0; k < 2; ++k) EXPECT_NEAR(d32.values[k], d64.values[k], 1e-4) << "machine " << k;
+}
+
+// An input that is not finite is refused as such (not as a kernel failure), and the classifier
+// decides the next input as if it had not seen it.
+TEST(ModelDecision, ANonFiniteInputIsRefusedAsNotFinite) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x = random_tensor(m, 1.0, 21);
+  eskin::Decision want;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &want), eskin::ClassifyStatus::kOk);
+  const std::vector<double> want_values(want.values, want.values + 3);
+  const double inf = std::numeric_limits<double>::infinity();
+  for (const double bad : {std::numeric_limits<double>::quiet_NaN(), inf, -inf}) {
+    std::vector<double> y = x;
+    y[y.size() / 2] = bad;
+    eskin::Decision d;
+    EXPECT_EQ(clf.classify_tensor(y.data(), &d), eskin::ClassifyStatus::kNotFinite) << bad;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(d.values[k], want_values[static_cast<std::size_t>(k)]);
+  }
+}

@@ -1,5 +1,7 @@
-"""Write tests/data/model_small_*.eskin (a small valid 3-class model) and
-tests/data/model_binary_float64.eskin (a two-class model, binary rule) for the C++ loader tests.
+"""Write tests/data/model_small_*.eskin (a small valid 3-class model),
+tests/data/model_binary_float64.eskin (a two-class model, binary rule) and
+tests/data/model_projection_*.eskin (two machines of different alpha, a time mode cut wider than
+4: the projection route) for the C++ loader and decision tests.
 
 Its bases are random orthonormal columns (QR), not bases of real patterns: the loader and fuzz
 tests check the format, not the classifier. Regenerate it when the format or eskin::WindowConfig
@@ -82,6 +84,32 @@ def binary_spec() -> ModelSpec:
     )
 
 
+def projection_spec() -> ModelSpec:
+    """Two machines of different alpha whose time mode (N = 4 x 4 = 16 rows) is cut to alpha 5
+    and 6 > 4: on the host its distances go through the cached projections (N < alpha^2);
+    4x4 taxels, D = 8, one-vs-all over two classes."""
+    rng = np.random.default_rng(5)
+    D = 8
+    pool = rng.standard_normal((6, 4, 4, D))
+    machines = [
+        MachineSpec(0, -1, 0.05, (2, 3, 5), (1.0, 0.75, 1.5), pool[[0, 1, 2, 4]],
+                    rng.standard_normal(4)),
+        MachineSpec(1, -1, -0.1, (3, 2, 6), (0.5, 1.0, 2.0), pool[[1, 3, 4, 5]],
+                    rng.standard_normal(4)),
+    ]
+    return ModelSpec(
+        class_names=["slide", "roll"],
+        rule="one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=(4, 4),
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=3000.0,
+        window_config=WindowConfig(window_samples=0),
+    )
+
+
 def main() -> None:
     spec = fixture_spec()
     for dtype in ("float32", "float64"):
@@ -91,6 +119,10 @@ def main() -> None:
     out = Path(__file__).with_name("model_binary_float64.eskin")
     out.write_bytes(model_to_bytes(binary_spec(), "float64", bases_fn=qr_bases))
     print(out, out.stat().st_size)
+    for dtype in ("float32", "float64"):
+        out = Path(__file__).with_name(f"model_projection_{dtype}.eskin")
+        out.write_bytes(model_to_bytes(projection_spec(), dtype, bases_fn=qr_bases))
+        print(out, out.stat().st_size)
 
 
 if __name__ == "__main__":
