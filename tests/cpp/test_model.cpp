@@ -1582,3 +1582,37 @@ TEST(ModelDecision, ANonFiniteInputIsRefusedAsNotFinite) {
     for (int k = 0; k < 3; ++k) EXPECT_EQ(d.values[k], want_values[static_cast<std::size_t>(k)]);
   }
 }
+
+// The smallest recording is one sample (the subsampling pads it to the model's D): a decision,
+// not a bad shape; a recording with no touch falls back to the whole recording (the fixture's
+// fallback, "whole"), flagged window_found = false.
+TEST(ModelClassify, ARecordingOfOneSampleIsDecided) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  std::vector<double> one(16, 0.0);
+  for (int k = 0; k < 16; ++k) one[static_cast<std::size_t>(k)] = 100.0 * k - 700.0;
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify(one.data(), 4, 4, 1, 1, &d), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(d.window_start, 0);
+  EXPECT_EQ(d.window_stop, 1);
+  // the first sample of a longer recording, as a recording of one sample
+  const auto x = synthetic_recording(9000, 3000, 6000, 1);
+  ASSERT_EQ(clf.classify(x.data(), 4, 4, 9000, 1, &d), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(d.window_stop, 1);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 0, 0, &d), eskin::ClassifyStatus::kBadShape);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 9000, 9001, &d), eskin::ClassifyStatus::kBadShape);
+}
+
+TEST(ModelClassify, NoTouchFallsBackToTheWholeRecording) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.window_config().fallback, 0.0);  // "whole"
+  eskin::Classifier clf(m);
+  const std::vector<double> quiet(16 * 3000, 0.0);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify(quiet.data(), 4, 4, 3000, 3000, &d), eskin::ClassifyStatus::kOk);
+  EXPECT_FALSE(d.window_found);
+  EXPECT_EQ(d.window_start, 0);
+  EXPECT_EQ(d.window_stop, 3000);
+}
