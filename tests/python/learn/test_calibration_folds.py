@@ -1,0 +1,59 @@
+"""The out-of-fold values the calibration is fitted on (eskin.learn.calibration): which folds,
+which patterns each machine is retrained on, and the error the report states. A scikit-learn
+logistic regression stands in for a tensor machine: the functions take any binary estimator
+with ``decision_function`` (exact values, seconds instead of minutes)."""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.linear_model import LogisticRegression
+from sklearn.model_selection import StratifiedKFold
+
+from eskin.learn.calibration import fit_calibration, out_of_fold_values
+
+
+def _data(n: int = 40, seed: int = 3):
+    rng = np.random.default_rng(seed)
+    y = np.tile([0, 1], n // 2)
+    X = rng.standard_normal((n, 3)) + 0.8 * y[:, None]
+    return X, y
+
+
+def test_two_groups_holding_every_class_give_two_grouped_folds():
+    X, y = _data()
+    groups = np.repeat([7, 9], len(y) // 2)  # each group holds both classes
+    notes: list[str] = []
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y, groups, n_folds=5,
+                                    notes=notes)
+    assert n_folds == 2 and notes == []
+    for held in (7, 9):  # each group's values come from the machine trained on the other
+        te = groups == held
+        m = LogisticRegression().fit(X[~te], np.where(y[~te] == 1, 1, -1))
+        np.testing.assert_array_equal(F[te, 0], m.decision_function(X[te]))
+
+
+def test_a_machine_is_retrained_on_its_own_patterns_only():
+    X, y = _data()
+    subset = np.arange(30)  # the machine was trained on the first 30 patterns
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X[subset], y[subset]), X, y,
+                                    machine_indices=[subset], n_folds=4, seed=5)
+    assert n_folds == 4
+    want = np.empty(len(y))
+    for tr, te in StratifiedKFold(4, shuffle=True, random_state=5).split(y, y):
+        trk = np.intersect1d(tr, subset)
+        assert np.unique(y[trk]).size == 2  # both sides in every fold's share of the subset
+        m = LogisticRegression().fit(X[trk], np.where(y[trk] == 1, 1, -1))
+        want[te] = m.decision_function(X[te])
+    np.testing.assert_array_equal(F[:, 0], want)
+
+
+def test_the_reported_error_counts_wrong_labels_both_ways():
+    # symmetric values: the fitted sigmoid is centred on 0, so the label is f > 0; one pattern
+    # of each class is on the wrong side (0.5 of class 0, -0.5 of class 1)
+    F = np.array([[3.0], [2.0], [1.0], [-1.0], [-2.0], [-3.0], [0.5], [-0.5]])
+    y = np.array([1, 1, 1, 0, 0, 0, 0, 1])
+    cal = fit_calibration(F, y, 0.0, binary=True)
+    assert abs(cal.offsets[0]) < 1e-3 * cal.slopes[0]
+    assert cal.report["oof_error"] == 0.25
+    assert cal.report["oof_error_decided"] == 0.25
+    assert cal.report["oof_flagged"] == 0.0
