@@ -54,7 +54,8 @@ PYTHON_MODULES: dict[str, list[str]] = {
     "python/eskin/data/journal.py": [
         "tests/python/data/test_journal.py", "tests/python/data/test_campaign_recovery.py"],
     "python/eskin/data/campaign.py": [
-        "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py"],
+        "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py",
+        "tests/python/data/test_campaign_storage.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`
@@ -64,13 +65,15 @@ PYTHON_MODULES: dict[str, list[str]] = {
     "python/eskin/link/protocol.py": ["tests/python/link/test_protocol.py"],
     "python/eskin/deploy/export.py": [
         # all but the two that train on a campaign first (90 s of the 2 min)
-        "tests/python/deploy/test_export.py", "tests/python/deploy/test_export_limits.py", "-k",
+        "tests/python/deploy/test_export.py", "tests/python/deploy/test_export_limits.py",
+        "tests/python/deploy/test_export_calibration.py", "-k",
         "not train_export_classify_matches and not cli_export_writes_model_and_header"],
     # the recipe `eskin train` chooses and what fits a controller's budget
     "python/eskin/learn/recipes.py": ["tests/python/learn/test_recipes.py"],
     "python/eskin/deploy/target.py": ["tests/python/deploy/test_target.py"],
     # the replay file eskin-fw-sim streams: writer and reader
-    "python/eskin/data/replay.py": ["tests/python/data/test_replay.py"],
+    "python/eskin/data/replay.py": [
+        "tests/python/data/test_replay.py", "tests/python/data/test_replay_limits.py"],
     # bytes -> checked frames -> events and the link's counters (the two tests of
     # test_accounting.py that stream through eskin-fw-sim, 20 s each, are left to `make test`)
     "python/eskin/link/receiver.py": [
@@ -78,7 +81,15 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/link/test_accounting.py::test_lost_samples_reconcile_with_the_controller_count"],
     # the calibrated decision rule of a model: fitted here, written by the exporter
     "python/eskin/learn/calibration.py": [
-        "tests/python/learn/test_calibration.py", "tests/python/deploy/test_export_calibration.py"],
+        "tests/python/learn/test_calibration.py", "tests/python/learn/test_calibration_folds.py",
+        "tests/python/deploy/test_export_calibration.py"],
+}
+
+#: test files named after a module (tests/python/<layer>/test_<name>*.py) that its list leaves
+#: out, with the reason (tests/python/test_mutation_map.py checks the rest are listed)
+NOT_LISTED = {
+    # the recovery of a killed writer: the journal's (python/eskin/data/journal.py lists it)
+    "tests/python/data/test_campaign_recovery.py": "python/eskin/data/campaign.py",
 }
 
 #: cosmic-ray operator families run (the others, e.g. swapping + for <<, make mostly mutants

@@ -71,6 +71,18 @@ def test_each_cpp_module_has_its_region_and_its_googletest_files(mod):
     assert len(mutation.cpp_mutants((REPO / mod.path).read_text(), mod)) > 10
 
 
+@pytest.mark.parametrize("module", sorted(mutation.PYTHON_MODULES))
+def test_each_python_module_runs_every_test_file_named_after_it(module):
+    """python/eskin/<layer>/<name>.py: every tests/python/<layer>/test_<name>*.py is in its
+    list (a new test file of a module that the list forgets kills no mutant)."""
+    layer, name = Path(module).parent.name, Path(module).stem
+    named = sorted(str(p.relative_to(REPO)) for p in
+                   (REPO / "tests" / "python" / layer).glob(f"test_{name}*.py"))
+    listed = {a.split("::")[0] for a in mutation.PYTHON_MODULES[module]}
+    left_out = {f for f, m in mutation.NOT_LISTED.items() if m == module}
+    assert not [f for f in named if f not in listed | left_out], (module, named)
+
+
 def test_python_test_nodes_name_tests_that_exist():
     for module, args in mutation.PYTHON_MODULES.items():
         for a in args:
