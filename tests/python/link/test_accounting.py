@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from child_process import interruptible
-from waiting import wait_until, wait_until_read
+from waiting import wait_until
 
 from eskin.data.replay import write_replay_arrays
 from eskin.link.listener import LinkListener
@@ -109,9 +109,10 @@ def test_listen_writes_its_final_statistics_when_a_signal_ends_it(fw_sim, replay
     assert final["samples"] % 10 == 0  # whole DATA frames of 10 samples
 
 
-def _controller_on_a_pty(frames: bytes):
+def _controller_on_a_pty(frames: bytes, host_bytes):
     """A pty whose controller end, once the host has written its START, sends ``frames`` and
-    closes; returns (path of the host end, the controller thread)."""
+    closes once ``host_bytes()`` (the bytes the host has taken) has reached them all; returns
+    (path of the host end, the controller thread)."""
     import select
     import threading
 
@@ -131,7 +132,7 @@ def _controller_on_a_pty(frames: bytes):
         view = memoryview(frames)
         while view:
             view = view[os.write(master, view) :]
-        wait_until_read(path)
+        wait_until(lambda: host_bytes() >= len(frames), what="the host to take every byte")
         os.close(master)
 
     t = threading.Thread(target=run, daemon=True)
@@ -169,8 +170,11 @@ def _frames(status_state, connections, samples_sent=50) -> bytes:
     ],
 )
 def test_lost_samples_reconcile_with_the_controller_count(state, connections, lost):
-    path, thread = _controller_on_a_pty(_frames(state, connections))
+    host: dict = {}
+    path, thread = _controller_on_a_pty(_frames(state, connections),
+                                        lambda: host["link"].stats.bytes if host else 0)
     with LinkListener(path, stats_interval=None) as link:
+        host["link"] = link
         events = list(link.events(duration=10.0))
     thread.join(5)
     s = events[-1].stats

@@ -26,7 +26,7 @@ from eskin.link.protocol import (
     StreamState,
     encode_frame,
 )
-from waiting import wait_until, wait_until_read
+from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[3]
 NAMES = ("brush", "finger", "washer")
@@ -47,6 +47,18 @@ def _host_wrote(master: int) -> bool:
         return False
 
 
+def _host_closed(master: int) -> bool:
+    """Whether no process has the host end of the pty open any more (what the host writes
+    meanwhile is read and dropped)."""
+    r, _, _ = select.select([master], [], [], 0.05)
+    try:
+        if r:
+            os.read(master, 4096)
+        return False
+    except OSError:  # EIO: the host end is closed
+        return True
+
+
 def _controller(wire: bytes) -> tuple[str, threading.Thread]:
     """A pty whose controller end sends ``wire`` once the host has written (its START)."""
     master, slave = os.openpty()
@@ -58,7 +70,10 @@ def _controller(wire: bytes) -> tuple[str, threading.Thread]:
         view = memoryview(wire)
         while view:
             view = view[os.write(master, view):]
-        wait_until_read(path)
+        # every host of these tests ends by itself (the replay's FINISHED, or an error): the
+        # controller keeps its end open until the host has closed the port
+        wait_until(lambda: _host_closed(master), what="the host to close the port",
+                   interval=0.02)
         os.close(master)
 
     t = threading.Thread(target=run, daemon=True)

@@ -38,7 +38,7 @@ from eskin.link.protocol import (
     StreamState,
     encode_frame,
 )
-from waiting import wait_until, wait_until_read
+from waiting import wait_until
 
 SPF = 10  # samples per DATA frame
 
@@ -297,8 +297,9 @@ def test_peer_close_and_reconnect_on_the_same_path(pty, tmp_path):
     with LinkListener(path, reconnect=True, reconnect_timeout=5.0, stats_interval=None) as link:
         def controller():
             wait_for_start(state)
-            write_all(state["master"], DELIMITER + b"".join(frames[:15]))
-            wait_until_read(path)
+            first = DELIMITER + b"".join(frames[:15])
+            write_all(state["master"], first)
+            wait_until(lambda: link.stats.bytes >= len(first), what="the host to take them")
             os.close(state["master"])  # the controller goes away ...
             master, slave = os.openpty()  # ... and comes back on a new pty behind the same link
             os.unlink(path)
@@ -327,8 +328,9 @@ def test_peer_close_without_reconnect_ends_the_events(pty):
     with LinkListener(path, stats_interval=None) as link:
         def controller():
             wait_for_start(state)
-            write_all(state["master"], DELIMITER + b"".join(frames))
-            wait_until_read(path)
+            wire = DELIMITER + b"".join(frames)
+            write_all(state["master"], wire)
+            wait_until(lambda: link.stats.bytes >= len(wire), what="the host to take them")
             os.close(state["master"])
 
         start_thread(state, controller)
