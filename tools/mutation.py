@@ -82,6 +82,7 @@ PYTHON_MODULES: dict[str, list[str]] = {
     # the calibrated decision rule of a model: fitted here, written by the exporter
     "python/eskin/learn/calibration.py": [
         "tests/python/learn/test_calibration.py", "tests/python/learn/test_calibration_folds.py",
+        "tests/python/learn/test_calibration_edges.py",
         "tests/python/deploy/test_export_calibration.py"],
 }
 

@@ -1616,3 +1616,43 @@ TEST(ModelClassify, NoTouchFallsBackToTheWholeRecording) {
   EXPECT_EQ(d.window_start, 0);
   EXPECT_EQ(d.window_stop, 3000);
 }
+
+// "Don't know" is a confidence strictly below the threshold: a confidence equal to it, to the
+// bit, is a decision.
+TEST(ModelCalibration, AConfidenceEqualToTheThresholdIsDecided) {
+  const std::vector<double> x = random_tensor(
+      [] { const Bytes b0 = fixture("float64"); return Model::from_bytes(b0.data(), b0.size()); }(),
+      1.0, 17);
+  double c = 0.0;
+  {
+    const Bytes b = fixture_calibrated("float64", 0.0);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    c = d.confidence;
+  }
+  ASSERT_GT(c, 0.0);
+  ASSERT_LT(c, 1.0);
+  const Bytes at = fixture_calibrated("float64", c);
+  const Model m = Model::from_bytes(at.data(), at.size());
+  ASSERT_EQ(m.reject_threshold(), c);
+  eskin::Classifier clf(m);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(d.confidence, c);
+  EXPECT_FALSE(d.dont_know);
+  const Bytes above = fixture_calibrated("float64", std::nextafter(c, 1.0));
+  const Model ma = Model::from_bytes(above.data(), above.size());
+  eskin::Classifier ca(ma);
+  ASSERT_EQ(ca.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  EXPECT_TRUE(d.dont_know);
+}
+
+// The log energy of the first n values only: log(mean square + 1e-12).
+TEST(ModelAmplitude, TheLogEnergyReadsExactlyItsValues) {
+  const double x[4] = {1.0, 2.0, 3.0, 100.0};
+  EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(x, 3), std::log(14.0 / 3.0 + 1e-12));
+  EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(x + 3, 1), std::log(10000.0 + 1e-12));
+  EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(x, 0), std::log(1e-12));
+}

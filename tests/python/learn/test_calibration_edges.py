@@ -1,0 +1,45 @@
+"""The calibrated rule's edges in Python (eskin.learn.calibration), the copy the C++
+classifier's (tests/cpp/test_model.cpp, ModelCalibration) must equal: a confidence equal to the
+threshold is decided, the first machine wins an exact tie."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from eskin.learn.calibration import calibrated_decision, choose_threshold
+
+
+def test_a_confidence_equal_to_the_threshold_is_decided():
+    F = np.array([[0.3, -0.2, 0.1]])
+    slopes, offsets = (2.0, 0.5, 1.5), (-1.0, 0.25, 0.0)
+    _, conf, flag = calibrated_decision(F, slopes, offsets, 0.0, binary=False)
+    c = float(conf[0])
+    assert 0 < c < 1 and not flag[0]
+    _, conf_at, flag_at = calibrated_decision(F, slopes, offsets, c, binary=False)
+    assert conf_at[0] == c and not flag_at[0]
+    _, _, flag_above = calibrated_decision(F, slopes, offsets, math.nextafter(c, 1.0),
+                                           binary=False)
+    assert flag_above[0]
+
+
+def test_an_exact_tie_goes_to_the_first_machine_with_half_the_confidence():
+    F = np.array([[0.5, 0.5], [-1.0, -1.0]])
+    index, conf, _ = calibrated_decision(F, (1.0, 1.0), (0.0, 0.0), 0.0, binary=False)
+    assert index.tolist() == [0, 0]
+    assert conf.tolist() == [0.5, 0.5]
+
+
+def test_a_binary_decision_at_zero_is_the_other_class_with_confidence_one_half():
+    index, conf, _ = calibrated_decision(np.array([[0.0], [1e-9], [-1e-9]]), (1.0,), (0.0,),
+                                         0.0, binary=True)
+    assert index.tolist() == [0, 1, 0]
+    assert conf[0] == 0.5
+
+
+def test_the_threshold_of_tied_confidences_flags_none_of_the_tie():
+    # five equal confidences: no threshold can flag two of them without flagging all five
+    t = choose_threshold(np.full(5, 0.7), 0.4)
+    assert t == 0.7
+    assert int((np.full(5, 0.7) < t).sum()) == 0
