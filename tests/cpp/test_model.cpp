@@ -1656,3 +1656,50 @@ TEST(ModelAmplitude, TheLogEnergyReadsExactlyItsValues) {
   EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(x + 3, 1), std::log(10000.0 + 1e-12));
   EXPECT_DOUBLE_EQ(eskin::tensor_log_energy(x, 0), std::log(1e-12));
 }
+
+// The paper's rule on a binary model: the machine's positive class when f > 0, its negative
+// class otherwise, never "don't know", no confidence. The fixture's intercept is moved so that
+// its values on random tensors fall on both sides of 0, some of them in (0, 1).
+TEST(ModelClassify, ABinaryModelsPaperRuleIsTheSignOfItsMachine) {
+  const Bytes b0 = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Model m0 = Model::from_bytes(b0.data(), b0.size());
+  ASSERT_FALSE(m0.calibrated());
+  std::vector<std::vector<double>> xs;
+  std::vector<double> f0;
+  {
+    eskin::Classifier c0(m0);
+    for (unsigned seed = 0; seed < 40; ++seed) {
+      xs.push_back(random_tensor(m0, 0.5 + 0.1 * seed, 200 + seed));
+      eskin::Decision d;
+      ASSERT_EQ(c0.classify_tensor(xs.back().data(), &d), eskin::ClassifyStatus::kOk);
+      f0.push_back(d.values[0] - m0.machines()[0].intercept);
+    }
+  }
+  std::vector<double> sorted = f0;
+  std::sort(sorted.begin(), sorted.end());
+  // intercept: minus the median, plus a quarter of the spread (values in (0, 1) when it is < 4)
+  const double intercept = -0.5 * (sorted[19] + sorted[20]) + 0.25 * (sorted.back() - sorted.front());
+  Bytes b = b0;
+  const std::size_t at = section_offset(b, "MACH") + 8 + 16;  // machine 0's intercept
+  std::uint64_t u;
+  std::memcpy(&u, &intercept, 8);
+  for (int k = 0; k < 8; ++k) b[at + static_cast<std::size_t>(k)] = static_cast<std::uint8_t>(u >> (8 * k));
+  fix_crc(b);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.machines()[0].intercept, intercept);
+  eskin::Classifier clf(m);
+  int pos = 0, neg = 0, small = 0;
+  for (const auto& x : xs) {
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const double f = d.values[0];
+    EXPECT_EQ(d.label, f > 0 ? 1 : 0) << f;
+    EXPECT_FALSE(d.dont_know);
+    EXPECT_TRUE(std::isnan(d.confidence));
+    (f > 0 ? pos : neg) += 1;
+    small += f > 0 && f < 1;
+  }
+  EXPECT_GT(pos, 0);
+  EXPECT_GT(neg, 0);
+  EXPECT_GT(small, 0);  // values in (0, 1): the sign decides, not a threshold of 1
+}
