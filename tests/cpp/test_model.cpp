@@ -1703,3 +1703,26 @@ TEST(ModelClassify, ABinaryModelsPaperRuleIsTheSignOfItsMachine) {
   EXPECT_GT(neg, 0);
   EXPECT_GT(small, 0);  // values in (0, 1): the sign decides, not a threshold of 1
 }
+
+// A model without the touch detector (window "none") checks every sample of every taxel itself:
+// a NaN the subsampling would not pick is still refused.
+TEST(ModelClassify, WithoutTheDetectorEveryTaxelsSamplesAreChecked) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_NE(m.window_mode(), eskin::WindowMode::kEnergy);
+  eskin::Classifier clf(m);
+  const std::int64_t T = 101;
+  const std::size_t n_taxels = static_cast<std::size_t>(m.rows() * m.cols());
+  std::vector<double> x(n_taxels * static_cast<std::size_t>(T));
+  for (std::size_t i = 0; i < x.size(); ++i) x[i] = std::sin(0.37 * static_cast<double>(i));
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kOk);
+  for (const std::size_t taxel : {std::size_t{0}, n_taxels - 1}) {
+    for (const std::int64_t t : {std::int64_t{0}, std::int64_t{1}, T - 2, T - 1}) {
+      std::vector<double> y = x;
+      y[taxel * static_cast<std::size_t>(T) + static_cast<std::size_t>(t)] = NAN;
+      EXPECT_EQ(clf.classify(y.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kNotFinite)
+          << "taxel " << taxel << " sample " << t;
+    }
+  }
+}
