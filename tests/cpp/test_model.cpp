@@ -1726,3 +1726,31 @@ TEST(ModelClassify, WithoutTheDetectorEveryTaxelsSamplesAreChecked) {
     }
   }
 }
+
+// The batch classifier's detector sees every sample from the first: a touch that starts on a
+// frame boundary (10 ms = 30 samples at 3 kHz) is found at the same sample as by the stream
+// classifier, which is handed the samples one by one.
+TEST(ModelStream, ATouchOnAFrameBoundaryHasTheSameWindowInBatchAndStream) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  const std::int64_t T = 9000;
+  for (const std::int64_t on : {std::int64_t{2970}, std::int64_t{3000}, std::int64_t{3030}}) {
+    const auto x = synthetic_recording(T, on, on + 2400, 3);
+    eskin::Classifier clf(m);
+    eskin::Decision batch;
+    ASSERT_EQ(clf.classify(x.data(), 4, 4, T, T, &batch), eskin::ClassifyStatus::kOk);
+    ASSERT_TRUE(batch.window_found);
+    eskin::StreamClassifier sc(m);
+    std::int16_t sample[16];
+    int decisions = 0;
+    for (std::int64_t t = 0; t < T; ++t) {
+      for (int k = 0; k < 16; ++k) sample[k] = x[static_cast<std::size_t>(k * T + t)];
+      if (sc.push(sample) == eskin::ClassifyStatus::kDecision) {
+        ++decisions;
+        EXPECT_EQ(sc.decision().window_start, batch.window_start) << "touch at " << on;
+        EXPECT_EQ(sc.decision().window_stop, batch.window_stop) << "touch at " << on;
+      }
+    }
+    EXPECT_EQ(decisions, 1) << "touch at " << on;
+  }
+}
