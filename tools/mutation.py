@@ -78,6 +78,7 @@ PYTHON_MODULES: dict[str, list[str]] = {
     # test_accounting.py that stream through eskin-fw-sim, 20 s each, are left to `make test`)
     "python/eskin/link/receiver.py": [
         "tests/python/link/test_listener.py", "tests/python/link/test_frame_checks.py",
+        "tests/python/link/test_receiver_finish.py",
         "tests/python/link/test_accounting.py::test_lost_samples_reconcile_with_the_controller_count"],
     # the calibrated decision rule of a model: fitted here, written by the exporter
     "python/eskin/learn/calibration.py": [

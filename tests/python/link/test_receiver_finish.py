@@ -1,0 +1,65 @@
+"""The end of a stream (eskin.link.receiver, through LinkListener.feed and .finish): a touch
+still in progress when the stream ends is ended there and recorded, up to the last sample
+received."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eskin.link.listener import LinkListener
+from eskin.link.protocol import DELIMITER, DataFrame, InfoFrame, encode_frame
+from eskin.link.recorder import Recorded
+
+SPF = 10
+
+
+def _stream(n_quiet: int = 4500, n_touch: int = 2000) -> np.ndarray:
+    """Quiet noise, then a strong burst on four taxels that the stream ends in: (n, 4, 4)."""
+    rng = np.random.default_rng(11)
+    x = rng.normal(0, 5, size=(n_quiet + n_touch, 4, 4))
+    t = np.arange(n_touch) / 3000.0
+    x[n_quiet:, 1:3, 1:3] += (800 * np.sin(2 * np.pi * 40 * t))[:, None, None]
+    return np.rint(x).astype(np.int16)
+
+
+def _wire(stream: np.ndarray) -> bytes:
+    frames = [encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=1e-4, has_model=False,
+                                     class_names=(), seq=0))]
+    for k, first in enumerate(range(0, len(stream), SPF)):
+        frames.append(encode_frame(DataFrame(first, first * 333, stream[first:first + SPF],
+                                             (k + 1) % 65536, 0)))
+    return DELIMITER + b"".join(frames)
+
+
+def test_a_touch_in_progress_at_the_end_is_recorded_up_to_the_last_sample(tmp_path):
+    stream = _stream()
+    out = tmp_path / "touches.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+    during = listener.feed(_wire(stream))
+    assert not [e for e in during if isinstance(e, Recorded)]  # the touch has not ended
+    at_end = [e for e in listener.finish() if isinstance(e, Recorded)]
+    listener.close()
+    assert len(at_end) == 1
+    rec = at_end[0]
+    assert rec.stop == len(stream) and rec.start < 4500 and rec.lost_samples == 0
+
+
+def test_an_info_grid_other_than_the_models_names_both_grids_rows_first(tmp_path):
+    import pytest
+
+    from eskin.deploy.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+    from eskin.errors import LinkStreamError
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(4, 2, 3, 5))  # a 2x3 model: rows and columns tell apart
+    machines = [MachineSpec(k, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), X, rng.normal(size=4))
+                for k in range(2)]
+    model = CompiledModel(model_to_bytes(ModelSpec(["a", "b"], "one_vs_all", machines, 5, (2, 3)),
+                                         "float64"))
+    listener = LinkListener("/dev/null-not-opened", model=model, stats_interval=None)
+    with pytest.raises(LinkStreamError) as info:
+        listener.feed(DELIMITER + encode_frame(InfoFrame(3, 2, 3000.0, volts_per_count=1e-4,
+                                                         has_model=False, class_names=(),
+                                                         seq=0)))
+    listener.close()
+    assert str(info.value) == "INFO frame: grid = 3x2: the host model expects 2x3"
