@@ -124,7 +124,7 @@ def test_a_contact_within_its_recording_or_unknown_is_read(tmp_path, onset, offs
 
 
 @pytest.mark.parametrize("onset, offset", [(-1, 5), (5, -1), (-2, 5), (-1, 0), (10, 5), (0, 21),
-                                           (21, 21)])
+                                           (21, 21), (-5, -1), (-1, -5)])
 def test_a_contact_half_unknown_reversed_or_past_its_recording_is_refused(tmp_path, onset, offset):
     p = _with_contact(tmp_path, onset, offset)
     with pytest.raises(ReplayFormatError) as info:
@@ -164,3 +164,58 @@ def test_quiet_gaps_of_zero_noise_are_the_baseline_and_negative_noise_is_refused
     with pytest.raises(ValueError, match=r"^noise_counts must be >= 0, got -0\.1$"):
         write_replay_arrays(tmp_path / "n.eskr", recs, labels=[0, 1], class_names=["a", "b"],
                             gap_s=0.01, noise_counts=-0.1)
+
+
+def test_a_file_longer_than_its_header_says_is_refused(tmp_path):
+    p = tmp_path / "long.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    size = p.stat().st_size
+    with open(p, "ab") as f:
+        f.write(b"\0\0")
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: size {size + 2} bytes, expected {size}"
+
+
+def test_a_data_offset_inside_the_class_names_is_refused(tmp_path):
+    p = tmp_path / "off.eskr"
+    names = [f"class-{k:03d}" for k in range(20)]  # 199 bytes of names
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=names, gap_s=0.01)
+    raw = p.read_bytes()
+    names_len = struct.unpack_from("<I", raw, 48)[0]
+    table_end = 56 + 2 * 48 + names_len
+    assert names_len == 199
+    bad = (table_end - 16) // 8 * 8  # a multiple of 8, 16 to 23 bytes short of the names' end
+    _rewrite(p, lambda b: struct.pack_into("<I", b, 12, bad))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: bad data offset {bad}"
+
+
+def test_a_recording_of_one_sample_is_written_and_one_of_none_refused(tmp_path):
+    one = [np.arange(6, dtype=np.int16).reshape(2, 3, 1)]
+    rf = write_replay_arrays(tmp_path / "one.eskr", one, labels=[0], class_names=["a"],
+                             gap_s=0.01)
+    start = int(rf.segments[0]["start"])
+    assert int(rf.segments[0]["length"]) == 1
+    assert np.array_equal(np.asarray(rf.samples[start]), one[0][:, :, 0])
+    with pytest.raises(ValueError, match=r"^recording 0 has shape \(2, 3, 0\); expected "):
+        write_replay_arrays(tmp_path / "none.eskr", [np.zeros((2, 3, 0), np.int16)],
+                            labels=[0], class_names=["a"], gap_s=0.01)
+
+
+@pytest.mark.parametrize("loud_end", [False, True])
+def test_a_recordings_quiet_noise_is_the_quieter_of_its_two_ends(loud_end):
+    from eskin.data.replay import _taxel_noise
+
+    # 400 samples: the first and last tenth (40 each) alternate +-1 and +-10; a touch between
+    n = 400
+    quiet = np.where(np.arange(n) % 2, 1.0, -1.0)
+    x = quiet.copy()
+    x[40:360] = 500.0 * np.sin(np.arange(320) / 7.0)
+    loud = slice(n - 40, n) if loud_end else slice(0, 40)
+    x[loud] *= 10.0
+    r = np.broadcast_to(x, (2, 3, n)).astype(np.int16)
+    noise = _taxel_noise(r)
+    assert noise.shape == (2, 3)
+    np.testing.assert_allclose(noise, 1.0, rtol=2e-3)
