@@ -400,11 +400,17 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
     src = OUT / "cpp-src"
     build = OUT / "cpp-build"
     copy_tree(src)  # file times kept: the build redoes only what changed
-    if not (build / "build.ninja").exists():
+    # libstdc++'s assertions: an index past a std::array or std::vector (a loop bound moved by
+    # one) aborts the test instead of reading or writing a neighbour unnoticed
+    flags = "-D_GLIBCXX_ASSERTIONS"
+    cache = build / "CMakeCache.txt"
+    if not (build / "build.ninja").exists() or flags not in (
+            cache.read_text() if cache.exists() else ""):
         cmake = shutil.which("cmake", path=str(Path(sys.executable).parent)) or "cmake"
         subprocess.run([cmake, "-S", str(src), "-B", str(build), "-G", "Ninja",
                         "-DCMAKE_BUILD_TYPE=Debug", "-DESKIN_BUILD_TESTS=ON",
-                        "-DESKIN_BUILD_PYTHON=OFF", "-DESKIN_INSTALL=OFF"],
+                        "-DESKIN_BUILD_PYTHON=OFF", "-DESKIN_INSTALL=OFF",
+                        f"-DCMAKE_CXX_FLAGS={flags}"],
                        check=True, capture_output=True)
     ninja = shutil.which("ninja", path=str(Path(sys.executable).parent)) or "ninja"
     target = src / mod.path
