@@ -43,3 +43,10 @@ def test_the_threshold_of_tied_confidences_flags_none_of_the_tie():
     t = choose_threshold(np.full(5, 0.7), 0.4)
     assert t == 0.7
     assert int((np.full(5, 0.7) < t).sum()) == 0
+
+
+def test_a_reject_that_rounds_to_every_pattern_takes_the_largest_confidence():
+    # reject 0.9 of 3: round(2.7) = 3, past the last index: the largest confidence
+    assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.9) == 0.3
+    assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.5) == 0.3  # round(1.5) = 2
+    assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.4) == 0.2  # round(1.2) = 1

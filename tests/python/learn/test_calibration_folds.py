@@ -57,3 +57,16 @@ def test_the_reported_error_counts_wrong_labels_both_ways():
     assert cal.report["oof_error"] == 0.25
     assert cal.report["oof_error_decided"] == 0.25
     assert cal.report["oof_flagged"] == 0.0
+
+
+def test_grouped_folds_that_leave_a_class_out_of_a_training_part_give_way_to_stratified_ones():
+    X, y = _data(60)
+    # class 1 only in group 0 (and class 0 everywhere): the fold holding out group 0 trains
+    # on class 0 alone
+    groups = np.where(y == 1, 0, np.arange(len(y)) % 3)
+    notes: list[str] = []
+    _, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y, groups, n_folds=5,
+                                    notes=notes)
+    assert notes == ["calibration: grouped folds left a class out of a training part; "
+                     "stratified folds instead"]
+    assert n_folds == 5
