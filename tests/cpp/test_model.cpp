@@ -1754,3 +1754,41 @@ TEST(ModelStream, ATouchOnAFrameBoundaryHasTheSameWindowInBatchAndStream) {
     EXPECT_EQ(decisions, 1) << "touch at " << on;
   }
 }
+
+// With the fallback "error" (PREP field fallback = 1) a recording with no touch is refused.
+TEST(ModelClassify, NoTouchWithTheFallbackErrorIsRefused) {
+  Bytes b = fixture("float64");
+  const std::string name = "fallback";
+  const auto it = std::search(b.begin(), b.end(), name.begin(), name.end());
+  ASSERT_NE(it, b.end());
+  const std::size_t at = static_cast<std::size_t>(it - b.begin()) + 32;  // its f64 value
+  const double one = 1.0;
+  std::uint64_t u;
+  std::memcpy(&u, &one, 8);
+  for (int k = 0; k < 8; ++k) b[at + static_cast<std::size_t>(k)] = static_cast<std::uint8_t>(u >> (8 * k));
+  fix_crc(b);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.window_config().fallback, 1.0);
+  eskin::Classifier clf(m);
+  const std::vector<double> quiet(16 * 3000, 0.0);
+  eskin::Decision d;
+  EXPECT_EQ(clf.classify(quiet.data(), 4, 4, 3000, 3000, &d), eskin::ClassifyStatus::kNoTouch);
+  const auto x = synthetic_recording(9000, 3000, 6000, 1);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 9000, 9000, &d), eskin::ClassifyStatus::kOk);
+}
+
+// Without the detector, only the first `length` samples of each taxel are checked: a NaN just
+// past them is not the recording's.
+TEST(ModelClassify, WithoutTheDetectorASamplePastTheLengthIsNotChecked) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::int64_t T = 101;
+  const std::size_t n_taxels = static_cast<std::size_t>(m.rows() * m.cols());
+  std::vector<double> x(n_taxels * static_cast<std::size_t>(T));
+  for (std::size_t i = 0; i < x.size(); ++i) x[i] = std::sin(0.37 * static_cast<double>(i));
+  for (std::size_t k = 0; k < n_taxels; ++k) x[k * static_cast<std::size_t>(T) + static_cast<std::size_t>(T - 1)] = NAN;
+  eskin::Decision d;
+  EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T - 1, &d), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kNotFinite);
+}
