@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from waiting import wait_until
 
 from eskin.demo import assign_decisions, confusion_matrix
 from eskin.link.listener import Decision
@@ -100,7 +101,6 @@ def test_demo_web_shows_its_stream_on_the_live_page(tmp_path):
     import re
     import subprocess
     import sys
-    import time
     import urllib.request
 
     from web_data import child_env, stop
@@ -115,14 +115,14 @@ def test_demo_web_shows_its_stream_on_the_live_page(tmp_path):
     try:
         line = proc.stdout.readline()
         url = re.match(r"live page: (http://\S+)", line).group(1)
-        deadline = time.monotonic() + 240
-        while True:
+        def stopped_state():
             with urllib.request.urlopen(url + "state.json", timeout=10) as r:
                 state = json.loads(r.read())
-            if state["status"] == "stopped":
-                break
-            assert time.monotonic() < deadline and proc.poll() is None, state["status"]
-            time.sleep(0.2)
+            assert proc.poll() is None, state["status"]  # the page's grace period outlives it
+            return state if state["status"] == "stopped" else None
+
+        state = wait_until(stopped_state, timeout=240, what="the page to say stopped",
+                           interval=0.2)
         jl = [json.loads(x) for x in (out / "decisions.jsonl").read_text().splitlines()]
         live = [(d["source"], d["label"], d["onset_sample"]) for d in jl if d["type"] == "decision"]
         assert [(d["source"], d["label"], d["onset"]) for d in state["decisions"]] == live

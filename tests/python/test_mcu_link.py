@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from waiting import wait_until
 
 from eskin import WindowConfig
 from eskin.data.replay import read_replay_file, write_replay_arrays
@@ -190,7 +191,6 @@ def test_a_host_that_stops_reading_loses_nothing_uncounted_on_the_board(firmware
     ring fills, and DATA, STATUS and decisions find no room: every decision the board made is
     received or counted in STATUS's decisions_dropped, every sample received or counted lost,
     exactly."""
-    import time
 
     from eskin.link.events import Decision, Stats
     from eskin.link.listener import LinkListener
@@ -209,10 +209,11 @@ def test_a_host_that_stops_reading_loses_nothing_uncounted_on_the_board(firmware
                     break
             # the host reads nothing until the board says its replay is over (an event in its
             # console log, with a deadline)
-            deadline = time.monotonic() + 300
-            while "FW: " not in qc.console():
-                assert time.monotonic() < deadline and qc.running(), qc.console()[-2000:]
-                time.sleep(0.1)
+            def board_done() -> bool:
+                assert qc.running(), qc.console()[-2000:]
+                return "FW: " in qc.console()
+
+            wait_until(board_done, timeout=300, what="the board's FW: line", interval=0.1)
             for ev in events:
                 if isinstance(ev, Decision) and ev.source == "controller":
                     got.append(ev)

@@ -8,12 +8,12 @@ import asyncio
 import json
 import socket
 import threading
-import time
 import urllib.error
 import urllib.request
 
 import numpy as np
 import pytest
+from waiting import wait_until
 from typer.testing import CliRunner
 
 from eskin.cli import app
@@ -252,13 +252,6 @@ async def ws_messages(url: str, until: str, origin: str | None = None, timeout: 
 
     await asyncio.wait_for(read(), timeout)
     return out
-
-
-def wait_until(condition, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
 
 
 def test_a_page_gets_the_state_then_the_stream_then_stopped():

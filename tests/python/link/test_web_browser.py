@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from waiting import wait_until
 from web_data import make_case, start_fw_sim, start_listen, stop
 
 REPO = Path(__file__).resolve().parents[3]
@@ -97,15 +98,8 @@ class Lines:
                 self._new.wait(left)
 
 
-def wait_until(condition, timeout: float = 30.0, what: str = "condition"):
-    """Poll ``condition`` until it returns a true value (returned), or fail at the deadline."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.03)
+def wait_for_page(condition, timeout: float = 30.0, what: str = "condition"):
+    return wait_until(condition, timeout=timeout, what=what, interval=0.03)
 
 
 def page_labels(driver) -> list[str]:
@@ -138,7 +132,7 @@ def heat_at(driver, test, timeout: float = 30.0) -> np.ndarray:
         img = heat_png(driver)
         return (img,) if test(energy_max(driver)) else None
 
-    return wait_until(shot, timeout, "a heat map in the wanted state")[0]
+    return wait_for_page(shot, timeout, "a heat map in the wanted state")[0]
 
 
 @pytest.mark.slow
@@ -150,10 +144,10 @@ def test_the_page_follows_the_stream_reloads_and_says_stopped(browser, case):
     out = Lines(listen)
     try:
         browser.get(url)
-        wait_until(lambda: status_text(browser) == "live", 30, "the page to say live")
+        wait_for_page(lambda: status_text(browser) == "live", 30, "the page to say live")
         # the decisions appear as they arrive: first one, then more, with the stream running
-        first = wait_until(lambda: page_labels(browser), 30, "a first decision")
-        wait_until(lambda: len(page_labels(browser)) > len(first), 30, "a later decision")
+        first = wait_for_page(lambda: page_labels(browser), 30, "a first decision")
+        wait_for_page(lambda: len(page_labels(browser)) > len(first), 30, "a later decision")
         assert set(page_labels(browser)) <= {"brush", "finger", "washer"}
         # the heat map: quiet between touches, hot during one, and the pixels differ
         quiet = heat_at(browser, lambda e: 0 <= e < 40)
@@ -166,13 +160,13 @@ def test_the_page_follows_the_stream_reloads_and_says_stopped(browser, case):
         # reloading reconnects: the decisions so far are back (rendered, then live)
         before = page_labels(browser)
         browser.refresh()
-        wait_until(lambda: status_text(browser) == "live", 30, "live again after a reload")
+        wait_for_page(lambda: status_text(browser) == "live", 30, "live again after a reload")
         assert page_labels(browser)[-len(before):] == before
         n = len(page_labels(browser))
-        wait_until(lambda: len(page_labels(browser)) > n, 30, "a decision after the reload")
+        wait_for_page(lambda: len(page_labels(browser)) > n, 30, "a decision after the reload")
         # the listener ends with the replay: the page says so, with the final scores
         out.wait_for(r"^host: \d+/15 recordings right", 120)
-        wait_until(lambda: status_text(browser).startswith("stopped"), 30, "stopped")
+        wait_for_page(lambda: status_text(browser).startswith("stopped"), 30, "stopped")
         summary = browser.find_element("id", "summary").text
         assert "controller: " in summary and "recordings right" in summary
         decisions = [line for line in out.lines if line.startswith("decision ")]
