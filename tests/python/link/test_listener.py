@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from web_data import synthetic_touch
 
 from eskin.data.campaign import load_campaign
 from eskin.data.replay import write_replay_arrays
@@ -447,22 +448,6 @@ def test_listen_reports_a_missing_port_clearly(tmp_path):
 
 
 # --------------------------------------------------------------------------- with eskin-fw-sim
-
-
-def synthetic_touch(kind: int, seed: int, n: int = 3000) -> np.ndarray:
-    """A 1 s recording (4, 4, n): quiet noise and one touch whose place, frequency and
-    duration depend on ``kind`` (0, 1, 2)."""
-    rng = np.random.default_rng(seed)
-    x = rng.normal(0, 4, size=(4, 4, n))
-    on = 900 + 37 * (seed % 5)
-    dur = (450, 700, 300)[kind] + 20 * (seed % 3)
-    t = np.arange(dur) / 3000.0
-    env = np.sin(np.pi * np.arange(dur) / dur) ** 2
-    freq = (25.0, 60.0, 120.0)[kind]
-    amp = 600 + 40 * (seed % 4)
-    rows = (slice(0, 2), slice(1, 4), slice(2, 4))[kind]
-    x[rows, :, on:on + dur] += amp * env * np.sin(2 * np.pi * freq * t)
-    return np.rint(x).astype(np.int16)
 
 
 @pytest.fixture(scope="module")
