@@ -317,9 +317,12 @@ def test_decisions_sent_but_not_received_are_counted():
     data = DataFrame(0, 0, np.zeros((10, 2, 2), np.int16), seq=0)
     status = StatusFrame(next_sample=10, samples_sent=10, decisions_sent=3, decisions_dropped=2,
                          state=StreamState.FINISHED, host_connected=True, connections=1, seq=4)
+    host: dict = {}
     path, thread = _controller_on_a_pty(
-        DELIMITER + b"".join(encode_frame(f) for f in (data, dec, status)))
+        DELIMITER + b"".join(encode_frame(f) for f in (data, dec, status)),
+        lambda: host["link"].stats.bytes if host else 0)
     with LinkListener(path, stats_interval=None) as link:
+        host["link"] = link
         events = list(link.events(duration=10.0))
     thread.join(5)
     s = events[-1].stats
