@@ -202,7 +202,7 @@ def _select_and_fit(
 ) -> tuple[Any, bool, list[dict[str, Any]], float]:
     """(fitted estimator, whether its splits were grouped, the settings each machine chose,
     seconds taken): one binary machine for 2 classes, else one 1-vs-all machine per class.
-    Notes on the splits are added to ``notes``."""
+    Warnings about the splits are appended to ``notes``."""
     search = make_search(
         recipe.machine,
         recipe.selection,
@@ -476,6 +476,24 @@ def _with_support_budget(model: TouchModel, max_support: int | None,
     return model
 
 
+def _training_setup(
+    data: Any, labels: Any, classes: Any, class_names: Any, lengths: Any, sample_rate_hz: float,
+    runs: Any, group_by: str, window: str, window_config: Any, choose_hold: bool,
+) -> tuple[Any, ...]:
+    """The training data, its rate, the detector settings valid at that rate (written into the
+    model explicitly, also with window="none": the compiled classifier builds its detector from
+    them), the notes so far and the live-touch check: (rec, info, classes, idx, y_all, groups,
+    rate, window_config, notes, live)."""
+    rec, info, classes, idx, y_all, groups = _training_data(
+        data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
+    )
+    rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
+    window_config, notes = window_config_for_rate(window_config, rate)
+    notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
+    window_config, live = _live_hold(rec, idx, window_config, rate, window, choose_hold, notes)
+    return rec, info, classes, idx, y_all, groups, rate, window_config, notes, live
+
+
 def _train_fixed(
     data: Any, labels: Any, *, classes: Sequence[str] | None, machine: str | None,
     selection: str, D: int | None, window: str, subsample: str | None, window_config: Any,
@@ -493,15 +511,9 @@ def _train_fixed(
     negatives = negatives or "all"
     recipe = _Recipe(machine, selection, D, window, subsample, negatives, seed, n_jobs, group_by)
     recipe = recipe.with_grid(quick, lambdas, sigmas, alphas, amplitudes, md_options, cv_options)
-    rec, info, classes, idx, y_all, groups = _training_data(
-        data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
-    )
-    rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
-    # the detector settings valid at this rate, written into the model explicitly (also with
-    # window="none": the compiled classifier builds its detector from them)
-    window_config, notes = window_config_for_rate(window_config, rate)
-    notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
-    window_config, live = _live_hold(rec, idx, window_config, rate, window, choose_hold, notes)
+    (rec, info, classes, idx, y_all, groups, rate, window_config, notes,
+     live) = _training_setup(data, labels, classes, class_names, lengths, sample_rate_hz, runs,
+                             group_by, window, window_config, choose_hold)
     recipe = _default_D(recipe, rec, idx, notes)
     X, prep_seconds = _training_patterns(data, rec, idx, recipe, window_config, rate)
     estimator, grouped, selected, fit_seconds = _select_and_fit(
@@ -535,13 +547,9 @@ def _train_searched(
     base = _Recipe(machine or "svm", "cv", D, window, subsample or "algorithm2",
                    negatives or "all", seed, n_jobs, group_by)
     base = base.with_grid(quick, lambdas, sigmas, alphas, amplitudes, None, cv_options)
-    rec, info, classes, idx, y_all, groups = _training_data(
-        data, labels, classes, class_names, lengths, sample_rate_hz, runs, group_by
-    )
-    rate = float(getattr(rec, "sample_rate_hz", sample_rate_hz))
-    window_config, notes = window_config_for_rate(window_config, rate)
-    notes = (notes if window == "energy" else []) + small_class_notes(classes, y_all)
-    window_config, live = _live_hold(rec, idx, window_config, rate, window, choose_hold, notes)
+    (rec, info, classes, idx, y_all, groups, rate, window_config, notes,
+     live) = _training_setup(data, labels, classes, class_names, lengths, sample_rate_hz, runs,
+                             group_by, window, window_config, choose_hold)
     lens = np.asarray(rec.lengths)[idx]
     recipes, cap_notes = recipe_space(
         [machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
