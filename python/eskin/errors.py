@@ -24,6 +24,7 @@ __all__ = [
     "ReplayFormatError",
     "SchedulerError",
     "SerialPortError",
+    "SkinFormatError",
     "TrainingError",
 ]
 
@@ -35,6 +36,21 @@ class CampaignFormatError(ValueError):
 
     Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message
     (``field`` is empty when the problem is the whole file's).
+    """
+
+    def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):
+        self.path = str(path) if path is not None else "<memory>"
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{self.path}: {field}: {problem}" if field else f"{self.path}: {problem}")
+
+
+class SkinFormatError(ValueError):
+    """A skin description (the TOML file naming a skin's patches) breaks its format.
+
+    Attributes ``path``, ``field`` and ``problem`` hold the three parts of the message, as
+    :class:`CampaignFormatError` does (``field`` names the table and key, e.g.
+    ``patch[3].grid``; empty when the problem is the whole file's).
     """
 
     def __init__(self, path: str | os.PathLike[str] | None, field: str, problem: str):

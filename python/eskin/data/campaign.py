@@ -11,6 +11,8 @@ The format is described in ``docs/dataset-format.md``. In short::
     /recordings/direction   uint8 (n,)   0 horizontal, 1 vertical, 255 unknown
     /recordings/run         uint8 (n,)   1 = first (practice) run, 2 = second run, ...
     /recordings/contact_interval  int32 (n, 2)   optional: true [onset, offset) in samples
+    /recordings/extra/patch uint16 (n,)  optional, with the root attribute ``patches`` (a JSON
+                                         list of patch ids): the skin patch of each recording
 
 :func:`load_campaign` validates every field and raises :class:`CampaignFormatError` (a
 ``ValueError``) naming the file, the field and the problem. :class:`CampaignWriter` appends one
@@ -378,6 +380,7 @@ class Campaign:
                 raise CampaignFormatError(
                     where, f"/recordings/extra/{k}",
                     f"wrong shape {v.shape} (expected one entry per recording, n={n})")
+        _check_patches(where, dec, extras, n)
         self.__init__(  # type: ignore[misc]
             signals, labels["length"], labels["modality"], labels["participant"],
             labels["direction"], labels["run"], contact_interval=labels.get("contact_interval"),
@@ -447,14 +450,29 @@ class Campaign:
             extras={k: v[idx] for k, v in self.extras.items()}, path=self.path,
             _file=self._file, _validated=True)
 
+    @property
+    def patches(self) -> list[str] | None:
+        """The skin's patch ids (the ``patches`` attribute), or None for a one-patch campaign
+        (a file without the field)."""
+        text = self.attrs.get("patches")
+        return None if text is None else list(json.loads(text))
+
+    @property
+    def patch(self) -> np.ndarray | None:
+        """Each recording's patch, an index into :attr:`patches` (None without the field)."""
+        return None if self.patches is None else self.extras["patch"]
+
     def select(self, *, modality: Any = None, participant: Any = None, direction: Any = None,
-               run: Any = None) -> Campaign:
+               run: Any = None, patch: Any = None) -> Campaign:
         """The recordings matching every given criterion (a value or a list of values;
-        modality accepts names or ids)."""
+        modality accepts names or ids, patch ids or indices)."""
         mask = np.ones(len(self), dtype=bool)
 
         def _vals(v: Any) -> list[Any]:
             return list(v) if isinstance(v, (list, tuple, set, np.ndarray)) else [v]
+
+        if patch is not None:
+            mask &= np.isin(self._patch_column(), [self._patch_index(p) for p in _vals(patch)])
 
         if modality is not None:
             ids = [self.modalities.index(m) if isinstance(m, str) else int(m)
@@ -467,6 +485,21 @@ class Campaign:
         if run is not None:
             mask &= np.isin(self.run, _vals(run))
         return self.subset(mask)
+
+    def _patch_column(self) -> np.ndarray:
+        if self.patch is None:
+            raise ValueError(f"{self.path or '<memory>'}: no patch field (a one-patch campaign)")
+        return self.patch
+
+    def _patch_index(self, p: Any) -> int:
+        ids = self.patches or []
+        if isinstance(p, str):
+            if p not in ids:
+                raise ValueError(f"{self.path or '<memory>'}: attribute 'patches': no patch "
+                                 f"{p!r} (patches: {', '.join(ids[:8])}"
+                                 f"{', ...' if len(ids) > 8 else ''})")
+            return ids.index(p)
+        return int(p)
 
     def load(self) -> Campaign:
         """The same campaign with every signal read into memory (an ndarray)."""
@@ -709,6 +742,7 @@ def _load_open(f: Any, where: str) -> Campaign:
                     f"wrong shape {getattr(v, 'shape', ())} (expected one entry per recording, "
                     f"n={n})")
             extras[k] = v
+    _check_patches(where, attrs, extras, n)
     return Campaign(
         CampaignSignals(sig, None, where), labels["length"], labels["modality"],
         labels["participant"], labels["direction"], labels["run"],
@@ -716,6 +750,39 @@ def _load_open(f: Any, where: str) -> Campaign:
         sample_rate_hz=attrs["sample_rate_hz"], volts_per_count=attrs["volts_per_count"],
         source=attrs["source"], attrs=attrs, extras=extras, path=where, _file=f,
         _validated=True)
+
+
+def _check_patches(where: str | None, attrs: Mapping[str, Any],
+                   extras: Mapping[str, np.ndarray], n: int) -> None:
+    """The skin fields: the ``patches`` attribute (a JSON list of distinct patch ids) and the
+    per-recording ``/recordings/extra/patch`` (unsigned integers indexing it) go together."""
+    text = attrs.get("patches")
+    if text is None:
+        if "patch" in extras:
+            raise CampaignFormatError(where, "attribute 'patches'",
+                                      "missing: /recordings/extra/patch needs the patch ids")
+        return
+    try:
+        ids = json.loads(text) if isinstance(text, str) else None
+    except json.JSONDecodeError:
+        ids = None
+    if (not isinstance(ids, list) or not ids or len(set(map(str, ids))) != len(ids)
+            or not all(isinstance(i, str) and i for i in ids)):
+        raise CampaignFormatError(where, "attribute 'patches'",
+                                  f"must be a JSON list of distinct patch ids, got {text!r}")
+    column = extras.get("patch")
+    if column is None:
+        raise CampaignFormatError(where, "/recordings/extra/patch",
+                                  "missing (the attribute 'patches' names a skin's patches)")
+    if column.shape != (n,) or column.dtype.kind != "u":
+        raise CampaignFormatError(where, "/recordings/extra/patch",
+                                  f"must be unsigned integers (n,), got {column.dtype} "
+                                  f"{column.shape}")
+    if column.size and int(column.max()) >= len(ids):
+        k = int(np.argmax(column))
+        raise CampaignFormatError(where, "/recordings/extra/patch",
+                                  f"recording {k} has patch {int(column[k])}, past the "
+                                  f"{len(ids)} ids of the attribute 'patches'")
 
 
 def check_sizes(where: str | None, n: int, rows: int, cols: int, t: int) -> None:
