@@ -45,6 +45,9 @@ _EXPORTS: dict[str, str] = {
     "import_tdms": "data",
     "simulate": "data",
     "SimulatorConfig": "data",
+    "Skin": "data",
+    "load_skin": "data",
+    "simulate_skin": "data",
     # learning and model selection
     "TensorSVC": "learn",
     "TensorRLS": "learn",
@@ -65,9 +68,11 @@ _EXPORTS: dict[str, str] = {
     "FrameDecoder": "link",
     "encode_frame": "link",
     "LinkListener": "link",
+    "SkinListener": "link",
     "SerialPort": "link",
     # error types (one home each: eskin.errors)
     "CampaignFormatError": "errors",
+    "SkinFormatError": "errors",
     "ReplayFormatError": "errors",
     "ModelFormatError": "errors",
     "TrainingError": "errors",

@@ -9,7 +9,7 @@ from typing import Any
 
 import typer
 
-from eskin.cli import campaign, deploy, evaluate, learn, link
+from eskin.cli import campaign, deploy, evaluate, learn, link, skin
 
 app = typer.Typer(
     name="eskin",
@@ -37,7 +37,7 @@ def _root(
     """Touch-modality recognition for piezoelectric electronic skin."""
 
 
-for _module in (campaign, learn, evaluate, deploy, link):
+for _module in (campaign, learn, evaluate, deploy, link, skin):
     _module.register(app)
 
 

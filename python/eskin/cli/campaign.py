@@ -27,7 +27,8 @@ def _user_errors() -> Iterator[None]:
 
 
 def simulate_cmd(
-    output: Path = typer.Option(..., "-o", "--output", help="campaign file to write (.h5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="campaign file to write (.h5); "
+                                "with --skin, the folder of the skin's files"),
     participants: int = typer.Option(70, help="number of simulated participants"),
     seed: int = typer.Option(0, help="random seed (same seed -> identical file)"),
     difficulty: Optional[float] = typer.Option(
@@ -43,10 +44,22 @@ def simulate_cmd(
     jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0 = one per core)"),
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
+    skin: Optional[Path] = typer.Option(
+        None, "--skin", help="simulate a whole skin (.toml, docs/skin.md): one replay per "
+        "patch (PATCH.eskr) and the campaign skin.h5 in the --output folder, gestures "
+        "crossing patch borders"),
+    gestures: int = typer.Option(8, help="with --skin: gestures (one per episode)"),
+    episode: float = typer.Option(2.0, help="with --skin: seconds per gesture (1 to 60)"),
 ) -> None:
     """Simulate a touch campaign (SIMULATED data: a physics model of the paper's skin)."""
     import os
     import time
+
+    if skin is not None:
+        from eskin.cli import skin as skin_cli
+
+        skin_cli.simulate(skin, output, None, gestures, episode, seed, force)
+        return
 
     from eskin._files import refuse_overwrite
     from eskin._progress import progress_bar

@@ -298,8 +298,9 @@ def _run_plain(events: Any, out: Any, truth: Any = None) -> None:
 
 
 def listen_cmd(
-    port: str = typer.Argument(..., help="serial port or pseudo-terminal (e.g. the path "
-                                          "eskin-fw-sim prints, or its --link symlink)"),
+    port: Optional[str] = typer.Argument(
+        None, help="serial port or pseudo-terminal (e.g. the path eskin-fw-sim prints, or its "
+                   "--link symlink); not with --skin"),
     model: Optional[Path] = typer.Option(
         None, "--model", help="classify on the host too (.eskin file or saved model)"),
     jsonl: Optional[Path] = typer.Option(
@@ -329,14 +330,47 @@ def listen_cmd(
         "then readable by other machines)"),
     web_grace: float = typer.Option(
         3.0, "--web-grace", help="seconds the page stays served after the listener stops"),
+    skin: Optional[Path] = typer.Option(
+        None, "--skin", help="listen to every patch of a skin (.toml, docs/skin.md) at once: "
+        "per-patch and whole-skin statistics, --record into one campaign with a patch field"),
+    sim: Optional[Path] = typer.Option(
+        None, "--sim", help="with --skin: the folder `eskin fw-sim --skin` streams from (the "
+        "simulated patches' ports PATCH.tty and replays PATCH.eskr)"),
+    wait_ports: float = typer.Option(
+        0.0, "--wait-ports", help="with --skin: seconds to wait for ports not there yet"),
 ) -> None:
     """Listen to the skin controller: live decisions, link statistics, taxel activity.
 
     A label followed by "?" is a "don't know": the model's confidence in the label is below
     its threshold (the calibrated rule), or, for a model with the paper's rule, no machine, or
     more than one, claimed the touch."""
+    if skin is not None or port is None:
+        _listen_skin(port, skin, sim, model, record, duration, until_eof, backend, force,
+                     reconnect, wait_ports, refused=[("--jsonl", jsonl), ("--replay", replay),
+                                                     ("--web", web)])
+        return
     _listen(port, model, jsonl, duration, until_eof, record, replay, reconnect, backend,
             force, view, WebOptions(web, web_public, web_grace))
+
+
+def _listen_skin(port: Optional[str], skin: Optional[Path], sim: Optional[Path], model: Any,
+                 record: Any, duration: Any, until_eof: bool, backend: str, force: bool,
+                 reconnect: bool, wait_ports: float, refused: list[tuple[str, Any]]) -> None:
+    """`eskin listen --skin SKIN` (eskin.cli.skin); a PORT, or an option only one link takes,
+    is refused with it, and no PORT needs --skin."""
+    from eskin.cli import skin as skin_cli
+
+    if skin is None:
+        typer.echo("error: give a PORT, or --skin SKIN for every patch of a skin", err=True)
+        raise typer.Exit(2)
+    given = [name for name, value in refused if value is not None]
+    if port is not None or given:
+        typer.echo(f"error: --skin listens to the ports of the skin description; not with "
+                   f"{'PORT ' + repr(port) if port is not None else given[0]}", err=True)
+        raise typer.Exit(2)
+    _live_mode(duration, "plain")
+    skin_cli.listen(skin, sim, model, record, duration, until_eof, backend, force, reconnect,
+                    wait_ports)
 
 
 def demo_cmd(

@@ -34,6 +34,9 @@ from .protocol import (
     encode_frame,
 )
 from .serial_port import PeerClosedError, SerialPort, SerialPortError
+from .simulated_controllers import SimulatedControllers
+from .skin_classifier import SkinClassifier
+from .skin_listener import SkinListener, SkinReport
 
 __all__ = [
     "CommandFrame",
@@ -61,6 +64,10 @@ __all__ = [
     "Rejection",
     "SerialPort",
     "SerialPortError",
+    "SimulatedControllers",
+    "SkinClassifier",
+    "SkinListener",
+    "SkinReport",
     "Stats",
     "StatusEvent",
     "StatusFrame",

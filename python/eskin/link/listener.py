@@ -174,6 +174,9 @@ class LinkListener:
     send_start : send START and INFO_REQUEST on opening (and on every reconnect).
     max_fill_s : longest hole in the sample indices bridged by holding the last sample.
     stats_interval : seconds between :class:`Stats` events (None: only at the end).
+    recorder : instead of ``record``, a :class:`~eskin.link.recorder.StreamRecorder` made by
+        the caller (a skin's patches record into one campaign through theirs); its policy
+        must be ``record_policy``'s.
     """
 
     # long: the constructor's parameters, each stored once
@@ -198,6 +201,7 @@ class LinkListener:
         max_fill_s: float = 0.1,
         stats_interval: Optional[float] = 1.0,
         history_s: float = 2.0,
+        recorder: Optional[StreamRecorder] = None,
     ) -> None:
         record_policy = _checked_options(
             record_policy, replay, read_timeout, context_s=context_s, max_fill_s=max_fill_s,
@@ -226,7 +230,9 @@ class LinkListener:
         self.max_fill_s = float(max_fill_s)
         self.stats_interval = stats_interval
         self.history_s = float(history_s)
-        self.recorder: Optional[StreamRecorder] = None
+        self.recorder: Optional[StreamRecorder] = recorder
+        if recorder is not None and self.record_path is not None:
+            raise ValueError("give record= (a campaign file) or recorder=, not both")
         if self.record_path is not None:
             self.recorder = StreamRecorder(
                 self.record_path, policy=record_policy, replay=replay,

@@ -124,8 +124,19 @@ class StreamRecorder:
         return list(self._writer.modalities)
 
     def _open(self, grid: tuple[int, int], rate: float, vpc: float) -> None:
+        settings = self.writer_settings(grid, rate, vpc)
+        self._with_contact = bool(settings["contact_interval"])
+        self._writer = self.make_writer(settings)
+
+    def make_writer(self, settings: dict[str, Any]) -> Any:
+        """The campaign writer of ``settings`` (a skin's recorders share one instead)."""
         from eskin.data.campaign import CampaignWriter
 
+        return CampaignWriter(self.path, **settings)
+
+    def writer_settings(self, grid: tuple[int, int], rate: float, vpc: float
+                        ) -> dict[str, Any]:
+        """The CampaignWriter arguments of this stream's recordings (but the path)."""
         attrs = dict(self.attrs)
         with_contact = False
         if self.policy == "segment":
@@ -141,13 +152,10 @@ class StreamRecorder:
             n_samples = int(math.ceil((self.max_touch_s + 2 * self.context_s) * rate)) + 1
             attrs["labels"] = ("the host's decisions (not ground truth); unknown = don't know"
                                if self.host_names else "none (unknown)")
-        self._with_contact = with_contact
-        self._writer = CampaignWriter(
-            self.path, grid_shape=grid, n_samples=n_samples, sample_rate_hz=rate,
-            volts_per_count=vpc, modalities=names, source=self.source, attrs=attrs,
-            contact_interval=with_contact, overwrite=self.overwrite,
-            extra_fields={"stream_start": np.int64, "lost_samples": np.int32},
-        )
+        return dict(grid_shape=grid, n_samples=n_samples, sample_rate_hz=rate,
+                    volts_per_count=vpc, modalities=names, source=self.source, attrs=attrs,
+                    contact_interval=with_contact, overwrite=self.overwrite,
+                    extra_fields={"stream_start": np.int64, "lost_samples": np.int32})
 
     def _append(self, h: SampleHistory, start: int, stop: int, modality: int,
                 contact: Optional[tuple[int, int]]) -> Recorded:
