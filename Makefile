@@ -29,8 +29,8 @@ BUILD_DEV := build/dev
 BUILD_MCU := build/mcu
 
 .PHONY: all deps test-deps sanitize-deps mcu-deps mcu mcu-link venv venv-test install cpp ctest pytest \
-  test demo dev devtest bench clean stubs sanitize check-sanitizers fuzz fuzz-listener mutation \
-  mutation-deps mutation-diff
+  test demo skin-demo dev devtest bench clean stubs sanitize check-sanitizers fuzz fuzz-listener \
+  mutation mutation-deps mutation-diff
 
 all: install cpp
 
@@ -253,6 +253,55 @@ mcu-link: mcu-deps $(MCU_PY_DEP)
 demo: install
 	$(call step,eskin demo --out demo_out)
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m eskin demo --out demo_out
+
+# A whole skin (docs/skin.md): the 16 patches of docs/examples/forearm_skin.toml, each with its
+# own simulated controller (`eskin fw-sim --skin`: one eskin-fw-sim per patch, on its own
+# pseudo-terminal, classifying with the model on board), all read at once by one `eskin listen
+# --skin` (a thread per link), which records every patch into one campaign (the patch field).
+# The model is trained first on a small simulated campaign (eskin simulate, eskin train
+# --quick); the skin plays SKIN_GESTURES gestures of SKIN_EPISODE seconds (slides across
+# patch borders and touches on one patch) as fast as the host reads (--speed 0: nothing is
+# lost). It ends with the line
+# "SKIN-DEMO: patches=16 frames=N lost=0 crc_errors=0 decisions=N agree=N/N" (agree: the host's
+# decision equals the controller's: same touch window, label and don't-know), or fails.
+# SKIN_PY_DEP= (empty) runs it with the package from python/ (PYTHONPATH) instead of installing.
+SKIN_DEMO := build/skin-demo
+SKIN ?= docs/examples/forearm_skin.toml
+SKIN_GESTURES ?= 8
+SKIN_EPISODE ?= 1.5
+SKIN_PY_DEP ?= install
+ESKIN_CMD = PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m eskin
+skin-demo: $(SKIN_PY_DEP)
+	$(call step,a skin of many patches: the model (eskin simulate$(,) eskin train --quick))
+	@rm -rf $(SKIN_DEMO) && mkdir -p $(SKIN_DEMO)
+	$(ESKIN_CMD) simulate -o $(SKIN_DEMO)/train.h5 --participants 6 --duration 2 --quiet
+	$(ESKIN_CMD) train $(SKIN_DEMO)/train.h5 -o $(SKIN_DEMO)/touch.eskin --quick --no-progress \
+	  > $(SKIN_DEMO)/train.log || { tail -20 $(SKIN_DEMO)/train.log; exit 1; }
+	$(call step,the simulated skin: one replay per patch (eskin simulate --skin))
+	$(ESKIN_CMD) simulate --skin $(SKIN) -o $(SKIN_DEMO)/sim --gestures $(SKIN_GESTURES) \
+	  --episode $(SKIN_EPISODE)
+	$(call step,one controller per patch (eskin fw-sim --skin)$(,) one host (eskin listen --skin))
+	@$(ESKIN_CMD) fw-sim --skin $(SKIN) $(SKIN_DEMO)/sim --model $(SKIN_DEMO)/touch.eskin \
+	  --speed 0 > $(SKIN_DEMO)/fw-sim.log 2>&1 & fw=$$!; \
+	status=0; $(ESKIN_CMD) listen --skin $(SKIN) --sim $(SKIN_DEMO)/sim \
+	  --model $(SKIN_DEMO)/touch.eskin --until-eof --duration 600 --wait-ports 60 \
+	  --record $(SKIN_DEMO)/live.h5 > $(SKIN_DEMO)/listen.log 2>&1 || status=$$?; \
+	wait $$fw || status=1; \
+	grep -v '^patch .* \(decision\|recorded\) ' $(SKIN_DEMO)/listen.log; \
+	grep '^ready:\|exit=' $(SKIN_DEMO)/fw-sim.log; \
+	line=$$(tail -n 1 $(SKIN_DEMO)/listen.log); \
+	received=$$(sed -n 's/^patch .* frames=[0-9]* samples=\([0-9]*\) .*/\1/p' $(SKIN_DEMO)/listen.log \
+	  | awk '{n += $$1} END {print n + 0}'); \
+	sent=$$(sed -n 's/^patch .* samples_sent=\([0-9]*\) .*/\1/p' $(SKIN_DEMO)/fw-sim.log \
+	  | awk '{n += $$1} END {print n + 0}'); \
+	echo "samples sent by the controllers: $$sent, received by the host: $$received"; \
+	agree=$$(echo "$$line" | sed -n 's/.* decisions=\([0-9]*\) agree=\([0-9]*\)\/\([0-9]*\)$$/\1 \2 \3/p'); \
+	set -- $$agree; \
+	if [ $$status -ne 0 ] || ! echo "$$line" | grep -q '^skin: patches=[0-9]* .* lost=0 crc_errors=0 ' \
+	  || [ -z "$$agree" ] || [ "$$1" -eq 0 ] || [ "$$2" != "$$3" ] || [ "$$1" != "$$3" ] \
+	  || [ "$$sent" -eq 0 ] || [ "$$sent" != "$$received" ]; then \
+	  echo "make skin-demo: failed (exit status $$status; last line: $$line)"; exit 1; fi; \
+	echo "SKIN-DEMO: $${line#skin: }"
 
 bench: install cpp
 	for b in benchmarks/bench_*.py; do echo "== $$b"; ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) $$b || exit 1; done

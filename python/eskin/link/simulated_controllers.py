@@ -47,13 +47,20 @@ class Controller:
 class SimulatedControllers:
     """One ``eskin-fw-sim`` per simulated patch of ``skin``, its replay from ``folder``.
 
-    ``speed``, ``wait_start``, ``hold_s`` and ``loop`` are ``eskin-fw-sim``'s options of those
-    names (speed 0: as fast as the host reads, which loses nothing)."""
+    ``speed``, ``wait_start``, ``hold_s``, ``loop`` and ``tx_buffer`` are ``eskin-fw-sim``'s
+    options of those names (speed 0: as fast as the host reads, which loses nothing). The
+    transmit queue is by default 1 MiB when paced (a host stalled for a moment by a busy machine
+    loses nothing) and eskin-fw-sim's own 16 KiB unpaced: unpaced, the controller waits for
+    room in its queue, and a large one would let it finish its replay (and, after ``hold_s``,
+    close its port) with more queued than a slow host reads in that time."""
 
     def __init__(self, skin: Skin, folder: Path, *, speed: float = 1.0, wait_start: bool = True,
-                 hold_s: float = 1.0, loop: bool = False, tx_buffer: int = 1 << 20) -> None:
+                 hold_s: float = 1.0, loop: bool = False,
+                 tx_buffer: Optional[int] = None) -> None:
         self.skin = skin
         self.folder = Path(folder)
+        if tx_buffer is None:
+            tx_buffer = 1 << 20 if speed > 0 else 1 << 14
         self.args = ["--speed", f"{speed:g}", "--hold", f"{hold_s:g}", "--tx-buffer",
                      str(int(tx_buffer)), "--quiet", *(["--wait-start"] if wait_start else []),
                      *(["--loop"] if loop else [])]
