@@ -1,0 +1,55 @@
+"""The skin commands' user errors: one line, exit code 2, nothing overwritten."""
+
+from __future__ import annotations
+
+from typer.testing import CliRunner
+
+from eskin.cli import app
+
+SKIN = """
+[defaults]
+grid = [4, 4]
+sample_rate_hz = 3000
+link = "simulated"
+[[patch]]
+id = "p0"
+[[patch]]
+id = "p1"
+origin_mm = [48.0, 0.0]
+"""
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_simulate_skin_writes_the_folder_once(tmp_path):
+    (tmp_path / "s.toml").write_text(SKIN)
+    r = run("simulate", "--skin", tmp_path / "s.toml", "-o", tmp_path / "sim", "--gestures", 1,
+            "--episode", 1)
+    assert r.exit_code == 0, r.output
+    assert "gesture 0: slide on p" in r.output
+    assert sorted(p.name for p in (tmp_path / "sim").iterdir()) == ["p0.eskr", "p1.eskr",
+                                                                   "skin.h5"]
+    before = (tmp_path / "sim" / "p0.eskr").read_bytes()
+    r = run("simulate", "--skin", tmp_path / "s.toml", "-o", tmp_path / "sim", "--gestures", 1,
+            "--episode", 1, "--seed", 5)
+    assert r.exit_code == 2 and "--force" in r.output and len(r.output.splitlines()) == 1
+    assert (tmp_path / "sim" / "p0.eskr").read_bytes() == before
+
+
+def test_bad_skin_files_are_one_line_errors(tmp_path):
+    (tmp_path / "s.toml").write_text(SKIN.replace("[4, 4]", "[4, 0]"))
+    for args in (("simulate", "--skin", tmp_path / "s.toml", "-o", tmp_path / "o"),
+                 ("fw-sim", "--skin", tmp_path / "s.toml", tmp_path),
+                 ("listen", "--skin", tmp_path / "s.toml", "--sim", tmp_path)):
+        r = run(*args)
+        assert r.exit_code == 2, r.output
+        assert r.output.strip() == (f"error: {tmp_path / 's.toml'}: patch[0].grid: [4, 0]: "
+                                    f"rows and columns must be in 1..255")
+
+
+def test_fw_sim_skin_needs_the_replays(tmp_path):
+    (tmp_path / "s.toml").write_text(SKIN)
+    r = run("fw-sim", "--skin", tmp_path / "s.toml", tmp_path)
+    assert r.exit_code == 2 and "p0.eskr: no replay for patch 'p0'" in r.output
