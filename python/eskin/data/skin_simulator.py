@@ -218,7 +218,6 @@ def _episodes(skin: Skin, chains: _SkinChains, plan: list[Any], seed: int
     return per_patch, done
 
 
-# long: the settings, the two outputs and the attributes that describe them, in one place
 def simulate_skin(skin: Skin, out: str | Path, *, gestures: int = 8, seed: int = 0,
                   episode_s: float = 2.0, gap_s: float = 0.3,
                   overwrite: bool = False) -> SimulatedSkin:
