@@ -193,7 +193,7 @@ def _print_report(report: Any, record: Optional[Path]) -> None:
         st = p.stats
         a, n = p.agree
         typer.echo(f"patch {p.patch_id} frames={st.frames} samples={st.samples} "
-                   f"lost={st.lost_samples} crc_errors={st.crc_errors} "
+                   f"lost={p.lost} crc_errors={st.crc_errors} "
                    f"decisions controller={st.decisions_controller} host={st.decisions_host} "
                    f"agree={a}/{n} recordings={st.recordings}"
                    + (f" error: {p.error}" if p.error else ""))

@@ -53,6 +53,14 @@ class PatchReport:
     def agree(self) -> tuple[int, int]:
         return agreement(self.decisions)
 
+    @property
+    def lost(self) -> int:
+        """Samples lost on this link: the listener's count, or, when the link ended before
+        the controller's final STATUS reconciled it, at least what the controller's last
+        STATUS says it sent beyond what arrived."""
+        st = self.stats
+        return max(st.lost_samples, st.controller_samples_sent - st.samples)
+
 
 @dataclass
 class SkinReport:
@@ -73,8 +81,9 @@ class SkinReport:
         """patches=K frames=N lost=N crc_errors=N decisions=N agree=A/N (decisions: the
         controllers')."""
         a, n = self.agree
+        lost = sum(p.lost for p in self.patches)
         return (f"patches={len(self.patches)} frames={self.total('frames')} "
-                f"lost={self.total('lost_samples')} crc_errors={self.total('crc_errors')} "
+                f"lost={lost} crc_errors={self.total('crc_errors')} "
                 f"decisions={self.total('decisions_controller')} agree={a}/{n}")
 
     @property

@@ -61,6 +61,7 @@ def test_three_patches_three_links_one_host_one_campaign(skin_files, tmp_path):
         assert not p.error
         assert st.samples == rf.n_samples == sent[p.patch_id]["samples_sent"]
         assert st.lost_samples == 0 and st.crc_errors == 0 and st.rejected == 0
+        assert p.lost == 0 and st.controller_samples_sent == st.samples
         ctrl = [d for d in p.decisions if d.source == "controller"]
         host = [d for d in p.decisions if d.source == "host"]
         assert len(ctrl) == len(host) == sent[p.patch_id]["decisions_sent"]
@@ -79,6 +80,17 @@ def test_three_patches_three_links_one_host_one_campaign(skin_files, tmp_path):
         assert len(mine) == len(rf.segments)
         for k in range(len(mine)):
             assert np.array_equal(mine.recording(k), rf.recording(k))
+
+
+def test_a_link_that_ended_early_counts_what_its_controller_sent_beyond():
+    from eskin.link.events import LinkStats
+    from eskin.link.skin_listener import PatchReport, SkinReport
+
+    short = PatchReport("a", "/dev/pts/1", LinkStats(samples=900, controller_samples_sent=1000))
+    whole = PatchReport("b", "/dev/pts/2", LinkStats(samples=1000, controller_samples_sent=990,
+                                                     lost_samples=3))
+    assert (short.lost, whole.lost) == (100, 3)
+    assert " lost=103 " in SkinReport([short, whole]).summary()
 
 
 def test_agreement_needs_the_same_window_label_and_dont_know():
