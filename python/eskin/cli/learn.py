@@ -151,7 +151,7 @@ def _amplitudes(text: Optional[str]) -> dict[str, Any]:
 
 
 def _train_and_save(
-    campaign: Path, output: Path, recipe: dict[str, Any], scheduler: Optional[str], progress: bool,
+    campaign: Any, output: Path, recipe: dict[str, Any], scheduler: Optional[str], progress: bool,
     budget: Any = None,
 ) -> Any:
     """train_model(campaign, **recipe) on the scheduler's cluster (if any) with a progress
@@ -187,16 +187,40 @@ def _recording_digests(camp: Any, indices: Any) -> list[str]:
             .hexdigest()[:16] for i in indices]
 
 
-def _trained_digests(campaign: Path, classes: Any) -> list[str]:
+def _trained_digests(campaign: Any, classes: Any) -> list[str]:
     """The digests of the recordings `eskin train` learns from: every recording of the
-    model's classes."""
+    model's classes (``campaign``: a file, or the Campaign of some patches)."""
     import numpy as np
 
     from eskin.data.campaign import load_campaign
 
-    with load_campaign(campaign) as c:
+    def digests(c: Any) -> list[str]:
         ids = [k for k, name in enumerate(c.modalities) if name in set(classes)]
         return _recording_digests(c, np.flatnonzero(np.isin(c.modality, ids)))
+
+    if not isinstance(campaign, (str, Path)):
+        return digests(campaign)
+    with load_campaign(campaign) as c:
+        return digests(c)
+
+
+def _patch_campaign(campaign: Path, patch: str) -> Any:
+    """The recordings of the --patch ids (comma-separated) of a skin's campaign."""
+    from eskin._files import error_line
+    from eskin.data.campaign import load_campaign
+
+    ids = [p.strip() for p in patch.split(",") if p.strip()]
+    try:
+        c = load_campaign(campaign)
+        if c.patches is None:
+            raise ValueError(f"{campaign}: --patch {patch}: the campaign has no patch field "
+                             f"(one patch; docs/skin.md)")
+        chosen = c.select(patch=ids)
+    except (ValueError, OSError) as exc:
+        _fail(error_line(exc))
+    if not len(chosen):
+        _fail(f"{campaign}: --patch {patch}: no recording of these patches")
+    return chosen
 
 
 MAX_WINDOW_HELP = "longest touch window in seconds (WindowConfig.max_window_s, default 7)"
@@ -429,6 +453,9 @@ def train(
     force: bool = typer.Option(False, "--force", help="replace OUTPUT if it exists"),
     progress: bool = typer.Option(
         True, "--progress/--no-progress", help="show that the search is running (terminal)"),
+    patch: Optional[str] = typer.Option(
+        None, "--patch", help="a skin's campaign (docs/skin.md): train on the recordings of "
+        "these patches only (ids, comma-separated)"),
 ) -> None:
     """Choose the recipe on the campaign, fit on all its recordings and save a model.
 
@@ -457,7 +484,8 @@ def train(
     if target is not None or budget is not None:
         the_budget, notes = _budget_recipe(campaign, target, budget, recipe)
         _notes(notes)
-    model = _train_and_save(campaign, output, recipe, scheduler, progress, the_budget)
+    data = campaign if patch is None else _patch_campaign(campaign, patch)
+    model = _train_and_save(data, output, recipe, scheduler, progress, the_budget)
     _notes(model.training.get("notes", []))
     for line in trained_lines(model) + _size_lines(model, the_budget) + [f"wrote {output}"]:
         typer.echo(line)

@@ -53,3 +53,43 @@ def test_fw_sim_skin_needs_the_replays(tmp_path):
     (tmp_path / "s.toml").write_text(SKIN)
     r = run("fw-sim", "--skin", tmp_path / "s.toml", tmp_path)
     assert r.exit_code == 2 and "p0.eskr: no replay for patch 'p0'" in r.output
+
+
+def skin_campaign(tmp_path):
+    """The small simulated campaign as a two-patch skin's: participants 1, 3, 5 on "left",
+    2, 4, 6 on "right"."""
+    import numpy as np
+
+    from eskin.data.campaign import load_campaign, write_campaign
+    from learn_data import small_simulated
+
+    c = load_campaign(small_simulated(tmp_path.parent), in_memory=True)
+    path = tmp_path / "skin.h5"
+    write_campaign(path, np.asarray(c.signals), modality=c.modality, participant=c.participant,
+                   direction=c.direction, run=c.run, lengths=c.lengths,
+                   modalities=c.modalities, sample_rate_hz=c.sample_rate_hz,
+                   volts_per_count=c.volts_per_count, source="simulated",
+                   attrs={"patches": '["left", "right"]'},
+                   extras={"patch": (c.participant % 2 == 0).astype(np.uint16)})
+    return path, int(np.sum(c.participant % 2 == 0))
+
+
+def test_train_on_some_patches_of_a_skin_campaign(tmp_path):
+    from eskin.deploy import load_model
+
+    path, n_right = skin_campaign(tmp_path)
+    r = run("train", path, "-o", tmp_path / "right.joblib", "--patch", "right", "--quick",
+            "--machine", "rls", "--D", 20, "--no-progress")
+    assert r.exit_code == 0, r.output
+    model = load_model(tmp_path / "right.joblib")
+    assert len(model.training["recording_digests"]) == n_right
+    r = run("train", path, "-o", tmp_path / "x.joblib", "--patch", "wrist", "--quick")
+    assert r.exit_code == 2 and "no patch 'wrist' (patches: left, right)" in r.output
+
+
+def test_train_patch_needs_a_skin_campaign(tmp_path):
+    from learn_data import small_simulated
+
+    plain = small_simulated(tmp_path.parent)
+    r = run("train", plain, "-o", tmp_path / "x.joblib", "--patch", "a", "--quick")
+    assert r.exit_code == 2 and "the campaign has no patch field" in r.output
