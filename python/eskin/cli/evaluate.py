@@ -23,6 +23,7 @@ from eskin.cli.learn import (
     _amplitudes,
     _detector,
     _fail,
+    _patch_campaign,
 )
 
 
@@ -82,6 +83,9 @@ def evaluate(
         None, help="Dask scheduler address, or local:N for a local cluster of N workers"
     ),
     force: bool = typer.Option(False, "--force", help="replace the evaluation in OUT"),
+    patch: str | None = typer.Option(
+        None, "--patch", help="a skin's campaign (docs/skin.md): evaluate on the recordings "
+        "of these patches only (ids, comma-separated)"),
 ) -> None:
     """How well will a recipe work on a new person? Train it (the options of train, with
     train's defaults) on all groups but the held-out ones, fold by fold, and score the
@@ -116,7 +120,8 @@ def evaluate(
         refuse_overwrite_all(written, force, inputs=(campaign,))
         with compute_backend(scheduler):
             # on a cluster, evaluate_recipe reads the recordings here and scatters them
-            result = _in_folds(campaign, recipe, budgeted, the_budget, groups=groups,
+            data = campaign if patch is None else _patch_campaign(campaign, patch)
+            result = _in_folds(data, recipe, budgeted, the_budget, groups=groups,
                                n_folds=folds, classes=_names(classes),
                                baselines=_names(baselines) or (), seed=seed,
                                n_jobs=-1 if scheduler else n_jobs, live=live)

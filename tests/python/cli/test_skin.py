@@ -93,3 +93,15 @@ def test_train_patch_needs_a_skin_campaign(tmp_path):
     plain = small_simulated(tmp_path.parent)
     r = run("train", plain, "-o", tmp_path / "x.joblib", "--patch", "a", "--quick")
     assert r.exit_code == 2 and "the campaign has no patch field" in r.output
+
+
+def test_evaluate_on_some_patches_of_a_skin_campaign(tmp_path):
+    import json
+
+    path, _ = skin_campaign(tmp_path)
+    r = run("evaluate", path, "-o", tmp_path / "ev", "--patch", "right", "--quick",
+            "--machine", "rls", "--D", 20, "--folds", 3, "--no-live")
+    assert r.exit_code == 0, r.output
+    result = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    tested = sorted(g for f in result["folds"] for g in f["test_groups"])
+    assert tested == [2, 4, 6]  # the participants of patch "right", each tested once
