@@ -114,9 +114,11 @@ cpp: test-deps venv
 ctest: cpp
 	cd $(BUILD_CPP) && "$(CURDIR)/$(VENV)/bin/ctest" --output-on-failure -j $(JOBS)
 
-# mcu-deps: tests/python/test_mcu_link.py runs the firmware on QEMU (it fails under CI without it)
+# mcu-deps: tests/python/test_mcu_link.py runs the firmware on QEMU (it fails under CI without it).
+# The test files are shared between $(JOBS) pytest-xdist workers, each file whole on one worker
+# (its module fixtures built once); no test asserts a duration, so sharing the cores is safe.
 pytest: install venv-test mcu-deps
-	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q tests/python
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" ESKIN_BIN_DIR="$(CURDIR)/$(BUILD_CPP)" $(PY) -m pytest -q -n $(JOBS) --dist loadfile tests/python
 
 test: ctest pytest check-sanitizers
 
