@@ -14,6 +14,7 @@ namespace eskin::bindings {
 namespace {
 
 using serial::IoResult;
+using serial::PortReader;
 using serial::PortStatus;
 using serial::SerialPort;
 
@@ -33,6 +34,32 @@ std::string_view view(const py::bytes& b) {
   Py_ssize_t len = 0;
   PyBytes_AsStringAndSize(b.ptr(), &data, &len);
   return {data, static_cast<std::size_t>(len)};
+}
+
+void bind_port_reader(py::module_& s) {
+  py::class_<PortReader>(s, "PortReader")
+      .def(py::init<const SerialPort&, std::size_t, std::size_t, int>(), py::arg("port"),
+           py::arg("capacity"), py::arg("trickle_bytes") = 0, py::arg("trickle_wait_ms") = 0,
+           py::keep_alive<1, 2>())
+      .def("start", [](PortReader& r) { return serial::port_status_name(r.start()); })
+      .def("stop", &PortReader::stop, py::call_guard<py::gil_scoped_release>())
+      .def(
+          "take",
+          [](PortReader& r, std::size_t size, double timeout_s) {
+            std::vector<std::uint8_t> buf(size);
+            IoResult res;
+            {
+              py::gil_scoped_release nogil;
+              res = r.take(buf.data(), size, timeout_ms(timeout_s));
+            }
+            return read_result(buf, res);
+          },
+          py::arg("size"), py::arg("timeout_s"))
+      .def_property_readonly("queued", &PortReader::queued)
+      .def_property_readonly("peak", &PortReader::peak)
+      .def_property_readonly("overflow", &PortReader::overflow)
+      .def_property_readonly("bytes_read", &PortReader::bytes_read)
+      .def_property_readonly("last_error", &PortReader::last_error);
 }
 
 }  // namespace
@@ -141,6 +168,7 @@ void bind_serial(py::module_& m) {
             return serial::port_status_name(st);
           },
           py::arg("timeout_s"));
+  bind_port_reader(s);
 }
 
 }  // namespace eskin::bindings

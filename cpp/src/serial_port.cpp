@@ -6,7 +6,9 @@
 #include <termios.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <ctime>
 #include <utility>
@@ -345,6 +347,133 @@ PortStatus SerialPort::drain(int timeout_ms) {
     timespec ts{0, 200000};  // 0.2 ms
     nanosleep(&ts, nullptr);
   }
+}
+
+// -- PortReader ----------------------------------------------------------------------------
+
+PortReader::PortReader(const SerialPort& port, std::size_t capacity, std::size_t trickle_bytes,
+                       int trickle_wait_ms)
+    : fd_(port.fd()),
+      path_(port.path()),
+      capacity_(capacity),
+      trickle_bytes_(trickle_bytes),
+      trickle_wait_ms_(trickle_wait_ms) {}
+
+PortReader::~PortReader() { stop(); }
+
+PortStatus PortReader::start() {
+  if (fd_ < 0) return PortStatus::not_open;
+  if (!thread_.joinable()) thread_ = std::thread([this] { run(); });
+  return PortStatus::ok;
+}
+
+void PortReader::stop() {
+  stop_.store(true);
+  if (thread_.joinable()) thread_.join();
+}
+
+void PortReader::push(const std::uint8_t* data, std::size_t n) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    bytes_read_ += n;
+    if (queued_ + n > capacity_) {
+      overflow_ += n;
+      return;
+    }
+    chunks_.emplace_back(data, data + n);
+    queued_ += n;
+    if (queued_ > peak_) peak_ = queued_;
+  }
+  ready_.notify_one();
+}
+
+void PortReader::end(PortStatus status, const std::string& why, int err) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    end_ = status;
+    error_ = path_ + ": " + why + (err ? std::string(": ") + std::strerror(err) : std::string());
+  }
+  ready_.notify_all();
+}
+
+void PortReader::run() {
+  std::vector<std::uint8_t> buf(65536);
+  while (!stop_.load()) {
+    pollfd p{fd_, POLLIN, 0};
+    const int r = ::poll(&p, 1, 50);  // wakes to notice stop()
+    if (r < 0) {
+      if (errno == EINTR) continue;
+      return end(PortStatus::io_error, "poll", errno);
+    }
+    if (r == 0) continue;
+    if (!(p.revents & POLLIN)) {  // a hang-up with nothing left to read
+      if (p.revents & (POLLHUP | POLLERR)) return end(PortStatus::peer_closed, "peer hung up", 0);
+      if (p.revents & POLLNVAL) return end(PortStatus::io_error, "poll: not an open port", 0);
+      continue;
+    }
+    const ssize_t n = ::read(fd_, buf.data(), buf.size());
+    if (n == 0) return end(PortStatus::peer_closed, "read: end of file", 0);
+    if (n < 0) {
+      if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR) continue;
+      if (errno == EIO) return end(PortStatus::peer_closed, "read: peer hung up", 0);
+      return end(PortStatus::io_error, "read", errno);
+    }
+    push(buf.data(), static_cast<std::size_t>(n));
+    if (static_cast<std::size_t>(n) < trickle_bytes_ && trickle_wait_ms_ > 0) {
+      const timespec ts{0, static_cast<long>(trickle_wait_ms_) * 1000000L};
+      nanosleep(&ts, nullptr);
+    }
+  }
+}
+
+IoResult PortReader::take(std::uint8_t* buf, std::size_t size, int timeout_ms) {
+  std::unique_lock<std::mutex> lock(mu_);
+  const auto has_input = [this] { return queued_ > 0 || end_ != PortStatus::ok; };
+  if (timeout_ms < 0) {
+    ready_.wait(lock, has_input);
+  } else if (!ready_.wait_for(lock, std::chrono::milliseconds(timeout_ms), has_input)) {
+    return {0, PortStatus::timeout};
+  }
+  IoResult res;
+  while (res.bytes < size && !chunks_.empty()) {
+    const std::vector<std::uint8_t>& c = chunks_.front();
+    const std::size_t n = std::min(size - res.bytes, c.size() - front_used_);
+    std::memcpy(buf + res.bytes, c.data() + front_used_, n);
+    res.bytes += n;
+    front_used_ += n;
+    if (front_used_ == c.size()) {
+      chunks_.pop_front();
+      front_used_ = 0;
+    }
+  }
+  queued_ -= res.bytes;
+  if (res.bytes == 0) res.status = end_;
+  return res;
+}
+
+std::size_t PortReader::queued() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return queued_;
+}
+
+std::size_t PortReader::peak() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return peak_;
+}
+
+std::uint64_t PortReader::overflow() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return overflow_;
+}
+
+std::uint64_t PortReader::bytes_read() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return bytes_read_;
+}
+
+std::string PortReader::last_error() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return error_;
 }
 
 }  // namespace eskin::serial

@@ -5,6 +5,8 @@
 #include <stdlib.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <ctime>
 #include <string>
 #include <vector>
 
@@ -181,4 +183,70 @@ TEST(SerialPort, MoveKeepsTheDescriptor) {
   ASSERT_EQ(pty.master.blocking_write(data.data(), 3, 100).bytes, 3U);
   std::uint8_t buf[3];
   EXPECT_EQ(moved.blocking_read(buf, 3, 1000).bytes, 3U);
+}
+
+namespace {
+
+/// Polls `done` every 2 ms for up to 5 s (the reading thread's progress is seen from outside).
+template <class Fn>
+bool eventually(Fn&& done) {
+  for (int i = 0; i < 2500 && !done(); ++i) {
+    const timespec ts{0, 2000000L};
+    nanosleep(&ts, nullptr);
+  }
+  return done();
+}
+
+}  // namespace
+
+TEST(PortReader, HoldsFarMoreThanThePtyWhileNobodyTakesThenHandsItOverInOrder) {
+  PtyPair pty;
+  eskin::serial::PortReader reader(pty.slave, 1 << 20);
+  ASSERT_EQ(reader.start(), PortStatus::ok);
+  // a pty holds about 20 KiB: this write completes only because the reader empties it
+  const auto data = pattern(300000);
+  ASSERT_EQ(pty.master.blocking_write(data.data(), data.size(), 5000).bytes, data.size());
+  ASSERT_TRUE(eventually([&] { return reader.queued() == data.size(); }));
+  EXPECT_EQ(reader.peak(), data.size());
+  std::vector<std::uint8_t> got(data.size());
+  std::size_t n = 0;
+  while (n < got.size()) {
+    const IoResult r = reader.take(got.data() + n, std::min<std::size_t>(7777, got.size() - n), 100);
+    ASSERT_EQ(r.status, PortStatus::ok);
+    n += r.bytes;
+  }
+  EXPECT_EQ(got, data);
+  EXPECT_EQ(reader.queued(), 0U);
+  EXPECT_EQ(reader.overflow(), 0U);
+  std::uint8_t b[4];
+  EXPECT_EQ(reader.take(b, 4, 20).status, PortStatus::timeout);
+  reader.stop();
+  reader.stop();
+}
+
+TEST(PortReader, CountsWhatOverflowsItsQueueAndReportsTheHangUpAfterTheData) {
+  PtyPair pty;
+  eskin::serial::PortReader reader(pty.slave, 4096);
+  ASSERT_EQ(reader.start(), PortStatus::ok);
+  const auto data = pattern(65536);
+  ASSERT_EQ(pty.master.blocking_write(data.data(), data.size(), 5000).bytes, data.size());
+  ASSERT_TRUE(eventually([&] { return reader.bytes_read() == data.size(); }));
+  EXPECT_LE(reader.queued(), 4096U);
+  EXPECT_EQ(reader.queued() + reader.overflow(), data.size());
+  // what was queued is the stream's beginning, in order
+  std::vector<std::uint8_t> got(reader.queued());
+  ASSERT_EQ(reader.take(got.data(), got.size(), 100).bytes, got.size());
+  EXPECT_TRUE(std::equal(got.begin(), got.end(), data.begin()));
+  ASSERT_EQ(pty.master.close(), PortStatus::ok);
+  std::uint8_t b[4];
+  IoResult r;
+  for (int i = 0; i < 50 && r.status != PortStatus::peer_closed; ++i) r = reader.take(b, 4, 100);
+  EXPECT_EQ(r.status, PortStatus::peer_closed);
+  EXPECT_NE(reader.last_error().find(pty.slave_path), std::string::npos);
+}
+
+TEST(PortReader, RefusesAPortThatIsNotOpen) {
+  SerialPort closed;
+  eskin::serial::PortReader reader(closed, 1024);
+  EXPECT_EQ(reader.start(), PortStatus::not_open);
 }

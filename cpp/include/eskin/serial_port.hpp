@@ -8,8 +8,14 @@
 #pragma once
 
 #include <cstddef>
+#include <atomic>
+#include <condition_variable>
 #include <cstdint>
+#include <deque>
+#include <mutex>
 #include <string>
+#include <thread>
+#include <vector>
 
 namespace eskin::serial {
 
@@ -96,6 +102,69 @@ class SerialPort {
   std::uint32_t baud_ = 0;
   std::string last_error_;
   int last_errno_ = 0;
+};
+
+/// Reads an open port on a thread of its own into a bounded in-memory queue, and hands the
+/// bytes over on demand (take). The reading thread does nothing else: it waits in poll(),
+/// reads what the driver holds, appends it and waits again, so the driver's small buffers (a
+/// pseudo-terminal holds about 20 KiB, a USB-CDC device a few KiB) are emptied as soon as the
+/// thread is scheduled, whatever the consumer of the bytes is doing: a consumer that decodes,
+/// classifies or draws may fall behind by up to `capacity` bytes and catch up later without
+/// a byte being lost. Bytes that would overflow the queue are dropped and counted.
+///
+/// After a short read (fewer than `trickle_bytes`) the thread waits `trickle_wait_ms` before
+/// the next one, so that a port written a byte at a time (QEMU's UART) is taken in chunks
+/// instead of one wake-up per byte.
+///
+/// The port must stay open while the reader runs (stop() before closing it); writing to the
+/// port from another thread meanwhile is fine. Host only (a thread, heap buffers).
+class PortReader {
+ public:
+  PortReader(const SerialPort& port, std::size_t capacity, std::size_t trickle_bytes = 0,
+             int trickle_wait_ms = 0);
+  ~PortReader();
+  PortReader(const PortReader&) = delete;
+  PortReader& operator=(const PortReader&) = delete;
+
+  /// Starts the reading thread (once); not_open when the port is not open.
+  PortStatus start();
+  /// Stops and joins the reading thread (idempotent); what was queued can still be taken.
+  void stop();
+  /// Waits up to timeout_ms (< 0: forever) for queued bytes and moves up to `size` of them to
+  /// `buf`. Once the queue is empty: status peer_closed or io_error when the reading thread
+  /// ended on one (last_error() says why), timeout when nothing came in time.
+  IoResult take(std::uint8_t* buf, std::size_t size, int timeout_ms);
+
+  std::size_t queued() const;
+  /// The most bytes ever queued at once (how far the consumer fell behind).
+  std::size_t peak() const;
+  /// Bytes read from the port and dropped because the queue was full.
+  std::uint64_t overflow() const;
+  std::uint64_t bytes_read() const;
+  std::string last_error() const;
+
+ private:
+  void run();
+  void push(const std::uint8_t* data, std::size_t n);
+  void end(PortStatus status, const std::string& why, int err);
+
+  int fd_;
+  std::string path_;
+  std::size_t capacity_;
+  std::size_t trickle_bytes_;
+  int trickle_wait_ms_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  mutable std::mutex mu_;
+  std::condition_variable ready_;
+  std::deque<std::vector<std::uint8_t>> chunks_;
+  std::size_t front_used_ = 0;  // bytes of chunks_.front() already taken
+  std::size_t queued_ = 0;
+  std::size_t peak_ = 0;
+  std::uint64_t overflow_ = 0;
+  std::uint64_t bytes_read_ = 0;
+  PortStatus end_ = PortStatus::ok;  // why the reading thread ended (ok: it has not)
+  std::string error_;
 };
 
 }  // namespace eskin::serial

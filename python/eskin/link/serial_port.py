@@ -9,12 +9,18 @@ libserialport and most serial libraries cannot open), in raw mode::
 
 A closed peer raises PeerClosedError instead of looking like silence; other failures raise
 SerialPortError (an OSError) naming the port and the cause. Blocking calls release the GIL.
+
+:meth:`SerialPort.start_reader` hands the reading to a thread of the compiled core that only
+moves what arrives into a large queue (no Python, no GIL): :meth:`SerialPort.read` then takes
+from the queue, and a reader of the bytes that is busy or descheduled for a while loses none
+of them, where the driver's own buffers (about 20 KiB for a pseudo-terminal) would overflow
+within tens of milliseconds of a fast stream.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Optional
+from typing import Any, Optional
 
 from eskin import _core
 from eskin.errors import PeerClosedError, SerialPortError
@@ -35,13 +41,14 @@ class SerialPort:
 
     def __init__(self, path: str | os.PathLike[str], baud: int = 115200):
         self._port = _core.serial.SerialPort()
+        self._reader: Optional[Any] = None
         self._check(self._port.open(os.fspath(path), int(baud)))
 
     # -- helpers --------------------------------------------------------------------------------
-    def _check(self, status: str) -> None:
+    def _check(self, status: str, message: str = "") -> None:
         if status in ("ok", "timeout"):
             return
-        message = self._port.last_error or status
+        message = message or self._port.last_error or status
         cls = PeerClosedError if status == "peer_closed" else SerialPortError
         raise cls(status, message, int(self._port.last_errno))
 
@@ -79,9 +86,38 @@ class SerialPort:
         self._check(self._port.set_baud(int(baud)))
 
     # -- transfers ------------------------------------------------------------------------------
+    def start_reader(self, capacity: int = 64 << 20, trickle_bytes: int = 0,
+                     trickle_wait: float = 0.0) -> None:
+        """Read the port from now on on a thread of the compiled core, into a queue of up to
+        ``capacity`` bytes (what would overflow it is dropped and counted in
+        :attr:`reader_overflow`); :meth:`read` takes from the queue. After a read of fewer
+        than ``trickle_bytes`` the thread waits ``trickle_wait`` seconds before the next one
+        (a port written a byte at a time is then taken in chunks). Once per port."""
+        if self._reader is not None:
+            return
+        reader = _core.serial.PortReader(self._port, int(capacity), int(trickle_bytes),
+                                         int(round(float(trickle_wait) * 1000)))
+        self._check(reader.start())
+        self._reader = reader
+
+    @property
+    def reader_peak(self) -> int:
+        """The most bytes the reading thread held at once (0 without one)."""
+        return int(self._reader.peak) if self._reader is not None else 0
+
+    @property
+    def reader_overflow(self) -> int:
+        """Bytes the reading thread read and dropped, its queue full (0 without one)."""
+        return int(self._reader.overflow) if self._reader is not None else 0
+
     def read(self, size: int = 4096, timeout: Optional[float] = None) -> bytes:
         """Wait up to ``timeout`` s (None: forever) for input; return 1..size bytes, or b"" on
         timeout. Raises PeerClosedError once the other end has closed and nothing is left."""
+        if self._reader is not None:
+            data, status = self._reader.take(int(size), _timeout(timeout))
+            if not data:
+                self._check(status, self._reader.last_error)
+            return bytes(data)
         data, status = self._port.blocking_read_next(int(size), _timeout(timeout))
         if data:
             return bytes(data)
@@ -90,6 +126,9 @@ class SerialPort:
 
     def read_exact(self, size: int, timeout: Optional[float] = None) -> bytes:
         """Read ``size`` bytes unless the timeout expires first (then fewer are returned)."""
+        if self._reader is not None:
+            raise SerialPortError("busy", f"{self.path}: read_exact while the port is read "
+                                  f"on a thread of its own (start_reader); use read", 0)
         data, status = self._port.blocking_read(int(size), _timeout(timeout))
         if not data:
             self._check(status)
@@ -97,6 +136,8 @@ class SerialPort:
 
     def read_nonblocking(self, size: int = 4096) -> bytes:
         """Return what has arrived, without waiting (possibly b"")."""
+        if self._reader is not None:
+            return self.read(size, 0.0)
         data, status = self._port.nonblocking_read(int(size))
         if data:
             return bytes(data)
@@ -126,6 +167,8 @@ class SerialPort:
         return status == "ok"
 
     def close(self) -> None:
+        if self._reader is not None:
+            self._reader.stop()  # before the descriptor goes
         self._check(self._port.close())
 
     def __enter__(self) -> SerialPort:

@@ -89,3 +89,27 @@ def test_bad_baud_and_timeout(pty):
         SerialPort(path, baud=1234)
     with SerialPort(path) as port, pytest.raises(ValueError, match="timeout"):
         port.read(1, timeout=-1)
+
+
+def test_reader_thread_empties_the_pty_while_nobody_reads(pty):
+    master, path = pty
+    with SerialPort(path) as port:
+        port.start_reader(capacity=1 << 20)
+        port.start_reader(capacity=1 << 20)  # once per port: a second call changes nothing
+        data = bytes(range(251)) * 1200  # 301 KB: a pty holds about 20 KB
+        view = memoryview(data)
+        while view:  # a blocking write completes only because the reader takes it all
+            view = view[os.write(master, view):]
+        got = b""
+        while len(got) < len(data):
+            got += port.read(65536, timeout=1.0)
+        assert got == data
+        assert port.reader_peak > 20000 and port.reader_overflow == 0
+        assert port.read(10, timeout=0.01) == b"" and port.read_nonblocking() == b""
+        with pytest.raises(SerialPortError, match="start_reader"):
+            port.read_exact(4, timeout=0.01)
+        os.close(master)
+        with pytest.raises(PeerClosedError, match=path):
+            for _ in range(20):
+                port.read(4096, timeout=1.0)
+    assert not port.is_open
