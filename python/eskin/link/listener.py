@@ -123,12 +123,17 @@ __all__ = [
 RECORD_POLICIES = ("touch", "segment")
 
 #: A read that returns fewer bytes than this is a trickle (a port that writes a byte at a time,
-#: such as QEMU's UART on a pseudo-terminal): the listener then waits TRICKLE_WAIT_S before the
-#: next read, so that it takes the stream in chunks instead of waking for every few bytes (at
-#: 3 kSps of a 4 x 4 patch, 105 kB/s, a 4 ms wait gathers about 420 bytes, far inside the pty's
-#: 4 KiB line buffer). It cost the host a third of a core, which the emulated board needed.
+#: such as QEMU's UART on a pseudo-terminal): the port's reading thread then waits
+#: TRICKLE_WAIT_S before the next read, so that it takes the stream in chunks instead of waking
+#: for every few bytes (at 3 kSps of a 4 x 4 patch, 105 kB/s, a 4 ms wait gathers about 420
+#: bytes, far inside the pty's 4 KiB line buffer). Waking for each cost the host a third of a
+#: core, which the emulated board needed.
 TRICKLE_BYTES = 2048
 TRICKLE_WAIT_S = 0.004
+#: Bytes the port's reading thread holds for the listener's loop, at most: the loop (decoding,
+#: host decisions, recording, a live page's observer) may fall behind by this much (a minute of
+#: a 4 x 4 patch at 10 times its 3 kSps) and catch up without a sample lost.
+READ_QUEUE_BYTES = 64 << 20
 
 
 def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: float,
@@ -254,11 +259,24 @@ class LinkListener:
         """Open the port (unless given open) and send START + INFO_REQUEST."""
         if self._port is None:
             self._port = SerialPort(self.path)
+        self._start_reader()
         if self._t0 is None:
             self._t0 = time.monotonic()
         if self.send_start:
             self._send_start()
         return self
+
+    def _start_reader(self) -> None:
+        """The port is read on a thread of the compiled core that does nothing else, into a
+        large queue: what the driver holds (about 20 KiB on a pseudo-terminal, 20 ms of a fast
+        replay) is taken at once even while this loop, or a thread beside it, is busy."""
+        assert self._port is not None
+        self._port.start_reader(READ_QUEUE_BYTES, TRICKLE_BYTES, TRICKLE_WAIT_S)
+
+    @property
+    def read_backlog_peak(self) -> int:
+        """The most bytes the port's reading thread held for this loop at once."""
+        return self._port.reader_peak if self._port is not None else 0
 
     def _send_start(self) -> None:
         assert self._port is not None
@@ -312,6 +330,7 @@ class LinkListener:
         return Connection("reconnected", self.path, "reopened by the host")
 
     def _reopened(self) -> None:
+        self._start_reader()
         self.receiver.reopened()
         if self.send_start:
             self._send_start()
@@ -413,8 +432,6 @@ class LinkListener:
                         and ev.status.state == StreamState.FINISHED):
                     finished_at = time.monotonic()
                 yield ev
-            if 0 < len(chunk) < TRICKLE_BYTES:
-                time.sleep(TRICKLE_WAIT_S)
             if self.stats_interval is not None and now - t_stats >= self.stats_interval:
                 t_stats = now
                 yield Stats(self.stats)
