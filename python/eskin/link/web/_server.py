@@ -30,8 +30,8 @@ from eskin.link.web._state import LiveState
 __all__ = ["WebServer", "parse_web_address"]
 
 STATIC = Path(__file__).resolve().parent / "static"
-#: display frames a second
-TICK_HZ = 15.0
+#: display frames a second (the page draws at most this often too)
+TICK_HZ = 10.0
 #: messages waiting for one page, at most; a page further behind skips display frames, and
 #: one that misses a decision gets the whole state again
 CLIENT_QUEUE = 64

@@ -26,12 +26,12 @@ from eskin.link.events import Connection, DataBlock, Decision, InfoEvent, Stats
 __all__ = ["LiveState"]
 
 #: DATA blocks waiting for the server's thread, at most (a frame of 10 samples each: at 3 kSps
-#: and 15 ticks a second a tick drains about 20; the oldest are dropped when it falls behind)
+#: and 10 ticks a second a tick drains about 30; the oldest are dropped when it falls behind)
 MAX_PENDING_BLOCKS = 4096
 #: decisions a page that connects receives (all of them are scored)
 RECENT_DECISIONS = 500
-#: trace points kept for a page that connects (about 6 s of display at 15 Hz x 16 points)
-TRACE_POINTS = 1500
+#: trace points kept for a page that connects (about 6 s of display at 10 Hz x 16 points)
+TRACE_POINTS = 1000
 #: seconds of stream time over which the per-taxel baseline (the mean ADC code) adapts
 BASELINE_S = 1.0
 #: seconds of stream time the heat map's energy is measured over (the terminal view's 0.2 s,

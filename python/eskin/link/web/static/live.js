@@ -1,15 +1,17 @@
 // The live page of `eskin listen --web`: read-only, fed by the WebSocket /ws (docs/live-page.md).
 "use strict";
 
-const MAX_POINTS = 1500;          // trace points kept (about 6 s at 15 frames/s x 16 points)
+const MAX_POINTS = 1000;          // trace points kept (about 6 s at 10 frames/s x 16 points)
 const MAX_ROWS = 500;             // decisions kept in the table
+const DRAW_MS = 100;              // the canvases are drawn at most this often (10 a second)
 const RAMP = ["#262626", "#4d4d4d", "#00005f", "#0000ff", "#005f00", "#00d700", "#ffff00",
               "#ff8700", "#d70000", "#ff0000"];   // the terminal view's colours
 const COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
                  "#7f7f7f", "#bcbd22", "#17becf"];
 
 const st = { grid: null, energy: null, trace: [], windows: [], info: null, stopped: false,
-             selected: "all", rate: 3000, failures: 0, n: 0, ws: null, dirty: true };
+             selected: "all", rate: 3000, failures: 0, n: 0, ws: null, drawAt: 0,
+             drawPending: false, statsKeys: "" };
 
 const $ = (id) => document.getElementById(id);
 
@@ -57,12 +59,25 @@ const BAD = new Set(["lost_samples", "crc_errors", "malformed", "controller_drop
 
 function showStats(s) {
   if (!s) return;
-  const rows = MAIN_STATS.filter(([k]) => k in s).map(([k, name]) =>
-    `<tr><td>${name}</td><td class="${BAD.has(k) && s[k] > 0 ? "bad" : ""}" data-key="${k}">` +
-    `${esc(s[k])}</td></tr>`);
-  $("stats").tBodies[0].innerHTML = rows.join("");
-  $("all-stats").tBodies[0].innerHTML = Object.keys(s).map((k) =>
-    `<tr><td>${esc(k)}</td><td>${esc(JSON.stringify(s[k]))}</td></tr>`).join("");
+  st.lastStats = s;
+  const keys = Object.keys(s).join(",");
+  if (keys !== st.statsKeys) {   // the rows are built once; later only their numbers change
+    st.statsKeys = keys;
+    $("stats").tBodies[0].innerHTML = MAIN_STATS.filter(([k]) => k in s).map(([k, name]) =>
+      `<tr><td>${name}</td><td data-key="${k}"></td></tr>`).join("");
+    $("all-stats").tBodies[0].innerHTML = Object.keys(s).map((k) =>
+      `<tr><td>${esc(k)}</td><td data-all="${esc(k)}"></td></tr>`).join("");
+  }
+  for (const td of $("stats").querySelectorAll("td[data-key]")) {
+    const k = td.dataset.key, text = String(s[k]);
+    if (td.textContent !== text) td.textContent = text;
+    td.className = BAD.has(k) && s[k] > 0 ? "bad" : "";
+  }
+  if (!$("all-stats").closest("details").open) return;   // not shown: not filled
+  for (const td of $("all-stats").querySelectorAll("td[data-all]")) {
+    const text = JSON.stringify(s[td.dataset.all]);
+    if (td.textContent !== text) td.textContent = text;
+  }
 }
 
 function showAccuracy(acc) {
@@ -167,8 +182,20 @@ function drawTrace() {
 
 function draw() { drawHeat(); drawTrace(); }
 
+// The canvases are drawn in an animation frame at most every DRAW_MS, and only after something
+// they show changed (no animation loop runs while nothing arrives; a hidden tab draws nothing).
+function redraw() {
+  if (st.drawPending) return;
+  st.drawPending = true;
+  setTimeout(() => requestAnimationFrame(() => {
+    st.drawPending = false;
+    st.drawAt = performance.now();
+    draw();
+  }), Math.max(0, st.drawAt + DRAW_MS - performance.now()));
+}
+
 function onMessage(m) {
-  st.dirty = true;
+  if (m.type !== "stats") redraw();
   switch (m.type) {
     case "hello":
       st.trace = m.trace || [];
@@ -225,7 +252,7 @@ function connect() {
 }
 
 const PORT = $("header").textContent.split(" \u00b7 ")[0];
-$("taxel").addEventListener("change", (e) => { st.selected = e.target.value; st.dirty = true; });
+$("taxel").addEventListener("change", (e) => { st.selected = e.target.value; redraw(); });
 $("heat").addEventListener("click", (e) => {
   if (!st.grid) return;
   const c = $("heat"), r = c.getBoundingClientRect();
@@ -234,12 +261,13 @@ $("heat").addEventListener("click", (e) => {
   const k = String(row * st.grid[1] + col);
   st.selected = st.selected === k ? "all" : k;
   $("taxel").value = st.selected;
-  st.dirty = true;
+  redraw();
+});
+$("all-stats").closest("details").addEventListener("toggle", () => {
+  st.statsKeys = "";   // filled when opened
+  if (st.lastStats) showStats(st.lastStats);
 });
 if ($("status").classList.contains("stopped")) st.stopped = true;
 else setStatus("connecting", "connecting");
 connect();   // also when stopped: the final state (heat map, traces) until the server closes
-(function frame() {
-  if (st.dirty) { st.dirty = false; draw(); }
-  requestAnimationFrame(frame);
-})();
+redraw();
