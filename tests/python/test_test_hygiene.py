@@ -21,6 +21,8 @@ SLEEP = re.compile(r"\b(sleep|usleep|nanosleep|sleep_for|sleep_until)\s*\(")
 ALLOWED = {
     ("tests/python/waiting.py", "time.sleep(interval)  # the poll interval of this wait"):
         "the poll interval of the one waiting helper",
+    ("tests/cpp/test_serial_port.cpp", "nanosleep(&ts, nullptr);"):
+        "the poll interval of `eventually`, which waits for the port's reading thread",
     ("tests/python/data/test_campaign_recovery.py",
      "time.sleep(float(rng.uniform(0.0, 0.06)))"):
         "the SIGKILL lands at a seeded random point of the writes: the behaviour under test",

@@ -182,6 +182,8 @@ class LinkListener:
     recorder : instead of ``record``, a :class:`~eskin.link.recorder.StreamRecorder` made by
         the caller (a skin's patches record into one campaign through theirs); its policy
         must be ``record_policy``'s.
+    read_queue_bytes : the most bytes the port's reading thread holds for the loop (0: no
+        reading thread, the loop reads the port itself, as a baseline for benchmarks).
     """
 
     # long: the constructor's parameters, each stored once
@@ -207,6 +209,7 @@ class LinkListener:
         stats_interval: Optional[float] = 1.0,
         history_s: float = 2.0,
         recorder: Optional[StreamRecorder] = None,
+        read_queue_bytes: int = READ_QUEUE_BYTES,
     ) -> None:
         record_policy = _checked_options(
             record_policy, replay, read_timeout, context_s=context_s, max_fill_s=max_fill_s,
@@ -238,6 +241,7 @@ class LinkListener:
         self.recorder: Optional[StreamRecorder] = recorder
         if recorder is not None and self.record_path is not None:
             raise ValueError("give record= (a campaign file) or recorder=, not both")
+        self.read_queue_bytes = int(read_queue_bytes)
         if self.record_path is not None:
             self.recorder = StreamRecorder(
                 self.record_path, policy=record_policy, replay=replay,
@@ -271,7 +275,8 @@ class LinkListener:
         large queue: what the driver holds (about 20 KiB on a pseudo-terminal, 20 ms of a fast
         replay) is taken at once even while this loop, or a thread beside it, is busy."""
         assert self._port is not None
-        self._port.start_reader(READ_QUEUE_BYTES, TRICKLE_BYTES, TRICKLE_WAIT_S)
+        if self.read_queue_bytes > 0:
+            self._port.start_reader(self.read_queue_bytes, TRICKLE_BYTES, TRICKLE_WAIT_S)
 
     @property
     def read_backlog_peak(self) -> int:
@@ -432,6 +437,8 @@ class LinkListener:
                         and ev.status.state == StreamState.FINISHED):
                     finished_at = time.monotonic()
                 yield ev
+            if self.read_queue_bytes <= 0 and 0 < len(chunk) < TRICKLE_BYTES:
+                time.sleep(TRICKLE_WAIT_S)  # no reading thread to gather a trickle
             if self.stats_interval is not None and now - t_stats >= self.stats_interval:
                 t_stats = now
                 yield Stats(self.stats)
