@@ -17,7 +17,8 @@ Speed 0 is unpaced (the simulator waits for the host: nothing can be lost, the f
 throughput); paced speeds lose samples when the host does not read in time. The simulator
 stands for a controller with a processor of its own: as root it runs under SCHED_FIFO
 (`--sim-fifo`, `chrt`), so that a simulator kept from the processor does not count against
-the host. Chromium runs in a session of its own, as a browser the user starts does.
+the host. Chromium runs in a scheduling group of its own (setsid: Linux's autogroup), as a
+browser the user starts does.
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ from eskin.link.web import LiveState, WebServer  # noqa: E402
 
 def open_page(url: str, nice: int = 0, own_session: bool = True) -> subprocess.Popen:
     """A headless chromium showing ``url`` (it runs the page's script: WebSocket, drawing);
-    ``own_session``: in a session of its own, as a browser the user starts is (Linux's
-    autogroup scheduling then shares the processors between sessions before processes)."""
+    ``own_session``: after setsid, in a scheduling group of its own, as a browser the user
+    starts is (Linux's autogroup scheduling shares the processors between such groups first)."""
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
     if browser is None:
         sys.exit("bench_web.py: chromium is not installed (apt-get install chromium)")
@@ -56,20 +57,20 @@ def open_page(url: str, nice: int = 0, own_session: bool = True) -> subprocess.P
     group = Path(f"/proc/{proc.pid}/autogroup")
     deadline = time.monotonic() + 5
     while own_session and os.getsid(proc.pid) != proc.pid and time.monotonic() < deadline:
-        time.sleep(0.001)  # its session (and autogroup) exists once the child has called setsid
+        time.sleep(0.001)  # its autogroup exists once the child has called setsid
     if nice and own_session and group.exists() and os.getsid(proc.pid) == proc.pid:
         try:
             group.write_text(str(nice))
         except OSError as exc:
-            print(f"bench_web.py: chromium's session keeps its priority ({exc})", flush=True)
+            print(f"bench_web.py: chromium's autogroup keeps its priority ({exc})", flush=True)
     return proc
 
 
 def start_sim(replay: Path, *args: object, fifo: int = 0) -> tuple[subprocess.Popen, str]:
     """eskin-fw-sim with its default transmit queue (16 KiB: a host that does not read in
     time loses samples), holding the port 2 s after the replay so the host reads the end. It
-    stands for a controller, which has a processor of its own: it runs in a session of its
-    own and, with ``fifo`` > 0, under the real-time policy SCHED_FIFO at that priority (`chrt`),
+    stands for a controller, which has a processor of its own: it runs after setsid (a
+    scheduling group of its own) and, with ``fifo`` > 0, under the real-time policy SCHED_FIFO at that priority (`chrt`),
     ahead of every ordinary program, so that what is measured is the host (a simulator kept
     from the processor sends the samples it owes in a burst that no host's buffers could take:
     ``controller_pacing_p99_us`` says how late it was)."""
@@ -108,7 +109,7 @@ def run(model: Path, replay: Path, speed: float, page: bool, args: argparse.Name
         loop_reads: bool = False) -> dict:
     """One run; ``loop_reads``: the baseline listener that reads the port in its own loop
     (no reading thread)."""
-    nice, tick_hz, own_session, settle_s = args.nice, args.tick_hz, not args.same_session, \
+    nice, tick_hz, own_session, settle_s = args.nice, args.tick_hz, not args.same_group, \
         args.settle
     sim, pty = start_sim(replay, "--model", model, "--speed", speed, "--tick", 10,
                          "--wait-start", fifo=args.sim_fifo)
@@ -214,7 +215,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2,
                     help="pairs of runs per speed (without / with the page, in turn)")
     ap.add_argument("--nice", type=int, default=0,
-                    help="run chromium under `nice -n N`, its session too (Linux autogroup; "
+                    help="run chromium under `nice -n N`, its autogroup too (Linux; "
                          "default 0: the same priority as every program)")
     ap.add_argument("--sim-fifo", type=int, default=10 if os.geteuid() == 0 else 0,
                     help="run eskin-fw-sim under SCHED_FIFO at priority N (`chrt -f N`; default "
@@ -222,9 +223,9 @@ def main() -> None:
                          "processor of its own")
     ap.add_argument("--settle", type=float, default=0.5,
                     help="seconds between the page's connection and the stream's start")
-    ap.add_argument("--same-session", action="store_true",
-                    help="start chromium in the benchmark's session (by default it has a "
-                         "session of its own, as a browser the user opens has)")
+    ap.add_argument("--same-group", action="store_true",
+                    help="start chromium in the benchmark's scheduling group (by default it "
+                         "calls setsid: a group of its own, as a browser the user opens has)")
     ap.add_argument("--baseline", action="store_true",
                     help="also run the listener that reads the port in its own loop, without "
                          "the reading thread (LinkListener(read_queue_bytes=0)), in turn")
@@ -235,8 +236,8 @@ def main() -> None:
     model, replay = make_case(folder, recordings=max(1, int(args.seconds / 1.4)))
     print(f"replay: {replay} ({args.seconds:g} s of signal, 4x4 taxels, 3000 samples/s); "
           f"host model {model.name}; {os.cpu_count()} cores; chromium "
-          f"{'in this session' if args.same_session else 'in a session of its own'}"
-          f"{f' under nice -n {args.nice}' if args.nice else ''}; eskin-fw-sim in a session "
+          f"{'in this scheduling group' if args.same_group else 'in a group of its own'}"
+          f"{f' under nice -n {args.nice}' if args.nice else ''}; eskin-fw-sim in a group "
           f"of its own{f' under chrt -f {args.sim_fifo}' if args.sim_fifo else ''}; display "
           f"{args.tick_hz or 'at the server default'} frames/s")
     rows = []
