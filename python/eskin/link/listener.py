@@ -155,6 +155,18 @@ def _checked_options(record_policy: Optional[str], replay: Any, read_timeout: fl
     return record_policy
 
 
+def _file_recorder(listener: "LinkListener", policy: str, *, context_s: float, overwrite: bool,
+                   source: str, attrs: Optional[dict[str, Any]]) -> StreamRecorder:
+    """The recorder of ``record=``: the listener's stream into that campaign file."""
+    clf = listener.classifier
+    return StreamRecorder(
+        listener.record_path, policy=policy, replay=listener.replay,
+        replay_offset=listener.replay_offset, context_s=float(context_s),
+        overwrite=bool(overwrite), source=str(source), attrs=dict(attrs or {}),
+        port=listener.path, host_names=list(clf.class_names) if clf else [],
+        max_touch_s=max_touch_s(clf))
+
+
 class LinkListener:
     """The controller's live stream over a serial port, as events. See the module docstring.
 
@@ -243,13 +255,9 @@ class LinkListener:
             raise ValueError("give record= (a campaign file) or recorder=, not both")
         self.read_queue_bytes = int(read_queue_bytes)
         if self.record_path is not None:
-            self.recorder = StreamRecorder(
-                self.record_path, policy=record_policy, replay=replay,
-                replay_offset=self.replay_offset, context_s=float(context_s),
-                overwrite=bool(overwrite), source=str(record_source),
-                attrs=dict(record_attrs or {}), port=self.path,
-                host_names=list(self.classifier.class_names) if self.classifier else [],
-                max_touch_s=max_touch_s(self.classifier))
+            self.recorder = _file_recorder(self, record_policy, context_s=context_s,
+                                           overwrite=overwrite, source=record_source,
+                                           attrs=record_attrs)
         self.receiver = StreamReceiver(classifier=self.classifier, recorder=self.recorder,
                                    record_policy=record_policy, replay=replay,
                                    max_fill_s=self.max_fill_s, history_s=self.history_s)
