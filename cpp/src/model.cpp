@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <type_traits>
 
 #include "eskin/model.hpp"
@@ -167,13 +168,15 @@ struct Classifier::Impl {
 #else
         ws(layout, 1),  // one pattern per decision: no batch of scaled copies
 #endif
-        detector(static_cast<std::int64_t>(m.rows()) * m.cols(), m.sample_rate_hz(),
-                 m.window_config(), /*store_samples=*/false),
         tensor(raw ? static_cast<std::size_t>(m.rows()) * m.cols() * m.D() : 0),
         values(m.machines().size()),
-        selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 1)),
+        selector(resolve_window_config(m.window_config(), m.sample_rate_hz()),
+                 static_cast<std::int64_t>(raw ? kMaxTouches : 1)),
         ov32(detail::select_overlap_f32()),
         ov64(detail::select_overlap_f64()) {
+    if (raw)  // the window detector of a raw recording (a tensors-only classifier has none)
+      detector.emplace(static_cast<std::int64_t>(m.rows()) * m.cols(), m.sample_rate_hz(),
+                       m.window_config(), SampleStore::kNone);
     wide = kWideTables && m.is_float64();
     if (m.is_float64()) xb64.resize(layout.bases_size());
     else xb32.resize(layout.bases_size());
@@ -206,7 +209,7 @@ struct Classifier::Impl {
 #else
   BasisWorkspace ws;
 #endif
-  TouchDetector detector;
+  std::optional<TouchDetector> detector;
   std::vector<double> tensor;
   std::vector<double> xb64;
   std::vector<float> xb32;
@@ -390,7 +393,7 @@ ClassifyStatus Classifier::classify_raw(const T* x, int rows, int cols, std::int
   w.stop = length;
   w.found = true;
   if (m.window_mode() == WindowMode::kEnergy) {
-    TouchDetector& det = s.detector;
+    TouchDetector& det = *s.detector;
     det.reset();
     WindowSelector& sel = s.selector;
     sel.reset();

@@ -56,6 +56,18 @@ StoredSample to_stored(T v) noexcept {
   }
 }
 
+// A sample value as an ADC code (SampleStore::kCodes): an integer code unchanged, a
+// floating-point value rounded to the nearest code in [-32768, 32767].
+template <class T>
+int16_t to_code(T v) noexcept {
+  if constexpr (std::is_same_v<T, int16_t>) {
+    return v;
+  } else {
+    const double r = std::nearbyint(static_cast<double>(v));
+    return static_cast<int16_t>(std::min(32767.0, std::max(-32768.0, r)));
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------- configuration
@@ -359,9 +371,9 @@ template Status subsample_window<double>(const double*, int64_t, int64_t, int64_
 // ---------------------------------------------------------------- streaming detector
 
 TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
-                             bool store_samples)
-    : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels),
-      store_(store_samples) {
+                             SampleStore store)
+    : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels), mode_(store),
+      store_(store != SampleStore::kNone) {
   if (n_taxels < 1) {
     detail::raise<std::invalid_argument>("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
   }
@@ -380,10 +392,55 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   if (store_) {
     check_detector_buffers(p_, cfg_, n_taxels);
     ring_cap_ = p_.pad_before + (p_.lookback_frames + 1) * p_.frame_len;
+  }
+  if (mode_ == SampleStore::kNative) {
     ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), StoredSample{});
     window_.assign(static_cast<std::size_t>(p_.window_capacity * n_taxels), StoredSample{});
+  } else if (mode_ == SampleStore::kCodes) {
+    // Once a touch has ended (at sample F), the next touch's window starts at or after
+    // stop - pad_before (its onset backtracking stops at stop), and stop is pad_after after the
+    // last loud frame, F the quiet frames after it (hold_s, at least one frame, at least
+    // pad_after_s): older samples of a touch are needed in its own window only. So while a
+    // touch is active only the recent ring is written; between touches the sample leaving it
+    // moves to the older part, which lives in the window buffer's last old_cap_ slots: an
+    // onset copies the older samples first, into window slots below old_cap_ <= cap / 2.
+    const int64_t fl = p_.frame_len, cap = p_.window_capacity;
+    const int64_t quiet = std::max({p_.hold_frames, int64_t{1}, ceil_div(p_.pad_after, fl)});
+    const int64_t needed = p_.pad_before + std::max<int64_t>(0, quiet * fl - p_.pad_after) + fl;
+    recent_cap_ = std::min(ring_cap_, std::max(needed, ring_cap_ - cap / 2));
+    old_cap_ = ring_cap_ - recent_cap_;
+    old_at_ = cap - old_cap_;
+    const int64_t slots = cap + recent_cap_;
+    pool_.assign(static_cast<std::size_t>(slots * n_taxels), int16_t{0});
   }
   reset();
+}
+
+int64_t TouchDetector::memory_bytes() const noexcept {
+  auto bytes = [](const auto& v) {
+    return static_cast<int64_t>(v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type));
+  };
+  return static_cast<int64_t>(sizeof(*this)) + bytes(dc_mean_) + bytes(acc_) + bytes(noise_ring_) +
+         bytes(noise_sorted_) + bytes(frame_ring_) + bytes(ring_) + bytes(window_) + bytes(pool_);
+}
+
+const int16_t* TouchDetector::code_slot(int64_t t) const noexcept {
+  const int64_t slot = t >= now_ - recent_cap_ ? p_.window_capacity + t % recent_cap_
+                                               : old_at_ + t % old_cap_;
+  return pool_.data() + slot * n_taxels_;
+}
+
+template <class T>
+void TouchDetector::store_code(const T* x, int64_t taxel_stride) noexcept {
+  const int64_t K = n_taxels_;
+  int16_t* pool = pool_.data();
+  int16_t* r = pool + (p_.window_capacity + now_ % recent_cap_) * K;
+  if (state_ != State::kActive && old_cap_ > 0 && now_ >= recent_cap_) {
+    // between touches: sample now - recent_cap_ leaves the recent ring for the older part
+    std::copy(r, r + K, pool + (old_at_ + (now_ - recent_cap_) % old_cap_) * K);
+  }
+  for (int64_t k = 0; k < K; ++k) r[k] = to_code(x[k * taxel_stride]);
+  if (state_ == State::kActive) keep(pool, static_cast<const int16_t*>(r));
 }
 
 void TouchDetector::reset() noexcept {
@@ -413,10 +470,12 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
     }
   }
   const int64_t K = n_taxels_;
-  if (store_) {
+  if (mode_ == SampleStore::kNative) {
     StoredSample* r = ring_.data() + (now_ % ring_cap_) * K;
     for (int64_t k = 0; k < K; ++k) r[k] = to_stored(x[k * taxel_stride]);
-    if (state_ == State::kActive) keep(r);
+    if (state_ == State::kActive) keep(window_.data(), static_cast<const StoredSample*>(r));
+  } else if (mode_ == SampleStore::kCodes) {
+    store_code(x, taxel_stride);
   }
   double* __restrict acc = acc_.data();
   if (p_.dc_alpha > 0) {
@@ -464,13 +523,13 @@ Status TouchDetector::push_block(const T* samples, int64_t n, int64_t* consumed)
   return st;
 }
 
-void TouchDetector::keep(const StoredSample* sample) noexcept {
+template <class S>
+void TouchDetector::keep(S* w, const S* sample) noexcept {
   // the bounded window: every window_stride_-th sample is kept; when the buffer is full, every
   // other kept sample is dropped and the stride doubles (the time resolution halves)
   const int64_t t = window_len_++;
   if (t % window_stride_ != 0) return;
   const int64_t K = n_taxels_;
-  StoredSample* w = window_.data();
   if (window_kept_ == p_.window_capacity) {
     for (int64_t j = 1; j < window_kept_ / 2; ++j) std::copy(w + 2 * j * K, w + (2 * j + 1) * K, w + j * K);
     window_kept_ /= 2;
@@ -555,7 +614,14 @@ Status TouchDetector::on_frame() noexcept {
           if (store_) {
             window_len_ = window_kept_ = 0;
             window_stride_ = 1;
-            for (int64_t t = start_; t < now_; ++t) keep(ring_.data() + (t % ring_cap_) * n_taxels_);
+            if (mode_ == SampleStore::kCodes) {
+              // oldest first: the older part's samples go to window slots below old_at_
+              for (int64_t t = start_; t < now_; ++t) keep(pool_.data(), code_slot(t));
+            } else {
+              for (int64_t t = start_; t < now_; ++t)
+                keep(window_.data(),
+                     static_cast<const StoredSample*>(ring_.data() + (t % ring_cap_) * n_taxels_));
+            }
           }
         } else {
           push_noise(e);
@@ -613,7 +679,7 @@ Status TouchDetector::flush() noexcept {
 }
 
 const StoredSample* TouchDetector::last_window_data() const noexcept {
-  return (store_ && window_valid_) ? window_.data() : nullptr;
+  return (mode_ == SampleStore::kNative && window_valid_) ? window_.data() : nullptr;
 }
 
 int64_t TouchDetector::last_window_length() const noexcept {
@@ -622,6 +688,10 @@ int64_t TouchDetector::last_window_length() const noexcept {
 
 Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
                                             ShortPolicy short_policy, double* out) const noexcept {
+  if (mode_ == SampleStore::kCodes && window_valid_) {
+    return subsample_window(pool_.data(), n_taxels_, 1, n_taxels_, last_window_length(), D,
+                            method, short_policy, out, last_.stride);
+  }
   const StoredSample* data = last_window_data();
   if (data == nullptr) return Status::kNoWindow;
   return subsample_window(data, n_taxels_, 1, n_taxels_, last_window_length(), D, method,

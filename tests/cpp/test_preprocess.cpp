@@ -727,6 +727,98 @@ TEST(NoAllocation, PerSamplePathNeverAllocates) {
   EXPECT_GT(g_allocations.load(), after);
 }
 
+// ------------------------------------------------------------------ compact sample store
+
+// Random touches: bursts of random length, amplitude and gap (gaps down to a few frames, so
+// that a touch starts right after the previous one's window; touches longer than max_window).
+static std::vector<Burst> random_bursts(std::mt19937& gen, int64_t T) {
+  std::uniform_int_distribution<int64_t> gap(60, 4000), len(100, 9000);
+  std::uniform_real_distribution<double> amp(60.0, 400.0);
+  std::vector<Burst> out;
+  for (int64_t t = 600 + gap(gen); t < T;) {
+    const int64_t b = std::min(T, t + len(gen)), m = t + (b - t) / 2;
+    const double a = amp(gen);
+    out.push_back({t, m, a});  // loud, then softer: with a high release_fraction the soft half
+    out.push_back({m, b, 0.3 * a});  // ends the touch and starts the next one at once
+    t = b + gap(gen);
+  }
+  return out;
+}
+
+// SampleStore::kCodes keeps the int16 codes in one pool of the window buffer, the recent ring
+// and the older pre-onset samples (in the window buffer's end between touches): the windows and
+// every window's tensor equal those of the native store, for small and large window buffers,
+// every-sample windows, long pads and look-backs, and pads after longer than the hold.
+TEST(CompactStore, SameWindowsAndTensorsAsTheNativeStore) {
+  std::vector<WindowConfig> configs(9);
+  configs[1].window_samples = 64;  // most of the pre-onset ring in the recent ring
+  configs[2].window_samples = 0;
+  configs[2].max_window_s = 2.0;
+  configs[3].pad_before_s = 0.2;
+  configs[3].lookback_s = 0.5;
+  configs[3].window_samples = 256;
+  configs[4].hold_s = 0.02;
+  configs[4].pad_after_s = 0.2;
+  configs[5].max_window_s = 0.5;  // cut touches, refractory periods
+  configs[5].dc_cutoff_hz = 0.0;
+  configs[6].window_samples = 4096;  // the recent ring exactly what a next touch can reach
+  configs[6].hold_s = 0.1;
+  configs[7].release_fraction = 0.5;  // a next touch's onset backtracks to the last one's stop
+  configs[8].release_fraction = 0.5;
+  configs[8].window_samples = 4096;
+  const int64_t T = 60000, D = 20;
+  std::mt19937 gen(2026);
+  int windows = 0;
+  for (std::size_t ci = 0; ci < configs.size(); ++ci) {
+    for (unsigned seed = 0; seed < 3; ++seed) {
+      const auto inter = interleave(make_recording(T, random_bursts(gen, T), 100 + seed), T);
+      TouchDetector native(kTaxels, kRate, configs[ci], eskin::SampleStore::kNative);
+      TouchDetector codes(kTaxels, kRate, configs[ci], eskin::SampleStore::kCodes);
+      EXPECT_LT(codes.memory_bytes(), native.memory_bytes());
+      std::vector<double> a(kTaxels * D), b(kTaxels * D);
+      auto compare = [&](Status sa, Status sb, int64_t t) {
+        ASSERT_EQ(sa, sb) << "config " << ci << " seed " << seed << " t " << t;
+        if (sa != Status::kWindow) return;
+        ++windows;
+        ASSERT_TRUE(same(native.last_window(), codes.last_window())) << ci << " " << t;
+        EXPECT_EQ(codes.last_window_data(), nullptr);
+        for (auto m : {SubsampleMethod::kAlgorithm2, SubsampleMethod::kEven}) {
+          ASSERT_EQ(native.subsample_last_window(D, m, ShortPolicy::kInterpolate, a.data()), Status::kOk);
+          ASSERT_EQ(codes.subsample_last_window(D, m, ShortPolicy::kInterpolate, b.data()), Status::kOk);
+          ASSERT_EQ(a, b) << "config " << ci << " seed " << seed << " t " << t;
+        }
+      };
+      for (int64_t t = 0; t < T; ++t)
+        compare(native.push(inter.data() + t * kTaxels), codes.push(inter.data() + t * kTaxels), t);
+      compare(native.flush(), codes.flush(), T);
+    }
+  }
+  EXPECT_GT(windows, 100);
+}
+
+// The compact store of a 4x4 patch at 3 kHz with the default detector fits 64 KB, and its
+// per-sample path does not allocate.
+TEST(CompactStore, DefaultPatchFits64KiBAndDoesNotAllocate) {
+  TouchDetector codes(kTaxels, kRate, WindowConfig{}, eskin::SampleStore::kCodes);
+  EXPECT_LE(codes.memory_bytes(), 65536);
+  TouchDetector native(kTaxels, kRate, WindowConfig{}, eskin::SampleStore::kNative);
+  EXPECT_GT(native.memory_bytes(), 2 * 65536);
+  const int64_t T = 21000;
+  const auto inter = interleave(make_recording(T, {{3000, 6000, 150.0}, {9000, 9500, 150.0}}, 41), T);
+  std::vector<double> tensor(kTaxels * 100);
+  int windows = 0;
+  const long before = g_allocations.load();
+  for (int64_t t = 0; t < T; ++t)
+    if (codes.push(inter.data() + t * kTaxels) == Status::kWindow) {
+      ++windows;
+      EXPECT_EQ(codes.subsample_last_window(100, SubsampleMethod::kAlgorithm2,
+                                            ShortPolicy::kInterpolate, tensor.data()),
+                Status::kOk);
+    }
+  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(windows, 2);
+}
+
 // ------------------------------------------------------------------ window selection
 
 TEST(WindowSelector, SpanIgnoresWeakTouchesAndCapacityBoundHolds) {

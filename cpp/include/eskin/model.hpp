@@ -268,16 +268,17 @@ class Classifier {
   /// An already preprocessed tensor (rows, cols, D), C order: only the machines run.
   ClassifyStatus classify_tensor(const double* tensor, Decision* out) noexcept;
 
+  /// Only classify_tensor (the raw-recording buffers and window detector of classify are not
+  /// allocated; classify returns kBadShape): a stream's classifier, whose detector brings the
+  /// tensor (StreamClassifier, SkinEngine).
+  struct TensorsOnly {};
+  Classifier(const Model& model, TensorsOnly);
+
   const Model& model() const noexcept { return *model_; }
 
   struct Impl;
 
  private:
-  friend class StreamClassifier;
-  struct TensorsOnly {};
-  /// Only classify_tensor (the raw-recording buffers of classify are not allocated; classify
-  /// returns kBadShape): a StreamClassifier's, which brings its own tensor.
-  Classifier(const Model& model, TensorsOnly);
   template <typename T>
   ClassifyStatus classify_raw(const T* x, int rows, int cols, std::int64_t T_total,
                               std::int64_t length, Decision* out) noexcept;

@@ -173,6 +173,22 @@ Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int6
                         int64_t S, int64_t D, SubsampleMethod method, ShortPolicy short_policy,
                         double* out, int64_t decimation = 1) noexcept;
 
+// How a streaming detector keeps the raw samples of the touch in progress (the samples its
+// window's tensor is read from). The windows and the tensors are the same in every mode (for
+// int16 input: kCodes keeps the codes themselves, kNative their exact float32 or int16 copy).
+enum class SampleStore : int32_t {
+  kNone = 0,    // none: the batch path reads the window from the recording instead
+  kNative = 1,  // StoredSample: a pre-onset ring (pad_before + lookback + one frame) and the
+                // bounded window buffer, side by side; the last window stays readable until the
+                // next touch's onset
+  kCodes = 2,   // int16 ADC codes (a float sample is rounded and clamped, as on a controller)
+                // in one compact pool: the window buffer, a ring of the recent samples that a
+                // next touch can still reach once this one has ended (pad_before + hold), and
+                // the older part of the pre-onset ring, kept only between touches, in the
+                // window buffer's free end (docs/skin-engine.md, "Memory"); the last window is
+                // readable until the next push
+};
+
 // The streaming detector. Feed it one multi-taxel sample at a time (push) or a block of
 // samples (push_block); it reports a touch when it ends.
 class TouchDetector {
@@ -181,7 +197,11 @@ class TouchDetector {
   // max_window buffer) so that the window's tensor can be produced (subsample_last_window).
   // The batch path turns it off (it reads the window from the recording instead).
   TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
-                bool store_samples = true);
+                bool store_samples = true)
+      : TouchDetector(n_taxels, sample_rate_hz, cfg,
+                      store_samples ? SampleStore::kNative : SampleStore::kNone) {}
+  TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
+                SampleStore store);
 
   // One sample: n_taxels values. Returns kOk, kWindow (a touch ended with this sample; read
   // last_window() before the next push), kNonFiniteSample or kNullPointer.
@@ -207,7 +227,8 @@ class TouchDetector {
   const TouchWindow& last_window() const noexcept { return last_; }
   // The raw samples kept of the last window (sample-major, n_taxels values per kept sample:
   // every last_window_stride()-th sample of its last_window_length() samples), or nullptr when
-  // none is stored (store_samples off, or overwritten by a newer touch's onset).
+  // none is stored (store_samples off, SampleStore::kCodes, or overwritten by a newer touch's
+  // onset).
   const StoredSample* last_window_data() const noexcept;
   int64_t last_window_length() const noexcept;
   int64_t last_window_stride() const noexcept { return last_.stride; }
@@ -223,6 +244,9 @@ class TouchDetector {
   double last_frame_energy() const noexcept { return last_energy_; }
   const DetectorParams& params() const noexcept { return p_; }
   const WindowConfig& config() const noexcept { return cfg_; }
+  SampleStore sample_store() const noexcept { return mode_; }
+  // Bytes this detector occupies: the object and every buffer it allocated.
+  int64_t memory_bytes() const noexcept;
 
  private:
   enum class State { kIdle, kActive, kRefractory };
@@ -232,11 +256,18 @@ class TouchDetector {
   Status on_frame() noexcept;
   Status finalise(bool forced) noexcept;
   void push_noise(double e) noexcept;
-  void keep(const StoredSample* sample) noexcept;  // the window's next sample (bounded buffer)
+  // the window's next sample into the bounded window buffer w (window_ or the pool's start)
+  template <class S>
+  void keep(S* w, const S* sample) noexcept;
+  // kCodes: sample t's slot in the pool at an onset (t in [now - ring capacity, now))
+  const int16_t* code_slot(int64_t t) const noexcept;
+  template <class T>
+  void store_code(const T* x, int64_t taxel_stride) noexcept;
 
   WindowConfig cfg_;
   DetectorParams p_;
   int64_t n_taxels_;
+  SampleStore mode_;
   bool store_;
 
   int64_t dc_fast_n_ = 0;  // samples n < dc_fast_n_ use the running mean (1/(n+1) >= dc_alpha)
@@ -258,6 +289,15 @@ class TouchDetector {
   int64_t window_kept_ = 0;           // of which kept (every window_stride_-th)
   int64_t window_stride_ = 1;
   bool window_valid_ = false;
+  // kCodes: one pool of int16 samples (n_taxels each): the window buffer at slots
+  // [0, window_capacity), the recent ring at [window_capacity, + recent_cap_) (sample t at
+  // slot window_capacity + t % recent_cap_), the older pre-onset samples in the window
+  // buffer's last slots [old_at_, window_capacity) (sample t at old_at_ + t % old_cap_),
+  // written only between touches
+  std::vector<int16_t> pool_;
+  int64_t recent_cap_ = 0;
+  int64_t old_cap_ = 0;
+  int64_t old_at_ = 0;
 
   State state_ = State::kIdle;
   int64_t now_ = 0;          // samples consumed
