@@ -13,4 +13,5 @@ PYBIND11_MODULE(_core, m) {
   eskin::bindings::bind_model(m);
   eskin::bindings::bind_protocol(m);
   eskin::bindings::bind_serial(m);
+  eskin::bindings::bind_skin(m);
 }

@@ -9,4 +9,5 @@ void bind_preprocess(pybind11::module_& m);
 void bind_model(pybind11::module_& m);
 void bind_protocol(pybind11::module_& m);
 void bind_serial(pybind11::module_& m);
+void bind_skin(pybind11::module_& m);
 }  // namespace eskin::bindings

@@ -64,6 +64,8 @@ _EXPORTS: dict[str, str] = {
     "export_model": "deploy",
     "write_c_header": "deploy",
     "CompiledModel": "deploy",
+    "SkinEngine": "deploy",
+    "SkinDecision": "deploy",
     # serial link
     "FrameDecoder": "link",
     "encode_frame": "link",

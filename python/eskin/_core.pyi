@@ -8,7 +8,7 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['BasisWorkspace', 'Classifier', 'MODEL_FORMAT_VERSION', 'Model', 'ModelFormatError', 'PatternBases', 'StreamClassifier', 'TouchDetector', 'WINDOW_CONFIG_FIELDS', 'compute_pattern_bases', 'default_threads', 'detect_windows', 'full_alphas', 'half_alphas', 'mode_distances', 'model_overlap_kernel', 'model_pattern_bases', 'preprocess', 'protocol', 'serial', 'subsample_indices', 'tensor_kernel', 'tensor_kernel_isa', 'unfold', 'window_config_defaults', 'window_config_resolve']
+__all__: list[str] = ['BasisWorkspace', 'Classifier', 'MODEL_FORMAT_VERSION', 'Model', 'ModelFormatError', 'PatternBases', 'SkinEngine', 'StreamClassifier', 'TouchDetector', 'WINDOW_CONFIG_FIELDS', 'compute_pattern_bases', 'default_threads', 'detect_windows', 'full_alphas', 'half_alphas', 'mode_distances', 'model_overlap_kernel', 'model_pattern_bases', 'preprocess', 'protocol', 'serial', 'subsample_indices', 'tensor_kernel', 'tensor_kernel_isa', 'unfold', 'window_config_defaults', 'window_config_resolve']
 class PatternBases:
     """
     Per-pattern, per-mode subspace bases of a set of tensor patterns
@@ -171,6 +171,46 @@ class StreamClassifier:
     @property
     def samples_seen(self) -> int:
         ...
+class SkinEngine:
+    """
+    Many patches, one host: per-patch detectors over shared models.
+    """
+    def __init__(self, models: list, patch_model: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n_patches: typing.SupportsInt | typing.SupportsIndex, position_dims: typing.SupportsInt | typing.SupportsIndex, positions: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], adjacency: collections.abc.Sequence[typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(2)"]], chunk_samples: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+    def flush(self) -> dict:
+        ...
+    def in_touch(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> bool:
+        ...
+    def patch_model(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+        ...
+    def patch_taxels(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+        ...
+    def push(self, patch: typing.SupportsInt | typing.SupportsIndex, samples: typing.Annotated[numpy.typing.ArrayLike, numpy.int16]) -> dict:
+        """
+        Samples (n, taxels) int16 of one patch; returns the decisions as columns.
+        """
+    def push_interleaved(self, block: typing.Annotated[numpy.typing.ArrayLike, numpy.int16]) -> dict:
+        """
+        Samples (n, total_taxels) int16 of every patch, patch after patch in each row.
+        """
+    def reset(self) -> None:
+        ...
+    def samples_seen(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+        ...
+    def taxel_offset(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+        ...
+    @property
+    def bytes_per_patch(self) -> int:
+        ...
+    @property
+    def dropped(self) -> int:
+        ...
+    @property
+    def n_patches(self) -> int:
+        ...
+    @property
+    def total_taxels(self) -> int:
+        ...
 def compute_pattern_bases(X: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], alphas: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n_threads: typing.SupportsInt | typing.SupportsIndex = 0) -> PatternBases:
     ...
 def default_threads() -> int:
@@ -205,8 +245,8 @@ def window_config_defaults() -> numpy.typing.NDArray[numpy.float64]:
     ...
 def window_config_resolve(config: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], sample_rate_hz: typing.SupportsFloat | typing.SupportsIndex) -> dict:
     ...
-MODEL_FORMAT_VERSION: int = 2
-WINDOW_CONFIG_FIELDS: list = ['frame_s', 'dc_cutoff_hz', 'combine', 'noise_window_s', 'noise_quantile', 'warmup_s', 'min_noise_energy', 'on_factor', 'off_factor', 'release_fraction', 'lookback_s', 'hold_s', 'min_duration_s', 'pad_before_s', 'pad_after_s', 'max_window_s', 'select', 'span_fraction', 'fallback']
+MODEL_FORMAT_VERSION: int = 4
+WINDOW_CONFIG_FIELDS: list = ['frame_s', 'dc_cutoff_hz', 'combine', 'noise_window_s', 'noise_quantile', 'warmup_s', 'min_noise_energy', 'on_factor', 'off_factor', 'release_fraction', 'lookback_s', 'hold_s', 'min_duration_s', 'pad_before_s', 'pad_after_s', 'max_window_s', 'select', 'span_fraction', 'fallback', 'window_samples']
 __version__: str = '0.1.0'
 
 protocol: typing.Any

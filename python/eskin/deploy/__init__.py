@@ -1,6 +1,7 @@
 """The deployment layer: the ``.eskin`` model file and the C header for the controller, and
 the compiled model (the C++ stream classifier) that runs them, and the controller targets a model
-must fit (flash and RAM, :mod:`eskin.deploy.target`). Builds on eskin.learn.
+must fit (flash and RAM, :mod:`eskin.deploy.target`), and the engine that runs many patches of a
+skin on one host (:mod:`eskin.deploy.skin_engine`). Builds on eskin.learn.
 
 Importing this package registers the ``.eskin`` suffix with the model files of
 :mod:`eskin.learn.models`, so that :func:`save_model` / :func:`load_model` (re-exported here)
@@ -26,6 +27,7 @@ from .export import (
     spec_from_model,
     write_c_header,
 )
+from .skin_engine import SkinDecision, SkinEngine
 from .target import TARGETS, DeviceBudget, Target, device_budget
 
 __all__ = [
@@ -39,6 +41,8 @@ __all__ = [
     "MachineSpec",
     "ModelFormatError",
     "ModelSpec",
+    "SkinDecision",
+    "SkinEngine",
     "Target",
     "compiled_engine",
     "device_budget",
