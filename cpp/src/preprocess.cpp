@@ -372,7 +372,13 @@ template Status subsample_window<double>(const double*, int64_t, int64_t, int64_
 
 TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
                              SampleStore store)
-    : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels), mode_(store),
+    : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels),
+#if defined(ESKIN_DEVICE)
+      // a controller's native store holds the int16 codes already (and one patch)
+      mode_(store == SampleStore::kCodes ? SampleStore::kNative : store),
+#else
+      mode_(store),
+#endif
       store_(store != SampleStore::kNone) {
   if (n_taxels < 1) {
     detail::raise<std::invalid_argument>("n_taxels = " + std::to_string(n_taxels) + ": must be >= 1");
@@ -396,7 +402,9 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
   if (mode_ == SampleStore::kNative) {
     ring_.assign(static_cast<std::size_t>(ring_cap_ * n_taxels), StoredSample{});
     window_.assign(static_cast<std::size_t>(p_.window_capacity * n_taxels), StoredSample{});
-  } else if (mode_ == SampleStore::kCodes) {
+  }
+#if !defined(ESKIN_DEVICE)
+  if (mode_ == SampleStore::kCodes) {
     // Once a touch has ended (at sample F), the next touch's window starts at or after
     // stop - pad_before (its onset backtracking stops at stop), and stop is pad_after after the
     // last loud frame, F the quiet frames after it (hold_s, at least one frame, at least
@@ -413,6 +421,7 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
     const int64_t slots = cap + recent_cap_;
     pool_.assign(static_cast<std::size_t>(slots * n_taxels), int16_t{0});
   }
+#endif
   reset();
 }
 
@@ -424,6 +433,7 @@ int64_t TouchDetector::memory_bytes() const noexcept {
          bytes(noise_sorted_) + bytes(frame_ring_) + bytes(ring_) + bytes(window_) + bytes(pool_);
 }
 
+#if !defined(ESKIN_DEVICE)
 const int16_t* TouchDetector::code_slot(int64_t t) const noexcept {
   const int64_t slot = t >= now_ - recent_cap_ ? p_.window_capacity + t % recent_cap_
                                                : old_at_ + t % old_cap_;
@@ -442,6 +452,7 @@ void TouchDetector::store_code(const T* x, int64_t taxel_stride) noexcept {
   for (int64_t k = 0; k < K; ++k) r[k] = to_code(x[k * taxel_stride]);
   if (state_ == State::kActive) keep(pool, static_cast<const int16_t*>(r));
 }
+#endif
 
 void TouchDetector::reset() noexcept {
   std::fill(dc_mean_.begin(), dc_mean_.end(), 0.0);
@@ -474,9 +485,10 @@ Status TouchDetector::step(const T* x, int64_t taxel_stride) noexcept {
     StoredSample* r = ring_.data() + (now_ % ring_cap_) * K;
     for (int64_t k = 0; k < K; ++k) r[k] = to_stored(x[k * taxel_stride]);
     if (state_ == State::kActive) keep(window_.data(), static_cast<const StoredSample*>(r));
-  } else if (mode_ == SampleStore::kCodes) {
-    store_code(x, taxel_stride);
   }
+#if !defined(ESKIN_DEVICE)
+  if (mode_ == SampleStore::kCodes) store_code(x, taxel_stride);
+#endif
   double* __restrict acc = acc_.data();
   if (p_.dc_alpha > 0) {
     // DC blocker: an exponential mean with a fast start (the plain running mean while that is
@@ -614,10 +626,13 @@ Status TouchDetector::on_frame() noexcept {
           if (store_) {
             window_len_ = window_kept_ = 0;
             window_stride_ = 1;
+#if !defined(ESKIN_DEVICE)
             if (mode_ == SampleStore::kCodes) {
               // oldest first: the older part's samples go to window slots below old_at_
               for (int64_t t = start_; t < now_; ++t) keep(pool_.data(), code_slot(t));
-            } else {
+            } else  // the native store:
+#endif
+            {
               for (int64_t t = start_; t < now_; ++t)
                 keep(window_.data(),
                      static_cast<const StoredSample*>(ring_.data() + (t % ring_cap_) * n_taxels_));
@@ -688,10 +703,12 @@ int64_t TouchDetector::last_window_length() const noexcept {
 
 Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
                                             ShortPolicy short_policy, double* out) const noexcept {
+#if !defined(ESKIN_DEVICE)
   if (mode_ == SampleStore::kCodes && window_valid_) {
     return subsample_window(pool_.data(), n_taxels_, 1, n_taxels_, last_window_length(), D,
                             method, short_policy, out, last_.stride);
   }
+#endif
   const StoredSample* data = last_window_data();
   if (data == nullptr) return Status::kNoWindow;
   return subsample_window(data, n_taxels_, 1, n_taxels_, last_window_length(), D, method,

@@ -186,7 +186,8 @@ enum class SampleStore : int32_t {
                 // next touch can still reach once this one has ended (pad_before + hold), and
                 // the older part of the pre-onset ring, kept only between touches, in the
                 // window buffer's free end (docs/skin-engine.md, "Memory"); the last window is
-                // readable until the next push
+                // readable until the next push. On a controller (ESKIN_DEVICE) it is kNative,
+                // whose StoredSample is the int16 code already
 };
 
 // The streaming detector. Feed it one multi-taxel sample at a time (push) or a block of
