@@ -166,8 +166,11 @@ def _folds(y: np.ndarray, groups: np.ndarray | None, n_folds: int, seed: int,
 
 
 def _fold_values(machines: list[Any], X: np.ndarray, targets: np.ndarray,
-                 subsets: list[np.ndarray], tr: np.ndarray, te: np.ndarray) -> np.ndarray:
-    """Decision values on ``te`` of every machine retrained on ``tr`` (and its subset)."""
+                 subsets: list[np.ndarray], tr: np.ndarray, te: np.ndarray,
+                 shared: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Decision values on ``te`` of every machine retrained on ``tr`` (and its subset).
+    ``shared``: (the per-mode distances of all of ``X``, their log energies) when the machines
+    are kernel machines of one alpha: each slices them instead of computing its own."""
     from sklearn.base import clone
 
     out = np.empty((len(te), len(machines)))
@@ -175,9 +178,28 @@ def _fold_values(machines: list[Any], X: np.ndarray, targets: np.ndarray,
         trk = np.intersect1d(tr, subsets[k], assume_unique=True)
         if np.unique(targets[trk, k]).size < 2:  # a small balanced subset: the fold's whole part
             trk = tr
-        fitted = clone(m).fit(X[trk], targets[trk, k])
-        out[:, k] = np.asarray(fitted.decision_function(X[te]), dtype=np.float64).reshape(-1)
+        if shared is None:
+            fitted = clone(m).fit(X[trk], targets[trk, k])
+            values = fitted.decision_function(X[te])
+        else:
+            d, e = shared
+            fitted = clone(m)._fit(X[trk], targets[trk, k], d[:, trk][:, :, trk], e[trk])
+            sv = trk[fitted.support_]
+            values = fitted._decision_from(d[:, te][:, :, sv], e[te])
+        out[:, k] = np.asarray(values, dtype=np.float64).reshape(-1)
     return out
+
+
+def _shared(machines: list[Any], X: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(per-mode distances of all of ``X``, log energies) for kernel machines of one alpha
+    (computed once for every fold and machine), else None."""
+    from eskin.learn.estimators import _shared_distances, _TensorKernelMachine
+
+    if not all(isinstance(m, _TensorKernelMachine) for m in machines):
+        return None
+    if len({tuple(m.alphas_) for m in machines}) != 1:
+        return None
+    return _shared_distances(machines[0], X)
 
 
 def out_of_fold_values(
@@ -202,7 +224,8 @@ def out_of_fold_values(
     subsets = ([np.arange(len(y))] * len(machines) if machine_indices is None
                else [np.asarray(ix, dtype=np.intp) for ix in machine_indices])
     folds = _folds(y, groups, n_folds, seed, [] if notes is None else notes)
-    calls = [((machines, X, targets, subsets, tr, te), {}) for tr, te in folds]
+    shared = _shared(machines, np.asarray(X, dtype=np.float64))
+    calls = [((machines, X, targets, subsets, tr, te, shared), {}) for tr, te in folds]
     F = np.empty((len(y), len(machines)))
     for (_, te), values in zip(folds, run_calls(_fold_values, calls, n_jobs=n_jobs)):
         F[te] = values

@@ -257,25 +257,34 @@ class _TensorKernelMachine(ClassifierMixin, BaseEstimator):
         tags.input_tags.three_d_array = True
         return tags
 
-    def _kernel_setup(self, X):
+    def _kernel_setup(self, X, distances=None, energies=None):
         """(training Gram matrix, the training patterns' log energies); sets the kernel's
-        fitted settings."""
+        fitted settings. ``distances``/``energies``: the patterns' per-mode distances (at this
+        machine's alphas) and log energies when already computed (the machines of a
+        :class:`OneVsAllTouchClassifier` share them)."""
         self.tensor_shape_ = tuple(X.shape[1:])
         self.alphas_ = tuple(int(a) for a in resolve_alphas(self.tensor_shape_, self.alpha))
         self.sigmas_ = sigma_tuple(self.sigma, len(self.tensor_shape_))
-        energies = pattern_log_energy(X)
+        if energies is None:
+            energies = pattern_log_energy(X)
         self.amplitude_width_ = amplitude_width(self.amplitude, energies)
-        K = kernel_from_distances(mode_distances(X, alpha=self.alphas_), self.sigmas_)
+        if distances is None:
+            distances = mode_distances(X, alpha=self.alphas_)
+        K = kernel_from_distances(distances, self.sigmas_)
         factor = amplitude_factor(energies, energies, self.amplitude_width_)
         return (K if factor is None else K * factor), energies
 
     def fit(self, X, y):
         """Fit on tensors ``X`` (n, *shape) (or 2-D with ``tensor_shape``) and 2-class ``y``."""
+        return self._fit(X, y)
+
+    def _fit(self, X, y, distances=None, energies=None):
+        """:meth:`fit`, with the patterns' distances and log energies when already known."""
         X, y = _validate_fit(self, X, y)
         self.classes_, y_pm = binary_targets(y, type(self).__name__)
         self._check_regulariser()
         check_amplitude(self.amplitude)
-        K, energies = self._kernel_setup(X)
+        K, energies = self._kernel_setup(X, distances, energies)
         beta, intercept, support = self._train(K, y_pm)
         self.support_ = np.asarray(support, dtype=np.intp)
         self.support_vectors_ = np.ascontiguousarray(X[self.support_])
@@ -291,10 +300,17 @@ class _TensorKernelMachine(ClassifierMixin, BaseEstimator):
         if self.dual_coef_.size == 0:
             return np.full(X.shape[0], self.intercept_)
         d = mode_distances(X, self.support_vectors_, alpha=self.alphas_)
-        K = kernel_from_distances(d, self.sigmas_)
+        return self._decision_from(d, pattern_log_energy(X))
+
+    def _decision_from(self, distances, energies):
+        """Decision values from the per-mode distances of the patterns to the support vectors
+        (n_modes, n, n_support) and the patterns' log energies."""
+        if self.dual_coef_.size == 0:
+            return np.full(distances.shape[1], self.intercept_)
+        K = kernel_from_distances(distances, self.sigmas_)
         width = getattr(self, "amplitude_width_", 0.0)  # 0 in models pickled before the factor
         if width > 0:
-            K *= amplitude_factor(pattern_log_energy(X), self.sv_log_energy_, width)
+            K *= amplitude_factor(energies, self.sv_log_energy_, width)
         return K @ self.dual_coef_ + self.intercept_
 
     def predict(self, X):
@@ -714,11 +730,28 @@ def one_vs_all_rule(decision_values: np.ndarray):
     return index, n_claims, n_claims != 1
 
 
-def _fit_machine(estimator, X, y_pm, groups=None):
+def _fit_machine(estimator, X, y_pm, groups=None, shared=None):
+    """A fitted clone of ``estimator`` on (X, y_pm); ``shared``: (the distances of every
+    pattern of the classifier, their log energies, this machine's indices) for a kernel
+    machine, which slices them instead of computing its own."""
     est = clone(estimator)
+    if shared is not None:
+        dists, energies, ix = shared
+        return est._fit(X, y_pm, dists[:, ix][:, :, ix], energies[ix])
     if groups is not None and "groups" in inspect.signature(est.fit).parameters:
         return est.fit(X, y_pm, groups=groups)  # a search that splits by group
     return est.fit(X, y_pm)
+
+
+def _shared_distances(estimator, X):
+    """(per-mode distances of all of ``X``, their log energies) for the machines of a
+    one-vs-all classifier of kernel machines, computed once for all of them (each machine's
+    are a slice); None for a search (it computes its own)."""
+    if not isinstance(estimator, _TensorKernelMachine):
+        return None
+    X = as_tensors(np.asarray(X, dtype=np.float64), estimator.tensor_shape)
+    alphas = tuple(int(a) for a in resolve_alphas(tuple(X.shape[1:]), estimator.alpha))
+    return mode_distances(X, alpha=alphas), pattern_log_energy(X)
 
 
 class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
@@ -780,6 +813,7 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
             subsets = [np.asarray(ix, dtype=np.intp) for ix in machine_indices]
         if groups is not None and len(groups) != len(y):
             raise ValueError(f"groups has {len(groups)} entries for {len(y)} patterns")
+        shared = _shared_distances(estimator, X)
         fitted = list(
             run_calls(
                 _fit_machine,
@@ -790,6 +824,7 @@ class OneVsAllTouchClassifier(ClassifierMixin, BaseEstimator):
                             X[ix],
                             np.where(y[ix] == c, 1, -1),
                             None if groups is None else np.asarray(groups)[ix],
+                            None if shared is None else (*shared, ix),
                         ),
                         {},
                     )

@@ -385,3 +385,23 @@ def test_patterns_of_another_order_are_named_as_such(make):
     with pytest.raises(ValueError, match=r"one pattern needs the batch axis: X\[np.newaxis\]"):
         est.predict(X[0])
     assert est.predict(X[:1]).shape == (1,)
+
+
+def test_one_vs_all_kernel_machines_share_the_distances_and_equal_machines_fitted_alone():
+    """The 1-vs-all classifier computes the patterns' distances once and each kernel machine
+    slices its own: the machines are those fitted alone on their patterns."""
+    from eskin.learn.recipes import one_vs_all_indices
+
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(30, 3, 4, 6))
+    y = np.repeat([0, 1, 2], 10)
+    indices = one_vs_all_indices(y, 3, "balanced", 1)
+    est = TensorSVC(C=10.0, sigma=2.0, alpha="half", amplitude=1.0)
+    ova = OneVsAllTouchClassifier(est).fit(X, y, machine_indices=indices)
+    for k, ix in enumerate(indices):
+        alone = TensorSVC(C=10.0, sigma=2.0, alpha="half", amplitude=1.0).fit(
+            X[ix], np.where(y[ix] == k, 1, -1))
+        np.testing.assert_array_equal(ova.estimators_[k].support_, alone.support_)
+        np.testing.assert_allclose(ova.estimators_[k].dual_coef_, alone.dual_coef_,
+                                   rtol=1e-9, atol=1e-12)
+        assert ova.estimators_[k].amplitude_width_ == alone.amplitude_width_
