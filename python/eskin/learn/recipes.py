@@ -253,6 +253,28 @@ def _predict(F: np.ndarray, n_classes: int) -> np.ndarray:
     return one_vs_all_rule(F)[0]
 
 
+def _split_machines(
+    y: np.ndarray, n_classes: int, negatives: Sequence[str], splits: list, split_ids: list[int],
+    seed: int,
+) -> dict[tuple[str, int], list[np.ndarray]]:
+    """{(negatives, split id): the training indices of each machine on that split}, each drawn
+    once for a task (the machines' subsets as eskin.train_model draws them, cut to the split's
+    training part). With every negative the machines share one array (the same object), so
+    their Gram blocks are sliced once."""
+    out: dict[tuple[str, int], list[np.ndarray]] = {}
+    for neg in sorted(set(negatives)):
+        subsets = _machine_subsets(y, n_classes, neg, seed)
+        for s in split_ids:
+            tr = splits[s][0]
+            if neg == "all":
+                out[(neg, s)] = [tr] * len(subsets)
+            else:
+                mask = np.zeros(len(y), bool)
+                mask[tr] = True
+                out[(neg, s)] = [sub[mask[sub]] for sub in subsets]
+    return out
+
+
 def _score_task(
     dist_sum: np.ndarray,
     energies: np.ndarray,
@@ -264,48 +286,93 @@ def _score_task(
     seed: int,
 ) -> dict[tuple[Candidate, int], tuple[float, int, bool]]:
     """{(candidate, split id): (multi-class held-out error, support vectors of its machines
-    together, whether a machine's kernel collapsed)} for candidates sharing one (D, subsampling, alpha), from the patterns' per-mode
-    distances summed over the modes and their log energies."""
+    together, whether a machine's kernel collapsed)} for candidates sharing one (D,
+    subsampling, alpha), from the patterns' per-mode distances summed over the modes and their
+    log energies. The machines' index sets are drawn once per task, the Gram blocks of a split
+    sliced once per kernel and shared by the recipes whose machines train on them."""
     import scipy.linalg
 
-    from eskin.learn.estimators import amplitude_factor, amplitude_width, svm_train
+    from eskin.learn.estimators import svm_train
     from eskin.learn.selection import _single_threaded_blas
 
-    out: dict[tuple[Candidate, int], tuple[float, int]] = {}
+    out: dict[tuple[Candidate, int], tuple[float, int, bool]] = {}
     with _single_threaded_blas():
         Y = _binary_targets(y, n_classes)
+        trains = _split_machines(y, n_classes, [c.recipe.negatives for c in candidates], splits,
+                                 split_ids, seed)
+        blocks = _SplitBlocks(dist_sum, energies, trains, splits)
         by_kernel: dict[tuple[float, float | None], list[Candidate]] = {}
         for c in candidates:
             by_kernel.setdefault((c.sigma, c.amplitude), []).append(c)
-        factors: dict[float, np.ndarray] = {}
         for (sigma, amp), cands in sorted(by_kernel.items(), key=lambda kv: (kv[0][0],
                                                                              kv[0][1] or 0)):
-            K = np.exp(dist_sum * (-0.5 / (sigma * sigma)))
-            if amp is not None:
-                if amp not in factors:
-                    factors[amp] = amplitude_factor(energies, energies,
-                                                    amplitude_width(amp, energies))
-                K *= factors[amp]
+            grams: dict[tuple[str, int], list] = {}
             for recipe in sorted({c.recipe for c in cands}):
                 mine = [c for c in cands if c.recipe == recipe]
-                subsets = _machine_subsets(y, n_classes, recipe.negatives, seed)
                 for s in split_ids:
-                    tr, te = splits[s]
-                    res = _score_split(K, Y, y, n_classes, recipe, mine, subsets, tr, te,
+                    key = (recipe.negatives, s)
+                    if key not in grams:
+                        grams[key] = blocks.grams(key, sigma, amp)
+                    res = _score_split(grams[key], Y, y, n_classes, recipe, mine, splits[s],
                                        svm_train, scipy.linalg)
                     for c, r in zip(mine, res):
                         out[(c, s)] = r
     return out
 
 
-def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, linalg):
+class _SplitBlocks:
+    """The blocks of the patterns' summed distances (and of the amplitude factors) that each
+    split's machines train and predict on, sliced once per task: a kernel is then the
+    exponential of these blocks, not of the whole matrix. Machines given the same index array
+    share their blocks (the same objects)."""
+
+    def __init__(self, dist_sum: np.ndarray, energies: np.ndarray,
+                 trains: Mapping[tuple[str, int], list[np.ndarray]], splits: list) -> None:
+        self.dist_sum, self.energies, self.trains, self.splits = dist_sum, energies, trains, splits
+        self._cut: dict[tuple, list[tuple]] = {}
+        self._factors: dict[float, np.ndarray] = {}
+
+    def _sliced(self, M: np.ndarray, key: tuple[str, int], name: Any) -> list[tuple]:
+        """(indices, M[train, train], M[held-out, train]) of each machine of ``key``."""
+        if (name, key) not in self._cut:
+            te = self.splits[key[1]][1]
+            made: dict[int, tuple] = {}
+            for trk in self.trains[key]:
+                if id(trk) not in made:
+                    made[id(trk)] = (trk, M[np.ix_(trk, trk)], M[np.ix_(te, trk)])
+            self._cut[(name, key)] = [made[id(trk)] for trk in self.trains[key]]
+        return self._cut[(name, key)]
+
+    def grams(self, key: tuple[str, int], sigma: float, amp: float | None) -> list[tuple]:
+        """(training indices, training Gram block, held-out-by-training block) per machine."""
+        from eskin.learn.estimators import amplitude_factor, amplitude_width
+
+        g = -0.5 / (sigma * sigma)
+        dist = self._sliced(self.dist_sum, key, "distances")
+        if amp is None:
+            factor = [(None, 1.0, 1.0)] * len(dist)
+        else:
+            if amp not in self._factors:
+                e = self.energies
+                self._factors[amp] = amplitude_factor(e, e, amplitude_width(amp, e))
+            factor = self._sliced(self._factors[amp], key, amp)
+        made: dict[int, tuple] = {}
+        out = []
+        for (trk, Dtr, Dte), (_, Ftr, Fte) in zip(dist, factor):
+            if id(trk) not in made:
+                made[id(trk)] = (trk, np.exp(Dtr * g) * Ftr, np.exp(Dte * g) * Fte)
+            out.append(made[id(trk)])
+        return out
+
+
+def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linalg):
     """(error, support vectors, whether a machine collapsed) of each candidate of one recipe
-    and kernel on one split."""
-    trains = [np.intersect1d(tr, sub, assume_unique=True) for sub in subsets]
+    and kernel on one split, from its machines' Gram blocks (:func:`_gram_blocks`)."""
+    tr, te = split
     results = []
     if recipe.machine == "rls" and recipe.negatives == "all":
         # the machines share their training set: one factorisation per lambda for all of them
-        Ktr, Kte = K[np.ix_(tr, tr)], K[np.ix_(te, tr)]
+        _, Ktr, Kte = blocks[0]
         for c in cands:
             A = Ktr + c.lam * np.eye(len(tr))
             B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=False),
@@ -314,8 +381,14 @@ def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, 
             results.append((float(np.mean(_predict(F, n_classes) != y[te])), len(tr),
                             collapsed(F, np.zeros(F.shape[1]))))
         return results
-    blocks = [(trk, K[np.ix_(trk, trk)], K[np.ix_(te, trk)]) for trk in trains]
-    for c in cands:
+    # a C-SVM solution none of whose dual coefficients sits at the box bound C is also the
+    # solution for every larger C (its optimality conditions do not involve C): the candidates
+    # are fitted by increasing C and such a machine stands for the larger C's
+    free: list[tuple | None] = [None] * len(blocks)
+    by_C = sorted(range(len(cands)), key=lambda i: (-cands[i].lam, i))
+    results: list[tuple | None] = [None] * len(cands)
+    for i in by_C:
+        c = cands[i]
         F = np.empty((len(te), Y.shape[1]))
         b0 = np.zeros(Y.shape[1])
         used = np.zeros(len(y), bool)
@@ -325,13 +398,17 @@ def _score_split(K, Y, y, n_classes, recipe, cands, subsets, tr, te, svm_train, 
                 beta = linalg.solve(Ktr + c.lam * np.eye(len(trk)), yk, assume_a="pos",
                                     check_finite=False)
                 b, support = 0.0, np.arange(len(trk))
+            elif free[k] is not None:
+                beta, b, support = free[k]
             else:
                 beta, b, support = svm_train(Ktr, yk, 1.0 / c.lam)
+                if len(support) and np.max(np.abs(beta[support])) < 1.0 / c.lam:
+                    free[k] = (beta, b, support)
             F[:, k] = Kte[:, support] @ beta[support] + b
             b0[k] = b
             used[trk[support]] = True
-        results.append((float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum()),
-                        collapsed(F, b0)))
+        results[i] = (float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum()),
+                      collapsed(F, b0))
     return results
 
 
@@ -354,6 +431,10 @@ class CandidateBudget:
     #: ``keep_share`` of them.
     largest: Callable[[Candidate, int], int] | None = None
     keep_share: float = 0.5
+    #: whether the budget trades D against alpha and the support vectors (a controller's:
+    #: the order of preference then leaves D out, :func:`budget_preference`); False (the host
+    #: budget of :mod:`eskin.learn.host_budget`) keeps :func:`recipe_preference`
+    trades_D: bool = True
 
 
 @dataclass
@@ -643,7 +724,9 @@ class RecipeSearch:
 
     def _preference_key(self) -> Callable[[Recipe], tuple]:
         """:func:`recipe_preference`, or :func:`budget_preference` under a budget."""
-        return recipe_preference if self.budget is None else budget_preference
+        if self.budget is None or not self.budget.trades_D:
+            return recipe_preference
+        return budget_preference
 
     def _expected_support(self, row: _Row, n: int) -> int:
         """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
