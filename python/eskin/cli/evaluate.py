@@ -20,7 +20,10 @@ from eskin.cli.learn import (
     Selection,
     Subsample,
     Window,
+    DECISION_US_DEFAULT,
+    DECISION_US_HELP,
     _amplitudes,
+    _decision_us,
     _detector,
     _fail,
     _patch_campaign,
@@ -67,6 +70,8 @@ def evaluate(
     max_support: int | None = typer.Option(
         None, "--max-support", min=1, help="at most this many support vectors in each fold's "
         "model (as eskin train --max-support)"),
+    decision_us: float = typer.Option(
+        DECISION_US_DEFAULT, "--decision-us", min=0.0, help=DECISION_US_HELP),
     live: bool = typer.Option(
         True, "--live/--no-live", help="also play each fold's held-out recordings as one "
         "stream through its compiled stream classifier and score the live decisions"),
@@ -110,6 +115,7 @@ def evaluate(
     }
     recipe = _recipe_of(given, quick, amplitude, max_support)
     recipe.update(_detector(max_window, window_samples, hold, on_factor, off_factor))
+    recipe.update(_decision_us(decision_us))
     if reject is not None:
         recipe["reject"] = reject
     if decision is not None:

@@ -53,6 +53,18 @@ NEGATIVES_HELP = (
 
 SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
 
+#: --decision-us's default (eskin.learn.host_budget.HOST_DECISION_US, without importing it)
+DECISION_US_DEFAULT = 100.0
+DECISION_US_HELP = (
+    "without --target/--budget: the searched model's estimated decision time on this host is "
+    "at most this many microseconds (its support vectors bounded; docs/learning.md); 0: no "
+    "bound")
+
+
+def _decision_us(value: float) -> dict[str, Any]:
+    """train_model's ``decision_us`` for --decision-us (0: None, no bound)."""
+    return {"decision_us": float(value) if value > 0 else None}
+
 
 def _training_set_notes(campaign: Path, D: Optional[int], selection: str) -> list[str]:
     """Refuse a D no recording can fill; notes on a D far above the paper's and on a campaign
@@ -432,6 +444,8 @@ def train(
     budget: Optional[str] = typer.Option(
         None, help="the model's budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides "
         "--target's figures)"),
+    decision_us: float = typer.Option(
+        DECISION_US_DEFAULT, "--decision-us", min=0.0, help=DECISION_US_HELP),
     max_support: Optional[int] = typer.Option(
         None, "--max-support", min=1,
         help="at most this many support vectors in the model (all machines together), chosen "
@@ -478,7 +492,7 @@ def train(
                          on_factor=on_factor, off_factor=off_factor),
         "quick": quick, "seed": seed, "n_jobs": -1 if scheduler else n_jobs, "group_by": groups,
         **amplitudes, **({} if max_support is None else {"max_support": max_support}),
-        "decision": decision.value, "reject": reject,
+        "decision": decision.value, "reject": reject, **_decision_us(decision_us),
     }
     the_budget = None
     if target is not None or budget is not None:

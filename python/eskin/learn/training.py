@@ -18,6 +18,7 @@ import numpy as np
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import TrainingError
 from eskin.learn.calibration import DEFAULT_REJECT
+from eskin.learn.host_budget import HOST_DECISION_US
 from eskin.learn.grids import (
     DEFAULT_AMPLITUDES,
     DEFAULT_D,
@@ -334,6 +335,7 @@ def train_model(
     n_jobs: int = 1,
     group_by: str = "participant",
     budget: Any = None,
+    decision_us: float | None = HOST_DECISION_US,
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
     choose_hold: bool = True,
@@ -367,6 +369,10 @@ def train_model(
         "direction" or an integer extra field.
     budget : a :class:`~eskin.learn.recipes.CandidateBudget`
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
+    decision_us : without ``budget``, the searched model's decision on this host is estimated
+        to take at most this many microseconds (:mod:`eskin.learn.host_budget`: its support
+        vectors are bounded, the search's order of preference kept); None: no bound. Only the
+        searched recipe is bounded (all four of machine, D, subsample, negatives given: not).
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_support : at most this many distinct support vectors in the model (all machines
         together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.
@@ -393,7 +399,7 @@ def train_model(
                   rule=_checked_rule(decision, reject))
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
-                               recipe_options=recipe_options)
+                               decision_us=decision_us, recipe_options=recipe_options)
     if budget is not None:
         raise TrainingError("a budget needs the recipe searched (selection cv, and at least one "
                             "of machine, D, subsample, negatives left to the search)")
@@ -537,8 +543,8 @@ def _train_searched(
     amplitudes: Sequence[float | None], quick: bool, cv_options: Mapping[str, Any] | None,
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
-    recipe_options: Mapping[str, Any] | None, max_support: int | None, choose_hold: bool,
-    rule: tuple[str, float],
+    decision_us: float | None, recipe_options: Mapping[str, Any] | None,
+    max_support: int | None, choose_hold: bool, rule: tuple[str, float],
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import MACHINES as R_MACHINES
@@ -567,6 +573,10 @@ def _train_searched(
                **dict(recipe_options or {})}
     groups, group_notes = cv_groups("cv", groups, group_by)
     notes += group_notes
+    if budget is None and decision_us is not None:
+        from eskin.learn.host_budget import host_budget
+
+        budget = host_budget(next(iter(prep.X.values())).shape[1:3], decision_us)
 
     def run(g: np.ndarray | None) -> RecipeSearch:
         return RecipeSearch(recipes, base.lambdas, base.sigmas, base.alphas, base.amplitudes,

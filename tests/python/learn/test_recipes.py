@@ -318,6 +318,34 @@ def test_train_model_searches_unset_parts_and_stores_the_choice(sim_path):
     assert "recipe_search" not in fixed.training
 
 
+def test_the_search_on_a_local_pool_matches_the_serial_run(sim_path):
+    """Two joblib (loky) worker processes: the same candidates scored, the same recipe chosen,
+    the same machines and decision values."""
+    kw = {"D": 20, "quick": True, "seed": 3}
+    serial = train_model(sim_path, n_jobs=1, **kw)
+    pooled = train_model(sim_path, n_jobs=2, **kw)
+    a, b = serial.training["recipe_search"], pooled.training["recipe_search"]
+    a.pop("seconds"), b.pop("seconds")
+    assert a == b and a["evaluations"] > 0
+    assert serial.selected == pooled.selected
+    from eskin.data.campaign import load_campaign
+
+    X = serial.preprocess(load_campaign(sim_path, in_memory=True))
+    np.testing.assert_array_equal(serial.decision_function(X), pooled.decision_function(X))
+
+
+def test_by_default_the_host_budget_bounds_the_searched_model(sim_path):
+    """The default search runs under the host budget (its description in the report); a
+    budget too small for any support vector fails with the budget named."""
+    m = train_model(sim_path, D=20, quick=True, seed=2)
+    assert m.training["recipe_search"]["budget"].startswith("host: decision at most 100 us")
+    free = train_model(sim_path, D=20, quick=True, seed=2, decision_us=None)
+    assert free.training["recipe_search"]["budget"] is None
+    with pytest.raises(TrainingError, match="no candidate fits the budget .host: decision at "
+                                            "most 0.001 us"):
+        train_model(sim_path, D=20, quick=True, seed=2, decision_us=0.001)
+
+
 def test_cli_train_takes_every_class_and_prints_the_choice(sim_path, tmp_path):
     out = tmp_path / "m.joblib"
     r = runner.invoke(app, ["train", str(sim_path), "--quick", "--D", "20", "-o", str(out),

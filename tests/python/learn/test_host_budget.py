@@ -1,0 +1,55 @@
+"""The host budget (eskin.learn.host_budget): the estimated decision cost of a model on the
+host, and the recipe search's budget that bounds it by default."""
+
+from __future__ import annotations
+
+import pytest
+
+from eskin.errors import TrainingError
+from eskin.learn.host_budget import (
+    HOST_NS_PER_ENTRY,
+    HOST_NS_PER_MAC,
+    HOST_NS_PER_SV,
+    host_budget,
+    host_decision_us,
+    overlap_macs,
+)
+from eskin.learn.recipes import Candidate, Recipe
+
+
+def test_overlap_macs_counts_N_alpha_squared_per_mode_and_nothing_for_a_full_rank_mode():
+    # 4x4xD=100: N = (400, 400, 16); alpha Q = (4, 4, 16): the third mode spans all of R^16
+    assert overlap_macs((4, 4), 100, (4, 4, 16)) == 400 * 16 * 2
+    assert overlap_macs((4, 4), 100, (2, 2, 8)) == 400 * 4 * 2 + 16 * 64
+    assert overlap_macs((4, 4), 100, (1, 1, 1)) == 400 + 400 + 16
+    assert overlap_macs((1, 4), 20, (1, 4, 4)) == 80 * 1 + 20 * 16 + 0  # N = (80, 20, 4)
+
+
+def test_host_decision_us_is_the_bases_plus_the_support_vectors_overlaps():
+    base = 4 * 4 * 100 * HOST_NS_PER_ENTRY / 1e3
+    assert host_decision_us((4, 4), 100, (2, 2, 8), 0) == pytest.approx(base)
+    per_sv = ((400 * 4 * 2 + 16 * 64) * HOST_NS_PER_MAC + HOST_NS_PER_SV) / 1e3
+    assert host_decision_us((4, 4), 100, (2, 2, 8), 50) == pytest.approx(base + 50 * per_sv)
+
+
+def _candidate(D: int, alpha: str) -> Candidate:
+    return Candidate(Recipe("svm", D, "algorithm2", "all"), 0.1, 1.0, alpha, None)
+
+
+def test_the_budget_keeps_what_fits_and_bounds_the_rest_to_the_most_that_fit():
+    budget = host_budget((4, 4), 100.0)
+    assert not budget.trades_D  # the search keeps its order of preference (larger D first)
+    c = _candidate(100, "Q")
+    most = budget.largest(c, 10_000)
+    assert 0 < most < 10_000
+    assert budget.fits(c, most) and not budget.fits(c, most + 1)
+    assert host_decision_us((4, 4), 100, (4, 4, 16), most) <= 100.0
+    assert budget.largest(c, most - 3) == most - 3  # fits as it is
+    # alpha 1 costs far less per support vector than alpha Q: many more fit
+    assert budget.largest(_candidate(100, "1"), 10_000) > 2 * most
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
+def test_a_budget_that_is_not_a_positive_number_is_refused(bad):
+    with pytest.raises(TrainingError, match="host decision budget"):
+        host_budget((4, 4), bad)
