@@ -23,6 +23,11 @@ from typing import Any
 from eskin.errors import SchedulerError
 
 
+#: the environment of a ``local:N`` cluster's worker processes (one thread each)
+WORKER_ENV = {"ESKIN_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+              "MKL_NUM_THREADS": "1"}
+
+
 def parse_scheduler(address: str) -> tuple[str, Any]:
     """("local", n_workers) for ``local:N``, ("address", text) otherwise."""
     text = str(address).strip()
@@ -64,12 +69,15 @@ def compute_backend(
         ) from None
     with contextlib.ExitStack() as stack:
         if kind == "local":
+            # single-threaded workers: the core's kernels one thread each too (as BLAS, which
+            # Dask's nannies already limit), not one per core in every worker
             cluster = stack.enter_context(
                 LocalCluster(
                     n_workers=value,
                     threads_per_worker=1,
                     processes=processes,
                     dashboard_address=":0",
+                    **({"env": dict(WORKER_ENV)} if processes else {}),
                 )
             )
             client = stack.enter_context(Client(cluster))
