@@ -53,12 +53,12 @@ NEGATIVES_HELP = (
 
 SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
 
-#: --decision-us's default (eskin.learn.host_budget.HOST_DECISION_US, without importing it)
-DECISION_US_DEFAULT = 100.0
+#: --decision-us's default: no bound
+DECISION_US_DEFAULT = 0.0
 DECISION_US_HELP = (
-    "without --target/--budget: the searched model's estimated decision time on this host is "
-    "at most this many microseconds (its support vectors bounded; docs/learning.md); 0: no "
-    "bound")
+    "without --target/--budget: the searched model's support vectors take at most this many "
+    "microseconds of a decision on this host, estimated (they are bounded; e.g. 100; "
+    "docs/learning.md); 0 (default): no bound")
 
 
 def _decision_us(value: float) -> dict[str, Any]:

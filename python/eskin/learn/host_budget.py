@@ -5,10 +5,13 @@ grows with the campaign (with the default search on the simulator: about 100 dis
 vectors at 10 participants, 650 at 70), and with it the time of every decision. Without a
 controller's budget (``--target``), :func:`host_budget` gives the recipe search
 (:class:`~eskin.learn.recipes.RecipeSearch`) a budget on this host's decision time: a candidate
-fits when :func:`host_decision_us` of its expected support vectors is at most the cap (default
-:data:`HOST_DECISION_US`); one expected to need more is kept with its support vectors bounded
+fits when the support vectors' share of its estimated decision time (:func:`support_us`, what
+grows with the campaign) is at most the cap (default :data:`HOST_DECISION_US`); one expected to need more is kept with its support vectors bounded
 to the most that fit (:func:`eskin.learn.support_budget.bound_support` after the fit) when
-that keeps at least half of them, else dropped.
+that keeps at least half of them, else dropped. The input's bases are left out of the budget:
+a fixed cost of the grid and D that the campaign does not change, and one this estimate models
+only roughly (4 ns per pattern entry fits a 4x4 grid; an 8x8 grid at D = 100 took about 10 ms a
+decision with 120 support vectors on the busy development host, BENCHMARKS.md).
 
 The cost of one decision of the compiled classifier (``cpp/src/model*.cpp``): the input's
 bases (one thin SVD per mode unfolding, a fixed cost per D and grid), then per distinct
@@ -33,7 +36,7 @@ from collections.abc import Sequence
 
 from eskin.errors import TrainingError
 
-__all__ = ["HOST_DECISION_US", "host_budget", "host_decision_us", "overlap_macs"]
+__all__ = ["HOST_DECISION_US", "host_budget", "host_decision_us", "overlap_macs", "support_us"]
 
 #: the default cap on the estimated decision time of a trained model on the host (microseconds)
 HOST_DECISION_US = 100.0
@@ -70,10 +73,19 @@ def host_decision_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
     return (bases + int(n_support) * per_sv) / 1e3
 
 
+def support_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
+               n_support: int) -> float:
+    """The support vectors' share of :func:`host_decision_us` (what grows with the campaign;
+    the input's bases are a fixed cost of the grid and D)."""
+    return host_decision_us(grid_shape, D, alphas, n_support) - host_decision_us(
+        grid_shape, D, alphas, 0)
+
+
 def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
-    """The :class:`~eskin.learn.recipes.CandidateBudget` of a decision of at most ``max_us``
-    microseconds on the host (:func:`host_decision_us`). Unlike a controller's, it keeps the
-    search's order of preference (the larger D first): it bounds the support vectors, not D."""
+    """The :class:`~eskin.learn.recipes.CandidateBudget` of a decision whose support vectors
+    take at most ``max_us`` microseconds on the host (:func:`support_us`). Unlike a
+    controller's, it keeps the search's order of preference (the larger D first): it bounds
+    the support vectors, not D."""
     from eskin.learn.grids import alpha_value
     from eskin.learn.recipes import CandidateBudget
 
@@ -84,8 +96,7 @@ def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
 
     @functools.lru_cache(maxsize=None)
     def fit_at(D: int, alpha: str, n_support: int) -> bool:
-        alphas = alpha_value(alpha, (*grid, int(D)))
-        return host_decision_us(grid, D, alphas, n_support) <= float(max_us)
+        return support_us(grid, D, alpha_value(alpha, (*grid, int(D))), n_support) <= float(max_us)
 
     def fits(candidate, n_support: int) -> bool:
         return fit_at(int(candidate.recipe.D), candidate.alpha, int(n_support))
@@ -95,10 +106,10 @@ def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
         D, alpha = int(candidate.recipe.D), candidate.alpha
         if fit_at(D, alpha, int(n_support)):
             return int(n_support)
-        alphas = alpha_value(alpha, (*grid, D))
-        per_sv = host_decision_us(grid, D, alphas, 1) - host_decision_us(grid, D, alphas, 0)
-        room = float(max_us) - host_decision_us(grid, D, alphas, 0)
-        return max(0, min(int(n_support), int(room // per_sv)))
+        per_sv = support_us(grid, D, alpha_value(alpha, (*grid, D)), 1)
+        return max(0, min(int(n_support), int(float(max_us) // per_sv)))
 
-    return CandidateBudget(fits, f"host: decision at most {float(max_us):g} us (estimated)",
+    return CandidateBudget(fits, f"host: support vectors' share of a decision at most "
+                                 f"{float(max_us):g} us (estimated)",
                            largest=largest, trades_D=False)
+

@@ -18,7 +18,6 @@ import numpy as np
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import TrainingError
 from eskin.learn.calibration import DEFAULT_REJECT
-from eskin.learn.host_budget import HOST_DECISION_US
 from eskin.learn.grids import (
     DEFAULT_AMPLITUDES,
     DEFAULT_D,
@@ -335,7 +334,7 @@ def train_model(
     n_jobs: int = 1,
     group_by: str = "participant",
     budget: Any = None,
-    decision_us: float | None = HOST_DECISION_US,
+    decision_us: float | None = None,
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
     choose_hold: bool = True,
@@ -369,10 +368,11 @@ def train_model(
         "direction" or an integer extra field.
     budget : a :class:`~eskin.learn.recipes.CandidateBudget`
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
-    decision_us : without ``budget``, the searched model's decision on this host is estimated
-        to take at most this many microseconds (:mod:`eskin.learn.host_budget`: its support
-        vectors are bounded, the search's order of preference kept); None: no bound. Only the
-        searched recipe is bounded (all four of machine, D, subsample, negatives given: not).
+    decision_us : without ``budget``, the support vectors of the searched model take at most
+        this many microseconds of a decision on this host, estimated
+        (:mod:`eskin.learn.host_budget`, e.g. its ``HOST_DECISION_US`` = 100: the support
+        vectors bounded, the search's order of preference kept); None (default): no bound.
+        Only a searched recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_support : at most this many distinct support vectors in the model (all machines
         together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.

@@ -13,6 +13,7 @@ from eskin.learn.host_budget import (
     host_budget,
     host_decision_us,
     overlap_macs,
+    support_us,
 )
 from eskin.learn.recipes import Candidate, Recipe
 
@@ -43,7 +44,8 @@ def test_the_budget_keeps_what_fits_and_bounds_the_rest_to_the_most_that_fit():
     most = budget.largest(c, 10_000)
     assert 0 < most < 10_000
     assert budget.fits(c, most) and not budget.fits(c, most + 1)
-    assert host_decision_us((4, 4), 100, (4, 4, 16), most) <= 100.0
+    assert support_us((4, 4), 100, (4, 4, 16), most) <= 100.0 < support_us(
+        (4, 4), 100, (4, 4, 16), most + 1)
     assert budget.largest(c, most - 3) == most - 3  # fits as it is
     # alpha 1 costs far less per support vector than alpha Q: many more fit
     assert budget.largest(_candidate(100, "1"), 10_000) > 2 * most

@@ -122,6 +122,7 @@ def test_the_recipe_search_on_two_worker_processes_matches_the_serial_run(
     assert serial.selected == on_cluster.selected
     X = serial.preprocess(campaign_without_file)
     np.testing.assert_array_equal(serial.predict_indices(X)[0], on_cluster.predict_indices(X)[0])
+    np.testing.assert_array_equal(serial.decision_function(X), on_cluster.decision_function(X))
 
 
 def test_without_a_cluster_the_data_stay_here_and_calls_keep_their_order():

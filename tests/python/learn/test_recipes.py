@@ -334,15 +334,17 @@ def test_the_search_on_a_local_pool_matches_the_serial_run(sim_path):
     np.testing.assert_array_equal(serial.decision_function(X), pooled.decision_function(X))
 
 
-def test_by_default_the_host_budget_bounds_the_searched_model(sim_path):
-    """The default search runs under the host budget (its description in the report); a
-    budget too small for any support vector fails with the budget named."""
-    m = train_model(sim_path, D=20, quick=True, seed=2)
-    assert m.training["recipe_search"]["budget"].startswith("host: decision at most 100 us")
-    free = train_model(sim_path, D=20, quick=True, seed=2, decision_us=None)
+def test_decision_us_puts_the_search_under_the_host_budget(sim_path):
+    """decision_us runs the search under the host budget (its description in the report;
+    none by default); a budget too small for any support vector fails with the budget
+    named."""
+    m = train_model(sim_path, D=20, quick=True, seed=2, decision_us=100)
+    assert m.training["recipe_search"]["budget"].startswith(
+        "host: support vectors' share of a decision at most 100 us")
+    free = train_model(sim_path, D=20, quick=True, seed=2)
     assert free.training["recipe_search"]["budget"] is None
-    with pytest.raises(TrainingError, match="no candidate fits the budget .host: decision at "
-                                            "most 0.001 us"):
+    with pytest.raises(TrainingError, match="no candidate fits the budget .host: support "
+                                            "vectors' share of a decision at most 0.001 us"):
         train_model(sim_path, D=20, quick=True, seed=2, decision_us=0.001)
 
 
