@@ -1,14 +1,15 @@
-"""The host budget: a default model's decision stays bounded as the campaign grows.
+"""The host budget: on request, a searched model's decision bounded as the campaign grows.
 
 A tensor-SVM keeps the training patterns on its margin as support vectors, and their number
 grows with the campaign (with the default search on the simulator: about 100 distinct support
-vectors at 10 participants, 650 at 70), and with it the time of every decision. Without a
-controller's budget (``--target``), :func:`host_budget` gives the recipe search
-(:class:`~eskin.learn.recipes.RecipeSearch`) a budget on this host's decision time: a candidate
-fits when the support vectors' share of its estimated decision time (:func:`support_us`, what
-grows with the campaign) is at most the cap (default :data:`HOST_DECISION_US`); one expected to need more is kept with its support vectors bounded
-to the most that fit (:func:`eskin.learn.support_budget.bound_support` after the fit) when
-that keeps at least half of them, else dropped. The input's bases are left out of the budget:
+vectors at 10 participants, 650 at 70), and with it the time of every decision. On request
+(``train_model(decision_us=...)``, ``--decision-us``; not by default, docs/learning.md) and
+without a controller's budget, :func:`host_budget` gives the recipe search
+(:class:`~eskin.learn.recipes.RecipeSearch`) a budget on this host: a candidate fits when the
+support vectors' share of its estimated decision time (:func:`support_us`, what grows with the
+campaign) is at most the cap (e.g. :data:`HOST_DECISION_US`); one expected to need more is kept
+with its support vectors bounded to the most that fit
+(:func:`eskin.learn.support_budget.bound_support` after the fit) when that keeps at least half of them, else dropped. The input's bases are left out of the budget:
 a fixed cost of the grid and D that the campaign does not change, and one this estimate models
 only roughly (4 ns per pattern entry fits a 4x4 grid; an 8x8 grid at D = 100 took about 10 ms a
 decision with 120 support vectors on the busy development host, BENCHMARKS.md).
@@ -38,7 +39,7 @@ from eskin.errors import TrainingError
 
 __all__ = ["HOST_DECISION_US", "host_budget", "host_decision_us", "overlap_macs", "support_us"]
 
-#: the default cap on the estimated decision time of a trained model on the host (microseconds)
+#: a cap on the support vectors' share of a decision on the host (microseconds)
 HOST_DECISION_US = 100.0
 #: nanoseconds per multiply-add of the support vectors' overlaps (float32, one core)
 HOST_NS_PER_MAC = 0.06
