@@ -9,7 +9,8 @@ without a controller's budget, :func:`host_budget` gives the recipe search
 support vectors' share of its estimated decision time (:func:`support_us`, what grows with the
 campaign) is at most the cap (e.g. :data:`HOST_DECISION_US`); one expected to need more is kept
 with its support vectors bounded to the most that fit
-(:func:`eskin.learn.support_budget.bound_support` after the fit) when that keeps at least half of them, else dropped. The input's bases are left out of the budget:
+(:func:`eskin.learn.support_budget.bound_support` after the fit) when that keeps at least
+half of them, else dropped. The input's bases are left out of the budget:
 a fixed cost of the grid and D that the campaign does not change, and one this estimate models
 only roughly (4 ns per pattern entry fits a 4x4 grid; an 8x8 grid at D = 100 took about 10 ms a
 decision with 120 support vectors on the busy development host, BENCHMARKS.md).
