@@ -68,17 +68,35 @@ void bind_kernel(py::module_& m) {
         py::arg("n_threads") = 0);
   m.def(
       "mode_distances",
-      [](const PatternBases& a, const PatternBases* b, int n_threads) {
+      [](const PatternBases& a, const PatternBases* b, int n_threads, std::size_t max_bytes) {
         const std::size_t mm = b ? b->count : a.count;
+        // the plan first: a limit too small is an error before the output is allocated
+        plan_distances(a.layout, a.count, mm, b == nullptr, max_bytes);
         py::array_t<double> out({a.layout.n_modes(), a.count, mm});
         double* o = out.mutable_data();
         {
           py::gil_scoped_release release;
-          mode_distances(a, b, o, n_threads);
+          mode_distances(a, b, o, n_threads, max_bytes);
         }
         return out;
       },
-      py::arg("a"), py::arg("b") = nullptr, py::arg("n_threads") = 0);
+      py::arg("a"), py::arg("b") = nullptr, py::arg("n_threads") = 0, py::arg("max_bytes") = 0);
+  m.def(
+      "plan_distances",
+      [](const std::vector<std::size_t>& dims, const std::vector<std::size_t>& alphas,
+         std::size_t n, std::size_t mm, bool self, std::size_t max_bytes) {
+        const DistancePlan p = plan_distances(BasisLayout(dims, alphas), n, mm, self, max_bytes);
+        py::dict d;
+        d["block"] = p.block;
+        d["row_blocks"] = p.row_blocks;
+        d["col_blocks"] = p.col_blocks;
+        d["pack_bytes"] = p.pack_bytes;
+        d["pattern_bytes"] = p.pattern_bytes;
+        return d;
+      },
+      py::arg("dims"), py::arg("alphas"), py::arg("n"), py::arg("m"), py::arg("self"),
+      py::arg("max_bytes") = 0,
+      "The scratch-memory plan of mode_distances (blocks of patterns packed at once).");
   m.def(
       "tensor_kernel",
       [](const PatternBases& a, const PatternBases* b, const std::vector<double>& sigmas,

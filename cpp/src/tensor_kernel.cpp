@@ -810,6 +810,7 @@ struct ModePack {
   // proj: the mode is packed as one vector per pattern, the packed projection matrix (below),
   // so that a dot product of two vectors gives ||V_a^T V_b||_F^2 directly
   bool proj = false;
+  std::size_t first = 0;  // index in its PatternBases of the pack's first pattern
   std::size_t count = 0, alpha = 0, k = 0, ppg = 0, panels = 0, groups = 0;
   double* data = nullptr;  // groups * panels * k * 8 doubles (in scratch memory)
   // local pattern index (within its group) of each of the panels * 8 vectors of a group, or -1
@@ -842,16 +843,17 @@ bool use_projection(std::size_t n, std::size_t alpha) {
   return double(packed_size(n)) < basis_cost;
 }
 
-ModePack plan_mode(const PatternBases& pb, std::size_t z) {
+// The pack of patterns [first, first + count) of a set of patterns of layout L, mode z.
+ModePack plan_mode(const BasisLayout& L, std::size_t z, std::size_t first, std::size_t count) {
   ModePack mp;
-  const BasisLayout& L = pb.layout;
-  mp.count = pb.count;
+  mp.first = first;
+  mp.count = count;
   mp.proj = use_projection(L.cols(z), L.alpha(z));
   mp.alpha = mp.proj ? 1 : L.alpha(z);
   mp.k = mp.proj ? packed_size(L.cols(z)) : L.cols(z);
   mp.ppg = std::max<std::size_t>(1, kTileWidth / mp.alpha);
   mp.panels = (mp.ppg * mp.alpha + kTileWidth - 1) / kTileWidth;
-  mp.groups = (pb.count + mp.ppg - 1) / mp.ppg;
+  mp.groups = (count + mp.ppg - 1) / mp.ppg;
   const std::size_t width = mp.panels * kTileWidth;
   mp.map_full.assign(width, -1);
   mp.map_last.assign(width, -1);
@@ -883,7 +885,8 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
           for (std::size_t kk = 0; kk < mp.k; ++kk) dst[kk * kTileWidth + c] = 0.0;
           continue;
         }
-        const double* v = pb.bases.data() + (g * kTileWidth + c) * bs + off;  // n x alpha, col-major
+        const double* v =
+            pb.bases.data() + (mp.first + g * kTileWidth + c) * bs + off;  // n x alpha, col-major
         projection_matrix(v, n, alpha, proj);
         std::size_t kk = 0;
         for (std::size_t i = 0; i < n; ++i) {
@@ -904,7 +907,7 @@ ESKIN_CLONES void pack_groups(const PatternBases& pb, std::size_t z, ModePack& m
       for (std::size_t c = 0; c < kTileWidth; ++c) {
         const std::size_t lv = p * kTileWidth + c;
         if (lv < used) {
-          col[c] = pb.bases.data() + (g * mp.ppg + lv / mp.alpha) * bs + off +
+          col[c] = pb.bases.data() + (mp.first + g * mp.ppg + lv / mp.alpha) * bs + off +
                    (lv % mp.alpha) * mp.k;
           stride[c] = 1;
         } else {
@@ -952,76 +955,68 @@ namespace {
 // output entry of its rows, for all modes at once.
 constexpr std::size_t kRowBlock = 8;
 
-// The pairwise engine shared by mode_distances and tensor_kernel. For every row block (a work
-// item, run on some thread t) it calls sink.begin(t, r0, r1), then
-// sink.row(t, z, ia, ib0, count, ra, rb, ov) for runs of pairs (ia, ib0 + k), k < count, with
-// ranks ra and rb[k] and overlaps ||V_a^T V_b||^2 = ov[k] (distance max(0, ra + rb - 2 ov))
-// for every mode z and pair (ia in [r0, r1), ib in B; ib > ia when self), then sink.end(t, r0, r1).
-template <class Sink>
-void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_threads, Sink& sink) {
-  const bool self = (b == nullptr);
-  const PatternBases& B = self ? a : *b;
-  if (!self && a.layout != B.layout)
-    throw std::invalid_argument("the two pattern sets have different shapes or alphas");
-  const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
-  if (n == 0 || m == 0) return;
-  const int nt = resolve_threads(n_threads);
-  // ranks as doubles, mode-major (contiguous per mode for the row updates)
-  std::vector<double> rank_a(nz * n), rank_b(self ? 0 : nz * m);
-  for (std::size_t z = 0; z < nz; ++z) {
-    for (std::size_t i = 0; i < n; ++i) rank_a[z * n + i] = a.ranks[i * nz + z];
-    if (!self)
-      for (std::size_t i = 0; i < m; ++i) rank_b[z * m + i] = B.ranks[i * nz + z];
-  }
-  const double* rk_b = self ? rank_a.data() : rank_b.data();
-  std::vector<ModePack> pa(nz), pbk(self ? 0 : nz);
+// Scratch doubles of the packs of `count` patterns of layout L (every mode).
+std::size_t pack_doubles(const BasisLayout& L, std::size_t count) {
+  std::size_t total = 0;
+  for (std::size_t z = 0; z < L.n_modes(); ++z) total += plan_mode(L, z, 0, count).size();
+  return total;
+}
+
+// The packs of patterns [first, first + count) of pb in every mode, in mem (pack_doubles of
+// them), filled by nt threads.
+std::vector<ModePack> pack_block(const PatternBases& pb, std::size_t first, std::size_t count,
+                                 double* mem, int nt) {
+  const std::size_t nz = pb.layout.n_modes();
+  std::vector<ModePack> packs(nz);
+  struct PackItem {
+    std::size_t z, g0, g1;
+  };
+  std::vector<PackItem> items;
   std::size_t total = 0;
   for (std::size_t z = 0; z < nz; ++z) {
-    pa[z] = plan_mode(a, z);
-    total += pa[z].size();
-    if (!self) {
-      pbk[z] = plan_mode(B, z);
-      total += pbk[z].size();
-    }
-  }
-  double* mem = g_pack_scratch.get(total);
-  struct PackItem {
-    const PatternBases* src;
-    std::size_t z;
-    ModePack* mp;
-    std::size_t g0, g1;
-  };
-  std::vector<PackItem> pack_items;
-  auto plan_items = [&](const PatternBases* src, std::size_t z, ModePack* mp) {
-    mp->data = mem;
-    mem += mp->size();
-    const std::size_t step = std::max<std::size_t>(1, 64 / mp->panels);
-    for (std::size_t g = 0; g < mp->groups; g += step)
-      pack_items.push_back({src, z, mp, g, std::min(mp->groups, g + step)});
-  };
-  for (std::size_t z = 0; z < nz; ++z) {
-    plan_items(&a, z, &pa[z]);
-    if (!self) plan_items(&B, z, &pbk[z]);
+    ModePack& mp = packs[z];
+    mp = plan_mode(pb.layout, z, first, count);
+    mp.data = mem;
+    mem += mp.size();
+    total += mp.size();
+    const std::size_t step = std::max<std::size_t>(1, 64 / mp.panels);
+    for (std::size_t g = 0; g < mp.groups; g += step)
+      items.push_back({z, g, std::min(mp.groups, g + step)});
   }
   // packing is a copy: not worth a thread below ~2 MB
   const int pack_threads = total < (std::size_t(1) << 18) ? 1 : nt;
-  parallel_for(pack_items.size(), pack_threads, [&](std::size_t i, std::size_t) {
-    const PackItem& it = pack_items[i];
-    pack_groups(*it.src, it.z, *it.mp, it.g0, it.g1);
+  parallel_for(items.size(), pack_threads, [&](std::size_t i, std::size_t) {
+    pack_groups(pb, items[i].z, packs[items[i].z], items[i].g0, items[i].g1);
   });
+  return packs;
+}
+
+// Every pair of a packed row block A against a packed column block B (the same packs for a
+// diagonal block of X-vs-X, `diag_block`: each pair once, ib > ia), reported to the sink with
+// the patterns' indices in their whole sets. For every row block of kRowBlock patterns (a work
+// item, run on some thread t) it calls sink.begin(t, r0, r1), then
+// sink.row(t, z, ia, ib0, count, ra, rb, ov) for runs of pairs (ia, ib0 + k), k < count, with
+// ranks ra and rb[k] and overlaps ||V_a^T V_b||^2 = ov[k] (distance max(0, ra + rb - 2 ov)),
+// then sink.end(t, r0, r1).
+template <class Sink>
+void pair_block(const std::vector<ModePack>& A, const std::vector<ModePack>& B, bool diag_block,
+                const double* rank_a, std::size_t n, const double* rk_b, std::size_t m, int nt,
+                Sink& sink) {
+  const bool self = diag_block;
+  const std::size_t nz = A.size(), first = A[0].first, count = A[0].count;
   const TileFn tile_sq = select_tile_kernel();
   const TileDotFn tile_dot = select_tile_dot_kernel();
   const TileSumFn tile_sum = select_tile_sum_kernel();
   // work items: row blocks, biggest first (in X-vs-X the first blocks have the most pairs)
-  const std::size_t n_blocks = (n + kRowBlock - 1) / kRowBlock;
+  const std::size_t n_blocks = (count + kRowBlock - 1) / kRowBlock;
   parallel_for(n_blocks, nt, [&](std::size_t rb, std::size_t t) {
-    const std::size_t r0 = rb * kRowBlock, r1 = std::min(n, r0 + kRowBlock);
-    sink.begin(t, r0, r1);
+    const std::size_t r0 = rb * kRowBlock, r1 = std::min(count, r0 + kRowBlock);
+    sink.begin(t, first + r0, first + r1);
     alignas(64) double tilebuf[kTileWidth * kTileWidth];
     double acc[kTileWidth * kTileWidth];  // ppg x ppg <= 8 x 8
     for (std::size_t z = 0; z < nz; ++z) {
-      const ModePack& PA = pa[z];
-      const ModePack& PB = self ? pa[z] : pbk[z];
+      const ModePack& PA = A[z];
+      const ModePack& PB = B[z];
       const std::size_t ppg = PA.ppg;
       const TileFn tile = PA.proj ? tile_dot : tile_sq;  // projections: plain dot products
       const std::size_t g_begin = r0 / ppg, g_end = (r1 + ppg - 1) / ppg;
@@ -1096,23 +1091,91 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
             }
           }
           for (std::size_t x = 0; x < na; ++x) {
-            const std::size_t ia = gi * ppg + x;
+            const std::size_t ia = PA.first + gi * ppg + x;
             const std::size_t y0 = diag ? x + 1 : 0;
             if (y0 < nb)
-              sink.row(t, z, ia, gj * ppg + y0, nb - y0, rank_a[z * n + ia],
-                       rk_b + z * m + gj * ppg + y0, acc + x * ppg + y0);
+              sink.row(t, z, ia, PB.first + gj * ppg + y0, nb - y0, rank_a[z * n + ia],
+                       rk_b + z * m + PB.first + gj * ppg + y0, acc + x * ppg + y0);
           }
         }
       }
     }
-    sink.end(t, r0, r1);
+    sink.end(t, first + r0, first + r1);
   });
+}
+
+// The pairwise engine shared by mode_distances and tensor_kernel: the pairs of a (against b, or
+// each pair of a once when b is null) block by block as plan_distances lays them out.
+template <class Sink>
+void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_threads, Sink& sink,
+                        std::size_t max_bytes = 0) {
+  const bool self = (b == nullptr);
+  const PatternBases& B = self ? a : *b;
+  if (!self && a.layout != B.layout)
+    throw std::invalid_argument("the two pattern sets have different shapes or alphas");
+  const std::size_t nz = a.layout.n_modes(), n = a.count, m = B.count;
+  if (n == 0 || m == 0) return;
+  const DistancePlan plan = plan_distances(a.layout, n, m, self, max_bytes);
+  const int nt = resolve_threads(n_threads);
+  // ranks as doubles, mode-major (contiguous per mode for the row updates)
+  std::vector<double> rank_a(nz * n), rank_b(self ? 0 : nz * m);
+  for (std::size_t z = 0; z < nz; ++z) {
+    for (std::size_t i = 0; i < n; ++i) rank_a[z * n + i] = a.ranks[i * nz + z];
+    if (!self)
+      for (std::size_t i = 0; i < m; ++i) rank_b[z * m + i] = B.ranks[i * nz + z];
+  }
+  const double* rk_b = self ? rank_a.data() : rank_b.data();
+  const std::size_t blk = plan.block;
+  double* mem = g_pack_scratch.get(plan.pack_bytes / sizeof(double));
+  for (std::size_t i0 = 0; i0 < n; i0 += blk) {
+    const std::size_t ni = std::min(blk, n - i0);
+    const std::vector<ModePack> rows = pack_block(a, i0, ni, mem, nt);
+    double* col_mem = mem + pack_doubles(a.layout, ni);
+    for (std::size_t j0 = self ? i0 : 0; j0 < m; j0 += blk) {
+      const std::size_t nj = std::min(blk, m - j0);
+      if (self && j0 == i0) {
+        pair_block(rows, rows, true, rank_a.data(), n, rk_b, m, nt, sink);
+        continue;
+      }
+      const std::vector<ModePack> cols = pack_block(B, j0, nj, col_mem, nt);
+      pair_block(rows, cols, false, rank_a.data(), n, rk_b, m, nt, sink);
+    }
+  }
   g_pack_scratch.trim();
 }
 
 }  // namespace
 
-void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads) {
+DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_t m, bool self,
+                            std::size_t max_bytes) {
+  DistancePlan plan;
+  // a multiple of kRowBlock patterns fills whole groups in every mode (ppg is 1, 2, 4 or 8)
+  plan.pattern_bytes = pack_doubles(layout, kRowBlock) / kRowBlock * sizeof(double);
+  const std::size_t whole = (pack_doubles(layout, n) + (self ? 0 : pack_doubles(layout, m))) *
+                            sizeof(double);
+  if (max_bytes == 0 || whole <= max_bytes) {
+    plan.block = std::max(n, m);
+    plan.row_blocks = plan.col_blocks = (n && m) ? 1 : 0;
+    plan.pack_bytes = whole;
+    return plan;
+  }
+  const std::size_t per_block = 2 * kRowBlock * plan.pattern_bytes;  // a row and a column block
+  if (per_block > max_bytes)
+    throw std::invalid_argument(
+        "mode distances: two blocks of " + std::to_string(kRowBlock) + " patterns of shape " +
+        dims_str(layout.dims()) + " with alphas " + dims_str(layout.alphas()) + " need " +
+        std::to_string(per_block) + " bytes of scratch memory, more than the limit of " +
+        std::to_string(max_bytes));
+  plan.block = max_bytes / per_block * kRowBlock;
+  plan.row_blocks = (n + plan.block - 1) / plan.block;
+  plan.col_blocks = (m + plan.block - 1) / plan.block;
+  plan.pack_bytes = (pack_doubles(layout, std::min(plan.block, n)) +
+                     pack_doubles(layout, std::min(plan.block, m))) * sizeof(double);
+  return plan;
+}
+
+void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads,
+                    std::size_t max_bytes) {
   const bool self = (b == nullptr);
   const std::size_t n = a.count, m = self ? a.count : b->count, zs = n * m;
   struct Sink {
@@ -1131,7 +1194,7 @@ void mode_distances(const PatternBases& a, const PatternBases* b, double* out, i
     }
     void end(std::size_t, std::size_t, std::size_t) {}
   } sink{out, m, zs, self};
-  pairwise_distances(a, b, n_threads, sink);
+  pairwise_distances(a, b, n_threads, sink, max_bytes);
   if (self)  // the diagonal is exactly zero
     for (std::size_t z = 0; z < a.layout.n_modes(); ++z)
       for (std::size_t i = 0; i < n; ++i) out[z * zs + i * m + i] = 0.0;

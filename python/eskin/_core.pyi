@@ -8,7 +8,7 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['BasisWorkspace', 'Classifier', 'MODEL_FORMAT_VERSION', 'Model', 'ModelFormatError', 'PatternBases', 'SkinEngine', 'StreamClassifier', 'TouchDetector', 'WINDOW_CONFIG_FIELDS', 'compute_pattern_bases', 'default_threads', 'detect_windows', 'full_alphas', 'half_alphas', 'mode_distances', 'model_overlap_kernel', 'model_pattern_bases', 'preprocess', 'protocol', 'serial', 'subsample_indices', 'tensor_kernel', 'tensor_kernel_isa', 'unfold', 'window_config_defaults', 'window_config_resolve']
+__all__: list[str] = ['BasisWorkspace', 'Classifier', 'MODEL_FORMAT_VERSION', 'Model', 'ModelFormatError', 'PatternBases', 'SkinEngine', 'StreamClassifier', 'TouchDetector', 'WINDOW_CONFIG_FIELDS', 'compute_pattern_bases', 'default_threads', 'detect_windows', 'full_alphas', 'half_alphas', 'mode_distances', 'model_overlap_kernel', 'model_pattern_bases', 'plan_distances', 'preprocess', 'protocol', 'serial', 'subsample_indices', 'tensor_kernel', 'tensor_kernel_isa', 'unfold', 'window_config_defaults', 'window_config_resolve']
 class PatternBases:
     """
     Per-pattern, per-mode subspace bases of a set of tensor patterns
@@ -221,7 +221,7 @@ def full_alphas(dims: collections.abc.Sequence[typing.SupportsInt | typing.Suppo
     ...
 def half_alphas(dims: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex]) -> list[int]:
     ...
-def mode_distances(a: PatternBases, b: PatternBases = None, n_threads: typing.SupportsInt | typing.SupportsIndex = 0) -> numpy.typing.NDArray[numpy.float64]:
+def mode_distances(a: PatternBases, b: PatternBases = None, n_threads: typing.SupportsInt | typing.SupportsIndex = 0, max_bytes: typing.SupportsInt | typing.SupportsIndex = 0) -> numpy.typing.NDArray[numpy.float64]:
     ...
 def model_overlap_kernel() -> str:
     """
@@ -230,6 +230,10 @@ def model_overlap_kernel() -> str:
 def model_pattern_bases(tensors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], alphas: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex]) -> tuple[numpy.typing.NDArray[numpy.int32], list[numpy.typing.NDArray[numpy.float64]]]:
     """
     Per-mode bases of (n, rows, cols, D) tensors as the model classifier computes them: (ranks (n, 3), [bases of mode z (n, alpha_z, N_z)]).
+    """
+def plan_distances(dims: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], alphas: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n: typing.SupportsInt | typing.SupportsIndex, m: typing.SupportsInt | typing.SupportsIndex, self: bool, max_bytes: typing.SupportsInt | typing.SupportsIndex = 0) -> dict:
+    """
+    The scratch-memory plan of mode_distances (blocks of patterns packed at once).
     """
 def preprocess(signals: numpy.ndarray, lengths: typing.Any, D: typing.SupportsInt | typing.SupportsIndex, window: typing.SupportsInt | typing.SupportsIndex, method: typing.SupportsInt | typing.SupportsIndex, short_policy: typing.SupportsInt | typing.SupportsIndex, sample_rate_hz: typing.SupportsFloat | typing.SupportsIndex, config: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], windows: typing.Any = None, n_threads: typing.SupportsInt | typing.SupportsIndex = 0) -> tuple:
     ...

@@ -208,9 +208,30 @@ int default_threads() noexcept;
 PatternBases compute_pattern_bases(const double* x, std::size_t n, const BasisLayout& layout,
                                    int n_threads = 0);
 
+/// How the pairwise engine lays out its scratch memory (the bases repacked for the tile kernel,
+/// a whole mode's packed projections in the projection modes): patterns are packed in blocks of
+/// `block` patterns (a multiple of 8, or all of them), a row block of a against a column block of
+/// b (of a itself for X-vs-X), so that at most two blocks are packed at a time.
+struct DistancePlan {
+  std::size_t block = 0;       ///< patterns per block (the whole set when blocks == 1)
+  std::size_t row_blocks = 0;  ///< blocks of a
+  std::size_t col_blocks = 0;  ///< blocks of b (of a for X-vs-X)
+  std::size_t pack_bytes = 0;  ///< scratch memory the packed blocks take at once
+  std::size_t pattern_bytes = 0;  ///< scratch memory per packed pattern
+};
+
+/// The plan of mode_distances for n patterns against m (self: X-vs-X, m == n) of one layout,
+/// with at most max_bytes of scratch memory (0: no limit, one block). Throws
+/// std::invalid_argument when not even two blocks of 8 patterns fit in max_bytes.
+DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_t m, bool self,
+                            std::size_t max_bytes);
+
 /// Per-mode squared distances, out (n_modes, a.count, m) C-order with m = b ? b->count :
 /// a.count. b == nullptr: X-vs-X, each pair computed once, exact zeros on the diagonal.
-void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads = 0);
+/// max_bytes: the scratch memory allowed (plan_distances; 0: no limit); the distances are the
+/// same bits for any limit.
+void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads = 0,
+                    std::size_t max_bytes = 0);
 
 /// Gram matrix out (a.count, m) C-order: prod_z exp(-d_z / (2 sigma_z^2)). sigmas: one per mode
 /// (or a single value for all modes), all > 0.

@@ -31,6 +31,7 @@ __all__ = [
     "PatternBases",
     "bases_mode_distances",
     "bases_tensor_kernel",
+    "distance_plan",
     "kernel_from_distances",
     "mode_distances",
     "pattern_bases",
@@ -228,15 +229,43 @@ def mode_distances(
     *,
     alpha: AlphaSpec = "full",
     n_threads: int | None = None,
+    max_bytes: int | None = None,
 ) -> np.ndarray:
     """Per-mode squared projection distances, shape (n_modes, n, m).
 
     ``X`` has shape (n, d1, ..., dZ), ``Y`` (m, d1, ..., dZ); ``Y=None`` means X against itself
     (symmetric, each pair computed once, zeros on the diagonal). The distances do not depend on
-    sigma: ``kernel_from_distances(D, sigma)`` turns them into a kernel matrix.
+    sigma: ``kernel_from_distances(D, sigma)`` turns them into a kernel matrix. ``max_bytes``:
+    the scratch memory of the pairwise kernel (the bases repacked for it), which then works
+    block by block (:func:`distance_plan`); the same distances, bit for bit, for any limit.
     """
     bx, by, nt = _prepare(X, Y, alpha, n_threads)
-    return _core.mode_distances(bx, by, nt)
+    try:
+        return _core.mode_distances(bx, by, nt, _max_bytes(max_bytes))
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def _max_bytes(max_bytes: int | None) -> int:
+    if max_bytes is None:
+        return 0
+    if not _is_int(max_bytes) or max_bytes < 1:
+        raise ValueError(f"max_bytes={max_bytes!r} must be a positive int or None")
+    return int(max_bytes)
+
+
+def distance_plan(
+    shape: Sequence[int], alphas: Sequence[int], n: int, m: int | None = None,
+    max_bytes: int | None = None,
+) -> dict[str, int]:
+    """How :func:`mode_distances` lays out its scratch memory for ``n`` patterns of ``shape``
+    against ``m`` (None: against themselves) within ``max_bytes``: ``block`` patterns packed
+    at once, ``row_blocks`` x ``col_blocks`` blocks, ``pack_bytes`` at most at once,
+    ``pattern_bytes`` per packed pattern."""
+    dims = _pattern_shape(shape)
+    return dict(_core.plan_distances(list(dims), [int(a) for a in alphas], int(n),
+                                     int(n if m is None else m), m is None,
+                                     _max_bytes(max_bytes)))
 
 
 def tensor_kernel(

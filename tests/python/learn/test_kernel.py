@@ -13,6 +13,7 @@ from eskin import _core
 from eskin.learn.kernel import (
     bases_mode_distances,
     bases_tensor_kernel,
+    distance_plan,
     kernel_from_distances,
     mode_distances,
     pattern_bases,
@@ -448,3 +449,58 @@ def test_unfold_column_order_is_c_order_of_remaining_indices():
         np.testing.assert_array_equal(
             _core.unfold(x, z), np.moveaxis(x, z, 0).reshape(x.shape[z], -1)
         )
+
+
+# ----------------------------------------------------------------------------------------------
+# blocked distances: the scratch memory limit changes the plan, never the distances
+
+
+@pytest.mark.parametrize(
+    ("shape", "alpha", "n", "m"),
+    [
+        ((3, 5, 12), "full", 37, None),  # alphas 3, 5, 12: several panels per pattern
+        ((3, 5, 12), "half", 29, 21),  # alphas 1, 2, 6: 8, 4 and 1 patterns per group
+        ((4, 4, 16), "full", 41, None),  # mode 3 by packed projections
+        ((6, 7, 9), 1, 33, 18),  # one vector per pattern in every mode
+        ((5, 6, 4, 3), "half", 35, None),  # order 4
+    ],
+)
+def test_blocked_distances_are_the_unblocked_ones_bit_for_bit(shape, alpha, n, m):
+    rng = np.random.default_rng(sum(shape) + n)
+    X = rng.normal(size=(n, *shape))
+    Y = None if m is None else rng.normal(size=(m, *shape))
+    alphas = resolve_alphas(shape, alpha)
+    whole = mode_distances(X, Y, alpha=alphas, n_threads=2)
+    per_pattern = distance_plan(shape, alphas, n, m)["pattern_bytes"]
+    for block in (8, 16):  # both below the whole set
+        limit = 2 * block * per_pattern
+        plan = distance_plan(shape, alphas, n, m, max_bytes=limit)
+        assert plan["block"] == block
+        assert plan["row_blocks"] == -(-n // block)
+        blocked = mode_distances(X, Y, alpha=alphas, n_threads=2, max_bytes=limit)
+        np.testing.assert_array_equal(blocked, whole)
+
+
+def test_the_distance_plan_keeps_within_the_limit():
+    shape, alphas = (19, 27, 10), resolve_alphas((19, 27, 10), "full")
+    unlimited = distance_plan(shape, alphas, 330)
+    assert unlimited["row_blocks"] == 1 and unlimited["block"] == 330
+    assert 330 * unlimited["pattern_bytes"] <= unlimited["pack_bytes"] <= 336 * unlimited["pattern_bytes"]
+    for limit in (unlimited["pack_bytes"] // 3, 50 * 2**20, 20 * 2**20):
+        plan = distance_plan(shape, alphas, 330, max_bytes=limit)
+        assert plan["pack_bytes"] <= limit
+        assert plan["block"] % 8 == 0 and plan["row_blocks"] == -(-330 // plan["block"])
+        # the largest block of 8s that fits: 8 more would not
+        assert 2 * (plan["block"] + 8) * plan["pattern_bytes"] > limit
+    # a limit the whole set fits in is one block
+    assert distance_plan(shape, alphas, 330, max_bytes=unlimited["pack_bytes"])["row_blocks"] == 1
+
+
+def test_a_limit_below_two_blocks_of_eight_is_refused_with_the_figures():
+    shape, alphas = (4, 4, 16), resolve_alphas((4, 4, 16), "full")
+    per_pattern = distance_plan(shape, alphas, 8)["pattern_bytes"]
+    X = np.random.default_rng(0).normal(size=(20, *shape))
+    with pytest.raises(ValueError, match=r"need \d+ bytes of scratch memory, more than the limit"):
+        mode_distances(X, alpha=alphas, max_bytes=16 * per_pattern - 1)
+    with pytest.raises(ValueError, match="max_bytes"):
+        mode_distances(X, alpha=alphas, max_bytes=0)
