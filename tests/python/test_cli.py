@@ -500,3 +500,16 @@ def test_train_refuses_a_reject_share_of_one(one_person, tmp_path):
     r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "--reject",
                                  "1", "-o", str(tmp_path / "m.joblib"), "--no-progress"])
     assert r.exit_code == 2 and "--reject" in r.output
+
+
+def test_train_keeps_the_model_within_its_size(one_person, tmp_path):
+    from eskin.deploy.export import CompiledModel
+
+    out = tmp_path / "m.eskin"
+    r = CliRunner().invoke(app, ["train", str(one_person), "--all-classes", "--quick", "--machine",
+                                 "svm", "-o", str(out), "--no-progress",
+                                 "--max-model-size", "0.07"])
+    assert r.exit_code == 0, r.output
+    assert "to fit --max-model-size 0.07 MB: 6 -> " in r.output
+    assert out.stat().st_size <= 70_000
+    assert CompiledModel(out).n_support < 6

@@ -11,6 +11,8 @@ from eskin.cli.learn import (
     AMPLITUDE_HELP,
     HOLD_HELP,
     MAX_WINDOW_HELP,
+    MEMORY_LIMIT_HELP,
+    MODEL_SIZE_HELP,
     NEGATIVES_HELP,
     OFF_FACTOR_HELP,
     ON_FACTOR_HELP,
@@ -27,6 +29,8 @@ from eskin.cli.learn import (
     _detector,
     _fail,
     _patch_campaign,
+    memory_options,
+    model_size_option,
 )
 
 
@@ -82,6 +86,10 @@ def evaluate(
         None, "--reject", min=0.0, max=0.99, help="the calibrated rule's share of touches "
         "flagged \"don't know\" (as eskin train --reject; default 0.1)"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
+    memory_limit: float = typer.Option(
+        0.5, "--memory-limit", min=0.01, help=MEMORY_LIMIT_HELP),
+    max_model_size: float = typer.Option(
+        5.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
     scheduler: str | None = typer.Option(
@@ -116,6 +124,8 @@ def evaluate(
     recipe = _recipe_of(given, quick, amplitude, max_support)
     recipe.update(_detector(max_window, window_samples, hold, on_factor, off_factor))
     recipe.update(_decision_us(decision_us))
+    recipe["recipe_options"] = memory_options(memory_limit)
+    recipe.update(model_size_option(max_model_size))
     if reject is not None:
         recipe["reject"] = reject
     if decision is not None:

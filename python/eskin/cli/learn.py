@@ -236,6 +236,27 @@ def _patch_campaign(campaign: Path, patch: str) -> Any:
 
 
 MAX_WINDOW_HELP = "longest touch window in seconds (WindowConfig.max_window_s, default 7)"
+MEMORY_LIMIT_HELP = (
+    "GiB (default 0.5) the recipe search's pattern distances may take at once (bases, blocks of the pairwise "
+    "kernel, distances); a D and alpha whose distances cannot fit are refused with a message")
+
+
+MODEL_SIZE_HELP = (
+    "MB the model's float32 .eskin file may take (default 5; 0: no limit): a model with more "
+    "support vectors keeps the most that fit, chosen by kernel matching pursuit as with "
+    "--max-support")
+
+
+def memory_options(gib: float) -> dict[str, int]:
+    """The recipe-search options of --memory-limit GIB."""
+    return {"memory_limit": int(float(gib) * 2**30)}
+
+
+def model_size_option(mb: float) -> dict[str, int | None]:
+    """train_model's option of --max-model-size MB (0: no limit)."""
+    return {"max_model_bytes": int(float(mb) * 1e6) if mb > 0 else None}
+
+
 WINDOW_SAMPLES_HELP = (
     "samples per taxel a stream keeps of a touch window (WindowConfig.window_samples, default "
     "1024; a longer window is kept at half the time resolution each time the buffer fills; 0: "
@@ -420,7 +441,7 @@ def train(
     ),
     D: Optional[int] = typer.Option(
         None, "--D", help="subsampled window length (default: searched among 20, 50, 100, "
-        "capped by the longest recording)"
+        "capped by the median touch window's samples)"
     ),
     window: Window = typer.Option(Window.energy, help="touch-window detector, or none"),
     subsample: Optional[Subsample] = typer.Option(
@@ -461,6 +482,10 @@ def train(
         help="calibrated rule: the fraction of (out-of-fold) training touches flagged \"don't "
         "know\"; 0 never flags"),
     quick: bool = typer.Option(False, "--quick", help="small grid (tests, demos)"),
+    memory_limit: float = typer.Option(
+        0.5, "--memory-limit", min=0.01, help=MEMORY_LIMIT_HELP),
+    max_model_size: float = typer.Option(
+        5.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
@@ -493,6 +518,7 @@ def train(
         "quick": quick, "seed": seed, "n_jobs": -1 if scheduler else n_jobs, "group_by": groups,
         **amplitudes, **({} if max_support is None else {"max_support": max_support}),
         "decision": decision.value, "reject": reject, **_decision_us(decision_us),
+        "recipe_options": memory_options(memory_limit), **model_size_option(max_model_size),
     }
     the_budget = None
     if target is not None or budget is not None:
@@ -582,8 +608,10 @@ def _support_budget_lines(model: Any) -> list[str]:
     b = model.training.get("support_budget")
     if not b:
         return []
-    by = (f"to {b['max_support']} to fit the budget" if b.get("by") == "budget"
-          else f"by --max-support {b['max_support']}")
+    by = {"budget": f"to {b['max_support']} to fit the budget",
+          "size": f"to {b['max_support']} to fit --max-model-size "
+                  f"{b.get('max_model_bytes', 0) / 1e6:g} MB"}.get(
+        b.get("by"), f"by --max-support {b['max_support']}")
     return [f"support vectors bounded {by}: "
             f"{b['support_vectors_before']} -> {b['support_vectors']} (each machine refitted on "
             f"the kept patterns)"]

@@ -33,8 +33,8 @@ QUICK_SIGMAS: tuple[float, ...] = (2.0**-1, 2.0**1)
 QUICK_ALPHAS: tuple[str, ...] = ("1", "Q/2")
 
 #: D when the recordings allow it (the paper's largest; the study found it as good as 50 and
-#: better than 20); with D=None, train_model takes the longest training recording when that is
-#: shorter (no point stretching every touch by interpolation).
+#: better than 20); with D=None, train_model takes the median training touch window's samples
+#: when that is fewer (no point stretching most touches by interpolation; training_set.fillable_D).
 DEFAULT_D = 100
 
 MACHINES: tuple[str, ...] = ("svm", "rls")

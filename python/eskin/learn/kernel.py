@@ -238,12 +238,22 @@ def mode_distances(
     sigma: ``kernel_from_distances(D, sigma)`` turns them into a kernel matrix. ``max_bytes``:
     the scratch memory of the pairwise kernel (the bases repacked for it), which then works
     block by block (:func:`distance_plan`); the same distances, bit for bit, for any limit.
+    None: :data:`DEFAULT_SCRATCH_BYTES`, or two blocks of 8 patterns when they need more.
     """
     bx, by, nt = _prepare(X, Y, alpha, n_threads)
+    if max_bytes is None:
+        smallest = distance_plan(bx.shape, bx.alphas, 8, 8)["pack_bytes"]
+        max_bytes = max(DEFAULT_SCRATCH_BYTES, smallest)
     try:
         return _core.mode_distances(bx, by, nt, _max_bytes(max_bytes))
     except ValueError as exc:
         raise ValueError(str(exc)) from None
+
+
+#: The pairwise kernel's scratch memory by default (:func:`mode_distances`): the whole set of
+#: patterns in one block for the paper's 4 x 4 skin, blocks of them for a large grid at a
+#: large D (a 19 x 27 x 100 pattern at alpha Q packs into 16 MB).
+DEFAULT_SCRATCH_BYTES = 256 << 20
 
 
 def _max_bytes(max_bytes: int | None) -> int:

@@ -85,6 +85,55 @@ SEARCH_DS = (20, 50, 100)
 #: distances, every held-out kernel value near 0), and the label would be decided by noise. Such
 #: a candidate's split counts as error 1.0.
 COLLAPSE_TOLERANCE = 1e-3
+#: Bytes the per-mode distances of one (D, subsampling, alpha) may take by default: the
+#: patterns' bases, the packed blocks of the pairwise kernel and the distances themselves
+#: (``RecipeSearch(memory_limit=...)``, ``eskin train --memory-limit``).
+DEFAULT_MEMORY_LIMIT = 512 << 20
+
+
+def pattern_distances(
+    X: np.ndarray, alpha: str, memory_limit: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the per-mode distances of the patterns ``X`` at the grid's ``alpha`` summed over the
+    modes, their log energies): all a kernel of the tensor family needs (K = exp(-sum / (2
+    sigma^2))). Within ``memory_limit`` bytes (None: no limit): the pairwise kernel packs the
+    patterns block by block in what the bases and the distances leave of it
+    (:func:`distance_scratch`)."""
+    from eskin.learn.kernel import mode_distances, pattern_log_energy, resolve_alphas
+
+    alphas = resolve_alphas(X.shape[1:], ALPHA_SPEC[alpha])
+    scratch = None
+    if memory_limit is not None:
+        scratch = distance_scratch(X.shape, alphas, memory_limit,
+                                   f"D = {X.shape[-1]}, alpha {alpha}")
+    d = mode_distances(X, alpha=alphas, max_bytes=scratch)
+    return d.sum(axis=0), pattern_log_energy(X)
+
+
+def distance_memory(shape: Sequence[int], alphas: Sequence[int]) -> tuple[int, int]:
+    """(bytes of the bases and distances of ``shape[0]`` patterns of shape ``shape[1:]`` at
+    ``alphas``, bytes of the smallest blocked plan of the pairwise kernel's scratch memory)."""
+    from eskin.learn.kernel import distance_plan
+
+    n, dims = int(shape[0]), [int(d) for d in shape[1:]]
+    size = math.prod(dims)
+    bases = n * sum(size // d * int(a) for d, a in zip(dims, alphas)) * 8
+    distances = (len(dims) + 1) * n * n * 8  # per mode, and their sum
+    plan = distance_plan(dims, alphas, 8, 8)  # a row and a column block of 8 patterns
+    return bases + distances, int(plan["pack_bytes"])
+
+
+def distance_scratch(shape: Sequence[int], alphas: Sequence[int], limit: int, what: str) -> int:
+    """The scratch bytes left to the pairwise kernel by ``limit`` once the bases and the
+    distances of the patterns are counted (:func:`distance_memory`); a TrainingError naming
+    ``what`` when not even its smallest blocks fit."""
+    fixed, smallest = distance_memory(shape, alphas)
+    if fixed + smallest > limit:
+        raise TrainingError(
+            f"the distances of {shape[0]} patterns at {what} need at least "
+            f"{(fixed + smallest) / 2**20:.0f} MiB, more than the memory limit of "
+            f"{limit / 2**20:.0f} MiB: give a smaller D or alpha, or raise --memory-limit")
+    return int(limit - fixed)
 
 
 def collapsed(F: np.ndarray, intercepts: np.ndarray) -> bool:
@@ -150,10 +199,12 @@ def recipe_space(
     negatives: Sequence[str] = NEGATIVES,
     *,
     longest: int | None = None,
+    fill: int | None = None,
 ) -> tuple[list[Recipe], list[str]]:
     """(the recipes of the given choices, notes). A D longer than ``longest`` (the longest
-    training recording, when given) becomes ``longest``: a longer D would only stretch every
-    touch by interpolation."""
+    training recording, when given) becomes ``longest``, and one longer than ``fill`` (the D
+    most touch windows fill, :func:`eskin.learn.training_set.fillable_D`) becomes ``fill``: a
+    longer D would only stretch every touch by interpolation."""
     notes = []
     capped = []
     for D in Ds:
@@ -162,6 +213,10 @@ def recipe_space(
             notes.append(f"the training recordings are at most {longest} samples long: D = "
                          f"{max(2, longest)} instead of {D}")
             D = max(2, int(longest))
+        if fill is not None and D > fill:
+            notes.append(f"the median training touch window is {fill} samples long: D = "
+                         f"{max(2, fill)} instead of {D}")
+            D = max(2, int(fill))
         if D not in capped:
             capped.append(D)
     recipes = sorted({Recipe(m, D, s, n) for m in machines for D in capped for s in subsamples
@@ -552,6 +607,7 @@ class RecipeSearch:
         significance: float | None = 0.05,
         seed: int = 0,
         n_jobs: int | None = 1,
+        memory_limit: int | None = DEFAULT_MEMORY_LIMIT,
     ) -> None:
         if not recipes:
             raise TrainingError("the recipe search has no recipe to try")
@@ -568,6 +624,7 @@ class RecipeSearch:
             raise TrainingError(f"significance must be in (0, 1) or None, got {significance}")
         self.significance = None if significance is None else float(significance)
         self.seed, self.n_jobs = int(seed), n_jobs
+        self.memory_limit = None if memory_limit is None else int(memory_limit)
 
     # -- plan ------------------------------------------------------------------------------
     def _splits(self, y: np.ndarray, groups: np.ndarray | None) -> list:
@@ -707,14 +764,9 @@ class RecipeSearch:
         kept = set(keep) | set(mine[: max(1, math.ceil(len(mine) / self.eta))])
         return [c for c in ranked if c in kept]
 
-    @staticmethod
-    def _distances(X: np.ndarray, alpha: str) -> tuple[np.ndarray, np.ndarray]:
-        """(the per-mode distances of the patterns summed over the modes, their log
-        energies): all a kernel of the tensor family needs (K = exp(-sum / (2 sigma^2)))."""
-        from eskin.learn.kernel import mode_distances, pattern_log_energy, resolve_alphas
-
-        d = mode_distances(X, alpha=resolve_alphas(X.shape[1:], ALPHA_SPEC[alpha]))
-        return d.sum(axis=0), pattern_log_energy(X)
+    def _distances(self, X: np.ndarray, alpha: str) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`pattern_distances` within :attr:`memory_limit`."""
+        return pattern_distances(X, alpha, self.memory_limit)
 
     def _key(self, row: _Row) -> tuple:
         c = row.candidate

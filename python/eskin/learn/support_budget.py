@@ -191,3 +191,34 @@ def bound_support(estimator: Any, max_support: int, selection: str = "greedy",
 def n_distinct_support(estimator: Any) -> int:
     """The number of distinct support vectors over all the machines (what a model stores)."""
     return len(distinct_support(estimator)[0])
+
+
+#: the size of a model file ``eskin train`` keeps to by default (``--max-model-size``): a
+#: decision reads every stored byte, so this bounds the host's decision time too. The tensor
+#: kernel's bases grow with the grid (a 19 x 27 skin at D = 10 and alpha Q/2 takes 30 KB per
+#: support vector, about 165 fit); on the paper's 4 x 4 skin at D = 100 and alpha Q a
+#: support vector takes 14 KB (about 355 fit: the default model of the 70-participant
+#: simulated campaign, 717 support vectors, is bounded).
+DEFAULT_MAX_MODEL_BYTES = 5_000_000
+
+#: bytes of a model file beside its support vectors' bases: headers, preprocessing, classes,
+#: calibration and meta (a few KB; a generous bound)
+MODEL_FIXED_BYTES = 64 * 1024
+
+
+def support_bytes(estimator: Any) -> int:
+    """Bytes one distinct support vector takes in a float32 ``.eskin`` file of ``estimator``:
+    its bases at the largest alpha of every mode over the machines (4 bytes a value, sum over
+    modes of N_z x alpha_z), its ranks and log energy, and a coefficient and index per machine."""
+    machines = _machines(estimator)
+    shape = tuple(int(d) for d in machines[0].tensor_shape_)
+    size = int(np.prod(shape))
+    store = [max(int(m.alphas_[z]) for m in machines) for z in range(len(shape))]
+    values = sum(size // d * a for d, a in zip(shape, store))
+    return 4 * values + 4 * len(shape) + 8 + 8 * len(machines)
+
+
+def support_for_size(estimator: Any, max_bytes: int) -> int:
+    """The most distinct support vectors a float32 model of ``estimator``'s machines can hold
+    in ``max_bytes`` (:func:`support_bytes` each, beside :data:`MODEL_FIXED_BYTES`), at least 1."""
+    return max(1, (int(max_bytes) - MODEL_FIXED_BYTES) // support_bytes(estimator))

@@ -39,12 +39,14 @@ from eskin.learn.models import TouchModel
 from eskin.learn.recipes import ALPHA_SPEC, one_vs_all_indices
 from eskin.learn.training_set import (
     cv_groups,
+    fillable_D,
     fit_grouped,
     group_labels,
     load_training_data,
     preprocess_campaign,
     require_touches,
     small_class_notes,
+    touch_window_lengths,
     window_config_for_rate,
 )
 
@@ -151,21 +153,22 @@ def _training_data(
     return rec, info, classes, idx, y_all, groups
 
 
-def _default_D(recipe: _Recipe, rec: Any, idx: np.ndarray, notes: list[str]) -> _Recipe:
-    """The recipe with D resolved: as given, else :data:`DEFAULT_D`, or the longest training
-    recording (at least 2 samples) when that is shorter, with a note."""
+def _default_D(recipe: _Recipe, rec: Any, idx: np.ndarray, window_config: Any, rate: float,
+               notes: list[str]) -> _Recipe:
+    """The recipe with D resolved: as given, else :data:`DEFAULT_D`, or the samples of the
+    median training touch window (:func:`fillable_D`, at least 2) when that is shorter, with a
+    note."""
     if recipe.D is not None:
         return recipe
-    lengths = np.asarray(rec.lengths)[idx]
-    longest = int(lengths.max()) if len(lengths) else DEFAULT_D
-    if longest >= DEFAULT_D:
+    fill = fillable_D(touch_window_lengths(rec, idx, window=recipe.window, config=window_config,
+                                           sample_rate_hz=rate))
+    if fill is None or fill >= DEFAULT_D:
         return replace(recipe, D=DEFAULT_D)
-    D = max(2, longest)
     notes.append(
-        f"the training recordings are at most {longest} samples long: D = {D} instead of "
-        f"{DEFAULT_D} (a longer D would only stretch every touch by interpolation)"
+        f"the median training touch window is {fill} samples long: D = {fill} instead of "
+        f"{DEFAULT_D} (a longer D would only stretch most touches by interpolation)"
     )
-    return replace(recipe, D=D)
+    return replace(recipe, D=fill)
 
 
 def _training_patterns(
@@ -337,6 +340,7 @@ def train_model(
     decision_us: float | None = None,
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
+    max_model_bytes: int | None = None,
     choose_hold: bool = True,
     decision: str = "calibrated",
     reject: float = DEFAULT_REJECT,
@@ -355,7 +359,8 @@ def train_model(
         ``cv_options``: :class:`~eskin.CrossValidationSearch`) or "md" (Maximal Discrepancy,
         Algorithm 1; ``md_options``: :class:`~eskin.MaximalDiscrepancySearch`).
     D, window, subsample, window_config : preprocessing (see :func:`eskin.preprocess`); D
-        None (default) is 100, or the longest training recording when that is shorter.
+        None (default) is 100, or the median training touch window's samples when that is fewer
+        (:func:`~eskin.learn.training_set.fillable_D`).
     lambdas, sigmas, alphas : the grid (default the paper's, 135 configurations); ``quick``
         replaces it by a 2x2x2 grid (for tests and demos).
     amplitudes : the amplitude-aware kernel's widths searched (None: the paper's kernel; a
@@ -374,6 +379,10 @@ def train_model(
         vectors bounded, the search's order of preference kept); None (default): no bound.
         Only a searched recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
+    max_model_bytes : at most this many bytes in the model's float32 ``.eskin`` file (None,
+        the default here: no limit; ``eskin train`` passes
+        :data:`~eskin.learn.support_budget.DEFAULT_MAX_MODEL_BYTES`): a model whose support
+        vectors would not fit keeps the most that do, as with ``max_support``.
     max_support : at most this many distinct support vectors in the model (all machines
         together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.
     choose_hold : with the energy window, choose ``window_config.hold_s`` so that one training
@@ -387,15 +396,16 @@ def train_model(
 
     Recipe search: with ``selection="cv"``, each of ``machine``, ``D``, ``subsample`` and
     ``negatives`` left None is searched by :class:`~eskin.learn.recipes.RecipeSearch`.
-    With all four given, or ``selection="md"`` (the unset ones then svm, D 100 or the longest
-    recording, algorithm2, all), each machine selects its own setting of the grid.
+    With all four given, or ``selection="md"`` (the unset ones then svm, D 100 or the median
+    touch window, algorithm2, all), each machine selects its own setting of the grid.
     """
     recipe_given = dict(machine=machine, D=D, subsample=subsample, negatives=negatives)
     common = dict(classes=classes, window=window, window_config=window_config, lambdas=lambdas,
                   sigmas=sigmas, alphas=alphas, amplitudes=amplitudes, quick=quick,
                   cv_options=cv_options, runs=runs, class_names=class_names, lengths=lengths,
                   sample_rate_hz=sample_rate_hz, seed=seed, n_jobs=n_jobs, group_by=group_by,
-                  max_support=_checked_max_support(max_support), choose_hold=choose_hold,
+                  max_support=_checked_max_support(max_support),
+                  max_model_bytes=_checked_max_bytes(max_model_bytes), choose_hold=choose_hold,
                   rule=_checked_rule(decision, reject))
     if selection == "cv" and None in recipe_given.values():
         return _train_searched(data, labels, **recipe_given, **common, budget=budget,
@@ -405,6 +415,15 @@ def train_model(
                             "of machine, D, subsample, negatives left to the search)")
     return _train_fixed(data, labels, selection=selection, md_options=md_options,
                         **recipe_given, **common)
+
+
+def _checked_max_bytes(max_model_bytes: Any) -> int | None:
+    """``max_model_bytes`` as an int (None: no limit); a TrainingError below 1."""
+    if max_model_bytes is None:
+        return None
+    if isinstance(max_model_bytes, bool) or not float(max_model_bytes) >= 1:
+        raise TrainingError(f"max_model_bytes must be a positive number, got {max_model_bytes!r}")
+    return int(max_model_bytes)
 
 
 def _checked_rule(decision: Any, reject: Any) -> tuple[str, float]:
@@ -463,22 +482,31 @@ def _checked_max_support(max_support: Any) -> int | None:
         raise TrainingError(str(exc)) from None
 
 
-def _with_support_budget(model: TouchModel, max_support: int | None,
-                         X: np.ndarray) -> TouchModel:
-    """``model`` with at most ``max_support`` distinct support vectors (None: as it is), the
-    machines' coefficients fitted to their decision values on the training patterns ``X``,
-    and a record of it."""
-    from eskin.learn.support_budget import bound_support, n_distinct_support
+def _with_support_budget(model: TouchModel, max_support: int | None, X: np.ndarray,
+                         max_model_bytes: int | None = None) -> TouchModel:
+    """``model`` with at most ``max_support`` distinct support vectors (None: as it is), and
+    no more than a float32 model file of ``max_model_bytes`` holds
+    (:func:`~eskin.learn.support_budget.support_for_size`), the machines' coefficients fitted
+    to their decision values on the training patterns ``X``, and a record of it."""
+    from eskin.learn.support_budget import bound_support, n_distinct_support, support_for_size
 
+    before = n_distinct_support(model.estimator)
+    by_size = False
+    if max_model_bytes is not None:
+        fit = support_for_size(model.estimator, max_model_bytes)
+        if fit < before and (max_support is None or fit < max_support):
+            max_support, by_size = fit, True
     if max_support is None:
         return model
-    before = n_distinct_support(model.estimator)
     model.estimator = bound_support(model.estimator, max_support, X_fit=X)
     model.training["support_budget"] = {
         "max_support": max_support,
         "support_vectors_before": before,
         "support_vectors": n_distinct_support(model.estimator),
     }
+    if by_size:
+        model.training["support_budget"]["by"] = "size"
+        model.training["support_budget"]["max_model_bytes"] = max_model_bytes
     return model
 
 
@@ -507,8 +535,8 @@ def _train_fixed(
     amplitudes: Sequence[float | None], quick: bool, md_options: Mapping[str, Any] | None,
     cv_options: Mapping[str, Any] | None, negatives: str | None, runs: Sequence[int] | None,
     class_names: Sequence[str] | None, lengths: Any, sample_rate_hz: float, seed: int,
-    n_jobs: int, group_by: str, max_support: int | None, choose_hold: bool,
-    rule: tuple[str, float],
+    n_jobs: int, group_by: str, max_support: int | None, max_model_bytes: int | None,
+    choose_hold: bool, rule: tuple[str, float],
 ) -> TouchModel:
     """train_model with the recipe given (or Maximal Discrepancy): each machine selects its
     own setting of the grid."""
@@ -520,7 +548,7 @@ def _train_fixed(
     (rec, info, classes, idx, y_all, groups, rate, window_config, notes,
      live) = _training_setup(data, labels, classes, class_names, lengths, sample_rate_hz, runs,
                              group_by, window, window_config, choose_hold)
-    recipe = _default_D(recipe, rec, idx, notes)
+    recipe = _default_D(recipe, rec, idx, window_config, rate, notes)
     X, prep_seconds = _training_patterns(data, rec, idx, recipe, window_config, rate)
     estimator, grouped, selected, fit_seconds = _select_and_fit(
         recipe, X, y_all, classes, groups, notes
@@ -533,7 +561,7 @@ def _train_fixed(
                          window_config)
     model = _with_calibration(model, estimator, X, y_all, groups, recipe.negatives, recipe.seed,
                               n_jobs, rule)
-    return _with_support_budget(model, max_support, X)
+    return _with_support_budget(model, max_support, X, max_model_bytes)
 
 
 def _train_searched(
@@ -544,7 +572,8 @@ def _train_searched(
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
     decision_us: float | None, recipe_options: Mapping[str, Any] | None,
-    max_support: int | None, choose_hold: bool, rule: tuple[str, float],
+    max_support: int | None, max_model_bytes: int | None, choose_hold: bool,
+    rule: tuple[str, float],
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import MACHINES as R_MACHINES
@@ -561,6 +590,8 @@ def _train_searched(
         [machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
         [subsample] if subsample else SUBSAMPLES, [negatives] if negatives else NEGATIVES,
         longest=int(lens.max()) if len(lens) else None,
+        fill=None if D else fillable_D(touch_window_lengths(
+            rec, idx, window=window, config=window_config, sample_rate_hz=rate)),
     )
     notes += sorted(set(cap_notes))
     t0 = time.perf_counter()
@@ -607,7 +638,8 @@ def _train_searched(
         _touch_model(chosen, classes, estimator, selected, training, rate, X.shape[1:],
                      window_config), estimator, X, y_all, groups if grouped else None,
         chosen.negatives, seed, n_jobs, rule)
-    model = _with_support_budget(model, search.best_bound_ if by_budget else max_support, X)
+    model = _with_support_budget(model, search.best_bound_ if by_budget else max_support, X,
+                                 max_model_bytes)
     if by_budget:  # bounded by the search, to the most support vectors that fit the budget
         model.training["support_budget"]["by"] = "budget"
     return model

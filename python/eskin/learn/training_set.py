@@ -170,6 +170,52 @@ def preprocess_campaign(
     return Prepared(out, windows, bad, snr, time.perf_counter() - t0, notes)
 
 
+#: the share of the training touch windows that must hold at least D samples for D to be
+#: searched or used by default (0.5: the median window fills D without interpolation)
+FILL_QUANTILE = 0.5
+
+
+def touch_window_lengths(
+    campaign: Any,
+    indices: Sequence[int] | np.ndarray,
+    *,
+    window: str = "energy",
+    config: Any = None,
+    sample_rate_hz: float | None = None,
+    chunk: int = 32,
+) -> np.ndarray:
+    """Samples in each recording's touch window (the window :func:`preprocess_campaign` reads):
+    the detector's ``stop - start`` with ``window="energy"``, the recording's length with
+    ``window="none"``."""
+    from eskin.signal.preprocess import detect_touches
+
+    indices = np.asarray(indices, dtype=np.int64)
+    lengths = np.asarray(campaign.lengths)
+    if window == "none" or len(indices) == 0:
+        return lengths[indices].astype(np.int64)
+    rate = float(sample_rate_hz if sample_rate_hz is not None else campaign.sample_rate_hz)
+    config, _ = window_config_for_rate(config, rate)
+    rows, cols = (int(v) for v in np.shape(campaign.recording(int(indices[0])))[:2])
+    out = np.zeros(len(indices), np.int64)
+    for c0 in range(0, len(indices), chunk):
+        sel = indices[c0 : c0 + chunk]
+        block, lens = _read_block(campaign, sel, lengths[sel], rows, cols)
+        found = detect_touches(block, lengths=lens, sample_rate_hz=rate, config=config)
+        out[c0 : c0 + len(sel)] = np.asarray(found.stop) - np.asarray(found.start)
+    return out
+
+
+def fillable_D(window_lengths: Sequence[int] | np.ndarray) -> int | None:
+    """The largest D that the share :data:`FILL_QUANTILE` of the touch windows fill with
+    samples of their own (a longer D only interpolates them: 10 samples resampled to 100 add
+    90 made-up ones and grow every mode of the time axis tenfold), at least :data:`MIN_D`;
+    None without windows."""
+    w = np.asarray(window_lengths, dtype=np.int64)
+    if w.size == 0:
+        return None
+    return max(MIN_D, int(np.quantile(w, 1.0 - FILL_QUANTILE, method="lower")))
+
+
 def _checked_variants(variants: Sequence[tuple[int, str]]) -> list[tuple[int, str]]:
     """The distinct (D, subsample method) pairs, sorted and checked."""
     variants = sorted({(int(D), str(s)) for D, s in variants})

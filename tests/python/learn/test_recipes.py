@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from eskin.cli import app
 from eskin.errors import TrainingError
 from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
+from eskin.learn.kernel import resolve_alphas
 from eskin.learn.models import load_model
 from eskin.learn.training import train_model
 from eskin.learn.training_set import preprocess_campaign
@@ -24,6 +25,7 @@ from eskin.learn.recipes import (
     RecipeSearch,
     budget_preference,
     corrected_paired_t,
+    distance_memory,
     one_vs_all_indices,
     recipe_preference,
     recipe_space,
@@ -55,6 +57,30 @@ def test_recipe_space_caps_D_by_the_longest_recording():
     assert len(full) == 24 and len(set(full)) == 24
     with pytest.raises(TrainingError, match="machine must be"):
         Recipe("knn", 20, "even", "all")
+
+
+def test_recipe_space_caps_D_by_what_the_touch_windows_fill():
+    recipes, notes = recipe_space(["svm"], [20, 50, 100], ["even"], ["all"], longest=40, fill=10)
+    assert [r.D for r in recipes] == [10]
+    assert any("median training touch window is 10 samples" in n for n in notes)
+    recipes, _ = recipe_space(["svm"], [20, 50, 100], ["even"], ["all"], fill=60)
+    assert [r.D for r in recipes] == [20, 50, 60]
+
+
+def test_the_distances_within_a_memory_limit_are_those_without(data):
+    X = data[0][(20, "algorithm2")]
+    recipe = Recipe("svm", 20, "algorithm2", "all")
+    free = RecipeSearch([recipe], [0.1], [1.0], ["Q"], [None], memory_limit=None)
+    fixed, smallest = distance_memory(X.shape, resolve_alphas(X.shape[1:], "full"))
+    tight = RecipeSearch([recipe], [0.1], [1.0], ["Q"], [None],
+                         memory_limit=fixed + 2 * smallest)
+    for a, b in zip(free._distances(X, "Q"), tight._distances(X, "Q")):
+        np.testing.assert_array_equal(a, b)
+    refused = RecipeSearch([recipe], [0.1], [1.0], ["Q"], [None],
+                           memory_limit=fixed + smallest - 1)
+    with pytest.raises(TrainingError, match=r"at D = 20, alpha Q need at least \d+ MiB, more "
+                       r"than the memory limit .* raise --memory-limit"):
+        refused._distances(X, "Q")
 
 
 @pytest.mark.parametrize("machine,negatives", [("svm", "all"), ("svm", "balanced"),

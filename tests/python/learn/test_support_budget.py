@@ -161,3 +161,18 @@ def test_each_greedy_pick_removes_the_most_of_the_remaining_residual():
                 best, best_residual = i, r
         chosen.append(best)
         assert sorted(chosen) == list(kept_patterns(m, k))
+
+
+def test_the_bytes_of_a_support_vector_are_its_float32_bases_at_the_largest_alphas():
+    from eskin.learn.support_budget import MODEL_FIXED_BYTES, support_bytes, support_for_size
+
+    X, y = _data()
+    clf = OneVsAllTouchClassifier(TensorSVC(C=10.0, sigma=1.0, alpha="half")).fit(X, y)
+    # 4 x 4 x 6: N = 24, 24, 16; alpha Q/2 = 2, 2, 3
+    per = 4 * (24 * 2 + 24 * 2 + 16 * 3) + 4 * 3 + 8 + 8 * 3
+    assert support_bytes(clf) == per
+    assert support_for_size(clf, MODEL_FIXED_BYTES + 10 * per + per - 1) == 10
+    assert support_for_size(clf, 1) == 1
+    mixed = OneVsAllTouchClassifier(TensorSVC(C=10.0, sigma=1.0, alpha=1)).fit(X, y)
+    mixed.estimators_[1] = clf.estimators_[1]  # one machine at alpha Q/2: its bases are stored
+    assert support_bytes(mixed) == per

@@ -1,0 +1,44 @@
+"""Training sets (eskin.learn.training_set): the touch windows' lengths and the D they fill."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from learn_data import small_simulated
+
+from eskin.learn.training_set import (
+    ArrayRecordings,
+    fillable_D,
+    preprocess_campaign,
+    touch_window_lengths,
+)
+
+
+def test_fillable_D_is_the_median_window_at_least_two_samples():
+    assert fillable_D([7, 12, 10, 9, 30]) == 10
+    assert fillable_D([8, 10, 12, 14]) == 10  # the lower of the two middle ones
+    assert fillable_D([1, 1, 3]) == 2
+    assert fillable_D([]) is None
+
+
+def test_window_lengths_are_the_windows_the_patterns_are_cut_from(tmp_path):
+    from eskin.data.campaign import load_campaign
+
+    camp = load_campaign(small_simulated(tmp_path), in_memory=True)
+    idx = np.arange(0, len(camp), 3)
+    prep = preprocess_campaign(camp, idx, [(20, "even")], chunk=5)
+    lengths = touch_window_lengths(camp, idx, chunk=7)
+    np.testing.assert_array_equal(lengths, prep.windows[:, 1] - prep.windows[:, 0])
+    assert np.all(lengths < np.asarray(camp.lengths)[idx])
+
+
+def test_without_a_detector_the_window_is_the_recording():
+    rec = ArrayRecordings(np.ones((3, 2, 2, 40)), lengths=[40, 12, 25], sample_rate_hz=10.0)
+    np.testing.assert_array_equal(touch_window_lengths(rec, [2, 1], window="none"), [25, 12])
+    assert fillable_D(touch_window_lengths(rec, [0, 1, 2], window="none")) == 25
+
+
+@pytest.mark.parametrize("window", ["energy", "none"])
+def test_no_recording_no_window(window):
+    rec = ArrayRecordings(np.ones((1, 2, 2, 4)), sample_rate_hz=10.0)
+    assert touch_window_lengths(rec, [], window=window).size == 0
