@@ -425,6 +425,33 @@ TEST(Batch, ThreadCountAndMicroKernelDoNotChangeResults) {
   for (std::size_t i = 0; i < d1.size(); ++i) EXPECT_NEAR(d1[i], dg[i], 1e-12);
 }
 
+TEST(Batch, BlockedDistancesAreTheUnblockedOnesWithinTheirPlan) {
+  const std::vector<std::size_t> dims{4, 4, 40};
+  const BasisLayout layout(dims, {3, 2, 16});  // mode 3 by packed projections
+  const std::size_t n = 29, m = 19;
+  const auto x = random_tensors(n, dims, 7);
+  const auto y = random_tensors(m, dims, 8);
+  const auto pa = eskin::compute_pattern_bases(x.data(), n, layout, 2);
+  const auto pb = eskin::compute_pattern_bases(y.data(), m, layout, 2);
+  const auto one = eskin::plan_distances(layout, n, n, true, 0);
+  EXPECT_EQ(one.row_blocks, 1u);
+  for (const bool self : {true, false}) {
+    const std::size_t mm = self ? n : m;
+    const eskin::PatternBases* b = self ? nullptr : &pb;
+    std::vector<double> whole(3 * n * mm), blocked(3 * n * mm);
+    eskin::mode_distances(pa, b, whole.data(), 2);
+    const std::size_t limit = 2 * 8 * one.pattern_bytes + 100;  // two blocks of 8 patterns
+    const auto plan = eskin::plan_distances(layout, n, mm, self, limit);
+    EXPECT_EQ(plan.block, 8u);
+    EXPECT_EQ(plan.row_blocks, 4u);
+    EXPECT_LE(plan.pack_bytes, limit);
+    eskin::mode_distances(pa, b, blocked.data(), 2, limit);
+    EXPECT_EQ(whole, blocked);
+  }
+  EXPECT_THROW(eskin::plan_distances(layout, n, n, true, 16 * one.pattern_bytes - 1),
+               std::invalid_argument);
+}
+
 TEST(Batch, Errors) {
   const BasisLayout layout({4, 4, 10}, {2, 2, 8});
   std::vector<double> x(3 * layout.tensor_size(), 1.0);
