@@ -92,6 +92,7 @@ void bind_kernel(py::module_& m) {
         d["col_blocks"] = p.col_blocks;
         d["pack_bytes"] = p.pack_bytes;
         d["pattern_bytes"] = p.pattern_bytes;
+        d["bases_only"] = p.bases_only;
         return d;
       },
       py::arg("dims"), py::arg("alphas"), py::arg("n"), py::arg("m"), py::arg("self"),

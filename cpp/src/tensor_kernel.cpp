@@ -844,11 +844,13 @@ bool use_projection(std::size_t n, std::size_t alpha) {
 }
 
 // The pack of patterns [first, first + count) of a set of patterns of layout L, mode z.
-ModePack plan_mode(const BasisLayout& L, std::size_t z, std::size_t first, std::size_t count) {
+// bases_only: bit z set = mode z packed as bases even where projections are cheaper per pair
+ModePack plan_mode(const BasisLayout& L, std::size_t z, std::size_t first, std::size_t count,
+                   unsigned bases_only = 0) {
   ModePack mp;
   mp.first = first;
   mp.count = count;
-  mp.proj = use_projection(L.cols(z), L.alpha(z));
+  mp.proj = !((bases_only >> z) & 1u) && use_projection(L.cols(z), L.alpha(z));
   mp.alpha = mp.proj ? 1 : L.alpha(z);
   mp.k = mp.proj ? packed_size(L.cols(z)) : L.cols(z);
   mp.ppg = std::max<std::size_t>(1, kTileWidth / mp.alpha);
@@ -956,16 +958,17 @@ namespace {
 constexpr std::size_t kRowBlock = 8;
 
 // Scratch doubles of the packs of `count` patterns of layout L (every mode).
-std::size_t pack_doubles(const BasisLayout& L, std::size_t count) {
+std::size_t pack_doubles(const BasisLayout& L, std::size_t count, unsigned bases_only) {
   std::size_t total = 0;
-  for (std::size_t z = 0; z < L.n_modes(); ++z) total += plan_mode(L, z, 0, count).size();
+  for (std::size_t z = 0; z < L.n_modes(); ++z)
+    total += plan_mode(L, z, 0, count, bases_only).size();
   return total;
 }
 
 // The packs of patterns [first, first + count) of pb in every mode, in mem (pack_doubles of
 // them), filled by nt threads.
 std::vector<ModePack> pack_block(const PatternBases& pb, std::size_t first, std::size_t count,
-                                 double* mem, int nt) {
+                                 unsigned bases_only, double* mem, int nt) {
   const std::size_t nz = pb.layout.n_modes();
   std::vector<ModePack> packs(nz);
   struct PackItem {
@@ -975,7 +978,7 @@ std::vector<ModePack> pack_block(const PatternBases& pb, std::size_t first, std:
   std::size_t total = 0;
   for (std::size_t z = 0; z < nz; ++z) {
     ModePack& mp = packs[z];
-    mp = plan_mode(pb.layout, z, first, count);
+    mp = plan_mode(pb.layout, z, first, count, bases_only);
     mp.data = mem;
     mem += mp.size();
     total += mp.size();
@@ -1129,15 +1132,15 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
   double* mem = g_pack_scratch.get(plan.pack_bytes / sizeof(double));
   for (std::size_t i0 = 0; i0 < n; i0 += blk) {
     const std::size_t ni = std::min(blk, n - i0);
-    const std::vector<ModePack> rows = pack_block(a, i0, ni, mem, nt);
-    double* col_mem = mem + pack_doubles(a.layout, ni);
+    const std::vector<ModePack> rows = pack_block(a, i0, ni, plan.bases_only, mem, nt);
+    double* col_mem = mem + pack_doubles(a.layout, ni, plan.bases_only);
     for (std::size_t j0 = self ? i0 : 0; j0 < m; j0 += blk) {
       const std::size_t nj = std::min(blk, m - j0);
       if (self && j0 == i0) {
         pair_block(rows, rows, true, rank_a.data(), n, rk_b, m, nt, sink);
         continue;
       }
-      const std::vector<ModePack> cols = pack_block(B, j0, nj, col_mem, nt);
+      const std::vector<ModePack> cols = pack_block(B, j0, nj, plan.bases_only, col_mem, nt);
       pair_block(rows, cols, false, rank_a.data(), n, rk_b, m, nt, sink);
     }
   }
@@ -1149,14 +1152,26 @@ void pairwise_distances(const PatternBases& a, const PatternBases* b, int n_thre
 DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_t m, bool self,
                             std::size_t max_bytes) {
   DistancePlan plan;
+  auto whole = [&](unsigned mask) {
+    return (pack_doubles(layout, n, mask) + (self ? 0 : pack_doubles(layout, m, mask))) *
+           sizeof(double);
+  };
+  plan.pack_bytes = whole(0);
+  if (max_bytes != 0 && plan.pack_bytes > max_bytes) {
+    // short of memory: the modes whose packed projections take more than their bases are
+    // packed as bases (more work per pair, none repeated per block)
+    for (std::size_t z = 0; z < layout.n_modes(); ++z)
+      if (plan_mode(layout, z, 0, kRowBlock, 1u << z).size() <
+          plan_mode(layout, z, 0, kRowBlock).size())
+        plan.bases_only |= 1u << z;
+    plan.pack_bytes = whole(plan.bases_only);
+  }
   // a multiple of kRowBlock patterns fills whole groups in every mode (ppg is 1, 2, 4 or 8)
-  plan.pattern_bytes = pack_doubles(layout, kRowBlock) / kRowBlock * sizeof(double);
-  const std::size_t whole = (pack_doubles(layout, n) + (self ? 0 : pack_doubles(layout, m))) *
-                            sizeof(double);
-  if (max_bytes == 0 || whole <= max_bytes) {
+  plan.pattern_bytes =
+      pack_doubles(layout, kRowBlock, plan.bases_only) / kRowBlock * sizeof(double);
+  if (max_bytes == 0 || plan.pack_bytes <= max_bytes) {
     plan.block = std::max(n, m);
     plan.row_blocks = plan.col_blocks = (n && m) ? 1 : 0;
-    plan.pack_bytes = whole;
     return plan;
   }
   const std::size_t per_block = 2 * kRowBlock * plan.pattern_bytes;  // a row and a column block
@@ -1169,8 +1184,9 @@ DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_
   plan.block = max_bytes / per_block * kRowBlock;
   plan.row_blocks = (n + plan.block - 1) / plan.block;
   plan.col_blocks = (m + plan.block - 1) / plan.block;
-  plan.pack_bytes = (pack_doubles(layout, std::min(plan.block, n)) +
-                     pack_doubles(layout, std::min(plan.block, m))) * sizeof(double);
+  plan.pack_bytes = (pack_doubles(layout, std::min(plan.block, n), plan.bases_only) +
+                     pack_doubles(layout, std::min(plan.block, m), plan.bases_only)) *
+                    sizeof(double);
   return plan;
 }
 

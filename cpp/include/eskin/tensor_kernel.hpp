@@ -218,10 +218,15 @@ struct DistancePlan {
   std::size_t col_blocks = 0;  ///< blocks of b (of a for X-vs-X)
   std::size_t pack_bytes = 0;  ///< scratch memory the packed blocks take at once
   std::size_t pattern_bytes = 0;  ///< scratch memory per packed pattern
+  /// bit z set: mode z packed as bases although its packed projections are cheaper per pair
+  /// (taken when the whole set does not fit in max_bytes and the bases take less memory)
+  unsigned bases_only = 0;
 };
 
 /// The plan of mode_distances for n patterns against m (self: X-vs-X, m == n) of one layout,
-/// with at most max_bytes of scratch memory (0: no limit, one block). Throws
+/// with at most max_bytes of scratch memory (0: no limit, one block). When the whole set does
+/// not fit, the modes whose bases take less memory than their packed projections are packed as
+/// bases, then the patterns are blocked. Throws
 /// std::invalid_argument when not even two blocks of 8 patterns fit in max_bytes.
 DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_t m, bool self,
                             std::size_t max_bytes);
@@ -229,7 +234,7 @@ DistancePlan plan_distances(const BasisLayout& layout, std::size_t n, std::size_
 /// Per-mode squared distances, out (n_modes, a.count, m) C-order with m = b ? b->count :
 /// a.count. b == nullptr: X-vs-X, each pair computed once, exact zeros on the diagonal.
 /// max_bytes: the scratch memory allowed (plan_distances; 0: no limit); the distances are the
-/// same bits for any limit.
+/// same bits for any block size, and agree to rounding (1e-12) when a mode is packed as bases.
 void mode_distances(const PatternBases& a, const PatternBases* b, double* out, int n_threads = 0,
                     std::size_t max_bytes = 0);
 

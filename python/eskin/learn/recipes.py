@@ -119,8 +119,12 @@ def distance_memory(shape: Sequence[int], alphas: Sequence[int]) -> tuple[int, i
     size = math.prod(dims)
     bases = n * sum(size // d * int(a) for d, a in zip(dims, alphas)) * 8
     distances = (len(dims) + 1) * n * n * 8  # per mode, and their sum
-    plan = distance_plan(dims, alphas, 8, 8)  # a row and a column block of 8 patterns
-    return bases + distances, int(plan["pack_bytes"])
+    smallest = distance_plan(dims, alphas, 8, 8)["pack_bytes"]  # a row and a column block of 8
+    try:  # short of memory, a projection mode may be packed as its (smaller) bases
+        smallest = distance_plan(dims, alphas, 8, 8, max_bytes=smallest - 1)["pack_bytes"]
+    except ValueError:
+        pass
+    return bases + distances, int(smallest)
 
 
 def distance_scratch(shape: Sequence[int], alphas: Sequence[int], limit: int, what: str) -> int:

@@ -471,14 +471,33 @@ def test_blocked_distances_are_the_unblocked_ones_bit_for_bit(shape, alpha, n, m
     Y = None if m is None else rng.normal(size=(m, *shape))
     alphas = resolve_alphas(shape, alpha)
     whole = mode_distances(X, Y, alpha=alphas, n_threads=2)
-    per_pattern = distance_plan(shape, alphas, n, m)["pattern_bytes"]
-    for block in (8, 16):  # both below the whole set
-        limit = 2 * block * per_pattern
+    smallest = distance_plan(shape, alphas, 8, 8)["pack_bytes"]
+    for limit in (smallest, 2 * smallest, 3 * smallest):
         plan = distance_plan(shape, alphas, n, m, max_bytes=limit)
-        assert plan["block"] == block
-        assert plan["row_blocks"] == -(-n // block)
+        assert plan["pack_bytes"] <= limit
+        assert plan["row_blocks"] == -(-n // plan["block"])
         blocked = mode_distances(X, Y, alpha=alphas, n_threads=2, max_bytes=limit)
-        np.testing.assert_array_equal(blocked, whole)
+        if plan["bases_only"] == 0:  # the same packing: the same bits
+            np.testing.assert_array_equal(blocked, whole)
+        else:  # a projection mode packed as bases: the same sums in another order
+            np.testing.assert_allclose(blocked, whole, rtol=0, atol=1e-12)
+
+
+def test_short_of_memory_a_projection_mode_is_packed_as_bases():
+    shape = (19, 27, 70)
+    alphas = resolve_alphas(shape, "full")
+    unlimited = distance_plan(shape, alphas, 336)
+    assert unlimited["pack_bytes"] > 2_800_000_000 and unlimited["bases_only"] == 0
+    plan = distance_plan(shape, alphas, 336, max_bytes=512 << 20)
+    assert plan["bases_only"] == 0b110  # the second mode (N = 1330) and the time mode (N = 513)
+    assert plan["row_blocks"] == 1 and plan["pack_bytes"] < 512 << 20
+    X = np.random.default_rng(1).normal(size=(20, 3, 4, 9))
+    al = resolve_alphas((3, 4, 9), "full")
+    small = distance_plan((3, 4, 9), al, 20, max_bytes=distance_plan((3, 4, 9), al, 20)[
+        "pack_bytes"] - 1)
+    np.testing.assert_allclose(
+        mode_distances(X, alpha=al, max_bytes=small["pack_bytes"]),
+        mode_distances(X, alpha=al, max_bytes=None), rtol=0, atol=1e-12)
 
 
 def test_the_distance_plan_keeps_within_the_limit():
@@ -489,9 +508,10 @@ def test_the_distance_plan_keeps_within_the_limit():
     for limit in (unlimited["pack_bytes"] // 3, 50 * 2**20, 20 * 2**20):
         plan = distance_plan(shape, alphas, 330, max_bytes=limit)
         assert plan["pack_bytes"] <= limit
-        assert plan["block"] % 8 == 0 and plan["row_blocks"] == -(-330 // plan["block"])
-        # the largest block of 8s that fits: 8 more would not
-        assert 2 * (plan["block"] + 8) * plan["pattern_bytes"] > limit
+        assert plan["row_blocks"] == -(-330 // plan["block"])
+        if plan["row_blocks"] > 1:  # the largest block of 8s that fits: 8 more would not
+            assert plan["block"] % 8 == 0
+            assert 2 * (plan["block"] + 8) * plan["pattern_bytes"] > limit
     # a limit the whole set fits in is one block
     assert distance_plan(shape, alphas, 330, max_bytes=unlimited["pack_bytes"])["row_blocks"] == 1
 
