@@ -1445,18 +1445,22 @@ TEST(ModelCalibration, BadCalbSectionsAreRefusedNamingFieldAndValue) {
 // cut of the bases (the decision tables group machines by alpha)
 
 namespace {
-// The fixture with machine `k`'s alpha of mode `z` set to `a` (the CRC fixed).
-Bytes with_machine_alpha(Bytes b, std::size_t k, int z, std::uint32_t a) {
-  const std::size_t mach = section_offset(b, "MACH");
-  std::size_t pos = mach + 8;  // machine 0
+// Where machine `k` of a float64 model starts in its MACH section.
+std::size_t machine_offset(const Bytes& b, std::size_t k) {
+  std::size_t pos = section_offset(b, "MACH") + 8;  // machine 0
   for (std::size_t i = 0; i < k; ++i) {
-    // a machine (docs/model-format.md, MACH): 24 bytes of fields (n_terms at 8), three
-    // {u32 alpha, u32 reserved, f64 sigma}, then its n_terms indices (u32, padded to 8) and
-    // coefficients (f64 in a float64 model)
+    // a machine (docs/model-format.md, MACH): 24 bytes of fields (n_terms at 8, intercept at
+    // 16), three {u32 alpha, u32 reserved, f64 sigma}, then its n_terms indices (u32, padded
+    // to 8) and coefficients (f64 in a float64 model)
     const std::uint32_t n_terms = get_u32(b, pos + 8);
     pos += 24 + 48 + (n_terms * 4 + 7) / 8 * 8 + n_terms * 8;
   }
-  put_u32(b, pos + 24 + 16 * static_cast<std::size_t>(z), a);
+  return pos;
+}
+
+// The fixture with machine `k`'s alpha of mode `z` set to `a` (the CRC fixed).
+Bytes with_machine_alpha(Bytes b, std::size_t k, int z, std::uint32_t a) {
+  put_u32(b, machine_offset(b, k) + 24 + 16 * static_cast<std::size_t>(z), a);
   fix_crc(b);
   return b;
 }
@@ -1791,4 +1795,148 @@ TEST(ModelClassify, WithoutTheDetectorASamplePastTheLengthIsNotChecked) {
   eskin::Decision d;
   EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T - 1, &d), eskin::ClassifyStatus::kOk);
   EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kNotFinite);
+}
+
+// ---- the rules on exact values: every sigma at its smallest (1e-6) makes each kernel term
+// exp(-d / 2e-12) underflow to 0 for a random input (its distances are far above 1e-9), so each
+// machine's value is its intercept, exactly; the rules are then checked on values chosen by hand
+// (docs/model-format.md, "Decision").
+
+namespace {
+// A float64 model whose machine k's value is intercepts[k] on a random input.
+Bytes with_values(Bytes b, const std::vector<double>& intercepts) {
+  for (std::size_t k = 0; k < intercepts.size(); ++k) {
+    const std::size_t at = machine_offset(b, k);
+    put_f64(b, at + 16, intercepts[k]);
+    for (std::size_t z = 0; z < 3; ++z) put_f64(b, at + 24 + 16 * z + 8, 1e-6);
+  }
+  fix_crc(b);
+  return b;
+}
+}  // namespace
+
+// One-vs-all, paper's rule: exactly one f > 0 claims (0 is no claim); otherwise the largest f,
+// the first of equal ones, flagged "don't know".
+TEST(ModelClassify, ThePapersRuleOnExactValuesClaimsAboveZeroAndTakesTheFirstOfTies) {
+  struct Case {
+    std::vector<double> f;
+    int label;
+    bool dont_know;
+  };
+  const std::vector<Case> cases = {
+      {{2.0, 2.0, 1.0}, 0, true},     // three claims, the first of the two largest
+      {{1.0, 2.0, 2.0}, 1, true},
+      {{0.0, 0.5, -1.0}, 1, false},   // f = 0 does not claim: machine 1 alone does
+      {{0.5, 0.0, 0.0}, 0, false},
+      {{0.0, 0.0, 0.0}, 0, true},     // no claim, all equal: the first
+      {{-3.0, -1.0, -1.0}, 1, true},  // no claim: the largest, the first of two
+  };
+  for (const Case& c : cases) {
+    const Bytes b = with_values(fixture("float64"), c.f);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    ASSERT_FALSE(m.calibrated());
+    eskin::Classifier clf(m);
+    const std::vector<double> x = random_tensor(m, 1.0, 31);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    for (std::size_t k = 0; k < 3; ++k) ASSERT_EQ(d.values[k], c.f[k]) << "machine " << k;
+    EXPECT_EQ(d.label, c.label) << c.f[0] << " " << c.f[1] << " " << c.f[2];
+    EXPECT_EQ(d.dont_know, c.dont_know) << c.f[0] << " " << c.f[1] << " " << c.f[2];
+  }
+}
+
+// Binary, paper's rule: f = 0 is the negative class, the smallest f > 0 the positive one.
+TEST(ModelClassify, ABinaryModelsValueOfZeroIsItsNegativeClass) {
+  const Bytes v = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  for (const double f : {0.0, std::numeric_limits<double>::denorm_min(), -0.0}) {
+    const Bytes b = with_values(v, {f});
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    const std::vector<double> x = random_tensor(m, 1.0, 32);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    ASSERT_EQ(d.values[0], f);
+    const auto& mm = m.machines()[0];
+    EXPECT_EQ(d.label, f > 0 ? mm.positive : mm.negative) << f;
+    EXPECT_FALSE(d.dont_know);
+  }
+}
+
+// The calibrated rule on equal calibrated scores (slopes 0: l_k = ls(b_k) whatever f): the
+// first of the largest; a binary model's z = 0 is its negative class with confidence 1/2.
+TEST(ModelCalibration, EqualScoresGiveTheFirstClassAndZeroTheNegativeOne) {
+  const auto sigmoid = [](double z) { return 1.0 / (1.0 + std::exp(-z)); };
+  struct Case {
+    std::vector<double> offsets;
+    int label;
+  };
+  for (const Case& c : {Case{{1.0, 1.0, -1.0}, 0}, Case{{-1.0, 1.0, 1.0}, 1},
+                        Case{{0.0, 0.0, 0.0}, 0}}) {
+    const Bytes b = fixture_calibrated("float64", 0.4, {0.0, 0.0, 0.0}, c.offsets);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    eskin::Classifier clf(m);
+    const std::vector<double> x = random_tensor(m, 1.0, 33);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    EXPECT_EQ(d.label, c.label) << c.offsets[0];
+    double sum = 0.0;
+    for (const double o : c.offsets) sum += sigmoid(o);
+    const double q = sigmoid(c.offsets[static_cast<std::size_t>(c.label)]) / sum;
+    EXPECT_NEAR(d.confidence, q, 1e-15);
+    EXPECT_EQ(d.dont_know, q < 0.4);
+  }
+  const Bytes v1 = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Bytes b = with_section_after_mach(as_version3(v1), "CALB", calb_payload(1, 0.6, {0.0}, {0.0}), 4);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x = random_tensor(m, 1.0, 34);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  EXPECT_EQ(d.label, m.machines()[0].negative);
+  EXPECT_EQ(d.confidence, 0.5);
+  EXPECT_TRUE(d.dont_know);
+}
+
+// A missing input or output is refused as such, by every entry point, whichever is missing.
+TEST(ModelClassify, ANullInputOrOutputIsRefused) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x = random_tensor(m, 1.0, 35);
+  const std::vector<double> raw(16 * 100, 1.0);
+  const std::vector<float> raw32(raw.begin(), raw.end());
+  const std::vector<std::int16_t> raw16(raw.size(), 1);
+  eskin::Decision d;
+  const auto null = eskin::ClassifyStatus::kNullPointer;
+  EXPECT_EQ(clf.classify_tensor(nullptr, &d), null);
+  EXPECT_EQ(clf.classify_tensor(x.data(), nullptr), null);
+  EXPECT_EQ(clf.classify(static_cast<const double*>(nullptr), 4, 4, 100, 100, &d), null);
+  EXPECT_EQ(clf.classify(raw.data(), 4, 4, 100, 100, nullptr), null);
+  EXPECT_EQ(clf.classify(static_cast<const float*>(nullptr), 4, 4, 100, 100, &d), null);
+  EXPECT_EQ(clf.classify(raw32.data(), 4, 4, 100, 100, nullptr), null);
+  EXPECT_EQ(clf.classify(static_cast<const std::int16_t*>(nullptr), 4, 4, 100, 100, &d), null);
+  EXPECT_EQ(clf.classify(raw16.data(), 4, 4, 100, 100, nullptr), null);
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);  // still usable
+  eskin::StreamClassifier sc(m);
+  EXPECT_EQ(sc.push(static_cast<const double*>(nullptr)), null);
+  EXPECT_EQ(sc.push(static_cast<const float*>(nullptr)), null);
+  EXPECT_EQ(sc.push(static_cast<const std::int16_t*>(nullptr)), null);
+}
+
+// Each shape check stands alone: a wrong row count, a wrong column count, no samples, a length
+// of 0 or past T, each by itself, is a bad shape.
+TEST(ModelClassify, EachShapeCheckRefusesOnItsOwn) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x(5 * 5 * 200, 1.0);
+  eskin::Decision d;
+  const auto bad = eskin::ClassifyStatus::kBadShape;
+  EXPECT_EQ(clf.classify(x.data(), 5, 4, 200, 200, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 5, 200, 200, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 0, 0, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, 0, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, -1, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, 201, &d), bad);
+  EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, 200, &d), eskin::ClassifyStatus::kOk);
 }
