@@ -22,8 +22,10 @@ keeps only the mutants on the lines that differ between REV and the work tree (`
 -U0``: `make mutation-diff`). Output, one line per module:
 
     MUTATION: module=<path> mutants=<n> killed=<k> score=<k/n> ci95=[lo, hi] generated=<g>
+    equivalent=<e>
 
-(ci95: the Wilson score interval of the module's kill rate, from the mutants that ran) and
+(ci95: the Wilson score interval of the module's kill rate, from the mutants that ran;
+equivalent: the mutants of EQUIVALENT, shown to change no behaviour, which are never drawn) and
 build/mutation/survivors.txt lists each survivor (file, line, operator, the changed text).
 Timeouts (a mutant that makes the tests hang, 3x the unmutated run plus 30 s) count as killed.
 Runs under `nice -n 10`; the exit status is 1 if a module is below --threshold.
@@ -125,6 +127,81 @@ CPP_MODULES = [
 ]
 
 
+@dataclass(frozen=True)
+class Equivalent:
+    """A mutant shown to change no behaviour: the mutated line (``line`` as the module has it,
+    ``mutant`` as the mutant has it, both stripped) and the operator that makes it."""
+    operator: str  # cosmic-ray's operator name, or this script's (swap<=<, constant+1, ...)
+    line: str
+    mutant: str
+    why: str
+
+
+#: The known-equivalent mutants of each module, each with the reason no test can observe it
+#: (docs/testing.md, "Equivalent mutants"): generated and counted (``equivalent=<e>``) but never
+#: drawn, so that a score counts only mutants a test could kill. A mutant is named by its text,
+#: not its position: an edit of its line makes the entry stale, which
+#: tests/python/test_mutation_map.py catches (every entry must name exactly one mutant).
+#: Only a mutant whose every observable output (returned values, statuses, flags, messages, to
+#: the bit) is the same may be listed; a surviving mutant that a test could kill is a missing
+#: test, never an entry.
+_PROJ = "g.proj[zz] = kProjectionCache && N <= 64 && N < a * a;"
+_ROUTE = ("another route to the same distance: the cached projections' inner product "
+          "<P_sv, P_x>_F instead of the overlap of the bases, equal to rounding (1e-15); "
+          "only the tables' RAM differs")
+_XR = "int xr[3] = {0, 0, 0};"
+_XR_WHY = ("the input's ranks: every one written by the basis computation before any read "
+           "(a failed computation returns first)")
+EQUIVALENT: dict[str, list[Equivalent]] = {
+    "cpp/src/model.cpp": [
+        Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
+        Equivalent("swap<=<", _PROJ, _PROJ.replace("N <= 64", "N < 64"), _ROUTE),
+        Equivalent("constant+1", _PROJ, _PROJ.replace("64", "65"), _ROUTE),
+        Equivalent("delete check", "if (spans(ri, rx, N)) {",
+                   "if (false && (spans(ri, rx, N))) {",
+                   "another route to the same distance: when one subspace is all of R^N the "
+                   "general sum r1 + r2 - 2 ov gives |r1 - r2| to rounding (1e-15)"),
+        Equivalent("constant+1", "ws(layout, 1),  // one pattern per decision: no batch of "
+                   "scaled copies", "ws(layout, 2),  // one pattern per decision: no batch of "
+                   "scaled copies", "a workspace for two patterns where one is used"),
+        Equivalent("constant+1",
+                   "tensor(raw ? static_cast<std::size_t>(m.rows()) * m.cols() * m.D() : 0),",
+                   "tensor(raw ? static_cast<std::size_t>(m.rows()) * m.cols() * m.D() : 1),",
+                   "the raw tensor of the private tensors-only classifier (a StreamClassifier's), "
+                   "which never classifies a raw recording: never used"),
+        Equivalent("constant+1",
+                   "selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 1)),",
+                   "selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 2)),",
+                   "the touches the tensors-only classifier's window choice holds: it never "
+                   "chooses a window"),
+        Equivalent("constant+1", "std::size_t n_proj = 0;", "std::size_t n_proj = 1;",
+                   "the input's projection buffer: one entry where none is used"),
+        Equivalent("constant+1",
+                   "const std::size_t n_dist = t.groups.size() * static_cast<std::size_t>("
+                   "m.n_support()) * 3;",
+                   "const std::size_t n_dist = t.groups.size() * static_cast<std::size_t>("
+                   "m.n_support()) * 4;",
+                   "the distance table sized for four modes where three are written and read"),
+        Equivalent("constant+1",
+                   "const std::size_t n_gap = m.has_amplitude() ? static_cast<std::size_t>("
+                   "m.n_support()) : 0;",
+                   "const std::size_t n_gap = m.has_amplitude() ? static_cast<std::size_t>("
+                   "m.n_support()) : 1;",
+                   "a gap buffer of one entry in a model without the amplitude factor, which "
+                   "never reads it"),
+        Equivalent("constant+1", _XR, "int xr[4] = {0, 0, 0};", _XR_WHY),
+        Equivalent("constant+1", _XR, "int xr[3] = {1, 0, 0};", _XR_WHY),
+        Equivalent("constant+1", _XR, "int xr[3] = {0, 1, 0};", _XR_WHY),
+        Equivalent("constant+1", _XR, "int xr[3] = {0, 0, 1};", _XR_WHY),
+        Equivalent("constant+1", "DecisionReal w[3];", "DecisionReal w[4];",
+                   "the kernel widths' array one longer than the three written and read"),
+        Equivalent("constant+1", "int claims = 0, claimed = -1;",
+                   "int claims = 0, claimed = -2;",
+                   "read only when exactly one machine claimed, which sets it"),
+    ],
+}
+
+
 #: This interpreter without scikit-build-core's editable-install finder (`make install` puts
 #: one in the venv, ahead of PYTHONPATH: the tests would import the work tree's eskin, not the
 #: mutated copy's): `python -c` that drops it, then runs the module or code given after it.
@@ -151,12 +228,14 @@ def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     return max(0.0, (centre - half) / den), min(1.0, (centre + half) / den)
 
 
-def report(module: str, n: int, killed: int, generated: int, note: str = "") -> float | None:
+def report(module: str, n: int, killed: int, generated: int, note: str = "",
+           equivalent: int = 0) -> float | None:
     """Prints the module's line; its score (None when no mutant ran)."""
     lo, hi = wilson(killed, n)
     score = f"{killed / n:.2f}" if n else "-"
     print(f"MUTATION: module={module} mutants={n} killed={killed} score={score} "
-          f"ci95=[{lo:.2f}, {hi:.2f}] generated={generated}{note}", flush=True)
+          f"ci95=[{lo:.2f}, {hi:.2f}] generated={generated} equivalent={equivalent}{note}",
+          flush=True)
     return killed / n if n else None
 
 
@@ -252,6 +331,24 @@ def in_annotation(pos: tuple[int, int], spans: list) -> bool:
     return any(start <= tuple(pos) < end for start, end in spans)
 
 
+def is_equivalent(module: str, operator: str, line: str, mutated) -> bool:
+    """Whether a mutant of ``module`` (its operator, its line as the module has it, and a
+    function giving the line as the mutant has it) is one of the module's EQUIVALENT."""
+    entries = [e for e in EQUIVALENT.get(module, ())
+               if e.operator == operator and e.line == line.strip()]
+    return bool(entries) and mutated().strip() in {e.mutant for e in entries}
+
+
+def python_mutant_line(source: str, mutation) -> str:
+    """The line of ``source`` that a cosmic-ray mutation changes, as the mutant has it."""
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator
+
+    operator = get_operator(mutation.operator_name)(**(mutation.operator_args or {}))
+    code = mutate_code(source, operator, mutation.occurrence)
+    return "" if code is None else code.splitlines()[mutation.start_pos[0] - 1]
+
+
 def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                survivors: list[str], lines: set[int] | None = None) -> float | None:
     """Runs the module's mutants (those on ``lines`` only, when given); its score."""
@@ -300,6 +397,14 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
         # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
         # so that a seed draws the same mutants of the same source on every run
         kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
+        source = (work / module).read_text()
+        rows = source.splitlines()
+        equivalent = [all(is_equivalent(module, m.operator_name, rows[m.start_pos[0] - 1],
+                                        lambda m=m: python_mutant_line(source, m))
+                          for m in w.mutations) for w in kept]
+        n_equivalent = sum(equivalent)
+        generated = len(kept)
+        kept = [w for w, eq in zip(kept, equivalent) if not eq]
         chosen = choose(kept, sample, seed, module)
         ids = {w.job_id for w in chosen}
         skip = [w.job_id for w in items if w.job_id not in ids]
@@ -308,7 +413,7 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                                                      worker_outcome=WorkerOutcome.SKIPPED))
     note = "" if lines is None else " (on the changed lines)"
     if not chosen:
-        return report(module, 0, 0, len(kept), note)
+        return report(module, 0, 0, generated, note, n_equivalent)
     t0 = time.monotonic()
     base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
     if base.returncode != 0:
@@ -334,7 +439,7 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                     print(f"  {survivors[-1]}: survived", file=sys.stderr, flush=True)
             else:
                 killed += 1
-    return report(module, n, killed, len(kept), note)
+    return report(module, n, killed, generated, note, n_equivalent)
 
 
 # --------------------------------------------------------------------------------------- C++
@@ -431,11 +536,15 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
                 return "fail"
         return "pass"
 
-    mutants = [m for m in cpp_mutants(original, mod) if lines is None or m[0] + 1 in lines]
+    rows = original.splitlines()
+    generated = [m for m in cpp_mutants(original, mod) if lines is None or m[0] + 1 in lines]
+    mutants = [m for m in generated
+               if not is_equivalent(mod.path, m[1], rows[m[0]], lambda m=m: m[2])]
+    n_equivalent = len(generated) - len(mutants)
     chosen = choose(mutants, sample, seed, mod.path)
     note = "" if lines is None else " (on the changed lines)"
     if not chosen:
-        return report(mod.path, 0, 0, len(mutants), note)
+        return report(mod.path, 0, 0, len(generated), note, n_equivalent)
     t0 = time.monotonic()
     if build_and_test(None) != "pass":
         sys.exit(f"mutation: {', '.join(mod.targets)} fail unmutated")
@@ -459,7 +568,7 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
                   file=sys.stderr, flush=True)
     finally:
         target.write_text(original)
-    return report(mod.path, n, killed, len(mutants), note)
+    return report(mod.path, n, killed, len(generated), note, n_equivalent)
 
 
 def modules() -> list[str]:

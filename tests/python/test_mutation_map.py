@@ -172,3 +172,35 @@ def test_make_mutation_passes_the_seed_the_sample_and_the_modules():
     assert dry("mutation-diff") == ["--diff", "--sample", "all"]
     assert dry("mutation-diff", "BASE=HEAD~2", "MUTATION_SAMPLE=5") == [
         "--diff", "HEAD~2", "--sample", "5"]
+
+
+@pytest.mark.parametrize("module", sorted(mutation.EQUIVALENT))
+def test_each_known_equivalent_mutant_names_exactly_one_mutant_of_its_module(module):
+    """An entry of EQUIVALENT that an edit has made stale (its line changed or gone), or that
+    matches two mutants (the same line twice in the module), fails here: it would leave out a
+    mutant nobody has examined."""
+    assert module in mutation.modules()
+    text = (REPO / module).read_text()
+    rows = [r.strip() for r in text.splitlines()]
+    entries = mutation.EQUIVALENT[module]
+    assert len({(e.operator, e.line, e.mutant) for e in entries}) == len(entries)
+    for e in entries:
+        assert e.why and e.line != e.mutant, e
+        if module in mutation.PYTHON_MODULES:
+            # cosmic-ray's mutants need the mutation extra; the line must be there, once
+            assert rows.count(e.line) == 1, e
+            continue
+        mod = next(m for m in mutation.CPP_MODULES if m.path == module)
+        found = [m for m in mutation.cpp_mutants(text, mod)
+                 if m[1] == e.operator and rows[m[0]] == e.line and m[2].strip() == e.mutant]
+        assert len(found) == 1, e
+
+
+def test_a_known_equivalent_mutant_is_matched_by_its_operator_line_and_text():
+    module = "cpp/src/model.cpp"
+    e = mutation.EQUIVALENT[module][0]
+    assert mutation.is_equivalent(module, e.operator, "  " + e.line, lambda: e.mutant + " ")
+    assert not mutation.is_equivalent(module, e.operator, e.line, lambda: e.line)
+    assert not mutation.is_equivalent(module, "delete check", e.line, lambda: e.mutant)
+    assert not mutation.is_equivalent("cpp/src/protocol.cpp", e.operator, e.line,
+                                      lambda: e.mutant)
