@@ -152,6 +152,10 @@ _ROUTE = ("another route to the same distance: the cached projections' inner pro
 _XR = "int xr[3] = {0, 0, 0};"
 _XR_WHY = ("the input's ranks: every one written by the basis computation before any read "
            "(a failed computation returns first)")
+_TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
+_LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
+           "(binary_targets maps them to -1 and +1 in that order)")
+_CAL = "index, conf, _ = calibrated_decision(F, slopes, offsets, 0.0, binary)"
 EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/model.cpp": [
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
@@ -198,6 +202,18 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("constant+1", "int claims = 0, claimed = -1;",
                    "int claims = 0, claimed = -2;",
                    "read only when exactly one machine claimed, which sets it"),
+    ],
+    "python/eskin/learn/calibration.py": [
+        Equivalent("core/ReplaceTrueWithFalse",
+                   "trk = np.intersect1d(tr, subsets[k], assume_unique=True)",
+                   "trk = np.intersect1d(tr, subsets[k], assume_unique=False)",
+                   "a fold's indices and a machine's subset are sets (sklearn's folds, "
+                   "one_vs_all_indices): the same intersection"),
+        *(Equivalent("core/NumberReplacer", _TARGETS, _TARGETS.replace("1, 1, -1", t), _LABELS)
+          for t in ("1, 2, -1", "1, 0, -1", "1, 1, - 2", "1, 1, - 0")),
+        *(Equivalent("core/NumberReplacer", _CAL, _CAL.replace("0.0", t),
+                     "the threshold only sets the flags, which this call discards")
+          for t in ("1.0", "-1.0")),
     ],
 }
 

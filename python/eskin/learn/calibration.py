@@ -129,7 +129,7 @@ def fit_sigmoid(values: np.ndarray, positive: np.ndarray) -> tuple[float, float]
     if not (math.isfinite(a) and math.isfinite(b)):
         raise TrainingError(f"the calibration sigmoid did not converge (a={a}, b={b})")
     if a < 0:  # held-out values pointing the wrong way say nothing: the class's share
-        share = float(np.clip(y.mean(), 1e-6, 1 - 1e-6))
+        share = float(y.mean())  # in (0, 1): both sides are present (above)
         a, b = 0.0, math.log(share / (1 - share))
     return min(a, MAX_CALIBRATION), float(np.clip(b, -MAX_CALIBRATION, MAX_CALIBRATION))
 
