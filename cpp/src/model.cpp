@@ -85,10 +85,10 @@ void calibrated_rule(const Model& m, const double* values, Decision* out) noexce
     sum = 1.0 + std::exp(-std::fabs(lp - ln));
   } else {
     std::size_t best = 0;
-    double lbest = 0.0;
-    for (std::size_t k = 0; k < machines.size(); ++k) {
+    double lbest = log_sigmoid(machines[0].calib_slope * values[0] + machines[0].calib_offset);
+    for (std::size_t k = 1; k < machines.size(); ++k) {
       const double l = log_sigmoid(machines[k].calib_slope * values[k] + machines[k].calib_offset);
-      if (k == 0 || l > lbest) {
+      if (l > lbest) {  // the first of equal scores stays
         best = k;
         lbest = l;
       }
