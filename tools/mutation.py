@@ -156,6 +156,9 @@ _TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
 _LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
            "(binary_targets maps them to -1 and +1 in that order)")
 _CAL = "index, conf, _ = calibrated_decision(F, slopes, offsets, 0.0, binary)"
+_BIN = "z = a[0] * F[:, 0] + b[0]"
+_ONE = ("a binary calibration has exactly one machine (checked above): index -1 is index 0 "
+        "of its one slope, offset and column of values")
 EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/model.cpp": [
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
@@ -214,6 +217,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("core/NumberReplacer", _CAL, _CAL.replace("0.0", t),
                      "the threshold only sets the flags, which this call discards")
           for t in ("1.0", "-1.0")),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if m == 0:  # reject 0, or no "
+                   "confidence at all", "if m <= 0:  # reject 0, or no confidence at all",
+                   "m = round(reject n) with 0 <= reject < 1 (checked above) is never negative"),
+        *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
+          for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
 }
 

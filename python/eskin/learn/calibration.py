@@ -98,6 +98,10 @@ def calibrated_decision(
     b = np.asarray(offsets, dtype=np.float64)
     if F.shape[1] != a.size:
         raise ValueError(f"decision values for {F.shape[1]} machines, calibration of {a.size}")
+    if b.size != a.size:
+        raise ValueError(f"a calibration of {a.size} slopes and {b.size} offsets")
+    if binary and a.size != 1:
+        raise ValueError(f"a binary calibration has one machine, not {a.size}")
     if binary:
         z = a[0] * F[:, 0] + b[0]
         lp, ln = log_sigmoid(z), log_sigmoid(-z)
@@ -141,7 +145,7 @@ def choose_threshold(confidence: np.ndarray, reject: float) -> float:
     if not 0 <= reject < 1:
         raise TrainingError(f"reject must be in [0, 1), got {reject}")
     m = int(round(float(reject) * len(c)))
-    if m == 0 or len(c) == 0:
+    if m == 0:  # reject 0, or no confidence at all
         return 0.0
     return float(c[min(m, len(c) - 1)])
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from eskin.learn.calibration import calibrated_decision, choose_threshold
 
@@ -50,3 +51,19 @@ def test_a_reject_that_rounds_to_every_pattern_takes_the_largest_confidence():
     assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.9) == 0.3
     assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.5) == 0.3  # round(1.5) = 2
     assert choose_threshold(np.array([0.3, 0.1, 0.2]), 0.4) == 0.2  # round(1.2) = 1
+
+
+def test_a_calibration_whose_sizes_disagree_is_refused():
+    F = np.array([[0.5, -0.5]])
+    with pytest.raises(ValueError, match="2 slopes and 1 offsets"):
+        calibrated_decision(F, (1.0, 1.0), (0.0,), 0.5, binary=False)
+    with pytest.raises(ValueError, match="decision values for 2 machines, calibration of 1"):
+        calibrated_decision(F, (1.0,), (0.0,), 0.5, binary=False)
+    with pytest.raises(ValueError, match="binary calibration has one machine, not 2"):
+        calibrated_decision(F, (1.0, 1.0), (0.0, 0.0), 0.5, binary=True)
+
+
+def test_no_confidences_give_the_threshold_zero():
+    assert choose_threshold(np.array([]), 0.5) == 0.0
+    assert choose_threshold(np.array([0.7]), 0.4) == 0.0  # round(0.4) = 0 flagged
+    assert choose_threshold(np.array([0.7]), 0.6) == 0.7  # round(0.6) = 1: the only one
