@@ -1940,3 +1940,25 @@ TEST(ModelClassify, EachShapeCheckRefusesOnItsOwn) {
   EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, 201, &d), bad);
   EXPECT_EQ(clf.classify(x.data(), 4, 4, 200, 200, &d), eskin::ClassifyStatus::kOk);
 }
+
+// A grid that is not square, with each mode kept to its own alpha (stored 3, 4, 5): every
+// mode's bases, the input's and the support vectors', are laid out by their own alpha
+// (tests/data/model_uneven_float64.eskin).
+TEST(ModelDecision, AnUnevenGridWithItsOwnAlphaPerModeEqualsTheHandComputation) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_uneven_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.rows(), 3);
+  ASSERT_EQ(m.cols(), 5);
+  ASSERT_EQ(m.alpha_store(0), 3);
+  ASSERT_EQ(m.alpha_store(1), 4);
+  ASSERT_EQ(m.alpha_store(2), 5);
+  eskin::Classifier clf(m);
+  for (const unsigned seed : {41u, 42u}) {
+    const std::vector<double> x = random_tensor(m, 1.0, seed);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const std::vector<double> want = hand_decision(m, x);
+    for (int k = 0; k < 2; ++k)
+      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
+  }
+}

@@ -110,6 +110,31 @@ def projection_spec() -> ModelSpec:
     )
 
 
+def uneven_spec() -> ModelSpec:
+    """Two machines on a 3x5 grid whose modes are kept to different alphas (stored alphas 3, 4
+    and 5: no two modes alike), D = 6, one-vs-all over two classes."""
+    rng = np.random.default_rng(7)
+    D = 6
+    pool = rng.standard_normal((5, 3, 5, D))
+    machines = [
+        MachineSpec(0, -1, 0.1, (3, 2, 5), (1.0, 0.75, 1.5), pool[[0, 1, 3]],
+                    rng.standard_normal(3)),
+        MachineSpec(1, -1, -0.2, (1, 4, 3), (0.5, 1.25, 2.0), pool[[1, 2, 4]],
+                    rng.standard_normal(3)),
+    ]
+    return ModelSpec(
+        class_names=["pinch", "stroke"],
+        rule="one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=(3, 5),
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=3000.0,
+        window_config=WindowConfig(window_samples=0),
+    )
+
+
 def main() -> None:
     spec = fixture_spec()
     for dtype in ("float32", "float64"):
@@ -123,6 +148,9 @@ def main() -> None:
         out = Path(__file__).with_name(f"model_projection_{dtype}.eskin")
         out.write_bytes(model_to_bytes(projection_spec(), dtype, bases_fn=qr_bases))
         print(out, out.stat().st_size)
+    out = Path(__file__).with_name("model_uneven_float64.eskin")
+    out.write_bytes(model_to_bytes(uneven_spec(), "float64", bases_fn=qr_bases))
+    print(out, out.stat().st_size)
 
 
 if __name__ == "__main__":
