@@ -337,3 +337,18 @@ def test_a_clean_journal_drops_nothing_and_writes_durably_by_default(tmp_path):
     contents, records = read(w.path)
     assert len(records) == 3
     assert (contents.dropped_bytes, contents.dropped_reason, contents.skipped) == (0, "", [])
+
+
+def test_a_journal_that_is_gone_or_unlocked_is_not_held_by_a_live_writer(tmp_path):
+    """The busy message asks whether a live writer holds the journal: one removed in the
+    meantime (the other writer finished) holds none, nor does one nobody has locked."""
+    gone = tmp_path / "gone.h5.journal"
+    assert jr._is_locked(gone) is False
+    left = tmp_path / "left.h5.journal"
+    left.write_bytes(b"x")
+    assert jr._is_locked(left) is False
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    try:
+        assert jr._is_locked(w.path) is True
+    finally:
+        w.release()
