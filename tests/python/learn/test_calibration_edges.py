@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from eskin.learn.calibration import calibrated_decision, choose_threshold
+from eskin.learn.calibration import calibrated_decision, choose_threshold, fit_calibration
 
 
 def test_a_confidence_equal_to_the_threshold_is_decided():
@@ -67,3 +67,21 @@ def test_no_confidences_give_the_threshold_zero():
     assert choose_threshold(np.array([]), 0.5) == 0.0
     assert choose_threshold(np.array([0.7]), 0.4) == 0.0  # round(0.4) = 0 flagged
     assert choose_threshold(np.array([0.7]), 0.6) == 0.7  # round(0.6) = 1: the only one
+
+
+def test_a_calibration_of_many_machines_is_applied():
+    """Sizes are compared by value (300 machines: past the integers CPython shares)."""
+    n = 300
+    F = np.zeros((2, n))
+    F[0, 7] = F[1, 250] = 1.0
+    index, conf, _ = calibrated_decision(F, np.ones(n), np.zeros(n), 0.0, binary=False)
+    assert index.tolist() == [7, 250]
+    assert np.all(conf > 1 / n)
+
+
+def test_the_rule_of_a_calibration_is_named_not_positional():
+    F = np.array([[1.0], [-1.0], [0.5], [-0.5]])
+    y = np.array([1, 0, 1, 0])
+    with pytest.raises(TypeError):
+        fit_calibration(F, y, 0.0, True)
+    assert fit_calibration(F, y, 0.0, binary=True).binary
