@@ -718,3 +718,41 @@ TEST(ClassNames, PackedWholeOrRefused) {
   EXPECT_EQ(pack_class_names(many.data(), many.size(), big.data(), big.size()), -1);
   EXPECT_EQ(pack_class_names(many.data(), 255, big.data(), big.size()), 255 * 2 - 1);
 }
+
+// Every frame type's payload has exactly its size: one byte more or one byte fewer (the CRC
+// recomputed) is malformed, for the types with a variable part (DATA, DECISION) and the fixed
+// ones (PING, PONG); a type the protocol does not know is malformed too.
+TEST(DecoderChecks, APayloadOneByteLongerOrShorterThanItsTypeSaysIsMalformed) {
+  const Stream s = make_stream(14, 1);
+  std::vector<p::Frame> frames;
+  for (const auto t : {p::FrameType::data, p::FrameType::decision})
+    frames.push_back(*std::find_if(s.frames.begin(), s.frames.end(),
+                                   [t](const p::Frame& f) { return f.type == t; }));
+  for (const auto t : {p::FrameType::ping, p::FrameType::pong}) {
+    p::Frame f;
+    f.type = t;
+    f.ping.token = 0x01020304;
+    frames.push_back(f);
+  }
+  for (const p::Frame& f : frames) {
+    const Bytes raw = serialize(f);
+    ASSERT_EQ(decode_raw(raw), std::make_pair(1, std::uint64_t{0})) << p::frame_type_name(f.type);
+    Bytes longer = raw;
+    longer.insert(longer.end() - 4, 0x01);
+    EXPECT_EQ(decode_raw(rechecked(longer)), std::make_pair(0, std::uint64_t{1}))
+        << p::frame_type_name(f.type);
+    Bytes shorter = raw;
+    shorter.erase(shorter.end() - 5);
+    EXPECT_EQ(decode_raw(rechecked(shorter)), std::make_pair(0, std::uint64_t{1}))
+        << p::frame_type_name(f.type);
+  }
+  p::Frame ping, pong;
+  ping.type = p::FrameType::ping;
+  pong.type = p::FrameType::pong;
+  const Bytes a = serialize(ping), b = serialize(pong);
+  const std::size_t at = differing_byte(a, b);  // the type byte
+  ASSERT_LT(at, a.size());
+  Bytes unknown = a;
+  unknown[at] = 0x7E;
+  EXPECT_EQ(decode_raw(rechecked(unknown)), std::make_pair(0, std::uint64_t{1}));
+}
