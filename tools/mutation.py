@@ -592,6 +592,9 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
                   file=sys.stderr, flush=True)
     finally:
         target.write_text(original)
+        # the build back on the original: the next run's copy gives the file its older time
+        # again, and ninja would keep the last mutant's objects (its baseline then a mutant)
+        subprocess.run(nice() + [ninja, "-C", str(build), *mod.targets], capture_output=True)
     return report(mod.path, n, killed, len(generated), note, n_equivalent)
 
 
