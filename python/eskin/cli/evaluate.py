@@ -89,7 +89,7 @@ def evaluate(
     memory_limit: float = typer.Option(
         0.5, "--memory-limit", min=0.01, help=MEMORY_LIMIT_HELP),
     max_model_size: float = typer.Option(
-        5.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
+        0.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
     scheduler: str | None = typer.Option(

@@ -242,7 +242,7 @@ MEMORY_LIMIT_HELP = (
 
 
 MODEL_SIZE_HELP = (
-    "MB the model's float32 .eskin file may take (default 5; 0: no limit): a model with more "
+    "MB the model's float32 .eskin file may take (default 0: no limit): a model with more "
     "support vectors keeps the most that fit, chosen by kernel matching pursuit as with "
     "--max-support")
 
@@ -485,7 +485,7 @@ def train(
     memory_limit: float = typer.Option(
         0.5, "--memory-limit", min=0.01, help=MEMORY_LIMIT_HELP),
     max_model_size: float = typer.Option(
-        5.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
+        0.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="worker processes for the search"),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),

@@ -192,15 +192,6 @@ def n_distinct_support(estimator: Any) -> int:
     """The number of distinct support vectors over all the machines (what a model stores)."""
     return len(distinct_support(estimator)[0])
 
-
-#: the size of a model file ``eskin train`` keeps to by default (``--max-model-size``): a
-#: decision reads every stored byte, so this bounds the host's decision time too. The tensor
-#: kernel's bases grow with the grid (a 19 x 27 skin at D = 10 and alpha Q/2 takes 30 KB per
-#: support vector, about 165 fit); on the paper's 4 x 4 skin at D = 100 and alpha Q a
-#: support vector takes 14 KB (about 355 fit: the default model of the 70-participant
-#: simulated campaign, 717 support vectors, is bounded).
-DEFAULT_MAX_MODEL_BYTES = 5_000_000
-
 #: bytes of a model file beside its support vectors' bases: headers, preprocessing, classes,
 #: calibration and meta (a few KB; a generous bound)
 MODEL_FIXED_BYTES = 64 * 1024

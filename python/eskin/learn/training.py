@@ -380,8 +380,7 @@ def train_model(
         Only a searched recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_model_bytes : at most this many bytes in the model's float32 ``.eskin`` file (None,
-        the default here: no limit; ``eskin train`` passes
-        :data:`~eskin.learn.support_budget.DEFAULT_MAX_MODEL_BYTES`): a model whose support
+        the default: no limit; ``eskin train --max-model-size MB``): a model whose support
         vectors would not fit keeps the most that do, as with ``max_support``.
     max_support : at most this many distinct support vectors in the model (all machines
         together; :func:`eskin.learn.support_budget.bound_support`). None: all of them.

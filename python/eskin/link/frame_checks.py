@@ -44,7 +44,7 @@ class Rejection:
 
 def _index_problem(value: int) -> Optional[str]:
     if not 0 <= value < MAX_STREAM_INDEX:
-        return f"outside [0, 2^53)"
+        return "outside [0, 2^53)"
     return None
 
 

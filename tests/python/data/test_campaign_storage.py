@@ -54,8 +54,8 @@ def test_an_external_link_is_refused(tmp_path):
     path = _campaign(tmp_path / "c.h5")
     _replace_signals(path, lambda g: g.__setitem__(
         "signals", h5py.ExternalLink(str(other), "/recordings/signals")))
-    with pytest.raises(CampaignFormatError, match=rf"/recordings/signals: an external link to "
-                                                  rf".*other\.h5:/recordings/signals"):
+    with pytest.raises(CampaignFormatError, match=r"/recordings/signals: an external link to "
+                                                  r".*other\.h5:/recordings/signals"):
         load_campaign(path)
     with load_campaign(path, allow_external=True, check_data=True) as c:
         np.testing.assert_array_equal(c.recording(2), load_campaign(other).recording(2))
