@@ -7,28 +7,14 @@ import json
 
 import numpy as np
 import pytest
+from skin_data import strip_skin
 
 from eskin.data.campaign import CampaignFormatError, load_campaign
 from eskin.data.replay import read_replay_file
 from eskin.data.skin import load_skin
 from eskin.data.skin_simulator import simulate_skin
 
-STRIP = """
-name = "strip"
-[defaults]
-grid = [4, 4]
-sample_rate_hz = 3000
-pitch_mm = 12.0
-link = "simulated"
-[[patch]]
-id = "p0"
-[[patch]]
-id = "p1"
-origin_mm = [48.0, 0.0]
-[[patch]]
-id = "p2"
-origin_mm = [96.0, 0.0]
-"""
+STRIP = strip_skin()
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from skin_data import strip_skin
 
 from eskin.data.campaign import load_campaign
 from eskin.data.replay import read_replay_file
@@ -16,22 +17,7 @@ from eskin.link.events import Decision
 from eskin.link.simulated_controllers import SimulatedControllers, link_path
 from eskin.link.skin_listener import SkinListener, agreement
 
-STRIP = """
-name = "strip"
-[defaults]
-grid = [4, 4]
-sample_rate_hz = 3000
-link = "simulated"
-model = "model.eskin"
-[[patch]]
-id = "p0"
-[[patch]]
-id = "p1"
-origin_mm = [48.0, 0.0]
-[[patch]]
-id = "p2"
-origin_mm = [96.0, 0.0]
-"""
+STRIP = strip_skin('model = "model.eskin"')
 
 
 @pytest.fixture(scope="module")
