@@ -177,8 +177,8 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "the raw tensor of the private tensors-only classifier (a StreamClassifier's), "
                    "which never classifies a raw recording: never used"),
         Equivalent("constant+1",
-                   "selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 1)),",
-                   "selector(detector.params(), static_cast<std::int64_t>(raw ? kMaxTouches : 2)),",
+                   "static_cast<std::int64_t>(raw ? kMaxTouches : 1)),",
+                   "static_cast<std::int64_t>(raw ? kMaxTouches : 2)),",
                    "the touches the tensors-only classifier's window choice holds: it never "
                    "chooses a window"),
         Equivalent("constant+1", "std::size_t n_proj = 0;", "std::size_t n_proj = 1;",

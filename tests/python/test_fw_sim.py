@@ -559,7 +559,9 @@ def test_a_host_that_stops_reading_loses_no_decision_or_sample_without_a_count(f
     try:
         pty_path = proc.stdout.readline().split()[1]
         decisions, final = [], None
-        with LinkListener(pty_path, stats_interval=None) as link:
+        # read_queue_bytes=0: no reading thread, so a loop that stops reading stops the
+        # reading of the port, as a stalled host does
+        with LinkListener(pty_path, stats_interval=None, read_queue_bytes=0) as link:
             events = link.events(duration=120)
             for ev in events:
                 if isinstance(ev, Decision) and ev.source == "controller":

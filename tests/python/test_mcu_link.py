@@ -201,7 +201,9 @@ def test_a_host_that_stops_reading_loses_nothing_uncounted_on_the_board(firmware
     n = int(read_replay_file(replay).samples.shape[0])
     got, final = [], None
     with QemuController(model, replay, tmp_path / "q", elf=firmware, icount=3) as qc:
-        with LinkListener(qc.pty, stats_interval=None) as link:
+        # read_queue_bytes=0: no reading thread, so a loop that stops reading stops the
+        # reading of the port, as a stalled host does
+        with LinkListener(qc.pty, stats_interval=None, read_queue_bytes=0) as link:
             events = link.events(until_eof=True, duration=400)
             for ev in events:
                 if isinstance(ev, Decision) and ev.source == "controller":

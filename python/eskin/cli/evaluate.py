@@ -124,7 +124,8 @@ def evaluate(
     recipe = _recipe_of(given, quick, amplitude, max_support)
     recipe.update(_detector(max_window, window_samples, hold, on_factor, off_factor))
     recipe.update(_decision_us(decision_us))
-    recipe["recipe_options"] = memory_options(memory_limit)
+    if memory_options(memory_limit):
+        recipe["recipe_options"] = memory_options(memory_limit)
     recipe.update(model_size_option(max_model_size))
     if reject is not None:
         recipe["reject"] = reject

@@ -248,8 +248,11 @@ MODEL_SIZE_HELP = (
 
 
 def memory_options(gib: float) -> dict[str, int]:
-    """The recipe-search options of --memory-limit GIB."""
-    return {"memory_limit": int(float(gib) * 2**30)}
+    """The recipe-search options of --memory-limit GIB (none at the search's default)."""
+    from eskin.learn.recipes import DEFAULT_MEMORY_LIMIT
+
+    limit = int(float(gib) * 2**30)
+    return {} if limit == DEFAULT_MEMORY_LIMIT else {"memory_limit": limit}
 
 
 def model_size_option(mb: float) -> dict[str, int | None]:

@@ -9,6 +9,7 @@ samples long.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -250,8 +251,9 @@ def test_the_experiment_report_says_when_the_detector_was_adapted_to_the_rate(tm
 
 
 def test_the_defaults_train_on_gestures_shorter_than_the_default_D(tmp_path):
-    """eskin train with no options on 10 Hz gestures of 3 to 10 frames: D becomes the longest
-    recording, with a note; evaluate and predict run on the model."""
+    """eskin train with no options on 10 Hz gestures of 3 to 10 frames: D becomes at most the
+    longest recording, and no more than the median touch window fills, each with a note;
+    evaluate and predict run on the model."""
     from eskin.learn.grids import DEFAULT_D
     from eskin.learn.models import load_model
 
@@ -265,7 +267,10 @@ def test_the_defaults_train_on_gestures_shorter_than_the_default_D(tmp_path):
         f"note: the training recordings are at most 10 samples long: D = 10 instead of "
         f"{DEFAULT_D}" in r.output
     )
-    assert load_model(model).D == 10
+    fill = re.search(r"note: the median training touch window is (\d+) samples long: D = "
+                     r"(\d+) instead of 10", r.output)
+    assert fill is not None, r.output
+    assert 2 <= int(fill.group(1)) < 10 and load_model(model).D == int(fill.group(2))
     assert _run(["predict", model, camp]).exit_code == 0
     r = _run(["evaluate", camp, "--out", tmp_path / "ev", "--quick"])
     assert r.exit_code == 0, r.output
