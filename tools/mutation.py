@@ -159,6 +159,21 @@ _CAL = "index, conf, _ = calibrated_decision(F, slopes, offsets, 0.0, binary)"
 _BIN = "z = a[0] * F[:, 0] + b[0]"
 _ONE = ("a binary calibration has exactly one machine (checked above): index -1 is index 0 "
         "of its one slope, offset and column of values")
+_WS = ("a workspace's initial fill at construction: every entry a computation reads is written "
+       "by that computation first (compute() scales the pattern into x_, each mode fills its QR "
+       "columns, factor, reflectors, squared singular values, order and column before reading "
+       "them, one_sided_jacobi sets w and each sweep's norms)")
+_WS_LINES = (
+    "x_.assign(layout_.tensor_size(), Real(0));",
+    "qr_.assign(layout_.tensor_size(), Real(0));  // the thin side of an unfolding, then its QR",
+    "b_.assign(q * q, Real(0));",
+    "w_.assign(q * q, Real(0));",
+    "tau_.assign(q, Real(0));",
+    "diag_.assign(q, Real(0));",
+    "sv_.assign(q, Real(0));",
+    "norms_.assign(q, Real(0));",
+    "col_.assign(n, Real(0));",
+)
 EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/model.cpp": [
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
@@ -205,6 +220,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("constant+1", "int claims = 0, claimed = -1;",
                    "int claims = 0, claimed = -2;",
                    "read only when exactly one machine claimed, which sets it"),
+    ],
+    "cpp/src/scalar_bases.hpp": [
+        *(Equivalent("constant+1", ln, ln.replace("Real(0)", "Real(1)"), _WS) for ln in _WS_LINES),
+        Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
     ],
     "python/eskin/learn/calibration.py": [
         Equivalent("core/ReplaceTrueWithFalse",

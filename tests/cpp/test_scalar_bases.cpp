@@ -259,3 +259,67 @@ TEST(ScalarBases, OneSidedJacobiGivesTheSingularValueDecomposition) {
 }
 
 }  // namespace
+
+TEST(ScalarBases, AnyOneNullArgumentIsABadArgument) {
+  // each of the three pointers alone null: bad_argument, and nothing written through the others
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  const auto x = random_tensor(layout.tensor_size(), 11);
+  std::vector<float> b(layout.bases_size(), 7.0f);
+  int r[3] = {9, 9, 9};
+  EXPECT_EQ(sb.compute(x.data(), static_cast<float*>(nullptr), r), KernelStatus::bad_argument);
+  for (int v : r) EXPECT_EQ(v, 9);
+  EXPECT_EQ(sb.compute(x.data(), b.data(), static_cast<int*>(nullptr)),
+            KernelStatus::bad_argument);
+  for (float v : b) ASSERT_EQ(v, 7.0f);
+  EXPECT_EQ(sb.compute(static_cast<const double*>(nullptr), b.data(), r),
+            KernelStatus::bad_argument);
+  for (float v : b) ASSERT_EQ(v, 7.0f);
+  for (int v : r) EXPECT_EQ(v, 9);
+}
+
+TEST(ScalarBases, OneSidedJacobiTouchesOnlyItsNByNMatricesAndNNorms) {
+  // the buffers one entry longer than documented: the extra entry keeps its value
+  const double c = std::cos(0.7), s = std::sin(0.7);
+  // 2 x 2, columns not orthogonal, then two guard entries
+  std::vector<double> b = {3 * c, 3 * s, 0.5 - s, c, 12345.0, 12345.0};
+  std::vector<double> w(6, 12345.0), norms(3, 12345.0);
+  ASSERT_GT(eskin::detail::one_sided_jacobi<double>(2, b.data(), w.data(), norms.data()), 0);
+  EXPECT_EQ(b[4], 12345.0);
+  EXPECT_EQ(b[5], 12345.0);
+  EXPECT_EQ(w[4], 12345.0);
+  EXPECT_EQ(w[5], 12345.0);
+  EXPECT_EQ(norms[2], 12345.0);
+  EXPECT_NEAR(b[0] * b[2] + b[1] * b[3], 0.0, 1e-12);
+}
+
+TEST(ScalarBases, ASingleTaxelTouchedHasRankOneAtThatTaxel) {
+  // a sparse tensor: one taxel (row 2, column 1) pressed with signal s(t), the other fifteen
+  // exactly zero. Every mode has rank 1; its one basis vector lives on the other two indices (C
+  // order): e_1 (x) s / |s| for the rows, e_2 (x) s / |s| for the columns, e_9 (the taxel 2 * 4 + 1)
+  // for time
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  double n2 = 0;
+  for (std::size_t t = 0; t < 20; ++t) {
+    x[(2 * 4 + 1) * 20 + t] = 100.0 + 10.0 * t;
+    n2 += (100.0 + 10.0 * t) * (100.0 + 10.0 * t);
+  }
+  std::vector<float> b(layout.bases_size(), 7.0f);
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  EXPECT_EQ(r[0], 1);
+  EXPECT_EQ(r[1], 1);
+  EXPECT_EQ(r[2], 1);
+  const std::size_t other[2] = {1, 2};  // the pressed taxel's index among the other two
+  for (std::size_t z = 0; z < 2; ++z)
+    for (std::size_t i = 0; i < 4 * 20; ++i) {
+      const double want = i / 20 == other[z] ? (100.0 + 10.0 * (i % 20)) / std::sqrt(n2) : 0.0;
+      ASSERT_NEAR(b[layout.offset(z) + i], want, 1e-6) << "mode " << z << " entry " << i;
+    }
+  for (std::size_t i = 0; i < 16; ++i) ASSERT_EQ(b[layout.offset(2) + i], i == 9 ? 1.0f : 0.0f);
+  for (std::size_t z = 0; z < 3; ++z)
+    for (std::size_t i = layout.cols(z); i < layout.alpha(z) * layout.cols(z); ++i)
+      ASSERT_EQ(b[layout.offset(z) + i], 0.0f) << "mode " << z;
+}
