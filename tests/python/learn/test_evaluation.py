@@ -703,3 +703,74 @@ def test_pooled_confidences_give_a_risk_coverage_curve_and_its_report():
     records[1]["confidence"] = [None, None]
     assert "risk_coverage" not in _pooled(records, folds, np.array([7, 7, 8, 8]), ["a", "b"],
                                           [], seed=0)
+
+
+def test_the_interval_level_sets_the_percentiles():
+    """The ten one-recording groups above (a resample's accuracy k/10, k binomial(10, 1/2)):
+    the 50 % interval is the quartiles, 0.4 and 0.6 (P(k <= 3) = 17 %, P(k <= 4) = 38 %),
+    narrower than the 95 % one; accuracy and balanced accuracy (one class) agree."""
+    y_true = np.zeros(10, np.int64)
+    y_pred = np.tile([0, 1], 5)
+    ci = group_bootstrap_ci(y_true, y_pred, np.arange(10), 2, level=0.5, seed=0)
+    assert ci == {"accuracy": [0.4, 0.6], "balanced_accuracy": [0.4, 0.6]}
+
+
+def test_accuracy_and_balanced_accuracy_intervals_are_not_swapped():
+    """Nine groups of class 0, all right, and one of class 1, wrong: accuracy 0.9, balanced
+    accuracy 0.5 (the mean of recalls 1 and 0). A resample holding the class-1 group m times
+    (m binomial(10, 1/10)) has accuracy 1 - m/10 (m <= 3 in 98.7 % of them, m = 0 in 35 %)
+    and balanced accuracy 0.5, or 1 when m = 0."""
+    y_true = np.array([0] * 9 + [1])
+    y_pred = np.zeros(10, np.int64)
+    acc, bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, 2))
+    assert (acc, bal) == (0.9, 0.5)
+    ci = group_bootstrap_ci(y_true, y_pred, np.arange(10), 2, seed=0)
+    assert ci == {"accuracy": [0.7, 1.0], "balanced_accuracy": [0.5, 1.0]}
+
+
+def test_grouped_folds_are_the_stratified_split_when_it_is_valid():
+    """Eight groups of three, two of them all class 0: StratifiedGroupKFold gives three
+    non-empty folds, and those are the plan (not the fallback's dealing, which differs)."""
+    from sklearn.model_selection import StratifiedGroupKFold
+
+    from eskin.learn.evaluation import _dealt_folds
+
+    groups = np.repeat(np.arange(8), 3)
+    y = np.tile([0, 1, 2], 8)
+    y[:6] = 0
+    for seed in (0, 1):
+        plan = [te.tolist() for _, te in make_folds(groups, y, 3, seed)]
+        split = StratifiedGroupKFold(3, shuffle=True, random_state=seed).split(y, y, groups)
+        assert plan == [sorted(te.tolist()) for _, te in split]
+        assert plan != [te.tolist() for te in _dealt_folds(groups, 3, seed)]
+
+
+def test_risk_coverage_counts_any_disagreement_as_an_error():
+    """Errors in both directions (a true 0 called 1, a true 1 called 0) count alike."""
+    from eskin.learn.evaluation import risk_coverage
+
+    rc = risk_coverage(np.array([0, 1, 0, 1]), np.array([0, 1, 1, 0]), np.array([4, 3, 2, 1.0]),
+                       points=4)
+    assert rc["error"] == [0.0, 0.0, 1 / 3, 0.5]
+
+
+def test_settings_equal_in_every_fold_are_given_once():
+    from eskin.learn.evaluation import _folds_trained_with
+
+    records = [{"trained_with": {"amplitudes": [0.5, 1.0], "D": 20, "hold_s": None}},
+               {"trained_with": {"amplitudes": [0.5, 1.0], "D": 30, "hold_s": None}}]
+    assert _folds_trained_with(records) == {"amplitudes": [0.5, 1.0], "D": [20, 30],
+                                            "hold_s": None}
+    assert _folds_trained_with([]) == {}
+
+
+def test_a_fold_record_without_predictions_keeps_its_other_live_scores():
+    from eskin.learn.evaluation import _without_predictions
+
+    record = {"fold": 0, "accuracy": 0.5, "y_true": [0], "y_pred": [1], "dont_know": [False],
+              "confidence": [0.3],
+              "live": {"accuracy": 0.25, "touches": 4, "per_recording": [1, 0]},
+              "baselines": {"nearest": {"accuracy": 0.75, "y_pred": [0]}}}
+    assert _without_predictions(record) == {
+        "fold": 0, "accuracy": 0.5, "live": {"accuracy": 0.25, "touches": 4},
+        "baselines": {"nearest": {"accuracy": 0.75}}}
