@@ -323,3 +323,21 @@ TEST(ScalarBases, ASingleTaxelTouchedHasRankOneAtThatTaxel) {
     for (std::size_t i = layout.cols(z); i < layout.alpha(z) * layout.cols(z); ++i)
       ASSERT_EQ(b[layout.offset(z) + i], 0.0f) << "mode " << z;
 }
+
+TEST(ScalarBases, ReadsExactlyTensorSizeValues) {
+  // the pattern followed in memory by a NaN and a huge value: neither is part of it, so the
+  // status and the bases are those of the pattern alone
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  auto x = random_tensor(layout.tensor_size(), 5);
+  std::vector<float> alone(layout.bases_size()), b(layout.bases_size());
+  int r_alone[3], r[3];
+  ASSERT_EQ(sb.compute(x.data(), alone.data(), r_alone), KernelStatus::ok);
+  for (double next : {std::nan(""), 1e30}) {
+    auto longer = x;
+    longer.push_back(next);
+    ASSERT_EQ(sb.compute(longer.data(), b.data(), r), KernelStatus::ok);
+    for (std::size_t z = 0; z < 3; ++z) EXPECT_EQ(r[z], r_alone[z]);
+    for (std::size_t i = 0; i < b.size(); ++i) ASSERT_EQ(b[i], alone[i]) << "entry " << i;
+  }
+}
