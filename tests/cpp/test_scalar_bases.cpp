@@ -341,3 +341,42 @@ TEST(ScalarBases, ReadsExactlyTensorSizeValues) {
     for (std::size_t i = 0; i < b.size(); ++i) ASSERT_EQ(b[i], alone[i]) << "entry " << i;
   }
 }
+
+TEST(ScalarBases, WritesExactlyBasesSizeValuesAndOneRankPerMode) {
+  // output buffers one entry longer than documented: the extra entry keeps its value, whether
+  // the last mode's basis comes from the singular vectors (alpha 8 of 16) or is the identity
+  // (alpha 16 of 16, a full-rank time unfolding)
+  for (std::size_t alpha : {8, 16}) {
+    const BasisLayout layout({4, 4, 20}, {2, 2, alpha});
+    eskin::detail::ScalarBases<float> sb(layout);
+    const auto x = random_tensor(layout.tensor_size(), 13);
+    std::vector<float> b(layout.bases_size() + 1, 7.0f);
+    int r[4] = {9, 9, 9, 9};
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    EXPECT_EQ(r[2], static_cast<int>(alpha));
+    EXPECT_EQ(b.back(), 7.0f) << "alpha " << alpha;
+    EXPECT_EQ(r[3], 9);
+  }
+}
+
+TEST(ScalarBases, ASingleSampleOfASingleTaxelHasUnitVectorBases) {
+  // one value at taxel (0, 1), sample 3: each mode's basis is the unit vector of that entry
+  // among the other two indices (row mode: (1, 3) -> 23; column mode: (0, 3) -> 3; time: taxel
+  // 1). The row mode's first reflector then has tau exactly 1 (a unit column with a zero first
+  // entry): it must still be applied
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  x[(0 * 4 + 1) * 20 + 3] = 250.0;
+  std::vector<float> b(layout.bases_size(), 7.0f);
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  const std::size_t at[3] = {23, 3, 1};
+  for (std::size_t z = 0; z < 3; ++z) {
+    EXPECT_EQ(r[z], 1) << "mode " << z;
+    const std::size_t n = layout.cols(z);
+    for (std::size_t i = 0; i < layout.alpha(z) * n; ++i)
+      ASSERT_NEAR(b[layout.offset(z) + i], i == at[z] ? 1.0f : 0.0f, 1e-6f)
+          << "mode " << z << " entry " << i;
+  }
+}
