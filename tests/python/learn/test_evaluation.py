@@ -762,6 +762,7 @@ def test_settings_equal_in_every_fold_are_given_once():
     assert _folds_trained_with(records) == {"amplitudes": [0.5, 1.0], "D": [20, 30],
                                             "hold_s": None}
     assert _folds_trained_with([]) == {}
+    assert _folds_trained_with(records[:1]) == records[0]["trained_with"]
 
 
 def test_a_fold_record_without_predictions_keeps_its_other_live_scores():
