@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -110,26 +109,15 @@ def offline_stream_decisions(model: Any, samples: np.ndarray) -> list:
 def start_fw_sim(args: list[str], timeout: float = 20.0) -> tuple[subprocess.Popen, str]:
     """Start ``eskin-fw-sim`` with ``args``; return the process and the pty path it published."""
     from eskin._paths import find_executable
+    from eskin.link.simulated_controllers import published_pty
 
     exe = find_executable("eskin-fw-sim")
     proc = subprocess.Popen([str(exe), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    found: list[str] = []
-
-    def read_first() -> None:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        found.append(line)
-
-    t = threading.Thread(target=read_first, daemon=True)
-    t.start()
-    t.join(timeout)
-    if not found or not found[0].startswith("PTY "):
-        proc.kill()
-        err = proc.stderr.read() if proc.stderr is not None else ""
-        raise DemoError(f"{exe} did not publish its pseudo-terminal "
-                        f"(first line {found[0] if found else 'none'!r}): {err.strip()}")
-    return proc, found[0][4:].strip()
+    try:
+        return proc, published_pty(proc, timeout, str(exe))
+    except OSError as exc:
+        raise DemoError(str(exc)) from None
 
 
 def finish_fw_sim(proc: subprocess.Popen, timeout: float = 10.0) -> dict[str, Any]:

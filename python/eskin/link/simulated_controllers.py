@@ -91,7 +91,7 @@ class SimulatedControllers:
                     [exe, str(replay_path(self.folder, p.id)), *model, *self.args,
                      "--link", str(link)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                     text=True)
-                pty = _published_pty(proc, timeout_s, p.id)
+                pty = published_pty(proc, timeout_s, f"eskin-fw-sim of patch {p.id!r}")
                 self.controllers.append(Controller(p.id, proc, pty, link))
         except BaseException:
             self.stop()
@@ -141,8 +141,9 @@ class SimulatedControllers:
         self.stop()
 
 
-def _published_pty(proc: subprocess.Popen, timeout_s: float, patch_id: str) -> str:
-    """The pseudo-terminal ``eskin-fw-sim`` prints first ("PTY path")."""
+def published_pty(proc: subprocess.Popen, timeout_s: float, what: str) -> str:
+    """The pseudo-terminal an ``eskin-fw-sim`` process prints first ("PTY path"); an OSError
+    naming ``what`` (and the simulator's own message) when none comes within ``timeout_s``."""
     found: list[str] = []
     reader = threading.Thread(target=lambda: found.append(proc.stdout.readline()),  # type: ignore
                               daemon=True)
@@ -151,6 +152,6 @@ def _published_pty(proc: subprocess.Popen, timeout_s: float, patch_id: str) -> s
     if not found or not found[0].startswith("PTY "):
         proc.kill()
         err = proc.stderr.read() if proc.stderr is not None else ""
-        raise OSError(f"eskin-fw-sim of patch {patch_id!r} did not publish its pseudo-terminal: "
-                      f"{(err or '').strip() or 'no output'}")
+        raise OSError(f"{what} did not publish its pseudo-terminal (first line "
+                      f"{found[0] if found else 'none'!r}): {(err or '').strip() or 'no output'}")
     return found[0][4:].strip()
