@@ -16,6 +16,7 @@ compare the engine's ns per patch-sample and bytes per patch with these.
 
 Run:  ESKIN_BIN_DIR=build/dev PYTHONPATH=python python benchmarks/bench_skin.py
       [--patches 1000] [--seconds 12] [--block 300] [--participants 6] [--model m.eskin]
+      [--window-buffers 0.8]
 The data are simulated (eskin.simulate).
 """
 
@@ -119,8 +120,9 @@ def baseline(cm: CompiledModel, stream: np.ndarray) -> tuple[float, int]:
     return ns, per
 
 
-def run_skin(cm: CompiledModel, streams: np.ndarray, patches: int, T: int, block: int):
-    engine = SkinEngine(cm, n_patches=patches)
+def run_skin(cm: CompiledModel, streams: np.ndarray, patches: int, T: int, block: int,
+             window_buffers: int = 0):
+    engine = SkinEngine(cm, n_patches=patches, window_buffers=window_buffers)
     k, L = streams.shape[0], streams.shape[1]
     which = np.arange(patches) % k
     offset = (np.arange(patches) * 7919) % L
@@ -150,6 +152,9 @@ def main() -> None:
     ap.add_argument("--touching", type=float, default=0.39)
     ap.add_argument("--participants", type=int, default=6, help="of the training campaign")
     ap.add_argument("--model", type=Path, default=None, help="a .eskin model (default: train one)")
+    ap.add_argument("--window-buffers", type=float, default=0.0,
+                    help="window buffers shared by the patches, as a share of them (0.8: 800 of "
+                         "1000); 0: each patch its own (SkinEngine window_buffers)")
     a = ap.parse_args()
     cm = CompiledModel(a.model or default_model(a.participants))
     print(
@@ -160,7 +165,8 @@ def main() -> None:
     streams = patch_streams(a.touching, 8)
     T = int(a.seconds * cm.sample_rate_hz)
     base_ns, base_bytes = baseline(cm, streams[0])
-    engine, spent, decisions, touch = run_skin(cm, streams, a.patches, T, a.block)
+    shared = int(round(a.window_buffers * a.patches))
+    engine, spent, decisions, touch = run_skin(cm, streams, a.patches, T, a.block, shared)
     realtime = a.seconds / spent
     ns = spent * 1e9 / (a.patches * T)
     B = engine.bytes_per_patch
@@ -174,6 +180,11 @@ def main() -> None:
         f"ratio: {base_ns / ns:.2f}x the baseline's speed per patch-sample, "
         f"{base_bytes / B:.2f}x less memory per patch"
     )
+    if shared:
+        print(
+            f"shared window buffers: {shared} for {a.patches} patches, at most "
+            f"{engine.window_buffers_peak} in use at once, {engine.unbuffered} touches without one"
+        )
     print(f"SKIN-BENCH: patches={a.patches} realtime={realtime:.2f} bytes_per_patch={B}")
 
 

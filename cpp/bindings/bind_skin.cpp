@@ -76,7 +76,7 @@ class PySkinEngine {
  public:
   PySkinEngine(const py::list& models, std::vector<int> patch_model, int n_patches, int position_dims,
                std::vector<double> positions, std::vector<std::array<int, 2>> adjacency,
-               std::int64_t chunk_samples) {
+               std::int64_t chunk_samples, std::int64_t window_buffers) {
     SkinConfig c;
     for (const py::handle h : models) {
       c.models.push_back(&h.cast<const Model&>());
@@ -89,6 +89,7 @@ class PySkinEngine {
     c.positions = std::move(positions);
     c.adjacency = std::move(adjacency);
     c.chunk_samples = chunk_samples;
+    c.window_buffers = window_buffers;
     engine_ = std::make_unique<SkinEngine>(c);
   }
 
@@ -147,9 +148,10 @@ void bind_skin(py::module_& m) {
   py::class_<PySkinEngine>(m, "SkinEngine",
                            "Many patches, one host: per-patch detectors over shared models.")
       .def(py::init<const py::list&, std::vector<int>, int, int, std::vector<double>,
-                    std::vector<std::array<int, 2>>, std::int64_t>(),
+                    std::vector<std::array<int, 2>>, std::int64_t, std::int64_t>(),
            py::arg("models"), py::arg("patch_model"), py::arg("n_patches"), py::arg("position_dims"),
-           py::arg("positions"), py::arg("adjacency"), py::arg("chunk_samples"))
+           py::arg("positions"), py::arg("adjacency"), py::arg("chunk_samples"),
+           py::arg("window_buffers") = 0)
       .def("push", &PySkinEngine::push, py::arg("patch"), py::arg("samples"),
            "Samples (n, taxels) int16 of one patch; returns the decisions as columns.")
       .def("push_interleaved", &PySkinEngine::push_interleaved, py::arg("block"),
@@ -160,6 +162,9 @@ void bind_skin(py::module_& m) {
       .def_property_readonly("total_taxels", [](PySkinEngine& e) { return e.engine().total_taxels(); })
       .def_property_readonly("bytes_per_patch", [](PySkinEngine& e) { return e.engine().bytes_per_patch(); })
       .def_property_readonly("dropped", [](PySkinEngine& e) { return e.engine().dropped(); })
+      .def_property_readonly("unbuffered", [](PySkinEngine& e) { return e.engine().unbuffered(); })
+      .def_property_readonly("window_buffers_peak",
+                             [](PySkinEngine& e) { return e.engine().window_buffers_peak(); })
       .def("patch_taxels", [](PySkinEngine& e, int p) { return e.engine().patch_taxels(e.patch(p)); }, py::arg("patch"))
       .def("taxel_offset", [](PySkinEngine& e, int p) { return e.engine().taxel_offset(e.patch(p)); }, py::arg("patch"))
       .def("patch_model", [](PySkinEngine& e, int p) { return e.engine().patch_model(e.patch(p)); }, py::arg("patch"))

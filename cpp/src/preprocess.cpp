@@ -370,8 +370,52 @@ template Status subsample_window<double>(const double*, int64_t, int64_t, int64_
 
 // ---------------------------------------------------------------- streaming detector
 
+#if !defined(ESKIN_DEVICE)
+WindowBufferPool::WindowBufferPool(int64_t buffers, int64_t values) {
+  if (buffers < 0 || (buffers > 0 && values < 1) || buffers > kMaxStoredValues ||
+      (buffers > 0 && values > kMaxStoredValues / buffers)) {
+    detail::raise<std::invalid_argument>("WindowBufferPool: " + std::to_string(buffers) +
+                                         " buffers of " + std::to_string(values) +
+                                         " values: must be >= 0 buffers of >= 1 value, at most " +
+                                         std::to_string(kMaxStoredValues) + " values in all");
+  }
+  values_ = values;
+  data_.assign(static_cast<std::size_t>(buffers * values), int16_t{0});
+  free_.resize(static_cast<std::size_t>(buffers));
+  for (int64_t b = 0; b < buffers; ++b) free_[static_cast<std::size_t>(b)] = data_.data() + b * values;
+  n_free_ = buffers;
+}
+
+int16_t* WindowBufferPool::acquire() noexcept {
+  if (n_free_ == 0) {
+    ++unbuffered_;
+    return nullptr;
+  }
+  int16_t* b = free_[static_cast<std::size_t>(--n_free_)];
+  peak_ = std::max(peak_, in_use());
+  return b;
+}
+
+void WindowBufferPool::release(int16_t* buffer) noexcept {
+  if (buffer != nullptr && n_free_ < buffers()) free_[static_cast<std::size_t>(n_free_++)] = buffer;
+}
+
+int64_t WindowBufferPool::memory_bytes() const noexcept {
+  return static_cast<int64_t>(sizeof(*this) + data_.capacity() * sizeof(int16_t) +
+                              free_.capacity() * sizeof(int16_t*));
+}
+
+void TouchDetector::release_window() noexcept {
+  if (shared_ != nullptr && win_ != nullptr) shared_->release(win_);
+  win_ = nullptr;
+  release_pending_ = false;
+}
+#else
+void TouchDetector::release_window() noexcept {}
+#endif
+
 TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
-                             SampleStore store)
+                             SampleStore store, WindowBufferPool* shared)
     : cfg_(cfg), p_(resolve_window_config(cfg, sample_rate_hz)), n_taxels_(n_taxels),
 #if defined(ESKIN_DEVICE)
       // a controller's native store holds the int16 codes already (and one patch)
@@ -416,12 +460,28 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
     const int64_t quiet = std::max({p_.hold_frames, int64_t{1}, ceil_div(p_.pad_after, fl)});
     const int64_t needed = p_.pad_before + std::max<int64_t>(0, quiet * fl - p_.pad_after) + fl;
     recent_cap_ = std::min(ring_cap_, std::max(needed, ring_cap_ - cap / 2));
+    if (shared != nullptr) {
+      // the window buffer is not ours between touches: the whole pre-onset ring is recent
+      if (shared->values() < cap * n_taxels) {
+        detail::raise<std::invalid_argument>(
+            "TouchDetector: shared window buffers of " + std::to_string(shared->values()) +
+            " values: this detector needs " + std::to_string(cap * n_taxels) +
+            " (window_capacity x n_taxels)");
+      }
+      shared_ = shared;
+      recent_cap_ = ring_cap_;
+    }
     old_cap_ = ring_cap_ - recent_cap_;
     old_at_ = cap - old_cap_;
-    const int64_t slots = cap + recent_cap_;
+    ring_at_ = shared != nullptr ? 0 : cap;
+    const int64_t slots = ring_at_ + recent_cap_;
     pool_.assign(static_cast<std::size_t>(slots * n_taxels), int16_t{0});
   }
 #endif
+  if (shared != nullptr && mode_ != SampleStore::kCodes) {
+    detail::raise<std::invalid_argument>(
+        "TouchDetector: shared window buffers need SampleStore::kCodes on the host");
+  }
   reset();
 }
 
@@ -435,26 +495,31 @@ int64_t TouchDetector::memory_bytes() const noexcept {
 
 #if !defined(ESKIN_DEVICE)
 const int16_t* TouchDetector::code_slot(int64_t t) const noexcept {
-  const int64_t slot = t >= now_ - recent_cap_ ? p_.window_capacity + t % recent_cap_
-                                               : old_at_ + t % old_cap_;
+  const int64_t slot = t >= now_ - recent_cap_ ? ring_at_ + t % recent_cap_ : old_at_ + t % old_cap_;
   return pool_.data() + slot * n_taxels_;
 }
 
 template <class T>
 void TouchDetector::store_code(const T* x, int64_t taxel_stride) noexcept {
   const int64_t K = n_taxels_;
+  if (release_pending_) {  // the last window has been read: its shared buffer goes back
+    release_window();
+    window_valid_ = false;
+  }
   int16_t* pool = pool_.data();
-  int16_t* r = pool + (p_.window_capacity + now_ % recent_cap_) * K;
+  int16_t* r = pool + (ring_at_ + now_ % recent_cap_) * K;
   if (state_ != State::kActive && old_cap_ > 0 && now_ >= recent_cap_) {
     // between touches: sample now - recent_cap_ leaves the recent ring for the older part
     std::copy(r, r + K, pool + (old_at_ + (now_ - recent_cap_) % old_cap_) * K);
   }
   for (int64_t k = 0; k < K; ++k) r[k] = to_code(x[k * taxel_stride]);
-  if (state_ == State::kActive) keep(pool, static_cast<const int16_t*>(r));
+  int16_t* w = window_codes();
+  if (state_ == State::kActive && w != nullptr) keep(w, static_cast<const int16_t*>(r));
 }
 #endif
 
 void TouchDetector::reset() noexcept {
+  release_window();
   std::fill(dc_mean_.begin(), dc_mean_.end(), 0.0);
   std::fill(acc_.begin(), acc_.end(), 0.0);
   noise_count_ = noise_pos_ = 0;
@@ -629,7 +694,10 @@ Status TouchDetector::on_frame() noexcept {
 #if !defined(ESKIN_DEVICE)
             if (mode_ == SampleStore::kCodes) {
               // oldest first: the older part's samples go to window slots below old_at_
-              for (int64_t t = start_; t < now_; ++t) keep(pool_.data(), code_slot(t));
+              if (shared_ != nullptr) win_ = shared_->acquire();  // nullptr: not kept
+              int16_t* w = window_codes();
+              if (w != nullptr)
+                for (int64_t t = start_; t < now_; ++t) keep(w, code_slot(t));
             } else  // the native store:
 #endif
             {
@@ -681,10 +749,12 @@ Status TouchDetector::finalise(bool forced) noexcept {
   last_stop_ = w.stop;
   if (w.offset - w.onset < p_.min_duration) {
     if (store_) window_len_ = window_kept_ = 0;
+    release_window();
     return Status::kOk;
   }
   last_ = w;
-  if (store_) window_valid_ = true;
+  if (store_) window_valid_ = shared_ == nullptr || win_ != nullptr;
+  release_pending_ = win_ != nullptr;
   return Status::kWindow;
 }
 
@@ -705,7 +775,7 @@ Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
                                             ShortPolicy short_policy, double* out) const noexcept {
 #if !defined(ESKIN_DEVICE)
   if (mode_ == SampleStore::kCodes && window_valid_) {
-    return subsample_window(pool_.data(), n_taxels_, 1, n_taxels_, last_window_length(), D,
+    return subsample_window(window_codes(), n_taxels_, 1, n_taxels_, last_window_length(), D,
                             method, short_policy, out, last_.stride);
   }
 #endif

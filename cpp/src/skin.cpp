@@ -83,13 +83,26 @@ SkinEngine::SkinEngine(const SkinConfig& c) : models_(c.models), position_dims_(
   }
   tensor_.assign(static_cast<std::size_t>(tensor), 0.0);
   chunk_ = c.chunk_samples > 0 ? c.chunk_samples : 8 * min_frame;
+  if (c.window_buffers < 0 || c.window_buffers > P)
+    bad("window_buffers", std::to_string(c.window_buffers),
+        "must be in [0, " + std::to_string(P) + "] (0: one per patch)");
+  if (c.window_buffers > 0) {
+    std::int64_t values = 0;
+    for (int p = 0; p < P; ++p) {
+      const Model& m = *models_[static_cast<std::size_t>(model_of[static_cast<std::size_t>(p)])];
+      values = std::max(values, resolve_window_config(m.window_config(), m.sample_rate_hz()).window_capacity *
+                                    m.rows() * m.cols());
+    }
+    window_pool_ = WindowBufferPool(c.window_buffers, values);
+  }
+  WindowBufferPool* shared = c.window_buffers > 0 ? &window_pool_ : nullptr;
 
   patches_.reserve(static_cast<std::size_t>(P));
   for (int p = 0; p < P; ++p) {
     const Model& m = *models_[static_cast<std::size_t>(model_of[static_cast<std::size_t>(p)])];
     const std::int64_t taxels = std::int64_t{m.rows()} * m.cols();
     Patch patch{model_of[static_cast<std::size_t>(p)], total_taxels_, -1,
-                TouchDetector(taxels, m.sample_rate_hz(), m.window_config(), SampleStore::kCodes)};
+                TouchDetector(taxels, m.sample_rate_hz(), m.window_config(), SampleStore::kCodes, shared)};
     if (c.position_dims > 0) patch.position_offset = total_taxels_ * c.position_dims;
     patches_.push_back(std::move(patch));
     total_taxels_ += taxels;
@@ -149,15 +162,17 @@ std::int64_t SkinEngine::bytes_per_patch() const noexcept {
                              std::int64_t{sizeof(std::int64_t)};
     most = std::max(most, own);
   }
-  return most + (pending + P - 1) / P;
+  return most + (pending + window_pool_.memory_bytes() + P - 1) / P;
 }
 
 bool SkinEngine::decide(int patch, SkinDecision* out) noexcept {
   Patch& p = patches_[static_cast<std::size_t>(patch)];
   const Model& m = *models_[static_cast<std::size_t>(p.model)];
   const TouchDetector& det = p.detector;
-  if (det.subsample_last_window(m.D(), m.subsample(), m.short_policy(), tensor_.data()) != Status::kOk) {
+  const Status st = det.subsample_last_window(m.D(), m.subsample(), m.short_policy(), tensor_.data());
+  if (st != Status::kOk) {
     ++dropped_;
+    if (st == Status::kNoWindow) ++unbuffered_;  // no buffer was free at its onset
     return false;
   }
   Decision d;
@@ -305,7 +320,8 @@ void SkinEngine::reset() noexcept {
   }
   n_pending_ = 0;
   next_event_ = 0;
-  dropped_ = 0;
+  dropped_ = unbuffered_ = 0;
+  window_pool_.reset_counts();
 }
 
 }  // namespace eskin

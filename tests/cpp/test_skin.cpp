@@ -176,6 +176,78 @@ TEST(SkinEngine, SameDecisionsAsOneStreamClassifierPerPatch) {
   EXPECT_GT(compared, 20);
 }
 
+// Interleaved blocks of every patch's stream through an engine with `buffers` shared window
+// buffers (0: each patch its own).
+std::vector<Got> run_interleaved(SkinEngine& engine, const std::vector<std::vector<std::int16_t>>& streams,
+                                 std::int64_t T, std::int64_t n) {
+  const auto P = static_cast<int>(streams.size());
+  Collect got;
+  std::vector<std::int16_t> block;
+  for (std::int64_t t = 0; t < T; t += n) {
+    const std::int64_t m = std::min(n, T - t);
+    block.assign(static_cast<std::size_t>(m * P * kTaxels), 0);
+    for (std::int64_t i = 0; i < m; ++i)
+      for (int p = 0; p < P; ++p)
+        std::copy_n(streams[static_cast<std::size_t>(p)].data() + (t + i) * kTaxels, kTaxels,
+                    block.data() + (i * P + p) * kTaxels);
+    EXPECT_EQ(engine.push_interleaved(block.data(), m, &got), SkinStatus::kOk);
+  }
+  EXPECT_EQ(engine.flush(&got), SkinStatus::kOk);
+  return by_patch(got.got);
+}
+
+// Shared window buffers: with as many as the most touches in progress at once, every decision
+// is the StreamClassifier's; with fewer, the touches that start while all are taken are the
+// only ones missing (counted), every other decision unchanged; the memory per patch falls.
+TEST(SkinEngine, SharedWindowBuffersKeepEveryDecisionTheyHaveRoomFor) {
+  const Model m32 = fixture("float32");
+  const std::vector<const Model*> models = {&m32};
+  const std::int64_t T = 40000;
+  for (unsigned seed = 10; seed < 13; ++seed) {
+    std::mt19937 gen(seed);
+    const int P = 6;
+    const std::vector<int> model_of(static_cast<std::size_t>(P), 0);
+    std::vector<std::vector<std::int16_t>> streams;
+    for (int p = 0; p < P; ++p) {
+      std::vector<Burst> sparse;  // every other burst: patches not all touched at once
+      const std::vector<Burst> bursts = random_bursts(gen, T);
+      for (std::size_t i = p % 2; i < bursts.size(); i += 2) sparse.push_back(bursts[i]);
+      streams.push_back(patch_stream(T, sparse, seed * 100 + p));
+    }
+    const std::vector<Got> want = reference(models, model_of, streams, T);
+    SkinConfig c;
+    c.models = models;
+    c.patch_model = model_of;
+    SkinEngine own(c);
+    c.window_buffers = P;
+    SkinEngine all(c);
+    EXPECT_EQ(run_interleaved(all, streams, T, 700), want);
+    EXPECT_EQ(all.unbuffered(), 0);
+    const std::int64_t peak = all.window_buffers_peak();
+    ASSERT_GE(peak, 2) << "the streams must have touches in progress at once";
+    ASSERT_LT(peak, P);
+
+    c.window_buffers = peak;  // as many as were ever taken at once: nothing missing
+    SkinEngine enough(c);
+    EXPECT_EQ(run_interleaved(enough, streams, T, 1), want);
+    EXPECT_EQ(enough.unbuffered(), 0);
+    EXPECT_EQ(enough.window_buffers_peak(), peak);
+
+    c.window_buffers = 1;
+    SkinEngine one(c);
+    EXPECT_LT(one.bytes_per_patch(), own.bytes_per_patch());
+    const std::vector<Got> got = run_interleaved(one, streams, T, 333);
+    EXPECT_GT(one.unbuffered(), 0);
+    EXPECT_EQ(one.window_buffers_peak(), 1);
+    EXPECT_EQ(static_cast<std::int64_t>(got.size()) + one.unbuffered(), static_cast<std::int64_t>(want.size()));
+    EXPECT_EQ(one.dropped(), one.unbuffered());
+    for (const Got& g : got) EXPECT_NE(std::find(want.begin(), want.end(), g), want.end());
+    one.reset();
+    EXPECT_EQ(one.unbuffered(), 0);
+    EXPECT_EQ(run_interleaved(one, streams, T, 333), got);  // reset gave every buffer back
+  }
+}
+
 // Three patches in a row (0-1 adjacent, 1-2 adjacent), a fourth apart: a touch on 0 and 1 at
 // once is one event, the simultaneous touch on 3 another; later, touches on 1 and 2 whose
 // windows overlap are one event; a touch on 2 alone, a third.
@@ -276,6 +348,11 @@ TEST(SkinEngine, BadConfigurationNamesTheFieldAndValue) {
   c.chunk_samples = -1;
   EXPECT_EQ(message(c), "SkinConfig.chunk_samples = -1: must be in [0, 1048576] (0: the default)");
   c.chunk_samples = 0;
+  c.window_buffers = 3;
+  EXPECT_EQ(message(c), "SkinConfig.window_buffers = 3: must be in [0, 2] (0: one per patch)");
+  c.window_buffers = -1;
+  EXPECT_EQ(message(c), "SkinConfig.window_buffers = -1: must be in [0, 2] (0: one per patch)");
+  c.window_buffers = 2;
   EXPECT_EQ(message(c), "no error");
 }
 

@@ -190,6 +190,36 @@ enum class SampleStore : int32_t {
                 // whose StoredSample is the int16 code already
 };
 
+// Window buffers shared by SampleStore::kCodes detectors, for many streams that are not all
+// touched at once (a skin's patches, docs/skin-engine.md "Shared window buffers"): `buffers`
+// buffers of `values` int16 codes each, allocated once. A detector takes one at a touch's onset
+// and gives it back at its first push after the touch ended (or at once for a touch too short
+// to report); when none is free the touch is still detected but its samples are not kept, so
+// it has no tensor (counted in unbuffered()). Host only; not thread-safe (one engine thread).
+class WindowBufferPool {
+ public:
+  WindowBufferPool() = default;
+  // Throws std::invalid_argument when buffers < 0 or values < 1 (with buffers > 0).
+  WindowBufferPool(int64_t buffers, int64_t values);
+  int16_t* acquire() noexcept;  // nullptr (and one more unbuffered()) when none is free
+  void release(int16_t* buffer) noexcept;
+  int64_t buffers() const noexcept { return static_cast<int64_t>(free_.size()); }
+  int64_t values() const noexcept { return values_; }
+  int64_t in_use() const noexcept { return buffers() - n_free_; }
+  int64_t peak_in_use() const noexcept { return peak_; }
+  int64_t unbuffered() const noexcept { return unbuffered_; }
+  void reset_counts() noexcept { peak_ = in_use(), unbuffered_ = 0; }
+  int64_t memory_bytes() const noexcept;
+
+ private:
+  std::vector<int16_t> data_;
+  std::vector<int16_t*> free_;  // [0, n_free_): the free buffers
+  int64_t values_ = 0;
+  int64_t n_free_ = 0;
+  int64_t peak_ = 0;
+  int64_t unbuffered_ = 0;
+};
+
 // The streaming detector. Feed it one multi-taxel sample at a time (push) or a block of
 // samples (push_block); it reports a touch when it ends.
 class TouchDetector {
@@ -201,8 +231,12 @@ class TouchDetector {
                 bool store_samples = true)
       : TouchDetector(n_taxels, sample_rate_hz, cfg,
                       store_samples ? SampleStore::kNative : SampleStore::kNone) {}
+  // shared (kCodes only, host only): the window buffer is taken from this pool at each onset
+  // instead of the detector's own pool, which then holds the pre-onset ring alone
+  // (WindowBufferPool); it must outlive the detector and hold window_capacity x n_taxels
+  // values per buffer (std::invalid_argument otherwise).
   TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
-                SampleStore store);
+                SampleStore store, WindowBufferPool* shared = nullptr);
 
   // One sample: n_taxels values. Returns kOk, kWindow (a touch ended with this sample; read
   // last_window() before the next push), kNonFiniteSample or kNullPointer.
@@ -264,6 +298,10 @@ class TouchDetector {
   const int16_t* code_slot(int64_t t) const noexcept;
   template <class T>
   void store_code(const T* x, int64_t taxel_stride) noexcept;
+  // kCodes: the window buffer (the pool's start, or the shared buffer held; nullptr if none)
+  int16_t* window_codes() noexcept { return shared_ != nullptr ? win_ : pool_.data(); }
+  const int16_t* window_codes() const noexcept { return shared_ != nullptr ? win_ : pool_.data(); }
+  void release_window() noexcept;
 
   WindowConfig cfg_;
   DetectorParams p_;
@@ -296,6 +334,10 @@ class TouchDetector {
   // buffer's last slots [old_at_, window_capacity) (sample t at old_at_ + t % old_cap_),
   // written only between touches
   std::vector<int16_t> pool_;
+  int64_t ring_at_ = 0;  // the recent ring's first slot (window_capacity, or 0 when shared)
+  WindowBufferPool* shared_ = nullptr;
+  int16_t* win_ = nullptr;        // the shared buffer held (from an onset to the push after its end)
+  bool release_pending_ = false;  // give win_ back at the next push
   int64_t recent_cap_ = 0;
   int64_t old_cap_ = 0;
   int64_t old_at_ = 0;

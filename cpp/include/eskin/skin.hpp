@@ -44,6 +44,13 @@ struct SkinConfig {
   /// patch (0: 8 frames of the shortest detector frame). Larger: fewer cache misses, a larger
   /// buffer of decisions waiting to be ordered.
   std::int64_t chunk_samples = 0;
+  /// Window buffers (the touch's kept samples, window_samples x taxels int16 codes, about half
+  /// a 4x4 patch's state at 3 kHz) shared by the patches: 0 (default), one of its own per
+  /// patch; n (1 to the number of patches), a pool of n that the patches touched at the same
+  /// time take from, so memory follows the contact a skin can have at once instead of its
+  /// size. A touch that starts while all n are taken is detected but not classified (counted
+  /// in unbuffered()); every other decision is the same. docs/skin-engine.md.
+  std::int64_t window_buffers = 0;
 };
 
 /// One decision of the skin. `values` points into the engine (valid during the sink's call).
@@ -109,8 +116,13 @@ class SkinEngine {
   /// Touches whose classification failed (too short for D, a kernel failure): dropped, as a
   /// StreamClassifier drops them.
   std::int64_t dropped() const noexcept { return dropped_; }
+  /// With shared window buffers: touches that ended without a tensor because every buffer was
+  /// taken when they started (among the dropped ones), and the most buffers in use at once;
+  /// 0 without.
+  std::int64_t unbuffered() const noexcept { return unbuffered_; }
+  std::int64_t window_buffers_peak() const noexcept { return window_pool_.peak_in_use(); }
   /// Bytes of the largest patch's state (detector, event history, positions, its share of the
-  /// decision buffer); the bound a deployment plans memory with.
+  /// decision buffer and of the shared window buffers); the bound a deployment plans memory with.
   std::int64_t bytes_per_patch() const noexcept;
 
  private:
@@ -141,6 +153,7 @@ class SkinEngine {
 
   std::vector<const Model*> models_;
   std::vector<Classifier> classifiers_;  // one per model
+  WindowBufferPool window_pool_;         // shared window buffers (empty: each patch its own)
   std::vector<Patch> patches_;
   std::vector<double> tensor_;           // the largest model's (taxels x D)
   std::vector<double> positions_;
@@ -155,6 +168,7 @@ class SkinEngine {
   std::size_t max_machines_ = 0;
   std::int64_t next_event_ = 0;
   std::int64_t dropped_ = 0;
+  std::int64_t unbuffered_ = 0;
 };
 
 }  // namespace eskin

@@ -93,7 +93,9 @@ class SkinEngine:
     patches all on the first model. ``positions``: None, or per patch an array of its taxels'
     2-D or 3-D positions (shape (taxels, d) or (rows, cols, d)). ``adjacency``: pairs of
     adjacent patches. ``chunk_samples``: samples per patch an interleaved block is cut into
-    (0: eight detector frames).
+    (0: eight detector frames). ``window_buffers``: 0, each patch keeps its own window buffer;
+    n, a pool of n shared by the patches touched at the same time (a touch that starts while all
+    are taken is not classified: :attr:`unbuffered`), docs/skin-engine.md.
     """
 
     def __init__(
@@ -104,6 +106,7 @@ class SkinEngine:
         positions: Sequence[Any] | None = None,
         adjacency: Iterable[tuple[int, int]] | None = None,
         chunk_samples: int = 0,
+        window_buffers: int = 0,
     ) -> None:
         from eskin import _core
 
@@ -139,6 +142,7 @@ class SkinEngine:
             flat,
             pairs,
             int(chunk_samples),
+            int(window_buffers),
         )
         self._dims = dims
         self._names = [m.class_names for m in self.models]
@@ -151,6 +155,10 @@ class SkinEngine:
     bytes_per_patch = property(lambda self: int(self._engine.bytes_per_patch))
     #: touches whose classification failed (dropped, as a StreamClassifier drops them)
     dropped = property(lambda self: int(self._engine.dropped))
+    #: shared window buffers: touches not classified because every buffer was taken (among
+    #: :attr:`dropped`), and the most buffers in use at once
+    unbuffered = property(lambda self: int(self._engine.unbuffered))
+    window_buffers_peak = property(lambda self: int(self._engine.window_buffers_peak))
 
     def patch_taxels(self, patch: int) -> int:
         return int(self._engine.patch_taxels(patch))

@@ -6,6 +6,8 @@ with a one-line message. Real compiled core, real simulated recordings."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -139,6 +141,35 @@ def test_a_default_4x4_patch_at_3khz_fits_64_kib(models):
     assert 16384 < engine.bytes_per_patch <= 65536
 
 
+def test_shared_window_buffers_keep_the_decisions_they_have_room_for(campaign, models):
+    # a 1 s hold (what `eskin train` chooses for the built-in simulator's press-and-hold): the
+    # whole pre-onset ring stays per patch, the window buffers are shared
+    spec = replace(_spec(campaign, 0), window_config=eskin.WindowConfig(hold_s=1.0))
+    held = CompiledModel(model_to_bytes(spec, "float32"))
+    rng = np.random.default_rng(3)
+    P = 4
+    streams = [_stream(campaign, rng, 6) for _ in range(P)]
+    T = min(len(s) for s in streams)
+    block = np.ascontiguousarray(np.stack([s[:T] for s in streams], axis=1))  # (T, P, 16)
+    want = [_reference(held, s[:T]) for s in streams]
+
+    def run(buffers):
+        engine = SkinEngine(held, n_patches=P, window_buffers=buffers)
+        got = engine.push_interleaved(block) + engine.flush()
+        return engine, _per_patch(got, P)
+
+    own, got_own = run(0)
+    assert got_own == want and own.unbuffered == 0 and own.window_buffers_peak == 0
+    every, got_every = run(P)
+    assert got_every == want and every.unbuffered == 0
+    assert 2 <= every.window_buffers_peak <= P
+    one, got_one = run(1)
+    assert one.unbuffered > 0 and one.window_buffers_peak == 1
+    assert sum(map(len, got_one)) + one.unbuffered == sum(map(len, want))
+    assert all(set(g) <= set(w) for g, w in zip(got_one, want))
+    assert one.bytes_per_patch < own.bytes_per_patch
+
+
 def test_adjacent_simultaneous_touches_are_one_event_with_positions(campaign, models):
     rng = np.random.default_rng(7)
     s = _stream(campaign, rng, 2)
@@ -181,6 +212,7 @@ def test_adjacent_simultaneous_touches_are_one_event_with_positions(campaign, mo
             r"positions\[0\]: shape \(15, 3\), expected \(16, 2\) or \(16, 3\)",
         ),
         ({"n_patches": 1, "chunk_samples": -5}, "SkinConfig.chunk_samples = -5"),
+        ({"n_patches": 2, "window_buffers": 3}, r"SkinConfig.window_buffers = 3: must be in \[0, 2\]"),
     ],
 )
 def test_bad_construction_is_a_one_line_value_error(models, kwargs, message):
