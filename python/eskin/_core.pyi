@@ -175,15 +175,15 @@ class SkinEngine:
     """
     Many patches, one host: per-patch detectors over shared models.
     """
-    def __init__(self, models: list, patch_model: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n_patches: typing.SupportsInt | typing.SupportsIndex, position_dims: typing.SupportsInt | typing.SupportsIndex, positions: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], adjacency: collections.abc.Sequence[typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(2)"]], chunk_samples: typing.SupportsInt | typing.SupportsIndex) -> None:
+    def __init__(self, models: list, patch_model: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n_patches: typing.SupportsInt | typing.SupportsIndex, position_dims: typing.SupportsInt | typing.SupportsIndex, positions: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], adjacency: collections.abc.Sequence[typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(2)"]], chunk_samples: typing.SupportsInt | typing.SupportsIndex, window_buffers: typing.SupportsInt | typing.SupportsIndex = 0) -> None:
         ...
     def flush(self) -> dict:
         ...
-    def in_touch(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> bool:
+    def in_touch(self, patch: typing.SupportsInt | typing.SupportsIndex) -> bool:
         ...
-    def patch_model(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+    def patch_model(self, patch: typing.SupportsInt | typing.SupportsIndex) -> int:
         ...
-    def patch_taxels(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+    def patch_taxels(self, patch: typing.SupportsInt | typing.SupportsIndex) -> int:
         ...
     def push(self, patch: typing.SupportsInt | typing.SupportsIndex, samples: typing.Annotated[numpy.typing.ArrayLike, numpy.int16]) -> dict:
         """
@@ -195,9 +195,9 @@ class SkinEngine:
         """
     def reset(self) -> None:
         ...
-    def samples_seen(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+    def samples_seen(self, patch: typing.SupportsInt | typing.SupportsIndex) -> int:
         ...
-    def taxel_offset(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> int:
+    def taxel_offset(self, patch: typing.SupportsInt | typing.SupportsIndex) -> int:
         ...
     @property
     def bytes_per_patch(self) -> int:
@@ -210,6 +210,12 @@ class SkinEngine:
         ...
     @property
     def total_taxels(self) -> int:
+        ...
+    @property
+    def unbuffered(self) -> int:
+        ...
+    @property
+    def window_buffers_peak(self) -> int:
         ...
 def compute_pattern_bases(X: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], alphas: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], n_threads: typing.SupportsInt | typing.SupportsIndex = 0) -> PatternBases:
     ...
