@@ -93,7 +93,7 @@ def evaluate(
     seed: int = typer.Option(0, help="seed of every random choice"),
     n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
     scheduler: str | None = typer.Option(
-        None, help="Dask scheduler address, or local:N for a local cluster of N workers"
+        None, help="Dask scheduler address, or local:N for a pool of N worker processes here"
     ),
     force: bool = typer.Option(False, "--force", help="replace the evaluation in OUT"),
     patch: str | None = typer.Option(

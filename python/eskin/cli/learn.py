@@ -51,7 +51,7 @@ NEGATIVES_HELP = (
 )
 
 
-SCHEDULER_HELP = "Dask scheduler address, or local:N to start a local cluster of N workers"
+SCHEDULER_HELP = "Dask scheduler address, or local:N for a pool of N worker processes here"
 
 #: --decision-us's default: no bound
 DECISION_US_DEFAULT = 0.0

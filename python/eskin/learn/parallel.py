@@ -1,17 +1,25 @@
-"""Running searches and folds on a Dask cluster: ``--scheduler ADDRESS``.
+"""Running searches and folds in parallel: ``--scheduler local:N`` or ``--scheduler ADDRESS``.
 
 Model selection and evaluation run their independent pieces (selection blocks, 1-vs-all
 machines, outer folds, recipes, experiment tasks) through :func:`run_calls`.
-:func:`compute_backend` makes them go to a ``dask.distributed`` cluster: the address of a running scheduler
-(``tcp://host:8786``), or ``local:N`` to start a LocalCluster of N single-threaded worker
-processes for the duration of the work. Every random choice is seeded by the piece it belongs
-to, never by where or when it runs, so the results are those of a serial run.
+:func:`compute_backend` decides where they go: ``local:N`` to a pool of N single-threaded
+worker processes on this machine (joblib's loky pool, started for the duration of the work),
+any other text to the ``dask.distributed`` cluster of the scheduler at that address
+(``tcp://host:8786``). Every random choice is seeded by the piece it belongs to, never by where
+or when it runs, so the results are those of a serial run.
 
-The data reach the workers from the client, never by a path: :func:`share` scatters the arrays
-a run's tasks read to every worker once (``client.scatter(..., broadcast=True)``) and
-:func:`run_calls` submits the tasks with those futures as arguments, which each worker resolves
-from its own copy. A cluster needs no filesystem shared with the client. Without a Dask backend
-both fall back to the data in this process and joblib.
+Why not a Dask LocalCluster for ``local:N``: on a machine of two cores its scheduler, nannies
+and workers (each a process importing ``distributed``, each polling memory, heartbeats and
+its event loop) cost CPU of their own for as long as the work runs, more than the work's
+parallelism saves on a run of a few minutes (BENCHMARKS.md, "Folds on a local pool"). The loky
+pool's workers wait on a pipe between tasks.
+
+On a Dask cluster the data reach the workers from the client, never by a path: :func:`share`
+scatters the arrays a run's tasks read to every worker once (``client.scatter(...,
+broadcast=True)``) and :func:`run_calls` submits the tasks with those futures as arguments,
+which each worker resolves from its own copy. A cluster needs no filesystem shared with the
+client. On the local pool :func:`share` keeps the values, and joblib hands an array larger than
+1 MB to the workers as a memory map of one file written once per call of :func:`run_calls`.
 """
 
 from __future__ import annotations
@@ -23,9 +31,9 @@ from typing import Any
 from eskin.errors import SchedulerError
 
 
-#: the environment of a ``local:N`` cluster's worker processes (one thread each)
-WORKER_ENV = {"ESKIN_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-              "MKL_NUM_THREADS": "1"}
+#: the thread limits of a ``local:N`` pool's worker processes: the core's kernels one thread
+#: each, as BLAS and OpenMP (joblib sets those), not one per core in every worker
+WORKER_THREADS = ("ESKIN_NUM_THREADS",)
 
 
 def parse_scheduler(address: str) -> tuple[str, Any]:
@@ -48,48 +56,83 @@ def parse_scheduler(address: str) -> tuple[str, Any]:
 
 
 @contextlib.contextmanager
-def compute_backend(
-    scheduler: str | None, *, processes: bool = True, timeout_s: float = 30.0
-) -> Iterator[Any]:
-    """Context in which joblib work runs on ``scheduler`` (None: nothing changes).
+def compute_backend(scheduler: str | None, *, timeout_s: float = 30.0) -> Iterator[Any]:
+    """Context in which joblib work (and :func:`run_calls`) runs on ``scheduler`` (None:
+    nothing changes).
 
-    Yields the ``dask.distributed.Client`` (or None). ``processes=False`` makes a ``local:N``
-    cluster use threads in this process (quick to start; for tests).
+    ``local:N``: a pool of N single-threaded worker processes, shut down on leaving; yields
+    None. Any other address: the Dask cluster of that scheduler; yields its
+    ``dask.distributed.Client``.
     """
     if scheduler is None:
         yield None
         return
     kind, value = parse_scheduler(scheduler)
+    if kind == "local":
+        with local_pool(value):
+            yield None
+        return
     try:
         import joblib
-        from dask.distributed import Client, LocalCluster
+        from dask.distributed import Client
     except ImportError:
         raise SchedulerError(
             "--scheduler needs dask.distributed: pip install 'eskin[dask]'"
         ) from None
     with contextlib.ExitStack() as stack:
-        if kind == "local":
-            # single-threaded workers: the core's kernels one thread each too (as BLAS, which
-            # Dask's nannies already limit), not one per core in every worker
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=value,
-                    threads_per_worker=1,
-                    processes=processes,
-                    dashboard_address=":0",
-                    **({"env": dict(WORKER_ENV)} if processes else {}),
-                )
-            )
-            client = stack.enter_context(Client(cluster))
-        else:
-            try:
-                client = stack.enter_context(Client(value, timeout=timeout_s))
-            except (OSError, TimeoutError, ValueError) as exc:
-                raise SchedulerError(
-                    f"--scheduler {value}: cannot connect to a Dask scheduler ({exc})"
-                ) from None
+        try:
+            client = stack.enter_context(Client(value, timeout=timeout_s))
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise SchedulerError(
+                f"--scheduler {value}: cannot connect to a Dask scheduler ({exc})"
+            ) from None
         stack.enter_context(joblib.parallel_backend("dask", wait_for_workers_timeout=timeout_s))
         yield client
+
+
+@contextlib.contextmanager
+def local_pool(n_workers: int) -> Iterator[None]:
+    """Context in which joblib work runs on ``n_workers`` worker processes of this machine,
+    one thread each (``n_jobs=-1`` and any larger count mean all of them); the processes are
+    started at the first call and stopped on leaving."""
+    import joblib
+
+    backend = _local_backend(n_workers)
+    try:
+        with joblib.parallel_config(backend=backend, n_jobs=n_workers):
+            yield
+    finally:
+        backend.shutdown()
+
+
+def _local_backend(n_workers: int) -> Any:
+    """A joblib loky backend of at most ``n_workers`` processes that also limits the core's
+    threads in them (:data:`WORKER_THREADS`) and keeps its pool to shut it down."""
+    from joblib.parallel import LokyBackend
+
+    class LocalPool(LokyBackend):
+        MAX_NUM_THREADS_VARS = (*LokyBackend.MAX_NUM_THREADS_VARS, *WORKER_THREADS)
+
+        def __init__(self, **kwargs: Any) -> None:
+            super().__init__(**kwargs)
+            self.pools: list[Any] = []
+
+        def effective_n_jobs(self, n_jobs: int | None) -> int:
+            if n_jobs is not None and n_jobs < 0:
+                n_jobs = n_workers
+            return min(super().effective_n_jobs(n_jobs), n_workers)
+
+        def configure(self, *args: Any, **kwargs: Any) -> int:
+            n = super().configure(*args, **kwargs)
+            if self._workers is not None and self._workers not in self.pools:
+                self.pools.append(self._workers)
+            return n
+
+        def shutdown(self) -> None:
+            for pool in self.pools:
+                pool.shutdown(wait=True)
+
+    return LocalPool(inner_max_num_threads=1)
 
 
 def dask_client() -> Any | None:
@@ -148,8 +191,9 @@ def run_calls(
     :func:`share` are futures that each worker resolves from its copy, and any other argument
     larger than 100 kB is scattered to the cluster on its own. joblib's Dask backend is never
     used for the calls themselves: its cache of scattered arguments is keyed by ``id()`` and
-    raised ``KeyError`` from a weakref callback when ids were reused (joblib 1.6). Otherwise joblib runs
-    them with ``n_jobs`` (1: here, one after the other)."""
+    raised ``KeyError`` from a weakref callback when ids were reused (joblib 1.6). Otherwise
+    joblib runs them with ``n_jobs`` (1: here, one after the other; -1 inside
+    :func:`local_pool`: on all its workers)."""
     calls = list(calls)
     client = dask_client()
     if client is None:

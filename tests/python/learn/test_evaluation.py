@@ -393,17 +393,6 @@ def test_experiment_on_a_dask_cluster_matches_the_serial_run(
     assert a["binary"] and _untimed(a) == _untimed(b)
 
 
-def test_a_local_cluster_runs_joblib_work_and_is_closed_after():
-    import joblib
-
-    from eskin.learn.parallel import compute_backend
-
-    with compute_backend("local:2", processes=False) as client:
-        assert len(client.scheduler_info()["workers"]) == 2
-        assert joblib.Parallel()(joblib.delayed(abs)(-i) for i in range(4)) == [0, 1, 2, 3]
-    assert client.status == "closed"
-
-
 def test_scheduler_address_errors_are_one_line(sim_campaign, tmp_path):
     r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path), "--scheduler", "local:x"])
     assert r.exit_code == 2

@@ -1,10 +1,11 @@
-"""eskin.learn.parallel on a real local Dask cluster of two worker processes: the data reach the
-workers from the client (the campaign file is gone before any task runs), and the results are
-those of the serial run."""
+"""eskin.learn.parallel on a real local Dask cluster of two worker processes (the data reach the
+workers from the client: the campaign file is gone before any task runs) and on the local pool
+of ``--scheduler local:2``: the results are those of the serial run."""
 
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 import signal
 from pathlib import Path
@@ -154,3 +155,44 @@ def test_large_arguments_reach_the_workers_outside_the_task_graph(client):
         on_cluster = list(run_calls(_sum_of, calls, n_jobs=-1))
         unordered = sorted(run_calls(_sum_of, calls, n_jobs=-1, unordered=True))
     assert serial == on_cluster == unordered == [float(big.sum()) * s for s in (1, 2, 3)]
+
+
+def _pid_and_threads(_):
+    return os.getpid(), os.environ.get("ESKIN_NUM_THREADS")
+
+
+def test_a_local_pool_runs_calls_on_single_threaded_workers_and_stops_them():
+    import joblib.parallel
+    import psutil
+
+    from eskin.learn.parallel import compute_backend, run_calls
+
+    with _deadline(), compute_backend("local:2") as client:
+        assert client is None
+        backend, _ = joblib.parallel.get_active_backend()
+        assert [backend.effective_n_jobs(n) for n in (-1, 1, 2, 8)] == [2, 1, 2, 2]
+        ran = list(run_calls(_pid_and_threads, [((i,), {}) for i in range(8)], n_jobs=-1))
+    pids = {pid for pid, _ in ran}
+    assert os.getpid() not in pids and len(pids) <= 2
+    assert {threads for _, threads in ran} == {"1"}
+    assert not any(psutil.pid_exists(p) for p in pids)  # stopped on leaving
+
+
+def test_evaluate_on_a_local_pool_matches_the_serial_run(tmp_path):
+    from learn_data import small_simulated
+
+    from eskin.learn.evaluation import evaluate_recipe
+    from eskin.learn.parallel import compute_backend
+
+    path = str(small_simulated(tmp_path))
+    kw = {"recipe": {"quick": True, "D": 8}, "n_folds": 3, "classes": ["brush", "washer"],
+          "seed": 1}
+    serial = evaluate_recipe(path, n_jobs=1, **kw)
+    with _deadline(), compute_backend("local:2"):
+        pooled = evaluate_recipe(path, n_jobs=-1, **kw)
+    for r in (serial, pooled):
+        r.pop("seconds")
+        for f in r["folds"]:
+            f.pop("seconds")
+    assert pooled == serial
+    assert [f["fold"] for f in serial["folds"]] == [0, 1, 2]
