@@ -49,9 +49,11 @@ PR_SET_CHILD_SUBREAPER = 36
 
 #: imported once per package tree before the timed runs, so that no run compiles bytecode
 #: (the runs write it, as Python does: PYTHONDONTWRITEBYTECODE is left out of their environment)
-WARM = ("eskin.cli, eskin.learn.training, eskin.learn.evaluation, eskin.learn.evaluation_report, "
-        "eskin.link.live_scores, eskin.learn.baselines, joblib.externals.loky.process_executor, "
-        "distributed")
+WARM = (
+    "eskin.cli, eskin.learn.training, eskin.learn.evaluation, eskin.learn.evaluation_report, "
+    "eskin.link.live_scores, eskin.learn.baselines, joblib.externals.loky.process_executor, "
+    "distributed"
+)
 
 
 def _env(src: Path) -> dict[str, str]:
@@ -105,14 +107,14 @@ def _reap_all(cpu: float, deadline_s: float = 120.0) -> float:
             time.sleep(0.05)
 
 
-def _niceness(nice: int) -> None:
-    """In the child before it runs: a session of its own and, where the kernel groups the CPU
-    shares by session (``/proc/sys/kernel/sched_autogroup_enabled``), that group's niceness
-    (the niceness of a process only orders it among the processes of its own session)."""
-    os.setsid()
-    os.setpriority(os.PRIO_PROCESS, 0, nice)
+def _niceness(pid: int, nice: int) -> None:
+    """Process ``pid``, a session leader, at niceness ``nice`` and, where the kernel groups the
+    CPU shares by session (``/proc/sys/kernel/sched_autogroup_enabled``), its session's group
+    too (the niceness of a process only orders it among the processes of its own session).
+    Set just after the start: the processes it starts later inherit both."""
+    os.setpriority(os.PRIO_PROCESS, pid, nice)
     try:
-        Path("/proc/self/autogroup").write_text(str(nice))
+        Path(f"/proc/{pid}/autogroup").write_text(str(nice))
     except OSError:
         pass
 
@@ -121,8 +123,10 @@ def run(cmd: list[str], env: dict[str, str], nice: int = 0) -> dict[str, float]:
     """CPU, wall and peak RSS of ``cmd`` and every process it starts (at niceness ``nice``)."""
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            preexec_fn=lambda: _niceness(nice))
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
+    )
+    _niceness(proc.pid, nice)
     root = psutil.Process(proc.pid)
     peak, cpu, rc = 0, 0.0, None
     while rc is None:
@@ -155,28 +159,47 @@ def main(argv=None):
     ap.add_argument("--scheduler", default="local:2")
     ap.add_argument("--extra", default="", help="more evaluate options, one string")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eskin_bench_scheduler"))
-    ap.add_argument("--baseline-src", type=Path, default=None,
-                    help="also run the scheduler with the eskin package of this python/ folder "
-                    "(the same compiled core), e.g. a checkout of an earlier commit")
-    ap.add_argument("--nice", type=int, default=0,
-                    help="niceness of the runs (as root, -20 takes the cores from the other "
-                    "jobs of a shared machine: the wall time of a nearly idle one)")
+    ap.add_argument(
+        "--baseline-src",
+        type=Path,
+        default=None,
+        help="also run the scheduler with the eskin package of this python/ folder "
+        "(the same compiled core), e.g. a checkout of an earlier commit",
+    )
+    ap.add_argument(
+        "--nice",
+        type=int,
+        default=0,
+        help="niceness of the runs (as root, -20 takes the cores from the other "
+        "jobs of a shared machine: the wall time of a nearly idle one)",
+    )
     args = ap.parse_args(argv)
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
         sys.exit("prctl(PR_SET_CHILD_SUBREAPER) failed: the workers' CPU could not be counted")
     path = campaign(args.cache, args.participants)
     here = Path(__file__).resolve().parents[1] / "python"
-    base = [sys.executable, "-m", "eskin", "evaluate", str(path), "--folds", str(args.folds),
-            "--force", *shlex.split(args.extra)]
+    base = [
+        sys.executable,
+        "-m",
+        "eskin",
+        "evaluate",
+        str(path),
+        "--folds",
+        str(args.folds),
+        "--force",
+        *shlex.split(args.extra),
+    ]
     pool = ["--scheduler", args.scheduler]
     modes = {"serial": (here, []), args.scheduler: (here, pool)}
     if args.baseline_src is not None:
         modes["baseline"] = (args.baseline_src.resolve(), pool)
     for src in {src for src, _ in modes.values()}:
         warm(src)
-    print(f"campaign {path.name}: {args.participants} participants, --folds {args.folds} "
-          f"{args.extra}; {os.cpu_count()} cores; runs at niceness {args.nice}")
+    print(
+        f"campaign {path.name}: {args.participants} participants, --folds {args.folds} "
+        f"{args.extra}; {os.cpu_count()} cores; runs at niceness {args.nice}"
+    )
     print(f"{'round':>5} {'run':>10} {'load':>5} {'CPU s':>8} {'wall s':>8} {'peak RSS MiB':>13}")
     for r in range(args.rounds):
         order = list(modes) if r % 2 == 0 else list(reversed(modes))
@@ -186,16 +209,28 @@ def main(argv=None):
             src, opts = modes[name]
             res[name] = run([*base, "--out", str(out), *opts], _env(src), args.nice)
             m = res[name]
-            print(f"{r + 1:>5} {name:>10} {m['load']:5.2f} {m['cpu']:8.2f} {m['wall']:8.2f} "
-                  f"{m['rss_mb']:13.0f}", flush=True)
-        results = {n: _untimed(json.loads((args.cache / f"out_{n.replace(':', '')}"
-                                           / "evaluation.json").read_text())) for n in modes}
+            print(
+                f"{r + 1:>5} {name:>10} {m['load']:5.2f} {m['cpu']:8.2f} {m['wall']:8.2f} "
+                f"{m['rss_mb']:13.0f}",
+                flush=True,
+            )
+        results = {
+            n: _untimed(
+                json.loads(
+                    (args.cache / f"out_{n.replace(':', '')}" / "evaluation.json").read_text()
+                )
+            )
+            for n in modes
+        }
         s = res["serial"]
         for name in list(modes)[1:]:
             p = res[name]
-            print(f"round {r + 1}: {name} / serial CPU {p['cpu'] / s['cpu']:.2f}x, wall "
-                  f"{p['wall'] / s['wall']:.2f}x, peak RSS {p['rss_mb'] / s['rss_mb']:.2f}x; "
-                  f"results identical: {results[name] == results['serial']}", flush=True)
+            print(
+                f"round {r + 1}: {name} / serial CPU {p['cpu'] / s['cpu']:.2f}x, wall "
+                f"{p['wall'] / s['wall']:.2f}x, peak RSS {p['rss_mb'] / s['rss_mb']:.2f}x; "
+                f"results identical: {results[name] == results['serial']}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -30,7 +30,6 @@ from typing import Any
 
 from eskin.errors import SchedulerError
 
-
 #: the thread limits of a ``local:N`` pool's worker processes: the core's kernels one thread
 #: each, as BLAS and OpenMP (joblib sets those), not one per core in every worker
 WORKER_THREADS = ("ESKIN_NUM_THREADS",)
