@@ -16,9 +16,9 @@ an installed package has its bytecode, and 5 s of compiling per process would be
 against every worker.
 
 On a machine shared with other jobs, the wall time of a run is its share of the cores, and
-where the kernel groups the shares by session (autogroup) a run's processes all share one
-group's, however many they are: as root, ``--nice -20`` runs every run in a session of its own
-at that niceness, ahead of the other jobs, near the wall time of an idle machine.
+where the kernel groups the shares (autogroup: one group per ``setsid``) a run's processes all
+share one group's, however many they are: as root, ``--nice -20`` runs every run in a group of
+its own at that niceness, ahead of the other jobs, near the wall time of an idle machine.
 
 Printed per run: the 1-minute load average at its start, CPU seconds, wall seconds, peak RSS;
 then per round the ratios pool / serial of CPU and wall, and whether the pool's
@@ -108,9 +108,9 @@ def _reap_all(cpu: float, deadline_s: float = 120.0) -> float:
 
 
 def _niceness(pid: int, nice: int) -> None:
-    """Process ``pid``, a session leader, at niceness ``nice`` and, where the kernel groups the
-    CPU shares by session (``/proc/sys/kernel/sched_autogroup_enabled``), its session's group
-    too (the niceness of a process only orders it among the processes of its own session).
+    """Process ``pid``, just started by ``setsid``, at niceness ``nice`` and, where the kernel
+    groups the CPU shares (``/proc/sys/kernel/sched_autogroup_enabled``), its autogroup too (the
+    niceness of a process only orders it among the processes of its own group).
     Set just after the start: the processes it starts later inherit both."""
     os.setpriority(os.PRIO_PROCESS, pid, nice)
     try:
