@@ -29,6 +29,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -39,21 +40,76 @@ from eskin.link.listener import DataBlock, LinkListener  # noqa: E402
 from eskin.link.web import LiveState, WebServer  # noqa: E402
 
 
-def open_page(url: str, nice: int = 0, own_session: bool = True) -> subprocess.Popen:
-    """A headless chromium showing ``url`` (it runs the page's script: WebSocket, drawing);
-    ``own_session``: after setsid, in a scheduling group of its own, as a browser the user
-    starts is (Linux's autogroup scheduling shares the processors between such groups first)."""
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    if browser is None:
-        sys.exit("bench_web.py: chromium is not installed (apt-get install chromium)")
-    flags = ["--headless=new", "--disable-gpu", "--no-first-run", "--disable-extensions",
-             "--window-size=1280,1000", f"--user-data-dir={tempfile.mkdtemp(prefix='chr-')}",
-             "--remote-debugging-port=0"]  # keeps the headless browser running
-    if os.geteuid() == 0:
-        flags.append("--no-sandbox")
-    proc = subprocess.Popen([*(["nice", "-n", str(nice)] if nice else []), browser, *flags,
-                             url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=own_session)
+class Browser:
+    """A headless chromium, started once and left running as a user's browser is, in a
+    scheduling group of its own (setsid: Linux's autogroup shares the processors between such
+    groups first); pages are opened in new tabs and closed through its DevTools HTTP endpoint.
+    Its CPU time: all its processes (psutil)."""
+
+    def __init__(self, nice: int = 0, own_session: bool = True, url: str = "about:blank",
+                 wait_quiet: bool = True) -> None:
+        browser = shutil.which("chromium") or shutil.which("chromium-browser")
+        if browser is None:
+            sys.exit("bench_web.py: chromium is not installed (apt-get install chromium)")
+        self.profile = tempfile.mkdtemp(prefix="chr-")
+        flags = ["--headless=new", "--disable-gpu", "--no-first-run", "--disable-extensions",
+                 "--window-size=1280,1000", f"--user-data-dir={self.profile}",
+                 "--remote-debugging-port=0"]  # its port is written to DevToolsActivePort
+        if os.geteuid() == 0:
+            flags.append("--no-sandbox")
+        self.proc = subprocess.Popen([*(["nice", "-n", str(nice)] if nice else []), browser,
+                                      *flags, url], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL, start_new_session=own_session)
+        _renice_group(self.proc, nice, own_session)
+        active = Path(self.profile) / "DevToolsActivePort"
+        deadline = time.monotonic() + 60
+        while not (active.exists() and active.read_text().strip()):
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                sys.exit("bench_web.py: chromium did not start within 60 s")
+            time.sleep(0.05)
+        self.devtools = f"http://127.0.0.1:{active.read_text().split()[0]}/json"
+        if wait_quiet:
+            self.quiet()
+
+    def _call(self, path: str, method: str = "GET") -> bytes:
+        import urllib.request
+
+        req = urllib.request.Request(f"{self.devtools}/{path}", method=method)
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.read()
+
+    def open(self, url: str) -> str:
+        """Open ``url`` in a new tab: its target id."""
+        import json
+
+        return json.loads(self._call(f"new?{url}", "PUT"))["id"]
+
+    def close(self, target: str) -> None:
+        self._call(f"close/{target}")
+
+    def cpu(self) -> float:
+        return cpu_of(self.proc)
+
+    def quiet(self, below: float = 0.05, over_s: float = 0.5, timeout: float = 30.0) -> float:
+        """Wait until the browser uses less than ``below`` of a core over ``over_s``; the
+        seconds waited."""
+        t0 = time.monotonic()
+        c = self.cpu()
+        while time.monotonic() - t0 < timeout:
+            time.sleep(over_s)
+            c, c0 = self.cpu(), c
+            if c - c0 < below * over_s:
+                break
+        return time.monotonic() - t0
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(30)
+        shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def _renice_group(proc: subprocess.Popen, nice: int, own_session: bool) -> None:
+    """With ``nice``, the process's autogroup under that niceness too (Linux)."""
     group = Path(f"/proc/{proc.pid}/autogroup")
     deadline = time.monotonic() + 5
     while own_session and os.getsid(proc.pid) != proc.pid and time.monotonic() < deadline:
@@ -63,7 +119,6 @@ def open_page(url: str, nice: int = 0, own_session: bool = True) -> subprocess.P
             group.write_text(str(nice))
         except OSError as exc:
             print(f"bench_web.py: chromium's autogroup keeps its priority ({exc})", flush=True)
-    return proc
 
 
 def start_sim(replay: Path, *args: object, fifo: int = 0) -> tuple[subprocess.Popen, str]:
@@ -105,34 +160,48 @@ def cpu_of(proc: subprocess.Popen) -> float:
     return total
 
 
-def run(model: Path, replay: Path, speed: float, page: bool, args: argparse.Namespace,
-        loop_reads: bool = False) -> dict:
-    """One run; ``loop_reads``: the baseline listener that reads the port in its own loop
-    (no reading thread)."""
-    nice, tick_hz, own_session, settle_s = args.nice, args.tick_hz, not args.same_group, \
-        args.settle
+def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
+        args: argparse.Namespace, loop_reads: bool = False) -> dict:
+    """One run. ``page``: "none" (the browser idle, no page served), "open" (the page served,
+    opened in a tab and loaded before the stream starts), "opening" (the page served, opened in
+    a tab at ``args.open_at`` of the stream's expected duration), "launch" (the page served, a
+    second chromium started on it; the stream starts once the page has connected: what is
+    measured is the browser's own start-up). ``loop_reads``: the baseline
+    listener that reads the port in its own loop (no reading thread)."""
     sim, pty = start_sim(replay, "--model", model, "--speed", speed, "--tick", 10,
                          "--wait-start", fifo=args.sim_fifo)
-    server = browser = None
-    cpu0 = browser0 = 0.0
-    state = LiveState(pty) if page else None
+    server = tab = opener = launched = None
+    cpu0 = 0.0
+    state = LiveState(pty) if page != "none" else None
     try:
         if state is not None:
-            rate = {} if tick_hz is None else {"tick_hz": tick_hz}
+            rate = {} if args.tick_hz is None else {"tick_hz": args.tick_hz}
             server = WebServer(state, "127.0.0.1", 0, **rate).start()
-            browser = open_page(server.url, nice, own_session)
+        if page in ("open", "launch"):
+            if page == "launch":
+                launched = Browser(args.nice, not args.same_group, server.url, False)
+            else:
+                tab = browser.open(server.url)
             deadline = time.monotonic() + 60
             while server.clients == 0:  # the page has loaded and holds its WebSocket
                 if time.monotonic() > deadline:
                     sys.exit("bench_web.py: the page did not connect within 60 s")
                 time.sleep(0.05)
-            time.sleep(settle_s)  # the page has drawn its first state, chromium settles
-            cpu0 = server.cpu_s  # starting up and serving the page's first load left out
-            browser0 = cpu_of(browser)
+            if page == "open":
+                browser.quiet()  # the page has drawn its first state
+            else:
+                time.sleep(0.5)  # as a user who starts the stream just after the page shows
+        cpu0 = server.cpu_s if server is not None else 0.0
+        browser0 = browser.cpu() + (launched.cpu() if launched is not None else 0.0)
         load0 = os.getloadavg()[0]
         queue = {"read_queue_bytes": 0} if loop_reads else {}
         with LinkListener(pty, model=model, replay=replay, stats_interval=0.25, **queue) as link:
             t_cpu, t_wall = time.thread_time(), time.perf_counter()
+            if page == "opening":
+                opened: list[str] = []
+                opener = threading.Timer(args.open_at * args.seconds / speed,
+                                         lambda: opened.append(browser.open(server.url)))
+                opener.start()
             events = link.events(until_eof=True, duration=600)
             if state is not None:
                 events = state.observed(events, lambda: link.stats)
@@ -147,64 +216,78 @@ def run(model: Path, replay: Path, speed: float, page: bool, args: argparse.Name
                "lost": stats.lost_samples, "dropped": stats.controller_dropped_samples,
                "pacing_p99_us": stats.controller_pacing_p99_us,
                "wall_s": wall, "listener_cpu_s": cpu, "holes": holes,
-               "backlog_kib": backlog / 1024, "load": (load0, os.getloadavg()[0])}
+               "backlog_kib": backlog / 1024, "load": (load0, os.getloadavg()[0]),
+               "browser_cpu_s": browser.cpu() - browser0
+               + (launched.cpu() if launched is not None else 0.0)}
+        if opener is not None:
+            opener.join()
+            tab = opened[0] if opened else None
         if server is not None and state is not None:
             clients = server.clients
             server.stop()  # its thread's CPU time is final once it has ended
             out.update(server_cpu_s=server.cpu_s - cpu0, clients=clients,
-                       browser_cpu_s=cpu_of(browser) - browser0,
                        blocks_skipped=state.blocks_dropped, frames_dropped=server.frames_dropped)
         return out
     finally:
+        if opener is not None:
+            opener.join()
         if server is not None:
             server.stop()
-        if browser is not None:
-            browser.terminate()
-            browser.wait(30)
+        if tab is not None:
+            browser.close(tab)
+            browser.quiet()
+        if launched is not None:
+            launched.stop()
         sim.terminate()
         sim.communicate(timeout=30)
 
 
+CASES = {"none": "no page", "open": "page open", "opening": "page opened",
+         "launch": "browser launched"}
+
+
 def _case(r: dict) -> str:
-    return ("page open" if r["page"] else "no page") + (" (loop reads)" if r["loop_reads"] else "")
+    return CASES[r["page"]] + (" (loop reads)" if r["loop_reads"] else "")
 
 
 def _line(r: dict) -> str:
     extra = ""
-    if r["page"]:
+    if r["page"] != "none":
         extra = (f" server cpu {r['server_cpu_s']:.2f} s = "
                  f"{r['server_cpu_s'] / r['listener_cpu_s']:.3f} x listener; "
-                 f"chromium cpu {r['browser_cpu_s']:.1f} s; "
                  f"display blocks skipped {r['blocks_skipped']}")
-    return (f"speed {r['speed']:g} {_case(r):<22}: samples {r['samples']} lost {r['lost']} "
-            f"dropped {r['dropped']} (simulator pacing p99 {r['pacing_p99_us']:.0f} us) wall {r['wall_s']:.1f} s listener cpu "
-            f"{r['listener_cpu_s']:.2f} s read backlog peak {r['backlog_kib']:.0f} KiB; "
-            f"load average {r['load'][0]:.1f} -> {r['load'][1]:.1f}{extra}"
+    return (f"speed {r['speed']:g} {_case(r):<24}: samples {r['samples']} lost {r['lost']} "
+            f"dropped {r['dropped']} (simulator pacing p99 {r['pacing_p99_us']:.0f} us) wall "
+            f"{r['wall_s']:.1f} s listener cpu {r['listener_cpu_s']:.2f} s read backlog peak "
+            f"{r['backlog_kib']:.0f} KiB; load average {r['load'][0]:.1f} -> "
+            f"{r['load'][1]:.1f}; chromium cpu {r['browser_cpu_s']:.2f} s{extra}"
             + (f"; first holes (s into the run, samples) {r['holes']}" if r["holes"] else ""))
 
 
 def _summary(rows: list[dict]) -> None:
     print("\nsummary (per speed: every run, in the order run):")
     for s, loop in sorted({(r["speed"], r["loop_reads"]) for r in rows}):
-        a = [r for r in rows if r["speed"] == s and not r["page"] and r["loop_reads"] == loop]
-        b = [r for r in rows if r["speed"] == s and r["page"] and r["loop_reads"] == loop]
-        loads = [x for r in a + b for x in r["load"]]
-        ratio = [r["server_cpu_s"] / r["listener_cpu_s"] for r in b]
-        rt = [r["server_cpu_s"] / r["wall_s"] for r in b]
-        tput = ""
-        if s == 0:
-            tput = (f"; throughput {max(r['samples'] / r['wall_s'] for r in a) / 3000:.0f}x vs "
-                    f"{max(r['samples'] / r['wall_s'] for r in b) / 3000:.0f}x real time")
+        runs = [r for r in rows if r["speed"] == s and r["loop_reads"] == loop]
         who = "the loop reads the port" if loop else "a reading thread"
-        print(f"  speed {s:g}, {who}: samples lost without the page {[r['lost'] for r in a]}, with "
-              f"the page open {[r['lost'] for r in b]}; server CPU / listener CPU "
-              f"{min(ratio):.3f}-{max(ratio):.3f}, server CPU {100 * min(rt):.1f}-"
-              f"{100 * max(rt):.1f} % of a core; listener CPU without / with the page "
-              f"{sum(r['listener_cpu_s'] for r in a) / len(a):.2f} / "
-              f"{sum(r['listener_cpu_s'] for r in b) / len(b):.2f} s; chromium CPU "
-              f"{[round(r['browser_cpu_s'], 1) for r in b]} s; read backlog peak "
-              f"{max(r['backlog_kib'] for r in a + b):.0f} KiB; load average "
-              f"{min(loads):.1f}-{max(loads):.1f}{tput}")
+        loads = [x for r in runs for x in r["load"]]
+        print(f"  speed {s:g}, {who}, load average {min(loads):.1f}-{max(loads):.1f}, read "
+              f"backlog peak {max(r['backlog_kib'] for r in runs):.0f} KiB:")
+        for case, name in CASES.items():
+            b = [r for r in runs if r["page"] == case]
+            if not b:
+                continue
+            line = (f"    {name:<12} lost {[r['lost'] for r in b]}; listener CPU "
+                    f"{sum(r['listener_cpu_s'] for r in b) / len(b):.2f} s; chromium CPU "
+                    f"{[round(r['browser_cpu_s'], 2) for r in b]} s of "
+                    f"{[round(r['wall_s'], 1) for r in b]} s")
+            if case != "none":
+                ratio = [r["server_cpu_s"] / r["listener_cpu_s"] for r in b]
+                rt = [r["server_cpu_s"] / r["wall_s"] for r in b]
+                line += (f"; server CPU / listener CPU {min(ratio):.3f}-{max(ratio):.3f}, "
+                         f"{100 * min(rt):.1f}-{100 * max(rt):.1f} % of a core")
+            if s == 0:
+                line += f"; throughput {max(r['samples'] / r['wall_s'] for r in b) / 3000:.0f}x"
+            print(line)
 
 
 def main() -> None:
@@ -213,7 +296,13 @@ def main() -> None:
                     help="seconds of signal in the replay (recordings of 1 s and their gaps)")
     ap.add_argument("--speeds", default="0,1,5,10")
     ap.add_argument("--repeat", type=int, default=2,
-                    help="pairs of runs per speed (without / with the page, in turn)")
+                    help="rounds per speed (each case once, in turn: forwards, then backwards)")
+    ap.add_argument("--cases", default="none,open,opening",
+                    help="none: no page; open: the page loaded before the stream; opening: "
+                         "the page opened during the stream; launch: a second chromium "
+                         "started on the page as the stream starts")
+    ap.add_argument("--open-at", type=float, default=0.25,
+                    help="'opening': the fraction of the stream's duration at which the tab opens")
     ap.add_argument("--nice", type=int, default=0,
                     help="run chromium under `nice -n N`, its autogroup too (Linux; "
                          "default 0: the same priority as every program)")
@@ -221,8 +310,6 @@ def main() -> None:
                     help="run eskin-fw-sim under SCHED_FIFO at priority N (`chrt -f N`; default "
                          "10 as root, else 0: not): it stands for a controller with a "
                          "processor of its own")
-    ap.add_argument("--settle", type=float, default=0.5,
-                    help="seconds between the page's connection and the stream's start")
     ap.add_argument("--same-group", action="store_true",
                     help="start chromium in the benchmark's scheduling group (by default it "
                          "calls setsid: a group of its own, as a browser the user opens has)")
@@ -232,22 +319,31 @@ def main() -> None:
     ap.add_argument("--tick-hz", type=float, default=None,
                     help="display frames a second (default: the server's)")
     args = ap.parse_args()
+    cases = [c for c in args.cases.split(",") if c]
+    if not cases or any(c not in CASES for c in cases):
+        sys.exit(f"bench_web.py: --cases {args.cases}: expected some of {','.join(CASES)}")
     folder = Path(tempfile.mkdtemp(prefix="bench-web-"))
     model, replay = make_case(folder, recordings=max(1, int(args.seconds / 1.4)))
+    t0 = time.monotonic()
+    browser = Browser(args.nice, not args.same_group)
     print(f"replay: {replay} ({args.seconds:g} s of signal, 4x4 taxels, 3000 samples/s); "
-          f"host model {model.name}; {os.cpu_count()} cores; chromium "
+          f"host model {model.name}; {os.cpu_count()} cores; chromium started "
+          f"{time.monotonic() - t0:.1f} s before the first run, "
           f"{'in this scheduling group' if args.same_group else 'in a group of its own'}"
           f"{f' under nice -n {args.nice}' if args.nice else ''}; eskin-fw-sim in a group "
           f"of its own{f' under chrt -f {args.sim_fifo}' if args.sim_fifo else ''}; display "
-          f"{args.tick_hz or 'at the server default'} frames/s")
+          f"{args.tick_hz or 'at the server default'} frames/s", flush=True)
     rows = []
-    for speed in (float(s) for s in args.speeds.split(",")):
-        for k in range(args.repeat):
-            for loop_reads in ((False, True) if args.baseline else (False,)):
-                for page in ((False, True) if k % 2 == 0 else (True, False)):
-                    r = run(model, replay, speed, page, args, loop_reads)
-                    rows.append(r)
-                    print(_line(r), flush=True)
+    try:
+        for speed in (float(s) for s in args.speeds.split(",")):
+            for k in range(args.repeat):
+                for loop_reads in ((False, True) if args.baseline else (False,)):
+                    for page in (cases if k % 2 == 0 else cases[::-1]):
+                        r = run(model, replay, speed, page, browser, args, loop_reads)
+                        rows.append(r)
+                        print(_line(r), flush=True)
+    finally:
+        browser.stop()
     _summary(rows)
     shutil.rmtree(folder, ignore_errors=True)
 
