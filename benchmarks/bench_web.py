@@ -276,7 +276,7 @@ def _summary(rows: list[dict]) -> None:
             b = [r for r in runs if r["page"] == case]
             if not b:
                 continue
-            line = (f"    {name:<12} lost {[r['lost'] for r in b]}; listener CPU "
+            line = (f"    {name:<16} lost {[r['lost'] for r in b]}; listener CPU "
                     f"{sum(r['listener_cpu_s'] for r in b) / len(b):.2f} s; chromium CPU "
                     f"{[round(r['browser_cpu_s'], 2) for r in b]} s of "
                     f"{[round(r['wall_s'], 1) for r in b]} s")
