@@ -11,7 +11,8 @@ const COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b
 
 const st = { grid: null, energy: null, trace: [], windows: [], info: null, stopped: false,
              selected: "all", rate: 3000, failures: 0, n: 0, ws: null, drawAt: 0,
-             drawPending: false, statsKeys: "" };
+             drawPending: false, statsKeys: "", rows: [], clearRows: false, stats: null,
+             accuracy: undefined, canvases: true };
 
 const $ = (id) => document.getElementById(id);
 
@@ -39,15 +40,29 @@ function decisionRow(d) {
   return tr;
 }
 
+// A decision is kept at once (the traces' touch windows); its row is added with the next drawing.
 function addDecision(d) {
-  const body = $("decision-rows");
-  if (body.querySelector(`tr[data-n="${d.n}"]`)) return;
-  body.insertBefore(decisionRow(d), body.firstChild);
-  while (body.rows.length > MAX_ROWS) body.deleteRow(body.rows.length - 1);
+  if (d.n <= st.n) return;   // numbered in order: already shown
+  st.rows.push(d);
+  if (st.rows.length > MAX_ROWS) st.rows.shift();
   st.windows.push(d);
   if (st.windows.length > 200) st.windows.shift();
-  st.n = Math.max(st.n, d.n);
-  $("count").textContent = st.n;
+  st.n = d.n;
+}
+
+function showRows() {
+  const body = $("decision-rows");
+  if (st.clearRows) body.textContent = "";
+  st.clearRows = false;
+  if (st.rows.length) {
+    const rows = document.createDocumentFragment();
+    for (let k = st.rows.length - 1; k >= 0; k--) rows.appendChild(decisionRow(st.rows[k]));
+    body.insertBefore(rows, body.firstChild);
+    st.rows = [];
+    while (body.rows.length > MAX_ROWS) body.deleteRow(body.rows.length - 1);
+  }
+  const count = String(st.n);
+  if ($("count").textContent !== count) $("count").textContent = count;
 }
 
 const MAIN_STATS = [["frames", "frames"], ["samples", "samples"], ["lost_samples", "lost samples"],
@@ -180,10 +195,20 @@ function drawTrace() {
   }
 }
 
-function draw() { drawHeat(); drawTrace(); }
+// What arrived since the last drawing, shown at once: the document changes (and is laid out and
+// painted) at most once every DRAW_MS, however many messages came in between.
+function draw() {
+  showRows();
+  if (st.stats) showStats(st.stats);
+  st.stats = null;
+  if (st.accuracy !== undefined) showAccuracy(st.accuracy);
+  st.accuracy = undefined;
+  if (st.canvases) { drawHeat(); drawTrace(); }
+  st.canvases = false;
+}
 
-// The canvases are drawn in an animation frame at most every DRAW_MS, and only after something
-// they show changed (no animation loop runs while nothing arrives; a hidden tab draws nothing).
+// Drawn in an animation frame at most every DRAW_MS, and only after something changed (no
+// animation loop runs while nothing arrives; a hidden tab draws nothing).
 function redraw() {
   if (st.drawPending) return;
   st.drawPending = true;
@@ -195,7 +220,8 @@ function redraw() {
 }
 
 function onMessage(m) {
-  if (m.type !== "stats") redraw();
+  redraw();
+  if (m.type !== "stats") st.canvases = true;
   switch (m.type) {
     case "hello":
       st.trace = m.trace || [];
@@ -203,12 +229,13 @@ function onMessage(m) {
       st.windows = [];
       setGrid(m.grid);
       showInfo(m.info);
-      $("decision-rows").innerHTML = "";
+      st.clearRows = true;
+      st.rows = [];
       st.n = 0;
       for (const d of m.decisions) addDecision(d);
-      $("count").textContent = m.n_decisions;
-      showStats(m.stats);
-      showAccuracy(m.accuracy);
+      st.n = m.n_decisions;
+      st.stats = m.stats;
+      st.accuracy = m.accuracy;
       if (m.status === "stopped") onStopped(m);
       else setStatus("live", "live");
       break;
@@ -218,8 +245,8 @@ function onMessage(m) {
       st.trace.push(...m.trace);
       if (st.trace.length > MAX_POINTS) st.trace.splice(0, st.trace.length - MAX_POINTS);
       break;
-    case "decision": addDecision(m.decision); showAccuracy(m.accuracy); break;
-    case "stats": showStats(m.stats); break;
+    case "decision": addDecision(m.decision); st.accuracy = m.accuracy; break;
+    case "stats": st.stats = m.stats; break;
     case "info": showInfo(m.info); break;
     case "connection":
       if (!st.stopped) setStatus(m.connection.state === "disconnected" ? "lost" : "live",
@@ -232,8 +259,8 @@ function onMessage(m) {
 function onStopped(m) {
   st.stopped = true;
   setStatus("stopped", "stopped: the listener has ended");
-  if (m.stats) showStats(m.stats);
-  if (m.accuracy) showAccuracy(m.accuracy);
+  if (m.stats) st.stats = m.stats;
+  if (m.accuracy) st.accuracy = m.accuracy;
   if (m.summary && m.summary.length) $("summary").textContent = m.summary.join("\n");
 }
 
