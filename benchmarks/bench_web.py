@@ -1,24 +1,36 @@
 """The live page's cost to the listener: `eskin listen`'s loop (LinkListener, a host model) on
-`eskin-fw-sim` at several speeds, each run without the page and with the page served
-(eskin.link.web, its own thread) and open in a headless chromium. Baseline: the same run
-without the page, in the same invocation; the two cases alternate (without, with; then with,
-without) so that both see the same load from the machine's other programs.
+`eskin-fw-sim` at several speeds, each run in several cases, in turn within one invocation
+(forwards, then backwards) so that all see the same load from the machine's other programs:
+
+- none: no page served (the baseline);
+- open: the page served (eskin.link.web, its own thread) and opened in a tab of a headless
+  chromium, loaded (the browser back to idle) before the stream starts;
+- opening: the page served and its tab opened during the stream (at a quarter of it);
+- blank: no page served, a blank tab (about:blank) opened during the stream, as in "opening":
+  what opening any tab costs;
+- launch: the page served and a second chromium started on it, the stream starting 0.5 s after
+  the page has connected: what this adds is the browser's own start-up.
+
+One chromium is started before the first run and left running (idle, a blank tab) as a user's
+browser is; tabs are opened and closed through its DevTools HTTP endpoint. Chromium runs in a
+scheduling group of its own (setsid: Linux's autogroup), as a browser the user starts does.
 
 Prints, per run: samples received, lost (holes in the indices, reconciled with the
 controller's count) and dropped by the controller, how late the simulator was (its pacing
 p99), the wall time, the listener thread's CPU time, the most bytes the port's reading thread
-held for the loop, the load average before and after; with the page the server thread's CPU
-time (also as a ratio to the listener's), chromium's CPU time (all its processes) and DATA
-blocks the page skipped (display data, never samples). Then a summary per speed.
+held for the loop, the load average before and after, chromium's CPU time over the stream (all
+its processes); with the page the server thread's CPU time (also as a ratio to the
+listener's) and DATA blocks the page skipped (display data, never samples). Then a summary per
+speed.
 
     python benchmarks/bench_web.py [--seconds 60] [--speeds 0,1,5,10] [--repeat 2]
+        [--cases none,open,opening]
 
 Speed 0 is unpaced (the simulator waits for the host: nothing can be lost, the figure is the
 throughput); paced speeds lose samples when the host does not read in time. The simulator
 stands for a controller with a processor of its own: as root it runs under SCHED_FIFO
 (`--sim-fifo`, `chrt`), so that a simulator kept from the processor does not count against
-the host. Chromium runs in a scheduling group of its own (setsid: Linux's autogroup), as a
-browser the user starts does.
+the host.
 """
 
 from __future__ import annotations
@@ -164,7 +176,8 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
         args: argparse.Namespace, loop_reads: bool = False) -> dict:
     """One run. ``page``: "none" (the browser idle, no page served), "open" (the page served,
     opened in a tab and loaded before the stream starts), "opening" (the page served, opened in
-    a tab at ``args.open_at`` of the stream's expected duration), "launch" (the page served, a
+    a tab at ``args.open_at`` of the stream's expected duration), "blank" (no page served, a
+    blank tab opened as in "opening"), "launch" (the page served, a
     second chromium started on it; the stream starts once the page has connected: what is
     measured is the browser's own start-up). ``loop_reads``: the baseline
     listener that reads the port in its own loop (no reading thread)."""
@@ -172,7 +185,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
                          "--wait-start", fifo=args.sim_fifo)
     server = tab = opener = launched = None
     cpu0 = 0.0
-    state = LiveState(pty) if page != "none" else None
+    state = LiveState(pty) if page not in ("none", "blank") else None
     try:
         if state is not None:
             rate = {} if args.tick_hz is None else {"tick_hz": args.tick_hz}
@@ -197,10 +210,11 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
         queue = {"read_queue_bytes": 0} if loop_reads else {}
         with LinkListener(pty, model=model, replay=replay, stats_interval=0.25, **queue) as link:
             t_cpu, t_wall = time.thread_time(), time.perf_counter()
-            if page == "opening":
+            if page in ("opening", "blank"):
                 opened: list[str] = []
+                url = "about:blank" if server is None else server.url
                 opener = threading.Timer(args.open_at * args.seconds / speed,
-                                         lambda: opened.append(browser.open(server.url)))
+                                         lambda: opened.append(browser.open(url)))
                 opener.start()
             events = link.events(until_eof=True, duration=600)
             if state is not None:
@@ -243,7 +257,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
 
 
 CASES = {"none": "no page", "open": "page open", "opening": "page opened",
-         "launch": "browser launched"}
+         "blank": "blank tab opened", "launch": "browser launched"}
 
 
 def _case(r: dict) -> str:
@@ -252,7 +266,7 @@ def _case(r: dict) -> str:
 
 def _line(r: dict) -> str:
     extra = ""
-    if r["page"] != "none":
+    if r["page"] not in ("none", "blank"):
         extra = (f" server cpu {r['server_cpu_s']:.2f} s = "
                  f"{r['server_cpu_s'] / r['listener_cpu_s']:.3f} x listener; "
                  f"display blocks skipped {r['blocks_skipped']}")
@@ -280,7 +294,7 @@ def _summary(rows: list[dict]) -> None:
                     f"{sum(r['listener_cpu_s'] for r in b) / len(b):.2f} s; chromium CPU "
                     f"{[round(r['browser_cpu_s'], 2) for r in b]} s of "
                     f"{[round(r['wall_s'], 1) for r in b]} s")
-            if case != "none":
+            if case not in ("none", "blank"):
                 ratio = [r["server_cpu_s"] / r["listener_cpu_s"] for r in b]
                 rt = [r["server_cpu_s"] / r["wall_s"] for r in b]
                 line += (f"; server CPU / listener CPU {min(ratio):.3f}-{max(ratio):.3f}, "
@@ -299,8 +313,9 @@ def main() -> None:
                     help="rounds per speed (each case once, in turn: forwards, then backwards)")
     ap.add_argument("--cases", default="none,open,opening",
                     help="none: no page; open: the page loaded before the stream; opening: "
-                         "the page opened during the stream; launch: a second chromium "
-                         "started on the page as the stream starts")
+                         "the page opened during the stream; blank: no page served, a blank "
+                         "tab opened during the stream; launch: a second chromium started on "
+                         "the page as the stream starts")
     ap.add_argument("--open-at", type=float, default=0.25,
                     help="'opening': the fraction of the stream's duration at which the tab opens")
     ap.add_argument("--nice", type=int, default=0,
