@@ -225,6 +225,16 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("constant+1", ln, ln.replace("Real(0)", "Real(1)"), _WS) for ln in _WS_LINES),
         Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
     ],
+    "cpp/src/protocol.cpp": [
+        Equivalent("delete check", "if (!is_known_type(type)) return false;",
+                   "if (false && (!is_known_type(type))) return false;",
+                   "an unknown type then reaches fixed_payload_size, which has no case for it "
+                   "and gives -1: the frame is refused (malformed) all the same"),
+        Equivalent("swap<<=", "max_frame_size_(max_frame_size < kHeaderSize + kCrcSize",
+                   "max_frame_size_(max_frame_size <= kHeaderSize + kCrcSize",
+                   "a maximum of exactly header plus CRC is clamped to itself either way (the "
+                   "capacity is at least that: static_assert of every decoder)"),
+    ],
     "python/eskin/learn/calibration.py": [
         Equivalent("core/ReplaceTrueWithFalse",
                    "trk = np.intersect1d(tr, subsets[k], assume_unique=True)",

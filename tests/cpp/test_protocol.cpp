@@ -756,3 +756,85 @@ TEST(DecoderChecks, APayloadOneByteLongerOrShorterThanItsTypeSaysIsMalformed) {
   unknown[at] = 0x7E;
   EXPECT_EQ(decode_raw(rechecked(unknown)), std::make_pair(0, std::uint64_t{1}));
 }
+
+// A DATA frame of one sample of one taxel is read, value and all; one of no sample (the count
+// or the grid made 0, the payload shortened to match) is malformed, and the encoder makes none.
+TEST(DecoderChecks, ADataFrameOfOneSampleIsReadAndOneOfNoSampleIsMalformed) {
+  const std::int16_t value = -7;
+  p::Frame f;
+  f.type = p::FrameType::data;
+  f.data.first_sample = 41;
+  f.data.rows = f.data.cols = 1;
+  f.data.n_samples = 1;
+  f.data.samples = &value;
+  const Bytes raw = serialize(f);
+  ASSERT_EQ(raw.size(), p::kHeaderSize + p::kDataFixedSize + 2 + p::kCrcSize);
+  p::FrameDecoder dec(p::kMaxFrameSize, false);
+  const Bytes e = encode(f);
+  ASSERT_EQ(dec.feed(e.data(), e.size()), e.size());
+  ASSERT_TRUE(dec.has_frame());
+  EXPECT_EQ(dec.frame().data.n_samples, 1);
+  EXPECT_EQ(dec.frame().data.first_sample, 41U);
+  EXPECT_EQ(dec.frame().data.samples[0], value);
+  const std::size_t rows_at = p::kHeaderSize + 16, count_at = p::kHeaderSize + 18;
+  ASSERT_EQ(raw[rows_at], 1);
+  ASSERT_EQ(raw[count_at], 1);
+  for (const std::size_t at : {rows_at, count_at}) {
+    Bytes none = raw;
+    none[at] = 0;
+    none.erase(none.end() - 6, none.end() - 4);  // the one sample's two bytes
+    EXPECT_EQ(decode_raw(rechecked(none)), std::make_pair(0, std::uint64_t{1})) << at;
+  }
+  f.data.n_samples = 0;
+  Bytes out(p::kMaxFrameSize);
+  p::EncodeStatus status = p::EncodeStatus::ok;
+  EXPECT_EQ(p::serialize_frame(f, out.data(), out.size(), &status), 0U);
+  EXPECT_EQ(status, p::EncodeStatus::invalid_frame);
+}
+
+// A DECISION of kMaxDecisionValues values is read whole; one of a value more (its payload
+// holding them all) is malformed, and the encoder refuses it.
+TEST(DecoderChecks, ADecisionOfTheLargestNumberOfValuesIsReadAndOneMoreIsMalformed) {
+  p::Frame f;
+  f.type = p::FrameType::decision;
+  f.decision.label = 2;
+  f.decision.n_values = static_cast<std::uint8_t>(p::kMaxDecisionValues);
+  for (std::size_t k = 0; k < p::kMaxDecisionValues; ++k)
+    f.decision.values[k] = -1.0 + 0.125 * static_cast<double>(k);
+  const Bytes e = encode(f);
+  p::FrameDecoder dec(p::kMaxFrameSize, false);
+  ASSERT_EQ(dec.feed(e.data(), e.size()), e.size());
+  ASSERT_TRUE(dec.has_frame());
+  ASSERT_EQ(dec.frame().decision.n_values, p::kMaxDecisionValues);
+  EXPECT_EQ(dec.frame().decision.values, f.decision.values);
+  const Bytes raw = serialize(f);
+  const std::size_t count_at = p::kHeaderSize + p::kDecisionFixedSize - 1;
+  ASSERT_EQ(raw[count_at], p::kMaxDecisionValues);
+  Bytes more = raw;
+  more[count_at] = static_cast<std::uint8_t>(p::kMaxDecisionValues + 1);
+  more.insert(more.end() - 4, 8, 0x00);  // a 17th value, 0.0
+  EXPECT_EQ(decode_raw(rechecked(more)), std::make_pair(0, std::uint64_t{1}));
+  f.decision.n_values = static_cast<std::uint8_t>(p::kMaxDecisionValues + 1);
+  Bytes out(p::kMaxFrameSize);
+  p::EncodeStatus status = p::EncodeStatus::ok;
+  EXPECT_EQ(p::serialize_frame(f, out.data(), out.size(), &status), 0U);
+  EXPECT_EQ(status, p::EncodeStatus::invalid_frame);
+}
+
+// A COBS block decodes into an output of exactly its decoded size, and is refused by one a
+// byte smaller: a run that fills the output to its end, and a run followed by its implied zero.
+TEST(Cobs, DecodesIntoExactlyItsSizeAndRefusesOneByteLess) {
+  const Bytes run{0x05, 0x11, 0x22, 0x33, 0x44};
+  const Bytes zero{0x02, 0x11, 0x01};  // 11 00
+  for (const auto& [in, size] : {std::make_pair(run, 4), std::make_pair(zero, 2)}) {
+    Bytes out(static_cast<std::size_t>(size) + 1, 0xEE);
+    EXPECT_EQ(p::cobs_decode(in.data(), in.size(), out.data(), static_cast<std::size_t>(size)),
+              size);
+    EXPECT_EQ(out[static_cast<std::size_t>(size)], 0xEE);  // nothing written past it
+    EXPECT_EQ(p::cobs_decode(in.data(), in.size(), out.data(), static_cast<std::size_t>(size - 1)),
+              -1);
+  }
+  Bytes out(2);
+  ASSERT_EQ(p::cobs_decode(zero.data(), zero.size(), out.data(), out.size()), 2);
+  EXPECT_EQ(out, (Bytes{0x11, 0x00}));
+}
