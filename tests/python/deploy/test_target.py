@@ -262,3 +262,130 @@ def test_a_repeated_key_or_an_empty_budget_is_refused(text, problem):
         parse_budget(text)
     assert str(info.value).startswith(problem)
     assert parse_budget("flash=1M,").flash_bytes == 1 << 20  # a trailing comma is no entry
+
+
+def test_the_ram_parts_of_a_model_are_its_buffers_to_the_byte(campaign):
+    """The detector's state and the input's workspace of a 4x4, D 20 float32 model, each term
+    written out: the detector keeps two noise frames per noise frame counted, the lookback
+    frames and two per taxel, 8-byte pairs; the workspace the scaled pattern (double), the
+    bases, two float copies of the tensor, two q x q factors of the largest mode, a column of
+    the longest basis and the 64 16-byte reflectors."""
+    from eskin import _core
+
+    model = _model(campaign, 20, 0.5)
+    cm = CompiledModel.from_model(model)
+    b = device_budget(cm, "cortex-m4")
+    assert not cm.is_float64
+    p = _core.window_config_resolve(
+        np.array([cm.window_config[k] for k in _core.WINDOW_CONFIG_FIELDS]), cm.sample_rate_hz)
+    assert p["lookback_frames"] == 30
+    assert b.ram["detector state"] == 2 * (2 * p["noise_frames"] + 30 + 2 * 16) * 8
+    a0, a1, a2 = cm.alpha_store  # N = 80, 80, 16 (4 x 4 x 20)
+    bases = 80 * a0 + 80 * a1 + 16 * a2
+    assert b.ram["input workspace"] == (
+        320 * 8 + bases * 4 + 2 * 320 * 4 + 2 * 16 * 16 * 4 + 80 * 4 + 16 * 64)
+    assert b.ram["statics and stack"] == TARGETS["cortex-m4"].program_ram_bytes
+
+
+def test_the_advice_names_the_rings_bytes_per_tenth_of_a_second(campaign):
+    """An unbounded 7 s window: the advice gives the ring's bytes per 0.1 s, 16 taxels x 2
+    bytes x the rate / 10."""
+    big = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0, 0)))
+    per = 16 * 2 * campaign.sample_rate_hz / 10
+    assert per > 100
+    assert any(f"{per:.0f} bytes per 0.1 s of ring" in a for a in big.advice), big.advice
+
+
+def test_the_instruction_features_of_an_uneven_grid_term_by_term():
+    """A 3x5 grid, D 20 (N = 100, 60, 15), alphas 1, 2, 2, 10 support vectors: the features
+    of the cost model, each computed by hand (docs/mcu.md)."""
+    from eskin.deploy.target import _instruction_features
+
+    f = _instruction_features((3, 5), 20, (1, 2, 2), 10, amplitude=True, bounded_window=True,
+                              terms=25)
+    # 1, taxels, size, QR sum L q^2 (100*9 + 60*25 + 20*225), Jacobi q^3 (27 + 125 + 15^3:
+    # mode 2's alpha 2 is below its N of 15), output columns alpha L q (1*100*3 + 2*60*5), the
+    # support vectors, their overlaps' inner loops (100*5 + 60*10 + 15*10 per vector), the
+    # amplitude factor, the kernel terms, the bounded window
+    assert f.tolist() == [1, 15, 300, 6900, 3527, 900, 10, 12500, 10, 25, 300]
+    g = _instruction_features((3, 5), 20, (1, 2, 2), 10)
+    assert g.tolist() == [1, 15, 300, 6900, 3527, 900, 10, 12500, 0, 30, 300]
+    assert _instruction_features((3, 5), 20, (1, 2, 2), 10, bounded_window=False)[-1] == 0
+
+
+@pytest.mark.parametrize("dims,alphas,jacobi,columns", [
+    # N = 8, 8, 4: mode 2 is square (4 x 4): its Jacobi and its output columns both counted
+    ((2, 2, 4), (1, 1, 4), 8 + 8 + 64, 1 * 8 * 2 + 1 * 8 * 2 + 4 * 4 * 4),
+    # N = 80, 20, 4: mode 2 (20 rows > N = 4) with alpha 4 = N proves full rank, no Jacobi
+    ((1, 4, 20), (1, 1, 4), 1 + 64, 1 * 80 * 1 + 1 * 20 * 4),
+    ((1, 4, 20), (1, 1, 3), 1 + 64 + 64, 1 * 80 * 1 + 1 * 20 * 4),
+])
+def test_the_bases_terms_count_each_mode_by_its_shape(dims, alphas, jacobi, columns):
+    from eskin.deploy.target import _basis_terms
+
+    assert _basis_terms(dims, alphas) == (jacobi, columns)
+
+
+def test_the_leave_one_out_error_is_the_largest_relative_error_of_the_left_out_estimates():
+    from eskin.deploy import target
+
+    err = target.instruction_model_error()
+    counts = [c for c in target.instruction_counts() if c["terms"] is not None]
+    loo = [abs(est - c["instr_median"]) / c["instr_median"]
+           for c, (est, _) in zip(counts, target._left_out())]
+    assert err["max_leave_one_out"] == max(loo) == max(err["leave_one_out_by_grid"].values())
+    assert 0 < err["max_leave_one_out"] < 0.5
+
+
+@pytest.mark.parametrize("text,value", [
+    ("instr=1500", 1500.0), ("instr=1.5K", 1500.0), ("instr=2M", 2e6), ("instr=0.002G", 2e6),
+    ("instr=3k", 3000.0),
+])
+def test_instructions_are_in_decimal_units(text, value):
+    from eskin.deploy.target import parse_budget
+
+    assert parse_budget(text).instructions == value
+
+
+def test_a_budget_of_exactly_the_estimate_fits_and_one_less_does_not(campaign):
+    """The candidate check and the compiled model's check at their boundaries: a budget of
+    exactly the estimated flash, RAM or instruction bound fits, one byte (one instruction)
+    less in any of them does not."""
+    from eskin.deploy.target import (
+        INSTRUCTION_MARGIN,
+        _stored_alphas,
+        candidate_budget,
+        estimate_model,
+        model_fits,
+        parse_budget,
+    )
+    from eskin.learn.recipes import Candidate, Recipe
+
+    model = _model(campaign, 20, 0.5)
+    wc, rate = model.window_config, campaign.sample_rate_hz
+    c = Candidate(Recipe("svm", 20, "algorithm2", "all"), 0.1, 1.0, "1", None)
+    est = estimate_model(parse_budget(None), (4, 4), 20, _stored_alphas((4, 4), 20, "1"), 30, 3,
+                         False, wc, rate)
+    flash, ram = int(est["flash"]), int(est["ram"])
+    instr = est["instructions"] * (1 + INSTRUCTION_MARGIN)
+
+    def fits(f, r, i):
+        return candidate_budget(parse_budget(f"flash={f},ram={r},instr={i!r}"), (4, 4), rate,
+                                wc, 3).fits(c, 30)
+
+    assert fits(flash, ram, instr)
+    assert not fits(flash - 1, ram, instr)
+    assert not fits(flash, ram - 1, instr)
+    assert not fits(flash, ram, instr - 1)
+    from eskin.deploy.export import model_to_bytes, spec_from_model
+
+    data = model_to_bytes(spec_from_model(model), "float32")
+    ok, fig = model_fits(data, parse_budget("flash=1G,ram=1G,instr=1G"))
+    assert ok
+    exact = {"flash": int(fig["flash"]), "ram": int(fig["ram"]), "instr": fig["instructions"]}
+    for key, less in (("flash", 1), ("ram", 1), ("instr", 1.0)):
+        given = dict(exact)
+        assert model_fits(data, parse_budget(",".join(f"{k}={v!r}" for k, v in given.items())))[0]
+        given[key] -= less
+        assert not model_fits(
+            data, parse_budget(",".join(f"{k}={v!r}" for k, v in given.items())))[0], key
