@@ -235,6 +235,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a maximum of exactly header plus CRC is clamped to itself either way (the "
                    "capacity is at least that: static_assert of every decoder)"),
     ],
+    "python/eskin/deploy/target.py": [
+        *(Equivalent("core/ReplaceComparisonOperator_Gt_NotEq", f"return {v} > 0",
+                     f"return {v} != 0",
+                     "window_samples is 0 or a positive count: a negative one is refused by "
+                     "the core's window_config_resolve before the estimate (_ram_terms) and by "
+                     "the loader of a compiled model, the two callers of _bounded")
+          for v in ('float(window_config.get("window_samples", 0))',
+                    'float(getattr(window_config, "window_samples", 0))')),
+    ],
     "python/eskin/learn/calibration.py": [
         Equivalent("core/ReplaceTrueWithFalse",
                    "trk = np.intersect1d(tr, subsets[k], assume_unique=True)",
