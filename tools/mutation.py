@@ -243,6 +243,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "the loader of a compiled model, the two callers of _bounded")
           for v in ('float(window_config.get("window_samples", 0))',
                     'float(getattr(window_config, "window_samples", 0))')),
+        *(Equivalent("core/NumberReplacer", f"return {v} > 0", f"return {v} > 1",
+                     "window_samples is 0 or an even count of at least 2 (the core refuses 1)")
+          for v in ('float(window_config.get("window_samples", 0))',
+                    'float(getattr(window_config, "window_samples", 0))')),
+        *(Equivalent("core/NumberReplacer", f"{d}[g] = max({d}.get(g, 0.0), abs({e} - y) / y)",
+                     f"{d}[g] = max({d}.get(g, -1.0), abs({e} - y) / y)",
+                     "the first error of a grid against -1 instead of 0: relative errors are "
+                     "never negative, so the maximum is the same")
+          for d, e in (("per_grid", "est"), ("grid_out", "g_est"))),
     ],
     "python/eskin/learn/calibration.py": [
         Equivalent("core/ReplaceTrueWithFalse",

@@ -389,3 +389,33 @@ def test_a_budget_of_exactly_the_estimate_fits_and_one_less_does_not(campaign):
         given[key] -= less
         assert not model_fits(
             data, parse_budget(",".join(f"{k}={v!r}" for k, v in given.items())))[0], key
+
+
+def test_sizes_are_in_binary_units():
+    from eskin.deploy.target import parse_budget
+
+    b = parse_budget("flash=1G,ram=3M")
+    assert (b.flash_bytes, b.ram_bytes) == (1 << 30, 3 << 20)
+    assert parse_budget("flash=1000,ram=2K").ram_bytes == 2048
+    assert parse_budget("flash=1000,ram=2KB").flash_bytes == 1000
+
+
+def test_the_estimate_counts_the_amplitude_factor_and_the_unbounded_window(campaign):
+    """The amplitude factor stores one double per support vector in the file; a window
+    configuration without the bounded window (window_samples 0) is estimated as such."""
+    from eskin.deploy.target import _stored_alphas, decision_instructions, estimate_model
+    from eskin.deploy.target import parse_budget
+
+    rate = campaign.sample_rate_hz
+    alphas = _stored_alphas((4, 4), 20, "1")
+
+    def est(amplitude, wc):
+        return estimate_model(parse_budget(None), (4, 4), 20, alphas, 30, 3, amplitude, wc, rate)
+
+    bounded, unbounded = eskin.WindowConfig(max_window_s=0.5), eskin.WindowConfig(
+        max_window_s=0.5, window_samples=0)
+    assert est(True, bounded)["flash"] - est(False, bounded)["flash"] == 30 * 8
+    for wc, is_bounded in ((bounded, True), (unbounded, False)):
+        assert est(True, wc)["instructions"] == decision_instructions(
+            (4, 4), 20, alphas, 30, True, is_bounded, 90)
+    assert est(True, bounded)["instructions"] != est(True, unbounded)["instructions"]
