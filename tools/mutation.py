@@ -234,6 +234,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "max_frame_size_(max_frame_size <= kHeaderSize + kCrcSize",
                    "a maximum of exactly header plus CRC is clamped to itself either way (the "
                    "capacity is at least that: static_assert of every decoder)"),
+        Equivalent("swap>>=", "if (d.first_sample > next_sample_) {",
+                   "if (d.first_sample >= next_sample_) {",
+                   "a DATA frame that starts exactly where the last ended then adds 0 lost "
+                   "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
         *(Equivalent("core/ReplaceComparisonOperator_Gt_NotEq", f"return {v} > 0",

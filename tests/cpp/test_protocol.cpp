@@ -838,3 +838,32 @@ TEST(Cobs, DecodesIntoExactlyItsSizeAndRefusesOneByteLess) {
   ASSERT_EQ(p::cobs_decode(zero.data(), zero.size(), out.data(), out.size()), 2);
   EXPECT_EQ(out, (Bytes{0x11, 0x00}));
 }
+
+// A frame of exactly the decoder's maximum size whose COBS block is as long as any of that size
+// can be (a run of 254 non-zero bytes forces one more code byte): accepted; the same frame is
+// refused by a decoder whose maximum is one byte less.
+TEST(DecoderChecks, AFrameOfTheMaximumSizeWithTheLongestBlockIsAccepted) {
+  const std::vector<std::int16_t> samples(127, 0x0101);  // 254 non-zero bytes
+  p::Frame f;
+  f.type = p::FrameType::data;
+  f.data.first_sample = 1;
+  f.data.rows = f.data.cols = 1;
+  f.data.n_samples = 127;
+  f.data.samples = samples.data();
+  const std::size_t size = serialize(f).size();
+  ASSERT_EQ(size, 282U);
+  const Bytes block = cobs(serialize(f));
+  ASSERT_EQ(block.size(), p::max_encoded_size(size) - 1);
+  Bytes wire = block;
+  wire.push_back(0);
+  for (const std::size_t max : {size, size - 1}) {
+    p::FrameDecoder dec(max, false);
+    int n = 0;
+    dec.feed_all(wire.data(), wire.size(), [&](const p::Frame& g) {
+      ++n;
+      EXPECT_EQ(g.data.n_samples, 127);
+      EXPECT_EQ(g.data.samples[126], 0x0101);
+    });
+    EXPECT_EQ(n, max == size ? 1 : 0) << max;
+  }
+}
