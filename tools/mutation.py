@@ -234,6 +234,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "max_frame_size_(max_frame_size <= kHeaderSize + kCrcSize",
                    "a maximum of exactly header plus CRC is clamped to itself either way (the "
                    "capacity is at least that: static_assert of every decoder)"),
+        Equivalent("delete check", "if (code == 0) return -1;",
+                   "if (false && (code == 0)) return -1;",
+                   "a zero code makes the run (code - 1) wrap to SIZE_MAX, which the next "
+                   "check refuses with the same -1"),
         Equivalent("swap>>=", "if (d.first_sample > next_sample_) {",
                    "if (d.first_sample >= next_sample_) {",
                    "a DATA frame that starts exactly where the last ended then adds 0 lost "

@@ -249,6 +249,12 @@ TEST(Cobs, RejectsInvalidBlocks) {
   Bytes out(2);
   const Bytes in{0x05, 0x11, 0x22, 0x33, 0x44};
   EXPECT_LT(p::cobs_decode(in.data(), in.size(), out.data(), out.size()), 0);  // too small
+  // the documented failure is -1, for each cause: a zero code, a zero inside a run, a run
+  // past the end
+  Bytes big(8);
+  for (const Bytes& bad : {Bytes{0x00}, Bytes{0x02, 0x11, 0x00, 0x01}, Bytes{0x03, 0x00, 0x22},
+                           Bytes{0x05, 0x11, 0x22}})
+    EXPECT_EQ(p::cobs_decode(bad.data(), bad.size(), big.data(), big.size()), -1);
 }
 
 TEST(Frames, EveryTypeRoundTrips) {
