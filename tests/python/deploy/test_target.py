@@ -335,6 +335,9 @@ def test_the_leave_one_out_error_is_the_largest_relative_error_of_the_left_out_e
            for c, (est, _) in zip(counts, target._left_out())]
     assert err["max_leave_one_out"] == max(loo) == max(err["leave_one_out_by_grid"].values())
     assert 0 < err["max_leave_one_out"] < 0.5
+    # a grid whose counts the other grids can predict has its leave-grid-out error
+    fitted = {g: v for g, v in err["leave_grid_out"].items() if v is not None}
+    assert fitted and all(0 <= v < 1 for v in fitted.values())
 
 
 @pytest.mark.parametrize("text,value", [
@@ -419,3 +422,19 @@ def test_the_estimate_counts_the_amplitude_factor_and_the_unbounded_window(campa
         assert est(True, wc)["instructions"] == decision_instructions(
             (4, 4), 20, alphas, 30, True, is_bounded, 90)
     assert est(True, bounded)["instructions"] != est(True, unbounded)["instructions"]
+
+
+def test_detector_settings_that_leave_room_are_kept_as_they_are(campaign):
+    """window_for_budget: settings whose buffers and the smallest model fit the RAM (with room
+    to spare, or exactly) come back unchanged, with no note; a budget a byte smaller lowers
+    the bounded window and says so."""
+    from eskin.deploy.target import _ram_terms, _stored_alphas, parse_budget, window_for_budget
+
+    rate = campaign.sample_rate_hz
+    cfg = eskin.WindowConfig(max_window_s=0.5)
+    assert window_for_budget(parse_budget(None), (4, 4), rate, cfg) == (cfg, None)
+    need = sum(_ram_terms(4, 4, 20, _stored_alphas((4, 4), 20, "1"), 100, 300, 1, True, 4, cfg,
+                          rate, parse_budget(None).target).values())
+    assert window_for_budget(parse_budget(f"ram={need}"), (4, 4), rate, cfg) == (cfg, None)
+    lowered, note = window_for_budget(parse_budget(f"ram={need - 1}"), (4, 4), rate, cfg)
+    assert lowered.window_samples == 512 and "window_samples 1024" in note and "-> 512" in note
