@@ -873,3 +873,20 @@ TEST(DecoderChecks, AFrameOfTheMaximumSizeWithTheLongestBlockIsAccepted) {
     EXPECT_EQ(n, max == size ? 1 : 0) << max;
   }
 }
+
+// The encoder writes into an output of exactly max_encoded_size(frame) bytes, and refuses one
+// a byte smaller without writing.
+TEST(Encoder, AnOutputOfExactlyTheEncodedBoundIsEnough) {
+  p::Frame f;
+  f.type = p::FrameType::ping;
+  f.ping.token = 0x01020304;
+  const std::size_t bound = p::max_encoded_size(serialize(f).size());
+  p::FrameEncoder enc;
+  Bytes out(bound, 0xAB);
+  EXPECT_GT(enc.encode(f, out.data(), bound), 0U);
+  EXPECT_EQ(enc.status(), p::EncodeStatus::ok);
+  Bytes small(bound, 0xAB);
+  EXPECT_EQ(enc.encode(f, small.data(), bound - 1), 0U);
+  EXPECT_EQ(enc.status(), p::EncodeStatus::buffer_too_small);
+  EXPECT_EQ(small, Bytes(bound, 0xAB));
+}
