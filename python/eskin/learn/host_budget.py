@@ -1,33 +1,36 @@
-"""The host budget: on request, a searched model's decision bounded as the campaign grows.
+"""The host budget: by default, a searched model's decision, bounded as campaigns grow.
 
 A tensor-SVM keeps the training patterns on its margin as support vectors, and their number
-grows with the campaign (with the default search on the simulator: about 100 distinct support
-vectors at 10 participants, 650 at 70), and with it the time of every decision. On request
-(``train_model(decision_us=...)``, ``--decision-us``; not by default, docs/learning.md) and
-without a controller's budget, :func:`host_budget` gives the recipe search
-(:class:`~eskin.learn.recipes.RecipeSearch`) a budget on this host: a candidate fits when the
-support vectors' share of its estimated decision time (:func:`support_us`, what grows with the
-campaign) is at most the cap (e.g. :data:`HOST_DECISION_US`); one expected to need more is kept
-with its support vectors bounded to the most that fit
-(:func:`eskin.learn.support_budget.bound_support` after the fit) when that keeps at least
-half of them, else dropped. The input's bases are left out of the budget:
-a fixed cost of the grid and D that the campaign does not change, and one this estimate models
-only roughly (4 ns per pattern entry fits a 4x4 grid; an 8x8 grid at D = 100 took about 10 ms a
-decision with 120 support vectors on the busy development host, BENCHMARKS.md).
+grows with the campaign (with the search on the built-in simulator: about 45 distinct support
+vectors at 10 participants, 340 at 70), and with it the time of every decision. Unless lifted
+(``train_model(decision_us=None)``, ``--decision-us 0``; docs/learning.md) and without a
+controller's budget, :func:`host_budget` gives the recipe search
+(:class:`~eskin.learn.recipes.RecipeSearch`) a budget on the host, by default
+:data:`HOST_DECISION_US`: a candidate fits when the support vectors' share of its estimated
+decision time (:func:`support_us`, what grows with the campaign) is at most the cap; one
+expected to need more is kept with its support vectors bounded to the most that fit
+(:func:`eskin.learn.support_budget.bound_support` after the fit) when that keeps at least half
+of them, else dropped. Like a controller's budget it trades D against alpha and the support
+vectors (the order of preference then leaves D out, :func:`~eskin.learn.recipes.budget_preference`).
+The input's bases are left out of the cap: a fixed cost of the grid and D that the campaign
+does not change (about 15-35 us on a 4x4 grid, which the default cap of 80 us leaves room for
+within 100 us a decision).
 
 The cost of one decision of the compiled classifier (``cpp/src/model*.cpp``): the input's
 bases (one thin SVD per mode unfolding, a fixed cost per D and grid), then per distinct
 support vector and mode z the overlap of the input's alpha_z basis vectors with the support
-vector's, N_z alpha_z^2 multiply-adds over the N_z = (rows cols D) / d_z entries of a basis
-vector (nothing for a mode whose alpha reaches N_z: a full-rank subspace is all of R^N_z), and
-the machines' sums. :func:`host_decision_us` is that count of multiply-adds times
-:data:`HOST_NS_PER_MAC`, plus :data:`HOST_NS_PER_SV` per support vector and the bases' share:
-a deterministic estimate (the same on any host, so training stays reproducible), set from the
-compiled classifier's decision times on the 2-core development host (float32 models of 4x4
-patterns at D = 100, 350-420 support vectors at alpha 1, Q/2 and Q: about 0.5, 0.8 and 1-2 us
-per support vector on a busy machine; 1.0 us per support vector for a 652-support-vector
-default model at alpha Q on an idle one). ``benchmarks/bench_peers.py`` measures the decision
-time of the default models it trains (BENCHMARKS.md).
+vector's stored ones (N_z alpha_z entries, N_z = (rows cols D) / d_z; nothing for a mode whose
+alpha reaches N_z: a full-rank subspace is all of R^N_z), and the machines' sums. What a
+support vector costs follows the entries of its bases read per decision (:func:`basis_entries`,
+float32) more closely than the multiply-adds: past the caches each decision streams them from
+memory. :func:`host_decision_us` is :data:`HOST_NS_PER_SV` per support vector plus
+:data:`HOST_NS_PER_BASIS_ENTRY` per entry of its bases, plus the input bases' share: a
+deterministic count (the same on any host and at any load, so training is reproducible), its
+figures fitted to the compiled classifier's warm decision times on the 2-core development host
+(float32 models of 4x4 patterns at D = 20, 50 and 100 and alpha 1, Q/2 and Q with 150 and 336
+support vectors: 0.06-0.11 us per support vector at D = 20, 0.26-0.61 us at D = 100; the fit
+is within 0.07 us per support vector of each, BENCHMARKS.md "Deployed inference").
+``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
 """
 
 from __future__ import annotations
@@ -38,22 +41,24 @@ from collections.abc import Sequence
 
 from eskin.errors import TrainingError
 
-__all__ = ["HOST_DECISION_US", "host_budget", "host_decision_us", "overlap_macs", "support_us"]
+__all__ = ["HOST_DECISION_US", "basis_entries", "host_budget", "host_decision_us", "support_us"]
 
-#: a cap on the support vectors' share of a decision on the host (microseconds)
-HOST_DECISION_US = 100.0
-#: nanoseconds per multiply-add of the support vectors' overlaps (float32, one core)
-HOST_NS_PER_MAC = 0.06
-#: nanoseconds per support vector besides its overlaps (its bases' loads, the kernel value,
-#: the amplitude factor, the machines' terms)
-HOST_NS_PER_SV = 300.0
+#: the default cap on the support vectors' share of a decision on the host (microseconds):
+#: with the input's bases, about 100 us a decision on a 4x4 grid
+HOST_DECISION_US = 80.0
+#: nanoseconds per entry (float32) of a support vector's stored bases, read and multiplied
+#: into its overlaps with the input's
+HOST_NS_PER_BASIS_ENTRY = 0.18
+#: nanoseconds per support vector besides its bases (the kernel value, the amplitude factor,
+#: the machines' terms)
+HOST_NS_PER_SV = 40.0
 #: nanoseconds per entry of the input's pattern (rows x cols x D) for its bases
 HOST_NS_PER_ENTRY = 4.0
 
 
-def overlap_macs(grid_shape: Sequence[int], D: int, alphas: Sequence[int]) -> int:
-    """Multiply-adds of the overlaps of one support vector with the input: sum over the modes
-    z of N_z alpha_z^2 (none where alpha_z reaches N_z)."""
+def basis_entries(grid_shape: Sequence[int], D: int, alphas: Sequence[int]) -> int:
+    """Entries of one support vector's bases that a decision reads: sum over the modes z of
+    N_z alpha_z (none where alpha_z reaches N_z)."""
     rows, cols = (int(v) for v in grid_shape)
     dims = (rows, cols, int(D))
     size = rows * cols * int(D)
@@ -61,7 +66,7 @@ def overlap_macs(grid_shape: Sequence[int], D: int, alphas: Sequence[int]) -> in
     for d, a in zip(dims, alphas):
         n = size // d
         if int(a) < n:
-            total += n * int(a) * int(a)
+            total += n * int(a)
     return total
 
 
@@ -71,7 +76,7 @@ def host_decision_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
     distinct support vectors at D and the per-mode ``alphas``."""
     rows, cols = (int(v) for v in grid_shape)
     bases = rows * cols * int(D) * HOST_NS_PER_ENTRY
-    per_sv = HOST_NS_PER_SV + overlap_macs(grid_shape, D, alphas) * HOST_NS_PER_MAC
+    per_sv = HOST_NS_PER_SV + basis_entries(grid_shape, D, alphas) * HOST_NS_PER_BASIS_ENTRY
     return (bases + int(n_support) * per_sv) / 1e3
 
 
@@ -85,9 +90,8 @@ def support_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
 
 def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
     """The :class:`~eskin.learn.recipes.CandidateBudget` of a decision whose support vectors
-    take at most ``max_us`` microseconds on the host (:func:`support_us`). Unlike a
-    controller's, it keeps the search's order of preference (the larger D first): it bounds
-    the support vectors, not D."""
+    take at most ``max_us`` microseconds on the host (:func:`support_us`). Like a
+    controller's, it trades D against alpha and the support vectors."""
     from eskin.learn.grids import alpha_value
     from eskin.learn.recipes import CandidateBudget
 
@@ -113,5 +117,5 @@ def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
 
     return CandidateBudget(fits, f"host: support vectors' share of a decision at most "
                                  f"{float(max_us):g} us (estimated)",
-                           largest=largest, trades_D=False)
+                           largest=largest, trades_D=True)
 

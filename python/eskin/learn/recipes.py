@@ -10,8 +10,10 @@ participant-grouped cross-validation splits (no participant on both sides of a s
 `eskin evaluate` measures on unseen people. Scoring every candidate on every split would cost
 the grid times the recipes (24 x 405 settings); the search instead runs **successive halving**
 (Jamieson and Talwalkar 2016; scikit-learn's ``HalvingGridSearchCV``) with the cross-validation
-splits as the resource: every candidate is scored on the first split, the best third on three
-splits, the best third of those on all of them. Every candidate is scored on the same splits in
+splits as the resource: every candidate is scored on the first split, the best third on two
+splits, the best third of those on four, the best third of those on all of them (each round a
+third of the candidates on twice the splits: the first rounds, with the most candidates, cost
+the fewest fits; ``growth``). Every candidate is scored on the same splits in
 the same order, so the estimates of the survivors are comparable and the last round's are the
 plain ``n_splits``-fold figures. The first round samples the same share of the grid for every
 recipe (seeded), so each recipe is judged on the same settings.
@@ -39,9 +41,11 @@ expected support vectors wins. A budget (:class:`CandidateBudget`, see :mod:`esk
 model) removes candidates whose compiled model would not fit the controller before they are
 ranked, or keeps one with its support vectors bounded to the most that fit (at least half of
 those it is expected to need; :func:`eskin.learn.support_budget.bound_support` after the fit).
-Under a budget the order of preference leaves D out (:func:`budget_preference`): the budget
-trades D against alpha and the support vectors, and the larger D that is safest without one
-held on to alpha 1 at D = 100 where alpha Q at D = 50 did better on unseen people.
+Under a budget (a controller's, or the host's of :mod:`eskin.learn.host_budget`, on by
+default) the order of preference leaves D out (:func:`budget_preference`): the budget trades D
+against alpha and the support vectors, and the larger D that is safest without one held on to
+alpha 1 at D = 100 where alpha Q at D = 50 (at D = 20 under the host's) did better on unseen
+people.
 
 Every random choice (splits, the grid sample, balanced negatives) is seeded, never taken from
 the execution order; the work of a round is cut into (D, subsampling, alpha) tasks run through
@@ -419,9 +423,18 @@ class _SplitBlocks:
         out = []
         for (trk, Dtr, Dte), (_, Ftr, Fte) in zip(dist, factor):
             if id(trk) not in made:
-                made[id(trk)] = (trk, np.exp(Dtr * g) * Ftr, np.exp(Dte * g) * Fte)
+                made[id(trk)] = (trk, _kernel_block(Dtr, g, Ftr), _kernel_block(Dte, g, Fte))
             out.append(made[id(trk)])
         return out
+
+
+def _kernel_block(dist: np.ndarray, g: float, factor: np.ndarray | float) -> np.ndarray:
+    """exp(g dist) times the amplitude factor, in one new array."""
+    K = np.multiply(dist, g)
+    np.exp(K, out=K)
+    if not (np.isscalar(factor) and factor == 1.0):
+        K *= factor
+    return K
 
 
 def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linalg):
@@ -490,9 +503,9 @@ class CandidateBudget:
     #: ``keep_share`` of them.
     largest: Callable[[Candidate, int], int] | None = None
     keep_share: float = 0.5
-    #: whether the budget trades D against alpha and the support vectors (a controller's:
-    #: the order of preference then leaves D out, :func:`budget_preference`); False (the host
-    #: budget of :mod:`eskin.learn.host_budget`) keeps :func:`recipe_preference`
+    #: whether the budget trades D against alpha and the support vectors (a controller's and
+    #: the host's: the order of preference then leaves D out, :func:`budget_preference`);
+    #: False keeps :func:`recipe_preference`
     trades_D: bool = True
 
 
@@ -578,8 +591,11 @@ class RecipeSearch:
     lambdas, sigmas, alphas, amplitudes : the grid (alpha labels "1", "Q/2", "Q"; amplitude
         None for the paper's kernel); one setting is shared by a model's machines.
     n_splits, test_size : the cross-validation (splits holding out ``test_size`` of the groups).
-    eta : the halving factor (each round keeps the best 1/eta and scores them on eta times as
-        many splits).
+    eta : the halving factor (each round keeps the best 1/eta of its candidates).
+    growth : the factor of the splits from one round to the next (1, growth, growth^2, ...,
+        then all ``n_splits``): each round scores a third of the candidates on twice the
+        splits by default, so the candidates of the first rounds, the most, are scored on the
+        fewest splits.
     first_share : the share of the grid every recipe is scored on in the first round (the same
         seeded sample for every recipe; a grid of at most :data:`SMALL_GRID` settings whole).
     budget : optional :class:`CandidateBudget`; candidates that do not fit are dropped.
@@ -606,6 +622,7 @@ class RecipeSearch:
         n_splits: int = 10,
         test_size: float = 0.3,
         eta: int = 3,
+        growth: int = 2,
         first_share: float = 0.10,
         budget: CandidateBudget | None = None,
         significance: float | None = 0.05,
@@ -615,14 +632,17 @@ class RecipeSearch:
     ) -> None:
         if not recipes:
             raise TrainingError("the recipe search has no recipe to try")
-        if int(n_splits) < 1 or int(eta) < 2 or not 0 < float(first_share) <= 1:
-            raise TrainingError("n_splits must be >= 1, eta >= 2 and first_share in (0, 1]")
+        if (int(n_splits) < 1 or int(eta) < 2 or int(growth) < 2
+                or not 0 < float(first_share) <= 1):
+            raise TrainingError("n_splits must be >= 1, eta and growth >= 2 and first_share "
+                                "in (0, 1]")
         self.recipes = list(recipes)
         self.grid = [(float(la), float(s), str(a), am) for la in lambdas for s in sigmas
                      for a in alphas for am in amplitudes]
         if not self.grid:
             raise TrainingError("the grid needs at least one lambda, sigma, alpha and amplitude")
         self.n_splits, self.test_size, self.eta = int(n_splits), float(test_size), int(eta)
+        self.growth = int(growth)
         self.first_share, self.budget = float(first_share), budget
         if significance is not None and not 0 < float(significance) < 1:
             raise TrainingError(f"significance must be in (0, 1) or None, got {significance}")
@@ -661,12 +681,12 @@ class RecipeSearch:
         return [(np.sort(tr), np.sort(te)) for tr, te in splits]
 
     def _schedule(self) -> list[int]:
-        """Splits scored after each round: 1, eta, eta^2, ..., then all n_splits (instead of
-        the last power of eta below it)."""
+        """Splits scored after each round: 1, growth, growth^2, ..., then all n_splits
+        (instead of the last power of growth below it)."""
         sched, r = [], 1
-        while r * self.eta <= self.n_splits:
+        while r * self.growth <= self.n_splits:
             sched.append(r)
-            r *= self.eta
+            r *= self.growth
         return sched + [self.n_splits]
 
     def _first_candidates(self) -> list[Candidate]:
@@ -730,12 +750,7 @@ class RecipeSearch:
             scored = list(alive)
             alive = score(alive, new)
             if r == 0 and self.significance is not None and alive:
-                # the most preferred recipe that fits is the likeliest choice: it gets the
-                # whole grid, not the sample
-                key = self._preference_key()
-                top = min(key(c.recipe) for c in alive)
-                more = [Candidate(rec, *g) for rec in self.recipes if key(rec) == top
-                        for g in self.grid if Candidate(rec, *g) not in rows]
+                more = self._whole_grid(alive, rows)
                 for c in more:
                     rows[c] = _Row(c)
                 scored += more
@@ -755,6 +770,18 @@ class RecipeSearch:
         self.collapsed_ = [(r.candidate, sorted(r.collapsed)) for r in rows.values() if r.collapsed]
         self.seconds_ = time.perf_counter() - t0
         return self
+
+    def _whole_grid(self, alive: list[Candidate], rows: Mapping[Candidate, _Row]
+                    ) -> list[Candidate]:
+        """The candidates of the likeliest choice not scored yet: the most preferred recipe
+        that fits gets the whole grid, not the sample. Under a budget that trades D the most
+        preferred family holds a recipe per D: its recipe with the lowest error on the
+        sample gets the whole grid (the others of the family keep their sample)."""
+        key = self._preference_key()
+        top = min(key(c.recipe) for c in alive)
+        family = [c for c in alive if key(c.recipe) == top]
+        recipe = min(family, key=lambda c: self._key(rows[c])).recipe
+        return [Candidate(recipe, *g) for g in self.grid if Candidate(recipe, *g) not in rows]
 
     def _survivors(self, ranked: list[Candidate]) -> list[Candidate]:
         """The best 1/eta of the ranked candidates and, when a preference applies, the best

@@ -18,6 +18,7 @@ import numpy as np
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import TrainingError
 from eskin.learn.calibration import DEFAULT_REJECT
+from eskin.learn.host_budget import HOST_DECISION_US
 from eskin.learn.grids import (
     DEFAULT_AMPLITUDES,
     DEFAULT_D,
@@ -337,7 +338,7 @@ def train_model(
     n_jobs: int = 1,
     group_by: str = "participant",
     budget: Any = None,
-    decision_us: float | None = None,
+    decision_us: float | None = HOST_DECISION_US,
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
     max_model_bytes: int | None = None,
@@ -374,10 +375,11 @@ def train_model(
     budget : a :class:`~eskin.learn.recipes.CandidateBudget`
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
     decision_us : without ``budget``, the support vectors of the searched model take at most
-        this many microseconds of a decision on this host, estimated
-        (:mod:`eskin.learn.host_budget`, e.g. its ``HOST_DECISION_US`` = 100: the support
-        vectors bounded, the search's order of preference kept); None (default): no bound.
-        Only a searched recipe is bounded.
+        this many microseconds of a decision on the host, estimated by a fixed count
+        (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 80, about 100 us a
+        decision with the input's bases on a 4x4 grid: the search trades D against alpha and
+        the support vectors, which it bounds when needed); None: no bound. Only a searched
+        recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_model_bytes : at most this many bytes in the model's float32 ``.eskin`` file (None,
         the default: no limit; ``eskin train --max-model-size MB``): a model whose support
@@ -487,6 +489,7 @@ def _with_support_budget(model: TouchModel, max_support: int | None, X: np.ndarr
     no more than a float32 model file of ``max_model_bytes`` holds
     (:func:`~eskin.learn.support_budget.support_for_size`), the machines' coefficients fitted
     to their decision values on the training patterns ``X``, and a record of it."""
+    from eskin.learn.selection import _single_threaded_blas
     from eskin.learn.support_budget import bound_support, n_distinct_support, support_for_size
 
     before = n_distinct_support(model.estimator)
@@ -497,7 +500,8 @@ def _with_support_budget(model: TouchModel, max_support: int | None, X: np.ndarr
             max_support, by_size = fit, True
     if max_support is None:
         return model
-    model.estimator = bound_support(model.estimator, max_support, X_fit=X)
+    with _single_threaded_blas():  # small least squares: threads cost far more than they give
+        model.estimator = bound_support(model.estimator, max_support, X_fit=X)
     model.training["support_budget"] = {
         "max_support": max_support,
         "support_vectors_before": before,

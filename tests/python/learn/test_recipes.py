@@ -109,20 +109,29 @@ def test_split_scores_are_those_of_the_one_vs_all_classifier(data, machine, nega
     assert entry["error"] == pytest.approx(np.mean(err), abs=1e-12)
 
 
-def test_successive_halving_keeps_a_third_per_round(data):
+def test_successive_halving_keeps_a_third_per_round_on_twice_the_splits(data):
     X, y, groups = data
     recipes = [Recipe(m, 20, s, "all") for m in ("svm", "rls") for s in ("algorithm2", "even")]
     lams, sigmas = [0.01, 0.1, 1.0, 10.0], [0.5, 1.0, 2.0, 4.0]
     search = RecipeSearch(recipes, lams, sigmas, ["1", "Q/2"], [None, 1.0], n_splits=9,
                           first_share=0.5, significance=None, seed=1).fit(X, y, groups)
-    # 4 recipes x 32 of the 64 settings; each round keeps ceil(1/3) and triples the splits
-    assert [r["candidates"] for r in search.rounds_] == [128, 43, 15]
-    assert [r["splits"] for r in search.rounds_] == [1, 3, 9]
-    assert search.n_evaluations_ == 128 * 1 + 43 * 2 + 15 * 6
+    # 4 recipes x 32 of the 64 settings; each round keeps ceil(1/3) and doubles the splits,
+    # the last one all 9 (instead of 8)
+    assert [r["candidates"] for r in search.rounds_] == [128, 43, 15, 5]
+    assert [r["splits"] for r in search.rounds_] == [1, 2, 4, 9]
+    assert search.n_evaluations_ == 128 * 1 + 43 * 1 + 15 * 2 + 5 * 5
     first = search._first_candidates()
     assert len({(c.lam, c.sigma, c.alpha, c.amplitude) for c in first}) == 32
     assert all(sum(c.recipe == r for c in first) == 32 for r in recipes)
     assert search.ranking_[0]["splits"] == 9
+    # growth = eta: the splits tripled as the candidates are cut to a third
+    tripled = RecipeSearch(recipes, lams, sigmas, ["1", "Q/2"], [None, 1.0], n_splits=9,
+                           growth=3, first_share=0.5, significance=None, seed=1)
+    assert tripled._schedule() == [1, 3, 9]
+    assert RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], n_splits=10)._schedule() == [
+        1, 2, 4, 10]
+    with pytest.raises(TrainingError, match="growth >= 2"):
+        RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], growth=1)
     # the choice is within one held-out pattern (over all splits) of the best final error
     best = min(e["error"] for e in search.ranking_)
     assert search.best_error_ <= best + search.tolerance_ + 1e-12
@@ -175,6 +184,26 @@ def test_the_preferred_recipe_survives_every_round():
     assert kept == ranked[:4] + ranked[8:10]
     plain = RecipeSearch([pref, other], [1.0], [1.0], ["1"], [None], eta=3, significance=None)
     assert plain._survivors(ranked) == ranked[:4]
+
+
+def test_under_a_budget_that_trades_D_the_familys_best_recipe_gets_the_whole_grid():
+    """Under a budget that trades D the most preferred family (machine, subsampling,
+    negatives) holds a recipe per D: the one with the lowest error on the sample gets the
+    whole grid, not all of them; without a budget the most preferred recipe does."""
+    from eskin.learn.recipes import _Row
+
+    d100, d20 = Recipe("svm", 100, "algorithm2", "all"), Recipe("svm", 20, "algorithm2", "all")
+    other = Recipe("rls", 20, "even", "all")
+    rows = {}
+    for rec, err in ((d100, 0.3), (d20, 0.2), (other, 0.1)):
+        c = Candidate(rec, 0.1, 1.0, "1", None)
+        rows[c] = _Row(c, errors={0: err})
+    grid = ([0.1, 1.0], [1.0], ["1"], [None])
+    anything = CandidateBudget(lambda c, n: True, "anything")
+    under = RecipeSearch([d100, d20, other], *grid, budget=anything)
+    assert under._whole_grid(list(rows), rows) == [Candidate(d20, 1.0, 1.0, "1", None)]
+    free = RecipeSearch([d100, d20, other], *grid)
+    assert free._whole_grid(list(rows), rows) == [Candidate(d100, 1.0, 1.0, "1", None)]
 
 
 def test_the_most_preferred_recipe_is_scored_on_the_whole_grid(data):
@@ -360,14 +389,21 @@ def test_the_search_on_a_local_pool_matches_the_serial_run(sim_path):
     np.testing.assert_array_equal(serial.decision_function(X), pooled.decision_function(X))
 
 
-def test_decision_us_puts_the_search_under_the_host_budget(sim_path):
-    """decision_us runs the search under the host budget (its description in the report;
-    none by default); a budget too small for any support vector fails with the budget
-    named."""
-    m = train_model(sim_path, D=20, quick=True, seed=2, decision_us=100)
+def test_the_search_is_under_the_host_budget_by_default(sim_path):
+    """By default the search runs under the host budget of HOST_DECISION_US (its description
+    in the report, the same as eskin train's default); decision_us=None lifts it; a budget too
+    small for any support vector fails with the budget named."""
+    from eskin.cli.learn import DECISION_US_DEFAULT
+    from eskin.learn.host_budget import HOST_DECISION_US
+
+    assert DECISION_US_DEFAULT == HOST_DECISION_US == 80.0
+    m = train_model(sim_path, D=20, quick=True, seed=2)
     assert m.training["recipe_search"]["budget"].startswith(
+        "host: support vectors' share of a decision at most 80 us")
+    wide = train_model(sim_path, D=20, quick=True, seed=2, decision_us=100)
+    assert wide.training["recipe_search"]["budget"].startswith(
         "host: support vectors' share of a decision at most 100 us")
-    free = train_model(sim_path, D=20, quick=True, seed=2)
+    free = train_model(sim_path, D=20, quick=True, seed=2, decision_us=None)
     assert free.training["recipe_search"]["budget"] is None
     with pytest.raises(TrainingError, match="no candidate fits the budget .host: support "
                                             "vectors' share of a decision at most 0.001 us"):
