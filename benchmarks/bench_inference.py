@@ -19,6 +19,11 @@ alpha = Q/2: model selection is not what is measured here). Reported per D:
 
 Run:  ESKIN_BIN_DIR=build/dev python benchmarks/bench_inference.py [--campaign sim.h5]
 The data are simulated (eskin.simulate).
+
+With ``--model M.eskin`` (e.g. what ``eskin train`` wrote, exported by ``eskin export``) it
+measures that model instead, on the recordings of ``--campaign`` (those of its last
+participants, PARTICIPANTS_TEST of them): the same end-of-touch and warm latencies, its
+support vectors, D and alphas.
 """
 
 from __future__ import annotations
@@ -167,11 +172,50 @@ def callgrind_instructions(exe: str, model_path: Path, windows: np.ndarray, tmp:
     return int(m.group(1)) / min(10, len(windows))
 
 
+def touch_latencies(cm: CompiledModel, stream: np.ndarray, repeats: int) -> dict:
+    """Median end-of-touch us ("touch"), median warm us ("warm"), the touch windows and their
+    labels (of the first pass) and the decisions timed ("n") of a compiled model fed ``stream``
+    (rows, cols, T) back to back ``repeats`` times."""
+    touch_ns, windows, labels = [], [], []
+    for rep in range(repeats):
+        for e in cm.stream(stream, timed=True):
+            if e["status_name"] == "decision":
+                touch_ns.append(e["push_ns"])
+                if rep == 0:
+                    s0, s1 = e["window"]
+                    windows.append(np.ascontiguousarray(stream[:, :, s0:s1]))
+                    labels.append(cm.class_names.index(e["label"]))
+    warm_us = float(np.median(cm._clf.time_classify_tensors(
+        eskin.subsample(windows[0][None], cm.D), 200))) / 1e3
+    return {"touch": float(np.median(touch_ns)) / 1e3, "warm": warm_us, "windows": windows,
+            "labels": labels, "n": len(touch_ns)}
+
+
+def measure_model(path: Path, campaign, repeats: int) -> None:
+    """The end-of-touch and warm latencies of the model file ``path`` on the recordings of
+    the campaign's last PARTICIPANTS_TEST participants."""
+    cm = CompiledModel(path)
+    part = np.asarray(campaign.participant)
+    people = np.unique(part)
+    idx = np.flatnonzero(np.isin(part, people[-PARTICIPANTS_TEST:]))
+    stream = np.ascontiguousarray(np.concatenate(list(np.asarray(campaign.signals)[idx]),
+                                                 axis=-1))
+    t = touch_latencies(cm, stream, repeats)
+    touch, warm, n = t["touch"], t["warm"], t["n"]
+    print(f"{path}: D = {cm.D}, alphas {cm.alpha_store}, {cm.n_support} support vectors, "
+          f"{cm.file_bytes} bytes")
+    print(f"end of touch -> label (C++ stream, median of {n} decisions): {touch:.1f} us; warm "
+          f"(one window 200 times): {warm:.1f} us. Load average: {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} cores.")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--campaign", type=Path, default=None, help="reuse/keep the simulated campaign")
     ap.add_argument("--Ds", default="20,50,100")
     ap.add_argument("--repeats", type=int, default=5, help="passes over the test windows (C++)")
+    ap.add_argument("--model", type=Path, default=None,
+                    help="measure this .eskin model on the campaign's recordings instead")
     args = ap.parse_args()
     from eskin._paths import find_executable
 
@@ -179,6 +223,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         campaign = load_or_simulate(args.campaign, tmp)
+        if args.model is not None:
+            measure_model(args.model, campaign, args.repeats)
+            return
         part = np.asarray(campaign.participant)
         people = np.unique(part)
         train_idx = np.flatnonzero(np.isin(part, people[:PARTICIPANTS_TRAIN]))
@@ -202,19 +249,9 @@ def main() -> None:
             # end of touch: the stream classifier's push that decides (window -> label)
             # one long-lived stream classifier, as on the controller: the test recordings
             # back to back
-            touch_ns, touch_windows, agree = [], [], []
-            for rep in range(args.repeats):
-                for e in cm.stream(stream, timed=True):
-                    if e["status_name"] == "decision":
-                        touch_ns.append(e["push_ns"])
-                        if rep == 0:
-                            s0, s1 = e["window"]
-                            touch_windows.append(np.ascontiguousarray(stream[:, :, s0:s1]))
-                            agree.append(base.decide_window(touch_windows[-1])
-                                         == cm.class_names.index(e["label"]))
-            touch_us = float(np.median(touch_ns)) / 1e3
-            warm_us = float(np.median(cm._clf.time_classify_tensors(
-                eskin.subsample(touch_windows[0][None], D), 200))) / 1e3
+            t = touch_latencies(cm, stream, args.repeats)
+            touch_us, warm_us, touch_windows, n_touch = t["touch"], t["warm"], t["windows"], t["n"]
+            agree = [base.decide_window(w) == lab for w, lab in zip(touch_windows, t["labels"])]
             numpy_touch_us = median_us(base.decide_window, touch_windows, 2)
             py_touch_us = median_us(
                 lambda w: model.decision_function(eskin.subsample(w[None], D)), touch_windows, 1)
@@ -230,7 +267,7 @@ def main() -> None:
                              terms=terms, alpha=cm.alpha_store, touch=touch_us,
                              np_touch=numpy_touch_us, warm=warm_us, py_touch=py_touch_us, rec=rec_us,
                              py_rec=py_rec_us, i_touch=instr_touch, i_rec=instr_rec,
-                             agree=float(np.mean(agree)), n=len(touch_ns)))
+                             agree=float(np.mean(agree)), n=n_touch))
         print()
         print("Footprint (float32 .eskin file):")
         print("| D | model bytes | bases in float32 | file / bases | SVs kept (machine terms) "
