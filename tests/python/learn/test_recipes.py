@@ -471,19 +471,20 @@ def test_evaluate_searches_in_every_fold_and_under_the_budget_in_the_same_folds(
 
 
 def test_cli_train_says_when_the_preference_kept_a_recipe_with_a_higher_error(sim_path, tmp_path):
-    """With seed 1 the lowest inner-CV error on this campaign is another recipe's, less than
-    one held-out pattern lower: train keeps the preferred recipe and says so; with seed 0 the
-    lowest error is tied with the preferred recipe's and nothing is said."""
+    """Without the host budget (the preference then keeps the larger D), with seed 1 the
+    lowest inner-CV error on this campaign is another recipe's, less than one held-out pattern
+    lower: train keeps the preferred recipe and says so; with seed 0 the lowest error is tied
+    with the preferred recipe's and nothing is said."""
     out = tmp_path / "m.joblib"
     r = runner.invoke(app, ["train", str(sim_path), "--quick", "--seed", "1", "-o", str(out),
-                            "--no-progress"])
+                            "--no-progress", "--decision-us", "0"])
     assert r.exit_code == 0, r.output
     pref = load_model(out).training["recipe_search"]["preference"]
     assert pref["recipe"] != pref["lowest"] and pref["gap"] > 0 and pref["within_one_pattern"]
     assert (f"kept the preferred recipe: {pref['lowest']} scored {100 * pref['gap']:.1f} points "
             "lower on the inner splits, less than one held-out pattern") in r.output
     r0 = runner.invoke(app, ["train", str(sim_path), "--quick", "--seed", "0", "-o",
-                             str(tmp_path / "m0.joblib"), "--no-progress"])
+                             str(tmp_path / "m0.joblib"), "--no-progress", "--decision-us", "0"])
     assert r0.exit_code == 0, r0.output
     assert load_model(tmp_path / "m0.joblib").training["recipe_search"]["preference"]["gap"] == 0
     assert "kept the preferred recipe" not in r0.output
