@@ -28,8 +28,9 @@ memory. :func:`host_decision_us` is :data:`HOST_NS_PER_SV` per support vector pl
 deterministic count (the same on any host and at any load, so training is reproducible), its
 figures fitted to the compiled classifier's warm decision times on the 2-core development host
 (float32 models of 4x4 patterns at D = 20, 50 and 100 and alpha 1, Q/2 and Q with 150 and 336
-support vectors: 0.06-0.11 us per support vector at D = 20, 0.26-0.61 us at D = 100; the fit
-is within 0.07 us per support vector of each, BENCHMARKS.md "Deployed inference").
+support vectors: 0.06-0.15 us per support vector at D = 20, 0.26-0.61 us at D = 100; the fit
+is within 0.09 us per support vector of each, BENCHMARKS.md "Deployed inference").
+``benchmarks/host_budget_fit.py`` measures those times and fits the figures;
 ``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
 """
 
