@@ -582,6 +582,19 @@ def _preferred_recipe(
     raise AssertionError("the lowest-error candidate's own recipe always qualifies")
 
 
+def _whole_grid(grid: Sequence[tuple], key: Callable[[Recipe], tuple], alive: list[Candidate],
+                rows: Mapping[Candidate, _Row], rank: Callable[[_Row], tuple]
+                ) -> list[Candidate]:
+    """The candidates of the likeliest choice not scored yet: the most preferred recipe (by
+    ``key``) that fits gets the whole ``grid``, not the sample. Under a budget that trades D the
+    most preferred family holds a recipe per D: its recipe ranked first on the sample (by
+    ``rank``) gets the whole grid (the others of the family keep their sample)."""
+    top = min(key(c.recipe) for c in alive)
+    family = [c for c in alive if key(c.recipe) == top]
+    recipe = min(family, key=lambda c: rank(rows[c])).recipe
+    return [Candidate(recipe, *g) for g in grid if Candidate(recipe, *g) not in rows]
+
+
 class RecipeSearch:
     """Successive halving over recipes and grid settings by grouped cross-validation.
 
@@ -750,7 +763,7 @@ class RecipeSearch:
             scored = list(alive)
             alive = score(alive, new)
             if r == 0 and self.significance is not None and alive:
-                more = self._whole_grid(alive, rows)
+                more = _whole_grid(self.grid, self._preference_key(), alive, rows, self._key)
                 for c in more:
                     rows[c] = _Row(c)
                 scored += more
@@ -770,18 +783,6 @@ class RecipeSearch:
         self.collapsed_ = [(r.candidate, sorted(r.collapsed)) for r in rows.values() if r.collapsed]
         self.seconds_ = time.perf_counter() - t0
         return self
-
-    def _whole_grid(self, alive: list[Candidate], rows: Mapping[Candidate, _Row]
-                    ) -> list[Candidate]:
-        """The candidates of the likeliest choice not scored yet: the most preferred recipe
-        that fits gets the whole grid, not the sample. Under a budget that trades D the most
-        preferred family holds a recipe per D: its recipe with the lowest error on the
-        sample gets the whole grid (the others of the family keep their sample)."""
-        key = self._preference_key()
-        top = min(key(c.recipe) for c in alive)
-        family = [c for c in alive if key(c.recipe) == top]
-        recipe = min(family, key=lambda c: self._key(rows[c])).recipe
-        return [Candidate(recipe, *g) for g in self.grid if Candidate(recipe, *g) not in rows]
 
     def _survivors(self, ranked: list[Candidate]) -> list[Candidate]:
         """The best 1/eta of the ranked candidates and, when a preference applies, the best

@@ -190,7 +190,7 @@ def test_under_a_budget_that_trades_D_the_familys_best_recipe_gets_the_whole_gri
     """Under a budget that trades D the most preferred family (machine, subsampling,
     negatives) holds a recipe per D: the one with the lowest error on the sample gets the
     whole grid, not all of them; without a budget the most preferred recipe does."""
-    from eskin.learn.recipes import _Row
+    from eskin.learn.recipes import _Row, _whole_grid
 
     d100, d20 = Recipe("svm", 100, "algorithm2", "all"), Recipe("svm", 20, "algorithm2", "all")
     other = Recipe("rls", 20, "even", "all")
@@ -200,10 +200,10 @@ def test_under_a_budget_that_trades_D_the_familys_best_recipe_gets_the_whole_gri
         rows[c] = _Row(c, errors={0: err})
     grid = ([0.1, 1.0], [1.0], ["1"], [None])
     anything = CandidateBudget(lambda c, n: True, "anything")
-    under = RecipeSearch([d100, d20, other], *grid, budget=anything)
-    assert under._whole_grid(list(rows), rows) == [Candidate(d20, 1.0, 1.0, "1", None)]
-    free = RecipeSearch([d100, d20, other], *grid)
-    assert free._whole_grid(list(rows), rows) == [Candidate(d100, 1.0, 1.0, "1", None)]
+    for search, whole in ((RecipeSearch([d100, d20, other], *grid, budget=anything), d20),
+                          (RecipeSearch([d100, d20, other], *grid), d100)):
+        assert _whole_grid(search.grid, search._preference_key(), list(rows), rows,
+                           search._key) == [Candidate(whole, 1.0, 1.0, "1", None)]
 
 
 def test_the_most_preferred_recipe_is_scored_on_the_whole_grid(data):
