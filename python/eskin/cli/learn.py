@@ -62,7 +62,10 @@ DECISION_US_HELP = (
 
 
 def _decision_us(value: float) -> dict[str, Any]:
-    """train_model's ``decision_us`` for --decision-us (0: None, no bound)."""
+    """train_model's ``decision_us`` for --decision-us (0: None, no bound; the default:
+    nothing, train_model's own default)."""
+    if value == DECISION_US_DEFAULT:
+        return {}
     return {"decision_us": float(value) if value > 0 else None}
 
 
