@@ -51,6 +51,12 @@ _FALLBACK = ("whole", "error")
 _CHUNK = 32
 # at rates where the DC blocker's cutoff is not below Nyquist, it moves to rate / this
 DC_CUTOFF_RATE_DIVISOR = 10.0
+#: the fewest warm-up frames whose median is the first noise floor (with one sample per frame the
+#: first frame's energy is zero, the DC blocker starting as the running mean: one or two warm-up
+#: frames would make the floor zero and the detector fire on the first frame, for ever)
+MIN_WARMUP_FRAMES = 5
+#: the fewest frames of idle energy the noise floor is the median of
+MIN_NOISE_FRAMES = 10
 
 
 @dataclass(frozen=True)
@@ -168,14 +174,18 @@ class WindowConfig:
         return cls(**d)
 
     def for_rate(self, sample_rate_hz: float) -> tuple["WindowConfig", list[str]]:
-        """This configuration made valid at ``sample_rate_hz``, and a note for each change.
+        """This configuration made valid and meaningful at ``sample_rate_hz``, and a note for
+        each change.
 
-        Times convert to samples at any rate (a frame is at least one sample), so the one
-        setting a rate can rule out is the DC blocker's cutoff, which must stay below half the
-        rate: where ``dc_cutoff_hz >= sample_rate_hz / 2`` (the default 5 Hz at 10 Hz or
-        less) it becomes a tenth of the rate (1 Hz at 10 Hz), which still removes the offset
-        and the slow drift of a low-rate sensor. Any other invalid value is the caller's and
-        raises ValueError naming the field.
+        Times convert to samples at any rate (a frame is at least one sample). The DC
+        blocker's cutoff must stay below half the rate: where ``dc_cutoff_hz >= sample_rate_hz
+        / 2`` (the default 5 Hz at 10 Hz or less) it becomes a tenth of the rate (1 Hz at 10
+        Hz), which still removes the offset and the slow drift of a low-rate sensor. The
+        settings counted in frames keep a floor (:func:`_frame_floors`): at least
+        :data:`MIN_WARMUP_FRAMES` warm-up frames and :data:`MIN_NOISE_FRAMES` noise-floor
+        frames, and a pad or a lookback that is not zero at least one frame; the defaults,
+        meant for kHz rates (a 10 ms frame of 30 samples), are above them down to 50 Hz. Any
+        other invalid value is the caller's and raises ValueError naming the field.
         """
         rate = _rate(sample_rate_hz)
         notes = []
@@ -187,12 +197,51 @@ class WindowConfig:
                 f"sample rate {rate:g} Hz: using {new:g} Hz (a tenth of the rate)"
             )
             cfg = replace(cfg, dc_cutoff_hz=new)
+        frame = int(cfg.resolve(rate)["frame_len"]) / rate
+        changes = _frame_floors(cfg, rate, frame)
+        for name, (value, why) in changes.items():
+            notes.append(
+                f"WindowConfig.{name} = {getattr(cfg, name):g} s at {rate:g} Hz (a frame of "
+                f"{frame:g} s) is {why}: using {value:g} s"
+            )
+        cfg = replace(cfg, **{name: value for name, (value, _) in changes.items()})
         cfg.resolve(rate)
         return cfg, notes
 
     def resolve(self, sample_rate_hz: float = 3000.0) -> dict[str, Any]:
         """The parameters in samples/frames at a rate (validates the configuration)."""
         return dict(_core.window_config_resolve(self.to_array(), _rate(sample_rate_hz)))
+
+
+def _frame_floors(cfg: WindowConfig, rate: float, frame: float) -> dict[str, tuple[float, str]]:
+    """The settings of ``cfg`` below their floor in frames of ``frame`` seconds at ``rate``:
+    name -> (the floor in seconds, why). See :meth:`WindowConfig.for_rate`."""
+
+    def samples(seconds: float) -> int:  # the C++ conversion (llround)
+        return int(np.floor(seconds * rate + 0.5))
+
+    def frames(n: int) -> str:
+        return f"{n} frame{'s' if n != 1 else ''}"
+
+    frame_len = samples(frame)
+    out: dict[str, tuple[float, str]] = {}
+    warmup = max(1, -(-samples(cfg.warmup_s) // frame_len))
+    if warmup < MIN_WARMUP_FRAMES:
+        out["warmup_s"] = (
+            MIN_WARMUP_FRAMES * frame,
+            f"{frames(warmup)}, fewer than the {MIN_WARMUP_FRAMES} whose median is the first floor",
+        )
+    noise = samples(cfg.noise_window_s) // frame_len
+    if noise < MIN_NOISE_FRAMES:
+        out["noise_window_s"] = (
+            MIN_NOISE_FRAMES * frame,
+            f"{frames(noise)}, fewer than the {MIN_NOISE_FRAMES} the noise floor is the median of",
+        )
+    for name in ("pad_before_s", "pad_after_s", "lookback_s"):
+        value = getattr(cfg, name)
+        if value > 0 and samples(value) < frame_len:
+            out[name] = (frame, "less than one frame")
+    return out
 
 
 @dataclass(frozen=True)

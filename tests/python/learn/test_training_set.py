@@ -42,3 +42,20 @@ def test_without_a_detector_the_window_is_the_recording():
 def test_no_recording_no_window(window):
     rec = ArrayRecordings(np.ones((1, 2, 2, 4)), sample_rate_hz=10.0)
     assert touch_window_lengths(rec, [], window=window).size == 0
+
+
+def test_at_10_hz_the_windows_and_the_D_they_fill_follow_the_touches():
+    """1 s touches (10 samples) in 7 s recordings at 10 Hz: the windows hold the touches (with
+    the settings window_config_for_rate gives, WindowConfig.for_rate), so D is capped near the
+    touches' length, not at the recording's 70 samples."""
+    rng = np.random.default_rng(4)
+    x = rng.normal(0, 1.0, (6, 5, 6, 70)) + rng.integers(-50, 50, (6, 5, 6, 1))
+    for i, at in enumerate([12, 20, 28, 36, 44, 52]):
+        x[i, 1:4, 2:5, at : at + 10] += 20 * np.sin(np.pi * np.arange(1, 11) / 11)
+    rec = ArrayRecordings(x, sample_rate_hz=10.0)
+    lengths = touch_window_lengths(rec, np.arange(6))
+    assert np.all((lengths >= 10) & (lengths <= 17)), lengths
+    assert 10 <= fillable_D(lengths) <= 17
+    prep = preprocess_campaign(rec, np.arange(6), [(10, "even")])
+    np.testing.assert_array_equal(prep.windows[:, 1] - prep.windows[:, 0], lengths)
+    assert any("warmup_s = 0.1 s at 10 Hz" in n for n in prep.notes)

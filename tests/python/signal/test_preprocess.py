@@ -250,6 +250,44 @@ def test_any_grid_and_rate():
     )
 
 
+def test_for_rate_keeps_the_kHz_defaults_and_floors_the_frame_counts_at_low_rates():
+    assert WindowConfig().for_rate(3000.0) == (WindowConfig(), [])
+    assert WindowConfig().for_rate(50.0) == (WindowConfig(), [])  # 5 warm-up frames already
+    cfg, notes = WindowConfig().for_rate(10.0)  # a frame is one 0.1 s sample
+    assert cfg == WindowConfig(dc_cutoff_hz=1.0, warmup_s=0.5)
+    assert notes[1] == ("WindowConfig.warmup_s = 0.1 s at 10 Hz (a frame of 0.1 s) is 1 frame, "
+                        "fewer than the 5 whose median is the first floor: using 0.5 s")
+    r = cfg.resolve(10.0)
+    assert (r["warmup_frames"], r["noise_frames"], r["pad_before"], r["lookback_frames"]) == (
+        5, 10, 1, 3)
+    cfg, notes = WindowConfig().for_rate(5.0)  # the 0.05 s pads would round to no sample
+    assert cfg == WindowConfig(dc_cutoff_hz=0.5, warmup_s=1.0, noise_window_s=2.0,
+                               pad_before_s=0.2, pad_after_s=0.2)
+    assert len(notes) == 5 and "pad_after_s = 0.05 s at 5 Hz (a frame of 0.2 s) is less" in notes[4]
+    r = cfg.resolve(5.0)
+    assert (r["warmup_frames"], r["noise_frames"], r["pad_before"], r["pad_after"]) == (5, 10, 1, 1)
+    given = WindowConfig(warmup_s=0.0, pad_before_s=0.0, lookback_s=0.0)
+    cfg, _ = given.for_rate(10.0)  # no pad and no lookback stay none
+    assert (cfg.warmup_s, cfg.pad_before_s, cfg.lookback_s) == (0.5, 0.0, 0.0)
+
+
+def test_at_10_hz_the_window_holds_the_touch_not_the_recording():
+    """A 1 s touch in a 7 s recording at 10 Hz. With one warm-up frame (0.1 s) the first noise
+    floor is the first frame's energy, which the DC blocker makes zero: the detector fires on
+    the next frame and the window is the whole recording. The settings of for_rate find it."""
+    rate = 10.0
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 1.0, (5, 6, 70)) + rng.integers(-50, 50, (5, 6, 1))
+    x[1:4, 2:5, 30:40] += 20 * np.sin(np.pi * np.arange(1, 11) / 11)
+    one_frame = WindowConfig(dc_cutoff_hz=1.0)
+    np.testing.assert_array_equal(detect_windows(x, sample_rate_hz=rate, config=one_frame),
+                                  [0, 70])
+    cfg, _ = WindowConfig().for_rate(rate)
+    t = detect_touches(x[None], sample_rate_hz=rate, config=cfg)
+    assert t.found[0] and t.onset[0] == 30 and t.start[0] == 29
+    assert 40 <= t.offset[0] <= 45 and t.stop[0] == t.offset[0] + 1  # the DC blocker's tail
+
+
 @settings(max_examples=25, deadline=None)
 @given(
     a=st.integers(500, 15000),
