@@ -16,8 +16,8 @@ Steps:
    the D the default takes when the detector's windows hold the touches (as on a recorded
    campaign whose windows' median is 10 samples).
 3. ``--baseline``: ``eskin train --memory-limit 64 --max-model-size 0``, the search's distances
-   in one block and no size limit (the behaviour before both; on this campaign the detector's
-   windows are the whole recordings, so D is searched among 20, 50 and 70 as before).
+   in one block and no size limit (the behaviour before both; D is capped by the median touch
+   window, 17-18 samples on this campaign since the detector keeps 5 warm-up frames at 10 Hz).
 4. ``--evaluate``: ``eskin evaluate --D N --baselines vector,minirocket --no-live`` (leave one
    participant out): wall and CPU, the accuracy of the tensor recipe and of the baselines.
 
