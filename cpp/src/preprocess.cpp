@@ -478,10 +478,14 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
     pool_.assign(static_cast<std::size_t>(slots * n_taxels), int16_t{0});
   }
 #endif
+#if !defined(ESKIN_DEVICE)
   if (shared != nullptr && mode_ != SampleStore::kCodes) {
     detail::raise<std::invalid_argument>(
         "TouchDetector: shared window buffers need SampleStore::kCodes on the host");
   }
+#else
+  (void)shared;  // a controller has one stream and its own buffers
+#endif
   reset();
 }
 
