@@ -1006,6 +1006,15 @@ TEST(ModelChecks, BasesMustBeOrthonormalToTheFormatsTolerance) {
     put_u32(b, at, u);
     EXPECT_TRUE(says(refused(b), "is not orthonormal up to its rank")) << refused(b);
   }
+  {  // an entry exactly at the range bound 1 + 1e-5 passes the range check (strictly above is
+     // refused there) and is refused as not orthonormal; just above the bound, by the range
+    Bytes b = fixture("float64");
+    const std::size_t at = largest(b, first_basis(b), 8);
+    put_f64(b, at, 1.0 + 1e-5);
+    EXPECT_TRUE(says(refused(b), "is not orthonormal up to its rank")) << refused(b);
+    put_f64(b, at, std::nextafter(1.0 + 1e-5, 2.0));
+    EXPECT_TRUE(says(refused(b), "(entries of orthonormal columns lie in [-1, 1])")) << refused(b);
+  }
   {  // a column beyond the rank must be zero: rank 1 declared for support vector 1's basis of
      // 2 columns in mode 0
     Bytes b = fixture("float64");
@@ -1033,6 +1042,17 @@ TEST(ModelChecks, HeaderFlagsAndFileSize) {
   odd.insert(odd.end() - 4, {0, 0});
   put_u32(odd, 16, static_cast<std::uint32_t>(odd.size()));
   EXPECT_TRUE(says(refused(odd), " is impossible")) << refused(odd);
+}
+
+TEST(ModelChecks, NoDataWithALengthIsAnIoError) {
+  // a null pointer with one byte claimed: refused before anything is read
+  try {
+    Model::from_bytes(nullptr, 1);
+    FAIL() << "no error for null data";
+  } catch (const ModelFormatError& e) {
+    EXPECT_EQ(e.code(), ModelError::kIo);
+    EXPECT_NE(std::string(e.what()).find("null data"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ModelChecks, TheMagicAloneIsATruncatedModel) {
