@@ -10,6 +10,7 @@
 #include <cstring>
 #include <new>
 #include <fstream>
+#include <initializer_list>
 #include <iterator>
 #include <limits>
 #include <random>
@@ -834,6 +835,20 @@ std::vector<double> random_tensor(const Model& m, double scale, unsigned seed) {
   return x;
 }
 
+// The compiled classifier's decision values on a random tensor per seed equal hand_decision's,
+// machine by machine, to 1e-12.
+void expect_hand_decisions(const Model& m, std::initializer_list<unsigned> seeds) {
+  eskin::Classifier clf(m);
+  for (const unsigned seed : seeds) {
+    const std::vector<double> x = random_tensor(m, 1.0, seed);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    const std::vector<double> want = hand_decision(m, x);
+    for (std::size_t k = 0; k < m.machines().size(); ++k)
+      EXPECT_NEAR(d.values[k], want[k], 1e-12) << "machine " << k << ", seed " << seed;
+  }
+}
+
 }  // namespace
 
 TEST(ModelAmplitude, HostDecisionEqualsTheHandComputation) {
@@ -1496,15 +1511,7 @@ TEST(ModelDecision, MachinesOfDifferentAlphaEachUseTheirOwn) {
   ASSERT_EQ(m.machines()[0].alpha[0], 1);
   ASSERT_EQ(m.machines()[1].alpha[0], 2);
   ASSERT_EQ(m.machines()[2].alpha[2], 3);
-  eskin::Classifier clf(m);
-  for (const unsigned seed : {3u, 4u}) {
-    const std::vector<double> x = random_tensor(m, 1.0, seed);
-    eskin::Decision d;
-    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
-    const std::vector<double> want = hand_decision(m, x);
-    for (int k = 0; k < 3; ++k)
-      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
-  }
+  expect_hand_decisions(m, {3u, 4u});
 }
 
 // ---- the calibrated rule of a binary model: one machine, z = a f + b; the label is its
@@ -1566,15 +1573,8 @@ TEST(ModelDecision, TheProjectionRouteEqualsTheHandComputation) {
   ASSERT_EQ(m.basis_rows(2), 16);
   ASSERT_EQ(m.machines()[0].alpha[2], 5);
   ASSERT_EQ(m.machines()[1].alpha[2], 6);
+  expect_hand_decisions(m, {1u, 2u, 3u});
   eskin::Classifier clf(m);
-  for (const unsigned seed : {1u, 2u, 3u}) {
-    const std::vector<double> x = random_tensor(m, 1.0, seed);
-    eskin::Decision d;
-    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
-    const std::vector<double> want = hand_decision(m, x);
-    for (int k = 0; k < 2; ++k)
-      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
-  }
   // the float32 model of the same description decides as the float64 one, to float precision
   const Bytes b32 = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_projection_float32.eskin");
   const Model m32 = Model::from_bytes(b32.data(), b32.size());
@@ -1972,13 +1972,5 @@ TEST(ModelDecision, AnUnevenGridWithItsOwnAlphaPerModeEqualsTheHandComputation) 
   ASSERT_EQ(m.alpha_store(0), 3);
   ASSERT_EQ(m.alpha_store(1), 4);
   ASSERT_EQ(m.alpha_store(2), 5);
-  eskin::Classifier clf(m);
-  for (const unsigned seed : {41u, 42u}) {
-    const std::vector<double> x = random_tensor(m, 1.0, seed);
-    eskin::Decision d;
-    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
-    const std::vector<double> want = hand_decision(m, x);
-    for (int k = 0; k < 2; ++k)
-      EXPECT_NEAR(d.values[k], want[static_cast<std::size_t>(k)], 1e-12) << "machine " << k;
-  }
+  expect_hand_decisions(m, {41u, 42u});
 }
