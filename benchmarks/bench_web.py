@@ -173,14 +173,15 @@ def cpu_of(proc: subprocess.Popen) -> float:
 
 
 def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
-        args: argparse.Namespace, loop_reads: bool = False) -> dict:
+        args: argparse.Namespace, reading: str = "thread") -> dict:
     """One run. ``page``: "none" (the browser idle, no page served), "open" (the page served,
     opened in a tab and loaded before the stream starts), "opening" (the page served, opened in
     a tab at ``args.open_at`` of the stream's expected duration), "blank" (no page served, a
     blank tab opened as in "opening"), "launch" (the page served, a
     second chromium started on it; the stream starts once the page has connected: what is
-    measured is the browser's own start-up). ``loop_reads``: the baseline
-    listener that reads the port in its own loop (no reading thread)."""
+    measured is the browser's own start-up). ``reading``: "thread" (the listener as shipped:
+    its reading thread, real-time where allowed), "ordinary" (that thread under the ordinary
+    policy) or "loop" (the baseline listener that reads the port in its own loop)."""
     sim, pty = start_sim(replay, "--model", model, "--speed", speed, "--tick", 10,
                          "--wait-start", fifo=args.sim_fifo)
     server = tab = opener = launched = None
@@ -207,7 +208,8 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
         cpu0 = server.cpu_s if server is not None else 0.0
         browser0 = browser.cpu() + (launched.cpu() if launched is not None else 0.0)
         load0 = os.getloadavg()[0]
-        queue = {"read_queue_bytes": 0} if loop_reads else {}
+        queue = {"loop": {"read_queue_bytes": 0}, "ordinary": {"reader_priority": 0},
+                 "thread": {}}[reading]
         with LinkListener(pty, model=model, replay=replay, stats_interval=0.25, **queue) as link:
             t_cpu, t_wall = time.thread_time(), time.perf_counter()
             if page in ("opening", "blank"):
@@ -226,7 +228,9 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
             cpu, wall = time.thread_time() - t_cpu, time.perf_counter() - t_wall
             stats = link.stats
             backlog = link.read_backlog_peak
-        out = {"speed": speed, "page": page, "loop_reads": loop_reads, "samples": stats.samples,
+            realtime = link.reader_realtime
+        out = {"speed": speed, "page": page, "reading": reading, "realtime": realtime,
+               "samples": stats.samples,
                "lost": stats.lost_samples, "dropped": stats.controller_dropped_samples,
                "pacing_p99_us": stats.controller_pacing_p99_us,
                "wall_s": wall, "listener_cpu_s": cpu, "holes": holes,
@@ -256,33 +260,42 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
         sim.communicate(timeout=30)
 
 
+READINGS = {"thread": "", "ordinary": " (ordinary reader)", "loop": " (loop reads)"}
 CASES = {"none": "no page", "open": "page open", "opening": "page opened",
          "blank": "blank tab opened", "launch": "browser launched"}
 
 
 def _case(r: dict) -> str:
-    return CASES[r["page"]] + (" (loop reads)" if r["loop_reads"] else "")
+    return CASES[r["page"]] + READINGS[r["reading"]]
 
 
 def _line(r: dict) -> str:
     extra = ""
     if r["page"] not in ("none", "blank"):
         extra = (f" server cpu {r['server_cpu_s']:.2f} s = "
-                 f"{r['server_cpu_s'] / r['listener_cpu_s']:.3f} x listener; "
+                 f"{r['server_cpu_s'] / r['listener_cpu_s']:.3f} x listener, "
+                 f"{1000 * r['server_cpu_s'] / (r['samples'] / 3000):.1f} ms per second of "
+                 f"stream; "
                  f"display blocks skipped {r['blocks_skipped']}")
     return (f"speed {r['speed']:g} {_case(r):<24}: samples {r['samples']} lost {r['lost']} "
             f"dropped {r['dropped']} (simulator pacing p99 {r['pacing_p99_us']:.0f} us) wall "
             f"{r['wall_s']:.1f} s listener cpu {r['listener_cpu_s']:.2f} s read backlog peak "
-            f"{r['backlog_kib']:.0f} KiB; load average {r['load'][0]:.1f} -> "
+            f"{r['backlog_kib']:.0f} KiB{' (real-time reader)' if r['realtime'] else ''}; "
+            f"load average {r['load'][0]:.1f} -> "
             f"{r['load'][1]:.1f}; chromium cpu {r['browser_cpu_s']:.2f} s{extra}"
             + (f"; first holes (s into the run, samples) {r['holes']}" if r["holes"] else ""))
 
 
 def _summary(rows: list[dict]) -> None:
     print("\nsummary (per speed: every run, in the order run):")
-    for s, loop in sorted({(r["speed"], r["loop_reads"]) for r in rows}):
-        runs = [r for r in rows if r["speed"] == s and r["loop_reads"] == loop]
-        who = "the loop reads the port" if loop else "a reading thread"
+    for s, reading in sorted({(r["speed"], r["reading"]) for r in rows}):
+        runs = [r for r in rows if r["speed"] == s and r["reading"] == reading]
+        rt = {r["realtime"] for r in runs}
+        who = {"loop": "the loop reads the port",
+               "ordinary": "a reading thread under the ordinary policy",
+               "thread": "a reading thread" + (", real-time" if rt == {True} else
+                                               ", under the ordinary policy" if rt == {False}
+                                               else ", real-time in some runs")}[reading]
         loads = [x for r in runs for x in r["load"]]
         print(f"  speed {s:g}, {who}, load average {min(loads):.1f}-{max(loads):.1f}, read "
               f"backlog peak {max(r['backlog_kib'] for r in runs):.0f} KiB:")
@@ -296,9 +309,11 @@ def _summary(rows: list[dict]) -> None:
                     f"{[round(r['wall_s'], 1) for r in b]} s")
             if case not in ("none", "blank"):
                 ratio = [r["server_cpu_s"] / r["listener_cpu_s"] for r in b]
-                rt = [r["server_cpu_s"] / r["wall_s"] for r in b]
+                core = [r["server_cpu_s"] / r["wall_s"] for r in b]
+                per_s = [1000 * r["server_cpu_s"] / (r["samples"] / 3000) for r in b]
                 line += (f"; server CPU / listener CPU {min(ratio):.3f}-{max(ratio):.3f}, "
-                         f"{100 * min(rt):.1f}-{100 * max(rt):.1f} % of a core")
+                         f"{100 * min(core):.1f}-{100 * max(core):.1f} % of a core, "
+                         f"{min(per_s):.1f}-{max(per_s):.1f} ms per second of stream")
             if s == 0:
                 line += f"; throughput {max(r['samples'] / r['wall_s'] for r in b) / 3000:.0f}x"
             print(line)
@@ -333,7 +348,12 @@ def main() -> None:
                          "the reading thread (LinkListener(read_queue_bytes=0)), in turn")
     ap.add_argument("--tick-hz", type=float, default=None,
                     help="display frames a second (default: the server's)")
+    ap.add_argument("--ordinary-reader", action="store_true",
+                    help="also run the listener with its reading thread under the ordinary "
+                         "scheduling policy (LinkListener(reader_priority=0)), in turn")
     args = ap.parse_args()
+    readings = ["thread", *(["ordinary"] if args.ordinary_reader else []),
+                *(["loop"] if args.baseline else [])]
     cases = [c for c in args.cases.split(",") if c]
     if not cases or any(c not in CASES for c in cases):
         sys.exit(f"bench_web.py: --cases {args.cases}: expected some of {','.join(CASES)}")
@@ -352,9 +372,9 @@ def main() -> None:
     try:
         for speed in (float(s) for s in args.speeds.split(",")):
             for k in range(args.repeat):
-                for loop_reads in ((False, True) if args.baseline else (False,)):
+                for reading in readings:
                     for page in (cases if k % 2 == 0 else cases[::-1]):
-                        r = run(model, replay, speed, page, browser, args, loop_reads)
+                        r = run(model, replay, speed, page, browser, args, reading)
                         rows.append(r)
                         print(_line(r), flush=True)
     finally:

@@ -38,9 +38,9 @@ std::string_view view(const py::bytes& b) {
 
 void bind_port_reader(py::module_& s) {
   py::class_<PortReader>(s, "PortReader")
-      .def(py::init<const SerialPort&, std::size_t, std::size_t, int>(), py::arg("port"),
+      .def(py::init<const SerialPort&, std::size_t, std::size_t, int, int>(), py::arg("port"),
            py::arg("capacity"), py::arg("trickle_bytes") = 0, py::arg("trickle_wait_ms") = 0,
-           py::keep_alive<1, 2>())
+           py::arg("realtime_priority") = 0, py::keep_alive<1, 2>())
       .def("start", [](PortReader& r) { return serial::port_status_name(r.start()); })
       .def("stop", &PortReader::stop, py::call_guard<py::gil_scoped_release>())
       .def(
@@ -55,6 +55,7 @@ void bind_port_reader(py::module_& s) {
             return read_result(buf, res);
           },
           py::arg("size"), py::arg("timeout_s"))
+      .def_property_readonly("realtime", &PortReader::realtime)
       .def_property_readonly("queued", &PortReader::queued)
       .def_property_readonly("peak", &PortReader::peak)
       .def_property_readonly("overflow", &PortReader::overflow)

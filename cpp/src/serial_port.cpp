@@ -2,6 +2,8 @@
 
 #include <fcntl.h>
 #include <poll.h>
+#include <pthread.h>
+#include <sched.h>
 #include <sys/ioctl.h>
 #include <termios.h>
 #include <unistd.h>
@@ -352,18 +354,26 @@ PortStatus SerialPort::drain(int timeout_ms) {
 // -- PortReader ----------------------------------------------------------------------------
 
 PortReader::PortReader(const SerialPort& port, std::size_t capacity, std::size_t trickle_bytes,
-                       int trickle_wait_ms)
+                       int trickle_wait_ms, int realtime_priority)
     : fd_(port.fd()),
       path_(port.path()),
       capacity_(capacity),
       trickle_bytes_(trickle_bytes),
-      trickle_wait_ms_(trickle_wait_ms) {}
+      trickle_wait_ms_(trickle_wait_ms),
+      realtime_priority_(realtime_priority) {}
 
 PortReader::~PortReader() { stop(); }
 
 PortStatus PortReader::start() {
   if (fd_ < 0) return PortStatus::not_open;
-  if (!thread_.joinable()) thread_ = std::thread([this] { run(); });
+  if (thread_.joinable()) return PortStatus::ok;
+  thread_ = std::thread([this] { run(); });
+  pthread_setname_np(thread_.native_handle(), "eskin-port");  // for top -H, ps -L, perf
+  if (realtime_priority_ > 0) {  // refused (EPERM) without the privilege: the ordinary policy
+    sched_param sp{};
+    sp.sched_priority = std::min(realtime_priority_, sched_get_priority_max(SCHED_FIFO));
+    realtime_ = pthread_setschedparam(thread_.native_handle(), SCHED_FIFO, &sp) == 0;
+  }
   return PortStatus::ok;
 }
 

@@ -116,12 +116,21 @@ class SerialPort {
 /// the next one, so that a port written a byte at a time (QEMU's UART) is taken in chunks
 /// instead of one wake-up per byte.
 ///
+/// With `realtime_priority` > 0 the thread asks for the real-time policy SCHED_FIFO at that
+/// priority (1..99), where the system allows it (root, CAP_SYS_NICE, or an RLIMIT_RTPRIO of
+/// at least that priority), so that it runs as soon as the driver has bytes, ahead of every
+/// program of the ordinary policy (a browser, a build): on a loaded machine such a program
+/// keeps an ordinary thread waiting for tens of milliseconds, longer than the driver's and the
+/// controller's buffers hold a fast stream. Its work is bounded by what arrives (it waits in
+/// poll() otherwise). Where it is not allowed the thread runs under the ordinary policy;
+/// realtime() says which.
+///
 /// The port must stay open while the reader runs (stop() before closing it); writing to the
 /// port from another thread meanwhile is fine. Host only (a thread, heap buffers).
 class PortReader {
  public:
   PortReader(const SerialPort& port, std::size_t capacity, std::size_t trickle_bytes = 0,
-             int trickle_wait_ms = 0);
+             int trickle_wait_ms = 0, int realtime_priority = 0);
   ~PortReader();
   PortReader(const PortReader&) = delete;
   PortReader& operator=(const PortReader&) = delete;
@@ -135,6 +144,8 @@ class PortReader {
   /// ended on one (last_error() says why), timeout when nothing came in time.
   IoResult take(std::uint8_t* buf, std::size_t size, int timeout_ms);
 
+  /// True when the reading thread runs under SCHED_FIFO (see realtime_priority).
+  bool realtime() const { return realtime_; }
   std::size_t queued() const;
   /// The most bytes ever queued at once (how far the consumer fell behind).
   std::size_t peak() const;
@@ -153,6 +164,8 @@ class PortReader {
   std::size_t capacity_;
   std::size_t trickle_bytes_;
   int trickle_wait_ms_;
+  int realtime_priority_;
+  bool realtime_ = false;
   std::thread thread_;
   std::atomic<bool> stop_{false};
   mutable std::mutex mu_;

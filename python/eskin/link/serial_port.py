@@ -14,7 +14,9 @@ SerialPortError (an OSError) naming the port and the cause. Blocking calls relea
 moves what arrives into a large queue (no Python, no GIL): :meth:`SerialPort.read` then takes
 from the queue, and a reader of the bytes that is busy or descheduled for a while loses none
 of them, where the driver's own buffers (about 20 KiB for a pseudo-terminal) would overflow
-within tens of milliseconds of a fast stream.
+within tens of milliseconds of a fast stream. Where the system allows it, that thread runs
+under the real-time policy (``realtime_priority``), ahead of the ordinary programs that would
+otherwise keep it waiting that long on a loaded machine.
 """
 
 from __future__ import annotations
@@ -87,18 +89,27 @@ class SerialPort:
 
     # -- transfers ------------------------------------------------------------------------------
     def start_reader(self, capacity: int = 64 << 20, trickle_bytes: int = 0,
-                     trickle_wait: float = 0.0) -> None:
+                     trickle_wait: float = 0.0, realtime_priority: int = 0) -> None:
         """Read the port from now on on a thread of the compiled core, into a queue of up to
         ``capacity`` bytes (what would overflow it is dropped and counted in
         :attr:`reader_overflow`); :meth:`read` takes from the queue. After a read of fewer
         than ``trickle_bytes`` the thread waits ``trickle_wait`` seconds before the next one
-        (a port written a byte at a time is then taken in chunks). Once per port."""
+        (a port written a byte at a time is then taken in chunks). With
+        ``realtime_priority`` > 0 the thread runs under the real-time policy SCHED_FIFO at
+        that priority where the system allows it (:attr:`reader_realtime`). Once per port."""
         if self._reader is not None:
             return
         reader = _core.serial.PortReader(self._port, int(capacity), int(trickle_bytes),
-                                         int(round(float(trickle_wait) * 1000)))
+                                         int(round(float(trickle_wait) * 1000)),
+                                         int(realtime_priority))
         self._check(reader.start())
         self._reader = reader
+
+    @property
+    def reader_realtime(self) -> bool:
+        """True when the reading thread runs under SCHED_FIFO (root, CAP_SYS_NICE or an
+        RLIMIT_RTPRIO allowed it); False under the ordinary policy or without one."""
+        return bool(self._reader.realtime) if self._reader is not None else False
 
     @property
     def reader_peak(self) -> int:

@@ -37,6 +37,49 @@ def test_round_trip_all_byte_values(pty):
     assert not port.is_open
 
 
+def _reading_threads() -> list[int]:
+    """This process's threads named as the port's reading thread names itself."""
+    out = []
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/comm") as f:
+                if f.read().strip() == "eskin-port":
+                    out.append(int(tid))
+        except OSError:  # a thread that has just ended
+            pass
+    return out
+
+
+def _may_be_realtime() -> bool:
+    """Whether this process may put a thread under SCHED_FIFO at priority 1: CAP_SYS_NICE
+    in its effective capabilities, or an RLIMIT_RTPRIO of at least 1."""
+    import resource
+
+    with open("/proc/self/status") as f:
+        caps = next(int(line.split()[1], 16) for line in f if line.startswith("CapEff:"))
+    return bool(caps >> 23 & 1) or resource.getrlimit(resource.RLIMIT_RTPRIO)[0] >= 1
+
+
+@pytest.mark.parametrize("priority", [0, 1])
+def test_reader_thread_runs_real_time_where_the_system_allows_it(pty, priority):
+    master, path = pty
+    before = set(_reading_threads())
+    with SerialPort(path) as port:
+        assert port.reader_realtime is False  # no reading thread yet
+        port.start_reader(capacity=1 << 16, realtime_priority=priority)
+        (tid,) = set(_reading_threads()) - before
+        expected = priority > 0 and _may_be_realtime()
+        assert port.reader_realtime is expected
+        policy = os.sched_getscheduler(tid)
+        assert policy == (os.SCHED_FIFO if expected else os.SCHED_OTHER)
+        assert os.sched_getparam(tid).sched_priority == (priority if expected else 0)
+        os.write(master, b"\x01\x02\x03")  # and it reads as the ordinary one does
+        got = b""
+        while len(got) < 3:
+            got += port.read(16, timeout=1.0)
+        assert got == b"\x01\x02\x03"
+
+
 def test_timeout_is_silence_not_closure(pty):
     master, path = pty
     with SerialPort(path) as port:
