@@ -227,8 +227,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
                     holes.append((round(time.perf_counter() - t_wall, 2), ev.lost_before))
             cpu, wall = time.thread_time() - t_cpu, time.perf_counter() - t_wall
             stats = link.stats
-            backlog = link.read_backlog_peak
-            realtime = link.reader_realtime
+            backlog, realtime = link.port.reader_peak, link.port.reader_realtime
         out = {"speed": speed, "page": page, "reading": reading, "realtime": realtime,
                "samples": stats.samples,
                "lost": stats.lost_samples, "dropped": stats.controller_dropped_samples,

@@ -249,12 +249,10 @@ class LinkListener:
         self.replay = replay
         self.replay_offset = int(replay_offset)
         self.classifier: Optional[HostClassifier] = (
-            None if model is None else load_host_classifier(model, backend)
-        )
+            None if model is None else load_host_classifier(model, backend))
         self.record_path = None if record is None else Path(record)
         self.record_policy = record_policy
-        self.reconnect_enabled = bool(reconnect)
-        self.reconnect_timeout = float(reconnect_timeout)
+        self.reconnect_enabled, self.reconnect_timeout = bool(reconnect), float(reconnect_timeout)
         self.send_start = bool(send_start)
         self.read_timeout = float(read_timeout)
         self.max_fill_s = float(max_fill_s)
@@ -263,8 +261,7 @@ class LinkListener:
         self.recorder: Optional[StreamRecorder] = recorder
         if recorder is not None and self.record_path is not None:
             raise ValueError("give record= (a campaign file) or recorder=, not both")
-        self.read_queue_bytes = int(read_queue_bytes)
-        self.reader_priority = int(reader_priority)
+        self.read_queue_bytes, self.reader_priority = int(read_queue_bytes), int(reader_priority)
         if self.record_path is not None:
             self.recorder = _file_recorder(self, record_policy, context_s=context_s,
                                            overwrite=overwrite, source=record_source,
@@ -290,23 +287,17 @@ class LinkListener:
         return self
 
     def _start_reader(self) -> None:
-        """The port is read on a thread of the compiled core that does nothing else, into a
-        large queue: what the driver holds (about 20 KiB on a pseudo-terminal, 20 ms of a fast
-        replay) is taken at once even while this loop, or a thread beside it, is busy."""
+        """The port is read on a thread of the compiled core that does nothing else, into a large
+        queue: what the driver holds is taken at once even while this loop is busy."""
         assert self._port is not None
         if self.read_queue_bytes > 0:
             self._port.start_reader(self.read_queue_bytes, TRICKLE_BYTES, TRICKLE_WAIT_S,
                                     self.reader_priority)
 
     @property
-    def read_backlog_peak(self) -> int:
-        """The most bytes the port's reading thread held for this loop at once."""
-        return self._port.reader_peak if self._port is not None else 0
-
-    @property
-    def reader_realtime(self) -> bool:
-        """True when the port's reading thread runs under the real-time policy."""
-        return self._port.reader_realtime if self._port is not None else False
+    def port(self) -> Optional[SerialPort]:
+        """The port once open (its reading thread's ``reader_peak``, ``reader_realtime``)."""
+        return self._port
 
     def _send_start(self) -> None:
         assert self._port is not None
