@@ -18,13 +18,14 @@ scheduling group of its own (setsid: Linux's autogroup), as a browser the user s
 Prints, per run: samples received, lost (holes in the indices, reconciled with the
 controller's count) and dropped by the controller, how late the simulator was (its pacing
 p99), the wall time, the listener thread's CPU time, the most bytes the port's reading thread
-held for the loop, the load average before and after, chromium's CPU time over the stream (all
-its processes); with the page the server thread's CPU time (also as a ratio to the
-listener's) and DATA blocks the page skipped (display data, never samples). Then a summary per
-speed.
+held for the loop, how long that thread waited for a processor while runnable (its
+run-queue time, /proc/self/task/*/schedstat), the load average before and after, chromium's
+CPU time over the stream (all its processes); with the page the server thread's CPU time (as a
+ratio to the listener's, and per second of stream) and DATA blocks the page skipped (display
+data, never samples). Then a summary per speed.
 
     python benchmarks/bench_web.py [--seconds 60] [--speeds 0,1,5,10] [--repeat 2]
-        [--cases none,open,opening]
+        [--cases none,open,opening] [--ordinary-reader] [--baseline]
 
 Speed 0 is unpaced (the simulator waits for the host: nothing can be lost, the figure is the
 throughput); paced speeds lose samples when the host does not read in time. The simulator
@@ -153,6 +154,22 @@ def start_sim(replay: Path, *args: object, fifo: int = 0) -> tuple[subprocess.Po
     return proc, first[1]
 
 
+def reader_schedstat() -> tuple[float, int]:
+    """The port's reading thread (the newest thread of this process named ``eskin-port``):
+    its seconds waiting for a processor while runnable so far, and its wake-ups
+    (``/proc/self/task/*/schedstat``, Linux); (0, 0) without one."""
+    best = (0, 0.0, 0)
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            if Path(f"/proc/self/task/{tid}/comm").read_text().strip() != "eskin-port":
+                continue
+            _, wait, n = Path(f"/proc/self/task/{tid}/schedstat").read_text().split()
+        except (OSError, ValueError):
+            continue
+        best = max(best, (int(tid), int(wait) / 1e9, int(n)))
+    return best[1], best[2]
+
+
 def cpu_of(proc: subprocess.Popen) -> float:
     """CPU seconds of a process and its children so far (psutil)."""
     import psutil
@@ -212,6 +229,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
                  "thread": {}}[reading]
         with LinkListener(pty, model=model, replay=replay, stats_interval=0.25, **queue) as link:
             t_cpu, t_wall = time.thread_time(), time.perf_counter()
+            wait0, wakes0 = reader_schedstat()
             if page in ("opening", "blank"):
                 opened: list[str] = []
                 url = "about:blank" if server is None else server.url
@@ -226,6 +244,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
                 if isinstance(ev, DataBlock) and ev.lost_before and len(holes) < 4:
                     holes.append((round(time.perf_counter() - t_wall, 2), ev.lost_before))
             cpu, wall = time.thread_time() - t_cpu, time.perf_counter() - t_wall
+            wait1, wakes1 = reader_schedstat()
             stats = link.stats
             backlog, realtime = link.port.reader_peak, link.port.reader_realtime
         out = {"speed": speed, "page": page, "reading": reading, "realtime": realtime,
@@ -233,6 +252,7 @@ def run(model: Path, replay: Path, speed: float, page: str, browser: Browser,
                "lost": stats.lost_samples, "dropped": stats.controller_dropped_samples,
                "pacing_p99_us": stats.controller_pacing_p99_us,
                "wall_s": wall, "listener_cpu_s": cpu, "holes": holes,
+               "reader_wait_ms": 1000 * (wait1 - wait0), "reader_wakes": wakes1 - wakes0,
                "backlog_kib": backlog / 1024, "load": (load0, os.getloadavg()[0]),
                "browser_cpu_s": browser.cpu() - browser0
                + (launched.cpu() if launched is not None else 0.0)}
@@ -279,7 +299,9 @@ def _line(r: dict) -> str:
     return (f"speed {r['speed']:g} {_case(r):<24}: samples {r['samples']} lost {r['lost']} "
             f"dropped {r['dropped']} (simulator pacing p99 {r['pacing_p99_us']:.0f} us) wall "
             f"{r['wall_s']:.1f} s listener cpu {r['listener_cpu_s']:.2f} s read backlog peak "
-            f"{r['backlog_kib']:.0f} KiB{' (real-time reader)' if r['realtime'] else ''}; "
+            f"{r['backlog_kib']:.0f} KiB{' (real-time reader)' if r['realtime'] else ''}, "
+            f"the reader waited for a processor {r['reader_wait_ms']:.1f} ms over "
+            f"{r['reader_wakes']} wake-ups; "
             f"load average {r['load'][0]:.1f} -> "
             f"{r['load'][1]:.1f}; chromium cpu {r['browser_cpu_s']:.2f} s{extra}"
             + (f"; first holes (s into the run, samples) {r['holes']}" if r["holes"] else ""))
@@ -302,7 +324,8 @@ def _summary(rows: list[dict]) -> None:
             b = [r for r in runs if r["page"] == case]
             if not b:
                 continue
-            line = (f"    {name:<16} lost {[r['lost'] for r in b]}; listener CPU "
+            line = (f"    {name:<16} lost {[r['lost'] for r in b]}; reader's run-queue wait "
+                    f"{[round(r['reader_wait_ms'], 1) for r in b]} ms; listener CPU "
                     f"{sum(r['listener_cpu_s'] for r in b) / len(b):.2f} s; chromium CPU "
                     f"{[round(r['browser_cpu_s'], 2) for r in b]} s of "
                     f"{[round(r['wall_s'], 1) for r in b]} s")
