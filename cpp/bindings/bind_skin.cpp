@@ -76,7 +76,8 @@ class PySkinEngine {
  public:
   PySkinEngine(const py::list& models, std::vector<int> patch_model, int n_patches, int position_dims,
                std::vector<double> positions, std::vector<std::array<int, 2>> adjacency,
-               std::int64_t chunk_samples, std::int64_t window_buffers) {
+               std::int64_t chunk_samples, std::int64_t window_buffers,
+               std::int64_t window_chunk_samples) {
     SkinConfig c;
     for (const py::handle h : models) {
       c.models.push_back(&h.cast<const Model&>());
@@ -90,6 +91,7 @@ class PySkinEngine {
     c.adjacency = std::move(adjacency);
     c.chunk_samples = chunk_samples;
     c.window_buffers = window_buffers;
+    c.window_chunk_samples = window_chunk_samples;
     engine_ = std::make_unique<SkinEngine>(c);
   }
 
@@ -148,10 +150,10 @@ void bind_skin(py::module_& m) {
   py::class_<PySkinEngine>(m, "SkinEngine",
                            "Many patches, one host: per-patch detectors over shared models.")
       .def(py::init<const py::list&, std::vector<int>, int, int, std::vector<double>,
-                    std::vector<std::array<int, 2>>, std::int64_t, std::int64_t>(),
+                    std::vector<std::array<int, 2>>, std::int64_t, std::int64_t, std::int64_t>(),
            py::arg("models"), py::arg("patch_model"), py::arg("n_patches"), py::arg("position_dims"),
            py::arg("positions"), py::arg("adjacency"), py::arg("chunk_samples"),
-           py::arg("window_buffers") = 0)
+           py::arg("window_buffers") = 0, py::arg("window_chunk_samples") = 0)
       .def("push", &PySkinEngine::push, py::arg("patch"), py::arg("samples"),
            "Samples (n, taxels) int16 of one patch; returns the decisions as columns.")
       .def("push_interleaved", &PySkinEngine::push_interleaved, py::arg("block"),
@@ -165,6 +167,10 @@ void bind_skin(py::module_& m) {
       .def_property_readonly("unbuffered", [](PySkinEngine& e) { return e.engine().unbuffered(); })
       .def_property_readonly("window_buffers_peak",
                              [](PySkinEngine& e) { return e.engine().window_buffers_peak(); })
+      .def_property_readonly("window_pool_size", [](PySkinEngine& e) { return e.engine().window_pool_size(); })
+      .def_property_readonly("window_pool_in_use", [](PySkinEngine& e) { return e.engine().window_pool_in_use(); })
+      .def_property_readonly("window_pool_samples",
+                             [](PySkinEngine& e) { return e.engine().window_pool_samples(); })
       .def("patch_taxels", [](PySkinEngine& e, int p) { return e.engine().patch_taxels(e.patch(p)); }, py::arg("patch"))
       .def("taxel_offset", [](PySkinEngine& e, int p) { return e.engine().taxel_offset(e.patch(p)); }, py::arg("patch"))
       .def("patch_model", [](PySkinEngine& e, int p) { return e.engine().patch_model(e.patch(p)); }, py::arg("patch"))

@@ -264,6 +264,44 @@ const char* status_name(Status s) noexcept {
 
 // ---------------------------------------------------------------- subsampling
 
+namespace {
+
+// The (n_taxels x D) tensor of an S-sample window whose sample t of taxel k is at(k, t) (a
+// double): Algorithm 2 or evenly spaced indices for S >= D, linear interpolation for S < D.
+// The arguments are checked by the caller.
+template <class At>
+Status subsample_at(At at, int64_t n_taxels, int64_t S, int64_t D, SubsampleMethod method,
+                    ShortPolicy short_policy, double* out) noexcept {
+  if (S >= D) {
+    const int64_t interval = S / D;
+    const int64_t num = S - 1, den = std::max<int64_t>(D - 1, 1);
+    for (int64_t k = 0; k < n_taxels; ++k) {
+      double* ok = out + k * D;
+      for (int64_t d = 0; d < D; ++d) {
+        const int64_t t = method == SubsampleMethod::kAlgorithm2
+                              ? d * interval
+                              : (D == 1 ? 0 : (2 * d * num + den) / (2 * den));
+        ok[d] = at(k, t);
+      }
+    }
+    return Status::kOk;
+  }
+  if (short_policy == ShortPolicy::kError) return Status::kBadArgument;
+  for (int64_t k = 0; k < n_taxels; ++k) {
+    double* ok = out + k * D;
+    for (int64_t d = 0; d < D; ++d) {
+      const int64_t num = d * (S - 1);
+      const int64_t i0 = num / (D - 1);
+      const double frac = static_cast<double>(num - i0 * (D - 1)) / static_cast<double>(D - 1);
+      const double a = at(k, i0);
+      ok[d] = frac == 0.0 ? a : a + frac * (at(k, i0 + 1) - a);
+    }
+  }
+  return Status::kOk;
+}
+
+}  // namespace
+
 bool subsample_indices(int64_t S, int64_t D, SubsampleMethod method, int64_t* out) noexcept {
   if (D < 1 || S < D || out == nullptr) return false;
   if (method == SubsampleMethod::kAlgorithm2) {
@@ -290,36 +328,11 @@ Status subsample_window(const T* x, int64_t n_taxels, int64_t taxel_stride, int6
   if (decimation > 1) {
     // a bounded window kept every decimation-th sample: window sample t is the kept sample
     // t / decimation (time_stride apart); the indices are those of the S-sample window
-    const int64_t step = decimation;
-    auto at = [&](const T* xk, int64_t t) { return static_cast<double>(xk[(t / step) * time_stride]); };
-    if (S >= D) {
-      const int64_t interval = S / D;
-      const int64_t num = S - 1, den = std::max<int64_t>(D - 1, 1);
-      for (int64_t k = 0; k < n_taxels; ++k) {
-        const T* xk = x + k * taxel_stride;
-        double* ok = out + k * D;
-        for (int64_t d = 0; d < D; ++d) {
-          const int64_t t = method == SubsampleMethod::kAlgorithm2
-                                ? d * interval
-                                : (D == 1 ? 0 : (2 * d * num + den) / (2 * den));
-          ok[d] = at(xk, t);
-        }
-      }
-      return Status::kOk;
-    }
-    if (short_policy == ShortPolicy::kError) return Status::kBadArgument;
-    for (int64_t k = 0; k < n_taxels; ++k) {
-      const T* xk = x + k * taxel_stride;
-      double* ok = out + k * D;
-      for (int64_t d = 0; d < D; ++d) {
-        const int64_t num = d * (S - 1);
-        const int64_t i0 = num / (D - 1);
-        const double frac = static_cast<double>(num - i0 * (D - 1)) / static_cast<double>(D - 1);
-        const double a = at(xk, i0);
-        ok[d] = frac == 0.0 ? a : a + frac * (at(xk, i0 + 1) - a);
-      }
-    }
-    return Status::kOk;
+    return subsample_at(
+        [=](int64_t k, int64_t t) {
+          return static_cast<double>(x[k * taxel_stride + (t / decimation) * time_stride]);
+        },
+        n_taxels, S, D, method, short_policy, out);
   }
   if (S >= D) {
     if (method == SubsampleMethod::kAlgorithm2) {
@@ -371,15 +384,19 @@ template Status subsample_window<double>(const double*, int64_t, int64_t, int64_
 // ---------------------------------------------------------------- streaming detector
 
 #if !defined(ESKIN_DEVICE)
-WindowBufferPool::WindowBufferPool(int64_t buffers, int64_t values) {
-  if (buffers < 0 || (buffers > 0 && values < 1) || buffers > kMaxStoredValues ||
-      (buffers > 0 && values > kMaxStoredValues / buffers)) {
-    detail::raise<std::invalid_argument>("WindowBufferPool: " + std::to_string(buffers) +
-                                         " buffers of " + std::to_string(values) +
-                                         " values: must be >= 0 buffers of >= 1 value, at most " +
-                                         std::to_string(kMaxStoredValues) + " values in all");
+WindowBufferPool::WindowBufferPool(int64_t buffers, int64_t samples, int64_t taxels) {
+  const bool sized = samples >= 1 && taxels >= 1 && samples <= kMaxStoredValues / taxels;
+  if (buffers < 0 || buffers > kMaxStoredValues ||
+      (buffers > 0 && (!sized || samples * taxels > kMaxStoredValues / buffers))) {
+    detail::raise<std::invalid_argument>(
+        "WindowBufferPool: " + std::to_string(buffers) + " buffers of " + std::to_string(samples) +
+        " samples x " + std::to_string(taxels) +
+        " taxels: must be >= 0 buffers of >= 1 sample x >= 1 taxel, at most " +
+        std::to_string(kMaxStoredValues) + " values in all");
   }
-  values_ = values;
+  samples_ = samples;
+  taxels_ = taxels;
+  const int64_t values = buffers > 0 ? samples * taxels : 0;
   data_.assign(static_cast<std::size_t>(buffers * values), int16_t{0});
   free_.resize(static_cast<std::size_t>(buffers));
   for (int64_t b = 0; b < buffers; ++b) free_[static_cast<std::size_t>(b)] = data_.data() + b * values;
@@ -405,10 +422,42 @@ int64_t WindowBufferPool::memory_bytes() const noexcept {
                               free_.capacity() * sizeof(int16_t*));
 }
 
+void TouchDetector::release_chunks(int64_t keep) noexcept {
+  if (shared_ == nullptr) return;  // the own store's one chunk is held for good
+  while (held_ > keep) shared_->release(chunks_[static_cast<std::size_t>(--held_)]);
+}
+
 void TouchDetector::release_window() noexcept {
-  if (shared_ != nullptr && win_ != nullptr) shared_->release(win_);
-  win_ = nullptr;
+  release_chunks(0);
   release_pending_ = false;
+}
+
+void TouchDetector::keep_code(const int16_t* sample) noexcept {
+  // as keep(), over the chunks: every window_stride_-th sample is kept; a full window drops
+  // every other kept sample, doubles its stride and gives back the chunks above the half
+  const int64_t t = window_len_++;
+  if (lost_ || (t & (window_stride_ - 1)) != 0) return;  // the stride is a power of two
+  const int64_t K = n_taxels_;
+  if (window_kept_ == p_.window_capacity) {
+    for (int64_t j = 1; j < window_kept_ / 2; ++j) {
+      const int16_t* from = kept_slot(2 * j);
+      std::copy(from, from + K, kept_slot(j));
+    }
+    window_kept_ /= 2;
+    window_stride_ *= 2;
+    release_chunks(ceil_div(window_kept_, chunk_samples_));
+  }
+  if (window_kept_ == held_ * chunk_samples_) {  // the window grows into a new chunk
+    int16_t* c = shared_ != nullptr ? shared_->acquire() : nullptr;
+    if (c == nullptr) {  // none free: this touch keeps nothing (and has no tensor)
+      lost_ = true;
+      release_chunks(0);
+      return;
+    }
+    chunks_[static_cast<std::size_t>(held_++)] = c;
+  }
+  std::copy(sample, sample + K, kept_slot(window_kept_));
+  ++window_kept_;
 }
 #else
 void TouchDetector::release_window() noexcept {}
@@ -460,22 +509,33 @@ TouchDetector::TouchDetector(int64_t n_taxels, double sample_rate_hz, const Wind
     const int64_t quiet = std::max({p_.hold_frames, int64_t{1}, ceil_div(p_.pad_after, fl)});
     const int64_t needed = p_.pad_before + std::max<int64_t>(0, quiet * fl - p_.pad_after) + fl;
     recent_cap_ = std::min(ring_cap_, std::max(needed, ring_cap_ - cap / 2));
+    chunk_samples_ = cap;  // the own store: one chunk, the window buffer at the pool's start
     if (shared != nullptr) {
       // the window buffer is not ours between touches: the whole pre-onset ring is recent
-      if (shared->values() < cap * n_taxels) {
+      if (shared->taxels() < n_taxels || shared->samples() < 1) {
         detail::raise<std::invalid_argument>(
-            "TouchDetector: shared window buffers of " + std::to_string(shared->values()) +
-            " values: this detector needs " + std::to_string(cap * n_taxels) +
-            " (window_capacity x n_taxels)");
+            "TouchDetector: shared window buffers of " + std::to_string(shared->taxels()) +
+            " taxels: this detector has " + std::to_string(n_taxels));
       }
       shared_ = shared;
       recent_cap_ = ring_cap_;
+      chunk_samples_ = std::min(cap, shared->samples());  // a whole buffer when samples >= cap
     }
     old_cap_ = ring_cap_ - recent_cap_;
     old_at_ = cap - old_cap_;
     ring_at_ = shared != nullptr ? 0 : cap;
     const int64_t slots = ring_at_ + recent_cap_;
     pool_.assign(static_cast<std::size_t>(slots * n_taxels), int16_t{0});
+    chunks_.assign(static_cast<std::size_t>(ceil_div(cap, chunk_samples_)), nullptr);
+    if (shared == nullptr) {  // one chunk: any power of two >= cap indexes it
+      chunk_samples_ = 1;
+      while (chunk_samples_ < cap) chunk_samples_ *= 2;
+    }
+    if ((chunk_samples_ & (chunk_samples_ - 1)) == 0) {
+      chunk_shift_ = 0;
+      while ((int64_t{1} << chunk_shift_) < chunk_samples_) ++chunk_shift_;
+    }
+    if (shared == nullptr) chunks_[0] = pool_.data(), held_ = 1;
   }
 #endif
 #if !defined(ESKIN_DEVICE)
@@ -494,7 +554,8 @@ int64_t TouchDetector::memory_bytes() const noexcept {
     return static_cast<int64_t>(v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type));
   };
   return static_cast<int64_t>(sizeof(*this)) + bytes(dc_mean_) + bytes(acc_) + bytes(noise_ring_) +
-         bytes(noise_sorted_) + bytes(frame_ring_) + bytes(ring_) + bytes(window_) + bytes(pool_);
+         bytes(noise_sorted_) + bytes(frame_ring_) + bytes(ring_) + bytes(window_) + bytes(pool_) +
+         bytes(chunks_);
 }
 
 #if !defined(ESKIN_DEVICE)
@@ -506,7 +567,7 @@ const int16_t* TouchDetector::code_slot(int64_t t) const noexcept {
 template <class T>
 void TouchDetector::store_code(const T* x, int64_t taxel_stride) noexcept {
   const int64_t K = n_taxels_;
-  if (release_pending_) {  // the last window has been read: its shared buffer goes back
+  if (release_pending_) {  // the last window has been read: its shared chunks go back
     release_window();
     window_valid_ = false;
   }
@@ -517,13 +578,13 @@ void TouchDetector::store_code(const T* x, int64_t taxel_stride) noexcept {
     std::copy(r, r + K, pool + (old_at_ + (now_ - recent_cap_) % old_cap_) * K);
   }
   for (int64_t k = 0; k < K; ++k) r[k] = to_code(x[k * taxel_stride]);
-  int16_t* w = window_codes();
-  if (state_ == State::kActive && w != nullptr) keep(w, static_cast<const int16_t*>(r));
+  if (state_ == State::kActive) keep_code(r);
 }
 #endif
 
 void TouchDetector::reset() noexcept {
   release_window();
+  lost_ = false;
   std::fill(dc_mean_.begin(), dc_mean_.end(), 0.0);
   std::fill(acc_.begin(), acc_.end(), 0.0);
   noise_count_ = noise_pos_ = 0;
@@ -698,10 +759,8 @@ Status TouchDetector::on_frame() noexcept {
 #if !defined(ESKIN_DEVICE)
             if (mode_ == SampleStore::kCodes) {
               // oldest first: the older part's samples go to window slots below old_at_
-              if (shared_ != nullptr) win_ = shared_->acquire();  // nullptr: not kept
-              int16_t* w = window_codes();
-              if (w != nullptr)
-                for (int64_t t = start_; t < now_; ++t) keep(w, code_slot(t));
+              lost_ = false;
+              for (int64_t t = start_; t < now_; ++t) keep_code(code_slot(t));
             } else  // the native store:
 #endif
             {
@@ -757,8 +816,8 @@ Status TouchDetector::finalise(bool forced) noexcept {
     return Status::kOk;
   }
   last_ = w;
-  if (store_) window_valid_ = shared_ == nullptr || win_ != nullptr;
-  release_pending_ = win_ != nullptr;
+  if (store_) window_valid_ = !lost_;
+  release_pending_ = shared_ != nullptr && held_ > 0;
   return Status::kWindow;
 }
 
@@ -779,8 +838,12 @@ Status TouchDetector::subsample_last_window(int64_t D, SubsampleMethod method,
                                             ShortPolicy short_policy, double* out) const noexcept {
 #if !defined(ESKIN_DEVICE)
   if (mode_ == SampleStore::kCodes && window_valid_) {
-    return subsample_window(window_codes(), n_taxels_, 1, n_taxels_, last_window_length(), D,
-                            method, short_policy, out, last_.stride);
+    if (out == nullptr) return Status::kNullPointer;
+    if (D < 1 || last_window_length() < 1) return Status::kBadArgument;
+    const int64_t step = last_.stride;
+    return subsample_at(
+        [this, step](int64_t k, int64_t t) { return static_cast<double>(kept_slot(t / step)[k]); },
+        n_taxels_, last_window_length(), D, method, short_policy, out);
   }
 #endif
   const StoredSample* data = last_window_data();

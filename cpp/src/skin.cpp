@@ -20,6 +20,32 @@ constexpr std::int64_t kMaxChunk = std::int64_t{1} << 20;
   detail::raise<std::invalid_argument>("SkinConfig." + field + " = " + value + ": " + why);
 }
 
+// The shared window buffers of SkinConfig::window_buffers and window_chunk_samples: whole
+// buffers of the largest window, or as many of its samples cut into chunks.
+WindowBufferPool window_pool(const SkinConfig& c, const std::vector<int>& model_of) {
+  const auto P = static_cast<std::int64_t>(model_of.size());
+  if (c.window_buffers < 0 || c.window_buffers > P)
+    bad("window_buffers", std::to_string(c.window_buffers),
+        "must be in [0, " + std::to_string(P) + "] (0: one per patch)");
+  std::int64_t cap = 0, taxels = 0;
+  for (const int m : model_of) {
+    const Model& model = *c.models[static_cast<std::size_t>(m)];
+    cap = std::max(cap, resolve_window_config(model.window_config(), model.sample_rate_hz()).window_capacity);
+    taxels = std::max<std::int64_t>(taxels, std::int64_t{model.rows()} * model.cols());
+  }
+  const std::int64_t chunk = c.window_chunk_samples;
+  if (chunk < 0 || chunk > cap)
+    bad("window_chunk_samples", std::to_string(chunk),
+        "must be in [0, " + std::to_string(cap) + "] (0: whole window buffers; at most the largest "
+        "window_samples)");
+  if (chunk > 0 && c.window_buffers == 0)
+    bad("window_chunk_samples", std::to_string(chunk), "needs shared window buffers (window_buffers > 0)");
+  if (c.window_buffers == 0) return WindowBufferPool();
+  if (chunk == 0) return WindowBufferPool(c.window_buffers, cap, taxels);
+  const std::int64_t per_window = (cap + chunk - 1) / chunk;
+  return WindowBufferPool(c.window_buffers * per_window, chunk, taxels);
+}
+
 std::vector<int> patch_models(const SkinConfig& c) {
   if (c.models.empty()) bad("models", "[]", "needs at least one model");
   for (std::size_t i = 0; i < c.models.size(); ++i)
@@ -83,18 +109,7 @@ SkinEngine::SkinEngine(const SkinConfig& c) : models_(c.models), position_dims_(
   }
   tensor_.assign(static_cast<std::size_t>(tensor), 0.0);
   chunk_ = c.chunk_samples > 0 ? c.chunk_samples : 8 * min_frame;
-  if (c.window_buffers < 0 || c.window_buffers > P)
-    bad("window_buffers", std::to_string(c.window_buffers),
-        "must be in [0, " + std::to_string(P) + "] (0: one per patch)");
-  if (c.window_buffers > 0) {
-    std::int64_t values = 0;
-    for (int p = 0; p < P; ++p) {
-      const Model& m = *models_[static_cast<std::size_t>(model_of[static_cast<std::size_t>(p)])];
-      values = std::max(values, resolve_window_config(m.window_config(), m.sample_rate_hz()).window_capacity *
-                                    m.rows() * m.cols());
-    }
-    window_pool_ = WindowBufferPool(c.window_buffers, values);
-  }
+  window_pool_ = window_pool(c, model_of);
   WindowBufferPool* shared = c.window_buffers > 0 ? &window_pool_ : nullptr;
 
   patches_.reserve(static_cast<std::size_t>(P));

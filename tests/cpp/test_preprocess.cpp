@@ -796,6 +796,97 @@ TEST(CompactStore, SameWindowsAndTensorsAsTheNativeStore) {
   EXPECT_GT(windows, 100);
 }
 
+// SampleStore::kCodes with its window in chunks of a shared pool (WindowBufferPool of fewer
+// samples than the window): the window's kept samples are taken chunk by chunk as it grows and
+// given back as it halves and ends; the windows and tensors equal the native store's for
+// chunks of one sample, of a size that divides no window, and larger; the pool's chunks are all
+// back after reset, and the per-sample path does not allocate.
+TEST(ChunkedStore, SameWindowsAndTensorsAsTheNativeStore) {
+  std::vector<WindowConfig> configs(4);
+  configs[1].window_samples = 64;
+  configs[2].window_samples = 256;
+  configs[2].lookback_s = 0.5;
+  configs[3].window_samples = 4096;
+  configs[3].release_fraction = 0.5;
+  const int64_t T = 40000, D = 20;
+  std::mt19937 gen(7);
+  int windows = 0;
+  for (std::size_t ci = 0; ci < configs.size(); ++ci) {
+    const int64_t cap = eskin::resolve_window_config(configs[ci], kRate).window_capacity;
+    for (const int64_t chunk : {int64_t{1}, int64_t{7}, int64_t{32}}) {
+      const auto inter = interleave(make_recording(T, random_bursts(gen, T), 300 + chunk), T);
+      eskin::WindowBufferPool pool((cap + chunk - 1) / chunk, chunk, kTaxels);
+      TouchDetector native(kTaxels, kRate, configs[ci], eskin::SampleStore::kNative);
+      TouchDetector codes(kTaxels, kRate, configs[ci], eskin::SampleStore::kCodes, &pool);
+      std::vector<double> a(kTaxels * D), b(kTaxels * D);
+      auto compare = [&](Status sa, Status sb, int64_t t) {
+        ASSERT_EQ(sa, sb) << "config " << ci << " chunk " << chunk << " t " << t;
+        if (sa != Status::kWindow) return;
+        ++windows;
+        ASSERT_TRUE(same(native.last_window(), codes.last_window())) << ci << " " << t;
+        for (auto m : {SubsampleMethod::kAlgorithm2, SubsampleMethod::kEven}) {
+          ASSERT_EQ(native.subsample_last_window(D, m, ShortPolicy::kInterpolate, a.data()), Status::kOk);
+          ASSERT_EQ(codes.subsample_last_window(D, m, ShortPolicy::kInterpolate, b.data()), Status::kOk);
+          ASSERT_EQ(a, b) << "config " << ci << " chunk " << chunk << " t " << t;
+        }
+      };
+      const long before = g_allocations.load();
+      for (int64_t t = 0; t < T; ++t)
+        compare(native.push(inter.data() + t * kTaxels), codes.push(inter.data() + t * kTaxels), t);
+      compare(native.flush(), codes.flush(), T);
+      EXPECT_EQ(g_allocations.load() - before, 0);
+      EXPECT_EQ(pool.unbuffered(), 0);
+      EXPECT_GT(pool.peak_in_use(), 0);
+      codes.reset();
+      EXPECT_EQ(pool.in_use(), 0);
+    }
+  }
+  EXPECT_GT(windows, 50);
+}
+
+// A chunk pool whose other chunks are taken (by other streams) while a touch grows: that touch
+// has no tensor (kNoWindow, counted once) and gives back the chunks it held; the next touch,
+// with the chunks free again, has the native store's window and tensor.
+TEST(ChunkedStore, ATouchThatFindsNoChunkHasNoTensorAndTheNextOneIsExact) {
+  WindowConfig c;
+  c.window_samples = 256;
+  const int64_t T = 20000, D = 20;
+  const auto inter =
+      interleave(make_recording(T, {{3000, 3900, 150.0}, {9000, 9150, 150.0}}, 43), T);
+  eskin::WindowBufferPool pool(8, 32, kTaxels);  // one window of 256 samples
+  std::vector<int16_t*> others;
+  for (int i = 0; i < 5; ++i) others.push_back(pool.acquire());  // 96 samples left
+  TouchDetector native(kTaxels, kRate, c, eskin::SampleStore::kNative);
+  TouchDetector codes(kTaxels, kRate, c, eskin::SampleStore::kCodes, &pool);
+  std::vector<double> a(kTaxels * D), b(kTaxels * D);
+  int windows = 0;
+  for (int64_t t = 0; t < T; ++t) {
+    const Status sa = native.push(inter.data() + t * kTaxels);
+    ASSERT_EQ(sa, codes.push(inter.data() + t * kTaxels)) << t;
+    if (sa != Status::kWindow) continue;
+    ASSERT_TRUE(same(native.last_window(), codes.last_window()));
+    const Status got = codes.subsample_last_window(D, SubsampleMethod::kAlgorithm2,
+                                                   ShortPolicy::kInterpolate, b.data());
+    if (windows++ == 0) {
+      EXPECT_EQ(got, Status::kNoWindow);
+      EXPECT_EQ(pool.in_use(), 5);
+      EXPECT_EQ(pool.unbuffered(), 1);
+      for (int16_t* o : others) pool.release(o);
+      continue;
+    }
+    ASSERT_EQ(got, Status::kOk);
+    ASSERT_EQ(native.subsample_last_window(D, SubsampleMethod::kAlgorithm2, ShortPolicy::kInterpolate,
+                                           a.data()), Status::kOk);
+    EXPECT_EQ(a, b);
+  }
+  EXPECT_EQ(windows, 2);
+  EXPECT_EQ(pool.unbuffered(), 1);
+  EXPECT_THROW(eskin::WindowBufferPool(-1, 32, kTaxels), std::invalid_argument);
+  EXPECT_THROW(eskin::WindowBufferPool(4, 0, kTaxels), std::invalid_argument);
+  eskin::WindowBufferPool narrow(4, 32, kTaxels - 1);
+  EXPECT_THROW(TouchDetector(kTaxels, kRate, c, eskin::SampleStore::kCodes, &narrow), std::invalid_argument);
+}
+
 // The compact store of a 4x4 patch at 3 kHz with the default detector fits 64 KB, and its
 // per-sample path does not allocate.
 TEST(CompactStore, DefaultPatchFits64KiBAndDoesNotAllocate) {

@@ -248,6 +248,75 @@ TEST(SkinEngine, SharedWindowBuffersKeepEveryDecisionTheyHaveRoomFor) {
   }
 }
 
+// Chunked window store: the window's kept samples in chunks of a shared pool, taken as the
+// window grows and given back when it ends (halving: tests/cpp/test_preprocess.cpp,
+// ChunkedStore). With the pool of every patch's full window every decision is the
+// StreamClassifier's and less memory is in use than with whole buffers; with one window's
+// worth for six patches touched at once the touches that find no free chunk are the only
+// ones missing (counted), every other decision unchanged; reset gives every chunk back.
+TEST(SkinEngine, ChunkedWindowStoreKeepsEveryDecisionItHasRoomFor) {
+  const Model m32 = fixture("float32");
+  const std::vector<const Model*> models = {&m32};
+  const std::int64_t T = 40000;
+  const int P = 6;
+  const std::vector<int> model_of(static_cast<std::size_t>(P), 0);
+  SkinConfig c;
+  c.models = models;
+  c.patch_model = model_of;
+  const std::int64_t cap = eskin::resolve_window_config(m32.window_config(), m32.sample_rate_hz()).window_capacity;
+  ASSERT_GE(cap, 128);
+  for (unsigned seed = 20; seed < 22; ++seed) {
+    std::mt19937 gen(seed);
+    std::vector<std::vector<std::int16_t>> streams;
+    for (int p = 0; p < P; ++p) {
+      std::vector<Burst> sparse;
+      const std::vector<Burst> bursts = random_bursts(gen, T);
+      for (std::size_t i = p % 2; i < bursts.size(); i += 2) sparse.push_back(bursts[i]);
+      streams.push_back(patch_stream(T, sparse, seed * 100 + p));
+    }
+    const std::vector<Got> want = reference(models, model_of, streams, T);
+    std::vector<std::vector<std::int16_t>> together;  // the same bursts on every patch
+    const std::vector<Burst> common = random_bursts(gen, T);
+    for (int p = 0; p < P; ++p) together.push_back(patch_stream(T, common, seed * 100 + 50 + p));
+    const std::vector<Got> want_together = reference(models, model_of, together, T);
+    c.window_buffers = P;
+    c.window_chunk_samples = 0;
+    SkinEngine whole(c);
+    EXPECT_EQ(run_interleaved(whole, streams, T, 700), want);
+    for (const std::int64_t chunk : {std::int64_t{1}, std::int64_t{7}, std::int64_t{64}, cap - 1}) {
+      SCOPED_TRACE(chunk);
+      c.window_buffers = P;
+      c.window_chunk_samples = chunk;
+      SkinEngine all(c);
+      const std::int64_t per_window = (cap + chunk - 1) / chunk;
+      EXPECT_EQ(all.window_pool_size(), P * per_window);
+      EXPECT_EQ(all.window_pool_samples(), chunk);
+      EXPECT_EQ(run_interleaved(all, streams, T, 700), want);
+      EXPECT_EQ(all.unbuffered(), 0);
+      EXPECT_EQ(all.dropped(), 0);
+      EXPECT_GT(all.window_pool_in_use(), 0);  // the last windows, readable until the next push
+      EXPECT_LT(all.window_buffers_peak() * chunk, whole.window_buffers_peak() * cap);
+      all.reset();
+      EXPECT_EQ(all.window_pool_in_use(), 0);
+
+      c.window_buffers = 1;  // one window's worth of chunks for six patches touched at once
+      SkinEngine small(c);
+      const std::vector<Got> got = run_interleaved(small, together, T, 333);
+      EXPECT_GT(small.unbuffered(), 0);
+      EXPECT_EQ(small.window_buffers_peak(), per_window);
+      EXPECT_EQ(static_cast<std::int64_t>(got.size()) + small.unbuffered(),
+                static_cast<std::int64_t>(want_together.size()));
+      EXPECT_EQ(small.dropped(), small.unbuffered());
+      EXPECT_GT(got.size(), 0u);
+      for (const Got& g : got) EXPECT_NE(std::find(want_together.begin(), want_together.end(), g), want_together.end());
+      small.reset();
+      EXPECT_EQ(small.window_pool_in_use(), 0);
+      EXPECT_EQ(small.unbuffered(), 0);
+      EXPECT_EQ(run_interleaved(small, together, T, 333), got);  // reset gave every chunk back
+    }
+  }
+}
+
 // Three patches in a row (0-1 adjacent, 1-2 adjacent), a fourth apart: a touch on 0 and 1 at
 // once is one event, the simultaneous touch on 3 another; later, touches on 1 and 2 whose
 // windows overlap are one event; a touch on 2 alone, a third.
@@ -352,7 +421,15 @@ TEST(SkinEngine, BadConfigurationNamesTheFieldAndValue) {
   EXPECT_EQ(message(c), "SkinConfig.window_buffers = 3: must be in [0, 2] (0: one per patch)");
   c.window_buffers = -1;
   EXPECT_EQ(message(c), "SkinConfig.window_buffers = -1: must be in [0, 2] (0: one per patch)");
+  c.window_buffers = 0;
+  c.window_chunk_samples = 64;
+  EXPECT_EQ(message(c), "SkinConfig.window_chunk_samples = 64: needs shared window buffers (window_buffers > 0)");
   c.window_buffers = 2;
+  c.window_chunk_samples = -1;
+  EXPECT_EQ(message(c), "SkinConfig.window_chunk_samples = -1: must be in [0, 21000] (0: whole window buffers; at most the largest window_samples)");
+  c.window_chunk_samples = 21001;  // the fixture's window: every sample of 7 s
+  EXPECT_EQ(message(c), "SkinConfig.window_chunk_samples = 21001: must be in [0, 21000] (0: whole window buffers; at most the largest window_samples)");
+  c.window_chunk_samples = 64;
   EXPECT_EQ(message(c), "no error");
 }
 

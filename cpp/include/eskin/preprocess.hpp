@@ -192,19 +192,29 @@ enum class SampleStore : int32_t {
 
 // Window buffers shared by SampleStore::kCodes detectors, for many streams that are not all
 // touched at once (a skin's patches, docs/skin-engine.md "Shared window buffers"): `buffers`
-// buffers of `values` int16 codes each, allocated once. A detector takes one at a touch's onset
-// and gives it back at its first push after the touch ended (or at once for a touch too short
-// to report); when none is free the touch is still detected but its samples are not kept, so
-// it has no tensor (counted in unbuffered()). Host only; not thread-safe (one engine thread).
+// buffers of `samples` kept samples of up to `taxels` int16 codes each, allocated once.
+// - Whole buffers (samples >= a detector's window_capacity): a detector takes one at a touch's
+//   onset and gives it back at its first push after the touch ended (or at once for a touch too
+//   short to report).
+// - Chunks (samples < window_capacity): the window's kept samples live in chunks of `samples`,
+//   taken one by one as the window grows, given back when the bounded window halves its kept
+//   samples (the chunks above the kept half) and when the touch ends as above; a detector holds
+//   a table of ceil(window_capacity / samples) chunk pointers. Memory in use then follows each
+//   touch's kept samples instead of a whole buffer per touch.
+// When none is free the touch is still detected (its later windows do not change) but its
+// samples are not kept (any chunks it held go back), so it has no tensor (counted in
+// unbuffered(), once per touch). Host only; not thread-safe (one engine thread).
 class WindowBufferPool {
  public:
   WindowBufferPool() = default;
-  // Throws std::invalid_argument when buffers < 0 or values < 1 (with buffers > 0).
-  WindowBufferPool(int64_t buffers, int64_t values);
+  // Throws std::invalid_argument when buffers < 0, or samples or taxels < 1 with buffers > 0.
+  WindowBufferPool(int64_t buffers, int64_t samples, int64_t taxels);
   int16_t* acquire() noexcept;  // nullptr (and one more unbuffered()) when none is free
   void release(int16_t* buffer) noexcept;
   int64_t buffers() const noexcept { return static_cast<int64_t>(free_.size()); }
-  int64_t values() const noexcept { return values_; }
+  int64_t samples() const noexcept { return samples_; }
+  int64_t taxels() const noexcept { return taxels_; }
+  int64_t values() const noexcept { return samples_ * taxels_; }
   int64_t in_use() const noexcept { return buffers() - n_free_; }
   int64_t peak_in_use() const noexcept { return peak_; }
   int64_t unbuffered() const noexcept { return unbuffered_; }
@@ -214,7 +224,8 @@ class WindowBufferPool {
  private:
   std::vector<int16_t> data_;
   std::vector<int16_t*> free_;  // [0, n_free_): the free buffers
-  int64_t values_ = 0;
+  int64_t samples_ = 0;
+  int64_t taxels_ = 0;
   int64_t n_free_ = 0;
   int64_t peak_ = 0;
   int64_t unbuffered_ = 0;
@@ -231,10 +242,10 @@ class TouchDetector {
                 bool store_samples = true)
       : TouchDetector(n_taxels, sample_rate_hz, cfg,
                       store_samples ? SampleStore::kNative : SampleStore::kNone) {}
-  // shared (kCodes only, host only): the window buffer is taken from this pool at each onset
-  // instead of the detector's own pool, which then holds the pre-onset ring alone
-  // (WindowBufferPool); it must outlive the detector and hold window_capacity x n_taxels
-  // values per buffer (std::invalid_argument otherwise).
+  // shared (kCodes only, host only): the window's kept samples are taken from this pool (a
+  // whole buffer at each onset, or chunks as the window grows: WindowBufferPool) instead of
+  // the detector's own pool, which then holds the pre-onset ring alone; it must outlive the
+  // detector and hold at least n_taxels codes per sample (std::invalid_argument otherwise).
   TouchDetector(int64_t n_taxels, double sample_rate_hz, const WindowConfig& cfg,
                 SampleStore store, WindowBufferPool* shared = nullptr);
 
@@ -291,16 +302,23 @@ class TouchDetector {
   Status on_frame() noexcept;
   Status finalise(bool forced) noexcept;
   void push_noise(double e) noexcept;
-  // the window's next sample into the bounded window buffer w (window_ or the pool's start)
+  // the window's next sample into the bounded window buffer w (window_)
   template <class S>
   void keep(S* w, const S* sample) noexcept;
+  // kCodes: the window's next sample into its chunks (taking one from the shared pool when
+  // the window grows into it; none free: the touch is lost, its chunks go back)
+  void keep_code(const int16_t* sample) noexcept;
+  // kCodes: kept sample j of the window (a shift and a mask for chunks of a power of two)
+  int16_t* kept_slot(int64_t j) const noexcept {
+    if (chunk_shift_ >= 0)
+      return chunks_[static_cast<std::size_t>(j >> chunk_shift_)] + (j & (chunk_samples_ - 1)) * n_taxels_;
+    return chunks_[static_cast<std::size_t>(j / chunk_samples_)] + (j % chunk_samples_) * n_taxels_;
+  }
+  void release_chunks(int64_t keep) noexcept;  // the shared chunks from `keep` on go back
   // kCodes: sample t's slot in the pool at an onset (t in [now - ring capacity, now))
   const int16_t* code_slot(int64_t t) const noexcept;
   template <class T>
   void store_code(const T* x, int64_t taxel_stride) noexcept;
-  // kCodes: the window buffer (the pool's start, or the shared buffer held; nullptr if none)
-  int16_t* window_codes() noexcept { return shared_ != nullptr ? win_ : pool_.data(); }
-  const int16_t* window_codes() const noexcept { return shared_ != nullptr ? win_ : pool_.data(); }
   void release_window() noexcept;
 
   WindowConfig cfg_;
@@ -336,8 +354,15 @@ class TouchDetector {
   std::vector<int16_t> pool_;
   int64_t ring_at_ = 0;  // the recent ring's first slot (window_capacity, or 0 when shared)
   WindowBufferPool* shared_ = nullptr;
-  int16_t* win_ = nullptr;        // the shared buffer held (from an onset to the push after its end)
-  bool release_pending_ = false;  // give win_ back at the next push
+  // the window's kept samples: kept sample j at chunks_[j / chunk_samples_], row
+  // j % chunk_samples_; chunks_[0, held_) are held (own store: one chunk, the pool's start,
+  // held for good; shared: taken from shared_ from an onset to the push after its end)
+  std::vector<int16_t*> chunks_;
+  int64_t chunk_samples_ = 1;
+  int chunk_shift_ = -1;  // log2(chunk_samples_) when a power of two, else -1
+  int64_t held_ = 0;
+  bool lost_ = false;             // the touch in progress found no free chunk: no tensor
+  bool release_pending_ = false;  // give the chunks back at the next push
   int64_t recent_cap_ = 0;
   int64_t old_cap_ = 0;
   int64_t old_at_ = 0;

@@ -51,6 +51,13 @@ struct SkinConfig {
   /// size. A touch that starts while all n are taken is detected but not classified (counted
   /// in unbuffered()); every other decision is the same. docs/skin-engine.md.
   std::int64_t window_buffers = 0;
+  /// With window_buffers > 0: 0 (default), whole buffers, one per touch; c (1 to the largest
+  /// window_samples), the same memory cut into chunks of c samples: window_buffers x
+  /// ceil(window_samples / c) chunks, which a touch takes one by one as its window's kept
+  /// samples grow and gives back when they halve and when it ends, so the pool holds
+  /// window_buffers full windows' worth of kept samples however they are spread over the
+  /// touches. Decisions are the same either way (docs/skin-engine.md, "Chunked window store").
+  std::int64_t window_chunk_samples = 0;
 };
 
 /// One decision of the skin. `values` points into the engine (valid during the sink's call).
@@ -117,10 +124,15 @@ class SkinEngine {
   /// StreamClassifier drops them.
   std::int64_t dropped() const noexcept { return dropped_; }
   /// With shared window buffers: touches that ended without a tensor because every buffer was
-  /// taken when they started (among the dropped ones), and the most buffers in use at once;
-  /// 0 without.
+  /// taken when they started, or every chunk when their window grew (among the dropped
+  /// ones), and the most buffers (chunks) in use at once; 0 without.
   std::int64_t unbuffered() const noexcept { return unbuffered_; }
   std::int64_t window_buffers_peak() const noexcept { return window_pool_.peak_in_use(); }
+  /// The shared pool: its buffers (chunks with window_chunk_samples), those in use now, and
+  /// the samples one holds; 0 without shared buffers.
+  std::int64_t window_pool_size() const noexcept { return window_pool_.buffers(); }
+  std::int64_t window_pool_in_use() const noexcept { return window_pool_.in_use(); }
+  std::int64_t window_pool_samples() const noexcept { return window_pool_.samples(); }
   /// Bytes of the largest patch's state (detector, event history, positions, its share of the
   /// decision buffer and of the shared window buffers); the bound a deployment plans memory with.
   std::int64_t bytes_per_patch() const noexcept;

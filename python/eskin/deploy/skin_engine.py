@@ -95,7 +95,11 @@ class SkinEngine:
     adjacent patches. ``chunk_samples``: samples per patch an interleaved block is cut into
     (0: eight detector frames). ``window_buffers``: 0, each patch keeps its own window buffer;
     n, a pool of n shared by the patches touched at the same time (a touch that starts while all
-    are taken is not classified: :attr:`unbuffered`), docs/skin-engine.md.
+    are taken is not classified: :attr:`unbuffered`). ``window_chunk_samples``: 0, whole
+    buffers; c, the same n windows' worth of samples cut into chunks of c samples that a touch
+    takes as its window grows and gives back as it halves and ends, so memory follows each
+    touch's kept samples (a touch that finds no free chunk is not classified). Every other
+    decision is the same; docs/skin-engine.md.
     """
 
     def __init__(
@@ -107,6 +111,7 @@ class SkinEngine:
         adjacency: Iterable[tuple[int, int]] | None = None,
         chunk_samples: int = 0,
         window_buffers: int = 0,
+        window_chunk_samples: int = 0,
     ) -> None:
         from eskin import _core
 
@@ -143,6 +148,7 @@ class SkinEngine:
             pairs,
             int(chunk_samples),
             int(window_buffers),
+            int(window_chunk_samples),
         )
         self._dims = dims
         self._names = [m.class_names for m in self.models]
@@ -156,9 +162,13 @@ class SkinEngine:
     #: touches whose classification failed (dropped, as a StreamClassifier drops them)
     dropped = property(lambda self: int(self._engine.dropped))
     #: shared window buffers: touches not classified because every buffer was taken (among
-    #: :attr:`dropped`), and the most buffers in use at once
+    #: :attr:`dropped`), and the most buffers (chunks) in use at once
     unbuffered = property(lambda self: int(self._engine.unbuffered))
     window_buffers_peak = property(lambda self: int(self._engine.window_buffers_peak))
+    #: the shared pool: its buffers (chunks), those in use now, and the samples one holds
+    window_pool_size = property(lambda self: int(self._engine.window_pool_size))
+    window_pool_in_use = property(lambda self: int(self._engine.window_pool_in_use))
+    window_pool_samples = property(lambda self: int(self._engine.window_pool_samples))
 
     def patch_taxels(self, patch: int) -> int:
         return int(self._engine.patch_taxels(patch))

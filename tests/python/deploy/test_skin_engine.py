@@ -170,6 +170,44 @@ def test_shared_window_buffers_keep_the_decisions_they_have_room_for(campaign, m
     assert one.bytes_per_patch < own.bytes_per_patch
 
 
+def test_chunked_window_store_keeps_the_decisions_it_has_room_for(campaign, models):
+    # the 1 s hold again; the windows' kept samples (window_samples = 1024, halving as they
+    # grow) in chunks of a shared pool, taken as a window grows, given back as it halves and ends
+    spec = replace(_spec(campaign, 0), window_config=eskin.WindowConfig(hold_s=1.0))
+    held = CompiledModel(model_to_bytes(spec, "float32"))
+    rng = np.random.default_rng(4)
+    P = 4
+    streams = [_stream(campaign, rng, 6) for _ in range(P)]
+    T = min(len(s) for s in streams)
+    block = np.ascontiguousarray(np.stack([s[:T] for s in streams], axis=1))  # (T, P, 16)
+    want = [_reference(held, s[:T]) for s in streams]
+
+    def run(buffers, chunk):
+        engine = SkinEngine(held, n_patches=P, window_buffers=buffers, window_chunk_samples=chunk)
+        got = engine.push_interleaved(block) + engine.flush()
+        return engine, _per_patch(got, P)
+
+    whole, got_whole = run(P, 0)
+    assert got_whole == want and whole.window_pool_samples == 1024
+    for chunk in (64, 100):
+        every, got_every = run(P, chunk)
+        assert got_every == want and every.unbuffered == 0 and every.dropped == 0
+        per_window = -(-1024 // chunk)
+        assert every.window_pool_size == P * per_window and every.window_pool_samples == chunk
+        assert 0 < every.window_buffers_peak <= whole.window_buffers_peak * per_window
+        every.reset()
+        assert every.window_pool_in_use == 0
+
+        one, got_one = run(1, chunk)  # one window's worth of chunks for four patches
+        assert one.unbuffered > 0 and one.window_buffers_peak == one.window_pool_size
+        assert sum(map(len, got_one)) + one.unbuffered == sum(map(len, want))
+        assert all(set(g) <= set(w) for g, w in zip(got_one, want))
+        one.reset()
+        assert one.window_pool_in_use == 0 and one.unbuffered == 0
+        again = one.push_interleaved(block) + one.flush()
+        assert _per_patch(again, P) == got_one  # reset gave every chunk back
+
+
 def test_adjacent_simultaneous_touches_are_one_event_with_positions(campaign, models):
     rng = np.random.default_rng(7)
     s = _stream(campaign, rng, 2)
@@ -213,6 +251,18 @@ def test_adjacent_simultaneous_touches_are_one_event_with_positions(campaign, mo
         ),
         ({"n_patches": 1, "chunk_samples": -5}, "SkinConfig.chunk_samples = -5"),
         ({"n_patches": 2, "window_buffers": 3}, r"SkinConfig.window_buffers = 3: must be in \[0, 2\]"),
+        (
+            {"n_patches": 2, "window_buffers": 1, "window_chunk_samples": -1},
+            r"SkinConfig.window_chunk_samples = -1: must be in \[0, 1024\] \(0: whole window",
+        ),
+        (
+            {"n_patches": 2, "window_buffers": 1, "window_chunk_samples": 1025},
+            r"SkinConfig.window_chunk_samples = 1025: must be in \[0, 1024\]",
+        ),
+        (
+            {"n_patches": 2, "window_chunk_samples": 64},
+            r"SkinConfig.window_chunk_samples = 64: needs shared window buffers \(window_buffers",
+        ),
     ],
 )
 def test_bad_construction_is_a_one_line_value_error(models, kwargs, message):
