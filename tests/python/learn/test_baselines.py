@@ -9,7 +9,10 @@ import pytest
 
 from eskin.errors import EvaluationError
 from eskin.learn.baselines import (
+    VECTOR_C,
+    VECTOR_GAMMA_FACTORS,
     BaselineUnavailable,
+    _inner_splits,
     _series,
     check_baselines,
     run_baseline,
@@ -31,6 +34,49 @@ def test_vector_svm_learns_a_separable_problem_with_grouped_inner_cv():
     assert np.array_equal(pred, y[40:])
     assert set(settings) == {"C", "gamma_x_n_features", "inner_cv_balanced_accuracy"}
     assert settings["inner_cv_balanced_accuracy"] > 0.9
+
+
+def _pipeline_search(X_train, y_train, groups_train, X_test):
+    """The vector baseline as scikit-learn's GridSearchCV of StandardScaler + SVC(rbf) gives
+    it: the oracle of the precomputed-kernel search."""
+    import warnings
+
+    from sklearn.model_selection import GridSearchCV
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC
+
+    A = X_train.reshape(len(X_train), -1)
+    grid = {"svc__C": list(VECTOR_C),
+            "svc__gamma": [f / A.shape[1] for f in VECTOR_GAMMA_FACTORS]}
+    search = GridSearchCV(make_pipeline(StandardScaler(), SVC(kernel="rbf")), grid,
+                          cv=_inner_splits(y_train, groups_train), scoring="balanced_accuracy",
+                          error_score=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        search.fit(A, y_train)
+    settings = {"C": search.best_params_["svc__C"],
+                "gamma_x_n_features": search.best_params_["svc__gamma"] * A.shape[1],
+                "inner_cv_balanced_accuracy": search.best_score_}
+    return search.predict(X_test.reshape(len(X_test), -1)), settings
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_vector_svm_chooses_and_predicts_as_the_scaler_and_svc_pipeline(seed):
+    """Three classes of noisy patterns, some taxels constant (a deviation of 0), groups of
+    unequal size: the same candidate, inner score and predictions as the pipeline's search."""
+    rng = np.random.default_rng(seed)
+    n = 72
+    y = rng.integers(0, 3, n)
+    X = rng.standard_normal((n, 3, 4, 7)) * rng.uniform(0.2, 3.0, (1, 3, 4, 1))
+    X[:, 0, 0] = 1.5
+    X += (0.4 + 0.3 * seed / 6) * y[:, None, None, None] * np.linspace(-1, 1, 7)
+    g = rng.integers(0, 7, n)
+    train = g != 6
+    pred, settings = run_baseline("vector", X[train], y[train], g[train], X[~train])
+    want_pred, want = _pipeline_search(X[train], y[train], g[train], X[~train])
+    assert np.array_equal(pred, want_pred)
+    assert settings == want
 
 
 def test_unknown_baseline_is_named():
