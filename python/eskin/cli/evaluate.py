@@ -91,7 +91,9 @@ def evaluate(
     max_model_size: float = typer.Option(
         0.0, "--max-model-size", min=0.0, help=MODEL_SIZE_HELP),
     seed: int = typer.Option(0, help="seed of every random choice"),
-    n_jobs: int = typer.Option(1, "--n-jobs", help="folds run at once (-1: all cores)"),
+    n_jobs: int = typer.Option(
+        1, "--n-jobs", help="folds run at once, each in a single-threaded worker process of "
+        "this machine (as --scheduler local:N; -1: one per core)"),
     scheduler: str | None = typer.Option(
         None, help="Dask scheduler address, or local:N for a pool of N worker processes here"
     ),
@@ -135,16 +137,30 @@ def evaluate(
     try:
         written = [out / f"evaluation.{ext}" for ext in ("json", "md", "png")]
         refuse_overwrite_all(written, force, inputs=(campaign,))
-        with compute_backend(scheduler):
+        where = _scheduler_of(scheduler, n_jobs)
+        with compute_backend(where):
             # on a cluster, evaluate_recipe reads the recordings here and scatters them
             data = campaign if patch is None else _patch_campaign(campaign, patch)
             result = _in_folds(data, recipe, budgeted, the_budget, groups=groups,
                                n_folds=folds, classes=_names(classes),
                                baselines=_names(baselines) or (), seed=seed,
-                               n_jobs=-1 if scheduler else n_jobs, live=live)
+                               n_jobs=1 if where is None else -1,
+                               live=live)
     except (ValueError, OSError, KeyError, ImportError) as exc:
         _fail(error_line(exc, out))
     _report(result, out)
+
+
+def _scheduler_of(scheduler: str | None, n_jobs: int) -> str | None:
+    """Where the folds run: --scheduler when given, else a local pool of --n-jobs workers
+    (``local:N``: single-threaded processes, stopped and reaped when the evaluation ends, so
+    their CPU time is the command's), or here, one fold after the other (None)."""
+    if scheduler is not None or n_jobs == 1:
+        return scheduler
+    import os
+
+    workers = n_jobs if n_jobs > 1 else os.cpu_count() or 1
+    return f"local:{workers}"
 
 
 def _recipe_of(given: dict, quick: bool, amplitude: str | None,
