@@ -361,6 +361,20 @@ def test_evaluate_and_train_on_a_dask_cluster_match_the_serial_run(
         assert m1.predict_recordings(camp) == m2.predict_recordings(camp)
 
 
+def test_evaluate_with_two_jobs_matches_the_serial_run(sim_campaign, tmp_path):
+    """--n-jobs 2: the folds on a pool of two worker processes (as --scheduler local:2), with
+    the vector baseline; the same evaluation as one fold after the other."""
+    common = ["--folds", "3", "--quick", "--D", "8", "--classes", "brush,washer",
+              "--baselines", "vector", "--no-live"]
+    for name, extra in (("serial", ["--n-jobs", "1"]), ("pool", ["--n-jobs", "2"])):
+        r = _run(["evaluate", str(sim_campaign), "--out", str(tmp_path / name), *common, *extra])
+        assert r.exit_code == 0, r.output
+    a = json.loads((tmp_path / "serial" / "evaluation.json").read_text())
+    b = json.loads((tmp_path / "pool" / "evaluation.json").read_text())
+    assert _without_times(a) == _without_times(b)
+    assert len(b["folds"]) == 3 and "vector" in b["baselines"]
+
+
 def _untimed(x):
     """A results.json without its timings (keys ending in seconds, created_utc)."""
     if isinstance(x, dict):
