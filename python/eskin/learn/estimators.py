@@ -227,7 +227,7 @@ def svm_train(K: np.ndarray, y_pm: np.ndarray, C: float, tol: float = 1e-3):
     K = np.ascontiguousarray(K, dtype=np.float64)
     y_pm = np.asarray(y_pm, dtype=np.float64)
     beta = np.zeros(K.shape[0])
-    if np.unique(y_pm).size < 2:
+    if y_pm.size == 0 or bool(np.all(y_pm == y_pm[0])):
         # one class only (e.g. a random MD labelling of a small set): libsvm returns no dual;
         # the solution is the constant machine f = y, with no support vector
         return beta, float(y_pm[0]) if y_pm.size else 0.0, np.zeros(0, dtype=np.intp)

@@ -393,7 +393,9 @@ class _SplitBlocks:
                  trains: Mapping[tuple[str, int], list[np.ndarray]], splits: list) -> None:
         self.dist_sum, self.energies, self.trains, self.splits = dist_sum, energies, trains, splits
         self._cut: dict[tuple, list[tuple]] = {}
-        self._factors: dict[float, np.ndarray] = {}
+        self._factors: dict[float, float] = {}  # amplitude -> the factor's width
+        self._exp: dict[tuple, list[tuple]] = {}  # the Gaussians of one sigma, per machine set
+        self._exp_sigma: float | None = None
 
     def _sliced(self, M: np.ndarray, key: tuple[str, int], name: Any) -> list[tuple]:
         """(indices, M[train, train], M[held-out, train]) of each machine of ``key``."""
@@ -406,40 +408,56 @@ class _SplitBlocks:
             self._cut[(name, key)] = [made[id(trk)] for trk in self.trains[key]]
         return self._cut[(name, key)]
 
+    def _gaussians(self, key: tuple[str, int], sigma: float) -> list[tuple]:
+        """(indices, exp(-dist / (2 sigma^2)) of the training block, of the held-out block) per
+        machine of ``key``: computed once per sigma and shared by its amplitude widths (the
+        blocks of the sigma before are dropped)."""
+        if sigma != self._exp_sigma:
+            self._exp, self._exp_sigma = {}, sigma
+        if key not in self._exp:
+            g = -0.5 / (sigma * sigma)
+            made: dict[int, tuple] = {}
+            for trk, Dtr, Dte in self._sliced(self.dist_sum, key, "distances"):
+                if id(trk) not in made:
+                    made[id(trk)] = (trk, _gaussian(Dtr, g), _gaussian(Dte, g))
+            self._exp[key] = [made[id(trk)] for trk in self.trains[key]]
+        return self._exp[key]
+
     def grams(self, key: tuple[str, int], sigma: float, amp: float | None) -> list[tuple]:
         """(training indices, training Gram block, held-out-by-training block) per machine."""
         from eskin.learn.estimators import amplitude_factor, amplitude_width
 
-        g = -0.5 / (sigma * sigma)
-        dist = self._sliced(self.dist_sum, key, "distances")
+        gauss = self._gaussians(key, sigma)
         if amp is None:
-            factor = [(None, 1.0, 1.0)] * len(dist)
-        else:
-            if amp not in self._factors:
-                e = self.energies
-                self._factors[amp] = amplitude_factor(e, e, amplitude_width(amp, e))
-            factor = self._sliced(self._factors[amp], key, amp)
-        made: dict[int, tuple] = {}
+            return gauss
+        if (amp, key) not in self._cut:  # the factor's blocks, not the whole matrix sliced
+            e, te = self.energies, self.splits[key[1]][1]
+            width = self._factors.setdefault(amp, amplitude_width(amp, e))
+            made: dict[int, tuple] = {}
+            for trk in self.trains[key]:
+                if id(trk) not in made:
+                    made[id(trk)] = (trk, amplitude_factor(e[trk], e[trk], width),
+                                     amplitude_factor(e[te], e[trk], width))
+            self._cut[(amp, key)] = [made[id(trk)] for trk in self.trains[key]]
+        made = {}
         out = []
-        for (trk, Dtr, Dte), (_, Ftr, Fte) in zip(dist, factor):
+        for (trk, Etr, Ete), (_, Ftr, Fte) in zip(gauss, self._cut[(amp, key)]):
             if id(trk) not in made:
-                made[id(trk)] = (trk, _kernel_block(Dtr, g, Ftr), _kernel_block(Dte, g, Fte))
+                made[id(trk)] = (trk, Etr * Ftr, Ete * Fte)
             out.append(made[id(trk)])
         return out
 
 
-def _kernel_block(dist: np.ndarray, g: float, factor: np.ndarray | float) -> np.ndarray:
-    """exp(g dist) times the amplitude factor, in one new array."""
+def _gaussian(dist: np.ndarray, g: float) -> np.ndarray:
+    """exp(g dist), in one new array."""
     K = np.multiply(dist, g)
     np.exp(K, out=K)
-    if not (np.isscalar(factor) and factor == 1.0):
-        K *= factor
     return K
 
 
 def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linalg):
     """(error, support vectors, whether a machine collapsed) of each candidate of one recipe
-    and kernel on one split, from its machines' Gram blocks (:func:`_gram_blocks`)."""
+    and kernel on one split, from its machines' Gram blocks (:meth:`_SplitBlocks.grams`)."""
     tr, te = split
     results = []
     if recipe.machine == "rls" and recipe.negatives == "all":
@@ -459,16 +477,19 @@ def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linal
     free: list[tuple | None] = [None] * len(blocks)
     by_C = sorted(range(len(cands)), key=lambda i: (-cands[i].lam, i))
     results: list[tuple | None] = [None] * len(cands)
+    reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else (math.inf, 0)
     for i in by_C:
         c = cands[i]
+        if reach / c.lam < COLLAPSE_TOLERANCE:
+            results[i] = (1.0, trained, True)  # collapsed whatever the fit: none is made
+            continue
         F = np.empty((len(te), Y.shape[1]))
         b0 = np.zeros(Y.shape[1])
         used = np.zeros(len(y), bool)
         for k, (trk, Ktr, Kte) in enumerate(blocks):
             yk = Y[trk, k]
             if recipe.machine == "rls":
-                beta = linalg.solve(Ktr + c.lam * np.eye(len(trk)), yk, assume_a="pos",
-                                    check_finite=False)
+                beta = _solve_pos(Ktr, c.lam, yk, linalg)
                 b, support = 0.0, np.arange(len(trk))
             elif free[k] is not None:
                 beta, b, support = free[k]
@@ -482,6 +503,35 @@ def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linal
         results[i] = (float(np.mean(_predict(F, n_classes) != y[te])), int(used.sum()),
                       collapsed(F, b0))
     return results
+
+
+def _solve_pos(K: np.ndarray, lam: float, y: np.ndarray, linalg: Any) -> np.ndarray:
+    """(K + lam I)^-1 y by LAPACK's Cholesky solver (posv), K symmetric positive
+    semi-definite; scipy.linalg.solve's error when K + lam I is not positive definite."""
+    A = K + lam * np.eye(len(K))
+    _, x, info = linalg.lapack.dposv(A, y, lower=False, overwrite_a=True)
+    if info != 0:
+        return linalg.solve(K + lam * np.eye(len(K)), y, assume_a="pos", check_finite=False)
+    return x
+
+
+def _kernel_reach(blocks: list[tuple]) -> tuple[float, int]:
+    """(the largest sum of a held-out pattern's kernel values over a machine's training
+    patterns, over the machines; the training patterns of the machines together).
+
+    A C-SVM's dual coefficients are at most C, so a machine's held-out decision values lie
+    within C times that sum of its intercept: when C times it is below
+    :data:`COLLAPSE_TOLERANCE`, every machine of the candidate has collapsed, whatever its fit
+    (its scores are error 1.0 and no fit is made). Its kernel is then the identity to within
+    that tolerance on the training patterns too, where every training pattern is a support
+    vector: the count the fit would give."""
+    made: dict[int, float] = {}
+    used: set[int] = set()
+    for trk, _, Kte in blocks:
+        if id(trk) not in made:
+            made[id(trk)] = math.inf if Kte.shape[0] == 0 else float(Kte.sum(axis=1).max())
+            used.update(trk.tolist())
+    return max(made.values()), len(used)
 
 
 # --------------------------------------------------------------------------------------------
@@ -517,10 +567,16 @@ class _Row:
     fits: bool = True
     bound: int | None = None  # support vectors the model is bounded to under the budget
     collapsed: set[int] = field(default_factory=set)  # splits where a machine's kernel collapsed
+    #: (splits scored, mean error) and (splits scored, expected support vectors) when last
+    #: computed: the errors only grow by splits, and the ranking asks for them many times
+    _mean: tuple[int, float] = (0, math.nan)
+    _expected: tuple[int, int] = (0, 0)
 
     @property
     def mean(self) -> float:
-        return float(np.mean(list(self.errors.values())))
+        if self._mean[0] != len(self.errors):
+            self._mean = (len(self.errors), float(np.mean(list(self.errors.values()))))
+        return self._mean[1]
 
 
 def _record_scores(rows: Mapping[Candidate, _Row],
@@ -815,8 +871,11 @@ class RecipeSearch:
     def _expected_support(self, row: _Row, n: int) -> int:
         """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
         (scaled by the share of patterns the splits trained on)."""
-        share = np.mean([len(self.splits_[s][0]) for s in row.support]) / n
-        return int(math.ceil(np.mean(list(row.support.values())) / share))
+        if row._expected[0] != len(row.support):
+            share = np.mean([len(self.splits_[s][0]) for s in row.support]) / n
+            row._expected = (len(row.support),
+                             int(math.ceil(np.mean(list(row.support.values())) / share)))
+        return row._expected[1]
 
     def _finish(self, rows: dict[Candidate, _Row], final: list[Candidate], n: int) -> None:
         # equally good: less than one held-out pattern apart over all the splits together

@@ -529,3 +529,33 @@ def test_a_candidate_whose_kernel_collapsed_is_counted_against_and_said(data):
     fine = RecipeSearch(recipes[:1], [0.1], [1.0], ["Q/2"], [None], n_splits=3,
                         first_share=1.0, significance=None, seed=2).fit(X, y, groups)
     assert fine.collapsed_ == [] and fine.report()["collapsed"] is None
+
+
+@pytest.mark.parametrize("negatives", ["all", "balanced"])
+def test_a_kernel_collapsed_whatever_the_fit_is_scored_as_its_fit(data, negatives):
+    """sigma = 0.001: C times the largest sum of a held-out pattern's kernel values is below
+    the collapse tolerance for every machine, so the search scores the candidate without
+    fitting it: error 1.0 on every split, and the support vectors the fitted machines have
+    (every training pattern of the machines, each of them collapsed)."""
+    from eskin.learn.recipes import COLLAPSE_TOLERANCE
+
+    X, y, groups = data
+    Xr = X[(20, "algorithm2")]
+    recipe = Recipe("svm", 20, "algorithm2", negatives)
+    search = RecipeSearch([recipe], [0.1], [0.001], ["Q/2"], [None], n_splits=2,
+                          first_share=1.0, significance=None, seed=4).fit(X, y, groups)
+    [(_, splits)] = search.collapsed_
+    assert splits == [0, 1] and search.best_error_ == 1.0
+    counts = []
+    for tr, te in search.splits_:
+        ix = [np.intersect1d(tr, m) for m in one_vs_all_indices(y, 3, negatives, 4)]
+        fitted = [TensorSVC(C=10.0, sigma=0.001, alpha="half") for _ in ix]
+        for k, (f, m) in enumerate(zip(fitted, ix)):
+            f.fit(Xr[m], np.where(y[m] == k, 1, -1))
+        for f in fitted:
+            assert np.max(np.abs(f.decision_function(Xr[te]) - f.intercept_)) < COLLAPSE_TOLERANCE
+        used = np.unique(np.concatenate([m[f.support_] for m, f in zip(ix, fitted)]))
+        assert len(used) == len(np.unique(np.concatenate(ix)))
+        counts.append(len(used))
+    share = np.mean([len(tr) for tr, _ in search.splits_]) / len(y)
+    assert search.ranking_[0]["support_vectors"] == int(np.ceil(np.mean(counts) / share))
