@@ -74,6 +74,52 @@ def _kernel(m: Any, a: np.ndarray, ea: np.ndarray, b: np.ndarray, eb: np.ndarray
     return K if factor is None else K * factor
 
 
+class _TableKernels:
+    """The kernel of the support table with itself and of the fitting patterns with the table,
+    computed once per kernel setting (the machines of a 1-vs-all model share one) and sliced
+    for each machine's support vectors and the kept rows."""
+
+    def __init__(self, table: np.ndarray, energies: np.ndarray,
+                 X_fit: np.ndarray | None = None) -> None:
+        self.table, self.energies, self.X_fit = table, energies, X_fit
+        self.e_fit = None if X_fit is None else pattern_log_energy(X_fit)
+        self._made: dict[tuple, np.ndarray] = {}
+
+    def _get(self, m: Any, of_fit: bool) -> np.ndarray:
+        width = float(getattr(m, "amplitude_width_", 0.0) or 0.0)
+        key = (of_fit, tuple(m.alphas_), tuple(m.sigmas_), width)
+        if key not in self._made:
+            a, ea = (self.X_fit, self.e_fit) if of_fit else (self.table, self.energies)
+            self._made[key] = _kernel(m, a, ea, self.table, self.energies)
+        return self._made[key]
+
+    def square(self, m: Any) -> np.ndarray:
+        """K(table, table) in ``m``'s kernel."""
+        return self._get(m, False)
+
+    def of_fit(self, m: Any) -> np.ndarray:
+        """K(X_fit, table) in ``m``'s kernel."""
+        return self._get(m, True)
+
+
+def _project_rows(m: Any, kernels: _TableKernels, keep: np.ndarray, rows: np.ndarray) -> None:
+    """:func:`project_machine` onto the table rows ``keep``, the machine's support vectors
+    being the table rows ``rows``, from the table's kernels."""
+    coef = np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1)
+    if coef.size == 0 or len(keep) == 0:
+        gamma = np.zeros(len(keep))
+    elif kernels.X_fit is not None:
+        K = kernels.of_fit(m)
+        gamma = scipy.linalg.lstsq(K[:, keep], K[:, rows] @ coef, cond=RCOND)[0]
+    else:
+        K = kernels.square(m)[keep]
+        gamma = scipy.linalg.lstsq(K[:, keep], K[:, rows] @ coef, cond=RCOND)[0]
+    m.support_vectors_ = np.ascontiguousarray(kernels.table[keep])
+    m.sv_log_energy_ = np.ascontiguousarray(kernels.energies[keep])
+    m.dual_coef_ = np.ascontiguousarray(gamma)
+    m.support_ = np.full(len(keep), -1, dtype=np.intp)  # no longer training rows
+
+
 def project_machine(m: Any, patterns: np.ndarray, energies: np.ndarray,
                     X_fit: np.ndarray | None = None) -> None:
     """Replace the fitted machine ``m``'s support by ``patterns`` (with their log energies),
@@ -111,16 +157,18 @@ def _coefficient_order(estimator: Any, n_table: int, where: list[np.ndarray]) ->
 
 
 def _greedy_order(estimator: Any, table: np.ndarray, energies: np.ndarray,
-                  where: list[np.ndarray], count: int) -> np.ndarray:
+                  where: list[np.ndarray], count: int,
+                  kernels: _TableKernels | None = None) -> np.ndarray:
     """The first ``count`` table rows chosen one at a time, each the one whose addition removes
     the most of the machines' remaining ``||w_m - P_S w_m||^2`` (each machine's share of its
     own ``||w_m||^2``): kernel matching pursuit, by a pivoted Cholesky factor per machine."""
     n = len(table)
+    kernels = kernels or _TableKernels(table, energies)
     state = []
     for m, idx in zip(_machines(estimator), where):
         beta = np.zeros(n)
         np.add.at(beta, idx, np.asarray(m.dual_coef_, dtype=np.float64).reshape(-1))
-        K = _kernel(m, table, energies, table, energies)
+        K = kernels.square(m)
         resid = K @ beta  # <w - P_S w, phi(x_i)> for every row, S empty
         norm = float(beta @ resid)
         if norm > 0:
@@ -150,7 +198,8 @@ def _greedy_order(estimator: Any, table: np.ndarray, energies: np.ndarray,
 SELECTIONS = ("greedy", "coefficients")
 
 
-def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy") -> np.ndarray:
+def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy",
+                  kernels: _TableKernels | None = None) -> np.ndarray:
     """Rows of :func:`distinct_support`'s table that :func:`bound_support` keeps (sorted)."""
     if selection not in SELECTIONS:
         raise ValueError(f"selection must be one of {SELECTIONS}, got {selection!r}")
@@ -159,7 +208,7 @@ def kept_patterns(estimator: Any, max_support: int, selection: str = "greedy") -
     if selection == "coefficients":
         order = _coefficient_order(estimator, len(table), where)[:count]
     else:
-        order = _greedy_order(estimator, table, energies, where, count)
+        order = _greedy_order(estimator, table, energies, where, count, kernels)
     return np.sort(order)
 
 
@@ -178,13 +227,14 @@ def bound_support(estimator: Any, max_support: int, selection: str = "greedy",
     with at most ``max_support`` distinct support vectors over all its machines (see the
     module's docstring); the estimator itself when it already has no more."""
     max_support = check_max_support(max_support)
-    table, energies, _ = distinct_support(estimator)
+    table, energies, where = distinct_support(estimator)
     if len(table) <= max_support:
         return estimator
-    keep = kept_patterns(estimator, max_support, selection)
+    kernels = _TableKernels(table, energies, X_fit)
+    keep = kept_patterns(estimator, max_support, selection, kernels)
     out = copy.deepcopy(estimator)
-    for m in _machines(out):
-        project_machine(m, table[keep], energies[keep], X_fit)
+    for m, rows in zip(_machines(out), where):
+        _project_rows(m, kernels, keep, rows)
     return out
 
 
