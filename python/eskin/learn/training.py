@@ -580,7 +580,7 @@ def _train_searched(
 ) -> TouchModel:
     """train_model with the recipe searched (see its docstring)."""
     from eskin.learn.recipes import MACHINES as R_MACHINES
-    from eskin.learn.recipes import NEGATIVES, SEARCH_DS, SUBSAMPLES, RecipeSearch, recipe_space
+    from eskin.learn.recipes import NEGATIVES, SEARCH_DS, SUBSAMPLES, RecipeSearch
 
     base = _Recipe(machine or "svm", "cv", D, window, subsample or "algorithm2",
                    negatives or "all", seed, n_jobs, group_by)
@@ -588,19 +588,14 @@ def _train_searched(
     (rec, info, classes, idx, y_all, groups, rate, window_config, notes,
      live) = _training_setup(data, labels, classes, class_names, lengths, sample_rate_hz, runs,
                              group_by, window, window_config, choose_hold)
-    lens = np.asarray(rec.lengths)[idx]
-    recipes, cap_notes = recipe_space(
-        [machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
-        [subsample] if subsample else SUBSAMPLES, [negatives] if negatives else NEGATIVES,
-        longest=int(lens.max()) if len(lens) else None,
-        fill=None if D else fillable_D(touch_window_lengths(
-            rec, idx, window=window, config=window_config, sample_rate_hz=rate)),
-    )
-    notes += sorted(set(cap_notes))
     t0 = time.perf_counter()
-    prep = preprocess_campaign(rec, idx, sorted({r.variant for r in recipes}), window=window,
-                               config=window_config, sample_rate_hz=rate)
-    for X in prep.X.values():
+    recipes, cap_notes, patterns = _searched_patterns(
+        rec, idx, ([machine] if machine else R_MACHINES, [D] if D else SEARCH_DS,
+                   [subsample] if subsample else SUBSAMPLES,
+                   [negatives] if negatives else NEGATIVES),
+        fill=not D, window=window, window_config=window_config, rate=rate)
+    notes += sorted(set(cap_notes))
+    for X in patterns.values():
         require_touches(X, data)
     cv = dict(base.cv_options or {})
     options = {"n_splits": int(cv.get("n_splits", 10)), "test_size": float(cv.get("test_size", 0.3)),
@@ -610,12 +605,12 @@ def _train_searched(
     if budget is None and decision_us is not None:
         from eskin.learn.host_budget import host_budget
 
-        budget = host_budget(next(iter(prep.X.values())).shape[1:3], decision_us)
+        budget = host_budget(next(iter(patterns.values())).shape[1:3], decision_us)
 
     def run(g: np.ndarray | None) -> RecipeSearch:
         return RecipeSearch(recipes, base.lambdas, base.sigmas, base.alphas, base.amplitudes,
                             budget=budget, seed=seed, n_jobs=n_jobs, **options).fit(
-            prep.X, y_all, g)
+            patterns, y_all, g)
 
     search, grouped = fit_grouped(run, groups, group_by, notes)
     if search.collapse_note():
@@ -623,7 +618,7 @@ def _train_searched(
     best = search.best_
     chosen = replace(base, machine=best.recipe.machine, D=best.recipe.D,
                      subsample=best.recipe.subsample, negatives=best.recipe.negatives)
-    X = prep.X[best.recipe.variant]
+    X = patterns[best.recipe.variant]
     estimator, selected = _fit_candidate(best, X, y_all, classes, seed)
     for s in selected:
         s["selection_terms"] = {"mean_test_error": float(search.best_error_),
@@ -646,6 +641,33 @@ def _train_searched(
     if by_budget:  # bounded by the search, to the most support vectors that fit the budget
         model.training["support_budget"]["by"] = "budget"
     return model
+
+
+def _searched_patterns(
+    rec: Any, idx: np.ndarray, space: tuple, *, fill: bool, window: str, window_config: Any,
+    rate: float,
+) -> tuple[list[Any], list[str], dict[tuple[int, str], np.ndarray]]:
+    """(the recipes of ``space`` (machines, Ds, subsamples, negatives) capped by the longest
+    training recording and, with ``fill``, by the D the touch windows fill, the notes of the
+    caps, the patterns of every recipe's variant). The touch windows are detected once: the
+    recipes' Ds are preprocessed, their windows give the fillable D, and only a D that cap
+    makes is preprocessed again."""
+    from eskin.learn.recipes import recipe_space
+
+    lens = np.asarray(rec.lengths)[idx]
+    longest = int(lens.max()) if len(lens) else None
+    first, _ = recipe_space(*space, longest=longest)
+    prep = preprocess_campaign(rec, idx, sorted({r.variant for r in first}), window=window,
+                               config=window_config, sample_rate_hz=rate)
+    found = fillable_D(prep.windows[:, 1] - prep.windows[:, 0]) if fill else None
+    recipes, cap_notes = recipe_space(*space, longest=longest, fill=found)
+    variants = sorted({r.variant for r in recipes})
+    patterns = {v: prep.X[v] for v in variants if v in prep.X}
+    missing = [v for v in variants if v not in patterns]
+    if missing:
+        patterns.update(preprocess_campaign(rec, idx, missing, window=window,
+                                            config=window_config, sample_rate_hz=rate).X)
+    return recipes, cap_notes, patterns
 
 
 def _live_hold(rec: Any, idx: np.ndarray, window_config: Any, rate: float, window: str,
