@@ -17,7 +17,8 @@ people's recordings and scored on the held-out people's:
   grouped CV (``eskin.learn.baselines.vector_svm``).
 
 Each method runs in a fresh process (spawned), which reports its own process CPU time
-(``time.process_time``: every thread of the process; preprocessing included) and its peak
+(``time.process_time``: every thread of the process; preprocessing included, the imports of
+the method's modules not) and its peak
 resident set (``ru_maxrss``, interpreter and imports included), so that one method's memory
 does not hide another's. For eskin's models also the distinct support vectors, D and the
 decision time of the compiled classifier on this host (float32 ``.eskin``,
@@ -28,6 +29,23 @@ Usage (ESKIN_BIN_DIR / PYTHONPATH as for the other benchmarks):
 
     python benchmarks/bench_peers.py [--campaigns sim70,sim10,strip-1x4-100Hz,grid-8x8-1kHz]
         [--baseline-src /tmp/eskin-base/python] [--methods eskin,minirocket,rbf]
+
+MiniRocket needs aeon (``pip install 'eskin[minirocket]'``). aeon pins an older numpy than
+eskin's environment may hold, so the script can run from an environment of its own, with this
+tree's sources and compiled core on PYTHONPATH (eskin's dependencies and aeon in it, their
+bytecode compiled once, as pip does: without it every process compiles SciPy and
+scikit-learn again)::
+
+    uv venv /tmp/eskin-bench --python .venv/bin/python
+    uv pip install --python /tmp/eskin-bench/bin/python 'aeon>=1.0' numpy scipy scikit-learn \
+        h5py joblib matplotlib typer rich npTDMS aiohttp
+    /tmp/eskin-bench/bin/python -m compileall -q /tmp/eskin-bench/lib
+    PYTHONPATH=python ESKIN_BIN_DIR=build/dev /tmp/eskin-bench/bin/python \
+        benchmarks/bench_peers.py --campaigns sim70,sim10 --methods eskin,minirocket \
+        --baseline-src /tmp/eskin-base/python
+
+A ``--baseline-src`` tree (``git archive COMMIT python | tar -x -C /tmp/eskin-base``) needs
+this build's compiled core copied into its ``eskin`` folder.
 """
 
 from __future__ import annotations
@@ -152,6 +170,11 @@ def _child(method, path, n_train, window, src):
         rng = np.random.default_rng(0)
         minirocket(rng.normal(size=(6, 2, 2, 20)), np.array([0, 1] * 3),
                    rng.normal(size=(2, 2, 2, 20)))
+    # importing is not training either: the method's modules (scikit-learn, SciPy and eskin's
+    # own, compiled from source when there is no bytecode) are imported before the clock
+    import eskin.learn.baselines
+    import eskin.learn.training
+
     cpu0 = time.process_time()
     if method.startswith("eskin"):
         options = {"decision_us": None} if method == "eskin, no host budget" else {}
