@@ -194,6 +194,9 @@ struct Classifier::Impl {
     else px32.resize(n_proj);
     const std::size_t n_dist = t.groups.size() * static_cast<std::size_t>(m.n_support()) * 3;
     const std::size_t n_gap = m.has_amplitude() ? static_cast<std::size_t>(m.n_support()) : 0;
+#if !defined(ESKIN_DEVICE)
+    ov.resize(static_cast<std::size_t>(m.n_support()));
+#endif
     if (wide) {
       dist64.resize(n_dist);
       gap64.resize(n_gap);
@@ -242,6 +245,10 @@ struct Classifier::Impl {
   detail::OverlapF64 ov64;
   detail::DotF32 dot32 = detail::select_dot_f32();
   detail::DotF64 dot64 = detail::select_dot_f64();
+#if !defined(ESKIN_DEVICE)
+  detail::OverlapsF32 ovs32 = detail::select_overlaps_f32();
+  std::vector<double> ov;  // the overlaps of one mode, per support vector of a group
+#endif
 };
 
 namespace {
@@ -285,6 +292,65 @@ Classifier::Classifier(const Model& model, TensorsOnly)
 Classifier::~Classifier() = default;
 Classifier::Classifier(Classifier&&) noexcept = default;
 
+namespace {
+// The squared distances of mode z between the input (its bases in s) and every support vector
+// of group g, into s's table: |r_i - r_x| where one of the two subspaces is all of R^N, else
+// r_i + r_x - 2 ov from the projections or the overlap of the bases. A float32 model's mode
+// without either (alpha < N: no subspace spans R^N) takes the overlaps of all the group's
+// support vectors in one call on the host (detail::OverlapsF32).
+void mode_distances(const Model& m, Classifier::Impl& s, std::size_t g, int z) noexcept {
+  const detail::DecisionTables& tables = m.decision_tables();
+  const std::size_t n_sv = static_cast<std::size_t>(m.n_support());
+  const bool f64 = m.is_float64();
+  const auto& grp = tables.groups[g];
+  const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
+  const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
+  const std::size_t a = static_cast<std::size_t>(grp.alpha[static_cast<std::size_t>(z)]);
+  const int rx = std::min(s.xr[z], static_cast<int>(a));
+  const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
+  const auto zz = static_cast<std::size_t>(z);
+  const bool proj = grp.proj[zz];
+  if (proj) {
+    if (f64) detail::projection(s.xb64.data() + xoff, N, a, s.px.data());
+    else detail::projection(s.xb32.data() + xoff, N, a, s.px32.data());
+  }
+#if !defined(ESKIN_DEVICE)
+  if (!proj && !f64 && a < N) {
+    s.ovs32(m.bases_f32(z), A * N, grp.svs.data(), grp.svs.size(), s.xb32.data() + xoff, N, a,
+            s.ov.data());
+    for (std::size_t t = 0; t < grp.svs.size(); ++t) {
+      const std::uint32_t i = grp.svs[t];
+      const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+      s.set_dist((g * n_sv + i) * 3 + zz,
+                 std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
+                                               static_cast<DecisionReal>(rx) -
+                                               DecisionReal(2) * static_cast<DecisionReal>(s.ov[t])));
+    }
+    return;
+  }
+#endif
+  for (const std::uint32_t i : grp.svs) {
+    const std::size_t at = (g * n_sv + i) * 3 + zz;
+    const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
+    if (spans(ri, rx, N)) {
+      s.set_dist(at, static_cast<DecisionReal>(std::abs(ri - rx)));
+    } else if (proj) {  // <P_sv, P_x>_F, summed in double
+      const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
+                            : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
+      s.set_dist(at, static_cast<DecisionReal>(
+          std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
+    } else {
+      const auto ov = static_cast<DecisionReal>(
+          f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
+              : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
+      s.set_dist(at, std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
+                                                   static_cast<DecisionReal>(rx) -
+                                                   DecisionReal(2) * ov));
+    }
+  }
+}
+}  // namespace
+
 ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) noexcept {
   if (tensor == nullptr || out == nullptr) return ClassifyStatus::kNullPointer;
   const Model& m = *model_;
@@ -297,41 +363,8 @@ ClassifyStatus Classifier::classify_tensor(const double* tensor, Decision* out) 
 
   const std::size_t n_sv = static_cast<std::size_t>(m.n_support());
   const detail::DecisionTables& tables = m.decision_tables();
-  for (std::size_t g = 0; g < tables.groups.size(); ++g) {
-    const auto& grp = tables.groups[g];
-    for (int z = 0; z < 3; ++z) {
-      const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
-      const std::size_t A = static_cast<std::size_t>(m.alpha_store(z));
-      const std::size_t a = static_cast<std::size_t>(grp.alpha[static_cast<std::size_t>(z)]);
-      const int rx = std::min(s.xr[z], static_cast<int>(a));
-      const std::size_t xoff = s.layout.offset(static_cast<std::size_t>(z));
-      const auto zz = static_cast<std::size_t>(z);
-      const bool proj = grp.proj[zz];
-      if (proj) {
-        if (f64) detail::projection(s.xb64.data() + xoff, N, a, s.px.data());
-        else detail::projection(s.xb32.data() + xoff, N, a, s.px32.data());
-      }
-      for (const std::uint32_t i : grp.svs) {
-        const std::size_t at = (g * n_sv + i) * 3 + zz;
-        const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
-        if (spans(ri, rx, N)) {
-          s.set_dist(at, static_cast<DecisionReal>(std::abs(ri - rx)));
-        } else if (proj) {  // <P_sv, P_x>_F, summed in double
-          const double ov = f64 ? s.dot64(grp.p64[zz].data() + i * N * N, s.px.data(), N * N)
-                                : s.dot32(grp.p32[zz].data() + i * N * N, s.px32.data(), N * N);
-          s.set_dist(at, static_cast<DecisionReal>(
-              std::max(0.0, static_cast<double>(ri) + static_cast<double>(rx) - 2.0 * ov)));
-        } else {
-          const auto ov = static_cast<DecisionReal>(
-              f64 ? s.ov64(m.bases_f64(z) + i * A * N, s.xb64.data() + xoff, N, a)
-                  : s.ov32(m.bases_f32(z) + i * A * N, s.xb32.data() + xoff, N, a));
-          s.set_dist(at, std::max(DecisionReal(0), static_cast<DecisionReal>(ri) +
-                                                       static_cast<DecisionReal>(rx) -
-                                                       DecisionReal(2) * ov));
-        }
-      }
-    }
-  }
+  for (std::size_t g = 0; g < tables.groups.size(); ++g)
+    for (int z = 0; z < 3; ++z) mode_distances(m, s, g, z);
   if (m.has_amplitude()) {
     // the amplitude factor's input: e(x) once per decision, in double (also on a controller)
     const double ex = tensor_log_energy(tensor, static_cast<std::size_t>(m.rows()) * m.cols() * m.D());

@@ -1,6 +1,7 @@
 // Subspace-overlap micro-kernels of the model classifier (see model_overlap.hpp).
 #include "model_overlap.hpp"
 
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 
@@ -153,6 +154,20 @@ __attribute__((target("avx2,fma"))) double hsum8(__m256 v) noexcept {
   return _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
 }
 
+// (b . x)^2 of one column pair, the dot product as overlap_f32_avx2 sums it.
+__attribute__((target("avx2,fma"))) double overlap_pair(const float* b, const float* x,
+                                                       std::size_t n) noexcept {
+  const std::size_t n8 = n - n % 8;
+  __m256 a = _mm256_setzero_ps();
+  for (std::size_t i = 0; i < n8; i += 8)
+    a = _mm256_fmadd_ps(_mm256_loadu_ps(b + i), _mm256_loadu_ps(x + i), a);
+  double d = hsum8(a);
+  double t = 0.0;
+  for (std::size_t i = n8; i < n; ++i) t += static_cast<double>(b[i]) * static_cast<double>(x[i]);
+  d += t;
+  return d * d;
+}
+
 // Dot products of columns b_k (k in kb) with x_l (l in lb), 2 x 2 at a time: each pass loads
 // two columns of b and two of x and feeds four FMAs.
 __attribute__((target("avx2,fma"))) double overlap_f32_avx2(const float* b, const float* x,
@@ -211,6 +226,91 @@ __attribute__((target("avx2,fma"))) double overlap_f32_avx2(const float* b, cons
     }
   }
   return s;
+}
+
+// The sum of the squares of the dot products held in 4 x 8 float partial sums, each dot product
+// summed as hsum8 does it (lanes j and j + 4 in double, then (0 + 2) + (1 + 3)): the same four
+// dot products, bit for bit, in one pass of packed instructions instead of four reductions.
+__attribute__((target("avx2,fma"))) inline __m256d half(__m256 v) noexcept {
+  return _mm256_add_pd(_mm256_cvtps_pd(_mm256_castps256_ps128(v)),
+                       _mm256_cvtps_pd(_mm256_extractf128_ps(v, 1)));
+}
+__attribute__((target("avx2,fma"))) __m256d hsum8x4(__m256 a, __m256 b, __m256 c,
+                                                  __m256 d) noexcept {
+  const __m256d sa = half(a), sb = half(b), sc = half(c), sd = half(d);
+  const __m256d u = _mm256_add_pd(_mm256_permute2f128_pd(sa, sb, 0x20),
+                                  _mm256_permute2f128_pd(sa, sb, 0x31));
+  const __m256d v = _mm256_add_pd(_mm256_permute2f128_pd(sc, sd, 0x20),
+                                  _mm256_permute2f128_pd(sc, sd, 0x31));
+  return _mm256_hadd_pd(u, v);  // (dot a, dot c, dot b, dot d)
+}
+
+// ||B^T X||_F^2 of one support vector's block against the input's, LB = 4 columns of x at a
+// time (held in registers with 2 columns of b: 8 partial sums, 14 of the 16 vector registers),
+// so that each column of b is read from memory once; the 1-3 columns of x left, and an odd
+// column of b, by the pairwise variant. Squares summed in a packed double accumulator.
+__attribute__((target("avx2,fma"))) double overlap_f32_avx2_wide(const float* b, const float* x,
+                                                                 std::size_t n,
+                                                                 std::size_t alpha) noexcept {
+  const std::size_t l4 = alpha - alpha % 4, k2 = alpha - alpha % 2;
+  if (l4 == 0 || k2 == 0 || n % 8 != 0) return overlap_f32_avx2(b, x, n, alpha);
+  __m256d sq = _mm256_setzero_pd();
+  for (std::size_t k = 0; k < k2; k += 2) {
+    const float* b0 = b + k * n;
+    const float* b1 = b0 + n;
+    for (std::size_t l = 0; l < l4; l += 4) {
+      const float* x0 = x + l * n;
+      __m256 a00 = _mm256_setzero_ps(), a01 = a00, a02 = a00, a03 = a00;
+      __m256 a10 = a00, a11 = a00, a12 = a00, a13 = a00;
+      for (std::size_t i = 0; i < n; i += 8) {
+        const __m256 vb0 = _mm256_loadu_ps(b0 + i), vb1 = _mm256_loadu_ps(b1 + i);
+        __m256 vx0 = _mm256_loadu_ps(x0 + i), vx1 = _mm256_loadu_ps(x0 + n + i);
+        __m256 vx2 = _mm256_loadu_ps(x0 + 2 * n + i), vx3 = _mm256_loadu_ps(x0 + 3 * n + i);
+        // one load per column and pass (the compiler would otherwise fold the loads of x into
+        // both FMAs that use them: 10 loads a pass instead of 6, the loads then the bound)
+        __asm__("" : "+x"(vx0), "+x"(vx1), "+x"(vx2), "+x"(vx3));
+        a00 = _mm256_fmadd_ps(vb0, vx0, a00);
+        a01 = _mm256_fmadd_ps(vb0, vx1, a01);
+        a02 = _mm256_fmadd_ps(vb0, vx2, a02);
+        a03 = _mm256_fmadd_ps(vb0, vx3, a03);
+        a10 = _mm256_fmadd_ps(vb1, vx0, a10);
+        a11 = _mm256_fmadd_ps(vb1, vx1, a11);
+        a12 = _mm256_fmadd_ps(vb1, vx2, a12);
+        a13 = _mm256_fmadd_ps(vb1, vx3, a13);
+      }
+      const __m256d d0 = hsum8x4(a00, a01, a02, a03), d1 = hsum8x4(a10, a11, a12, a13);
+      sq = _mm256_fmadd_pd(d0, d0, sq);
+      sq = _mm256_fmadd_pd(d1, d1, sq);
+    }
+  }
+  const __m128d t = _mm_add_pd(_mm256_castpd256_pd128(sq), _mm256_extractf128_pd(sq, 1));
+  double s = _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)));
+  // the columns of x beyond l4 against the first k2 columns of b, then the last column of b
+  // (odd alpha) against every column of x: the pairwise variant on those sub-blocks
+  for (std::size_t l = l4; l < alpha; ++l)
+    for (std::size_t k = 0; k < k2; ++k) s += overlap_pair(b + k * n, x + l * n, n);
+  for (std::size_t k = k2; k < alpha; ++k)
+    for (std::size_t l = 0; l < alpha; ++l) s += overlap_pair(b + k * n, x + l * n, n);
+  return s;
+}
+
+// The overlaps of `count` support vectors (sv[t]'s block at bases + sv[t] * block) with the
+// input's, into out[t]; the block after next is prefetched while one is computed (the stored
+// bases of a large model come from memory: this keeps several of their lines on the way).
+__attribute__((target("avx2,fma"))) void overlaps_f32_avx2(const float* bases, std::size_t block,
+                                                          const std::uint32_t* sv,
+                                                          std::size_t count, const float* x,
+                                                          std::size_t n, std::size_t alpha,
+                                                          double* out) noexcept {
+  const std::size_t used = n * alpha;  // floats read of each block
+  for (std::size_t t = 0; t < count; ++t) {
+    if (t + 2 < count) {
+      const char* p = reinterpret_cast<const char*>(bases + sv[t + 2] * block);
+      for (std::size_t o = 0; o < used * sizeof(float); o += 64)
+        _mm_prefetch(p + o, _MM_HINT_T0);
+    }
+    out[t] = overlap_f32_avx2_wide(bases + sv[t] * block, x, n, alpha);
+  }
 }
 
 __attribute__((target("avx2,fma"))) double overlap_f64_avx2(const double* b, const double* x,
@@ -287,6 +387,24 @@ OverlapF32 select_overlap_f32() noexcept {
 #endif
   return &overlap_f32_generic;
 }
+
+#if !defined(ESKIN_DEVICE)
+namespace {
+void overlaps_f32_generic(const float* bases, std::size_t block, const std::uint32_t* sv,
+                          std::size_t count, const float* x, std::size_t n, std::size_t alpha,
+                          double* out) noexcept {
+  for (std::size_t t = 0; t < count; ++t)
+    out[t] = overlap_f32_generic(bases + sv[t] * block, x, n, alpha);
+}
+}  // namespace
+
+OverlapsF32 select_overlaps_f32() noexcept {
+#ifdef ESKIN_MODEL_X86_DISPATCH
+  if (use_simd()) return &overlaps_f32_avx2;
+#endif
+  return &overlaps_f32_generic;
+}
+#endif
 
 OverlapF64 select_overlap_f64() noexcept {
 #ifdef ESKIN_MODEL_X86_DISPATCH

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 
 namespace eskin::detail {
 
@@ -24,11 +25,23 @@ using DotF64 = double (*)(const double* a, const double* b, std::size_t n) noexc
 double overlap_f32_tiled(const float* b, const float* x, std::size_t n,
                          std::size_t alpha) noexcept;
 
+/// The overlaps of `count` support vectors with one input (the host's path of a mode without
+/// projections): support vector sv[t]'s N x alpha_stride block at bases + sv[t] * block, its
+/// overlap into out[t]. The same dot products as the single overlap of this CPU, bit for bit
+/// (their squares summed in double in another order); one call per mode, and the AVX2 variant
+/// reads each stored column once per decision and prefetches the blocks ahead.
+using OverlapsF32 = void (*)(const float* bases, std::size_t block, const std::uint32_t* sv,
+                             std::size_t count, const float* x, std::size_t n,
+                             std::size_t alpha, double* out) noexcept;
+
 /// Best variants for this CPU (AVX2+FMA on x86 when available; ESKIN_KERNEL_ISA=generic forces
 /// the portable ones).
 OverlapF32 select_overlap_f32() noexcept;
 OverlapF64 select_overlap_f64() noexcept;
 DotF32 select_dot_f32() noexcept;
+#if !defined(ESKIN_DEVICE)
+OverlapsF32 select_overlaps_f32() noexcept;
+#endif
 DotF64 select_dot_f64() noexcept;
 const char* overlap_kernel_name() noexcept;
 

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cstddef>
+#include <cstdint>
 #include <random>
 #include <vector>
 
@@ -74,4 +75,28 @@ TEST(ModelOverlap, TheSelectedVariantsAgreeWithTheTiledOne) {
   const double tiled = eskin::detail::overlap_f32_tiled(b.data(), x.data(), n, alpha);
   const double chosen = eskin::detail::select_overlap_f32()(b.data(), x.data(), n, alpha);
   EXPECT_NEAR(chosen, tiled, 2e-5 * (1.0 + tiled));
+}
+
+TEST(ModelOverlap, TheOverlapsOfManySupportVectorsAreEachOnesOverlap) {
+  // the host's one call per mode (detail::OverlapsF32): support vectors taken by index from a
+  // table of blocks of alpha_store columns, for alphas that cut into the 4-column tiles, the
+  // pairs and the columns left; against the definition and against the single overlap
+  std::mt19937 rng(5);
+  const std::size_t n = 200, stored = 6, count = 7;
+  const std::vector<std::uint32_t> sv = {4, 0, 9, 2, 2, 7, 5};
+  const auto table = columns(n, stored * 10, rng);
+  const auto x = columns(n, stored, rng);
+  for (std::size_t alpha = 1; alpha <= stored; ++alpha) {
+    std::vector<double> out(count, -1.0);
+    eskin::detail::select_overlaps_f32()(table.data(), stored * n, sv.data(), count, x.data(), n,
+                                         alpha, out.data());
+    for (std::size_t t = 0; t < count; ++t) {
+      const float* b = table.data() + sv[t] * stored * n;
+      const std::vector<float> block(b, b + stored * n);
+      const double want = reference(block, x, n, alpha);
+      EXPECT_NEAR(out[t], want, 2e-5 * (1.0 + want)) << "alpha " << alpha << " sv " << sv[t];
+      const double one = eskin::detail::select_overlap_f32()(b, x.data(), n, alpha);
+      EXPECT_NEAR(out[t], one, 1e-12 * (1.0 + one)) << "alpha " << alpha << " sv " << sv[t];
+    }
+  }
 }
