@@ -53,12 +53,13 @@ NEGATIVES_HELP = (
 
 SCHEDULER_HELP = "Dask scheduler address, or local:N for a pool of N worker processes here"
 
-#: --decision-us's default: the host budget's (about 100 us a decision on a 4x4 grid)
-DECISION_US_DEFAULT = 80.0  # eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI)
+#: --decision-us's default: the host budget's (the support vectors' share of a decision at the
+#: end of a touch)
+DECISION_US_DEFAULT = 180.0  # eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI)
 DECISION_US_HELP = (
     "without --target/--budget: the searched model's support vectors take at most this many "
-    "microseconds of a decision on the host, estimated by a fixed count (the search trades D, "
-    "alpha and the support vectors; docs/learning.md); 0: no bound")
+    "microseconds of a decision at the end of a touch on the host, estimated by a fixed count "
+    "(the search trades D, alpha and the support vectors; docs/learning.md); 0: no bound")
 
 
 def _decision_us(value: float) -> dict[str, Any]:

@@ -13,25 +13,26 @@ expected to need more is kept with its support vectors bounded to the most that 
 of them, else dropped. Like a controller's budget it trades D against alpha and the support
 vectors (the order of preference then leaves D out, :func:`~eskin.learn.recipes.budget_preference`).
 The input's bases are left out of the cap: a fixed cost of the grid and D that the campaign
-does not change (about 15-35 us on a 4x4 grid, which the default cap of 80 us leaves room for
-within 100 us a decision).
+does not change (:data:`HOST_US_INPUT` plus :data:`HOST_NS_PER_ENTRY` per entry of the
+pattern: 38-48 us on a 4x4 grid at D = 20-100).
 
-The cost of one decision of the compiled classifier (``cpp/src/model*.cpp``): the input's
-bases (one thin SVD per mode unfolding, a fixed cost per D and grid), then per distinct
-support vector and mode z the overlap of the input's alpha_z basis vectors with the support
-vector's stored ones (N_z alpha_z entries, N_z = (rows cols D) / d_z; nothing for a mode whose
-alpha reaches N_z: a full-rank subspace is all of R^N_z), and the machines' sums. What a
-support vector costs follows the entries of its bases read per decision (:func:`basis_entries`,
-float32) more closely than the multiply-adds: past the caches each decision streams them from
-memory. :func:`host_decision_us` is :data:`HOST_NS_PER_SV` per support vector plus
-:data:`HOST_NS_PER_BASIS_ENTRY` per entry of its bases, plus the input bases' share: a
+The cost of one decision of the compiled classifier (``cpp/src/model*.cpp``) at the end of a
+touch, the time that matters (from the touch's last sample to its label): the window's
+subsampling and the input's bases (one eigen-solve per mode unfolding, a fixed cost per D and
+grid), then per distinct support vector and mode z the overlap of the input's alpha_z basis
+vectors with the support vector's stored ones (N_z alpha_z entries, N_z = (rows cols D) / d_z;
+nothing for a mode whose alpha reaches N_z: a full-rank subspace is all of R^N_z), and the
+machines' sums. Between two touches the stream and the rest of the host take the caches, so a
+model's stored bases come from memory at each decision: what a support vector costs follows the
+entries of its bases read per decision (:func:`basis_entries`, float32), at about the host's
+memory bandwidth. :func:`host_decision_us` is :data:`HOST_NS_PER_SV` per support vector plus
+:data:`HOST_NS_PER_BASIS_ENTRY` per entry of its bases, plus the input's share: a
 deterministic count (the same on any host and at any load, so training is reproducible), its
-figures fitted to the compiled classifier's warm decision times on the 2-core development host
-(float32 models of 4x4 patterns at D = 20, 50 and 100 and alpha 1, Q/2 and Q with 150 and 336
-support vectors: 0.06-0.15 us per support vector at D = 20, 0.26-0.61 us at D = 100; the fit
-is within 0.09 us per support vector of each, BENCHMARKS.md "Deployed inference").
-``benchmarks/host_budget_fit.py`` measures those times and fits the figures;
-``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
+figures fitted to the compiled classifier's end-of-touch decision times on the 2-core
+development host (``benchmarks/host_budget_fit.py``: float32 models of 4x4 patterns at D = 20,
+50 and 100 and alpha 1, Q/2 and Q with 150 and 336 support vectors, two runs at load average
+8-9; the input's share from the same host's times of the input's bases with the caches
+emptied). ``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
 """
 
 from __future__ import annotations
@@ -44,17 +45,20 @@ from eskin.errors import TrainingError
 
 __all__ = ["HOST_DECISION_US", "basis_entries", "host_budget", "host_decision_us", "support_us"]
 
-#: the default cap on the support vectors' share of a decision on the host (microseconds):
-#: with the input's bases, about 100 us a decision on a 4x4 grid
-HOST_DECISION_US = 80.0
-#: nanoseconds per entry (float32) of a support vector's stored bases, read and multiplied
-#: into its overlaps with the input's
-HOST_NS_PER_BASIS_ENTRY = 0.18
+#: the default cap on the support vectors' share of a decision at the end of a touch on the
+#: host (microseconds): what keeps the searched model of the built-in 70-participant campaign
+#: (D = 50, alpha Q, about 240 support vectors; docs/learning.md, "The host budget")
+HOST_DECISION_US = 180.0
+#: nanoseconds per entry (float32) of a support vector's stored bases, read from memory and
+#: multiplied into its overlaps with the input's
+HOST_NS_PER_BASIS_ENTRY = 0.39
 #: nanoseconds per support vector besides its bases (the kernel value, the amplitude factor,
-#: the machines' terms)
-HOST_NS_PER_SV = 40.0
-#: nanoseconds per entry of the input's pattern (rows x cols x D) for its bases
-HOST_NS_PER_ENTRY = 4.0
+#: the machines' terms, its ranks and distances)
+HOST_NS_PER_SV = 120.0
+#: microseconds of the input's bases and the window's subsampling whatever the pattern's size
+HOST_US_INPUT = 35.0
+#: nanoseconds per entry of the input's pattern (rows x cols x D) on top of HOST_US_INPUT
+HOST_NS_PER_ENTRY = 8.0
 
 
 def basis_entries(grid_shape: Sequence[int], D: int, alphas: Sequence[int]) -> int:
@@ -73,10 +77,10 @@ def basis_entries(grid_shape: Sequence[int], D: int, alphas: Sequence[int]) -> i
 
 def host_decision_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
                      n_support: int) -> float:
-    """Estimated microseconds of one decision on the host of a model with ``n_support``
-    distinct support vectors at D and the per-mode ``alphas``."""
+    """Estimated microseconds of one decision at the end of a touch on the host of a model with
+    ``n_support`` distinct support vectors at D and the per-mode ``alphas``."""
     rows, cols = (int(v) for v in grid_shape)
-    bases = rows * cols * int(D) * HOST_NS_PER_ENTRY
+    bases = HOST_US_INPUT * 1e3 + rows * cols * int(D) * HOST_NS_PER_ENTRY
     per_sv = HOST_NS_PER_SV + basis_entries(grid_shape, D, alphas) * HOST_NS_PER_BASIS_ENTRY
     return (bases + int(n_support) * per_sv) / 1e3
 

@@ -375,10 +375,10 @@ def train_model(
     budget : a :class:`~eskin.learn.recipes.CandidateBudget`
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
     decision_us : without ``budget``, the support vectors of the searched model take at most
-        this many microseconds of a decision on the host, estimated by a fixed count
-        (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 80, about 100 us a
-        decision with the input's bases on a 4x4 grid: the search trades D against alpha and
-        the support vectors, which it bounds when needed); None: no bound. Only a searched
+        this many microseconds of a decision at the end of a touch on the host, estimated by a
+        fixed count (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 180,
+        plus 38-48 us for the input's bases on a 4x4 grid: the search trades D against alpha
+        and the support vectors, which it bounds when needed); None: no bound. Only a searched
         recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_model_bytes : at most this many bytes in the model's float32 ``.eskin`` file (None,

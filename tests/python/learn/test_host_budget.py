@@ -7,9 +7,11 @@ import pytest
 
 from eskin.errors import TrainingError
 from eskin.learn.host_budget import (
+    HOST_DECISION_US,
     HOST_NS_PER_BASIS_ENTRY,
     HOST_NS_PER_ENTRY,
     HOST_NS_PER_SV,
+    HOST_US_INPUT,
     basis_entries,
     host_budget,
     host_decision_us,
@@ -27,21 +29,25 @@ def test_basis_entries_counts_N_alpha_per_mode_and_nothing_for_a_full_rank_mode(
 
 
 def test_host_decision_us_is_the_bases_plus_the_support_vectors_entries():
-    base = 4 * 4 * 100 * HOST_NS_PER_ENTRY / 1e3
+    base = HOST_US_INPUT + 4 * 4 * 100 * HOST_NS_PER_ENTRY / 1e3
     assert host_decision_us((4, 4), 100, (2, 2, 8), 0) == pytest.approx(base)
     per_sv = ((400 * 2 * 2 + 16 * 8) * HOST_NS_PER_BASIS_ENTRY + HOST_NS_PER_SV) / 1e3
     assert host_decision_us((4, 4), 100, (2, 2, 8), 50) == pytest.approx(base + 50 * per_sv)
 
 
-def test_the_estimate_follows_the_measured_cost_per_support_vector():
-    """The fitted figures against the warm decision times they were fitted to (4x4, 336
-    support vectors): D = 50 alpha Q about 0.31 us per support vector, D = 100 alpha Q
-    about 0.61; the default cap admits every support vector of a D = 20 alpha Q model of 336
-    and about a third of them at D = 100 alpha Q."""
-    assert support_us((4, 4), 50, (4, 4, 16), 1) == pytest.approx(0.31, abs=0.03)
-    assert support_us((4, 4), 100, (4, 4, 16), 1) == pytest.approx(0.61, abs=0.03)
-    assert support_us((4, 4), 20, (4, 4, 16), 336) <= 80.0
-    assert support_us((4, 4), 100, (4, 4, 16), 336) > 2.5 * 80.0
+def test_the_estimate_follows_the_measured_end_of_touch_cost():
+    """The fitted figures against the end-of-touch decision times they were fitted to (4x4):
+    the input's bases 38-48 us at D = 20-100; D = 50 alpha Q about 0.74 us per support vector,
+    D = 100 alpha Q about 1.4; the default cap admits about 240 support vectors at D = 50
+    alpha Q (the searched model of the built-in 70-participant campaign kept 241 of its 336),
+    every one of 336 at D = 20 alpha Q and about 130 at D = 100 alpha Q."""
+    assert host_decision_us((4, 4), 20, (4, 4, 16), 0) == pytest.approx(38, abs=1)
+    assert host_decision_us((4, 4), 100, (4, 4, 16), 0) == pytest.approx(48, abs=1)
+    assert support_us((4, 4), 50, (4, 4, 16), 1) == pytest.approx(0.74, abs=0.03)
+    assert support_us((4, 4), 100, (4, 4, 16), 1) == pytest.approx(1.37, abs=0.03)
+    assert 240 <= HOST_DECISION_US / support_us((4, 4), 50, (4, 4, 16), 1) < 243
+    assert support_us((4, 4), 20, (4, 4, 16), 336) <= HOST_DECISION_US
+    assert 120 < HOST_DECISION_US / support_us((4, 4), 100, (4, 4, 16), 1) < 140
 
 
 def _candidate(D: int, alpha: str) -> Candidate:
