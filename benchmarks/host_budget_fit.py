@@ -14,7 +14,10 @@ count must predict, not those of one window repeated (printed beside them, "warm
 The 18 times are fitted together by least squares to the count's three terms: a cost per entry
 of the input's pattern (rows x cols x D: its bases), per support vector, and per entry of a
 support vector's stored bases (:func:`basis_entries`). Printed beside the count itself
-(:func:`host_decision_us`) and each model's residual.
+(:func:`host_decision_us`) and each model's residual. The input's share, which those models'
+support vectors dwarf, is measured apart: at each D a model trained on the first
+FEW_PEOPLE participants (a few dozen support vectors), its time less its support vectors'
+share by the fit, fitted to a fixed cost plus a cost per entry of the pattern.
 
 Run:  ESKIN_BIN_DIR=build/dev PYTHONPATH=python python benchmarks/host_budget_fit.py \\
           --campaign /tmp/eskin_bench_peers/bench_peers_sim70.h5
@@ -38,6 +41,7 @@ from eskin.learn.kernel import resolve_alphas
 from eskin.learn.models import TouchModel
 
 PEOPLE = (25, 56)
+FEW_PEOPLE = 3
 
 
 def decision_us(camp, X: np.ndarray, y: np.ndarray, D: int, alpha, stream: np.ndarray,
@@ -86,7 +90,24 @@ def main() -> None:
     print(f"least squares: {1e3 * c_in:.1f} ns per entry of the input's pattern + "
           f"{1e3 * c_sv:.0f} ns per support vector + {1e3 * c_entry:.3f} ns per entry of its "
           f"bases; residuals (us) {np.round(res, 1).tolist()}. Load average "
-          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.", flush=True)
+    few = []
+    idx = np.flatnonzero(np.isin(part, people[:FEW_PEOPLE]))
+    for D in (20, 50, 100):
+        X = eskin.preprocess(np.asarray(camp.signals)[idx], D,
+                             lengths=np.asarray(camp.lengths)[idx],
+                             sample_rate_hz=camp.sample_rate_hz)
+        touch, _, n_sv = decision_us(camp, X, np.asarray(camp.modality)[idx].astype(np.int64),
+                                     D, "full", stream, args.passes)
+        grid = X.shape[1:3]
+        entries = basis_entries(grid, D, resolve_alphas((*grid, D), "full"))
+        few.append((grid[0] * grid[1] * D, touch - n_sv * (c_sv + c_entry * entries)))
+        print(f"D = {D:3d}, alpha Q, {n_sv} SVs: {touch:6.1f} us at the end of a touch, "
+              f"{few[-1][1]:6.1f} us without its support vectors' share", flush=True)
+    size, rest = (np.array(c, float) for c in zip(*few))
+    (fixed, per_entry), *_ = np.linalg.lstsq(np.c_[np.ones_like(size), size], rest, rcond=None)
+    print(f"the input's share: {fixed:.1f} us + {1e3 * per_entry:.1f} ns per entry of the "
+          f"pattern. Load average {os.getloadavg()[0]:.1f}.")
 
 
 if __name__ == "__main__":

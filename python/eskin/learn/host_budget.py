@@ -32,7 +32,7 @@ figures fitted to the compiled classifier's end-of-touch decision times on the 2
 development host (``benchmarks/host_budget_fit.py``: float32 models of 4x4 patterns at D = 20,
 50 and 100 and alpha 1, Q/2 and Q with 150 and 336 support vectors, two runs at load average
 8-9; the input's share from the same host's times of the input's bases with the caches
-emptied). ``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
+emptied, which the script's models of few support vectors confirm). ``benchmarks/bench_inference.py --model`` measures the decision of a trained model.
 """
 
 from __future__ import annotations
