@@ -225,6 +225,20 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("constant+1", ln, ln.replace("Real(0)", "Real(1)"), _WS) for ln in _WS_LINES),
         Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
     ],
+    "cpp/src/model_format.cpp": [
+        *(Equivalent(op, "if (p == nullptr) return false;", mutant,
+                     "the bases' read never fails: read_svbs_shape has refused a section too "
+                     "short for the ranks and every mode's bases (n_sv * bytes_needed + "
+                     "rank_bytes > remaining) before any is read, so the branch is never taken")
+          for op, mutant in (("return true", "if (p == nullptr) return true;"),
+                             ("delete check", "if (false && (p == nullptr)) return false;"))),
+        Equivalent("return true", "if (!u32(field, u)) return false;",
+                   "if (!u32(field, u)) return true;",
+                   "a 4-byte field that runs past its section, taken as read: the error is "
+                   "already set and sticky, so the parser's next read of the section (the next "
+                   "field of the machine, or the padding after its coefficients) fails and it "
+                   "returns false with that first message; the value read is never kept"),
+    ],
     "cpp/src/protocol.cpp": [
         Equivalent("delete check", "if (!is_known_type(type)) return false;",
                    "if (false && (!is_known_type(type))) return false;",

@@ -134,12 +134,6 @@ class Reader {
     out = v;
     return true;
   }
-  [[nodiscard]] bool i32(const char* field, std::int32_t& out) {
-    std::uint32_t u;
-    if (!u32(field, u)) return false;
-    std::memcpy(&out, &u, sizeof out);
-    return true;
-  }
   [[nodiscard]] bool f64(const char* field, double& out) {
     if (!need(8, field)) return false;
     std::uint64_t v = 0;
@@ -148,7 +142,10 @@ class Reader {
     std::memcpy(&out, &v, sizeof out);
     return true;
   }
-  [[nodiscard]] bool f32(const char* field, float& out) {
+  // A 4-byte field read as the bits of another 4-byte type (a signed index, a float).
+  template <class T>
+  [[nodiscard]] bool bits32(const char* field, T& out) {
+    static_assert(sizeof(T) == 4, "a 4-byte field");
     std::uint32_t u;
     if (!u32(field, u)) return false;
     std::memcpy(&out, &u, sizeof out);
@@ -546,7 +543,7 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
     ModelMachine mm;
     std::int32_t positive, negative;
     std::uint32_t n_terms;
-    if (!r.i32("positive_class", positive) || !r.i32("negative_class", negative) ||
+    if (!r.bits32("positive_class", positive) || !r.bits32("negative_class", negative) ||
         !r.u32("n_terms", n_terms) || !r.zero_u32("reserved") || !r.f64("intercept", mm.intercept))
       return false;
     mm.positive = positive;
@@ -592,7 +589,7 @@ bool ModelParser::parse_mach(Reader& r, Model& m, ParseError& err) {
         if (!r.f64("coef", c)) return false;
       } else {
         float c32;
-        if (!r.f32("coef", c32)) return false;
+        if (!r.bits32("coef", c32)) return false;
         c = static_cast<double>(c32);
       }
       if (!std::isfinite(c))

@@ -1974,3 +1974,129 @@ TEST(ModelDecision, AnUnevenGridWithItsOwnAlphaPerModeEqualsTheHandComputation) 
   ASSERT_EQ(m.alpha_store(2), 5);
   expect_hand_decisions(m, {41u, 42u});
 }
+
+// ---- the loader on the edges of its layout: a machine of one term, an empty ancillary section
+// last, a CALB section cut inside its fixed fields
+
+namespace {
+// The float64 fixture with machine `k` cut to its first `keep` terms (indices and coefficients),
+// the MACH section, the file size and the CRC fixed.
+Bytes with_machine_terms(const Bytes& b, std::size_t k, std::uint32_t keep) {
+  const std::size_t at = machine_offset(b, k);
+  const std::uint32_t n_terms = get_u32(b, at + 8);
+  const std::size_t idx = at + 72, coef = idx + (std::size_t{n_terms} * 4 + 7) / 8 * 8;
+  Bytes machine(b.begin() + static_cast<std::ptrdiff_t>(at), b.begin() + static_cast<std::ptrdiff_t>(idx));
+  put_u32(machine, 8, keep);
+  machine.insert(machine.end(), b.begin() + static_cast<std::ptrdiff_t>(idx),
+                 b.begin() + static_cast<std::ptrdiff_t>(idx + 4 * keep));
+  machine.resize((machine.size() + 7) / 8 * 8, 0);
+  machine.insert(machine.end(), b.begin() + static_cast<std::ptrdiff_t>(coef),
+                 b.begin() + static_cast<std::ptrdiff_t>(coef + 8 * keep));
+  const std::size_t end = coef + 8 * std::size_t{n_terms};
+  Bytes out(b.begin(), b.begin() + static_cast<std::ptrdiff_t>(at));
+  out.insert(out.end(), machine.begin(), machine.end());
+  out.insert(out.end(), b.begin() + static_cast<std::ptrdiff_t>(end), b.end());
+  const std::size_t mach = section_offset(b, "MACH");
+  put_u32(out, mach - 4, get_u32(b, mach - 4) - static_cast<std::uint32_t>(b.size() - out.size()));
+  put_u32(out, 16, static_cast<std::uint32_t>(out.size()));
+  fix_crc(out);
+  return out;
+}
+
+// The file with a section `tag` of `payload` appended after the last one (before the checksum).
+Bytes with_last_section(const Bytes& b, const char* tag, const Bytes& payload) {
+  Bytes out(b.begin(), b.end() - 4);
+  out.insert(out.end(), tag, tag + 4);
+  append_u32(out, static_cast<std::uint32_t>(payload.size()));
+  out.insert(out.end(), payload.begin(), payload.end());
+  out.resize((out.size() + 7) / 8 * 8 + 4, 0);
+  put_u32(out, 16, static_cast<std::uint32_t>(out.size()));
+  put_u32(out, 20, get_u32(out, 20) + 1);
+  fix_crc(out);
+  return out;
+}
+}  // namespace
+
+// Machine 1 of the fixture (support vectors 1, 4, 5, 6, 7, each also used by machine 0 or 2) cut
+// to its first term: a machine of exactly one term loads and decides as the hand computation;
+// one of no term is refused naming the count.
+TEST(ModelChecks, AMachineOfOneTermLoadsAndOneOfNoneIsRefused) {
+  const Bytes good = fixture("float64");
+  const Model full = Model::from_bytes(good.data(), good.size());
+  const Bytes one = with_machine_terms(good, 1, 1);
+  const Model m = Model::from_bytes(one.data(), one.size());
+  ASSERT_EQ(m.machines().size(), 3u);
+  EXPECT_EQ(m.machines()[1].sv_index, (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(m.machines()[1].coef, (std::vector<double>{full.machines()[1].coef[0]}));
+  EXPECT_EQ(m.machines()[2].sv_index, full.machines()[2].sv_index);
+  EXPECT_EQ(m.machines()[2].coef, full.machines()[2].coef);
+  expect_hand_decisions(m, {7u, 8u});
+  const Bytes none = with_machine_terms(good, 1, 0);
+  EXPECT_EQ(load_error(none), ModelError::kValue);
+  EXPECT_TRUE(says(load_message(none), "section MACH: machine 1: n_terms=0 out of range [1, n_sv=9]"))
+      << load_message(none);
+}
+
+// An ancillary section of no bytes ends exactly at the checksum: skipped. Half a section header
+// there (4 of its 8 bytes) is refused.
+TEST(ModelChecks, AnEmptyAncillarySectionLastIsSkippedAndHalfAHeaderRefused) {
+  const Bytes good = fixture("float64");
+  const Bytes empty = with_last_section(good, "note", Bytes{});
+  ASSERT_EQ(empty.size(), good.size() + 8);
+  const Model m = Model::from_bytes(empty.data(), empty.size());
+  EXPECT_EQ(m.n_support(), 9);
+  EXPECT_EQ(m.machines().size(), 3u);
+  Bytes half(good.begin(), good.end() - 4);
+  half.insert(half.end(), {'n', 'o', 't', 'e'});  // a tag, no payload_bytes
+  half.insert(half.end(), 4, 0);                  // the checksum
+  put_u32(half, 16, static_cast<std::uint32_t>(half.size()));
+  put_u32(half, 20, get_u32(half, 20) + 1);
+  fix_crc(half);
+  EXPECT_EQ(load_error(half), ModelError::kLayout);
+  EXPECT_EQ(load_message(half), "model: section 5 header runs past the end");
+}
+
+// A CALB section that ends inside its fixed fields (rule, n_machines, threshold) is refused
+// naming the field, by the throwing loader and the status loader alike (which leaves its
+// output as it was).
+TEST(ModelCalibration, ACalbSectionCutInsideItsFixedFieldsIsRefused) {
+  const Bytes v3 = as_version3(fixture("float64"));
+  Bytes two;  // rule and n_machines: no threshold
+  append_u32(two, 1);
+  append_u32(two, 3);
+  Bytes one;  // the rule alone
+  append_u32(one, 1);
+  const std::pair<Bytes, std::string> cases[] = {
+      {with_section_after_mach(v3, "CALB", two, 4),
+       "model: section CALB: field 'threshold' runs past the end of the section (0 bytes left, 8 needed)"},
+      {with_section_after_mach(v3, "CALB", one, 4),
+       "model: section CALB: field 'n_machines' runs past the end of the section (0 bytes left, 4 needed)"},
+  };
+  for (const auto& [b, message] : cases) {
+    EXPECT_EQ(load_error(b), ModelError::kLayout);
+    EXPECT_EQ(load_message(b), message);
+    Model out = Model::from_bytes(v3.data(), v3.size());
+    eskin::ModelLoadError err;
+    EXPECT_FALSE(Model::parse(b.data(), b.size(), &out, &err));
+    EXPECT_EQ(err.message, message);
+    EXPECT_EQ(out.format_version(), 3);
+  }
+}
+
+// A float32 MACH section cut by its last 8 bytes (the last machine's padding and last
+// coefficient): the indices and coefficients fit the size check made before them, and the
+// read of that coefficient refuses it, naming the field.
+TEST(ModelChecks, AFloat32MachineCutInsideItsLastCoefficientIsRefused) {
+  const Bytes good = fixture("float32");
+  const std::size_t mach = section_offset(good, "MACH");
+  const std::uint32_t bytes = get_u32(good, mach - 4);
+  ASSERT_EQ(bytes % 8, 0u);
+  Bytes b(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes - 8));
+  b.insert(b.end(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes), good.end());
+  put_u32(b, mach - 4, bytes - 8);
+  put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+  fix_crc(b);
+  EXPECT_EQ(load_error(b), ModelError::kLayout);
+  EXPECT_EQ(load_message(b),
+            "model: section MACH: field 'coef' runs past the end of the section (0 bytes left, 4 needed)");
+}
