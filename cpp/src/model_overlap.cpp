@@ -1,6 +1,7 @@
 // Subspace-overlap micro-kernels of the model classifier (see model_overlap.hpp).
 #include "model_overlap.hpp"
 
+#include <array>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
@@ -83,15 +84,18 @@ double dot_f64_generic(const double* a, const double* b, std::size_t n) noexcept
 // (arm-none-eabi-gcc -O3: 8 post-incremented loads and 16 FMAs per pass of a 4 x 4 tile, about
 // 1.6 instructions per multiply-add; one dot product at a time took about 6, each pass loading
 // both operands and stepping its own loop).
+// The tile's arrays are std::array: the same code at -O3, and a debug build with libstdc++'s
+// assertions stops on an index past one of them.
 template <int KB, int LB>
 float overlap_tile(const float* b, const float* x, std::size_t n) noexcept {
-  float acc[KB][LB] = {};
-  const float* bp[KB];
-  const float* xp[LB];
+  std::array<std::array<float, LB>, KB> acc{};
+  std::array<const float*, KB> bp;
+  std::array<const float*, LB> xp;
   for (int k = 0; k < KB; ++k) bp[k] = b + static_cast<std::size_t>(k) * n;
   for (int l = 0; l < LB; ++l) xp[l] = x + static_cast<std::size_t>(l) * n;
   for (std::size_t i = 0; i < n; ++i) {
-    float bv[KB], xv[LB];
+    std::array<float, KB> bv;
+    std::array<float, LB> xv;
     for (int k = 0; k < KB; ++k) bv[k] = bp[k][i];
     for (int l = 0; l < LB; ++l) xv[l] = xp[l][i];
     for (int k = 0; k < KB; ++k)
