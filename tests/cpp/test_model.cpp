@@ -2100,3 +2100,35 @@ TEST(ModelChecks, AFloat32MachineCutInsideItsLastCoefficientIsRefused) {
   EXPECT_EQ(load_message(b),
             "model: section MACH: field 'coef' runs past the end of the section (0 bytes left, 4 needed)");
 }
+
+// MACH declaring a fourth machine for the three classes, the section holding three: the fourth
+// machine's first field runs past the section's end; with that machine's 24 bytes of fields
+// added, its first alpha does. Either is refused naming the field (the three machines read
+// before would otherwise pass the machine count of the one-vs-all rule).
+TEST(ModelChecks, AMachineCutInsideItsFixedFieldsIsRefused) {
+  const Bytes good = fixture("float64");
+  const std::size_t mach = section_offset(good, "MACH");
+  ASSERT_EQ(get_u32(good, mach), 3u);
+  Bytes four = good;
+  put_u32(four, mach, 4);
+  EXPECT_EQ(load_error([&] { fix_crc(four); return four; }()), ModelError::kLayout);
+  EXPECT_EQ(refused(four),
+            "model: section MACH: field 'positive_class' runs past the end of the section (0 bytes left, 4 needed)");
+  const std::uint32_t bytes = get_u32(good, mach - 4);
+  Bytes fields;  // positive_class 3, negative_class -1, n_terms 1, reserved, intercept 0
+  append_u32(fields, 3);
+  append_u32(fields, 0xFFFFFFFFu);
+  append_u32(fields, 1);
+  append_u32(fields, 0);
+  append_f64(fields, 0.0);
+  Bytes b(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes));
+  b.insert(b.end(), fields.begin(), fields.end());
+  b.insert(b.end(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes), good.end());
+  put_u32(b, mach, 4);
+  put_u32(b, mach - 4, bytes + 24);
+  put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+  fix_crc(b);
+  EXPECT_EQ(load_error(b), ModelError::kLayout);
+  EXPECT_EQ(load_message(b),
+            "model: section MACH: field 'alpha' runs past the end of the section (0 bytes left, 4 needed)");
+}
