@@ -2003,6 +2003,19 @@ Bytes with_machine_terms(const Bytes& b, std::size_t k, std::uint32_t keep) {
   return out;
 }
 
+// The file without its last section (the fixture's ancillary "meta"), so that the section
+// before it ends the file: a parser that took a failed read as done would then find nothing
+// after it to stop on.
+Bytes without_last_section(const Bytes& b) {
+  const std::size_t meta = section_offset(b, "meta");
+  Bytes out(b.begin(), b.begin() + static_cast<std::ptrdiff_t>(meta - 8));
+  out.insert(out.end(), b.end() - 4, b.end());
+  put_u32(out, 16, static_cast<std::uint32_t>(out.size()));
+  put_u32(out, 20, get_u32(out, 20) - 1);
+  fix_crc(out);
+  return out;
+}
+
 // The file with a section `tag` of `payload` appended after the last one (before the checksum).
 Bytes with_last_section(const Bytes& b, const char* tag, const Bytes& payload) {
   Bytes out(b.begin(), b.end() - 4);
@@ -2058,9 +2071,15 @@ TEST(ModelChecks, AnEmptyAncillarySectionLastIsSkippedAndHalfAHeaderRefused) {
 
 // A CALB section that ends inside its fixed fields (rule, n_machines, threshold) is refused
 // naming the field, by the throwing loader and the status loader alike (which leaves its
-// output as it was).
+// output as it was): between MACH and the ancillary section, and as the file's last section.
 TEST(ModelCalibration, ACalbSectionCutInsideItsFixedFieldsIsRefused) {
   const Bytes v3 = as_version3(fixture("float64"));
+  auto last_calb = [&](const Bytes& payload) {  // CALB the file's last section
+    Bytes b = with_last_section(without_last_section(v3), "CALB", payload);
+    b[8] = 4;
+    fix_crc(b);
+    return b;
+  };
   Bytes two;  // rule and n_machines: no threshold
   append_u32(two, 1);
   append_u32(two, 3);
@@ -2069,7 +2088,9 @@ TEST(ModelCalibration, ACalbSectionCutInsideItsFixedFieldsIsRefused) {
   const std::pair<Bytes, std::string> cases[] = {
       {with_section_after_mach(v3, "CALB", two, 4),
        "model: section CALB: field 'threshold' runs past the end of the section (0 bytes left, 8 needed)"},
-      {with_section_after_mach(v3, "CALB", one, 4),
+      {last_calb(two),
+       "model: section CALB: field 'threshold' runs past the end of the section (0 bytes left, 8 needed)"},
+      {last_calb(one),
        "model: section CALB: field 'n_machines' runs past the end of the section (0 bytes left, 4 needed)"},
   };
   for (const auto& [b, message] : cases) {
@@ -2104,9 +2125,10 @@ TEST(ModelChecks, AFloat32MachineCutInsideItsLastCoefficientIsRefused) {
 // MACH declaring a fourth machine for the three classes, the section holding three: the fourth
 // machine's first field runs past the section's end; with that machine's 24 bytes of fields
 // added, its first alpha does. Either is refused naming the field (the three machines read
-// before would otherwise pass the machine count of the one-vs-all rule).
+// before would otherwise pass the machine count of the one-vs-all rule), MACH being the last
+// section.
 TEST(ModelChecks, AMachineCutInsideItsFixedFieldsIsRefused) {
-  const Bytes good = fixture("float64");
+  const Bytes good = without_last_section(fixture("float64"));  // MACH last
   const std::size_t mach = section_offset(good, "MACH");
   ASSERT_EQ(get_u32(good, mach), 3u);
   Bytes four = good;
