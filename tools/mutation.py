@@ -174,6 +174,13 @@ _WS_LINES = (
     "norms_.assign(q, Real(0));",
     "col_.assign(n, Real(0));",
 )
+_S = 'const bool converted = name.size() > 2 && (name.compare(name.size() - 2, 2, "_s") == 0 ||'
+_HZ = 'name.compare(name.size() - 3, 3, "_hz") == 0);'
+_SUFFIX = ("which window fields count as seconds or hertz, by the end of the name: "
+           "std::string::compare(pos, len, s) takes at most size - pos characters, so a length "
+           "one past the end compares the same suffix; and every name reaching the test is one "
+           "of the known fields (an unknown one is refused just before), none of them 3 "
+           "characters or fewer")
 EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/model.cpp": [
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
@@ -232,6 +239,9 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "rank_bytes > remaining) before any is read, so the branch is never taken")
           for op, mutant in (("return true", "if (p == nullptr) return true;"),
                              ("delete check", "if (false && (p == nullptr)) return false;"))),
+        *(Equivalent("constant+1", _S, mutant, _SUFFIX)
+          for mutant in (_S.replace("> 2", "> 3"), _S.replace(", 2, ", ", 3, "))),
+        Equivalent("constant+1", _HZ, _HZ.replace(", 3, ", ", 4, "), _SUFFIX),
         Equivalent("return true", "if (!u32(field, u)) return false;",
                    "if (!u32(field, u)) return true;",
                    "a 4-byte field that runs past its section, taken as read: the error is "

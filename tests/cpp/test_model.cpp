@@ -2154,3 +2154,44 @@ TEST(ModelChecks, AMachineCutInsideItsFixedFieldsIsRefused) {
   EXPECT_EQ(load_message(b),
             "model: section MACH: field 'alpha' runs past the end of the section (0 bytes left, 4 needed)");
 }
+
+// Each bound of the grid's shape by itself, each refused naming both sizes.
+TEST(ModelChecks, EachBoundOfTheGridShapeIsCheckedOnItsOwn) {
+  const Bytes good = fixture("float32");
+  const std::size_t prep = section_offset(good, "PREP");
+  for (const auto& [rows, cols] : {std::pair<std::uint32_t, std::uint32_t>{0, 4}, {257, 4}, {4, 0}, {4, 257}}) {
+    Bytes b = good;
+    put_u32(b, prep, rows);
+    put_u32(b, prep + 4, cols);
+    fix_crc(b);
+    EXPECT_EQ(load_error(b), ModelError::kValue);
+    EXPECT_EQ(load_message(b), "model: section PREP: grid shape rows=" + std::to_string(rows) +
+                                   " cols=" + std::to_string(cols) + " out of range [1, 256]");
+  }
+}
+
+// A window field of another name is unknown; a field of format version 3 in an older file is
+// unknown there, and the message says which version it needs.
+TEST(ModelChecks, AnUnknownWindowFieldIsRefusedNamingIt) {
+  const Bytes good = fixture("float32");
+  const std::size_t at = window_field_offset(good, "max_window_s") - 32;
+  const auto renamed = [&](const std::string& name) {
+    Bytes b = good;
+    std::fill(b.begin() + static_cast<std::ptrdiff_t>(at), b.begin() + static_cast<std::ptrdiff_t>(at + 32), 0);
+    std::copy(name.begin(), name.end(), b.begin() + static_cast<std::ptrdiff_t>(at));
+    fix_crc(b);
+    return b;
+  };
+  EXPECT_EQ(load_message(renamed("longest_window_s")),
+            "model: section PREP: unknown window field 'longest_window_s'");
+  EXPECT_EQ(load_message(renamed("window_samples")),
+            "model: section PREP: unknown window field 'window_samples' (it needs format version 3)");
+}
+
+// A sample rate of 1 Hz is inside the format's range (0, 1e7]: it passes that check and is
+// refused by the detector's own (its DC cutoff must be below half the rate).
+TEST(ModelChecks, ASampleRateOfOneHertzPassesTheRangeCheck) {
+  Bytes b = fixture("float32");
+  put_f64(b, section_offset(b, "PREP") + 32, 1.0);
+  EXPECT_EQ(refused(b), "model: section PREP: WindowConfig.dc_cutoff_hz = 5: must be in [0, sample_rate_hz/2)");
+}
