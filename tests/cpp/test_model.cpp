@@ -2195,3 +2195,18 @@ TEST(ModelChecks, ASampleRateOfOneHertzPassesTheRangeCheck) {
   put_f64(b, section_offset(b, "PREP") + 32, 1.0);
   EXPECT_EQ(refused(b), "model: section PREP: WindowConfig.dc_cutoff_hz = 5: must be in [0, sample_rate_hz/2)");
 }
+
+// A missing required section is named; only the amplitude factor's and the calibrated rule's
+// say which format version needs them.
+TEST(ModelChecks, AMissingRequiredSectionIsNamedExactly) {
+  Bytes no_mach = fixture("float64");
+  const std::size_t mach = section_offset(no_mach, "MACH");
+  std::copy_n("mach", 4, no_mach.begin() + static_cast<std::ptrdiff_t>(mach - 8));  // ancillary now
+  EXPECT_EQ(refused(no_mach), "model: required section 'MACH' missing");
+  Bytes v4 = as_version3(fixture("float64"));
+  v4[8] = 4;
+  EXPECT_EQ(refused(v4), "model: required section 'CALB' missing (format version 4 has the calibrated rule)");
+  Bytes v2 = fixture("float64");
+  v2[8] = 2;
+  EXPECT_EQ(refused(v2), "model: required section 'AMPL' missing (format version 2 has an amplitude factor)");
+}
