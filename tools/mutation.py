@@ -231,6 +231,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/scalar_bases.hpp": [
         *(Equivalent("constant+1", ln, ln.replace("Real(0)", "Real(1)"), _WS) for ln in _WS_LINES),
         Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
+        Equivalent("swap<<=", "for (std::size_t j = 0; j + 1 < n; ++j)",
+                   "for (std::size_t j = 0; j + 1 <= n; ++j)",
+                   "one_sided_jacobi's pairs (j, k > j): the one more j, n - 1, has no k "
+                   "(k runs from j + 1 = n below n), so nothing more is read or rotated"),
     ],
     "cpp/src/model_format.cpp": [
         *(Equivalent(op, "if (p == nullptr) return false;", mutant,

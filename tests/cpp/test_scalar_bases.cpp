@@ -380,3 +380,73 @@ TEST(ScalarBases, ASingleSampleOfASingleTaxelHasUnitVectorBases) {
           << "mode " << z << " entry " << i;
   }
 }
+
+TEST(ScalarBases, ThePatternsFirstValueCounts) {
+  // the only non-zero value at index 0 (taxel (0, 0), sample 0), +1 or -1: rank 1 in every
+  // mode, each basis the unit vector of entry 0 (the largest entry of each column positive);
+  // a NaN there alone makes the pattern not finite
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  for (const double v : {1.0, -1.0}) {
+    std::vector<double> x(layout.tensor_size(), 0.0);
+    x[0] = v;
+    std::vector<float> b(layout.bases_size(), 7.0f);
+    int r[3];
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    for (std::size_t z = 0; z < 3; ++z) {
+      EXPECT_EQ(r[z], 1) << "mode " << z << ", value " << v;
+      const std::size_t n = layout.cols(z);
+      for (std::size_t i = 0; i < layout.alpha(z) * n; ++i)
+        ASSERT_NEAR(b[layout.offset(z) + i], i == 0 ? 1.0f : 0.0f, 1e-6f)
+            << "mode " << z << " entry " << i << ", value " << v;
+    }
+  }
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  x[0] = std::nan("");
+  std::vector<float> b(layout.bases_size(), 7.0f);
+  int r[3];
+  EXPECT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::not_finite);
+}
+
+TEST(ScalarBases, ExactTiesKeepTheFirstEntryAndTheFirstSingularVector) {
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  const auto expect_column = [&](const std::vector<float>& b, std::size_t z, std::size_t c,
+                                 const std::vector<std::pair<std::size_t, float>>& want) {
+    const std::size_t n = layout.cols(z);
+    for (std::size_t i = 0; i < n; ++i) {
+      float w = 0.0f;
+      for (const auto& [at, v] : want) w = at == i ? v : w;
+      ASSERT_NEAR(b[layout.offset(z) + c * n + i], w, 1e-6f)
+          << "mode " << z << " column " << c << " entry " << i;
+    }
+  };
+  const float h = 0.70710677f;
+  {  // taxels (0, 0) and (0, 1) at sample 3, +1 and -1: the time mode's basis is (1, -1) / sqrt 2
+     // over those taxels, entries of equal magnitude: the first is the one made positive
+    std::vector<double> x(layout.tensor_size(), 0.0);
+    x[0 * 20 + 3] = 1.0;
+    x[1 * 20 + 3] = -1.0;
+    std::vector<float> b(layout.bases_size());
+    int r[3];
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    EXPECT_EQ(r[2], 1);
+    expect_column(b, 2, 0, {{0, h}, {1, -h}});
+  }
+  {  // taxel (0, 0) at sample 3 and taxel (0, 1) at sample 5, both 1: the column and time modes
+     // have two equal singular values; their vectors come in the unfolding's order
+    std::vector<double> x(layout.tensor_size(), 0.0);
+    x[0 * 20 + 3] = 1.0;
+    x[1 * 20 + 5] = 1.0;
+    std::vector<float> b(layout.bases_size());
+    int r[3];
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    EXPECT_EQ(r[0], 1);
+    EXPECT_EQ(r[1], 2);
+    EXPECT_EQ(r[2], 2);
+    expect_column(b, 1, 0, {{3, 1.0f}});
+    expect_column(b, 1, 1, {{5, 1.0f}});
+    expect_column(b, 2, 0, {{0, 1.0f}});
+    expect_column(b, 2, 1, {{1, 1.0f}});
+  }
+}
