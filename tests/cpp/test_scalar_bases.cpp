@@ -450,3 +450,27 @@ TEST(ScalarBases, ExactTiesKeepTheFirstEntryAndTheFirstSingularVector) {
     expect_column(b, 2, 1, {{1, 1.0f}});
   }
 }
+
+TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
+  // 16 taxels, each one value at its own sample: the time unfolding has orthogonal rows, its
+  // singular values the values. All 1 but taxel 0's d: ||R||_F^2 ||R^-1||_F^2 = (15 + d^2)
+  // (15 + 1 / d^2), against the bound 1 / (4096 tau) = 6.7e7 in float. d = 4.8e-4 (6.5e7, 3 %
+  // inside): the identity basis, without the sweeps. d = 2.5e-4 (2.4e8): the sweeps' singular
+  // vectors, largest first (taxels 1 to 15 in order, then taxel 0). Either way rank 16.
+  const BasisLayout layout({4, 4, 20}, {2, 2, 16});
+  eskin::detail::ScalarBases<float> sb(layout);
+  for (const double d : {4.8e-4, 2.5e-4}) {
+    std::vector<double> x(layout.tensor_size(), 0.0);
+    for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = k == 0 ? d : 1.0;
+    std::vector<float> b(layout.bases_size());
+    int r[3];
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    EXPECT_EQ(r[2], 16);
+    for (std::size_t c = 0; c < 16; ++c) {
+      const std::size_t at = d > 3e-4 ? c : (c + 1) % 16;
+      for (std::size_t i = 0; i < 16; ++i)
+        ASSERT_NEAR(b[layout.offset(2) + c * 16 + i], i == at ? 1.0f : 0.0f, 1e-6f)
+            << "d " << d << " column " << c << " entry " << i;
+    }
+  }
+}
