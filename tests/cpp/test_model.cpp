@@ -2210,3 +2210,18 @@ TEST(ModelChecks, AMissingRequiredSectionIsNamedExactly) {
   v2[8] = 2;
   EXPECT_EQ(refused(v2), "model: required section 'AMPL' missing (format version 2 has an amplitude factor)");
 }
+
+// Without the detector, only the recording's own taxels are checked: NaNs in the memory just
+// after the last taxel's samples are not the recording's.
+TEST(ModelClassify, WithoutTheDetectorOnlyTheRecordingsTaxelsAreChecked) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_binary_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::int64_t T = 101;
+  const std::size_t n_taxels = static_cast<std::size_t>(m.rows() * m.cols());
+  std::vector<double> x((n_taxels + 1) * static_cast<std::size_t>(T), NAN);  // one row more
+  for (std::size_t i = 0; i < n_taxels * static_cast<std::size_t>(T); ++i)
+    x[i] = std::sin(0.37 * static_cast<double>(i));
+  eskin::Decision d;
+  EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kOk);
+}
