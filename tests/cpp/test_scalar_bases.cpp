@@ -60,13 +60,14 @@ double projection_gap(const A* a, const B* b, std::size_t n, std::size_t alpha) 
 struct Case {
   std::size_t D;
   std::vector<std::size_t> alphas;
+  std::size_t rows = 4, cols = 4;
 };
 
 class ScalarBasesTest : public ::testing::TestWithParam<Case> {};
 
 TEST_P(ScalarBasesTest, SubspacesAndRanksMatchTheHostWorkspace) {
   const Case c = GetParam();
-  const BasisLayout layout({4, 4, c.D}, c.alphas);
+  const BasisLayout layout({c.rows, c.cols, c.D}, c.alphas);
   eskin::BasisWorkspace host(layout);
   eskin::detail::ScalarBases<double> sb64(layout);
   eskin::detail::ScalarBases<float> sb32(layout);
@@ -107,7 +108,12 @@ TEST_P(ScalarBasesTest, SubspacesAndRanksMatchTheHostWorkspace) {
 
 INSTANTIATE_TEST_SUITE_P(Shapes, ScalarBasesTest,
                          ::testing::Values(Case{20, {1, 1, 1}}, Case{20, {2, 2, 8}},
-                                           Case{50, {4, 4, 16}}, Case{100, {2, 2, 8}}));
+                                           Case{50, {4, 4, 16}}, Case{100, {2, 2, 8}},
+                                           // a square time unfolding (16 taxels x 16 samples)
+                                           Case{16, {2, 2, 8}},
+                                           // a 2 x 8 grid: the row mode has the longest
+                                           // columns (8 x 20), the workspace sized by them
+                                           Case{20, {2, 4, 8}, 2, 8}));
 
 TEST(ScalarBases, TheTimeModeAtAlphaQSpansOrFallsBackToItsSingularVectors) {
   // alpha_3 = 16 = the taxels: a full-rank time unfolding spans R^16 (the identity is a basis of
@@ -473,4 +479,15 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
             << "d " << d << " column " << c << " entry " << i;
     }
   }
+}
+
+TEST(ScalarBases, AZeroPatternHasRankZeroAndZeroBases) {
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<float> sb(layout);
+  const std::vector<double> x(layout.tensor_size(), 0.0);
+  std::vector<float> b(layout.bases_size(), 7.0f);
+  int r[3] = {9, 9, 9};
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  for (std::size_t z = 0; z < 3; ++z) EXPECT_EQ(r[z], 0) << "mode " << z;
+  for (std::size_t i = 0; i < b.size(); ++i) ASSERT_EQ(b[i], 0.0f) << "entry " << i;
 }
