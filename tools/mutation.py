@@ -246,6 +246,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("constant+1", _S, mutant, _SUFFIX)
           for mutant in (_S.replace("> 2", "> 3"), _S.replace(", 2, ", ", 3, "))),
         Equivalent("constant+1", _HZ, _HZ.replace(", 3, ", ", 4, "), _SUFFIX),
+        *(Equivalent("constant+1", f"std::uint{w}_t v = 0;", f"std::uint{w}_t v = 1;",
+                     f"the start of a {w}-bit little-endian read: each of its {w // 8} steps "
+                     "shifts v left by 8 bits, so the start's bits are all shifted out before "
+                     "v is used") for w in (32, 64)),
         Equivalent("return true", "if (!u32(field, u)) return false;",
                    "if (!u32(field, u)) return true;",
                    "a 4-byte field that runs past its section, taken as read: the error is "

@@ -2225,3 +2225,57 @@ TEST(ModelClassify, WithoutTheDetectorOnlyTheRecordingsTaxelsAreChecked) {
   eskin::Decision d;
   EXPECT_EQ(clf.classify(x.data(), m.rows(), m.cols(), T, T, &d), eskin::ClassifyStatus::kOk);
 }
+
+namespace {
+// The fixture (MACH its last section) with a fourth machine declared and `machine` appended to
+// MACH as its bytes (the section padded, the sizes and the CRC fixed).
+Bytes with_fourth_machine(const char* dtype, const Bytes& machine) {
+  const Bytes good = without_last_section(fixture(dtype));
+  const std::size_t mach = section_offset(good, "MACH");
+  const std::uint32_t bytes = get_u32(good, mach - 4);
+  Bytes b(good.begin(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes));
+  b.insert(b.end(), machine.begin(), machine.end());
+  b.resize(mach + (bytes + machine.size() + 7) / 8 * 8, 0);
+  b.insert(b.end(), good.begin() + static_cast<std::ptrdiff_t>(mach + bytes), good.end());
+  put_u32(b, mach, 4);
+  put_u32(b, mach - 4, bytes + static_cast<std::uint32_t>(machine.size()));
+  put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+  fix_crc(b);
+  return b;
+}
+// A machine's fields up to its one support-vector index (0) and the index's padding.
+Bytes one_term_machine_head() {
+  Bytes m;
+  append_u32(m, 3);            // positive_class
+  append_u32(m, 0xFFFFFFFFu);  // negative_class -1
+  append_u32(m, 1);            // n_terms
+  append_u32(m, 0);            // reserved
+  append_f64(m, 0.0);          // intercept
+  for (int z = 0; z < 3; ++z) {
+    append_u32(m, 1);    // alpha
+    append_u32(m, 0);    // reserved
+    append_f64(m, 1.0);  // sigma
+  }
+  append_u32(m, 0);  // sv_index
+  append_u32(m, 0);  // padding
+  return m;
+}
+}  // namespace
+
+// A fourth machine (one more than the three classes) whose coefficient is cut, or whose
+// coefficient's padding is not zero, in MACH as the file's last section: refused naming the
+// field, not loaded as the three machines before it.
+TEST(ModelChecks, AnExtraMachineCutInsideItsCoefficientsIsRefused) {
+  Bytes cut = one_term_machine_head();
+  cut.insert(cut.end(), 4, 0);  // 4 of the float64 coefficient's 8 bytes
+  const Bytes b64 = with_fourth_machine("float64", cut);
+  EXPECT_EQ(load_error(b64), ModelError::kLayout);
+  EXPECT_EQ(load_message(b64),
+            "model: section MACH: field 'coef' runs past the end of the section (4 bytes left, 8 needed)");
+  Bytes padded = one_term_machine_head();
+  append_u32(padded, 0x3F800000u);  // a float32 coefficient of 1
+  append_u32(padded, 1);            // its padding, not zero
+  const Bytes b32 = with_fourth_machine("float32", padded);
+  EXPECT_EQ(load_error(b32), ModelError::kValue);
+  EXPECT_EQ(load_message(b32), "model: section MACH: non-zero padding after 'coef'");
+}
