@@ -299,6 +299,17 @@ TEST(ScalarBases, OneSidedJacobiTouchesOnlyItsNByNMatricesAndNNorms) {
   EXPECT_NEAR(b[0] * b[2] + b[1] * b[3], 0.0, 1e-12);
 }
 
+TEST(ScalarBases, OneSidedJacobiReadsOnlyItsNByNMatrix) {
+  // a huge value just past the 2 x 2 matrix is not part of it: the columns are still rotated
+  // until orthogonal (read into the matrix's size, it would make every column pair look like
+  // rounding noise and leave them as they were)
+  const double c = std::cos(0.7), s = std::sin(0.7);
+  std::vector<double> b = {3 * c, 3 * s, 0.5 - s, c, 1e300};
+  std::vector<double> w(4), norms(2);
+  ASSERT_GT(eskin::detail::one_sided_jacobi<double>(2, b.data(), w.data(), norms.data()), 0);
+  EXPECT_NEAR(b[0] * b[2] + b[1] * b[3], 0.0, 1e-12);
+}
+
 TEST(ScalarBases, ASingleTaxelTouchedHasRankOneAtThatTaxel) {
   // a sparse tensor: one taxel (row 2, column 1) pressed with signal s(t), the other fifteen
   // exactly zero. Every mode has rank 1; its one basis vector lives on the other two indices (C
