@@ -218,7 +218,7 @@ class ScalarBases {
       sv_[c] = s2;  // squared singular value of column c
     }
     const std::size_t k = std::min(alpha, numerical_rank(q));
-    Real* col = col_.data();
+    std::vector<Real>& col = col_;  // indexed: a debug build checks the bound
     for (std::size_t c = 0; c < k; ++c) {
       const Real* wv = W + order_[c] * q;
       if (m > n) {
