@@ -2279,3 +2279,21 @@ TEST(ModelChecks, AnExtraMachineCutInsideItsCoefficientsIsRefused) {
   EXPECT_EQ(load_error(b32), ModelError::kValue);
   EXPECT_EQ(load_message(b32), "model: section MACH: non-zero padding after 'coef'");
 }
+
+// Each machine's score takes its own slope and offset (kSlopes 2, 0.5, 1.5; kOffsets -1, 0.25,
+// 0). Values set exactly (every sigma at 1e-6: each value its intercept) to 1.5, 2, 0 give scores
+// 2, 1.25, 0: machine 0 wins, though with machine 1's slope its score would be -0.25 and lose.
+TEST(ModelCalibration, EachMachinesScoreTakesItsOwnSlopeAndOffset) {
+  const Bytes b = with_values(fixture_calibrated("float64", 0.5, kSlopes, kOffsets), {1.5, 2.0, 0.0});
+  const Model m = Model::from_bytes(b.data(), b.size());
+  eskin::Classifier clf(m);
+  const std::vector<double> x = random_tensor(m, 1.0, 35);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  ASSERT_EQ(d.values[0], 1.5);
+  ASSERT_EQ(d.values[1], 2.0);
+  ASSERT_EQ(d.values[2], 0.0);
+  const auto sigmoid = [](double z) { return 1.0 / (1.0 + std::exp(-z)); };
+  EXPECT_EQ(d.label, 0);
+  EXPECT_NEAR(d.confidence, sigmoid(2.0) / (sigmoid(2.0) + sigmoid(1.25) + sigmoid(0.0)), 1e-15);
+}
