@@ -2297,3 +2297,16 @@ TEST(ModelCalibration, EachMachinesScoreTakesItsOwnSlopeAndOffset) {
   EXPECT_EQ(d.label, 0);
   EXPECT_NEAR(d.confidence, sigmoid(2.0) / (sigmoid(2.0) + sigmoid(1.25) + sigmoid(0.0)), 1e-15);
 }
+
+// A section tag is named with each byte outside the printable ASCII range [0x20, 0x7E] as '?'.
+TEST(ModelChecks, AnUnexpectedSectionIsNamedWithItsUnprintableBytesAsQuestionMarks) {
+  const Bytes good = fixture("float32");
+  const std::size_t tag = section_offset(good, "PREP") - 8;
+  const std::pair<std::array<std::uint8_t, 4>, std::string> cases[] = {
+      {{'Q', 0x1F, ' ', '~'}, "Q? ~"}, {{'Q', 0x7F, 'B', 0x80}, "Q?B?"}};
+  for (const auto& [bytes, shown] : cases) {
+    Bytes b = good;
+    std::copy(bytes.begin(), bytes.end(), b.begin() + static_cast<std::ptrdiff_t>(tag));
+    EXPECT_EQ(refused(b), "model: unexpected section '" + shown + "' (expected 'PREP')");
+  }
+}
