@@ -2310,3 +2310,24 @@ TEST(ModelChecks, AnUnexpectedSectionIsNamedWithItsUnprintableBytesAsQuestionMar
     EXPECT_EQ(refused(b), "model: unexpected section '" + shown + "' (expected 'PREP')");
   }
 }
+
+// SVBS's tensor dims and stored widths, each checked and named exactly: dims that differ from
+// PREP's in any one place, and an alpha_store of 0 or above Q = min(dim, product of the others).
+TEST(ModelChecks, TheBasesShapeIsCheckedAgainstThePreprocessing) {
+  const Bytes good = fixture("float32");
+  const std::size_t svbs = section_offset(good, "SVBS");
+  const std::string D = std::to_string(get_u32(good, section_offset(good, "PREP") + 8));
+  for (std::size_t z = 0; z < 3; ++z) {
+    Bytes b = good;
+    put_u32(b, svbs + 8 + 4 * z, 3);
+    std::string dims[3] = {"4", "4", D};
+    dims[z] = "3";
+    EXPECT_EQ(refused(b), "model: section SVBS: tensor dims (" + dims[0] + ", " + dims[1] + ", " + dims[2] +
+                              ") differ from the preprocessing's (rows, cols, D) = (4, 4, " + D + ")");
+  }
+  for (const std::uint32_t a : {0u, 5u}) {
+    Bytes b = good;
+    put_u32(b, svbs + 20, a);
+    EXPECT_EQ(refused(b), "model: section SVBS: alpha_store[0]=" + std::to_string(a) + " out of range [1, Q=4]");
+  }
+}
