@@ -250,6 +250,9 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      f"the start of a {w}-bit little-endian read: each of its {w // 8} steps "
                      "shifts v left by 8 bits, so the start's bits are all shifted out before "
                      "v is used") for w in (32, 64)),
+        Equivalent("constant+1", "for (auto i : mm.sv_index) used[i] = 1;",
+                   "for (auto i : mm.sv_index) used[i] = 2;",
+                   "a support vector's mark of use: only tested for zero (!used[i])"),
         Equivalent("return true", "if (!u32(field, u)) return false;",
                    "if (!u32(field, u)) return true;",
                    "a 4-byte field that runs past its section, taken as read: the error is "
