@@ -2331,3 +2331,14 @@ TEST(ModelChecks, TheBasesShapeIsCheckedAgainstThePreprocessing) {
     EXPECT_EQ(refused(b), "model: section SVBS: alpha_store[0]=" + std::to_string(a) + " out of range [1, Q=4]");
   }
 }
+
+// A window field in seconds or hertz (its name ends in "_s" or "_hz") beyond 1e6 is refused by
+// the format's own bound, before the detector's checks.
+TEST(ModelChecks, ASecondsOrHertzWindowFieldBeyondAMillionIsRefused) {
+  for (const char* name : {"max_window_s", "dc_cutoff_hz"}) {
+    Bytes b = fixture("float32");
+    put_f64(b, window_field_offset(b, name), -2e6);
+    EXPECT_EQ(refused(b), std::string("model: section PREP: window field '") + name +
+                              "' = -2000000 is outside [-1e6, 1e6]");
+  }
+}
