@@ -515,3 +515,22 @@ TEST(ScalarBases, AZeroPatternHasRankZeroAndZeroBases) {
   for (std::size_t z = 0; z < 3; ++z) EXPECT_EQ(r[z], 0) << "mode " << z;
   for (std::size_t i = 0; i < b.size(); ++i) ASSERT_EQ(b[i], 0.0f) << "entry " << i;
 }
+
+TEST(ScalarBases, TheRankCountsSquaredSingularValuesAboveTheTolerance) {
+  // two taxels, one value each at their own sample: 1 and d. In double the rank tolerance on
+  // squared singular values is 1e-12 of the largest: d^2 = 5e-13 is below it (rank 1 in the
+  // column and time modes), d^2 = 2e-12 above it (rank 2)
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<double> sb(layout);
+  for (const auto& [d2, rank] : {std::pair<double, int>{5e-13, 1}, {2e-12, 2}}) {
+    std::vector<double> x(layout.tensor_size(), 0.0);
+    x[0 * 20 + 3] = 1.0;
+    x[1 * 20 + 5] = std::sqrt(d2);
+    std::vector<double> b(layout.bases_size());
+    int r[3];
+    ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+    EXPECT_EQ(r[0], 1) << d2;
+    EXPECT_EQ(r[1], rank) << d2;
+    EXPECT_EQ(r[2], rank) << d2;
+  }
+}
