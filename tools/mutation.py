@@ -313,6 +313,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
+    "python/eskin/learn/recipes.py": [
+        *(Equivalent("core/NumberReplacer", "kv[0][1] or 0)):", t,
+                     "the order in which a task scores its kernels (sigma, amplitude): each "
+                     "candidate's error, support vectors and collapse come from its own kernel's "
+                     "blocks only, and each lands under its own (candidate, split) key")
+          for t in ("kv[0][ 0] or 0)):", "kv[0][1] or 1)):", "kv[0][1] or -1)):")),
+    ],
 }
 
 

@@ -559,3 +559,100 @@ def test_a_kernel_collapsed_whatever_the_fit_is_scored_as_its_fit(data, negative
         counts.append(len(used))
     share = np.mean([len(tr) for tr, _ in search.splits_]) / len(y)
     assert search.ranking_[0]["support_vectors"] == int(np.ceil(np.mean(counts) / share))
+
+
+def test_a_candidates_label_names_every_setting_and_an_absent_amplitude_as_off():
+    recipe = Recipe("svm", 20, "even", "all")
+    assert Candidate(recipe, 0.1, 2.0, "Q/2", None).label() == (
+        "svm D=20 even negatives=all, lambda=0.1, sigma=2, alpha=Q/2, amplitude=off")
+    assert Candidate(recipe, 10.0, 0.5, "1", 1.5).label() == (
+        "svm D=20 even negatives=all, lambda=10, sigma=0.5, alpha=1, amplitude=1.5")
+
+
+def test_a_binary_splits_label_is_class_1_only_above_zero():
+    """Two classes have one machine: a held-out value above 0 is class 1; 0 itself, and
+    anything below, class 0 (the sign rule of the binary model)."""
+    from eskin.learn.recipes import _predict
+
+    F = np.array([[-2.0], [-0.5], [0.0], [0.5], [1.0], [3.0]])
+    np.testing.assert_array_equal(_predict(F, 2), [0, 0, 0, 1, 1, 1])
+    three = np.array([[0.2, -0.1, 0.9], [1.5, 0.3, -1.0]])
+    np.testing.assert_array_equal(_predict(three, 3), [2, 0])
+
+
+def test_a_p_value_exactly_at_the_level_is_not_significantly_worse():
+    """The preferred recipe is kept when its paired test's p is at least the level: a p equal
+    to the level to the bit keeps it, a level one ulp above that p does not."""
+    from eskin.learn.recipes import _preferred_recipe, _Row
+
+    pref = Candidate(Recipe("svm", 50, "algorithm2", "all"), 0.1, 1.0, "1", None)
+    low = Candidate(Recipe("rls", 20, "even", "all"), 0.1, 1.0, "Q", None)
+    rows = {low: _Row(low, errors={0: 0.1, 1: 0.2, 2: 0.1, 3: 0.2}),
+            pref: _Row(pref, errors={0: 0.3, 1: 0.3, 2: 0.2, 3: 0.4})}
+    splits = [(np.arange(7), np.arange(7, 10))] * 4
+    share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in splits]))
+    diffs = [rows[pref].errors[s] - rows[low].errors[s] for s in range(4)]
+    _, p = corrected_paired_t(diffs, share)
+    assert 0 < p < 0.5
+    kept, rec = _preferred_recipe(rows, [low, pref], splits, 1e-3, p)
+    assert kept == pref.recipe and rec["p"] == round(p, 6) and rec["significance"] == p
+    assert rec["within_one_pattern"] is False and rec["gap"] == round(np.mean(diffs), 6)
+    other, _ = _preferred_recipe(rows, [low, pref], splits, 1e-3, float(np.nextafter(p, 1)))
+    assert other == low.recipe
+
+
+def test_the_collapse_note_counts_candidates_and_splits_in_words():
+    from eskin.learn.recipes import _collapse_note
+
+    a = Candidate(Recipe("svm", 20, "even", "all"), 0.1, 0.001, "1", None)
+    b = Candidate(Recipe("rls", 20, "even", "all"), 0.1, 0.001, "1", None)
+    tail = ("(a machine's held-out decision values all within 0.001 of its intercept), counted "
+            "as error 1.0 there")
+    assert _collapse_note([]) is None
+    assert _collapse_note([(a, [0])]) == f"1 candidate had a collapsed kernel on 1 split {tail}"
+    assert _collapse_note([(a, [0, 2])]) == (
+        f"1 candidate had a collapsed kernel on 2 splits {tail}")
+    assert _collapse_note([(a, [0, 2]), (b, [1])]) == (
+        f"2 candidates had a collapsed kernel on 3 splits {tail}")
+
+
+def test_the_report_names_three_runners_up_by_default(data):
+    """Five recipes: the report's runners-up are the best entries of three of the four other
+    recipes by default, in the recipe table's order; ``runners_up`` asks for more or fewer."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "algorithm2", "all"),
+               Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "balanced"),
+               Recipe("svm", 50, "algorithm2", "balanced")]
+    s = RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], n_splits=2, first_share=1.0,
+                     eta=10, seed=5).fit(X, y, groups)
+    rep = s.report()
+    others = [r for r in rep["recipes"] if (r["machine"], r["D"], r["subsample"],
+                                            r["negatives"]) != (s.best_.recipe.machine,
+                                                                s.best_.recipe.D,
+                                                                s.best_.recipe.subsample,
+                                                                s.best_.recipe.negatives)]
+    assert len(rep["recipes"]) == 5 and len(others) == 4
+    assert rep["runners_up"] == others[:3]
+    assert s.report(runners_up=4)["runners_up"] == others
+    assert s.report(runners_up=1)["runners_up"] == others[:1]
+
+
+def test_the_search_takes_one_split_and_halving_and_growth_factors_from_two():
+    recipe = [Recipe("svm", 20, "even", "all")]
+    grid = ([1.0], [1.0], ["1"], [None])
+    ok = RecipeSearch(recipe, *grid, n_splits=1, eta=2, growth=2)
+    assert (ok.n_splits, ok.eta, ok.growth) == (1, 2, 2) and ok._schedule() == [1]
+    for bad in ({"n_splits": 0}, {"eta": 1}, {"growth": 1}):
+        with pytest.raises(TrainingError, match="n_splits must be >= 1, eta and growth >= 2"):
+            RecipeSearch(recipe, *grid, **bad)
+
+
+def test_a_spread_of_exactly_the_tolerance_is_not_a_collapse():
+    from eskin.learn.recipes import COLLAPSE_TOLERANCE, collapsed
+
+    b = np.zeros(2)
+    wide = np.array([[1.0, COLLAPSE_TOLERANCE], [-1.0, -COLLAPSE_TOLERANCE], [0.5, 0.0]])
+    assert not collapsed(wide, b)
+    narrow = wide.copy()
+    narrow[:2, 1] = [np.nextafter(COLLAPSE_TOLERANCE, 0), -np.nextafter(COLLAPSE_TOLERANCE, 0)]
+    assert collapsed(narrow, b)
