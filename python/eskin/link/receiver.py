@@ -246,7 +246,7 @@ class StreamReceiver:
         recorded = self.recorder.grid if self.recorder is not None else None
         if recorded is not None and recorded != grid:
             raise LinkStreamError(
-                f"INFO frame: grid = {grid[0]}x{grid[1]}: {self.record_path} is being recorded "
+                f"INFO frame: grid = {grid[0]}x{grid[1]}: {self.recorder.path} is being recorded "
                 f"with {recorded[0]}x{recorded[1]}")
         self.info = f
         if self._stream is not None and self._stream.grid != grid:

@@ -63,3 +63,25 @@ def test_an_info_grid_other_than_the_models_names_both_grids_rows_first(tmp_path
                                                          seq=0)))
     listener.close()
     assert str(info.value) == "INFO frame: grid = 3x2: the host model expects 2x3"
+
+
+def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tmp_path):
+    """Once a 4x4 recording is in the campaign file, an INFO frame of another grid stops the
+    stream with one line naming the file and both grids (the file keeps what it has)."""
+    import pytest
+
+    from eskin.data.campaign import load_campaign
+    from eskin.errors import LinkStreamError
+
+    stream = np.concatenate([_stream(), _stream(n_touch=0)[:4500]])  # the touch ends, quiet
+    out = tmp_path / "touches.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+    recorded = [e for e in listener.feed(_wire(stream)) if isinstance(e, Recorded)]
+    assert len(recorded) == 1
+    with pytest.raises(LinkStreamError) as info:
+        listener.feed(DELIMITER + encode_frame(InfoFrame(3, 2, 3000.0, volts_per_count=1e-4,
+                                                         has_model=False, class_names=(),
+                                                         seq=1)))
+    listener.close()
+    assert str(info.value) == (f"INFO frame: grid = 3x2: {out} is being recorded with 4x4")
+    assert len(load_campaign(out)) == 1
