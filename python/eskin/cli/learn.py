@@ -55,7 +55,7 @@ SCHEDULER_HELP = "Dask scheduler address, or local:N for a pool of N worker proc
 
 #: --decision-us's default: the host budget's (the support vectors' share of a decision at the
 #: end of a touch)
-DECISION_US_DEFAULT = 180.0  # eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI)
+DECISION_US_DEFAULT = 80.0  # eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI)
 DECISION_US_HELP = (
     "without --target/--budget: the searched model's support vectors take at most this many "
     "microseconds of a decision at the end of a touch on the host, estimated by a fixed count "

@@ -376,7 +376,7 @@ def train_model(
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
     decision_us : without ``budget``, the support vectors of the searched model take at most
         this many microseconds of a decision at the end of a touch on the host, estimated by a
-        fixed count (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 180,
+        fixed count (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 80,
         plus 38-48 us for the input's bases on a 4x4 grid: the search trades D against alpha
         and the support vectors, which it bounds when needed); None: no bound. Only a searched
         recipe is bounded.

@@ -396,10 +396,10 @@ def test_the_search_is_under_the_host_budget_by_default(sim_path):
     from eskin.cli.learn import DECISION_US_DEFAULT
     from eskin.learn.host_budget import HOST_DECISION_US
 
-    assert DECISION_US_DEFAULT == HOST_DECISION_US == 180.0
+    assert DECISION_US_DEFAULT == HOST_DECISION_US == 80.0
     m = train_model(sim_path, D=20, quick=True, seed=2)
     assert m.training["recipe_search"]["budget"].startswith(
-        "host: support vectors' share of a decision at most 180 us")
+        "host: support vectors' share of a decision at most 80 us")
     wide = train_model(sim_path, D=20, quick=True, seed=2, decision_us=100)
     assert wide.training["recipe_search"]["budget"].startswith(
         "host: support vectors' share of a decision at most 100 us")
