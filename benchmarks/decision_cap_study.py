@@ -43,7 +43,7 @@ def split(camp, seed: int, n_train: int):
     return camp.subset(np.flatnonzero(train)), camp.subset(np.flatnonzero(~train))
 
 
-def one(train, test, cap: float | None, passes: int, tmp: Path, window: str) -> dict:
+def one(train, test, cap: float | str | None, passes: int, tmp: Path, window: str) -> dict:
     from eskin.deploy.export import CompiledModel, export_model
     from eskin.learn.training import train_model
 
@@ -64,8 +64,10 @@ def one(train, test, cap: float | None, passes: int, tmp: Path, window: str) -> 
             "n": len(truth)}
 
 
-def label(cap: float | None) -> str:
-    return "no host budget" if cap is None else f"--decision-us {cap:g}"
+def label(cap: float | str | None) -> str:
+    if cap is None:
+        return "no host budget"
+    return "the default budget (auto)" if cap == "auto" else f"--decision-us {cap:g}"
 
 
 def main(argv=None) -> None:
@@ -74,17 +76,18 @@ def main(argv=None) -> None:
     ap.add_argument("--campaign", default="sim70", choices=sorted(CAMPAIGNS),
                     help="one of bench_peers.py's simulated campaigns")
     ap.add_argument("--seeds", default="3,4,5,6,7")
-    ap.add_argument("--caps", default="none,180,120,80,60", help="--decision-us values ('none': "
-                    "no host budget, the search before it had one); the first is the reference")
+    ap.add_argument("--caps", default="none,180,120,80,60,auto", help="--decision-us values "
+                    "('none': no host budget, the search before it had one; 'auto': eskin train's "
+                    "default); the first is the reference")
     ap.add_argument("--passes", type=int, default=3)
     args = ap.parse_args(argv)
     import eskin
 
     seeds = [int(s) for s in args.seeds.split(",")]
-    caps = [None if c == "none" else float(c) for c in args.caps.split(",")]
+    caps = [None if c == "none" else c if c == "auto" else float(c) for c in args.caps.split(",")]
     _, n_train, _, window = CAMPAIGNS[args.campaign]
     camp = eskin.load_campaign(campaign(args.cache, args.campaign), in_memory=True)
-    res: dict[float | None, list[dict]] = {c: [] for c in caps}
+    res: dict[float | str | None, list[dict]] = {c: [] for c in caps}
     with tempfile.TemporaryDirectory() as tmpdir:
         for seed in seeds:
             train, test = split(camp, seed, n_train)

@@ -22,7 +22,6 @@ from eskin.cli.learn import (
     Selection,
     Subsample,
     Window,
-    DECISION_US_DEFAULT,
     DECISION_US_HELP,
     _amplitudes,
     _decision_us,
@@ -74,8 +73,8 @@ def evaluate(
     max_support: int | None = typer.Option(
         None, "--max-support", min=1, help="at most this many support vectors in each fold's "
         "model (as eskin train --max-support)"),
-    decision_us: float = typer.Option(
-        DECISION_US_DEFAULT, "--decision-us", min=0.0, help=DECISION_US_HELP),
+    decision_us: float | None = typer.Option(
+        None, "--decision-us", min=0.0, help=DECISION_US_HELP, show_default=False),
     live: bool = typer.Option(
         True, "--live/--no-live", help="also play each fold's held-out recordings as one "
         "stream through its compiled stream classifier and score the live decisions"),

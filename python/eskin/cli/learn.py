@@ -53,19 +53,21 @@ NEGATIVES_HELP = (
 
 SCHEDULER_HELP = "Dask scheduler address, or local:N for a pool of N worker processes here"
 
-#: --decision-us's default: the host budget's (the support vectors' share of a decision at the
-#: end of a touch)
-DECISION_US_DEFAULT = 80.0  # eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI)
+#: --decision-us's default, the host budget's (the support vectors' share of a decision at the
+#: end of a touch): eskin.learn.host_budget.HOST_DECISION_US (not imported: light CLI), or
+#: twice the input's bases where those take more (HOST_INPUT_FACTOR)
+DECISION_US_DEFAULT = 80.0
 DECISION_US_HELP = (
     "without --target/--budget: the searched model's support vectors take at most this many "
     "microseconds of a decision at the end of a touch on the host, estimated by a fixed count "
-    "(the search trades D, alpha and the support vectors; docs/learning.md); 0: no bound")
+    "(the search trades D, alpha and the support vectors; docs/learning.md); default: 80, or "
+    "twice the input's own bases on a grid where those take more; 0: no bound")
 
 
-def _decision_us(value: float) -> dict[str, Any]:
-    """train_model's ``decision_us`` for --decision-us (0: None, no bound; the default:
-    nothing, train_model's own default)."""
-    if value == DECISION_US_DEFAULT:
+def _decision_us(value: float | None) -> dict[str, Any]:
+    """train_model's ``decision_us`` for --decision-us (0: None, no bound; not given: nothing,
+    train_model's own default, "auto")."""
+    if value is None:
         return {}
     return {"decision_us": float(value) if value > 0 else None}
 
@@ -472,8 +474,8 @@ def train(
     budget: Optional[str] = typer.Option(
         None, help="the model's budget, e.g. flash=1M,ram=128K,instr=1.5M (overrides "
         "--target's figures)"),
-    decision_us: float = typer.Option(
-        DECISION_US_DEFAULT, "--decision-us", min=0.0, help=DECISION_US_HELP),
+    decision_us: Optional[float] = typer.Option(
+        None, "--decision-us", min=0.0, help=DECISION_US_HELP, show_default=False),
     max_support: Optional[int] = typer.Option(
         None, "--max-support", min=1,
         help="at most this many support vectors in the model (all machines together), chosen "

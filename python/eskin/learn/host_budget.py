@@ -43,7 +43,8 @@ from collections.abc import Sequence
 
 from eskin.errors import TrainingError
 
-__all__ = ["HOST_DECISION_US", "basis_entries", "host_budget", "host_decision_us", "support_us"]
+__all__ = ["HOST_DECISION_US", "HOST_INPUT_FACTOR", "basis_entries", "default_cap_us", "host_budget",
+           "host_decision_us", "input_us", "support_us"]
 
 #: the default cap on the support vectors' share of a decision at the end of a touch on the
 #: host (microseconds): the searched model of the built-in 70-participant campaign then
@@ -51,6 +52,11 @@ __all__ = ["HOST_DECISION_US", "basis_entries", "host_budget", "host_decision_us
 #: 0.5 points below a cap of 180 on the mean of five splits (docs/learning.md, "The host
 #: budget"; benchmarks/decision_cap_study.py)
 HOST_DECISION_US = 80.0
+#: the default budget ("auto") lets the support vectors take this many times the input's own
+#: share where that is more than HOST_DECISION_US: on a large grid the input's bases alone
+#: take over 80 us (19 x 27 at D = 18: about 110 us), and a cap below them would leave no
+#: candidate with half its support vectors
+HOST_INPUT_FACTOR = 2.0
 #: nanoseconds per entry (float32) of a support vector's stored bases, read from memory and
 #: multiplied into its overlaps with the input's
 HOST_NS_PER_BASIS_ENTRY = 0.39
@@ -87,6 +93,19 @@ def host_decision_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
     return (bases + int(n_support) * per_sv) / 1e3
 
 
+def input_us(grid_shape: Sequence[int], D: int) -> float:
+    """The input's share of :func:`host_decision_us`: its bases and the window's subsampling,
+    a fixed cost of the grid and D."""
+    rows, cols = (int(v) for v in grid_shape)
+    return (HOST_US_INPUT * 1e3 + rows * cols * int(D) * HOST_NS_PER_ENTRY) / 1e3
+
+
+def default_cap_us(grid_shape: Sequence[int], D: int) -> float:
+    """The default budget's cap ("auto") at D: :data:`HOST_DECISION_US`, or
+    :data:`HOST_INPUT_FACTOR` times the input's own share where that is larger."""
+    return max(HOST_DECISION_US, HOST_INPUT_FACTOR * input_us(grid_shape, D))
+
+
 def support_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
                n_support: int) -> float:
     """The support vectors' share of :func:`host_decision_us` (what grows with the campaign;
@@ -95,21 +114,27 @@ def support_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
         grid_shape, D, alphas, 0)
 
 
-def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
+def host_budget(grid_shape: Sequence[int], max_us: float | str = "auto"):
     """The :class:`~eskin.learn.recipes.CandidateBudget` of a decision whose support vectors
-    take at most ``max_us`` microseconds on the host (:func:`support_us`). Like a
+    take at most ``max_us`` microseconds on the host (:func:`support_us`); ``"auto"`` (the
+    default of ``eskin train``): :func:`default_cap_us` at each candidate's D. Like a
     controller's, it trades D against alpha and the support vectors."""
     from eskin.learn.grids import alpha_value
     from eskin.learn.recipes import CandidateBudget
 
-    if not (math.isfinite(float(max_us)) and float(max_us) > 0):
+    auto = isinstance(max_us, str) and max_us == "auto"
+    if not auto and (isinstance(max_us, str) or not (math.isfinite(float(max_us))
+                                                     and float(max_us) > 0)):
         raise TrainingError(f"the host decision budget must be a positive number of "
-                            f"microseconds, got {max_us!r}")
+                            f"microseconds or 'auto', got {max_us!r}")
     grid = tuple(int(v) for v in grid_shape)
+
+    def cap(D: int) -> float:
+        return default_cap_us(grid, D) if auto else float(max_us)
 
     @functools.lru_cache(maxsize=None)
     def fit_at(D: int, alpha: str, n_support: int) -> bool:
-        return support_us(grid, D, alpha_value(alpha, (*grid, int(D))), n_support) <= float(max_us)
+        return support_us(grid, D, alpha_value(alpha, (*grid, int(D))), n_support) <= cap(D)
 
     def fits(candidate, n_support: int) -> bool:
         return fit_at(int(candidate.recipe.D), candidate.alpha, int(n_support))
@@ -120,9 +145,11 @@ def host_budget(grid_shape: Sequence[int], max_us: float = HOST_DECISION_US):
         if fit_at(D, alpha, int(n_support)):
             return int(n_support)
         per_sv = support_us(grid, D, alpha_value(alpha, (*grid, D)), 1)
-        return max(0, min(int(n_support), int(float(max_us) // per_sv)))
+        return max(0, min(int(n_support), int(cap(D) // per_sv)))
 
-    return CandidateBudget(fits, f"host: support vectors' share of a decision at most "
-                                 f"{float(max_us):g} us (estimated)",
+    what = (f"at most {HOST_DECISION_US:g} us, or {HOST_INPUT_FACTOR:g} times the input's "
+            f"bases where those take more" if auto else f"at most {float(max_us):g} us")
+    return CandidateBudget(fits, f"host: support vectors' share of a decision {what} "
+                                 f"(estimated)",
                            largest=largest, trades_D=True)
 

@@ -18,7 +18,6 @@ import numpy as np
 from eskin.data.limits import MAX_D, MIN_D
 from eskin.errors import TrainingError
 from eskin.learn.calibration import DEFAULT_REJECT
-from eskin.learn.host_budget import HOST_DECISION_US
 from eskin.learn.grids import (
     DEFAULT_AMPLITUDES,
     DEFAULT_D,
@@ -338,7 +337,7 @@ def train_model(
     n_jobs: int = 1,
     group_by: str = "participant",
     budget: Any = None,
-    decision_us: float | None = HOST_DECISION_US,
+    decision_us: float | str | None = "auto",
     recipe_options: Mapping[str, Any] | None = None,
     max_support: int | None = None,
     max_model_bytes: int | None = None,
@@ -376,9 +375,11 @@ def train_model(
         (:func:`eskin.deploy.target.candidate_budget`): only what fits it is chosen.
     decision_us : without ``budget``, the support vectors of the searched model take at most
         this many microseconds of a decision at the end of a touch on the host, estimated by a
-        fixed count (:mod:`eskin.learn.host_budget`; default its ``HOST_DECISION_US`` = 80,
-        plus 38-48 us for the input's bases on a 4x4 grid: the search trades D against alpha
-        and the support vectors, which it bounds when needed); None: no bound. Only a searched
+        fixed count (:mod:`eskin.learn.host_budget`; the search trades D against alpha and the
+        support vectors, which it bounds when needed); "auto" (the default): its
+        ``HOST_DECISION_US`` = 80 us (plus 38-48 us for the input's bases on a 4x4 grid), or
+        twice the input's bases where those take more (large grids:
+        :func:`~eskin.learn.host_budget.default_cap_us`); None: no bound. Only a searched
         recipe is bounded.
     recipe_options : options of the :class:`~eskin.learn.recipes.RecipeSearch` (``eta``, ...).
     max_model_bytes : at most this many bytes in the model's float32 ``.eskin`` file (None,
@@ -574,7 +575,7 @@ def _train_searched(
     amplitudes: Sequence[float | None], quick: bool, cv_options: Mapping[str, Any] | None,
     negatives: str | None, runs: Sequence[int] | None, class_names: Sequence[str] | None,
     lengths: Any, sample_rate_hz: float, seed: int, n_jobs: int, group_by: str, budget: Any,
-    decision_us: float | None, recipe_options: Mapping[str, Any] | None,
+    decision_us: float | str | None, recipe_options: Mapping[str, Any] | None,
     max_support: int | None, max_model_bytes: int | None, choose_hold: bool,
     rule: tuple[str, float],
 ) -> TouchModel:

@@ -8,13 +8,16 @@ import pytest
 from eskin.errors import TrainingError
 from eskin.learn.host_budget import (
     HOST_DECISION_US,
+    HOST_INPUT_FACTOR,
     HOST_NS_PER_BASIS_ENTRY,
     HOST_NS_PER_ENTRY,
     HOST_NS_PER_SV,
     HOST_US_INPUT,
     basis_entries,
+    default_cap_us,
     host_budget,
     host_decision_us,
+    input_us,
     support_us,
 )
 from eskin.learn.recipes import Candidate, Recipe
@@ -71,7 +74,31 @@ def test_the_budget_keeps_what_fits_and_bounds_the_rest_to_the_most_that_fit():
     assert budget.largest(_candidate(100, "1"), 10_000) > 2 * most
 
 
-@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
+def test_the_default_cap_is_80_us_or_twice_the_inputs_bases_where_those_take_more():
+    """On a 4x4 grid the input's bases take 38-48 us: the default cap is 80 us at D = 20 and a
+    little more at D = 50 and 100; on a 19 x 27 grid at D = 18 they take about 109 us, and a
+    cap of 80 would leave a model of 336 patterns at alpha 1 under half its support vectors
+    (none fits then), where twice the input's share keeps them all."""
+    assert input_us((4, 4), 20) == pytest.approx(HOST_US_INPUT + 320 * HOST_NS_PER_ENTRY / 1e3)
+    assert HOST_INPUT_FACTOR * input_us((4, 4), 20) < HOST_DECISION_US
+    assert default_cap_us((4, 4), 20) == HOST_DECISION_US == 80.0
+    assert default_cap_us((4, 4), 50) == pytest.approx(2 * (35 + 800 * 8e-3))
+    assert default_cap_us((19, 27), 18) == pytest.approx(2 * (35 + 9234 * 8e-3))
+    auto, strict = host_budget((19, 27), "auto"), host_budget((19, 27), 80.0)
+    c = _candidate(18, "1")
+    per_sv = support_us((19, 27), 18, (1, 1, 1), 1)
+    assert auto.fits(c, 336) and auto.largest(c, 10_000) == int(default_cap_us((19, 27), 18) // per_sv)
+    assert not strict.fits(c, 336) and strict.largest(c, 336) == int(80.0 // per_sv) < 336 // 2
+    # on the 4x4 grid at D = 20 the two are the same budget
+    four = _candidate(20, "Q")
+    assert host_budget((4, 4), "auto").largest(four, 10_000) == host_budget((4, 4), 80.0).largest(
+        four, 10_000) == 216
+    assert "or 2 times the input's bases" in host_budget((4, 4)).description
+    assert host_budget((4, 4), 80.0).description.startswith(
+        "host: support vectors' share of a decision at most 80 us (estimated)")
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), "fast", ""])
 def test_a_budget_that_is_not_a_positive_number_is_refused(bad):
     with pytest.raises(TrainingError, match="host decision budget"):
         host_budget((4, 4), bad)

@@ -398,8 +398,9 @@ def test_the_search_is_under_the_host_budget_by_default(sim_path):
 
     assert DECISION_US_DEFAULT == HOST_DECISION_US == 80.0
     m = train_model(sim_path, D=20, quick=True, seed=2)
-    assert m.training["recipe_search"]["budget"].startswith(
-        "host: support vectors' share of a decision at most 80 us")
+    assert m.training["recipe_search"]["budget"] == (
+        "host: support vectors' share of a decision at most 80 us, or 2 times the input's bases "
+        "where those take more (estimated)")
     wide = train_model(sim_path, D=20, quick=True, seed=2, decision_us=100)
     assert wide.training["recipe_search"]["budget"].startswith(
         "host: support vectors' share of a decision at most 100 us")
