@@ -141,17 +141,23 @@ def test_a_default_4x4_patch_at_3khz_fits_64_kib(models):
     assert 16384 < engine.bytes_per_patch <= 65536
 
 
-def test_shared_window_buffers_keep_the_decisions_they_have_room_for(campaign, models):
-    # a 1 s hold (what `eskin train` chooses for the built-in simulator's press-and-hold): the
-    # whole pre-onset ring stays per patch, the window buffers are shared
+def _held_patches(campaign, seed: int, P: int = 4):
+    """A model with a 1 s hold (what `eskin train` chooses for the built-in simulator's
+    press-and-hold), P patch streams interleaved (T, P, 16) and each patch's decisions by a
+    StreamClassifier of its own."""
     spec = replace(_spec(campaign, 0), window_config=eskin.WindowConfig(hold_s=1.0))
     held = CompiledModel(model_to_bytes(spec, "float32"))
-    rng = np.random.default_rng(3)
-    P = 4
+    rng = np.random.default_rng(seed)
     streams = [_stream(campaign, rng, 6) for _ in range(P)]
     T = min(len(s) for s in streams)
-    block = np.ascontiguousarray(np.stack([s[:T] for s in streams], axis=1))  # (T, P, 16)
-    want = [_reference(held, s[:T]) for s in streams]
+    block = np.ascontiguousarray(np.stack([s[:T] for s in streams], axis=1))
+    return held, block, [_reference(held, s[:T]) for s in streams]
+
+
+def test_shared_window_buffers_keep_the_decisions_they_have_room_for(campaign, models):
+    # the 1 s hold: the whole pre-onset ring stays per patch, the window buffers are shared
+    P = 4
+    held, block, want = _held_patches(campaign, 3, P)
 
     def run(buffers):
         engine = SkinEngine(held, n_patches=P, window_buffers=buffers)
@@ -173,14 +179,8 @@ def test_shared_window_buffers_keep_the_decisions_they_have_room_for(campaign, m
 def test_chunked_window_store_keeps_the_decisions_it_has_room_for(campaign, models):
     # the 1 s hold again; the windows' kept samples (window_samples = 1024, halving as they
     # grow) in chunks of a shared pool, taken as a window grows, given back as it halves and ends
-    spec = replace(_spec(campaign, 0), window_config=eskin.WindowConfig(hold_s=1.0))
-    held = CompiledModel(model_to_bytes(spec, "float32"))
-    rng = np.random.default_rng(4)
     P = 4
-    streams = [_stream(campaign, rng, 6) for _ in range(P)]
-    T = min(len(s) for s in streams)
-    block = np.ascontiguousarray(np.stack([s[:T] for s in streams], axis=1))  # (T, P, 16)
-    want = [_reference(held, s[:T]) for s in streams]
+    held, block, want = _held_patches(campaign, 4, P)
 
     def run(buffers, chunk):
         engine = SkinEngine(held, n_patches=P, window_buffers=buffers, window_chunk_samples=chunk)
