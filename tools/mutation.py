@@ -313,6 +313,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
+    "python/eskin/data/journal.py": [
+        Equivalent("core/NumberReplacer",
+                   "v.decode() if isinstance(v, bytes) else str(v) for v in "
+                   "arr.reshape(-1).tolist()",
+                   "v.decode() if isinstance(v, bytes) else str(v) for v in "
+                   "arr.reshape(- 2).tolist()",
+                   "numpy takes any negative size as the one unknown dimension: reshape(-2) "
+                   "flattens as reshape(-1) does"),
+    ],
     "python/eskin/learn/recipes.py": [
         *(Equivalent("core/NumberReplacer", "kv[0][1] or 0)):", t,
                      "the order in which a task scores its kernels (sigma, amplitude): each "

@@ -255,6 +255,28 @@ def test_other_names_are_not_journals(tmp_path, name):
     assert jr.target_of(tmp_path / ".a.partial") == tmp_path / "a"
 
 
+@pytest.mark.parametrize("name", ["c.h5.partial", ".c.h5"])
+def test_a_target_whose_name_has_one_of_the_journal_marks_is_a_target(tmp_path, name):
+    """Only a name both starting with a dot and ending in .partial is a journal: a campaign
+    file named like one half of that is the target of its own journal."""
+    target = tmp_path / name
+    assert jr.journal_and_target(target) == (tmp_path / f".{name}.partial", target)
+
+
+def test_the_writer_knows_where_its_journal_ends_after_every_append(tmp_path):
+    """The writer's end is the file's size after each append (a failed append cuts the journal
+    back to it): records of different sizes, labels and extras."""
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    try:
+        assert w.end == w.path.stat().st_size
+        for k, n in enumerate((24, 0, 1000)):
+            meta = {**META, "participant": k, "length": n // 8, "contact_interval": [0, n // 8]}
+            w.append(meta, {"force": (np.float32(k), np.dtype("<f4"))}, bytes([k]) * n)
+            assert w.end == w.path.stat().st_size and w.n == k + 1
+    finally:
+        w.release()
+
+
 def test_a_record_with_a_damaged_magic_is_not_read(tmp_path):
     """The CRC covers a record from its index on: its magic is checked on its own."""
     path = write(tmp_path, 2)
