@@ -602,6 +602,50 @@ def test_a_p_value_exactly_at_the_level_is_not_significantly_worse():
     assert other == low.recipe
 
 
+def test_the_binary_targets_are_plus_one_for_class_1_and_minus_one_else():
+    from eskin.learn.recipes import _binary_targets
+
+    y = np.array([0, 1, 1, 0, 1])
+    np.testing.assert_array_equal(_binary_targets(y, 2), [[-1.0], [1.0], [1.0], [-1.0], [1.0]])
+    three = np.array([2, 0, 1])
+    np.testing.assert_array_equal(_binary_targets(three, 3),
+                                  [[-1.0, -1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0]])
+
+
+def test_each_recipes_row_is_its_candidate_of_the_most_splits_and_then_the_lowest_error(data):
+    """The recipe table keeps, per recipe, the candidate scored on the most splits (the
+    furthest round it reached), and among those the lowest mean error."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "even", "all")]
+    s = RecipeSearch(recipes, [0.01, 1.0], [0.5, 2.0], ["1", "Q/2"], [None], n_splits=4,
+                     first_share=1.0, significance=None, seed=5).fit(X, y, groups)
+    assert max(r["splits"] for r in s.rounds_) == 4 and s.rounds_[0]["splits"] == 1
+    final = {}
+    for e in s.ranking_:
+        final.setdefault(e["candidate"].recipe, []).append(e)
+    assert final  # the last round's candidates, 4 splits each
+    table = {e["candidate"].recipe: e for e in s.recipe_table_}
+    for recipe, entries in final.items():
+        assert table[recipe]["splits"] == 4
+        assert table[recipe]["error"] == min(e["error"] for e in entries)
+
+
+@pytest.mark.parametrize("shape,alpha", [((19, 27, 18), "full"), ((16, 16, 10), "full"),
+                                         ((4, 4, 20), "half")])
+def test_the_smallest_distance_plan_is_the_least_memory_blocks_of_8_can_take(shape, alpha):
+    """distance_memory's smallest scratch: the plan of a row and a column block of 8 patterns
+    fits in it, and not in one byte less (on these shapes a projection mode packed as its
+    bases is smaller than the first plan's)."""
+    from eskin.learn.kernel import distance_plan
+
+    alphas = resolve_alphas(shape, alpha)
+    _, smallest = distance_memory((100, *shape), alphas)
+    assert distance_plan(list(shape), alphas, 8, 8, max_bytes=smallest)["pack_bytes"] == smallest
+    with pytest.raises(ValueError):
+        distance_plan(list(shape), alphas, 8, 8, max_bytes=smallest - 1)
+    assert smallest < distance_plan(list(shape), alphas, 8, 8)["pack_bytes"]
+
+
 def test_the_collapse_note_counts_candidates_and_splits_in_words():
     from eskin.learn.recipes import _collapse_note
 
