@@ -313,6 +313,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
+    "python/eskin/link/protocol.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "elif t == FrameType.DECISION:",
+                   "elif t <= FrameType.DECISION:",
+                   "encode_frame's branches: DATA (1) and STATUS (3) are taken before it, so the "
+                   "only type at or below DECISION (2) that reaches it is DECISION"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_Is", "if t == FrameType.PING:",
+                   "if t is FrameType.PING:",
+                   "t is FrameType(...), an enum member: equal members are the same object"),
+    ],
     "python/eskin/data/journal.py": [
         Equivalent("core/NumberReplacer",
                    "v.decode() if isinstance(v, bytes) else str(v) for v in "

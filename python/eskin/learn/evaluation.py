@@ -138,7 +138,10 @@ def group_bootstrap_ci(
     Recordings of one group (one person) are not independent, so the unit resampled is the
     group: each resample draws as many groups as there are, with replacement, and pools their
     predictions. An interval that misses the point estimate (possible with very few groups)
-    is widened to include it. Returns ``{"accuracy": [low, high], "balanced_accuracy": [...]}``.
+    is widened to include it. The resamples are the rows of
+    ``np.random.default_rng(np.random.SeedSequence([seed, 7])).integers(0, G, size=(n_boot, G))``
+    (indices into the sorted distinct groups), so that anyone can redo them. Returns
+    ``{"accuracy": [low, high], "balanced_accuracy": [...]}``.
     """
     y_true = np.asarray(y_true, np.int64)
     y_pred = np.asarray(y_pred, np.int64)

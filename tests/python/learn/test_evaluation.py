@@ -139,6 +139,42 @@ def test_one_group_resampled_is_the_data_itself():
     assert ci["balanced_accuracy"] == pytest.approx([bal, bal])
 
 
+def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_time():
+    """The intervals against the resampling its docstring describes, redone with a loop over
+    the resamples (each pools the recordings of the groups drawn, with repeats), numpy's
+    percentiles and the widening to the point estimate."""
+    rng = np.random.default_rng(8)
+    groups = np.repeat(np.array([30, 10, 20, 50, 40]), [4, 6, 3, 5, 7])
+    y_true = rng.integers(0, 3, len(groups))
+    y_pred = np.where(rng.random(len(groups)) < 0.6, y_true, rng.integers(0, 3, len(groups)))
+    n_boot, seed = 40, 11
+    uniq = np.unique(groups)
+    draws = np.random.default_rng(np.random.SeedSequence([seed, 7])).integers(
+        0, len(uniq), size=(n_boot, len(uniq)))
+    accs, bals = [], []
+    for row in draws:
+        idx = np.concatenate([np.flatnonzero(groups == uniq[g]) for g in row])
+        t, p = y_true[idx], y_pred[idx]
+        accs.append(np.mean(t == p))
+        bals.append(np.mean([np.mean(p[t == c] == c) for c in range(3) if np.any(t == c)]))
+    ci = group_bootstrap_ci(y_true, y_pred, groups, 3, n_boot=n_boot, level=0.8, seed=seed)
+    acc, bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, 3))
+    for name, values, point in (("accuracy", accs, acc), ("balanced_accuracy", bals, bal)):
+        low, high = np.percentile(values, [10, 90])
+        assert ci[name] == pytest.approx([min(low, point), max(high, point)], abs=1e-12)
+
+
+def test_a_fold_task_cannot_be_changed_once_made():
+    import dataclasses
+
+    from eskin.learn.evaluation import FoldTask
+
+    task = FoldTask(1, "c.h5", np.arange(3), np.arange(3, 5), ("a", "b"), {}, "participant",
+                    (), 0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        task.seed = 1  # type: ignore[misc]
+
+
 def test_the_bootstrap_seed_changes_the_resamples():
     rng = np.random.default_rng(4)
     groups = np.repeat(np.arange(12), 5)

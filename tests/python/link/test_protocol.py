@@ -287,13 +287,19 @@ def test_data_frames_are_equal_only_when_every_field_and_sample_is():
     """The round-trip tests rely on ==: each field and each sample value must count."""
     a = _data()
     assert a == _data() and not (a != _data())
-    assert a != _data(first_sample=11)
-    assert a != _data(timestamp_us=6)
-    assert a != _data(seq=4)
-    assert a != _data(flags=int(Flags.OVERRUN))
+    for other in (_data(first_sample=11), _data(timestamp_us=6), _data(seq=4),
+                  _data(flags=int(Flags.OVERRUN)), _data(first_sample=9), _data(seq=2)):
+        assert a != other and other != a  # both ways: a larger or smaller field
+        assert not (a == other) and not (other == a)
     assert a != _data(samples=np.array([[[1, 2]], [[3, 5]]], np.int16))  # one value
     assert a != _data(samples=np.array([[[1], [2]], [[3], [4]]], np.int16))  # same values, 2x1
     assert a.__eq__("not a frame") is NotImplemented
+
+
+def test_a_data_frames_end_is_one_past_its_last_sample():
+    frame = _data(first_sample=1000, samples=np.zeros((7, 4, 4), np.int16))
+    assert (frame.n_samples, frame.end_sample) == (7, 1007)
+    assert _data(first_sample=5, samples=np.zeros((0, 4, 4), np.int16)).end_sample == 5
 
 
 def test_the_int16_range_is_accepted_to_its_ends_and_refused_past_them():
