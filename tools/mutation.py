@@ -313,6 +313,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
+    "python/eskin/link/receiver.py": [
+        *(Equivalent("core/ReplaceComparisonOperator_Is_Eq", ln, ln.replace(" is ", " == ", 1),
+                     "HostClassifier defines no __eq__: == between two of them (or one and None) "
+                     "is identity")
+          for ln in ("if c is self.classifier:",
+                     "good = c is self.classifier and t.label_index >= 0 and not t.dont_know")),
+    ],
     "python/eskin/link/protocol.py": [
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "elif t == FrameType.DECISION:",
                    "elif t <= FrameType.DECISION:",

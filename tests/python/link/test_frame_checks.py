@@ -335,3 +335,56 @@ def test_recording_a_stream_slower_than_a_campaign_may_be(tmp_path):
             _info(0.05, grid=(2, 2), names=()), _data(0, grid=(2, 2))]))
     listener.close()
     assert not (tmp_path / "live.h5").exists()
+
+
+@pytest.mark.parametrize("count", ["samples", "decisions"])
+def test_what_never_arrived_counts_only_from_a_status_that_follows_everything_sent(count):
+    """unreceived_samples / unreceived_decisions: the STATUS's count minus what arrived, but
+    only when the controller is not streaming and every frame it sent went to this host (1 to
+    the host's sessions connections); else the count so far."""
+    from eskin.link.receiver import unreceived_decisions, unreceived_samples
+
+    fn = unreceived_samples if count == "samples" else unreceived_decisions
+    field = "samples_sent" if count == "samples" else "decisions_sent"
+
+    def status(state, connections):
+        return StatusFrame(**{field: 50}, state=state, connections=connections)
+
+    stopped, streaming = StreamState.STOPPED, StreamState.STREAMING
+    assert fn(status(stopped, 1), 30, 0, known=4) == 20
+    assert fn(status(stopped, 1), 48, 0, known=4) == 4  # the count only grows
+    assert fn(status(stopped, 2), 30, 1, known=4) == 20  # two connections, one reconnect
+    assert fn(status(stopped, 1), 30, 1, known=4) == 20
+    assert fn(status(stopped, 2), 30, 0, known=4) == 4  # another host had a connection
+    assert fn(status(stopped, 0), 30, 0, known=4) == 4  # an older controller: it does not say
+    assert fn(status(streaming, 1), 30, 0, known=4) == 4  # more frames may follow
+
+
+def test_activity_is_each_taxels_rms_deviation_from_its_mean_over_the_last_second():
+    """A 1 kHz stream: each taxel a DC level of its own plus a known waveform. activity(w) is
+    the RMS over the last max(1, w * rate) samples of each taxel's deviation from its mean
+    over the last 1000 samples."""
+    rate, n = 1000.0, 3000
+    t = np.arange(n)
+    dc = np.arange(16).reshape(4, 4) * 100 - 800
+    wave = np.rint(40 * np.sin(2 * np.pi * t / 50) + 3 * (t % 7)).astype(np.int64)
+    x = (dc[None] + wave[:, None, None] * (1 + np.arange(16).reshape(4, 4) % 3)).astype(np.int16)
+    frames = [DataFrame(k, k * 1000, x[k:k + 10], (k // 10 + 1) % 65536) for k in range(0, n, 10)]
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    listener.feed(DELIMITER + encode_frame(_info(rate)) + b"".join(encode_frame(f) for f in frames))
+    ref = x[-1000:].astype(np.float64).mean(axis=0)
+    for window_s, last in ((0.2, 200), (0.05, 50), (0.0, 1), (0.0015, 1)):
+        dev = x[-last:].astype(np.float64) - ref
+        np.testing.assert_allclose(listener.activity(window_s), np.sqrt((dev * dev).mean(axis=0)),
+                                   rtol=1e-12)
+    listener.close()
+
+
+def test_the_last_hundred_rejections_are_kept():
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    bad = [_data(20 + k, n=1, grid=(255, 7)) for k in range(150)]
+    listener.feed(DELIMITER + encode_frame(_info()) + b"".join(encode_frame(f) for f in bad))
+    assert listener.stats.absurd_frames == 150
+    assert [(r.frame, r.field, r.value) for r in listener.rejections] == [("DATA", "grid",
+                                                                          "255x7")] * 100
+    listener.close()

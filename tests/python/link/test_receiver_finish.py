@@ -5,6 +5,7 @@ received."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from eskin.link.listener import LinkListener
 from eskin.link.protocol import DELIMITER, DataFrame, InfoFrame, encode_frame
@@ -65,10 +66,12 @@ def test_an_info_grid_other_than_the_models_names_both_grids_rows_first(tmp_path
     assert str(info.value) == "INFO frame: grid = 3x2: the host model expects 2x3"
 
 
-def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tmp_path):
-    """Once a 4x4 recording is in the campaign file, an INFO frame of another grid stops the
-    stream with one line naming the file and both grids (the file keeps what it has)."""
-    import pytest
+@pytest.mark.parametrize("rows,cols", [(3, 2), (8, 8), (4, 5)])
+def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tmp_path, rows,
+                                                                              cols):
+    """Once a 4x4 recording is in the campaign file, an INFO frame of another grid (smaller or
+    larger) stops the stream with one line naming the file and both grids (the file keeps what
+    it has)."""
 
     from eskin.data.campaign import load_campaign
     from eskin.errors import LinkStreamError
@@ -79,9 +82,9 @@ def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tm
     recorded = [e for e in listener.feed(_wire(stream)) if isinstance(e, Recorded)]
     assert len(recorded) == 1
     with pytest.raises(LinkStreamError) as info:
-        listener.feed(DELIMITER + encode_frame(InfoFrame(3, 2, 3000.0, volts_per_count=1e-4,
+        listener.feed(DELIMITER + encode_frame(InfoFrame(rows, cols, 3000.0, volts_per_count=1e-4,
                                                          has_model=False, class_names=(),
                                                          seq=1)))
     listener.close()
-    assert str(info.value) == (f"INFO frame: grid = 3x2: {out} is being recorded with 4x4")
+    assert str(info.value) == f"INFO frame: grid = {rows}x{cols}: {out} is being recorded with 4x4"
     assert len(load_campaign(out)) == 1
