@@ -321,15 +321,20 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "good = c is self.classifier and t.label_index >= 0 and not t.dont_know")),
     ],
     "python/eskin/link/protocol.py": [
-        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "elif t == FrameType.DECISION:",
-                   "elif t <= FrameType.DECISION:",
-                   "encode_frame's branches: DATA (1) and STATUS (3) are taken before it, so the "
-                   "only type at or below DECISION (2) that reaches it is DECISION"),
-        Equivalent("core/ReplaceComparisonOperator_Eq_Is", "if t == FrameType.PING:",
-                   "if t is FrameType.PING:",
-                   "t is FrameType(...), an enum member: equal members are the same object"),
+        *(Equivalent("core/ReplaceComparisonOperator_Eq_Is", f"{w} t == FrameType.{n}:",
+                     f"{w} t is FrameType.{n}:",
+                     "t is an enum member (FrameType(...) or _TYPE_OF's value): equal members "
+                     "are the same object")
+          for w, n in [("if", n) for n in ("DECISION", "STATUS", "INFO", "PING", "PONG")]
+          + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/journal.py": [
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
+                   "if len(head) < len(HEADER_MAGIC) + 4 or head[: len(HEADER_MAGIC)] != "
+                   "HEADER_MAGIC:",
+                   "if len(head) != len(HEADER_MAGIC) + 4 or head[: len(HEADER_MAGIC)] != "
+                   "HEADER_MAGIC:",
+                   "head is fh.read(len(HEADER_MAGIC) + 4): never longer, so != is <"),
         Equivalent("core/NumberReplacer",
                    "v.decode() if isinstance(v, bytes) else str(v) for v in "
                    "arr.reshape(-1).tolist()",

@@ -287,8 +287,6 @@ def encode_frame(frame: Frame) -> bytes:
         d["samples"] = samples
     elif t == FrameType.STATUS:
         d["state"] = int(d["state"])
-    elif t == FrameType.DECISION:
-        d["values"] = [float(v) for v in d["values"]]
     elif t == FrameType.INFO:
         d["class_names"] = [str(n) for n in d["class_names"]]
         for i, name in enumerate(d["class_names"]):

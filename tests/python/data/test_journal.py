@@ -263,6 +263,15 @@ def test_a_target_whose_name_has_one_of_the_journal_marks_is_a_target(tmp_path, 
     assert jr.journal_and_target(target) == (tmp_path / f".{name}.partial", target)
 
 
+def test_releasing_a_journal_twice_closes_it_once_and_leaves_it_on_disk(tmp_path):
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    w.append(META, {"force": (np.float32(0), np.dtype("<f4"))}, bytes(24))
+    w.release()
+    w.release()
+    contents, records = read(w.path)
+    assert len(records) == 1 and contents.dropped_bytes == 0
+
+
 def test_the_writer_knows_where_its_journal_ends_after_every_append(tmp_path):
     """The writer's end is the file's size after each append (a failed append cuts the journal
     back to it): records of different sizes, labels and extras."""

@@ -296,6 +296,16 @@ def test_data_frames_are_equal_only_when_every_field_and_sample_is():
     assert a.__eq__("not a frame") is NotImplemented
 
 
+def test_a_data_frame_has_no_flags_unless_given_and_decision_values_go_as_floats():
+    frame = DataFrame(0, 0, np.zeros((1, 1, 2), np.int16))
+    assert (frame.seq, frame.flags, frame.overrun) == (0, 0, False)
+    (back,) = FrameDecoder(wait_for_delimiter=False).feed(encode_frame(frame))
+    assert back.flags == 0 and not back.overrun
+    sent = DecisionFrame(10, 40, 1, (np.float32(0.5), 2, np.float64(-1.25)))
+    (got,) = FrameDecoder(wait_for_delimiter=False).feed(encode_frame(sent))
+    assert got.values == (0.5, 2.0, -1.25) and all(type(v) is float for v in got.values)
+
+
 def test_a_data_frames_end_is_one_past_its_last_sample():
     frame = _data(first_sample=1000, samples=np.zeros((7, 4, 4), np.int16))
     assert (frame.n_samples, frame.end_sample) == (7, 1007)
