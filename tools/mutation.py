@@ -344,6 +344,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "flattens as reshape(-1) does"),
     ],
     "python/eskin/learn/recipes.py": [
+        Equivalent("core/ReplaceComparisonOperator_Lt_Is",
+                   "if len(support) and np.max(np.abs(beta[support])) < 1.0 / c.lam:",
+                   "if len(support) and np.max(np.abs(beta[support])) is 1.0 / c.lam:",
+                   "never keeping a fit with no coefficient at its bound C for the larger C's: "
+                   "each is then fitted, to the same solution (its optimality conditions do not "
+                   "involve C); only the time differs"),
         *(Equivalent("core/NumberReplacer", "kv[0][1] or 0)):", t,
                      "the order in which a task scores its kernels (sigma, amplitude): each "
                      "candidate's error, support vectors and collapse come from its own kernel's "

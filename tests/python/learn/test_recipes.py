@@ -593,13 +593,29 @@ def test_a_p_value_exactly_at_the_level_is_not_significantly_worse():
     splits = [(np.arange(7), np.arange(7, 10))] * 4
     share = float(np.mean([len(te) / (len(tr) + len(te)) for tr, te in splits]))
     diffs = [rows[pref].errors[s] - rows[low].errors[s] for s in range(4)]
-    _, p = corrected_paired_t(diffs, share)
+    t, p = corrected_paired_t(diffs, share)
     assert 0 < p < 0.5
     kept, rec = _preferred_recipe(rows, [low, pref], splits, 1e-3, p)
     assert kept == pref.recipe and rec["p"] == round(p, 6) and rec["significance"] == p
+    assert rec["t"] == round(t, 4) and len({round(t, 3), round(t, 4), round(t, 5)}) == 3
     assert rec["within_one_pattern"] is False and rec["gap"] == round(np.mean(diffs), 6)
     other, _ = _preferred_recipe(rows, [low, pref], splits, 1e-3, float(np.nextafter(p, 1)))
     assert other == low.recipe
+
+
+def test_equal_errors_rank_the_simpler_candidate_first():
+    """Ties on the mean error go to the larger lambda, then the larger sigma, then no
+    amplitude factor, then the smaller D."""
+    from eskin.learn.recipes import _Row
+
+    r20, r50 = Recipe("svm", 20, "algorithm2", "all"), Recipe("svm", 50, "algorithm2", "all")
+    order = [Candidate(r20, 1.0, 2.0, "1", None), Candidate(r50, 1.0, 2.0, "1", None),
+             Candidate(r20, 1.0, 2.0, "1", 4.0), Candidate(r20, 1.0, 1.0, "1", None),
+             Candidate(r20, 0.1, 4.0, "1", None)]
+    search = RecipeSearch([r20, r50], [0.1, 1.0], [1.0, 2.0, 4.0], ["1"], [None, 4.0])
+    rows = [_Row(c, errors={0: 0.25, 1: 0.5}) for c in order]
+    assert [r.candidate for r in sorted(reversed(rows), key=search._key)] == order
+    assert sorted(rows + [_Row(order[-1], errors={0: 0.2})], key=search._key)[0].mean == 0.2
 
 
 def test_the_binary_targets_are_plus_one_for_class_1_and_minus_one_else():
