@@ -314,6 +314,14 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
     "python/eskin/link/receiver.py": [
+        Equivalent("core/ReplaceComparisonOperator_Gt_GtE",
+                   "and st.next is not None and s.next_sample > st.next and not self._tail):",
+                   "and st.next is not None and s.next_sample >= st.next and not self._tail):",
+                   "at equality the tail is 0 samples, and self._tail is 0 there already"),
+        Equivalent("core/NumberReplacer",
+                   "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
+                   "grid = (int(frames[0].samples.shape[1]), int(frames[ -1].samples.shape[2]))",
+                   "the frames of one call are of one grid (feed cuts its runs where it changes)"),
         *(Equivalent("core/ReplaceComparisonOperator_Is_Eq", ln, ln.replace(" is ", " == ", 1),
                      "HostClassifier defines no __eq__: == between two of them (or one and None) "
                      "is identity")

@@ -57,13 +57,15 @@ def test_an_info_grid_other_than_the_models_names_both_grids_rows_first(tmp_path
                 for k in range(2)]
     model = CompiledModel(model_to_bytes(ModelSpec(["a", "b"], "one_vs_all", machines, 5, (2, 3)),
                                          "float64"))
-    listener = LinkListener("/dev/null-not-opened", model=model, stats_interval=None)
-    with pytest.raises(LinkStreamError) as info:
-        listener.feed(DELIMITER + encode_frame(InfoFrame(3, 2, 3000.0, volts_per_count=1e-4,
-                                                         has_model=False, class_names=(),
-                                                         seq=0)))
-    listener.close()
-    assert str(info.value) == "INFO frame: grid = 3x2: the host model expects 2x3"
+    for rows, cols in ((3, 2), (2, 2), (1, 3)):  # a larger or a smaller grid
+        listener = LinkListener("/dev/null-not-opened", model=model, stats_interval=None)
+        with pytest.raises(LinkStreamError) as info:
+            listener.feed(DELIMITER + encode_frame(InfoFrame(rows, cols, 3000.0,
+                                                             volts_per_count=1e-4,
+                                                             has_model=False, class_names=(),
+                                                             seq=0)))
+        listener.close()
+        assert str(info.value) == f"INFO frame: grid = {rows}x{cols}: the host model expects 2x3"
 
 
 @pytest.mark.parametrize("rows,cols", [(3, 2), (8, 8), (4, 5)])
@@ -88,3 +90,36 @@ def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tm
     listener.close()
     assert str(info.value) == f"INFO frame: grid = {rows}x{cols}: {out} is being recorded with 4x4"
     assert len(load_campaign(out)) == 1
+
+
+def test_an_info_without_volts_per_count_records_one_volt_per_count(tmp_path):
+    """volts_per_count = 0 in the INFO frame means the controller does not say: the recording
+    takes 1.0, not 0."""
+    from eskin.data.campaign import load_campaign
+
+    stream = np.concatenate([_stream(), _stream(n_touch=0)[:4500]])
+    wire = _wire(stream).replace(
+        encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=1e-4, has_model=False,
+                               class_names=(), seq=0)),
+        encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=0.0, has_model=False,
+                               class_names=(), seq=0)))
+    out = tmp_path / "touches.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+    assert len([e for e in listener.feed(wire) if isinstance(e, Recorded)]) == 1
+    listener.close()
+    with load_campaign(out) as c:
+        assert c.volts_per_count == 1.0
+
+
+def test_a_grid_of_other_rows_and_columns_is_kept_as_rows_by_columns():
+    x = np.arange(40 * 2 * 3, dtype=np.int16).reshape(40, 2, 3) % 50
+    frames = [encode_frame(InfoFrame(2, 3, 1000.0, volts_per_count=1e-4, has_model=False,
+                                     class_names=(), seq=0))]
+    frames += [encode_frame(DataFrame(k, k * 1000, x[k:k + 10], k // 10 + 1))
+               for k in range(0, 40, 10)]
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    blocks = [e for e in listener.feed(DELIMITER + b"".join(frames))
+              if type(e).__name__ == "DataBlock"]
+    assert [b.samples.shape for b in blocks] == [(10, 2, 3)] * 4
+    assert listener.activity().shape == (2, 3)
+    listener.close()
