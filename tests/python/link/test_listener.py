@@ -457,22 +457,30 @@ def fw_sim_path():
     return find_executable("eskin-fw-sim")
 
 
-@pytest.fixture(scope="module")
-def small_model(tmp_path_factory):
-    """A real compiled 3-class model (support patterns = preprocessed synthetic touches) and a
-    replay file of 9 other synthetic touches."""
-    from eskin.deploy.export import CompiledModel, MachineSpec, ModelSpec, model_to_bytes
+def _small_spec(intercept: float = -0.2):
+    """A 3-class model whose support patterns are preprocessed synthetic touches (with the
+    intercept -0.2 the paper's rule says "don't know" on the test touches, with 0 it decides)."""
+    from eskin.deploy.export import MachineSpec, ModelSpec
     from eskin.signal.preprocess import preprocess
 
-    d = tmp_path_factory.mktemp("model")
     D = 20
     train = [synthetic_touch(k, 100 + i) for i in range(3) for k in range(3)]
     y = np.array([k for _ in range(3) for k in range(3)])
     X = preprocess(np.stack(train), D)
     X /= np.linalg.norm(X.reshape(len(X), -1), axis=1)[:, None, None, None]
-    machines = [MachineSpec(k, -1, -0.2, (2, 2, 3), (1.0, 1.0, 1.0), X,
+    machines = [MachineSpec(k, -1, intercept, (2, 2, 3), (1.0, 1.0, 1.0), X,
                             np.where(y == k, 1.0, -0.5)) for k in range(3)]
-    spec = ModelSpec(["brush", "finger", "washer"], "one_vs_all", machines, D, (4, 4))
+    return ModelSpec(["brush", "finger", "washer"], "one_vs_all", machines, D, (4, 4))
+
+
+@pytest.fixture(scope="module")
+def small_model(tmp_path_factory):
+    """A real compiled 3-class model (_small_spec) and a replay file of 9 other synthetic
+    touches."""
+    from eskin.deploy.export import CompiledModel, model_to_bytes
+
+    d = tmp_path_factory.mktemp("model")
+    spec = _small_spec()
     path = d / "small.eskin"
     path.write_bytes(model_to_bytes(spec, "float32"))
     test = [synthetic_touch(k, i) for i in range(3) for k in range(3)]
@@ -628,3 +636,34 @@ def test_listen_live_view_renders(pty, tmp_path):
                  "lost samples"):
         assert text in res.output
     assert json.loads(out.read_text().splitlines()[0])["label"] == "brush"
+
+
+def test_a_recorded_touch_takes_the_host_decisions_label_unless_it_does_not_know(small_model,
+                                                                                 tmp_path):
+    """record_policy "touch" with a host model: each touch is recorded under the label the
+    host decided, or "unknown" where the decision is "don't know"."""
+    from eskin.deploy.export import CompiledModel, model_to_bytes
+
+    unsure, _, rf, _ = small_model
+    sure = CompiledModel(model_to_bytes(_small_spec(0.0), "float32"))
+    for cm, decided in ((sure, True), (unsure, False)):
+        _record_touches(cm, rf, tmp_path / f"touches_{decided}.h5", decided)
+
+
+def _record_touches(cm, rf, out, decided):
+    x = np.asarray(rf.samples).reshape(rf.n_samples, 4, 4).astype(np.int16)
+    wire = [encode_frame(InfoFrame(4, 4, float(rf.sample_rate_hz), volts_per_count=1e-4,
+                                   has_model=False, class_names=(), seq=0))]
+    wire += [encode_frame(DataFrame(k, k * 333, x[k:k + 10], (k // 10 + 1) % 65536))
+             for k in range(0, len(x), 10)]
+    listener = LinkListener("/dev/null-not-opened", model=cm, record=out, record_policy="touch",
+                            stats_interval=None)
+    events = listener.feed(DELIMITER + b"".join(wire)) + listener.finish()
+    listener.close()
+    host = [e for e in events if isinstance(e, Decision) and e.source == "host"]
+    assert len(host) == 9 and {d.label_index for d in host} == {0, 1, 2}
+    assert all(d.dont_know is not decided for d in host)
+    want = [d.label if decided else "unknown" for d in host]
+    with load_campaign(out) as camp:
+        names = list(camp.modalities)
+        assert [names[int(m)] for m in np.asarray(camp.modality)] == want
