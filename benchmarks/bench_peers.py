@@ -96,11 +96,11 @@ def campaign(cache: Path, name: str) -> Path:
     return path
 
 
-def _split(camp, n_train: int):
-    """(training campaign, held-out campaign): the first ``n_train`` participants of a seeded
-    permutation train."""
+def _split(camp, n_train: int, seed: int = SEED):
+    """(training campaign, held-out campaign): the first ``n_train`` participants of a
+    permutation seeded ``[seed, 22]`` train."""
     part = np.asarray(camp.participant)
-    ids = np.random.default_rng([SEED, 22]).permutation(np.unique(part))
+    ids = np.random.default_rng([seed, 22]).permutation(np.unique(part))
     train = np.isin(part, ids[:n_train])
     return camp.subset(np.flatnonzero(train)), camp.subset(np.flatnonzero(~train))
 

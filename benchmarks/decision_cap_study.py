@@ -33,14 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_inference import touch_latencies  # noqa: E402
-from bench_peers import CAMPAIGNS, campaign  # noqa: E402
-
-
-def split(camp, seed: int, n_train: int):
-    part = np.asarray(camp.participant)
-    ids = np.random.default_rng([seed, 22]).permutation(np.unique(part))
-    train = np.isin(part, ids[:n_train])
-    return camp.subset(np.flatnonzero(train)), camp.subset(np.flatnonzero(~train))
+from bench_peers import CAMPAIGNS, _split, _truth, campaign  # noqa: E402
 
 
 def one(train, test, cap: float | str | None, passes: int, tmp: Path, window: str) -> dict:
@@ -49,9 +42,7 @@ def one(train, test, cap: float | str | None, passes: int, tmp: Path, window: st
 
     model = train_model(train, window=window, n_jobs=1, decision_us=cap)
     X = model.preprocess(test)
-    names = list(test.modalities)
-    truth = np.array([list(model.classes).index(names[int(m)])
-                      for m in np.asarray(test.modality)])
+    truth = _truth(test, model.classes)
     acc = float(np.mean(model.predict_indices(X)[0] == truth))
     cm = CompiledModel(export_model(model, tmp / f"cap{cap}.eskin"))
     stream = np.ascontiguousarray(np.concatenate(list(np.asarray(test.signals)), axis=-1))
@@ -90,7 +81,7 @@ def main(argv=None) -> None:
     res: dict[float | str | None, list[dict]] = {c: [] for c in caps}
     with tempfile.TemporaryDirectory() as tmpdir:
         for seed in seeds:
-            train, test = split(camp, seed, n_train)
+            train, test = _split(camp, n_train, seed)
             for cap in caps:
                 r = one(train, test, cap, args.passes, Path(tmpdir), window)
                 res[cap].append(r)

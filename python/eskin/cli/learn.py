@@ -60,8 +60,9 @@ DECISION_US_DEFAULT = 80.0
 DECISION_US_HELP = (
     "without --target/--budget: the searched model's support vectors take at most this many "
     "microseconds of a decision at the end of a touch on the host, estimated by a fixed count "
-    "(the search trades D, alpha and the support vectors; docs/learning.md); default: 80, or "
-    "twice the input's own bases on a grid where those take more; 0: no bound")
+    f"(the search trades D, alpha and the support vectors; docs/learning.md); default: "
+    f"{DECISION_US_DEFAULT:g}, or twice the input's own bases on a grid where those take more; "
+    f"0: no bound")
 
 
 def _decision_us(value: float | None) -> dict[str, Any]:

@@ -122,9 +122,8 @@ def host_budget(grid_shape: Sequence[int], max_us: float | str = "auto"):
     from eskin.learn.grids import alpha_value
     from eskin.learn.recipes import CandidateBudget
 
-    auto = isinstance(max_us, str) and max_us == "auto"
-    if not auto and (isinstance(max_us, str) or not (math.isfinite(float(max_us))
-                                                     and float(max_us) > 0)):
+    auto = max_us == "auto"
+    if not auto and (isinstance(max_us, str) or not math.isfinite(max_us) or max_us <= 0):
         raise TrainingError(f"the host decision budget must be a positive number of "
                             f"microseconds or 'auto', got {max_us!r}")
     grid = tuple(int(v) for v in grid_shape)
