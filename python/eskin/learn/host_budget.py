@@ -87,17 +87,19 @@ def host_decision_us(grid_shape: Sequence[int], D: int, alphas: Sequence[int],
                      n_support: int) -> float:
     """Estimated microseconds of one decision at the end of a touch on the host of a model with
     ``n_support`` distinct support vectors at D and the per-mode ``alphas``."""
-    rows, cols = (int(v) for v in grid_shape)
-    bases = HOST_US_INPUT * 1e3 + rows * cols * int(D) * HOST_NS_PER_ENTRY
     per_sv = HOST_NS_PER_SV + basis_entries(grid_shape, D, alphas) * HOST_NS_PER_BASIS_ENTRY
-    return (bases + int(n_support) * per_sv) / 1e3
+    return (_input_ns(grid_shape, D) + int(n_support) * per_sv) / 1e3
+
+
+def _input_ns(grid_shape: Sequence[int], D: int) -> float:
+    rows, cols = (int(v) for v in grid_shape)
+    return HOST_US_INPUT * 1e3 + rows * cols * int(D) * HOST_NS_PER_ENTRY
 
 
 def input_us(grid_shape: Sequence[int], D: int) -> float:
     """The input's share of :func:`host_decision_us`: its bases and the window's subsampling,
     a fixed cost of the grid and D."""
-    rows, cols = (int(v) for v in grid_shape)
-    return (HOST_US_INPUT * 1e3 + rows * cols * int(D) * HOST_NS_PER_ENTRY) / 1e3
+    return _input_ns(grid_shape, D) / 1e3
 
 
 def default_cap_us(grid_shape: Sequence[int], D: int) -> float:
