@@ -352,6 +352,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "flattens as reshape(-1) does"),
     ],
     "python/eskin/learn/recipes.py": [
+        *(Equivalent("core/NumberReplacer",
+                     'reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else '
+                     '(math.inf, 0)',
+                     'reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else '
+                     f'(math.inf, {v})',
+                     "an RLS candidate's reach is infinite: it never collapses, and the count "
+                     "beside it is never read") for v in ("1", "-1")),
         Equivalent("core/ReplaceComparisonOperator_Lt_Is",
                    "if len(support) and np.max(np.abs(beta[support])) < 1.0 / c.lam:",
                    "if len(support) and np.max(np.abs(beta[support])) is 1.0 / c.lam:",

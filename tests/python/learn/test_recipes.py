@@ -618,6 +618,22 @@ def test_equal_errors_rank_the_simpler_candidate_first():
     assert sorted(rows + [_Row(order[-1], errors={0: 0.2})], key=search._key)[0].mean == 0.2
 
 
+def test_a_regularised_kernel_that_is_not_positive_definite_is_an_error_not_a_solution():
+    """The tensor-RLS solve (LAPACK's posv): K + lambda I solved exactly when it is positive
+    definite; when it is not (posv's info 1 here), SciPy's error, not posv's partial result."""
+    from scipy import linalg
+
+    from eskin.learn.recipes import _solve_pos
+
+    K = np.array([[2.0, 1.0], [1.0, 2.0]])
+    np.testing.assert_allclose(_solve_pos(K, 0.5, np.array([1.0, -1.0]), linalg),
+                               [2 / 3, -2 / 3], rtol=1e-12)
+    bad = np.array([[-5.0, 0.0], [0.0, 1.0]])
+    assert linalg.lapack.dposv(bad + 0.1 * np.eye(2), np.ones(2), lower=False)[2] == 1
+    with pytest.raises(np.linalg.LinAlgError):
+        _solve_pos(bad, 0.1, np.ones(2), linalg)
+
+
 def test_the_binary_targets_are_plus_one_for_class_1_and_minus_one_else():
     from eskin.learn.recipes import _binary_targets
 
