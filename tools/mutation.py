@@ -322,6 +322,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
                    "grid = (int(frames[0].samples.shape[1]), int(frames[ -1].samples.shape[2]))",
                    "the frames of one call are of one grid (feed cuts its runs where it changes)"),
+        Equivalent("core/NumberReplacer",
+                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
+                   "if data_run and data_run[ -1].samples.shape[1:] != f.samples.shape[1:]:",
+                   "the frames of a run are of one grid (the run is cut where it changes): its "
+                   "first and last have the same shape"),
         *(Equivalent("core/ReplaceComparisonOperator_Is_Eq", ln, ln.replace(" is ", " == ", 1),
                      "HostClassifier defines no __eq__: == between two of them (or one and None) "
                      "is identity")

@@ -62,7 +62,7 @@ class StreamAssembler:
     ``on_touch(classifier, start, stop, touch, received)`` is called for every touch a
     classifier completes (stream indices ``[start, stop)``); ``on_restart()`` when the stream
     restarts (a long hole or an index reset), after the classifiers were flushed; ``on_fed()``
-    after each block of samples entered the history.
+    after each block of samples entered the history (a second of samples at most).
     """
 
     def __init__(self, grid: tuple[int, int], *, rate: float, history_capacity: int,
@@ -140,6 +140,16 @@ class StreamAssembler:
 
     def _feed(self, first: int, block: np.ndarray, lost: np.ndarray,
               received: Optional[float]) -> None:
+        # at most a second of samples at a time, each followed by on_fed(): the history holds a
+        # second more than a recording needs, so a read of many seconds (a host that fell
+        # behind, a large grid at a low rate) cannot overwrite a touch's samples before the
+        # recorder has written them
+        step = max(1, int(self.rate))
+        for a in range(0, block.shape[0], step):
+            self._feed_piece(first + a, block[a:a + step], lost[a:a + step], received)
+
+    def _feed_piece(self, first: int, block: np.ndarray, lost: np.ndarray,
+                    received: Optional[float]) -> None:
         if self.next is None:
             self.next = self._base = first
         self.history.append(first, block, lost)

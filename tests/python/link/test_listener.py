@@ -667,3 +667,86 @@ def _record_touches(cm, rf, out, decided):
     with load_campaign(out) as camp:
         names = list(camp.modalities)
         assert [names[int(m)] for m in np.asarray(camp.modality)] == want
+
+
+def test_a_restart_writes_the_pending_touch_as_the_end_of_the_stream_would(small_model, tmp_path):
+    """record_policy "touch": a touch waits for ``context_s`` of samples after it before it is
+    written. When the controller restarts (its indices go back to 0) before those arrive, the
+    touch is written at once with what was received, exactly as when the stream ends there;
+    the restarted stream's samples never end up in it."""
+    _, _, rf, _ = small_model
+    x = np.asarray(rf.samples).reshape(rf.n_samples, 4, 4).astype(np.int16)
+    info = encode_frame(InfoFrame(4, 4, float(rf.sample_rate_hz), volts_per_count=1e-4,
+                                  has_model=False, class_names=(), seq=0))
+
+    def data(first, block, seq):
+        return encode_frame(DataFrame(first, first * 333, block, seq % 65536))
+
+    def run(wire, name):
+        out = tmp_path / name
+        listener = LinkListener("/dev/null-not-opened", record=out, record_policy="touch",
+                                context_s=0.5, stats_interval=None)
+        events = listener.feed(DELIMITER + b"".join(wire)) + listener.finish()
+        listener.close()
+        with load_campaign(out) as camp:
+            recs = [np.asarray(camp.recording(i)) for i in range(len(camp))]
+        return [e for e in events if isinstance(e, Recorded)], recs
+
+    ctx = int(round(0.5 * rf.sample_rate_hz))
+    events, full = run([info] + [data(k, x[k:k + 10], k // 10 + 1) for k in range(0, len(x), 10)],
+                       "full.h5")
+    assert len(full) == 9
+    touch_stop = events[2].stop - ctx  # the third touch's window ends here
+    cut = (touch_stop // 10 + 2) * 10  # 10-20 samples later, on a frame boundary
+    before = [data(k, x[k:k + 10], k // 10 + 1) for k in range(0, cut, 10)]
+    quiet = np.zeros((10, 4, 4), np.int16)
+    after = [data(k, quiet, 10_000 + k // 10) for k in range(0, 3000, 10)]  # indices from 0
+    ev_restarted, restarted = run([info] + before + after, "restarted.h5")
+    ev_ended, ended = run([info] + before, "ended.h5")
+    assert len(ended) == 3 and len(restarted) == 3
+    assert [(e.start, e.stop) for e in ev_restarted] == [(e.start, e.stop) for e in ev_ended]
+    assert ev_ended[2].start == events[2].start and ev_ended[2].stop == cut
+    for a, b in zip(restarted, ended):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("policy", ["touch", "segment"])
+def test_recordings_do_not_depend_on_how_the_bytes_were_read(small_model, tmp_path, policy):
+    """The same stream read all at once (a host that fell behind by 9 s: more than the
+    history the recordings need) or one frame per read gives the same recordings, each of
+    them whole: a touch with its context on both sides, a segment with all its samples."""
+    _, _, rf, _ = small_model
+    x = np.asarray(rf.samples).reshape(rf.n_samples, 4, 4).astype(np.int16)
+    wire = [encode_frame(InfoFrame(4, 4, float(rf.sample_rate_hz), volts_per_count=1e-4,
+                                   has_model=False, class_names=(), seq=0))]
+    wire += [encode_frame(DataFrame(k, k * 333, x[k:k + 10], (k // 10 + 1) % 65536))
+             for k in range(0, len(x), 10)]
+
+    def run(reads, name):
+        out = tmp_path / name
+        listener = LinkListener("/dev/null-not-opened", record=out, record_policy=policy,
+                                replay=rf if policy == "segment" else None, context_s=0.5,
+                                stats_interval=None)
+        events = []
+        for r in reads:
+            events += listener.feed(r)
+        events += listener.finish()
+        listener.close()
+        with load_campaign(out) as camp:
+            recs = [np.asarray(camp.recording(i)) for i in range(len(camp))]
+        return [(e.start, e.stop) for e in events if isinstance(e, Recorded)], recs
+
+    at_once = run([DELIMITER + b"".join(wire)], "at_once.h5")
+    per_frame = run([DELIMITER + w for w in wire], "per_frame.h5")
+    assert len(x) > 3 * rf.sample_rate_hz * 3  # the single read holds 9 s of samples
+    assert at_once[0] == per_frame[0] and len(at_once[0]) == 9
+    for a, b in zip(at_once[1], per_frame[1]):
+        np.testing.assert_array_equal(a, b)
+    for (start, stop), rec in zip(at_once[0], at_once[1]):
+        np.testing.assert_array_equal(rec, np.moveaxis(x[start:stop], 0, -1))
+    if policy == "touch":
+        ctx = int(round(0.5 * rf.sample_rate_hz))
+        assert all(stop - start > 2 * ctx for start, stop in at_once[0])
+    else:
+        segs = rf.segments
+        assert at_once[0] == [(int(s["start"]), int(s["start"]) + int(s["length"])) for s in segs]
