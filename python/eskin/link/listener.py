@@ -53,7 +53,11 @@ Recording (``record=PATH``), one of two policies, chosen with ``record_policy``:
 
 Either way the per-recording extra fields ``stream_start`` (stream index of sample 0) and
 ``lost_samples`` (samples inside the recording that never arrived and were held from the previous
-one) are written, and the file is complete (renamed into place) when the listener closes.
+one) are written, and the file is complete (renamed into place) when the listener closes. The
+recordings do not depend on how the bytes arrive: a read of many seconds (a host that fell
+behind) enters the history a second at a time, each second followed by the recordings it
+completes; a touch still waiting for its context when the stream restarts (an index reset, a
+long hole, another grid) is written with what arrived, as at the end of the stream.
 
 Link statistics (:class:`LinkStats`) count everything the link lost or rejected: bytes, frames,
 CRC errors, malformed and oversize blocks, sequence gaps and lost frames, lost samples, sample
