@@ -575,7 +575,10 @@ def spec_from_model(model: Any) -> ModelSpec:
     for two classes, a OneVsAllTouchClassifier for more; see :func:`spec_from_estimator`)."""
     if isinstance(model, ModelSpec):
         return model
-    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample"):
+    # the sample rate too: the controller's touch window counts samples, so a model exported
+    # at a rate it was not trained at would cut other windows than it learned on
+    for attr in ("classes", "estimator", "D", "grid_shape", "window", "subsample",
+                 "sample_rate_hz"):
         if not hasattr(model, attr):
             raise ModelFormatError(
                 f"cannot export a {type(model).__name__}: expected an eskin.models.TouchModel "
@@ -589,7 +592,7 @@ def spec_from_model(model: Any) -> ModelSpec:
         window=model.window,
         subsample=model.subsample,
         short=str(getattr(model, "short", "interpolate")),
-        sample_rate_hz=float(getattr(model, "sample_rate_hz", 3000.0)),
+        sample_rate_hz=float(model.sample_rate_hz),
         window_config=getattr(model, "window_config", None),
         meta={"machine": getattr(model, "machine", None),
               "selection": getattr(model, "selection", None)},

@@ -356,3 +356,101 @@ def test_a_conflicting_log_energy_names_the_first_machine_that_gave_it():
                        match=r"^machine 2: sv_log_energy\[1\]=4.0, but the same support vector has "
                              r"3.0 in machine 0 "):
         model_to_bytes(spec, "float64")
+
+
+def test_given_log_energies_are_written_and_missing_ones_computed_from_the_pattern():
+    """AMPL holds each support vector's log energy as the first machine that uses it gave it,
+    and, for one that no machine gave, the pattern's own e(x) = log(mean(x^2) + 1e-12)."""
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(7)
+    pool = rng.normal(size=(3, 2, 3, 4))
+    given = MachineSpec(0, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool[:2], rng.normal(size=2),
+                        amplitude_width=0.5, sv_log_energy=np.array([1.5, -2.0]))
+    computed = MachineSpec(1, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool[2:], rng.normal(size=1),
+                           amplitude_width=0.5)
+    spec = ModelSpec(["a", "b"], "one_vs_all", [given, computed], 4, (2, 3), window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    b = model_to_bytes(spec, "float64")
+    at = _section(b, b"AMPL")
+    n_sv, n_machines = struct.unpack_from("<II", b, at)
+    assert (n_sv, n_machines) == (3, 2)
+    energies = struct.unpack_from("<3d", b, at + 8)
+    assert energies[:2] == (1.5, -2.0)
+    assert energies[2] == pytest.approx(np.log(np.mean(pool[2] ** 2) + 1e-12), rel=1e-12)
+    assert struct.unpack_from("<2d", b, at + 8 + 24) == (0.5, 0.5)
+
+
+def test_log_energies_of_another_length_than_the_support_vectors_are_refused():
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(8)
+    pool = rng.normal(size=(2, 2, 3, 4))
+    for e in (np.zeros(3), np.zeros(1), np.zeros((2, 1))):
+        m = MachineSpec(1, 0, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=2),
+                        amplitude_width=0.5, sv_log_energy=e)
+        spec = ModelSpec(["a", "b"], "binary", [m], 4, (2, 3), window="none",
+                         sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+        with pytest.raises(ModelFormatError, match=re.escape(
+                f"machine 0: sv_log_energy shape {e.shape}, expected (2,) (one per support vector)")):
+            model_to_bytes(spec, "float64")
+
+
+def test_decision_function_is_one_column_for_two_classes_and_one_per_class_otherwise():
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    x = np.random.default_rng(9).normal(size=(3, 2, 3, 40))
+    binary = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    v = binary.decision_function(x)
+    assert v.shape == (3,)
+    assert v.tolist() == binary.classify(x).decision_values[:, 0].tolist()
+    rng = np.random.default_rng(10)
+    pool = rng.normal(size=(2, 2, 3, 4))
+    machines = [MachineSpec(k, -1, 0.1, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=2))
+                for k in range(3)]
+    multi = CompiledModel(model_to_bytes(ModelSpec(
+        ["a", "b", "c"], "one_vs_all", machines, 4, (2, 3), window="none",
+        sample_rate_hz=1000.0, window_config=eskin.WindowConfig()), "float64"))
+    v = multi.decision_function(x)
+    assert v.shape == (3, 3)
+    assert v.tolist() == multi.classify(x).decision_values.tolist()
+
+
+def test_predict_recordings_takes_its_data_by_name_and_its_chunk_only_by_name():
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    x = np.random.default_rng(11).normal(size=(3, 2, 3, 40))
+    named = cm.predict_recordings(data=x, indices=[2, 0], chunk=1)
+    assert [it["index"] for it in named] == [2, 0]
+    with pytest.raises(TypeError):
+        cm.predict_recordings(x, None, 1)
+
+
+def test_the_cpp_engine_of_a_loaded_model_file_is_the_classifier_it_was_loaded_into(tmp_path):
+    """``eskin predict --engine cpp`` on a .eskin file runs the file's own classifier (its
+    float32 values), not a float64 recompilation."""
+    from eskin.deploy.export import compiled_engine, model_to_bytes
+    from eskin.learn.models import load_model
+
+    path = tmp_path / "m.eskin"
+    path.write_bytes(model_to_bytes(_binary_spec(), "float32"))
+    model = load_model(path)
+    assert compiled_engine(model) is model.estimator.compiled
+
+
+def test_a_model_without_a_sample_rate_is_not_exported():
+    """The touch window counts samples: a model object that does not say its rate is refused,
+    not written at a rate it may not have been trained at."""
+    from types import SimpleNamespace
+
+    from eskin.deploy.export import spec_from_model
+
+    model = SimpleNamespace(classes=["a", "b"], estimator=None, D=4, grid_shape=(2, 3),
+                            window="none", subsample="algorithm2")
+    with pytest.raises(ModelFormatError, match=r"^cannot export a SimpleNamespace: .*\(missing "
+                                               r"'sample_rate_hz'\)"):
+        spec_from_model(model)
