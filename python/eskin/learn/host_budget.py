@@ -49,8 +49,8 @@ __all__ = ["HOST_DECISION_US", "HOST_INPUT_FACTOR", "basis_entries", "default_ca
 #: the default cap on the support vectors' share of a decision at the end of a touch on the
 #: host (microseconds): the searched model of the built-in 70-participant campaign then
 #: decides within 100 us at the end of a touch (D = 20, alpha Q, about 216 support vectors),
-#: 0.5 points below a cap of 180 on the mean of five splits (docs/learning.md, "The host
-#: budget"; benchmarks/decision_cap_study.py)
+#: 0.5 points below a cap of 180 on the mean of five splits and 1.55 below no budget on the
+#: mean of twenty (docs/learning.md, "The host budget"; benchmarks/decision_cap_study.py)
 HOST_DECISION_US = 80.0
 #: the default budget ("auto") lets the support vectors take this many times the input's own
 #: share where that is more than HOST_DECISION_US: on a large grid the input's bases alone
