@@ -279,6 +279,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
+        Equivalent("core/NumberReplacer",
+                   'ws = int(cm.window_config.get("window_samples", 0))',
+                   'ws = int(cm.window_config.get("window_samples", -1))',
+                   "the default is never used: every window field, window_samples among them, "
+                   "was indexed before this line (a mapping without it raised KeyError there)"),
         *(Equivalent("core/ReplaceComparisonOperator_Gt_NotEq", f"return {v} > 0",
                      f"return {v} != 0",
                      "window_samples is 0 or a positive count: a negative one is refused by "
@@ -312,6 +317,21 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "m = round(reject n) with 0 <= reject < 1 (checked above) is never negative"),
         *(Equivalent("core/NumberReplacer", _BIN, _BIN.replace(a, t), _ONE)
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
+    ],
+    "python/eskin/data/replay.py": [
+        Equivalent("core/NumberReplacer",
+                   "baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), axis=0)",
+                   "baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), "
+                   "axis= -1)",
+                   "the estimated baseline is stored only when none is given, and then every quiet "
+                   "gap has a recording before or after it, so the gap is never filled from it"),
+        Equivalent("core/NumberReplacer",
+                   "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0])))"
+                   ".shape[:2])",
+                   "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[ -1])))"
+                   ".shape[:2])",
+                   "a campaign's recordings share one grid: the first and last chosen have the "
+                   "same rows and columns"),
     ],
     "python/eskin/link/receiver.py": [
         Equivalent("core/ReplaceComparisonOperator_Gt_GtE",

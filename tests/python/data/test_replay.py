@@ -237,6 +237,21 @@ def test_raw_records_keep_each_length(tmp_path):
     assert pos == len(raw)
 
 
+def test_raw_stream_is_the_replay_files_samples_without_its_header(tmp_path):
+    """The raw stream is the bytes of the replay file from data_offset on, nothing else."""
+    from eskin.data.replay import write_raw_stream
+
+    camp, sig = _campaign_of_arrays(tmp_path / "same.h5", [300, 300, 300])
+    n = write_raw_stream(camp, [2, 0], tmp_path / "s.raw", gap_s=0.01, seed=3)
+    write_replay_file(camp, [2, 0], tmp_path / "s.eskr", gap_s=0.01, seed=3)
+    raw, eskr = (tmp_path / "s.raw").read_bytes(), (tmp_path / "s.eskr").read_bytes()
+    data_offset = int(np.frombuffer(eskr, "<u4", 1, 12)[0])
+    assert raw == eskr[data_offset:]
+    assert n == (10 + 300 + 10 + 300 + 10, 4, 4) and len(raw) == 2 * 630 * 16
+    samples = np.frombuffer(raw, "<i2").reshape(630, 4, 4)
+    np.testing.assert_array_equal(samples[10:310], np.moveaxis(sig[2], -1, 0))
+
+
 def test_default_gap_noise_ramps_between_the_recordings_noise(tmp_path):
     # recordings of one campaign can differ severalfold in noise (another day, another hum): a gap
     # at one level for all would be loud next to a quiet recording, and a stream detector that

@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+import errno
+import os
+import resource
+import signal
 import struct
 import zlib
 
@@ -219,3 +223,56 @@ def test_a_recordings_quiet_noise_is_the_quieter_of_its_two_ends(loud_end):
     noise = _taxel_noise(r)
     assert noise.shape == (2, 3)
     np.testing.assert_allclose(noise, 1.0, rtol=2e-3)
+
+
+def test_the_default_sample_rate_is_3000_hz_in_the_header(tmp_path):
+    """Without a rate the header's sample_rate_hz (f64 at offset 32) is 3000 Hz exactly."""
+    p = tmp_path / "d.eskr"
+    rf = write_replay_arrays(p, _recs(), gap_s=0.01)
+    assert p.read_bytes()[32:40] == struct.pack("<d", 3000.0)
+    assert rf.sample_rate_hz == 3000.0 and rf.segments["start"].tolist() == [30, 80]
+
+
+@pytest.mark.parametrize("grid", [(0, 3), (2, 0)])
+def test_a_grid_without_rows_or_columns_is_refused_by_the_writer(tmp_path, grid):
+    """A grid of 0 rows or 0 columns is refused, the message giving the grid."""
+    with pytest.raises(ValueError) as info:
+        write_replay_arrays(tmp_path / "g.eskr", [np.zeros((*grid, 8), np.int16)], gap_s=0.01)
+    assert str(info.value) == f"grid shape {grid} is not within 1..255 x 1..255"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_class_name_with_a_newline_is_refused_by_the_writer(tmp_path):
+    """A newline, the names' separator in the file, is refused inside a class name."""
+    with pytest.raises(ValueError) as info:
+        write_replay_arrays(tmp_path / "n.eskr", _recs(), labels=[0, 1],
+                            class_names=["a", "b\nc"], gap_s=0.01)
+    assert str(info.value) == "class name 'b\\nc' contains a newline"
+    assert list(tmp_path.iterdir()) == []
+
+
+def _bytes_written() -> int:
+    """Bytes this process has written so far (Linux, /proc/self/io: wchar)."""
+    with open("/proc/self/io") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("wchar:"))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/io"), reason="needs Linux's /proc/self/io")
+def test_a_stream_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp_path):
+    """A 3 MB stream under a 2 MiB file size limit: EFBIG naming the file, nothing written."""
+    rec = [np.zeros((16, 16, 6000), np.int16)]  # 6000 samples x 512 bytes: 3.07 MB
+    p = tmp_path / "big.eskr"
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (2 << 20, hard))
+    try:
+        before = _bytes_written()
+        with pytest.raises(OSError) as info:
+            write_replay_arrays(p, rec, gap_s=0.0)
+        written = _bytes_written() - before
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old_handler)
+    assert (info.value.errno, info.value.filename) == (errno.EFBIG, str(p))
+    assert written == 0
+    assert list(tmp_path.iterdir()) == []

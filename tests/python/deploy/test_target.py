@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +14,9 @@ import pytest
 import eskin
 from eskin.deploy.export import CompiledModel
 from eskin.deploy.target import TARGETS, Target, device_budget
+
+TESTS = Path(__file__).resolve().parents[2]
+CORPUS = TESTS / "fuzz" / "corpus" / "model"
 
 
 @pytest.fixture(scope="module")
@@ -438,3 +443,56 @@ def test_detector_settings_that_leave_room_are_kept_as_they_are(campaign):
     assert window_for_budget(parse_budget(f"ram={need}"), (4, 4), rate, cfg) == (cfg, None)
     lowered, note = window_for_budget(parse_budget(f"ram={need - 1}"), (4, 4), rate, cfg)
     assert lowered.window_samples == 512 and "window_samples 1024" in note and "-> 512" in note
+
+
+def test_the_cortex_m4_budget_is_the_memory_the_device_program_links_into():
+    """The target's flash and RAM are the regions mcu/CMakeLists.txt gives the linker script."""
+    text = (TESTS.parent / "mcu" / "CMakeLists.txt").read_text()
+    kb = dict(re.findall(r"set\(ESKIN_MCU_(FLASH|RAM)_KB (\d+) ", text))
+    assert kb == {"FLASH": "1024", "RAM": "128"}  # docs/mcu.md: 1 MB of flash, 128 KB of RAM
+    t = TARGETS["cortex-m4"]
+    assert (t.flash_bytes, t.ram_bytes) == (int(kb["FLASH"]) * 1024, int(kb["RAM"]) * 1024)
+
+
+def test_the_model_tables_are_the_device_classifiers_allocations_to_the_byte():
+    """The model tables are the bytes the device classifier allocates for the model's tables."""
+    cm = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
+    assert cm.n_support == 6 and len({tuple(m["alphas"]) for m in cm.machines}) == 2
+    assert [len(m["coef"]) for m in cm.machines] == [4, 4] and cm.sv_log_energy.size == 0
+    b = device_budget(cm, "cortex-m4")
+    # a float distance per (group, support vector, mode), an int rank per (support vector,
+    # mode), a uint32 index and a double coefficient per term, the allocator's 4 KB (docs/mcu.md)
+    assert b.ram["model tables"] == 2 * 6 * 3 * 4 + 6 * 3 * 4 + 8 * (4 + 8) + 4096
+
+
+def test_the_amplitude_factor_keeps_a_log_energy_and_a_gap_per_support_vector():
+    """The amplitude factor adds a double log energy and a float gap per support vector."""
+    plain = CompiledModel((CORPUS / "tiny_float64.eskin").read_bytes())
+    amp = CompiledModel((CORPUS / "tiny_amplitude_float64.eskin").read_bytes())
+    for cm in (plain, amp):
+        assert cm.n_support == 3 and [len(m["coef"]) for m in cm.machines] == [3]
+    assert plain.sv_log_energy.size == 0 and amp.sv_log_energy.size == 3
+    tables = 3 * 3 * 4 + 3 * 3 * 4 + 3 * (4 + 8) + 4096
+    assert device_budget(plain).ram["model tables"] == tables
+    assert device_budget(amp).ram["model tables"] == tables + 3 * (8 + 4)
+
+
+def test_a_compiled_models_instruction_bound_is_its_estimate_times_one_plus_the_margin():
+    """model_fits's instruction bound is the compiled model's estimate times (1 + margin)."""
+    from eskin.deploy.target import (
+        INSTRUCTION_MARGIN,
+        decision_instructions,
+        model_fits,
+        parse_budget,
+    )
+
+    data = (TESTS / "data" / "model_projection_float64.eskin").read_bytes()
+    cm = CompiledModel(data)
+    assert cm.window_config["window_samples"] == 0 and 0 < INSTRUCTION_MARGIN < 0.5
+    estimate = decision_instructions(cm.grid_shape, cm.D, tuple(cm.alpha_store), 6, False,
+                                     False, 8)
+    ok, fig = model_fits(data, parse_budget("flash=1G,ram=1G,instr=1G"))
+    assert ok and fig["estimate"] == estimate
+    assert fig["instructions"] == pytest.approx(estimate * (1 + INSTRUCTION_MARGIN), rel=1e-12)
+    # the margin is below 0.5: a budget of 1.5 times the estimate fits
+    assert model_fits(data, parse_budget(f"flash=1G,ram=1G,instr={1.5 * estimate!r}"))[0]
