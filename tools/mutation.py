@@ -80,7 +80,7 @@ PYTHON_MODULES: dict[str, list[str]] = {
     # test_accounting.py that stream through eskin-fw-sim, 20 s each, are left to `make test`)
     "python/eskin/link/receiver.py": [
         "tests/python/link/test_listener.py", "tests/python/link/test_frame_checks.py",
-        "tests/python/link/test_receiver_finish.py",
+        "tests/python/link/test_receiver_finish.py", "tests/python/link/test_receiver_counts.py",
         "tests/python/link/test_accounting.py::test_lost_samples_reconcile_with_the_controller_count"],
     # the calibrated decision rule of a model: fitted here, written by the exporter
     "python/eskin/learn/calibration.py": [
@@ -347,6 +347,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if data_run and data_run[ -1].samples.shape[1:] != f.samples.shape[1:]:",
                    "the frames of a run are of one grid (the run is cut where it changes): its "
                    "first and last have the same shape"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", 'if self.record_policy == "touch":',
+                   'if self.record_policy <= "touch":',
+                   "the policy is 'touch' or 'segment' (checked by LinkListener), so <= also "
+                   "writes 'segment' recordings at a restart: Recorder.ready ignores final for "
+                   "segments, and the history is unchanged since the on_fed() that follows each "
+                   "piece fed, so that call writes nothing"),
         *(Equivalent("core/ReplaceComparisonOperator_Is_Eq", ln, ln.replace(" is ", " == ", 1),
                      "HostClassifier defines no __eq__: == between two of them (or one and None) "
                      "is identity")

@@ -1,0 +1,107 @@
+"""The link's counters and the controller's STATUS as eskin.link.receiver reports them (through
+LinkListener.feed and .stats, no port): each counter equal to what was sent, field by field, and
+the rate a stream without an INFO frame is taken at."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eskin.data.campaign import load_campaign
+from eskin.link.listener import LinkListener, Recorded
+from eskin.link.protocol import (
+    DELIMITER,
+    DataFrame,
+    Flags,
+    InfoFrame,
+    StatusFrame,
+    StreamState,
+    encode_frame,
+)
+
+SPF = 10
+TESTS = Path(__file__).resolve().parents[2]
+
+
+def _info(seq: int = 0, rate: float = 3000.0) -> bytes:
+    return encode_frame(InfoFrame(4, 4, rate, volts_per_count=1e-4, has_model=False,
+                                  class_names=(), seq=seq))
+
+
+def _data(x: np.ndarray, first_seq: int = 1, overrun: frozenset[int] = frozenset()) -> bytes:
+    """DATA frames of SPF samples each; the k-th frame flagged OVERRUN when k is in overrun."""
+    return b"".join(
+        encode_frame(DataFrame(first, first * 333, x[first:first + SPF], (first_seq + k) % 65536,
+                               int(Flags.OVERRUN) if k in overrun else 0))
+        for k, first in enumerate(range(0, len(x), SPF)))
+
+
+def _touch_stream(n_quiet: int = 4500, n_touch: int = 900) -> np.ndarray:
+    """Quiet noise, a strong 40 Hz burst on four taxels, quiet noise at 3 kHz: (n, 4, 4)."""
+    rng = np.random.default_rng(5)
+    x = rng.normal(0, 5, size=(2 * n_quiet + n_touch, 4, 4))
+    t = np.arange(n_touch) / 3000.0
+    x[n_quiet:n_quiet + n_touch, 1:3, 1:3] += (800 * np.sin(2 * np.pi * 40 * t))[:, None, None]
+    return np.rint(x).astype(np.int16)
+
+
+def test_the_stats_carry_the_last_status_field_by_field():
+    """Every controller_* counter is the last STATUS frame's, the pacing percentiles turned
+    from nanoseconds to microseconds (distinct values, so no field can stand in for another)."""
+    first = StatusFrame(uptime_us=10, samples_sent=1, pacing_p50_ns=1, pacing_p99_ns=2,
+                        state=StreamState.STOPPED, seq=1)
+    last = StatusFrame(uptime_us=99, next_sample=700, samples_sent=690, dropped_samples=3,
+                       overrun_events=4, rx_errors=5, faults_injected=6, decisions_sent=7,
+                       pacing_p50_ns=1500, pacing_p99_ns=2750, pacing_max_ns=9000,
+                       state=StreamState.STREAMING, host_connected=True, connections=1,
+                       decisions_dropped=8, frames_dropped=9, seq=2)
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    listener.feed(DELIMITER + encode_frame(first) + encode_frame(last))
+    s = listener.stats
+    listener.close()
+    assert (s.controller_samples_sent, s.controller_dropped_samples, s.controller_overrun_events,
+            s.controller_rx_errors, s.controller_faults_injected, s.controller_decisions_sent,
+            s.controller_decisions_dropped, s.controller_frames_dropped) == (690, 3, 4, 5, 6, 7,
+                                                                             8, 9)
+    assert (s.controller_pacing_p50_us, s.controller_pacing_p99_us) == (1.5, 2.75)
+    assert s.controller_state == "streaming" and s.status_frames == 2
+
+
+def test_overrun_frames_count_exactly_the_data_frames_flagged_overrun():
+    x = np.zeros((200, 4, 4), dtype=np.int16)  # 20 frames; 3 flagged, two of them adjacent
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    listener.feed(DELIMITER + _info() + _data(x, overrun=frozenset({0, 7, 8})))
+    s = listener.stats
+    listener.close()
+    assert (s.data_frames, s.overrun_frames, s.samples) == (20, 3, 200)
+
+
+def test_a_stream_without_info_is_taken_at_three_kilohertz(tmp_path):
+    """DATA frames and no INFO (a controller whose INFO was lost, no replay file given): the
+    stream is taken at 3000 Hz, eskin-fw-sim's default rate, and the touch recorded at it."""
+    x = _touch_stream()
+    out = tmp_path / "touches.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+    events = listener.feed(DELIMITER + _data(x)) + listener.finish()
+    listener.close()
+    assert listener.info is None
+    assert len([e for e in events if isinstance(e, Recorded)]) == 1
+    with load_campaign(out) as c:
+        assert c.sample_rate_hz == 3000.0
+
+
+def test_decisions_host_counts_each_decision_of_the_host_model(tmp_path):
+    """With a host model, each touch the host decides is one ``decisions_host``; the
+    controller sent none."""
+    from eskin.deploy.export import CompiledModel
+
+    model = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
+    x = np.concatenate([_touch_stream(), _touch_stream()])  # two touches apart
+    listener = LinkListener("/dev/null-not-opened", model=model, stats_interval=None)
+    events = listener.feed(DELIMITER + _info() + _data(x)) + listener.finish()
+    s = listener.stats
+    listener.close()
+    host = [e for e in events if getattr(e, "source", None) == "host"]
+    assert len(host) == 2
+    assert (s.decisions_host, s.decisions_controller) == (2, 0)
