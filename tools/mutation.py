@@ -333,6 +333,14 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a campaign's recordings share one grid: the first and last chosen have the "
                    "same rows and columns"),
     ],
+    "python/eskin/deploy/export.py": [
+        *(Equivalent("core/NumberReplacer", "chunk: int = 32) -> list[dict[str, Any]]:",
+                     f"chunk: int = {n}) -> list[dict[str, Any]]:",
+                     "how many recordings predict_recordings reads at a time: each is decided on "
+                     "its own samples, so every output is the same for any chunk "
+                     "(test_per_recording_decisions_do_not_depend_on_how_many_are_read_at_a_time)")
+          for n in (31, 33)),
+    ],
     "python/eskin/link/receiver.py": [
         Equivalent("core/ReplaceComparisonOperator_Gt_GtE",
                    "and st.next is not None and s.next_sample > st.next and not self._tail):",

@@ -454,3 +454,53 @@ def test_a_model_without_a_sample_rate_is_not_exported():
     with pytest.raises(ModelFormatError, match=r"^cannot export a SimpleNamespace: .*\(missing "
                                                r"'sample_rate_hz'\)"):
         spec_from_model(model)
+
+
+def test_per_recording_decisions_do_not_depend_on_how_many_are_read_at_a_time(tmp_path):
+    """Recordings of many lengths, read 1, 5, 70 or the default number at a time (each chunk
+    padded to its longest): every decision value the same to the bit."""
+    from eskin.data.campaign import load_campaign, write_campaign
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(names=("tap", "press")), "float64"))
+    rng = np.random.default_rng(8)
+    n = 70  # more than two default chunks
+    sig = (rng.normal(size=(n, 2, 3, 90)) * 100).astype(np.int16)
+    lengths = rng.integers(20, 91, size=n)
+    path = write_campaign(tmp_path / "c.h5", sig, modality=rng.integers(0, 2, size=n),
+                          participant=[0] * n, direction=[0] * n, run=[1] * n,
+                          modalities=["tap", "press"], sample_rate_hz=1000.0,
+                          volts_per_count=1e-3, source="recorded", lengths=lengths)
+    with load_campaign(path) as camp:
+        runs = [cm.predict_recordings(camp, **kw) for kw in ({}, {"chunk": 1}, {"chunk": 5},
+                                                            {"chunk": n})]
+    for items in runs:
+        assert [it["index"] for it in items] == list(range(n))
+        assert [it["decision_values"] for it in items] == [
+            it["decision_values"] for it in runs[1]]
+        assert [it["window"] for it in items] == [it["window"] for it in runs[1]]
+    assert {it["window"][1] - it["window"][0] <= 90 for it in runs[0]} == {True}
+
+
+def test_the_model_file_and_the_c_header_make_the_folders_of_a_new_path(tmp_path):
+    from eskin.deploy.export import export_model, write_c_header
+
+    path = export_model(_binary_spec(), tmp_path / "new" / "deeper" / "m.eskin", "float64")
+    assert path == tmp_path / "new" / "deeper" / "m.eskin"
+    assert CompiledModel(path.read_bytes()).class_names == ["a", "b"]
+    header = write_c_header(path, tmp_path / "include" / "models" / "m.h", name="m")
+    assert header == tmp_path / "include" / "models" / "m.h"
+    assert f"static const size_t m_size = {path.stat().st_size};" in header.read_text()
+
+
+@pytest.mark.parametrize("name,ident", [("touch_model", "touch_model"), ("a9", "a9"),
+                                        ("9a", "m_9a"), ("touch-model v2", "touch_model_v2"),
+                                        ("", "m_")])
+def test_the_c_header_turns_its_name_into_a_c_identifier(tmp_path, name, ident):
+    """Characters a C identifier cannot hold become '_', and a name that would start with a
+    digit (or is empty) gets 'm_' in front; the macros are the identifier in capitals."""
+    from eskin.deploy.export import write_c_header
+
+    text = write_c_header(_binary_spec(), tmp_path / "m.h", name=name).read_text()
+    assert f"static const size_t {ident}_size = " in text
+    assert f"#define {ident.upper()}_N_CLASSES 2\n" in text
