@@ -279,6 +279,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
+        *(Equivalent(f"core/ReplaceComparisonOperator_GtE_{op}", "if len(others) >= len(_COEF):",
+                     f"if len(others) {sym} len(_COEF):",
+                     "the leave-one-grid-out fit: the calibration counts shipped hold four grids, "
+                     "each leaving at least 12 counts for the 11 coefficients, so >, != and is "
+                     "not are true wherever >= is")
+          for op, sym in (("Gt", ">"), ("NotEq", "!="), ("IsNot", "is not"))),
         Equivalent("core/NumberReplacer",
                    'ws = int(cm.window_config.get("window_samples", 0))',
                    'ws = int(cm.window_config.get("window_samples", -1))',
@@ -319,12 +325,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for a, t in (("a[0]", "a[ -1]"), ("F[:, 0]", "F[:, -1]"), ("b[0]", "b[ -1]"))),
     ],
     "python/eskin/data/replay.py": [
-        Equivalent("core/NumberReplacer",
-                   "baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), axis=0)",
-                   "baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), "
-                   "axis= -1)",
-                   "the estimated baseline is stored only when none is given, and then every quiet "
-                   "gap has a recording before or after it, so the gap is never filled from it"),
         Equivalent("core/NumberReplacer",
                    "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0])))"
                    ".shape[:2])",

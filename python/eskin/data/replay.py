@@ -88,17 +88,6 @@ class ReplayFile:
         return np.ascontiguousarray(np.moveaxis(self.samples[start : start + length], 0, -1))
 
 
-def _quiet_level(recordings: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
-    """Per-taxel baseline and noise std (ADC counts) from the first tenth of each recording."""
-    heads = []
-    for r in recordings:
-        q = max(1, min(300, r.shape[-1] // 10))
-        heads.append(np.asarray(r[..., :q], dtype=np.float64))
-    baseline = np.median(np.stack([np.median(h, axis=-1) for h in heads]), axis=0)
-    noise = float(np.median([np.std(h, axis=-1).mean() for h in heads]))
-    return baseline, noise
-
-
 def write_replay_arrays(
     path: str | os.PathLike[str],
     recordings: Sequence[np.ndarray],
@@ -144,7 +133,7 @@ def write_replay_arrays(
     if not (math.isfinite(gap_s) and 0 <= gap_s <= MAX_GAP_S):
         raise ValueError(f"gap_s must be a number of seconds in [0, {MAX_GAP_S:g}], "
                          f"got {gap_s:g}")
-    gaps = _QuietGaps(recs, sample_rate_hz, noise_counts, baseline, seed)
+    gaps = _QuietGaps(recs, (rows, cols), sample_rate_hz, noise_counts, baseline, seed)
     gap = int(round(gap_s * sample_rate_hz))
 
     segments = np.zeros(n, dtype=SEGMENT_DTYPE)
@@ -233,20 +222,21 @@ class _QuietGaps:
     def __init__(
         self,
         recs: list[np.ndarray],
+        grid: tuple[int, int],
         sample_rate_hz: float,
         noise_counts: Optional[float],
         baseline: Optional[np.ndarray],
         seed: int,
     ) -> None:
-        grid = recs[0].shape[:2]
-        est_base, est_noise = _quiet_level(recs)
-        self.fixed = baseline is not None
-        given = None if baseline is None else np.asarray(baseline, float)
-        self.base = est_base if given is None else np.broadcast_to(given, grid)
-        self.noise = est_noise if noise_counts is None else float(noise_counts)
+        # a given baseline: every gap flat at it; otherwise each gap ramps between its
+        # neighbours' edges (the stream has a recording before or after every gap)
+        self.base = None if baseline is None else np.broadcast_to(np.asarray(baseline, float),
+                                                                  grid)
+        # one level for every gap when given; otherwise each taxel's own (self.levels)
+        self.noise = 0.0 if noise_counts is None else float(noise_counts)
         if self.noise < 0:
             raise ValueError(f"noise_counts must be >= 0, got {self.noise}")
-        self.shape = (int(grid[0]), int(grid[1]))
+        self.shape = grid
         # per recording and taxel, its quiet noise (None: one level, noise_counts, for all)
         self.levels = None if noise_counts is not None else [_taxel_noise(r) for r in recs]
         self.edge = max(1, int(round(0.01 * sample_rate_hz)))
@@ -276,7 +266,7 @@ class _QuietGaps:
         # recording ends to where the next one starts, so that no step (which a touch
         # detector would take for a touch) appears at a recording boundary.
         rows, cols = self.shape
-        if self.fixed or (prev is None and nxt is None):
+        if self.base is not None:
             level = np.broadcast_to(self.base[None], (length, rows, cols))
         else:
             a = nxt if prev is None else prev

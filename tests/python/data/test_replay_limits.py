@@ -85,13 +85,6 @@ def test_the_grid_edges_are_written_and_read(tmp_path, grid):
     assert rf.n_samples == rf.samples.shape[0]
 
 
-@pytest.mark.parametrize("grid", [(256, 1), (1, 256)])
-def test_a_grid_past_255_is_refused_by_the_writer(tmp_path, grid):
-    with pytest.raises(ValueError, match=r"is not within 1\.\.255 x 1\.\.255"):
-        write_replay_arrays(tmp_path / "g.eskr", _recs(1, grid, 8), labels=[0],
-                            class_names=["a"], gap_s=0.01)
-
-
 @pytest.mark.parametrize("field, offset", [("rows", 24), ("cols", 26)])
 @pytest.mark.parametrize("value", [0, 256])
 def test_a_grid_outside_1_to_255_is_refused_by_the_reader(tmp_path, field, offset, value):
@@ -225,17 +218,19 @@ def test_a_recordings_quiet_noise_is_the_quieter_of_its_two_ends(loud_end):
     np.testing.assert_allclose(noise, 1.0, rtol=2e-3)
 
 
-def test_the_default_sample_rate_is_3000_hz_in_the_header(tmp_path):
-    """Without a rate the header's sample_rate_hz (f64 at offset 32) is 3000 Hz exactly."""
+def test_the_default_sample_rate_and_scale_are_3000_hz_and_one_volt_per_count(tmp_path):
+    """Without them the header's sample_rate_hz (f64 at offset 32) is 3000 Hz and its
+    volts_per_count (f64 at offset 40) 1.0, exactly."""
     p = tmp_path / "d.eskr"
     rf = write_replay_arrays(p, _recs(), gap_s=0.01)
-    assert p.read_bytes()[32:40] == struct.pack("<d", 3000.0)
+    assert p.read_bytes()[32:48] == struct.pack("<dd", 3000.0, 1.0)
     assert rf.sample_rate_hz == 3000.0 and rf.segments["start"].tolist() == [30, 80]
+    assert rf.volts_per_count == 1.0
 
 
-@pytest.mark.parametrize("grid", [(0, 3), (2, 0)])
-def test_a_grid_without_rows_or_columns_is_refused_by_the_writer(tmp_path, grid):
-    """A grid of 0 rows or 0 columns is refused, the message giving the grid."""
+@pytest.mark.parametrize("grid", [(0, 3), (2, 0), (256, 1), (1, 256)])
+def test_a_grid_outside_one_to_255_rows_or_columns_is_refused_by_the_writer(tmp_path, grid):
+    """A grid of 0 or 256 rows or columns is refused, the message giving the grid."""
     with pytest.raises(ValueError) as info:
         write_replay_arrays(tmp_path / "g.eskr", [np.zeros((*grid, 8), np.int16)], gap_s=0.01)
     assert str(info.value) == f"grid shape {grid} is not within 1..255 x 1..255"
