@@ -259,6 +259,19 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "already set and sticky, so the parser's next read of the section (the next "
                    "field of the machine, or the padding after its coefficients) fails and it "
                    "returns false with that first message; the value read is never kept"),
+        Equivalent("return true", "if (!need(model_format::kNameBytes, field)) return false;",
+                   "if (!need(model_format::kNameBytes, field)) return true;",
+                   "a name that runs past its section, taken as read (and left empty): a class "
+                   "name never does (parse_clas needs all of them first), and a window field's "
+                   "name is followed at once by its value, whose read fails on the sticky error: "
+                   "the same first message"),
+        Equivalent("return true",
+                   'if (!r.u32("n_machines", n) || !r.zero_u32("reserved")) return false;',
+                   'if (!r.u32("n_machines", n) || !r.zero_u32("reserved")) return true;',
+                   "MACH's count unread or its reserved word non-zero, the section taken as "
+                   "parsed with no machine: the error is set and sticky, so the next section's "
+                   "first read fails, or (MACH the last) check_machines refuses a model without "
+                   "machines: false with the first message either way"),
     ],
     "cpp/src/protocol.cpp": [
         Equivalent("delete check", "if (!is_known_type(type)) return false;",

@@ -380,6 +380,15 @@ TEST(ModelLimits, CoefficientsThatCouldOverflowAreRefused) {
   });
   EXPECT_NE(m.find("machine 0: |intercept| + sum |coef| = 2"), std::string::npos) << m;
   EXPECT_NE(m.find("exceeds 1e+300"), std::string::npos) << m;
+  // the bound itself loads: an intercept of -1e300 and coefficients of 0 (machine 0)
+  Bytes b = fixture("float64");
+  const std::size_t m0 = section_offset(b, "MACH") + 8;
+  const std::uint32_t n_terms = get_u32(b, m0 + 8);
+  put_f64(b, m0 + 16, -1e300);
+  for (std::uint32_t t = 0; t < n_terms; ++t) put_f64(b, machine0_coef(b) + 8 * t, 0.0);
+  fix_crc(b);
+  EXPECT_EQ(load_message(b), "");
+  EXPECT_EQ(Model::from_bytes(b.data(), b.size()).machines()[0].intercept, -1e300);
 }
 
 // Window settings inside the old [-1e6, 1e6] s range whose buffers are unbounded: a 1e6 s
@@ -1194,6 +1203,22 @@ TEST(ModelChecks, PrepFieldsAtAndBeyondTheirLimits) {
     put_f64(b, prep + 32, 2500.0);
     fix_crc(b);
     EXPECT_EQ(Model::from_bytes(b.data(), b.size()).sample_rate_hz(), 2500.0);
+  }
+  {  // the range's top, 1e7 Hz, is in it (1.0000001e7 above is not): the fixture's detector
+     // sped up to that rate (its durations shortened and its cutoff raised by the same factor)
+    Bytes b = good;
+    const double f = 1e7 / get_f64(b, prep + 32);
+    put_f64(b, prep + 32, 1e7);
+    for (const char* name : {"frame_s", "noise_window_s", "warmup_s", "lookback_s", "hold_s",
+                             "min_duration_s", "pad_before_s", "pad_after_s", "max_window_s"}) {
+      const std::size_t at = window_field_offset(b, name);
+      put_f64(b, at, get_f64(b, at) / f);
+    }
+    const std::size_t cutoff = window_field_offset(b, "dc_cutoff_hz");
+    put_f64(b, cutoff, get_f64(b, cutoff) * f);
+    fix_crc(b);
+    EXPECT_EQ(load_message(b), "") << load_message(b);
+    EXPECT_EQ(Model::from_bytes(b.data(), b.size()).sample_rate_hz(), 1e7);
   }
 }
 
