@@ -230,6 +230,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
     ],
     "cpp/src/scalar_bases.hpp": [
         *(Equivalent("constant+1", ln, ln.replace("Real(0)", "Real(1)"), _WS) for ln in _WS_LINES),
+        Equivalent("return true", "if (!(diag_[c] != Real(0))) return false;",
+                   "if (!(diag_[c] != Real(0))) return true;",
+                   "the quick proof's early refusal of a zero diagonal: without it, R^-1's entry "
+                   "1 / 0 is infinite, so t2 is, and the isfinite(t2) of the result refuses all "
+                   "the same"),
+        Equivalent("swap>>=", "while (r < q && smax > 0 && sv_[order_[r]] > tau * smax) ++r;",
+                   "while (r < q && smax >= 0 && sv_[order_[r]] > tau * smax) ++r;",
+                   "the squared singular values are >= 0: at smax = 0 every one is 0, and "
+                   "0 > tau * 0 is false, so the rank is 0 either way (NaN fails both)"),
         Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
         Equivalent("swap<<=", "for (std::size_t j = 0; j + 1 < n; ++j)",
                    "for (std::size_t j = 0; j + 1 <= n; ++j)",

@@ -2000,6 +2000,76 @@ TEST(ModelDecision, AnUnevenGridWithItsOwnAlphaPerModeEqualsTheHandComputation) 
   expect_hand_decisions(m, {41u, 42u});
 }
 
+// A touch whose tensor the kernel cannot take (a burst of 1e150: the pattern's energy
+// overflows) is reported as not finite, not as a decision; the same burst at 1e3 is decided.
+TEST(ModelStream, ATouchTheKernelCannotTakeIsReportedNotFiniteNotDecided) {
+  const Bytes b = fixture("float64");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  for (const double amplitude : {1e3, 1e150}) {
+    eskin::StreamClassifier sc(m);
+    std::mt19937 rng(3);
+    std::normal_distribution<double> g(0.0, 5.0);
+    std::vector<eskin::ClassifyStatus> seen;
+    double sample[16];
+    for (int t = 0; t < 9000; ++t) {
+      for (double& v : sample) v = g(rng);
+      if (t >= 3000 && t < 4000) sample[5] += amplitude * std::sin(t / 3.0);
+      const eskin::ClassifyStatus st = sc.push(sample);
+      if (st != eskin::ClassifyStatus::kOk) seen.push_back(st);
+    }
+    ASSERT_FALSE(seen.empty()) << amplitude;
+    EXPECT_EQ(seen.front(), amplitude < 1e100 ? eskin::ClassifyStatus::kDecision
+                                              : eskin::ClassifyStatus::kNotFinite)
+        << amplitude;
+  }
+}
+
+// A pattern at distance 0 from a support vector in every mode: the fixture's support vector 1
+// (full rank in each mode) given the bases of a random tensor, which is then classified. Its
+// term is its coefficient times exp(0), as the hand computation has it; every mode here takes
+// the overlap route (N >= alpha^2), whose rounding can leave a distance just below 0.
+TEST(ModelDecision, APatternWithASupportVectorsBasesIsAtDistanceZeroFromIt) {
+  Bytes b = fixture("float64");
+  const std::size_t A[3] = {2, 2, 4};
+  std::vector<double> x, xb;
+  int rx[3];
+  {
+    const Model view = Model::view_bytes(b.data(), b.size());
+    for (int z = 0; z < 3; ++z) {
+      ASSERT_EQ(view.alpha_store(z), static_cast<int>(A[z]));
+      ASSERT_EQ(view.rank(1, z), static_cast<int>(A[z]));
+      ASSERT_GE(static_cast<std::size_t>(view.basis_rows(z)), A[z] * A[z]);  // no projection
+    }
+    x = random_tensor(view, 1.0, 61);
+    eskin::BasisLayout layout({4, 4, static_cast<std::size_t>(view.D())}, {A[0], A[1], A[2]});
+    eskin::BasisWorkspace ws(layout);
+    xb.resize(layout.bases_size());
+    ASSERT_EQ(ws.compute(x.data(), xb.data(), rx), eskin::KernelStatus::ok);
+    for (int z = 0; z < 3; ++z) {
+      ASSERT_EQ(rx[z], static_cast<int>(A[z]));
+      const std::size_t N = static_cast<std::size_t>(view.basis_rows(z));
+      // support vector 1's bases of mode z, in the file's bytes (view_bytes reads in place)
+      const std::size_t at = static_cast<std::size_t>(
+          reinterpret_cast<const std::uint8_t*>(view.bases_f64(z) + A[z] * N) - b.data());
+      for (std::size_t k = 0; k < A[z] * N; ++k)
+        put_f64(b, at + 8 * k, xb[layout.offset(static_cast<std::size_t>(z)) + k]);
+    }
+  }
+  fix_crc(b);
+  const Model m = Model::from_bytes(b.data(), b.size());
+  const std::vector<double> want = hand_decision(m, x);
+  eskin::Classifier clf(m);
+  eskin::Decision d;
+  ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+  int with_sv1 = 0;
+  for (std::size_t k = 0; k < m.machines().size(); ++k) {
+    EXPECT_NEAR(d.values[k], want[k], 1e-12) << "machine " << k;
+    const auto& idx = m.machines()[k].sv_index;
+    with_sv1 += std::find(idx.begin(), idx.end(), 1u) != idx.end();
+  }
+  EXPECT_GT(with_sv1, 0);  // some machine has the term
+}
+
 // ---- the loader on the edges of its layout: a machine of one term, an empty ancillary section
 // last, a CALB section cut inside its fixed fields
 

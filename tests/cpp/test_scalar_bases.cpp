@@ -323,6 +323,21 @@ TEST(ScalarBases, OneSidedJacobiOrthogonalisesAPairWithOneRotation) {
   }
 }
 
+TEST(ScalarBases, OneSidedJacobiRotatesAnEqualNormPairByTheTextbookAngle) {
+  // an exact tie: columns (3, 4) and (4, 3), equal norms (zeta = 0). Both t = 1 and t = -1
+  // orthogonalise them; the textbook rule (Golub and Van Loan, Matrix Computations, sym.schur2:
+  // t = 1 / (tau + sqrt(1 + tau^2)) for tau >= 0) takes t = 1, so the pair becomes
+  // ((x - y) / sqrt 2, (x + y) / sqrt 2), and w the same rotation of the identity
+  std::vector<double> b = {3, 4, 4, 3}, w(4), norms(2);
+  EXPECT_EQ(eskin::detail::one_sided_jacobi<double>(2, b.data(), w.data(), norms.data()), 2);
+  const double h = 1 / std::sqrt(2.0);
+  const double want_b[4] = {-h, h, 7 * h, 7 * h}, want_w[4] = {h, -h, h, h};
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_NEAR(b[static_cast<std::size_t>(i)], want_b[i], 1e-15) << i;
+    EXPECT_NEAR(w[static_cast<std::size_t>(i)], want_w[i], 1e-15) << i;
+  }
+}
+
 TEST(ScalarBases, ASingleTaxelTouchedHasRankOneAtThatTaxel) {
   // a sparse tensor: one taxel (row 2, column 1) pressed with signal s(t), the other fifteen
   // exactly zero. Every mode has rank 1; its one basis vector lives on the other two indices (C
@@ -489,7 +504,11 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
   // vectors, largest first (taxels 1 to 15 in order, then taxel 0). Either way rank 16.
   const BasisLayout layout({4, 4, 20}, {2, 2, 16});
   eskin::detail::ScalarBases<float> sb(layout);
-  for (const double d : {4.8e-4, 2.5e-4}) {
+  // and d_edge, 0.012 % inside (15 / d^2 + 15 d^2 + 226 = the bound times 1 - 1.2e-4): the
+  // identity still
+  const double bound = 1.0 / (4096.0 * eskin::detail::rank_tolerance<float>());
+  const double d_edge = std::sqrt(15.0 / (bound * (1.0 - 1.2e-4) - 226.0));
+  for (const double d : {4.8e-4, d_edge, 2.5e-4}) {
     std::vector<double> x(layout.tensor_size(), 0.0);
     for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = k == 0 ? d : 1.0;
     std::vector<float> b(layout.bases_size());
@@ -503,6 +522,35 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
             << "d " << d << " column " << c << " entry " << i;
     }
   }
+}
+
+TEST(ScalarBases, TheQuickProofOfFullRankReadsEveryEntryOfR) {
+  // A time unfolding already upper triangular, R = 1 on the diagonal and -2 above it: a
+  // moderate diagonal, but R^-1 grows as 2 * 3^(k - 1) k places off it, so the condition
+  // number is about 1e8 and R is numerically of rank 15 (s_16^2 / s_1^2 below the tolerance).
+  // The quick proof (||R||_F ||R^-1||_F) must see all of R^-1 and refuse; the sweeps find 15,
+  // as the host does.
+  const std::size_t D = 20;
+  const BasisLayout layout({4, 4, D}, {2, 2, 16});
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t i = 0; i < 16; ++i)
+    for (std::size_t t = 0; t <= i; ++t) x[i * D + t] = t == i ? 1.0 : -2.0;
+  eskin::BasisWorkspace host(layout);
+  std::vector<double> ref(layout.bases_size());
+  int r_ref[3];
+  ASSERT_EQ(host.compute(x.data(), ref.data(), r_ref), KernelStatus::ok);
+  EXPECT_EQ(r_ref[2], 15);
+  eskin::detail::ScalarBases<float> sb32(layout);
+  eskin::detail::ScalarBases<double> sb64(layout);
+  std::vector<float> b32(layout.bases_size());
+  std::vector<double> b64(layout.bases_size());
+  int r32[3], r64[3];
+  ASSERT_EQ(sb32.compute(x.data(), b32.data(), r32), KernelStatus::ok);
+  ASSERT_EQ(sb64.compute(x.data(), b64.data(), r64), KernelStatus::ok);
+  EXPECT_EQ(r32[2], 15);
+  EXPECT_EQ(r64[2], 15);
+  const std::size_t off = layout.offset(2);
+  EXPECT_LT(projection_gap(ref.data() + off, b64.data() + off, 16, 15), 1e-9);
 }
 
 TEST(ScalarBases, AZeroPatternHasRankZeroAndZeroBases) {
