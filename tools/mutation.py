@@ -57,7 +57,7 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_journal.py", "tests/python/data/test_campaign_recovery.py"],
     "python/eskin/data/campaign.py": [
         "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py",
-        "tests/python/data/test_campaign_storage.py"],
+        "tests/python/data/test_campaign_storage.py", "tests/python/data/test_campaign_patches.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`
@@ -354,6 +354,22 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    ".shape[:2])",
                    "a campaign's recordings share one grid: the first and last chosen have the "
                    "same rows and columns"),
+    ],
+    "python/eskin/learn/evaluation.py": [
+        Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
+                   "recall = np.where(support > 0, np.diag(cm) / support, np.nan)",
+                   "recall = np.where(support != 0, np.diag(cm) / support, np.nan)",
+                   "a class's support is a count of recordings, never negative: != 0 is > 0"),
+        *(Equivalent("core/NumberReplacer",
+                     "out[key] = values[0] if all(v == values[0] for v in values) else values",
+                     mutant,
+                     "a setting every fold ran the same (each fold's value from the same field "
+                     "of the same code, one type): the last is the first, and all equal to the "
+                     "first is all equal to the last")
+          for mutant in ("out[key] = values[ -1] if all(v == values[0] for v in values) else "
+                         "values",
+                         "out[key] = values[0] if all(v == values[ -1] for v in values) else "
+                         "values")),
     ],
     "python/eskin/deploy/export.py": [
         *(Equivalent("core/NumberReplacer", "chunk: int = 32) -> list[dict[str, Any]]:",

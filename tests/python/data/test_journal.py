@@ -334,10 +334,33 @@ def test_an_attribute_holding_a_pickle_is_never_unpickled():
         jr.decode_attr({"npy": base64.b64encode(buf.getvalue()).decode()})
 
 
-def test_the_contents_repr_leaves_out_the_record_offsets(tmp_path):
+def test_the_contents_repr_leaves_out_the_record_offsets_and_the_open_file(tmp_path):
     contents, records = read(write(tmp_path, 3))
     assert len(contents.offsets) == 3 and len(records) == 3
-    assert "offsets" not in repr(contents)
+    assert "offsets" not in repr(contents) and "_fh" not in repr(contents)
+    assert repr(contents).startswith("JournalContents(path=")
+
+
+def test_labels_of_exactly_a_mebibyte_are_read(tmp_path):
+    """The limit is 1 MiB of labels: a record at it is read like any other."""
+    path = write(tmp_path, 0, settings={**SETTINGS, "extra_fields": []})
+    meta = {**META, "extra": [], "chunk": 4, "note": ""}
+    meta["note"] = "x" * ((1 << 20) - len(json.dumps(meta).encode()))
+    assert len(json.dumps(meta).encode()) == 1 << 20
+    path.write_bytes(path.read_bytes() + raw_record(0, meta, b"abcd"))
+    contents, records = read(path)
+    assert [r.chunk for r in records] == [b"abcd"]
+    assert contents.dropped_bytes == 0 and contents.skipped == []
+
+
+@pytest.mark.parametrize("keep", [0, 1, 2, 3])
+def test_a_header_cut_inside_its_size_field_is_named_as_never_completely_written(tmp_path, keep):
+    path = write(tmp_path, 1)
+    path.write_bytes(path.read_bytes()[: len(jr.HEADER_MAGIC) + keep])
+    with pytest.raises(JournalError) as info:
+        read(path)
+    assert str(info.value) == (f"{path}: not a recording journal (no {jr.HEADER_MAGIC!r} "
+                               f"header), or its header was never completely written")
 
 
 def test_a_grid_shape_is_exactly_two_integers(tmp_path):

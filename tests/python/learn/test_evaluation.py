@@ -183,6 +183,10 @@ def test_the_bootstrap_seed_changes_the_resamples():
     intervals = {tuple(group_bootstrap_ci(y, pred, groups, 3, n_boot=200, seed=s)["accuracy"])
                  for s in range(5)}
     assert len(intervals) > 1
+    # without a seed, seed 0: the same intervals on every run
+    default = group_bootstrap_ci(y, pred, groups, 3, n_boot=200)
+    assert default == group_bootstrap_ci(y, pred, groups, 3, n_boot=200, seed=0)
+    assert default != group_bootstrap_ci(y, pred, groups, 3, n_boot=200, seed=1)
 
 
 def test_groups_are_dealt_largest_first_to_the_emptiest_fold():

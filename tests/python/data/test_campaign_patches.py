@@ -1,0 +1,122 @@
+"""A skin's campaign (eskin.data.campaign): the ``patches`` attribute and the per-recording
+``/recordings/extra/patch`` field, read back and refused when they do not go together; and the
+edges of a campaign's indexing, extra fields, default compression and recovery message."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from eskin.data.campaign import (
+    CampaignFormatError,
+    CampaignWriter,
+    Recovery,
+    encode_recording,
+    load_campaign,
+    write_campaign,
+)
+
+N, T = 5, 40
+
+
+def _skin(path: Path, patches: str = '["left", "right"]', patch=(0, 1, 1, 0, 1)) -> Path:
+    sig = np.arange(N * 4 * 4 * T, dtype=np.int16).reshape(N, 4, 4, T) % 97
+    return write_campaign(path, sig, modality=[0, 1, 0, 1, 0], participant=[1, 2, 3, 4, 5],
+                          direction=[0] * N, run=[1] * N, modalities=["a", "b"],
+                          sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded",
+                          attrs={"patches": patches},
+                          extras={"patch": np.asarray(patch, np.uint16)})
+
+
+def _edit(path: Path, fn) -> Path:
+    with h5py.File(path, "a") as f:
+        fn(f)
+    return path
+
+
+def test_a_skin_campaign_reads_back_its_patches_and_selects_by_them(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        assert c.patches == ["left", "right"]
+        assert c.patch.tolist() == [0, 1, 1, 0, 1]
+        assert c.select(patch="right").participant.tolist() == [2, 3, 5]
+        assert c.select(patch=0).participant.tolist() == [1, 4]
+
+
+@pytest.mark.parametrize("text", ["[]", '["a", "a"]', '["a", ""]', "[1, 2]", "not json",
+                                  '{"a": 1}', '"left"'])
+def test_a_patches_attribute_other_than_distinct_ids_is_refused(tmp_path, text):
+    path = _edit(_skin(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("patches", text))
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert str(info.value) == (f"{path}: attribute 'patches': must be a JSON list of distinct "
+                               f"patch ids, got {text!r}")
+
+
+def test_the_patch_field_and_the_patches_attribute_go_together(tmp_path):
+    no_ids = _edit(_skin(tmp_path / "a.h5"), lambda f: f.attrs.__delitem__("patches"))
+    with pytest.raises(CampaignFormatError, match=r"attribute 'patches': missing: "):
+        load_campaign(no_ids)
+    no_column = _edit(_skin(tmp_path / "b.h5"),
+                      lambda f: f["recordings/extra"].__delitem__("patch"))
+    with pytest.raises(CampaignFormatError,
+                       match=r"/recordings/extra/patch: missing \(the attribute 'patches'"):
+        load_campaign(no_column)
+    past = _edit(_skin(tmp_path / "c.h5"),
+                 lambda f: f["recordings/extra/patch"].__setitem__(2, 2))
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(past)
+    assert str(info.value) == (f"{past}: /recordings/extra/patch: recording 2 has patch 2, "
+                               f"past the 2 ids of the attribute 'patches'")
+
+
+def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        s = c.signals
+        np.testing.assert_array_equal(s[-N], s[0])
+        np.testing.assert_array_equal(s[N - 1], s[-1])
+        assert not np.array_equal(s[0], s[1])
+        for i in (N, -N - 1):
+            with pytest.raises(IndexError) as info:
+                s[i]
+            assert str(info.value) == f"recording index {i} out of range for {N} recordings"
+
+
+def test_an_extra_field_without_one_entry_per_recording_is_refused(tmp_path):
+    """A scalar extra dataset (no first axis at all) is refused like one of another length."""
+    for name, data in (("scalar", np.uint16(3)), ("short", np.zeros(N - 1, np.uint16))):
+        path = _edit(_skin(tmp_path / f"{name}.h5"),
+                     lambda f: f["recordings/extra"].create_dataset(name, data=data))
+        with pytest.raises(CampaignFormatError) as info:
+            load_campaign(path)
+        assert info.value.field == f"/recordings/extra/{name}"
+        assert info.value.problem.startswith(f"wrong shape {np.shape(data)} (expected one entry "
+                                             f"per recording, n={N}")
+
+
+def test_the_writer_compresses_each_recording_with_deflate_level_one_by_default(tmp_path):
+    """docs/dataset-format.md: gzip (deflate level 1) and the shuffle filter."""
+    path = tmp_path / "w.h5"
+    with CampaignWriter(path, n_samples=T, sample_rate_hz=1000.0, volts_per_count=1e-3,
+                        modalities=["a"], source="recorded") as w:
+        w.append(np.ones((4, 4, T), np.int16), modality=0, participant=1, direction=0, run=1)
+    with h5py.File(path, "r") as f:
+        ds = f["recordings/signals"]
+        assert (ds.compression, ds.compression_opts, ds.shuffle) == ("gzip", 1, True)
+        _, stored = ds.id.read_direct_chunk((0, 0, 0, 0))
+    # a chunk made outside the writer (the simulator's workers) is, by default, the same bytes
+    enc = encode_recording(np.ones((4, 4, T), np.int16), grid_shape=(4, 4), n_samples=T)
+    assert (enc.compression_level, enc.chunk) == (1, stored)
+
+
+def test_a_recovery_names_ten_skipped_records_and_counts_the_rest():
+    def message(k: int) -> str:
+        return Recovery(Path("r.h5"), 3, 0, "", tuple(f"s{i}" for i in range(k))).message()
+
+    ten = message(10)
+    assert "s9)" in ten and "more" not in ten
+    twelve = message(12)
+    assert "; s9; 2 more)" in twelve and "s10" not in twelve
+    assert "skipped" not in message(0)
