@@ -88,7 +88,8 @@ def test_an_extra_field_without_one_entry_per_recording_is_refused(tmp_path):
     """A scalar extra dataset (no first axis at all) is refused like one of another length."""
     for name, data in (("scalar", np.uint16(3)), ("short", np.zeros(N - 1, np.uint16))):
         path = _edit(_skin(tmp_path / f"{name}.h5"),
-                     lambda f: f["recordings/extra"].create_dataset(name, data=data))
+                     lambda f, name=name, data=data: f["recordings/extra"].create_dataset(
+                         name, data=data))
         with pytest.raises(CampaignFormatError) as info:
             load_campaign(path)
         assert info.value.field == f"/recordings/extra/{name}"
