@@ -429,6 +429,17 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "flattens as reshape(-1) does"),
     ],
     "python/eskin/learn/recipes.py": [
+        Equivalent("core/ReplaceComparisonOperator_NotEq_LtE",
+                   "if row._expected[0] != len(row.support):",
+                   "if row._expected[0] <= len(row.support):",
+                   "the cache of a row's expected support vectors: its count of splits is never "
+                   "above the row's (splits are only added), so <= recomputes it every time, "
+                   "to the same value"),
+        Equivalent("core/ReplaceComparisonOperator_LtE_Lt",
+                   "if gap <= tolerance + 1e-12 or p >= significance:",
+                   "if gap < tolerance + 1e-12 or p >= significance:",
+                   "at gap = tolerance + 1e-12 the line above has set p = 1.0, and significance "
+                   "is below 1 (checked), so p >= significance holds either way"),
         *(Equivalent("core/NumberReplacer",
                      'reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else '
                      '(math.inf, 0)',

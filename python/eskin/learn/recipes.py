@@ -675,7 +675,8 @@ class RecipeSearch:
     Attributes after :meth:`fit`: ``best_`` (the chosen Candidate), ``best_error_``,
     ``best_bound_`` (the support vectors its model is bounded to under the budget, or None),
     ``ranking_`` (the final round's candidates, best first: candidate, error, std, splits,
-    support vectors), ``recipe_table_`` (per recipe: its best error and on how many splits),
+    support vectors), ``recipe_table_`` (per recipe: its candidate scored on the most splits, of
+    the lowest error there, equal errors broken as the ranking breaks them),
     ``rounds_`` (candidates and splits per round), ``n_evaluations_`` (candidate-split scores),
     ``splits_``, ``seconds_``.
     """
@@ -903,15 +904,15 @@ class RecipeSearch:
                     "support_bound": row.bound, "split_errors": [row.errors[s] for s in sorted(row.errors)]}
 
         self.ranking_ = [entry(best)] + [entry(c) for c in final if c != best]
-        table: dict[Recipe, dict[str, Any]] = {}
+        # per recipe, its candidate scored on the most splits, then of the lowest error, then
+        # the one the ranking's tie-break prefers (the simpler machine, self._key)
+        per_recipe: dict[Recipe, list[Candidate]] = {}
         for c, row in rows.items():
-            if not row.errors or (self.budget is not None and not row.fits):
-                continue
-            e = entry(c)
-            old = table.get(c.recipe)
-            if old is None or (e["splits"], -e["error"]) > (old["splits"], -old["error"]):
-                table[c.recipe] = e
-        self.recipe_table_ = sorted(table.values(), key=lambda e: (-e["splits"], e["error"]))
+            if row.errors and (self.budget is None or row.fits):
+                per_recipe.setdefault(c.recipe, []).append(c)
+        table = [entry(min(cs, key=lambda c: (-len(rows[c].errors), self._key(rows[c]))))
+                 for cs in per_recipe.values()]
+        self.recipe_table_ = sorted(table, key=lambda e: (-e["splits"], e["error"]))
 
     # -- reports ---------------------------------------------------------------------------
     def collapse_note(self) -> str | None:

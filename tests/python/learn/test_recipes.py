@@ -649,17 +649,26 @@ def test_each_recipes_row_is_its_candidate_of_the_most_splits_and_then_the_lowes
     furthest round it reached), and among those the lowest mean error."""
     X, y, groups = data
     recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "even", "all")]
-    s = RecipeSearch(recipes, [0.01, 1.0], [0.5, 2.0], ["1", "Q/2"], [None], n_splits=4,
-                     first_share=1.0, significance=None, seed=5).fit(X, y, groups)
+    s = RecipeSearch(recipes, [0.01, 0.1, 1.0, 10.0], [0.5, 2.0, 8.0], ["1", "Q/2"], [None],
+                     n_splits=4, first_share=1.0, significance=None, seed=5).fit(X, y, groups)
     assert max(r["splits"] for r in s.rounds_) == 4 and s.rounds_[0]["splits"] == 1
     final = {}
     for e in s.ranking_:
         final.setdefault(e["candidate"].recipe, []).append(e)
     assert final  # the last round's candidates, 4 splits each
     table = {e["candidate"].recipe: e for e in s.recipe_table_}
+    ties = 0
     for recipe, entries in final.items():
         assert table[recipe]["splits"] == 4
-        assert table[recipe]["error"] == min(e["error"] for e in entries)
+        lowest = min(e["error"] for e in entries)
+        assert table[recipe]["error"] == lowest
+        # equal errors: the simpler machine, as the ranking breaks ties (larger lambda, then
+        # larger sigma, no amplitude factor, then alpha's label)
+        tied = [e["candidate"] for e in entries if e["error"] == lowest]
+        ties += len(tied) > 1
+        assert table[recipe]["candidate"] == min(
+            tied, key=lambda c: (-c.lam, -c.sigma, c.amplitude is not None, c.alpha))
+    assert ties  # the case is there
 
 
 @pytest.mark.parametrize("shape,alpha", [((19, 27, 18), "full"), ((16, 16, 10), "full"),
@@ -676,6 +685,21 @@ def test_the_smallest_distance_plan_is_the_least_memory_blocks_of_8_can_take(sha
     with pytest.raises(ValueError):
         distance_plan(list(shape), alphas, 8, 8, max_bytes=smallest - 1)
     assert smallest < distance_plan(list(shape), alphas, 8, 8)["pack_bytes"]
+
+
+@pytest.mark.parametrize("shape,alpha", [((4, 4, 20), "full"), ((3, 5, 12), "half")])
+def test_the_fixed_memory_counted_is_what_the_bases_and_distances_take(shape, alpha):
+    """distance_memory's first part: the bytes of every pattern's bases (pattern_bases) and of
+    the per-mode distances and their sum (mode_distances), as allocated."""
+    from eskin.learn.kernel import mode_distances, pattern_bases
+
+    X = np.random.default_rng(5).normal(size=(9, *shape))
+    alphas = resolve_alphas(shape, alpha)
+    fixed, _ = distance_memory(X.shape, alphas)
+    bases = pattern_bases(X, alpha=alphas)
+    d = mode_distances(X, alpha=alphas)
+    held = sum(bases.mode_bases(z).nbytes for z in range(3)) + d.nbytes + d.sum(axis=0).nbytes
+    assert fixed == held
 
 
 def test_the_collapse_note_counts_candidates_and_splits_in_words():
