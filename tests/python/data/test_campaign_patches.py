@@ -121,3 +121,43 @@ def test_a_recovery_names_ten_skipped_records_and_counts_the_rest():
     twelve = message(12)
     assert "; s9; 2 more)" in twelve and "s10" not in twelve
     assert "skipped" not in message(0)
+
+
+@pytest.mark.parametrize("column", [np.zeros((N, 2), np.uint16), np.zeros(N, np.int16)])
+def test_a_patch_field_other_than_one_unsigned_index_per_recording_is_refused(tmp_path, column):
+    def swap(f):
+        del f["recordings/extra/patch"]
+        f["recordings/extra"].create_dataset("patch", data=column)
+
+    path = _edit(_skin(tmp_path / "s.h5"), swap)
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert str(info.value) == (f"{path}: /recordings/extra/patch: must be unsigned integers "
+                               f"(n,), got {column.dtype} {column.shape}")
+
+
+def test_a_recording_indexed_with_more_axes_is_that_part_of_it(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        s = c.signals
+        np.testing.assert_array_equal(s[2, 1], s[2][1])
+        np.testing.assert_array_equal(s[2, 1, 3], s[2][1, 3])
+        np.testing.assert_array_equal(s[-1, :, 0, 5:9], s[N - 1][:, 0, 5:9])
+
+
+def test_the_summary_gives_each_recordings_duration_in_seconds(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        info = c.summary()
+    assert info["duration_s"] == T / 1000.0 and info["samples_per_recording"] == T
+
+
+def test_a_list_of_one_recording_is_written_and_an_empty_list_refused(tmp_path):
+    one = np.ones((4, 4, T), np.int16)
+    kw = dict(modality=[0], participant=[1], direction=[0], run=[1], modalities=["a"],
+              sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+    with load_campaign(write_campaign(tmp_path / "one.h5", [one], **kw)) as c:
+        assert len(c) == 1
+        np.testing.assert_array_equal(c.signals[0], one)
+    with pytest.raises(ValueError) as info:
+        write_campaign(tmp_path / "none.h5", [], **kw)
+    assert str(info.value) == "no recordings given (use a (0, rows, cols, T) array)"
+    assert not (tmp_path / "none.h5").exists()
