@@ -152,8 +152,9 @@ def test_the_summary_gives_each_recordings_duration_in_seconds(tmp_path):
 
 def test_a_list_of_one_recording_is_written_and_an_empty_list_refused(tmp_path):
     one = np.ones((4, 4, T), np.int16)
-    kw = dict(modality=[0], participant=[1], direction=[0], run=[1], modalities=["a"],
-              sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+    kw = {"modality": [0], "participant": [1], "direction": [0], "run": [1],
+          "modalities": ["a"], "sample_rate_hz": 1000.0, "volts_per_count": 1e-3,
+          "source": "recorded"}
     with load_campaign(write_campaign(tmp_path / "one.h5", [one], **kw)) as c:
         assert len(c) == 1
         np.testing.assert_array_equal(c.signals[0], one)
