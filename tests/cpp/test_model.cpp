@@ -2145,6 +2145,34 @@ TEST(ModelChecks, AMachineOfOneTermLoadsAndOneOfNoneIsRefused) {
       << load_message(none);
 }
 
+// Every stored support vector must be used by some machine: each machine cut to its first term
+// in turn, a file whose cut leaves support vectors unused is refused naming the first of them,
+// one that leaves none unused loads.
+TEST(ModelChecks, ASupportVectorNoMachineUsesIsRefused) {
+  const Bytes good = fixture("float64");
+  const Model full = Model::from_bytes(good.data(), good.size());
+  int refused_files = 0;
+  for (std::size_t k = 0; k < full.machines().size(); ++k) {
+    std::vector<bool> used(9, false);
+    for (std::size_t j = 0; j < full.machines().size(); ++j) {
+      const auto& idx = full.machines()[j].sv_index;
+      for (std::size_t t = 0; t < (j == k ? 1 : idx.size()); ++t) used[idx[t]] = true;
+    }
+    const auto first_unused = std::find(used.begin(), used.end(), false);
+    const Bytes cut = with_machine_terms(good, k, 1);
+    if (first_unused == used.end()) {
+      EXPECT_EQ(load_message(cut), "") << "machine " << k;
+    } else {
+      ++refused_files;
+      EXPECT_EQ(load_message(cut), "model: support vector " +
+                                       std::to_string(first_unused - used.begin()) +
+                                       " is used by no machine")
+          << "machine " << k;
+    }
+  }
+  EXPECT_GT(refused_files, 0);
+}
+
 // An ancillary section of no bytes ends exactly at the checksum: skipped. Half a section header
 // there (4 of its 8 bytes) is refused.
 TEST(ModelChecks, AnEmptyAncillarySectionLastIsSkippedAndHalfAHeaderRefused) {

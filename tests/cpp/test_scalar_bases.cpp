@@ -504,11 +504,13 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
   // vectors, largest first (taxels 1 to 15 in order, then taxel 0). Either way rank 16.
   const BasisLayout layout({4, 4, 20}, {2, 2, 16});
   eskin::detail::ScalarBases<float> sb(layout);
-  // and d_edge, 0.012 % inside (15 / d^2 + 15 d^2 + 226 = the bound times 1 - 1.2e-4): the
-  // identity still
+  // And two more: 0.012 % inside (15 / d^2 + 15 d^2 + 226 = the bound times 1 - 1.2e-4), the
+  // identity still; 1.5 times the bound, the sweeps.
   const double bound = 1.0 / (4096.0 * eskin::detail::rank_tolerance<float>());
   const double d_edge = std::sqrt(15.0 / (bound * (1.0 - 1.2e-4) - 226.0));
-  for (const double d : {4.8e-4, d_edge, 2.5e-4}) {
+  const double d_over = std::sqrt(15.0 / (bound * 1.5 - 226.0));
+  for (const double d : {4.8e-4, d_edge, d_over, 2.5e-4}) {
+    const bool inside = d >= d_edge;
     std::vector<double> x(layout.tensor_size(), 0.0);
     for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = k == 0 ? d : 1.0;
     std::vector<float> b(layout.bases_size());
@@ -516,7 +518,7 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
     ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
     EXPECT_EQ(r[2], 16);
     for (std::size_t c = 0; c < 16; ++c) {
-      const std::size_t at = d > 3e-4 ? c : (c + 1) % 16;
+      const std::size_t at = inside ? c : (c + 1) % 16;
       for (std::size_t i = 0; i < 16; ++i)
         ASSERT_NEAR(b[layout.offset(2) + c * 16 + i], i == at ? 1.0f : 0.0f, 1e-6f)
             << "d " << d << " column " << c << " entry " << i;
@@ -551,6 +553,31 @@ TEST(ScalarBases, TheQuickProofOfFullRankReadsEveryEntryOfR) {
   EXPECT_EQ(r64[2], 15);
   const std::size_t off = layout.offset(2);
   EXPECT_LT(projection_gap(ref.data() + off, b64.data() + off, 16, 15), 1e-9);
+}
+
+TEST(ScalarBases, TheQuickProofOfFullRankReadsTheFirstRowOfR) {
+  // R = I but for a first row of 100s: R^-1 = I but for a first row of -100s, so all of
+  // ||R^-1||_F beyond its diagonal is in row 0. ||R||_F^2 ||R^-1||_F^2 = (16 + 15e4)^2 = 2.3e10,
+  // past the proof's bound (6.7e7 in float): the sweeps decide (rank 16, s_16^2 / s_1^2 about
+  // 4e-11, above the tolerance), and their singular vectors mix the taxels: not the identity.
+  const std::size_t D = 20;
+  const BasisLayout layout({4, 4, D}, {2, 2, 16});
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t i = 0; i < 16; ++i) {
+    x[i * D + i] = 1.0;
+    if (i > 0) x[i * D] = -100.0;
+  }
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<float> b(layout.bases_size());
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  EXPECT_EQ(r[2], 16);
+  const std::size_t off = layout.offset(2);
+  float off_diagonal = 0.0f;
+  for (std::size_t c = 0; c < 16; ++c)
+    for (std::size_t j = 0; j < 16; ++j)
+      if (c != j) off_diagonal = std::max(off_diagonal, std::fabs(b[off + c * 16 + j]));
+  EXPECT_GT(off_diagonal, 0.1f);
 }
 
 TEST(ScalarBases, AZeroPatternHasRankZeroAndZeroBases) {
