@@ -37,6 +37,13 @@ def _edit(path: Path, fn) -> Path:
     return path
 
 
+def _refused(path: Path) -> str:
+    """The loader's one-line refusal of ``path``."""
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    return str(info.value)
+
+
 def test_a_skin_campaign_reads_back_its_patches_and_selects_by_them(tmp_path):
     with load_campaign(_skin(tmp_path / "s.h5")) as c:
         assert c.patches == ["left", "right"]
@@ -49,10 +56,8 @@ def test_a_skin_campaign_reads_back_its_patches_and_selects_by_them(tmp_path):
                                   '{"a": 1}', '"left"'])
 def test_a_patches_attribute_other_than_distinct_ids_is_refused(tmp_path, text):
     path = _edit(_skin(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("patches", text))
-    with pytest.raises(CampaignFormatError) as info:
-        load_campaign(path)
-    assert str(info.value) == (f"{path}: attribute 'patches': must be a JSON list of distinct "
-                               f"patch ids, got {text!r}")
+    assert _refused(path) == (f"{path}: attribute 'patches': must be a JSON list of distinct "
+                              f"patch ids, got {text!r}")
 
 
 def test_the_patch_field_and_the_patches_attribute_go_together(tmp_path):
@@ -66,10 +71,8 @@ def test_the_patch_field_and_the_patches_attribute_go_together(tmp_path):
         load_campaign(no_column)
     past = _edit(_skin(tmp_path / "c.h5"),
                  lambda f: f["recordings/extra/patch"].__setitem__(2, 2))
-    with pytest.raises(CampaignFormatError) as info:
-        load_campaign(past)
-    assert str(info.value) == (f"{past}: /recordings/extra/patch: recording 2 has patch 2, "
-                               f"past the 2 ids of the attribute 'patches'")
+    assert _refused(past) == (f"{past}: /recordings/extra/patch: recording 2 has patch 2, "
+                              f"past the 2 ids of the attribute 'patches'")
 
 
 def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):
@@ -130,10 +133,8 @@ def test_a_patch_field_other_than_one_unsigned_index_per_recording_is_refused(tm
         f["recordings/extra"].create_dataset("patch", data=column)
 
     path = _edit(_skin(tmp_path / "s.h5"), swap)
-    with pytest.raises(CampaignFormatError) as info:
-        load_campaign(path)
-    assert str(info.value) == (f"{path}: /recordings/extra/patch: must be unsigned integers "
-                               f"(n,), got {column.dtype} {column.shape}")
+    assert _refused(path) == (f"{path}: /recordings/extra/patch: must be unsigned integers "
+                              f"(n,), got {column.dtype} {column.shape}")
 
 
 def test_a_recording_indexed_with_more_axes_is_that_part_of_it(tmp_path):
