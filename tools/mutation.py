@@ -414,6 +414,21 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/journal.py": [
+        Equivalent("core/NumberReplacer", "self._fd = -1", "self._fd = - 2",
+                   "the released writer's descriptor: only ever tested for >= 0"),
+        *(Equivalent("core/NumberReplacer",
+                     "record, reason = _read_record(self._fh, None, 1 << 62)",
+                     f"record, reason = _read_record(self._fh, None, {bound})",
+                     "the bound of a record read by index, no bound in practice: a journal "
+                     "file is never 2^61 bytes long")
+          for bound in ("2 << 62", "1 << 63", "1 << 61")),
+        *(Equivalent("core/NumberReplacer", ln, ln.replace("unpack(crc)[0]", "unpack(crc)[ -1]"),
+                     "a CRC unpacked by a one-field struct: a tuple of one, whose first is its "
+                     "last")
+          for ln in ("if len(text) < n or len(crc) < 4 or _CRC.unpack(crc)[0] != "
+                     "zlib.crc32(text):",
+                     "if _CRC.unpack(crc)[0] != zlib.crc32(body, zlib.crc32(text, "
+                     "zlib.crc32(head[4:]))):")),
         Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
                    "if len(head) < len(HEADER_MAGIC) + 4 or head[: len(HEADER_MAGIC)] != "
                    "HEADER_MAGIC:",

@@ -123,6 +123,15 @@ def test_the_header_crc_and_size_are_checked(tmp_path):
     path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", (64 << 20) + 1))
     with pytest.raises(JournalError, match="implausible"):
         read(path)
+    path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", 64 << 20))  # the limit: not refused
+    with pytest.raises(JournalError, match="header: torn or damaged"):  # for its size
+        read(path)
+    text = json.dumps(SETTINGS, sort_keys=True).encode()
+    for cut in (1, 2, 3):  # the CRC after it cut short
+        path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", len(text)) + text
+                         + struct.pack("<I", zlib.crc32(text))[:-cut])
+        with pytest.raises(JournalError, match="header: torn or damaged"):
+            read(path)
     text = b"[1, 2]"
     path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", len(text)) + text
                      + struct.pack("<I", zlib.crc32(text)))
@@ -196,11 +205,13 @@ def test_complete_records_with_unreadable_labels_are_skipped_with_their_reason(t
     path.write_bytes(path.read_bytes() + raw_record(0, ok, b"abcd")
                      + raw_record(1, {**ok, "chunk": 5}, b"abcd")
                      + raw_record(2, {k: v for k, v in ok.items() if k != "extra"}, b"abcd")
-                     + raw_record(3, ok, b"efgh"))
+                     + raw_record(3, {**ok, "chunk": 3}, b"abcd")
+                     + raw_record(4, ok, b"efgh"))
     contents, records = read(path)
     assert [r.chunk for r in records] == [b"abcd", b"efgh"]
     assert contents.skipped[0] == "record 1: /recordings/signals: chunk size differs from its label"
     assert contents.skipped[1].startswith("record 2: labels: unreadable (")
+    assert contents.skipped[2] == "record 3: /recordings/signals: chunk size differs from its label"
     assert contents.dropped_bytes == 0
 
 
@@ -267,9 +278,24 @@ def test_releasing_a_journal_twice_closes_it_once_and_leaves_it_on_disk(tmp_path
     w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
     w.append(META, {"force": (np.float32(0), np.dtype("<f4"))}, bytes(24))
     w.release()
-    w.release()
+    saved = os.dup(0)
+    try:
+        w.release()
+        os.fstat(0)  # the second release closed nothing, standard input included
+    finally:
+        os.dup2(saved, 0)
+        os.close(saved)
     contents, records = read(w.path)
     assert len(records) == 1 and contents.dropped_bytes == 0
+
+
+def test_the_header_is_the_same_bytes_whatever_the_order_of_the_settings(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = write(tmp_path / "a", 0)
+    b = write(tmp_path / "b", 0, settings=dict(reversed(list(SETTINGS.items()))))
+    assert list(SETTINGS) != list(dict(reversed(list(SETTINGS.items()))))
+    assert a.read_bytes() == b.read_bytes()
 
 
 def test_the_writer_knows_where_its_journal_ends_after_every_append(tmp_path):

@@ -133,3 +133,14 @@ def test_the_writer_refuses_a_calibration_the_loader_would_refuse(model):
     spec.calibration = replace(model.calibration, slopes=model.calibration.slopes[:2])
     with pytest.raises(ModelFormatError, match="2 slopes and 3 offsets for 3 machines"):
         model_to_bytes(spec, "float64")
+    # the ends of the ranges, the writer's as the loader's: slopes in [0, 1e6], offsets in
+    # [-1e6, 1e6]; just outside, refused naming the machine
+    k = len(model.calibration.slopes)
+    for a, b in ((0.0, 1e6), (1e6, -1e6)):
+        spec.calibration = replace(model.calibration, slopes=[a] * k, offsets=[b] * k)
+        cm = CompiledModel(model_to_bytes(spec, "float64"))
+        assert cm.decision_rule == "calibrated"
+    for a, b in ((-5e-324, 0.0), (1e6 * (1 + 2**-52), 0.0), (1.0, -1e6 * (1 + 2**-52))):
+        spec.calibration = replace(model.calibration, slopes=[a] * k, offsets=[b] * k)
+        with pytest.raises(ModelFormatError, match=r"^calibration: machine 0: slope="):
+            model_to_bytes(spec, "float64")

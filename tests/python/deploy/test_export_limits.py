@@ -495,7 +495,7 @@ def test_the_model_file_and_the_c_header_make_the_folders_of_a_new_path(tmp_path
 
 @pytest.mark.parametrize("name,ident", [("touch_model", "touch_model"), ("a9", "a9"),
                                         ("9a", "m_9a"), ("touch-model v2", "touch_model_v2"),
-                                        ("", "m_")])
+                                        ("x{1}~", "x_1__"), ("", "m_")])
 def test_the_c_header_turns_its_name_into_a_c_identifier(tmp_path, name, ident):
     """Characters a C identifier cannot hold become '_', and a name that would start with a
     digit (or is empty) gets 'm_' in front; the macros are the identifier in capitals."""
@@ -504,3 +504,22 @@ def test_the_c_header_turns_its_name_into_a_c_identifier(tmp_path, name, ident):
     text = write_c_header(_binary_spec(), tmp_path / "m.h", name=name).read_text()
     assert f"static const size_t {ident}_size = " in text
     assert f"#define {ident.upper()}_N_CLASSES 2\n" in text
+
+
+def test_a_machine_without_support_vectors_is_not_exported():
+    """A fitted machine left with no support vector (nothing to compare a touch with) is
+    refused by name, not written as a machine that always answers its intercept."""
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import TensorSVC
+
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(8, 2, 3, 4))
+    est = TensorSVC().fit(X, np.array([0, 1] * 4))
+    assert est.support_vectors_.shape[0] > 0
+    spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))  # as fitted: exported
+    est.support_vectors_ = est.support_vectors_[:0]
+    est.dual_coef_ = np.asarray(est.dual_coef_).reshape(-1)[:0]
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == ("binary machine: the machine has no support vectors; nothing to "
+                               "export")
