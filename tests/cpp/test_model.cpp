@@ -2000,6 +2000,32 @@ TEST(ModelDecision, AnUnevenGridWithItsOwnAlphaPerModeEqualsTheHandComputation) 
   expect_hand_decisions(m, {41u, 42u});
 }
 
+// A model whose short policy is "error" refuses a recording whose window is shorter than D
+// (window mode "none": the window is the whole recording) as too short; one of D samples is
+// decided. The default policy ("interpolate") decides both.
+TEST(ModelClassify, AWindowShorterThanDIsTooShortUnderTheErrorPolicy) {
+  const Bytes good = fixture("float64");
+  const std::size_t prep = section_offset(good, "PREP");
+  for (const std::uint32_t policy : {0u, 1u}) {
+    Bytes b = good;
+    put_u32(b, prep + 12, 1);  // window mode none
+    put_u32(b, prep + 20, policy);
+    fix_crc(b);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    ASSERT_EQ(m.D(), 8);
+    eskin::Classifier clf(m);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> g(0.0, 100.0);
+    std::vector<double> x(16 * 8);
+    for (double& v : x) v = g(rng);
+    eskin::Decision d;
+    EXPECT_EQ(clf.classify(x.data(), 4, 4, 8, 8, &d), eskin::ClassifyStatus::kOk) << policy;
+    EXPECT_EQ(clf.classify(x.data(), 4, 4, 8, 5, &d),
+              policy == 1 ? eskin::ClassifyStatus::kTooShort : eskin::ClassifyStatus::kOk)
+        << policy;
+  }
+}
+
 // A touch whose tensor the kernel cannot take (a burst of 1e150: the pattern's energy
 // overflows) is reported as not finite, not as a decision; the same burst at 1e3 is decided.
 TEST(ModelStream, ATouchTheKernelCannotTakeIsReportedNotFiniteNotDecided) {

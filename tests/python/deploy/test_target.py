@@ -197,8 +197,11 @@ def test_the_search_estimate_matches_the_compiled_model(campaign):
     est = estimate_model(budget, (4, 4), 20, tuple(cm.alpha_store), cm.n_support, 3, False,
                          model.window_config, campaign.sample_rate_hz)
     real = device_budget(cm, budget.target)
-    assert est["ram"] == pytest.approx(real.ram_total, rel=0.01)
-    assert est["flash"] == pytest.approx(real.flash_total, rel=0.01)
+    # a tensor-RLS keeps every pattern in every machine, as the estimate assumes: its RAM is
+    # the model's to the byte, its flash the file's plus under 256 bytes (the estimate's fixed
+    # 1800 bytes of header and sections), never less
+    assert est["ram"] == real.ram_total
+    assert 0 <= est["flash"] - real.flash_total < 256
     with pytest.raises(ValueError, match="--budget ram=lots: not a number"):
         parse_budget("ram=lots")
     with pytest.raises(ValueError, match="expected flash=..,ram=..,instr=.."):
@@ -496,3 +499,32 @@ def test_a_compiled_models_instruction_bound_is_its_estimate_times_one_plus_the_
     assert fig["instructions"] == pytest.approx(estimate * (1 + INSTRUCTION_MARGIN), rel=1e-12)
     # the margin is below 0.5: a budget of 1.5 times the estimate fits
     assert model_fits(data, parse_budget(f"flash=1G,ram=1G,instr={1.5 * estimate!r}"))[0]
+
+
+def test_a_counts_leave_grid_out_estimate_is_fitted_on_the_other_grids_only():
+    from eskin.deploy import target
+
+    for c, (_, grid_est) in zip(target._COUNTS, target._left_out()):
+        others = [d for d in target._COUNTS if tuple(d["grid"]) != tuple(c["grid"])]
+        assert grid_est == pytest.approx(float(target._features_of(c) @ target._fit(others)),
+                                         rel=1e-12, abs=0)
+
+
+def test_the_stored_alphas_of_an_uneven_grid_are_its_own_rows_first():
+    """alpha Q on 3 x 5 taxels at D = 20: each mode's rank, rows 3, columns 5, time 15."""
+    from eskin.deploy.target import _stored_alphas
+
+    assert _stored_alphas((3, 5), 20, "Q") == (3, 5, 15)
+    assert _stored_alphas((5, 3), 20, "Q") == (5, 3, 15)
+    assert _stored_alphas((3, 5), 20, "Q/2") == (1, 2, 7)
+
+
+def test_a_model_filling_the_flash_exactly_fits_and_one_byte_less_does_not():
+    from dataclasses import replace
+
+    cm = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
+    roomy = replace(TARGETS["cortex-m4"], ram_bytes=1 << 30)
+    exact = replace(roomy, flash_bytes=device_budget(cm, roomy).flash_total)
+    assert device_budget(cm, exact).advice == []
+    short = replace(exact, flash_bytes=exact.flash_bytes - 1)
+    assert device_budget(cm, short).advice[0].startswith("the bases take ")
