@@ -413,7 +413,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for w, n in [("if", n) for n in ("DECISION", "STATUS", "INFO", "PING", "PONG")]
           + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
+    "python/eskin/data/campaign.py": [
+        Equivalent("core/ReplaceTrueWithFalse", "_validated=True)", "_validated=False)",
+                   "the loader's campaign built with its fields checked again: the loader has "
+                   "checked them (the same checks, strict dtypes), so the same campaign"),
+    ],
     "python/eskin/data/journal.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "return arr[()] if arr.ndim == 0 "
+                   "else arr", "return arr[()] if arr.ndim <= 0 else arr",
+                   "an array's number of axes is never negative"),
         Equivalent("core/NumberReplacer", "self._fd = -1", "self._fd = - 2",
                    "the released writer's descriptor: only ever tested for >= 0"),
         *(Equivalent("core/NumberReplacer",

@@ -163,3 +163,63 @@ def test_a_list_of_one_recording_is_written_and_an_empty_list_refused(tmp_path):
         write_campaign(tmp_path / "none.h5", [], **kw)
     assert str(info.value) == "no recordings given (use a (0, rows, cols, T) array)"
     assert not (tmp_path / "none.h5").exists()
+
+
+@pytest.mark.parametrize("value", [2**31, -(2**31) - 1])
+def test_an_in_memory_label_outside_its_stored_range_is_refused(value):
+    from eskin.data.campaign import Campaign
+
+    sig = np.zeros((2, 4, 4, T), np.int16)
+    labels = {"modality": [0, 0], "participant": np.array([1, value], np.int64),
+              "direction": [0, 0], "run": [1, 1]}
+    with pytest.raises(CampaignFormatError) as info:
+        Campaign(sig, np.full(2, T), modalities=["a"], sample_rate_hz=1000.0,
+                 volts_per_count=1.0, source="recorded", **labels)
+    assert info.value.field == "/recordings/participant"
+    assert info.value.problem == (f"values out of the int32 range [-2147483648, 2147483647]: "
+                                  f"min {min(1, value)}, max {max(1, value)}")
+
+
+def test_a_contact_interval_outside_its_recording_is_named_with_its_bounds(tmp_path):
+    """The rule has a copy in the writer and one in the loader: both refuse, naming the
+    recording and the interval."""
+    sig = np.zeros((2, 4, 4, T), np.int16)
+    kw = {"modality": [0, 0], "participant": [1, 2], "direction": [0, 0], "run": [1, 1],
+          "modalities": ["a"], "sample_rate_hz": 1000.0, "volts_per_count": 1e-3,
+          "source": "recorded"}
+    with pytest.raises(ValueError) as info:
+        write_campaign(tmp_path / "w.h5", sig, contact_interval=np.array([[0, 3], [7, 5]]), **kw)
+    assert str(info.value) == (f"{tmp_path / 'w.h5'}: recording 1: contact interval [7, 5) not "
+                               f"within [0, {T}]")
+    path = write_campaign(tmp_path / "r.h5", sig, contact_interval=np.array([[0, 3], [2, 5]]),
+                          **kw)
+    _edit(path, lambda f: f["recordings/contact_interval"].__setitem__(1, [7, 5]))
+    assert _refused(path) == (f"{path}: /recordings/contact_interval: recording 1 has interval "
+                              f"[7, 5), not within [0, length={T}] with onset <= offset")
+
+
+def test_one_recording_of_an_empty_grid_is_refused(tmp_path):
+    path = write_campaign(tmp_path / "one.h5", np.zeros((1, 4, 4, T), np.int16), modality=[0],
+                          participant=[1], direction=[0], run=[1], modalities=["a"],
+                          sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+
+    def empty(f):
+        del f["recordings/signals"]
+        f["recordings"].create_dataset("signals", shape=(1, 0, 4, T), dtype=np.int16)
+
+    _edit(path, empty)
+    assert _refused(path) == f"{path}: /recordings/signals: empty taxel grid 0x4"
+
+
+def test_a_recording_longer_than_the_campaign_is_refused_by_the_encoder():
+    with pytest.raises(ValueError) as info:
+        encode_recording(np.zeros((4, 4, T + 1), np.int16), grid_shape=(4, 4), n_samples=T)
+    assert str(info.value) == f"recording: {T + 1} samples, more than the campaign's T={T}"
+
+
+def test_an_attribute_read_as_an_array_of_no_axes_is_its_value():
+    from eskin.data.campaign import _decode
+
+    assert _decode(np.array(5)) == 5 and type(_decode(np.array(5))) is int
+    assert _decode(np.array(b"ab")) == "ab"
+    assert _decode(np.array([1.5, 2.0])) == [1.5, 2.0]

@@ -127,6 +127,11 @@ def test_the_header_crc_and_size_are_checked(tmp_path):
     with pytest.raises(JournalError, match="header: torn or damaged"):  # for its size
         read(path)
     text = json.dumps(SETTINGS, sort_keys=True).encode()
+    for wrong in ((zlib.crc32(text) + 1) % 2**32, (zlib.crc32(text) - 1) % 2**32):  # off by one
+        path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", len(text)) + text
+                         + struct.pack("<I", wrong))
+        with pytest.raises(JournalError, match="header: torn or damaged"):
+            read(path)
     for cut in (1, 2, 3):  # the CRC after it cut short
         path.write_bytes(jr.HEADER_MAGIC + struct.pack("<I", len(text)) + text
                          + struct.pack("<I", zlib.crc32(text))[:-cut])
@@ -287,6 +292,22 @@ def test_releasing_a_journal_twice_closes_it_once_and_leaves_it_on_disk(tmp_path
         os.close(saved)
     contents, records = read(w.path)
     assert len(records) == 1 and contents.dropped_bytes == 0
+
+
+def test_a_journal_opened_on_descriptor_zero_is_closed_by_its_release(tmp_path):
+    """A recorder started with standard input closed (a service) gets descriptor 0 for its
+    journal: releasing it closes it all the same."""
+    saved = os.dup(0)
+    try:
+        os.close(0)
+        w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+        assert os.path.samefile("/proc/self/fd/0", w.path)
+        w.release()
+        with pytest.raises(OSError):
+            os.fstat(0)
+    finally:
+        os.dup2(saved, 0)
+        os.close(saved)
 
 
 def test_the_header_is_the_same_bytes_whatever_the_order_of_the_settings(tmp_path):
