@@ -301,6 +301,19 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_Is",
+                   "if g_est == g_est:  # fitted without the grid (not nan)",
+                   "if g_est is g_est:  # fitted without the grid (not nan)",
+                   "the not-nan test of a leave-one-grid-out estimate: every grid of the "
+                   "shipped counts leaves at least 12 counts for 11 coefficients, so no "
+                   "estimate is nan"),
+        *(Equivalent("core/NumberReplacer",
+                     'if getattr(cfg, "window_samples", 0):  # a bounded window: fewer kept '
+                     'samples per taxel',
+                     f'if getattr(cfg, "window_samples", {d}):  # a bounded window: fewer kept '
+                     'samples per taxel',
+                     "cfg is a WindowConfig (made so just above), which always has the field")
+          for d in (1, -1)),
         *(Equivalent(f"core/ReplaceComparisonOperator_GtE_{op}", "if len(others) >= len(_COEF):",
                      f"if len(others) {sym} len(_COEF):",
                      "the leave-one-grid-out fit: the calibration counts shipped hold four grids, "

@@ -523,3 +523,57 @@ def test_a_machine_without_support_vectors_is_not_exported():
         spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
     assert str(info.value) == ("binary machine: the machine has no support vectors; nothing to "
                                "export")
+
+
+def test_a_specs_format_version_is_the_oldest_that_holds_it():
+    """1 for the paper's model (a whole touch window), 2 with an amplitude factor, 3 with a
+    bounded window (docs/model-format.md)."""
+    from dataclasses import replace
+
+    import eskin
+    from eskin.deploy.export import format_version
+
+    bounded = _binary_spec()
+    plain = replace(bounded, window_config=eskin.WindowConfig(window_samples=0))
+    assert format_version(plain) == 1
+    m = plain.machines[0]
+    wide = replace(plain, machines=[replace(m, amplitude_width=0.5,
+                                            sv_log_energy=np.zeros(len(m.dual_coef)))])
+    assert format_version(wide) == 2
+    assert format_version(bounded) == 3
+
+
+@pytest.mark.parametrize("energy", [np.nan, np.inf, 1e4 * (1 + 2**-52), -1e4, 1e4])
+def test_a_log_energy_is_written_within_its_range_and_refused_outside(energy):
+    """A support vector's log energy: finite and within [-1e4, 1e4], the ends included."""
+    from dataclasses import replace
+
+    from eskin.deploy.export import model_to_bytes
+
+    plain = _binary_spec()
+    m = plain.machines[0]
+    e = np.zeros(len(m.dual_coef))
+    e[1] = energy
+    spec = replace(plain, machines=[replace(m, amplitude_width=0.5, sv_log_energy=e)])
+    if abs(energy) <= 1e4:
+        assert CompiledModel(model_to_bytes(spec, "float64")).sv_log_energy[1] == energy
+        return
+    with pytest.raises(ModelFormatError) as info:
+        model_to_bytes(spec, "float64")
+    assert str(info.value) == (f"machine 0: sv_log_energy[1]={energy!r} is not finite or "
+                               f"outside [-10000, 10000]")
+
+
+@pytest.mark.parametrize("ids", [[0, 0, 1], [-1, 0, 1], [0, 2, 1]])
+def test_a_one_vs_all_estimator_of_other_class_ids_than_0_to_k_is_not_exported(ids):
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS
+
+    rng = np.random.default_rng(6)
+    est = OneVsAllTouchClassifier(TensorRLS()).fit(rng.normal(size=(9, 2, 3, 4)),
+                                                    np.arange(9) % 3)
+    spec_from_estimator(est, ["a", "b", "c"], D=4, grid_shape=(2, 3))  # as fitted: exported
+    est.classes_ = np.array(ids)
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, ["a", "b", "c"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == f"one-vs-all classes_ {ids} must be 0..2"

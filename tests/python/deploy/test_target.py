@@ -446,6 +446,16 @@ def test_detector_settings_that_leave_room_are_kept_as_they_are(campaign):
     assert window_for_budget(parse_budget(f"ram={need}"), (4, 4), rate, cfg) == (cfg, None)
     lowered, note = window_for_budget(parse_budget(f"ram={need - 1}"), (4, 4), rate, cfg)
     assert lowered.window_samples == 512 and "window_samples 1024" in note and "-> 512" in note
+    # a whole window kept (no bounded window): the longest max_window_s that fits, in 0.01 s
+    # steps
+    from dataclasses import replace
+
+    whole = eskin.WindowConfig(max_window_s=0.5, window_samples=0)
+    need = sum(_ram_terms(4, 4, 20, _stored_alphas((4, 4), 20, "1"), 100, 300, 1, True, 4,
+                          replace(whole, max_window_s=0.37), rate,
+                          parse_budget(None).target).values())
+    lowered, note = window_for_budget(parse_budget(f"ram={need}"), (4, 4), rate, whole)
+    assert lowered.max_window_s == 0.37 and "max_window_s 0.5 s -> 0.37 s" in note
 
 
 def test_the_cortex_m4_budget_is_the_memory_the_device_program_links_into():
