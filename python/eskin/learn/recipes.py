@@ -675,8 +675,7 @@ class RecipeSearch:
     Attributes after :meth:`fit`: ``best_`` (the chosen Candidate), ``best_error_``,
     ``best_bound_`` (the support vectors its model is bounded to under the budget, or None),
     ``ranking_`` (the final round's candidates, best first: candidate, error, std, splits,
-    support vectors), ``recipe_table_`` (per recipe: its candidate scored on the most splits, of
-    the lowest error there, equal errors broken as the ranking breaks them),
+    support vectors), ``recipe_table_`` (per recipe: its best, ties broken as the ranking's),
     ``rounds_`` (candidates and splits per round), ``n_evaluations_`` (candidate-split scores),
     ``splits_``, ``seconds_``.
     """
