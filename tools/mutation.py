@@ -427,6 +427,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/campaign.py": [
+        Equivalent("core/NumberReplacer",
+                   "if not isinstance(v, np.ndarray) or v.ndim < 1 or v.shape[0] != n:",
+                   "if not isinstance(v, np.ndarray) or v.ndim < 0 or v.shape[0] != n:",
+                   "an extra field's values as read: the dataset's own axes were checked just "
+                   "above (at least one, n entries), and reading it keeps them"),
         Equivalent("core/ReplaceTrueWithFalse", "_validated=True)", "_validated=False)",
                    "the loader's campaign built with its fields checked again: the loader has "
                    "checked them (the same checks, strict dtypes), so the same campaign"),

@@ -223,3 +223,34 @@ def test_an_attribute_read_as_an_array_of_no_axes_is_its_value():
     assert _decode(np.array(5)) == 5 and type(_decode(np.array(5))) is int
     assert _decode(np.array(b"ab")) == "ab"
     assert _decode(np.array([1.5, 2.0])) == [1.5, 2.0]
+
+
+def test_the_summary_counts_the_recordings_of_each_modality(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        assert c.summary()["per_modality"] == {"a": 3, "b": 2}
+
+
+def test_an_in_memory_extra_field_of_fewer_entries_than_recordings_is_refused():
+    from eskin.data.campaign import Campaign
+
+    sig = np.zeros((3, 4, 4, T), np.int16)
+    labels = {"modality": [0, 0, 0], "participant": [1, 2, 3], "direction": [0, 0, 0],
+              "run": [1, 1, 1]}
+    with pytest.raises(CampaignFormatError) as info:
+        Campaign(sig, np.full(3, T), modalities=["a"], sample_rate_hz=1000.0,
+                 volts_per_count=1.0, source="recorded", extras={"force": np.zeros(2)},
+                 **labels)
+    assert (info.value.field, info.value.problem) == (
+        "/recordings/extra/force", "wrong shape (2,) (expected one entry per recording, n=3)")
+
+
+def test_the_encoder_takes_whole_recordings_and_refuses_values_outside_int16():
+    x = np.arange(4 * 4 * 10, dtype=np.int16).reshape(4, 4, 10)
+    whole = encode_recording(x, grid_shape=(4, 4), n_samples=T, length=10)
+    assert whole == encode_recording(x, grid_shape=(4, 4), n_samples=T)
+    assert encode_recording(x.astype(np.uint8), grid_shape=(4, 4), n_samples=T).chunk == \
+        whole.chunk
+    for wide in (x.astype(np.uint16) + 40000, x.astype(np.int32) - 40000):
+        with pytest.raises(ValueError) as info:
+            encode_recording(wide, grid_shape=(4, 4), n_samples=T)
+        assert str(info.value) == "recording: values outside the int16 range"
