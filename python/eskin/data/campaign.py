@@ -735,13 +735,8 @@ def _load_open(f: Any, where: str) -> Campaign:
                     where, f"/recordings/extra/{k}",
                     f"wrong shape {ds.shape} (expected one entry per recording, n={n}, at most "
                     f"{_MAX_EXTRA_BYTES // max(n, 1)} bytes each)")
-            v = ds[()]
-            if not isinstance(v, np.ndarray) or v.ndim < 1 or v.shape[0] != n:
-                raise CampaignFormatError(
-                    where, f"/recordings/extra/{k}",
-                    f"wrong shape {getattr(v, 'shape', ())} (expected one entry per recording, "
-                    f"n={n})")
-            extras[k] = v
+            # read, a dataset of at least one axis is an array of its shape: n entries
+            extras[k] = ds[()]
     _check_patches(where, attrs, extras, n)
     return Campaign(
         CampaignSignals(sig, None, where), labels["length"], labels["modality"],

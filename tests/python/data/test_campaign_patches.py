@@ -1,6 +1,7 @@
 """A skin's campaign (eskin.data.campaign): the ``patches`` attribute and the per-recording
 ``/recordings/extra/patch`` field, read back and refused when they do not go together; and the
-edges of a campaign's indexing, extra fields, default compression and recovery message."""
+edges of a campaign's indexing, extra fields, default compression and recovery message (the
+encoder's: test_campaign_encoder.py)."""
 
 from __future__ import annotations
 
@@ -242,15 +243,3 @@ def test_an_in_memory_extra_field_of_fewer_entries_than_recordings_is_refused():
                  **labels)
     assert (info.value.field, info.value.problem) == (
         "/recordings/extra/force", "wrong shape (2,) (expected one entry per recording, n=3)")
-
-
-def test_the_encoder_takes_whole_recordings_and_refuses_values_outside_int16():
-    x = np.arange(4 * 4 * 10, dtype=np.int16).reshape(4, 4, 10)
-    whole = encode_recording(x, grid_shape=(4, 4), n_samples=T, length=10)
-    assert whole == encode_recording(x, grid_shape=(4, 4), n_samples=T)
-    assert encode_recording(x.astype(np.uint8), grid_shape=(4, 4), n_samples=T).chunk == \
-        whole.chunk
-    for wide in (x.astype(np.uint16) + 40000, x.astype(np.int32) - 40000):
-        with pytest.raises(ValueError) as info:
-            encode_recording(wide, grid_shape=(4, 4), n_samples=T)
-        assert str(info.value) == "recording: values outside the int16 range"
