@@ -5,9 +5,10 @@ A mutant is one small change to a module (a comparison turned around, a constant
 return value flipped, a check deleted); the tests that cover the module either fail on it (the
 mutant is *killed*) or pass (it *survives*: a missing test, or a change that alters nothing).
 
-* Python modules: cosmic-ray (PyPI) generates the mutants of the operator families below and runs
-  the module's covering test files on each, in a copy of python/ and tests/ under
-  build/mutation (the work tree is never changed).
+* Python modules: cosmic-ray (PyPI) generates the mutants of the operator families below;
+  tools/mutant_runner.py runs the module's test files on each, in copies of the tree under
+  build/mutation (the work tree is never changed), one per core (--jobs): first the tests that
+  execute the mutated line (from one run under coverage.py), then, if none fails, all of them.
 * C++ files (the model loader in cpp/src/model_format.cpp, the frame decoder in
   cpp/src/protocol.cpp): this script's own mutator, on the lines between two markers, in a copy
   of the sources built once (Debug, no optimisation: fast rebuilds); each mutant recompiles one
@@ -57,7 +58,8 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_journal.py", "tests/python/data/test_campaign_recovery.py"],
     "python/eskin/data/campaign.py": [
         "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py",
-        "tests/python/data/test_campaign_storage.py", "tests/python/data/test_campaign_patches.py"],
+        "tests/python/data/test_campaign_storage.py", "tests/python/data/test_campaign_patches.py",
+        "tests/python/data/test_campaign_encoder.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`
@@ -427,11 +429,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/campaign.py": [
-        Equivalent("core/NumberReplacer",
-                   "if not isinstance(v, np.ndarray) or v.ndim < 1 or v.shape[0] != n:",
-                   "if not isinstance(v, np.ndarray) or v.ndim < 0 or v.shape[0] != n:",
-                   "an extra field's values as read: the dataset's own axes were checked just "
-                   "above (at least one, n entries), and reading it keeps them"),
         Equivalent("core/ReplaceTrueWithFalse", "_validated=True)", "_validated=False)",
                    "the loader's campaign built with its fields checked again: the loader has "
                    "checked them (the same checks, strict dtypes), so the same campaign"),
@@ -650,97 +647,103 @@ def python_mutant_line(source: str, mutation) -> str:
     return "" if code is None else code.splitlines()[mutation.start_pos[0] - 1]
 
 
-def run_python(module: str, tests: list[str], sample: int | None, seed: int,
-               survivors: list[str], lines: set[int] | None = None) -> float | None:
-    """Runs the module's mutants (those on ``lines`` only, when given); its score."""
+def python_mutants(module: str, work: Path, env: dict, command: list[str],
+                   lines: set[int] | None) -> tuple[list, int, int]:
+    """cosmic-ray's mutants of ``module`` in the copy ``work`` (those on ``lines`` only, when
+    given) of the operator families run, outside annotations, in the module's order; with how
+    many were generated and how many of them are listed as equivalent (left out)."""
     from cosmic_ray.work_db import WorkDB, use_db
-    from cosmic_ray.work_item import TestOutcome, WorkerOutcome, WorkResult
 
-    # each module its own copy of the tree, session and configuration: runs of two modules
-    # (two invocations) never touch each other's files
     name = module.replace("/", "_")
-    work = OUT / "py" / name
-    copy_tree(work)
     session = OUT / (name + ".sqlite")
     session.unlink(missing_ok=True)
-    env = dict(os.environ, PYTHONPATH="python", PYTHONDONTWRITEBYTECODE="1")
-    env.setdefault("ESKIN_BIN_DIR", str(REPO / "build" / "dev"))
-    pytest = [*PYTHON, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-              "-p", "no:randomly", *tests]
-    # the tests must import the copy that cosmic-ray mutates, or every mutant survives
-    where = subprocess.run([*PYTHON, "-c", "import eskin; print(eskin.__file__)"],
-                           cwd=work, env=env, capture_output=True, text=True).stdout.strip()
-    if not Path(where).resolve().is_relative_to(work.resolve()):
-        sys.exit(f"mutation: the tests would import eskin from {where or '(nowhere)'}, not from "
-                 f"the mutated copy under {work}")
     cfg = OUT / (name + ".cosmic-ray.toml")
-
-    def config(timeout: float) -> None:
-        cfg.write_text(
-            "[cosmic-ray]\n"
-            f"module-path = {json.dumps(module)}\n"
-            f"timeout = {timeout:.0f}\n"
-            "excluded-modules = []\n"
-            f"test-command = {json.dumps(shlex.join(nice() + pytest))}\n"
-            '\n[cosmic-ray.distributor]\nname = "local"\n')
-
-    config(60)  # the real timeout is written once the unmutated run has been timed
+    cfg.write_text(
+        "[cosmic-ray]\n"
+        f"module-path = {json.dumps(module)}\n"
+        "timeout = 60\n"
+        "excluded-modules = []\n"
+        f"test-command = {json.dumps(shlex.join(command))}\n"
+        '\n[cosmic-ray.distributor]\nname = "local"\n')
     cosmic_ray = str(Path(sys.executable).parent / "cosmic-ray")
     subprocess.run([cosmic_ray, "init", str(cfg), str(session)],
                    cwd=work, env=env, check=True, capture_output=True)
     with use_db(str(session), WorkDB.Mode.open) as db:
         items = list(db.pending_work_items)
-        spans = annotation_spans((work / module).read_text())
-        kept = [w for w in items
-                if all(PYTHON_OPERATORS.match(m.operator_name)
-                       and not in_annotation(m.start_pos, spans)
-                       and (lines is None or m.start_pos[0] in lines) for m in w.mutations)]
-        # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
-        # so that a seed draws the same mutants of the same source on every run
-        kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
-        source = (work / module).read_text()
-        rows = source.splitlines()
-        equivalent = [all(is_equivalent(module, m.operator_name, rows[m.start_pos[0] - 1],
-                                        lambda m=m: python_mutant_line(source, m))
-                          for m in w.mutations) for w in kept]
-        n_equivalent = sum(equivalent)
-        generated = len(kept)
-        kept = [w for w, eq in zip(kept, equivalent) if not eq]
-        chosen = choose(kept, sample, seed, module)
-        ids = {w.job_id for w in chosen}
-        skip = [w.job_id for w in items if w.job_id not in ids]
-        if skip:
-            db.set_multiple_results(skip, WorkResult(output="not run",
-                                                     worker_outcome=WorkerOutcome.SKIPPED))
+    source = (work / module).read_text()
+    spans = annotation_spans(source)
+    kept = [w for w in items
+            if all(PYTHON_OPERATORS.match(m.operator_name)
+                   and not in_annotation(m.start_pos, spans)
+                   and (lines is None or m.start_pos[0] in lines) for m in w.mutations)]
+    # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
+    # so that a seed draws the same mutants of the same source on every run
+    kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
+    rows = source.splitlines()
+    equivalent = [all(is_equivalent(module, m.operator_name, rows[m.start_pos[0] - 1],
+                                    lambda m=m: python_mutant_line(source, m))
+                      for m in w.mutations) for w in kept]
+    return [w for w, eq in zip(kept, equivalent) if not eq], len(kept), sum(equivalent)
+
+
+def run_python(module: str, tests: list[str], sample: int | None, seed: int,
+               survivors: list[str], lines: set[int] | None = None,
+               jobs: int = 1) -> float | None:
+    """Runs the module's mutants (those on ``lines`` only, when given) with ``jobs`` workers
+    (tools/mutant_runner.py); its score."""
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from mutant_runner import run_mutants
+
+    # each module its own copies of the tree, session and configuration: runs of two modules
+    # (two invocations) never touch each other's files
+    name = module.replace("/", "_")
+    works = [OUT / "py" / name] + [OUT / "py" / f"{name}.{i}" for i in range(1, jobs)]
+    for work in works:
+        copy_tree(work)
+    env = dict(os.environ, PYTHONPATH="python", PYTHONDONTWRITEBYTECODE="1")
+    env.setdefault("ESKIN_BIN_DIR", str(REPO / "build" / "dev"))
+    pytest = [*PYTHON, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+              "-p", "no:randomly", *tests]
+    # the tests must import the copy that is mutated, or every mutant survives
+    where = subprocess.run([*PYTHON, "-c", "import eskin; print(eskin.__file__)"],
+                           cwd=works[0], env=env, capture_output=True, text=True).stdout.strip()
+    if not Path(where).resolve().is_relative_to(works[0].resolve()):
+        sys.exit(f"mutation: the tests would import eskin from {where or '(nowhere)'}, not from "
+                 f"the mutated copy under {works[0]}")
+    kept, generated, n_equivalent = python_mutants(module, works[0], env, nice() + pytest, lines)
+    chosen = choose(kept, sample, seed, module)
     note = "" if lines is None else " (on the changed lines)"
     if not chosen:
         return report(module, 0, 0, generated, note, n_equivalent)
     t0 = time.monotonic()
-    base = subprocess.run(nice() + pytest, cwd=work, env=env, capture_output=True, text=True)
+    base = subprocess.run(nice() + pytest, cwd=works[0], env=env, capture_output=True, text=True)
     if base.returncode != 0:
         sys.exit(f"mutation: the tests of {module} fail unmutated:\n{base.stdout[-3000:]}")
-    config(3 * (time.monotonic() - t0) + 30)
-    subprocess.run([cosmic_ray, "exec", str(cfg), str(session)], cwd=work, env=env, check=True,
-                   capture_output=True)
-    n = killed = 0
-    text = (work / module).read_text().splitlines()
-    with use_db(str(session), WorkDB.Mode.open) as db:
-        for item, result in db.completed_work_items:
-            if result.worker_outcome == WorkerOutcome.SKIPPED:
-                continue
-            if result.test_outcome == TestOutcome.INCOMPETENT:  # could not be run: not counted
-                print(f"  {module}: a mutant could not be run ({result.worker_outcome.name})",
-                      file=sys.stderr, flush=True)
-                continue
-            n += 1
-            if result.test_outcome == TestOutcome.SURVIVED:
-                for m in item.mutations:
-                    survivors.append(f"{module}:{m.start_pos[0]} {m.operator_name} "
-                                     f"#{m.occurrence}: {text[m.start_pos[0] - 1].strip()}")
-                    print(f"  {survivors[-1]}: survived", file=sys.stderr, flush=True)
-            else:
-                killed += 1
-    return report(module, n, killed, generated, note, n_equivalent)
+    timeout = 3 * (time.monotonic() - t0) + 30
+    source = (works[0] / module).read_text()
+
+    def mutated(m) -> str | None:  # None: the mutation cannot be applied (not counted)
+        op = get_operator(m.operator_name)(**(m.operator_args or {}))
+        return mutate_code(source, op, m.occurrence)
+
+    mutants = [(w.mutations[0], w.mutations[0].start_pos[0]) for w in chosen]
+    verdicts = run_mutants([(line, lambda m=m: mutated(m)) for m, line in mutants], module, works,
+                           PYTHON, env, tests, timeout, nice(),
+                           progress=module if len(mutants) > 50 else "")
+    rows = source.splitlines()
+    for (m, line), killed in zip(mutants, verdicts):
+        if killed is None:
+            print(f"  {module}:{line} {m.operator_name}: could not be applied", file=sys.stderr,
+                  flush=True)
+        elif not killed:
+            survivors.append(f"{module}:{line} {m.operator_name} #{m.occurrence}: "
+                             f"{rows[line - 1].strip()}")
+            print(f"  {survivors[-1]}: survived", file=sys.stderr, flush=True)
+    ran = [k for k in verdicts if k is not None]
+    return report(module, len(ran), sum(ran), generated, note, n_equivalent)
 
 
 # --------------------------------------------------------------------------------------- C++
@@ -902,6 +905,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="only the mutants on the lines that differ from REV (default: the "
                          "merge-base with main, or HEAD~1 on main)")
     ap.add_argument("--threshold", type=float, default=0.85)
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="mutants of a Python module run side by side (default: one per core)")
     args = ap.parse_args(argv)
     wanted = [m for arg in args.only for m in arg.split(",") if m.strip()]
     wanted = [m.strip() for m in wanted]
@@ -934,7 +939,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         if module in PYTHON_MODULES:
             scores[module] = run_python(module, PYTHON_MODULES[module], args.sample, seed,
-                                        survivors, lines)
+                                        survivors, lines, max(1, args.jobs))
         else:
             mod = next(m for m in CPP_MODULES if m.path == module)
             scores[module] = run_cpp(mod, args.sample, seed, survivors, lines)
