@@ -85,10 +85,10 @@ def _decode(value: Any) -> Any:
     return value
 
 
-def _check_labels(
-    where: str | None, n: int, arrays: Mapping[str, Any], *, strict_dtype: bool
-) -> dict[str, np.ndarray]:
-    """Validate the per-recording label arrays; return them as numpy arrays."""
+def _check_labels(where: str | None, n: int, arrays: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """Validate the per-recording label arrays (integers of any type, each of one entry per
+    recording, within its stored type's range); return them in their stored types. (The
+    loader has checked the stored datasets' types and shapes before reading them.)"""
     out: dict[str, np.ndarray] = {}
     for name, (dtype, tail) in {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}.items():
         field = f"/recordings/{name}"
@@ -96,24 +96,19 @@ def _check_labels(
             if name in _OPTIONAL_FIELDS:
                 continue
             raise CampaignFormatError(where, field, "missing (a required field)")
-        raw = arrays[name]
-        arr = np.asarray(raw)
-        if strict_dtype and arr.dtype != dtype:
-            raise CampaignFormatError(
-                where, field, f"wrong dtype {arr.dtype} (expected {dtype.name})")
+        arr = np.asarray(arrays[name])
         if arr.shape != (n, *tail):
             raise CampaignFormatError(
                 where, field, f"wrong shape {arr.shape} (expected {(n, *tail)}: one entry per "
                 f"recording, {n} recordings in /recordings/signals)")
-        if not strict_dtype:
-            if arr.dtype.kind not in "iu" and not (arr.size == 0):
-                raise CampaignFormatError(where, field, f"must be integers, got dtype {arr.dtype}")
-            info = np.iinfo(dtype)
-            if arr.size and (arr.min() < info.min or arr.max() > info.max):
-                raise CampaignFormatError(
-                    where, field, f"values out of the {dtype.name} range "
-                    f"[{info.min}, {info.max}]: min {arr.min()}, max {arr.max()}")
-            arr = arr.astype(dtype)
+        if arr.dtype.kind not in "iu" and arr.size:
+            raise CampaignFormatError(where, field, f"must be integers, got dtype {arr.dtype}")
+        info = np.iinfo(dtype)
+        if arr.size and (arr.min() < info.min or arr.max() > info.max):
+            raise CampaignFormatError(
+                where, field, f"values out of the {dtype.name} range "
+                f"[{info.min}, {info.max}]: min {arr.min()}, max {arr.max()}")
+        arr = arr.astype(dtype)
         out[name] = np.ascontiguousarray(arr)
     return out
 
@@ -372,7 +367,7 @@ class Campaign:
         labels = _check_labels(where, n, {
             "length": lengths, "modality": modality, "participant": participant,
             "direction": direction, "run": run, "contact_interval": contact_interval,
-        }, strict_dtype=False)
+        })
         _check_contents(where, labels, len(dec["modalities"]), t)
         extras = {k: np.asarray(v) for k, v in dict(extras or {}).items()}
         for k, v in extras.items():
@@ -723,7 +718,7 @@ def _load_open(f: Any, where: str) -> Campaign:
                     f"{(n, *tail)}: one entry per recording, {n} recordings in "
                     f"/recordings/signals)")
             arrays[name] = ds[()]
-    labels = _check_labels(where, n, arrays, strict_dtype=True)
+    labels = _check_labels(where, n, arrays)
     _check_contents(where, labels, len(attrs["modalities"]), t)
     extras: dict[str, np.ndarray] = {}
     if "extra" in grp and isinstance(grp["extra"], h5py.Group):
@@ -1187,7 +1182,7 @@ class _RecordCheck:
             arrays["contact_interval"] = [rec.meta.get("contact_interval")]
         try:
             arrays = {k: np.asarray(v) for k, v in arrays.items()}
-            labels = _check_labels(self.where, 1, arrays, strict_dtype=False)
+            labels = _check_labels(self.where, 1, arrays)
             _check_contents(self.where, labels, self.n_modalities, self.t, first=index)
         except CampaignFormatError as exc:
             return f"{exc.field}: {exc.problem}"

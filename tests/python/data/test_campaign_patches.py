@@ -101,6 +101,20 @@ def test_an_extra_field_without_one_entry_per_recording_is_refused(tmp_path):
                                              f"per recording, n={N}")
 
 
+
+def test_an_extra_field_over_one_gibibyte_is_refused_before_it_is_read(tmp_path):
+    """Declared, never written (HDF5 allocates nothing): 8 bytes over the 1 GiB limit."""
+    per = (1 << 30) // 8 // N + 1  # float64 values per recording: N * per * 8 > 1 GiB
+    path = _edit(_skin(tmp_path / "big.h5"),
+                 lambda f: f["recordings/extra"].create_dataset("big", shape=(N, per),
+                                                                dtype="f8", chunks=(1, 4096)))
+    assert path.stat().st_size < 1 << 20
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert (info.value.field, info.value.problem) == (
+        "/recordings/extra/big", f"wrong shape ({N}, {per}) (expected one entry per recording, "
+        f"n={N}, at most {(1 << 30) // N} bytes each)")
+
 def test_the_writer_compresses_each_recording_with_deflate_level_one_by_default(tmp_path):
     """docs/dataset-format.md: gzip (deflate level 1) and the shuffle filter."""
     path = tmp_path / "w.h5"
