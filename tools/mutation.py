@@ -55,7 +55,8 @@ OUT = REPO / "build" / "mutation"
 #: module -> the pytest arguments of the tests that cover it
 PYTHON_MODULES: dict[str, list[str]] = {
     "python/eskin/data/journal.py": [
-        "tests/python/data/test_journal.py", "tests/python/data/test_campaign_recovery.py",
+        "tests/python/data/test_journal.py", "tests/python/data/test_journal_failures.py",
+        "tests/python/data/test_campaign_recovery.py",
         # the operating system's calls failing in turn, in-process (the command-line half of
         # the file, on mounted file systems, is left to `make test`)
         "tests/python/data/test_io_errors.py::test_the_writer_loses_nothing_that_returned_when_a_call_fails",

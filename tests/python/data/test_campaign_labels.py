@@ -97,6 +97,8 @@ def test_a_label_outside_its_stored_type_is_refused_and_its_ends_are_taken(name,
      "recording 2 has direction 2 (allowed: 0 horizontal, 1 vertical, 255 unknown)"),
     ("contact_interval", {"contact_interval": [[0, 5], [0, 5], [-1, 5], [0, 5], [6, 5]]},
      "recording 2 has interval [-1, 5), not within [0, length=30] with onset <= offset"),
+    ("contact_interval", {"contact_interval": [[0, 5], [0, 5], [0, 5], [7, 6], [0, 5]]},
+     "recording 3 has interval [7, 6), not within [0, length=30] with onset <= offset"),
     ("contact_interval", {"contact_interval": [[0, 5], [0, T], [0, 5], [0, T + 1], [0, 5]]},
      f"recording 3 has interval [0, {T + 1}), not within [0, length={T}] with onset <= offset"),
 ])
