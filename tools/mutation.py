@@ -635,6 +635,34 @@ def in_annotation(pos: tuple[int, int], spans: list) -> bool:
     return any(start <= tuple(pos) < end for start, end in spans)
 
 
+def parameter_lists(source: str) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Where each function's parameters are written, minus their defaults and annotations:
+    a ``*`` or ``/`` there is a marker (keyword-only or positional-only parameters follow),
+    which cosmic-ray's binary-operator families take for an operator."""
+    def span(n: ast.AST) -> tuple[tuple[int, int], tuple[int, int]]:
+        return (n.lineno, n.col_offset), (n.end_lineno, n.end_col_offset)
+
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            body = node.body if isinstance(node, ast.Lambda) else node.body[0]
+            cut = [span(d) for d in (*node.args.defaults, *node.args.kw_defaults) if d]
+            cut += [span(a.annotation) for a in (*node.args.posonlyargs, *node.args.args,
+                                                  *node.args.kwonlyargs, node.args.vararg,
+                                                  node.args.kwarg) if a and a.annotation]
+            start = (node.lineno, node.col_offset)
+            for lo, hi in sorted(cut):
+                out.append((start, lo))
+                start = hi
+            out.append((start, (body.lineno, body.col_offset)))
+    return out
+
+
+def is_parameter_marker(rows: list[str], pos: tuple[int, int], lists: list) -> bool:
+    """The mutated character is a ``*`` or ``/`` inside one of ``lists``."""
+    return rows[pos[0] - 1][pos[1]:pos[1] + 1] in ("*", "/") and in_annotation(pos, lists)
+
+
 def is_equivalent(module: str, operator: str, line: str, mutated) -> bool:
     """Whether a mutant of ``module`` (its operator, its line as the module has it, and a
     function giving the line as the mutant has it) is one of the module's EQUIVALENT."""
@@ -678,14 +706,16 @@ def python_mutants(module: str, work: Path, env: dict, command: list[str],
         items = list(db.pending_work_items)
     source = (work / module).read_text()
     spans = annotation_spans(source)
+    rows = source.splitlines()
+    lists = parameter_lists(source)
     kept = [w for w in items
             if all(PYTHON_OPERATORS.match(m.operator_name)
                    and not in_annotation(m.start_pos, spans)
+                   and not is_parameter_marker(rows, m.start_pos, lists)
                    and (lines is None or m.start_pos[0] in lines) for m in w.mutations)]
     # cosmic-ray names its work items by random UUIDs: put them in the module's order first,
     # so that a seed draws the same mutants of the same source on every run
     kept.sort(key=lambda w: [(m.start_pos, m.operator_name, m.occurrence) for m in w.mutations])
-    rows = source.splitlines()
     equivalent = [all(is_equivalent(module, m.operator_name, rows[m.start_pos[0] - 1],
                                     lambda m=m: python_mutant_line(source, m))
                       for m in w.mutations) for w in kept]

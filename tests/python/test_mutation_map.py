@@ -204,3 +204,28 @@ def test_a_known_equivalent_mutant_is_matched_by_its_operator_line_and_text():
     assert not mutation.is_equivalent(module, "delete check", e.line, lambda: e.mutant)
     assert not mutation.is_equivalent("cpp/src/protocol.cpp", e.operator, e.line,
                                       lambda: e.mutant)
+
+
+def test_a_bare_star_or_slash_in_parameters_is_not_an_operator_to_mutate():
+    source = ("def f(a, *, b=2 * 3):\n"
+              "    return a * b\n"
+              "def g(a, /, b: int, *args, c=lambda x, *, y: x / y):\n"
+              "    y = (a /\n"
+              "         b)\n"
+              "h = lambda a, *, b: a * b\n")
+    rows = source.splitlines()
+    lists = mutation.parameter_lists(source)
+
+    def marker(line: int, text: str, k: int = 0) -> bool:
+        col = -1
+        for _ in range(k + 1):
+            col = rows[line - 1].index(text, col + 1)
+        return mutation.is_parameter_marker(rows, (line, col), lists)
+
+    assert marker(1, "*") and not marker(1, "*", 1)  # the marker, then 2 * 3 in a default
+    assert not marker(2, "*")
+    assert marker(3, "/") and marker(3, "*")  # *args: no operator either
+    assert marker(3, "*", 1)  # the lambda's own marker, inside g's default
+    assert not marker(3, "/", 1)  # x / y: the lambda's body
+    assert not marker(4, "/")  # an operator at the end of a line
+    assert marker(6, "*") and not marker(6, "*", 1)
