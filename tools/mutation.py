@@ -435,6 +435,19 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/campaign.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if value.ndim == 0:",
+                   "if value.ndim <= 0:", "an array's number of axes is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
+                   'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
+                   'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',
+                   "the count of bad entries is asked for only when there is at least one"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   "if version != FORMAT_VERSION:", "if version is not FORMAT_VERSION:",
+                   "the version read is a Python int: equal small ints are one object, and "
+                   "unequal ones are different objects"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Lt",
+                   "if len(set(mods)) != len(mods):", "if len(set(mods)) < len(mods):",
+                   "the set of a list's names never has more entries than the list"),
         Equivalent("core/ReplaceTrueWithFalse", "_validated=True)", "_validated=False)",
                    "the loader's campaign built with its fields checked again: the loader has "
                    "checked them (the same checks, strict dtypes), so the same campaign"),

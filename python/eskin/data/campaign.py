@@ -90,11 +90,10 @@ def _check_labels(where: str | None, n: int, arrays: Mapping[str, Any]) -> dict[
     recording, within its stored type's range); return them in their stored types. (The
     loader has checked the stored datasets' types and shapes before reading them.)"""
     out: dict[str, np.ndarray] = {}
-    for name, (dtype, tail) in {**_LABEL_FIELDS, **_OPTIONAL_FIELDS}.items():
+    given = {k: v for k, v in _OPTIONAL_FIELDS.items() if arrays.get(k) is not None}
+    for name, (dtype, tail) in {**_LABEL_FIELDS, **given}.items():
         field = f"/recordings/{name}"
-        if name not in arrays or arrays[name] is None:
-            if name in _OPTIONAL_FIELDS:
-                continue
+        if arrays.get(name) is None:
             raise CampaignFormatError(where, field, "missing (a required field)")
         arr = np.asarray(arrays[name])
         if arr.shape != (n, *tail):

@@ -98,6 +98,7 @@ def test_the_ends_of_the_sample_rates_are_taken_and_beyond_them_refused(tmp_path
     (7, "must be a non-empty list of non-empty names, got 7"),
     (["a", "b", "a"], "has duplicate names ['a', 'b', 'a']"),
     ([f"m{i}" for i in range(256)], "more than 255 names"),
+    ([f"m{i}" for i in range(300)], "more than 255 names"),
 ])
 def test_modalities_other_than_distinct_names_are_refused(tmp_path, value, problem):
     assert _refused(_file(tmp_path / "c.h5", modalities=value)) == (
