@@ -437,6 +437,8 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
     "python/eskin/data/campaign.py": [
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if value.ndim == 0:",
                    "if value.ndim <= 0:", "an array's number of axes is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if len(rows) == 0:",
+                   "if len(rows) <= 0:", "a length is never negative"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',

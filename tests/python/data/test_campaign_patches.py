@@ -88,6 +88,18 @@ def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):
             assert str(info.value) == f"recording index {i} out of range for {N} recordings"
 
 
+
+def test_an_empty_selection_of_recordings_reads_as_no_recordings(tmp_path):
+    with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        for key in (slice(2, 2), [], np.array([], int)):
+            assert c.signals[key].shape == (0, 4, 4, T)
+        none = c.select(participant=99)
+        assert np.asarray(none.signals).shape == (0, 4, 4, T)
+        # one recording twice, and recordings out of order, read as asked
+        np.testing.assert_array_equal(c.signals[[3, 3]], np.stack([c.signals[3]] * 2))
+        np.testing.assert_array_equal(c.signals[[4, 0, 2]],
+                                      np.stack([c.signals[i] for i in (4, 0, 2)]))
+
 def test_an_extra_field_without_one_entry_per_recording_is_refused(tmp_path):
     """A scalar extra dataset (no first axis at all) is refused like one of another length."""
     for name, data in (("scalar", np.uint16(3)), ("short", np.zeros(N - 1, np.uint16))):
