@@ -152,10 +152,11 @@ class Worker:
 
 def run_mutants(mutants: list[tuple[int, Callable[[], str | None]]], module: str,
                 works: list[Path], python: list[str], env: dict, tests: list[str],
-                timeout: float, prefix: list[str], progress: str = "") -> list[bool | None]:
+                timeout: float, prefix: list[str], progress: str = "",
+                verdict: Callable[[int, bool | None], None] | None = None) -> list[bool | None]:
     """Whether each mutant (its line, and a function making the mutated source; None: the
     mutation cannot be applied) is killed, with ``len(works)`` workers; None for a mutant that
-    could not be applied.
+    could not be applied. ``verdict(i, killed)`` is called as each mutant's comes in.
 
     ``tests``: the module's pytest arguments (files, -k)."""
     order, lines = coverage_map(python, works[0], module, tests, env,
@@ -169,8 +170,14 @@ def run_mutants(mutants: list[tuple[int, Callable[[], str | None]]], module: str
     if any(w.quick(tests, timeout) != 0 for w in workers):  # the unmutated tests must pass
         sys.exit(f"mutation: the tests of {module} fail in a forked worker, unmutated")
 
-    def one(job: tuple[int, Callable[[], str | None]]) -> bool | None:
-        line, make = job
+    def one(i: int) -> bool | None:
+        killed = run_one(*mutants[i])
+        if verdict is not None:
+            with lock:
+                verdict(i, killed)
+        return killed
+
+    def run_one(line: int, make: Callable[[], str | None]) -> bool | None:
         source = make()  # here, not before: the other workers' tests run meanwhile
         if source is None:
             return None
@@ -197,7 +204,7 @@ def run_mutants(mutants: list[tuple[int, Callable[[], str | None]]], module: str
 
     try:
         with ThreadPoolExecutor(len(workers)) as pool:
-            return list(pool.map(one, mutants))
+            return list(pool.map(one, range(len(mutants))))
     finally:
         for w in workers:
             w.close()
