@@ -307,10 +307,13 @@ class LockedJournal:
             self._fh = open(self.path, "rb")  # noqa: SIM115 - closed by close()
         except FileNotFoundError:
             raise FileNotFoundError(f"{self.path}: no such recording journal") from None
-        if lock and not _lock(self._fh.fileno()):
+        try:
+            if lock and not _lock(self._fh.fileno()):
+                raise FileExistsError(busy_message(target_of(self.path), self.path, True))
+            self.size = os.fstat(self._fh.fileno()).st_size
+        except BaseException:  # held, or the lock itself failed: the file is not left open
             self._fh.close()
-            raise FileExistsError(busy_message(target_of(self.path), self.path, True))
-        self.size = os.fstat(self._fh.fileno()).st_size
+            raise
 
     def read(self) -> JournalContents:
         """Parse the header and walk every record once (checking its CRC-32 and labels), so

@@ -114,9 +114,11 @@ def test_a_lock_error_other_than_held_is_raised_not_taken_for_held(tmp_path, mon
         raise OSError(errno.ENOLCK, "No locks available")
 
     monkeypatch.setattr(fcntl, "flock", flock)
+    opened = set(os.listdir("/proc/self/fd"))
     with pytest.raises(OSError) as info:
         jr.LockedJournal(path.path)
     assert info.value.errno == errno.ENOLCK
+    assert set(os.listdir("/proc/self/fd")) == opened  # and the journal is not left open
 
 
 def test_discarding_a_journal_someone_removed_closes_it(tmp_path):
