@@ -260,9 +260,7 @@ class CampaignSignals:
             return out
         uniq, inverse = np.unique(rows, return_inverse=True)
         try:
-            if len(uniq) == 1:
-                block = self._ds[int(uniq[0])][None]
-            elif np.all(np.diff(uniq) == 1):
+            if np.all(np.diff(uniq) == 1):  # one recording, or a run of them: one read
                 block = self._ds[int(uniq[0]):int(uniq[-1]) + 1]
             else:
                 block = np.stack([self._ds[int(r)] for r in uniq])

@@ -90,7 +90,11 @@ def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):
 
 
 def test_an_empty_selection_of_recordings_reads_as_no_recordings(tmp_path):
+    sig = np.arange(N * 4 * 4 * T, dtype=np.int16).reshape(N, 4, 4, T) % 97  # as _skin writes
     with load_campaign(_skin(tmp_path / "s.h5")) as c:
+        for i in range(N):  # each recording read alone is the one written
+            np.testing.assert_array_equal(c.signals[i], sig[i])
+        np.testing.assert_array_equal(c.signals[1:4], sig[1:4])
         for key in (slice(2, 2), [], np.array([], int)):
             assert c.signals[key].shape == (0, 4, 4, T)
         none = c.select(participant=99)
