@@ -163,6 +163,9 @@ _XR_WHY = ("the input's ranks: every one written by the basis computation before
 _TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
 _LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
            "(binary_targets maps them to -1 and +1 in that order)")
+_READS = ("which of two read paths takes a run of recordings: one slice of the file or one read "
+          "per recording (sorted unique rows either way: a difference of 1 is the least there is), "
+          "the same rows")
 _CAL = "index, conf, _ = calibrated_decision(F, slopes, offsets, 0.0, binary)"
 _BIN = "z = a[0] * F[:, 0] + b[0]"
 _ONE = ("a binary calibration has exactly one machine (checked above): index -1 is index 0 "
@@ -439,6 +442,18 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if value.ndim <= 0:", "an array's number of axes is never negative"),
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if len(rows) == 0:",
                    "if len(rows) <= 0:", "a length is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_Lt",
+                   "if np.all(np.diff(uniq) == 1):  # one recording, or a run of them: one read",
+                   "if np.all(np.diff(uniq) < 1):  # one recording, or a run of them: one read",
+                   _READS),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "if np.all(np.diff(uniq) == 1):  # one recording, or a run of them: one read",
+                   "if np.all(np.diff(uniq) <= 1):  # one recording, or a run of them: one read",
+                   _READS),
+        Equivalent("core/NumberReplacer",
+                   "if np.all(np.diff(uniq) == 1):  # one recording, or a run of them: one read",
+                   "if np.all(np.diff(uniq) == 0):  # one recording, or a run of them: one read",
+                   _READS),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',
