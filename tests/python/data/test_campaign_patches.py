@@ -82,7 +82,7 @@ def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):
         np.testing.assert_array_equal(s[-N], s[0])
         np.testing.assert_array_equal(s[N - 1], s[-1])
         assert not np.array_equal(s[0], s[1])
-        for i in (N, -N - 1):
+        for i in (N, N + 1, 2 * N, -N - 1, -2 * N):
             with pytest.raises(IndexError) as info:
                 s[i]
             assert str(info.value) == f"recording index {i} out of range for {N} recordings"
