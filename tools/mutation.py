@@ -65,7 +65,7 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py",
         "tests/python/data/test_campaign_storage.py", "tests/python/data/test_campaign_patches.py",
         "tests/python/data/test_campaign_encoder.py", "tests/python/data/test_campaign_labels.py",
-        "tests/python/data/test_campaign_attrs.py"],
+        "tests/python/data/test_campaign_attrs.py", "tests/python/data/test_campaign_memory.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`
@@ -454,6 +454,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if np.all(np.diff(uniq) == 1):  # one recording, or a run of them: one read",
                    "if np.all(np.diff(uniq) == 0):  # one recording, or a run of them: one read",
                    _READS),
+        Equivalent("core/NumberReplacer", "data = self._read(rows)[0]",
+                   "data = self._read(rows)[ -1]", "the read holds exactly one recording"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if idx.dtype == bool:",
+                   "if idx.dtype <= bool:", "bool is the only type that casts safely to bool"),
+        Equivalent("core/NumberReplacer", "idx = idx.astype(np.int64).reshape(-1)",
+                   "idx = idx.astype(np.int64).reshape(- 2)",
+                   "numpy takes any negative size in a reshape for the one it works out"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',

@@ -423,7 +423,7 @@ class Campaign:
                 raise ValueError(
                     f"boolean mask has shape {idx.shape}, expected ({len(self)},)")
             idx = np.flatnonzero(idx)
-        idx = idx.astype(np.int64, copy=False).reshape(-1)
+        idx = idx.astype(np.int64).reshape(-1)
         if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
             raise IndexError(f"subset indices out of range for {len(self)} recordings")
         idx = idx % max(len(self), 1)
