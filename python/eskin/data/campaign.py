@@ -426,7 +426,7 @@ class Campaign:
         idx = idx.astype(np.int64).reshape(-1)
         if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
             raise IndexError(f"subset indices out of range for {len(self)} recordings")
-        idx = idx % max(len(self), 1)
+        idx = np.where(idx < 0, idx + len(self), idx)
         if isinstance(self.signals, CampaignSignals):
             base = self.signals._index
             signals: Any = CampaignSignals(

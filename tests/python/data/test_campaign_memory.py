@@ -117,3 +117,34 @@ def test_the_lazy_view_reads_as_an_array_of_any_type_and_one_recording_at_a_time
         np.testing.assert_array_equal(c.signals[1, 0], _signals()[1, 0])
         np.testing.assert_array_equal(c.signals[-1, :, 2, 3:5], _signals()[-1, :, 2, 3:5])
         np.testing.assert_array_equal(c.signals_float(3), _signals()[3] * 0.5)
+
+
+def test_a_campaign_of_one_recording_is_subset_from_either_end():
+    c = _campaign().subset([2])
+    assert c.subset([-1]).participant.tolist() == c.subset([0]).participant.tolist() == [3]
+    with pytest.raises(IndexError):
+        c.subset([1])
+
+
+def test_selecting_by_patch_without_patches_or_by_an_unknown_patch_says_which(tmp_path):
+    with pytest.raises(ValueError) as info:
+        _campaign().select(patch=0)
+    assert str(info.value) == "<memory>: no patch field (a one-patch campaign)"
+    ids = [f"p{i}" for i in range(9)]
+    patches = "[" + ", ".join(f'"{p}"' for p in ids) + "]"
+    c = _campaign(attrs={"patches": patches}, extras={"patch": np.array([0, 8, 8, 1], np.uint16)})
+    assert c.select(patch="p8").participant.tolist() == [2, 3]
+    assert c.select(patch=["p1", 0]).participant.tolist() == [1, 4]
+    with pytest.raises(ValueError) as info:
+        c.select(patch="p9")
+    assert str(info.value) == ("<memory>: attribute 'patches': no patch 'p9' (patches: "
+                               "p0, p1, p2, p3, p4, p5, p6, p7, ...)")
+    few = _campaign(attrs={"patches": '["l", "r"]'},
+                    extras={"patch": np.array([0, 1, 1, 0], np.uint16)})
+    with pytest.raises(ValueError) as info:
+        few.select(patch="x")
+    assert str(info.value) == "<memory>: attribute 'patches': no patch 'x' (patches: l, r)"
+    path = write_campaign(tmp_path / "c.h5", _signals(), **LABELS, **SETTINGS)
+    with load_campaign(path) as loaded, pytest.raises(ValueError) as info:
+        loaded.select(patch=0)
+    assert str(info.value) == f"{path}: no patch field (a one-patch campaign)"
