@@ -139,6 +139,12 @@ def test_selecting_by_patch_without_patches_or_by_an_unknown_patch_says_which(tm
         c.select(patch="p9")
     assert str(info.value) == ("<memory>: attribute 'patches': no patch 'p9' (patches: "
                                "p0, p1, p2, p3, p4, p5, p6, p7, ...)")
+    eight = _campaign(attrs={"patches": "[" + ", ".join(f'"{p}"' for p in ids[:8]) + "]"},
+                      extras={"patch": np.array([0, 7, 7, 1], np.uint16)})
+    with pytest.raises(ValueError) as info:
+        eight.select(patch="p8")
+    assert str(info.value) == ("<memory>: attribute 'patches': no patch 'p8' (patches: "
+                               "p0, p1, p2, p3, p4, p5, p6, p7)")
     few = _campaign(attrs={"patches": '["l", "r"]'},
                     extras={"patch": np.array([0, 1, 1, 0], np.uint16)})
     with pytest.raises(ValueError) as info:
