@@ -154,3 +154,29 @@ def test_selecting_by_patch_without_patches_or_by_an_unknown_patch_says_which(tm
     with load_campaign(path) as loaded, pytest.raises(ValueError) as info:
         loaded.select(patch=0)
     assert str(info.value) == f"{path}: no patch field (a one-patch campaign)"
+
+
+def test_the_summary_of_no_recordings_and_of_recordings_with_intervals():
+    empty = _campaign(np.zeros((0, 2, 3, T), np.int16), lengths=[], modality=[],
+                      participant=[], direction=[], run=[])
+    info = empty.summary()
+    assert (info["length_min"], info["length_median"], info["length_max"]) == (0, 0.0, 0)
+    assert info["has_contact_interval"] is False
+    c = _campaign(lengths=[3, 5, 9, 12], contact_interval=[[0, 3], [1, 5], [0, 0], [2, 12]])
+    info = c.summary()
+    assert (info["length_min"], info["length_median"], info["length_max"]) == (3, 7.0, 12)
+    assert info["has_contact_interval"] is True
+
+
+def test_a_missing_campaign_file_mentions_recovery_only_when_a_journal_is_there(tmp_path):
+    from eskin.data.journal import journal_path
+
+    path = tmp_path / "gone.h5"
+    with pytest.raises(FileNotFoundError) as info:
+        load_campaign(path)
+    assert str(info.value) == f"{path}: no such campaign file"
+    journal_path(path).write_bytes(b"")
+    with pytest.raises(FileNotFoundError) as info:
+        load_campaign(path)
+    assert str(info.value) == (f"{path}: no such campaign file (a writer was interrupted while "
+                               f"writing it: `eskin recover {path}` salvages its recordings)")

@@ -81,3 +81,65 @@ def test_a_virtual_dataset_is_refused(tmp_path):
         load_campaign(path)
     with load_campaign(path, allow_external=True) as c:
         assert c.signals.shape == (N, 4, 4, T)
+
+
+def test_external_storage_names_its_first_three_files(tmp_path):
+    path = _campaign(tmp_path / "c.h5")
+    parts = [tmp_path / f"part{i}.bin" for i in range(4)]
+    size = N * 4 * 4 * T * 2 // 4
+    for p in parts:
+        p.write_bytes(bytes(size))
+    _replace_signals(path, lambda g: g.create_dataset(
+        "signals", shape=(N, 4, 4, T), dtype=np.int16,
+        external=[(str(p), 0, size) for p in parts]))
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert info.value.problem == (f"external storage: its data is in {parts[0]}, {parts[1]}, "
+                                  f"{parts[2]}, not in this file (load_campaign(..., "
+                                  f"allow_external=True) reads it)")
+
+
+def test_a_soft_link_is_followed_where_it_points_and_the_names_after_it_checked(tmp_path):
+    path = _campaign(tmp_path / "c.h5")
+    with h5py.File(path, "a") as f:
+        f["a_alias"] = h5py.SoftLink("/recordings/run")  # sorts before the next name
+        f["b_notes"] = h5py.ExternalLink("/etc/passwd", "/x")
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert info.value.field == "/b_notes"
+    with h5py.File(path, "a") as f:
+        del f["b_notes"]
+    with load_campaign(path) as c:  # a soft link inside the file is harmless
+        assert len(c) == N
+
+
+def _nested_link(path: Path, depth: int) -> str:
+    """An external link inside ``depth`` nested groups; its path in the file."""
+    where = "".join(f"/g{i}" for i in range(depth)) + "/link"
+    with h5py.File(path, "a") as f:
+        f[where] = h5py.ExternalLink("/etc/passwd", "/x")
+    return where
+
+
+def test_links_are_looked_for_eight_groups_deep_and_a_cycle_of_groups_ends(tmp_path):
+    for depth in (1, 7, 8):
+        path = _campaign(tmp_path / f"d{depth}.h5")
+        where = _nested_link(path, depth)
+        with pytest.raises(CampaignFormatError) as info:
+            load_campaign(path)
+        assert info.value.field == where
+    # deeper than the walk goes: nothing the loader reads is there
+    path = _campaign(tmp_path / "d9.h5")
+    _nested_link(path, 9)
+    with load_campaign(path) as c:
+        assert len(c) == N
+    # a group holding a hard link to its parent: the walk stops at its depth, and the loader
+    # still finds a link after the cycle
+    path = _campaign(tmp_path / "cycle.h5")
+    with h5py.File(path, "a") as f:
+        f.create_group("loop")
+        f["loop/back"] = f["loop"]
+        f["z_notes"] = h5py.ExternalLink("/etc/passwd", "/x")
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert info.value.field == "/z_notes"
