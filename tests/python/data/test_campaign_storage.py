@@ -143,3 +143,24 @@ def test_links_are_looked_for_eight_groups_deep_and_a_cycle_of_groups_ends(tmp_p
     with pytest.raises(CampaignFormatError) as info:
         load_campaign(path)
     assert info.value.field == "/z_notes"
+
+
+@pytest.mark.parametrize("dtype", ["int8", "uint16", "int32", "float32"])
+def test_stored_signals_other_than_int16_are_refused(tmp_path, dtype):
+    path = _campaign(tmp_path / "c.h5")
+    _replace_signals(path, lambda g: g.create_dataset("signals", data=np.zeros((N, 4, 4, T),
+                                                                                dtype)))
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert (info.value.field, info.value.problem) == (
+        "/recordings/signals", f"wrong dtype {dtype} (expected int16)")
+
+
+@pytest.mark.parametrize("shape", [(N, 4, 4), (N, 1, 4, 4, T)])
+def test_stored_signals_without_four_axes_are_refused(tmp_path, shape):
+    path = _campaign(tmp_path / "c.h5")
+    _replace_signals(path, lambda g: g.create_dataset("signals", data=np.zeros(shape, np.int16)))
+    with pytest.raises(CampaignFormatError) as info:
+        load_campaign(path)
+    assert (info.value.field, info.value.problem) == (
+        "/recordings/signals", f"wrong shape {shape}: expected 4 axes (n, rows, cols, T)")
