@@ -127,3 +127,53 @@ def test_a_loaded_campaign_names_its_bad_recording_in_the_file(tmp_path):
     assert str(info.value) == (
         f"{path}: /recordings/modality: recording 3 has modality id 7, out of range: the "
         "modalities attribute names 2 classes (2 bad entries)")
+
+
+def _stored(path, name, data):
+    with h5py.File(path, "a") as f:
+        del f[f"recordings/{name}"]
+        if data is None:
+            f.create_group(f"recordings/{name}")
+        else:
+            f[f"recordings/{name}"] = data
+
+
+def _written(path):
+    return write_campaign(path, np.zeros((N, 2, 2, T), np.int16), lengths=[T] * N,
+                          modality=[0, 1, 0, 1, 0], participant=[1, 2, 3, 4, 5],
+                          direction=[0] * N, run=[1] * N, contact_interval=[[0, 1]] * N,
+                          modalities=["a", "b"], sample_rate_hz=1000.0, volts_per_count=1.0,
+                          source="recorded")
+
+
+STORED = {"length": ("int32", ()), "modality": ("uint8", ()), "participant": ("int32", ()),
+          "direction": ("uint8", ()), "run": ("uint8", ()), "contact_interval": ("int32", (2,))}
+OTHER = {"int32": ["int16", "int64", "uint32"], "uint8": ["int8", "uint16", "bool"]}
+
+
+@pytest.mark.parametrize("name", sorted(STORED))
+def test_a_stored_label_of_another_type_shape_or_kind_is_refused(tmp_path, name):
+    dtype, tail = STORED[name]
+    cases = [(np.ones((N, *tail), other), f"wrong dtype {np.dtype(other)} (expected {dtype})")
+             for other in OTHER[dtype]]
+    for n in (N - 1, N + 1):
+        cases.append((np.ones((n, *tail), dtype),
+                      f"wrong shape {(n, *tail)} (expected {(N, *tail)}: one entry per "
+                      f"recording, {N} recordings in /recordings/signals)"))
+    cases.append((None, "must be a dataset"))
+    for i, (data, problem) in enumerate(cases):
+        path = _written(tmp_path / f"{i}.h5")
+        _stored(path, name, data)
+        with pytest.raises(CampaignFormatError) as info:
+            load_campaign(path)
+        assert (info.value.field, info.value.problem) == (f"/recordings/{name}", problem)
+
+
+def test_a_group_among_the_extra_fields_is_passed_over(tmp_path):
+    path = _written(tmp_path / "c.h5")
+    with h5py.File(path, "a") as f:
+        f.create_group("recordings/extra/a_group")
+        f["recordings/extra/b_force"] = np.arange(N, dtype=np.float32)
+    with load_campaign(path) as c:
+        assert sorted(c.extras) == ["b_force"]
+        np.testing.assert_array_equal(c.extras["b_force"], np.arange(N))
