@@ -242,6 +242,20 @@ def test_one_recording_of_an_empty_grid_is_refused(tmp_path):
     assert _refused(path) == f"{path}: /recordings/signals: empty taxel grid 0x4"
 
 
+def test_no_recordings_of_an_empty_grid_is_an_empty_campaign(tmp_path):
+    """Nothing to read: the grid of a campaign without recordings is not checked."""
+    path = write_campaign(tmp_path / "none.h5", np.zeros((0, 4, 4, T), np.int16), modality=[],
+                          participant=[], direction=[], run=[], modalities=["a"],
+                          sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+
+    def empty(f):
+        del f["recordings/signals"]
+        f["recordings"].create_dataset("signals", shape=(0, 4, 0, T), dtype=np.int16)
+
+    with load_campaign(_edit(path, empty)) as c:
+        assert len(c) == 0 and c.grid_shape == (4, 0)
+
+
 def test_a_recording_longer_than_the_campaign_is_refused_by_the_encoder():
     with pytest.raises(ValueError) as info:
         encode_recording(np.zeros((4, 4, T + 1), np.int16), grid_shape=(4, 4), n_samples=T)
