@@ -465,6 +465,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "elif isinstance(obj, h5py.Group) and depth < 8:",
                    "elif isinstance(obj, h5py.Group) and depth != 8:",
                    "the walk's depth starts at 0 and grows by one: it meets 8 before passing it"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot", "if ds.dtype != expected:",
+                   "if ds.dtype is not expected:",
+                   "numpy's dtypes of the built-in types are single objects: a stored type equal "
+                   "to the expected one is that object (h5py returns it)"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',

@@ -242,6 +242,20 @@ def test_one_recording_of_an_empty_grid_is_refused(tmp_path):
     assert _refused(path) == f"{path}: /recordings/signals: empty taxel grid 0x4"
 
 
+@pytest.mark.parametrize("grid", [(1, 4), (4, 1), (1, 1)])
+def test_a_strip_and_a_single_taxel_are_grids(tmp_path, grid):
+    sig = np.arange(2 * grid[0] * grid[1] * T, dtype=np.int16).reshape(2, *grid, T)
+    path = write_campaign(tmp_path / "strip.h5", sig, modality=[0, 0], participant=[1, 2],
+                          direction=[0, 0], run=[1, 1], modalities=["a"],
+                          sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+    with load_campaign(path) as c:
+        assert c.grid_shape == grid
+        np.testing.assert_array_equal(c.recording(1), sig[1])
+    _edit(path, lambda f: (f["recordings"].__delitem__("signals"), f["recordings"].create_dataset(
+        "signals", shape=(2, grid[0], 0, T), dtype=np.int16)))
+    assert _refused(path) == f"{path}: /recordings/signals: empty taxel grid {grid[0]}x0"
+
+
 def test_no_recordings_of_an_empty_grid_is_an_empty_campaign(tmp_path):
     """Nothing to read: the grid of a campaign without recordings is not checked."""
     path = write_campaign(tmp_path / "none.h5", np.zeros((0, 4, 4, T), np.int16), modality=[],
