@@ -163,6 +163,7 @@ _XR_WHY = ("the input's ranks: every one written by the basis computation before
 _TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
 _LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
            "(binary_targets maps them to -1 and +1 in that order)")
+_PATCH = 'if column.shape != (n,) or column.dtype.kind != "u":'
 _READS = ("which of two read paths takes a run of recordings: one slice of the file or one read "
           "per recording (sorted unique rows either way: a difference of 1 is the least there is), "
           "the same rows")
@@ -469,6 +470,16 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if ds.dtype is not expected:",
                    "numpy's dtypes of the built-in types are single objects: a stored type equal "
                    "to the expected one is that object (h5py returns it)"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt", _PATCH,
+                   _PATCH.replace("shape !=", "shape >"),
+                   "every extra field has n entries (checked before): its shape is (n,) or "
+                   "(n, ...), never less than (n,)"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Lt", _PATCH,
+                   _PATCH.replace('kind !=', 'kind <'),
+                   "every numpy kind letter but u sorts before u"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot", _PATCH,
+                   _PATCH.replace('kind !=', 'kind is not'),
+                   "one-letter strings are single objects in CPython"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',

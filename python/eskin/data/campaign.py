@@ -829,7 +829,7 @@ def _stored_chunks(sig: Any, ratio: int) -> tuple[int, int]:
     def visit(info: Any) -> None:
         inside = itemsize
         for c, s, o in zip(chunks, shape, info.chunk_offset):
-            inside *= max(0, min(c, s - o))
+            inside *= min(c, s - o)  # a chunk starts inside the dataset; the last may overhang
         totals[0] += int(info.size)
         totals[1] += min(inside, int(info.size) * ratio)
 

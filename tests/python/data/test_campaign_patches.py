@@ -74,6 +74,24 @@ def test_the_patch_field_and_the_patches_attribute_go_together(tmp_path):
                  lambda f: f["recordings/extra/patch"].__setitem__(2, 2))
     assert _refused(past) == (f"{past}: /recordings/extra/patch: recording 2 has patch 2, "
                               f"past the 2 ids of the attribute 'patches'")
+    far = _edit(_skin(tmp_path / "d.h5"),
+                lambda f: f["recordings/extra/patch"].__setitem__(3, 7))
+    assert _refused(far) == (f"{far}: /recordings/extra/patch: recording 3 has patch 7, "
+                             f"past the 2 ids of the attribute 'patches'")
+
+
+def test_an_extra_field_of_one_entry_too_many_and_of_one_recording_is_refused(tmp_path):
+    path = _edit(_skin(tmp_path / "s.h5"),
+                 lambda f: f["recordings/extra"].create_dataset("force", data=np.zeros(N + 1)))
+    assert _refused(path) == (f"{path}: /recordings/extra/force: wrong shape ({N + 1},) "
+                              f"(expected one entry per recording, n={N}, at most "
+                              f"{(1 << 30) // N} bytes each)")
+    one = write_campaign(tmp_path / "one.h5", np.zeros((1, 4, 4, T), np.int16), modality=[0],
+                         participant=[1], direction=[0], run=[1], modalities=["a"],
+                         sample_rate_hz=1000.0, volts_per_count=1e-3, source="recorded")
+    _edit(one, lambda f: f["recordings"].create_dataset("extra/force", data=np.zeros(2)))
+    assert _refused(one) == (f"{one}: /recordings/extra/force: wrong shape (2,) (expected one "
+                             f"entry per recording, n=1, at most {1 << 30} bytes each)")
 
 
 def test_a_recording_index_is_taken_from_either_end_and_no_further(tmp_path):

@@ -164,3 +164,38 @@ def test_stored_signals_without_four_axes_are_refused(tmp_path, shape):
         load_campaign(path)
     assert (info.value.field, info.value.problem) == (
         "/recordings/signals", f"wrong shape {shape}: expected 4 axes (n, rows, cols, T)")
+
+
+def test_external_storage_allowed_is_not_measured_against_the_file(tmp_path):
+    """76.8 MB of samples kept in a (sparse) file beside the campaign: the campaign file
+    stores none of them, and with allow_external=True that is what was asked for."""
+    shape = (N, 16, 16, 50_000)
+    size = int(np.prod(shape)) * 2
+    data = tmp_path / "samples.bin"
+    with open(data, "wb") as fh:
+        fh.truncate(size)
+    path = write_campaign(tmp_path / "c.h5", np.zeros((N, 16, 16, 10), np.int16),
+                          modality=[0, 1, 0], participant=[1, 2, 3], direction=[0, 0, 1],
+                          run=[1, 1, 2], modalities=["a", "b"], sample_rate_hz=1000.0,
+                          volts_per_count=1e-3, source="recorded")
+    _replace_signals(path, lambda g: g.create_dataset("signals", shape=shape, dtype=np.int16,
+                                                      external=[(str(data), 0, size)]))
+    with load_campaign(path, allow_external=True) as c:
+        assert c.signals.shape == shape
+        assert not c.recording(1).any()
+
+
+def test_a_campaign_of_three_hundred_recordings_keeps_its_extra_fields_and_patches(tmp_path):
+    """Counts past the integers Python keeps as single objects."""
+    n = 300
+    ids = [f"p{i}" for i in range(300)]
+    path = write_campaign(tmp_path / "c.h5", np.zeros((n, 1, 1, 2), np.int16),
+                          modality=[0] * n, participant=list(range(n)), direction=[0] * n,
+                          run=[1] * n, modalities=["a"], sample_rate_hz=1000.0,
+                          volts_per_count=1e-3, source="recorded",
+                          attrs={"patches": "[" + ", ".join(f'"{p}"' for p in ids) + "]"},
+                          extras={"patch": np.arange(n, dtype=np.uint16),
+                                  "force": np.ones(n, np.float32)})
+    with load_campaign(path) as c:
+        assert len(c.patches) == 300 and c.patch.tolist() == list(range(n))
+        assert c.select(patch="p299").participant.tolist() == [299]

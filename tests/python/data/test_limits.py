@@ -140,12 +140,15 @@ def test_a_declaration_the_stored_bytes_cannot_hold_is_refused_at_once(tmp_path)
 
 
 def test_one_written_recording_does_not_vouch_for_the_others(tmp_path):
-    p = _unwritten(tmp_path / "one.h5", n=40, shape=(16, 16, 50_000))
+    p = _unwritten(tmp_path / "one.h5", n=40, shape=(16, 16, 50_500))
     with h5py.File(p, "a") as f:
         f["recordings/signals"][0] = np.random.default_rng(0).integers(
-            -500, 500, (16, 16, 50_000), dtype=np.int16)
-    with pytest.raises(CampaignFormatError, match=r"declares 1,024,000,000 bytes of samples but "
-                       r"the file stores [0-9,]+ bytes of them, which hold at most"):
+            -500, 500, (16, 16, 50_500), dtype=np.int16)
+    # recording 0's 26 chunks hold its samples: 25 whole ones of 2000 and the last's 500 (the
+    # rest of that chunk is past the end of the recording)
+    with pytest.raises(CampaignFormatError, match=r"declares 1,034,240,000 bytes of samples but "
+                       r"the file stores [0-9,]+ bytes of them, which hold at most 25,856,000 "
+                       r"\(filters: shuffle\+gzip;"):
         load_campaign(p)
 
 
