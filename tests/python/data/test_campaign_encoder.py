@@ -64,3 +64,12 @@ def test_the_writer_refuses_a_recording_encoded_for_another_grid_length_or_level
         # the same recording encoded for this writer is taken
         same = encode_recording(np.ones((4, 4, 10), np.int16), grid_shape=(4, 4), n_samples=T)
         assert w.append(same, modality=0, participant=1, direction=0, run=1) == 0
+
+
+@pytest.mark.parametrize("shape", [(4, 4), (1, 4, 4, 10), (3, 4, 10), (5, 4, 10), (4, 3, 10),
+                                   (4, 5, 10)])
+def test_signals_not_of_the_grid_are_refused_by_the_encoder(shape):
+    with pytest.raises(ValueError) as info:
+        encode_recording(np.zeros(shape, np.int16), grid_shape=(4, 4), n_samples=T)
+    assert str(info.value) == (f"recording: signals must have shape (4, 4, length), got "
+                               f"{shape}")

@@ -176,3 +176,29 @@ def test_the_most_compressible_campaign_a_writer_makes_is_accepted(tmp_path):
     with load_campaign(tmp_path / "z.h5", check_data=True) as c:
         assert c.signals.shape == (4, 8, 8, 200_000)
         assert np.prod(c.signals.shape) * 2 > limits.UNSTORED_BYTES
+
+
+def test_the_chunk_count_without_hdf5_chunk_iteration_is_the_same(tmp_path):
+    """HDF5 before 1.12.3 has no chunk_iter: the chunks are then visited one by one through
+    get_num_chunks / get_chunk_info, and must add up to the same bytes."""
+    from eskin.data.campaign import _stored_chunks
+
+    p = _unwritten(tmp_path / "one.h5", n=6, shape=(4, 4, 5_100))
+    with h5py.File(p, "a") as f:
+        f["recordings/signals"][2] = np.random.default_rng(1).integers(
+            -500, 500, (4, 4, 5_100), dtype=np.int16)
+    with h5py.File(p, "r") as f:
+        ds = f["recordings/signals"]
+        assert hasattr(ds.id, "chunk_iter")  # this HDF5 has it: compare the two ways
+
+        class WithoutChunkIter:  # the dataset as an older HDF5 presents it
+            def __init__(self, dsid):
+                self.get_num_chunks, self.get_chunk_info = dsid.get_num_chunks, dsid.get_chunk_info
+
+        class Older:
+            shape, chunks, dtype, id = ds.shape, ds.chunks, ds.dtype, WithoutChunkIter(ds.id)
+
+        stored, backed = _stored_chunks(ds, 1032)
+        assert backed == 4 * 4 * 5_100 * 2 and 0 < stored < backed  # three chunks, one partial
+        assert _stored_chunks(Older(), 1032) == (stored, backed)
+        assert _stored_chunks(Older(), 1) == _stored_chunks(ds, 1) == (stored, stored)
