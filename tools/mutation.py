@@ -65,7 +65,8 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_campaign.py", "tests/python/data/test_limits.py",
         "tests/python/data/test_campaign_storage.py", "tests/python/data/test_campaign_patches.py",
         "tests/python/data/test_campaign_encoder.py", "tests/python/data/test_campaign_labels.py",
-        "tests/python/data/test_campaign_attrs.py", "tests/python/data/test_campaign_memory.py"],
+        "tests/python/data/test_campaign_attrs.py", "tests/python/data/test_campaign_memory.py",
+        "tests/python/data/test_campaign_writer.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`

@@ -1,0 +1,137 @@
+"""The campaign writer's arguments and per-recording labels (eskin.data.campaign.CampaignWriter):
+each refused with a message naming the file, the recording and the value, at and past every
+boundary, and what it takes written as given."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin.data.campaign import CampaignWriter, encode_recording, load_campaign
+
+T = 16
+REC = np.ones((2, 2, T), np.int16)
+LABELS = {"modality": 0, "participant": 1, "direction": 0, "run": 1}
+
+
+def _writer(path: Path, **kw) -> CampaignWriter:
+    args = {"grid_shape": (2, 2), "n_samples": T, "sample_rate_hz": 1000.0,
+            "volts_per_count": 1.0, "modalities": ["a", "b"], "source": "recorded"}
+    return CampaignWriter(path, **{**args, **kw})
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"on_error": "ignore"}, "on_error must be 'keep' or 'discard', got 'ignore'"),
+    ({"grid_shape": (0, 4)}, "grid_shape must be positive, got (0, 4)"),
+    ({"grid_shape": (4, 0)}, "grid_shape must be positive, got (4, 0)"),
+    ({"n_samples": 0}, "n_samples must be >= 1, got 0"),
+    ({"compression_level": 10}, "compression_level must be None or 0..9, got 10"),
+    ({"compression_level": -1}, "compression_level must be None or 0..9, got -1"),
+    ({"extra_fields": {"note": object}}, "extra field 'note': dtype object cannot be stored (use "
+                                         "a numeric or fixed-size dtype)"),
+])
+def test_a_writer_argument_out_of_range_is_refused_and_leaves_nothing(tmp_path, kw, message):
+    with pytest.raises(ValueError) as info:
+        _writer(tmp_path / "c.h5", **kw)
+    assert str(info.value) == message
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("level", [None, 0, 9])
+def test_the_ends_of_the_arguments_are_taken(tmp_path, level):
+    with _writer(tmp_path / "c.h5", grid_shape=(1, 1), n_samples=1,
+                 compression_level=level) as w:
+        w.append(np.ones((1, 1, 1), np.int16), **LABELS)
+        assert len(w) == 1 and w.journal.exists()
+    with load_campaign(tmp_path / "c.h5") as c:
+        assert c.signals.shape == (1, 1, 1, 1)
+
+
+def test_the_output_must_be_a_file_in_a_folder_that_exists(tmp_path):
+    with pytest.raises(IsADirectoryError) as info:
+        _writer(tmp_path, overwrite=True)
+    assert str(info.value) == f"{tmp_path}: is a directory"
+    with pytest.raises(FileNotFoundError) as info:
+        _writer(tmp_path / "no" / "c.h5")
+    assert str(info.value) == f"{tmp_path / 'no'}: output folder does not exist"
+
+
+@pytest.mark.parametrize("labels, message", [
+    ({"modality": "c"}, "unknown modality 'c' (campaign modalities: ['a', 'b'])"),
+    ({"modality": 2}, "modality id 2 out of range"),
+    ({"modality": -1}, "modality id -1 out of range"),
+    ({"direction": 2}, "direction 2 (0 horizontal, 1 vertical, 255 unknown)"),
+    ({"run": 256}, "run 256 outside [0, 255]"),
+    ({"run": -1}, "run -1 outside [0, 255]"),
+    ({"participant": 2**31}, f"participant {2**31} outside the int32 range"),
+    ({"participant": -(2**31) - 1}, f"participant {-(2**31) - 1} outside the int32 range"),
+])
+def test_a_label_out_of_range_is_refused_naming_the_recording(tmp_path, labels, message):
+    with _writer(tmp_path / "c.h5") as w:
+        w.append(REC, **LABELS)
+        with pytest.raises(ValueError) as info:
+            w.append(REC, **{**LABELS, **labels})
+        assert str(info.value) == f"{tmp_path / 'c.h5'}: recording 1: {message}"
+        assert len(w) == 1
+
+
+def test_the_ends_of_each_label_are_written_as_given(tmp_path):
+    ends = [{"modality": "b", "direction": 255, "run": 0, "participant": -(2**31)},
+            {"modality": 1, "direction": 1, "run": 255, "participant": 2**31 - 1}]
+    with _writer(tmp_path / "c.h5") as w:
+        for labels in ends:
+            w.append(REC, **labels)
+    with load_campaign(tmp_path / "c.h5") as c:
+        assert c.modality.tolist() == [1, 1] and c.direction.tolist() == [255, 1]
+        assert c.run.tolist() == [0, 255]
+        assert c.participant.tolist() == [-(2**31), 2**31 - 1]
+
+
+def test_contact_intervals_are_required_and_within_the_recording(tmp_path):
+    path = tmp_path / "c.h5"
+    with _writer(path, contact_interval=True) as w:
+        with pytest.raises(ValueError) as info:
+            w.append(REC, **LABELS)
+        assert str(info.value) == f"{path}: recording 0: contact_interval required"
+        for bad in ((-1, 3), (5, 4), (0, 11)):
+            with pytest.raises(ValueError) as info:
+                w.append(REC, **LABELS, length=10, contact_interval=bad)
+            assert str(info.value) == (f"{path}: recording 0: contact interval [{bad[0]}, "
+                                       f"{bad[1]}) not within [0, 10]")
+        w.append(REC, **LABELS, length=10, contact_interval=(0, 10))
+        w.append(REC, **LABELS, length=10, contact_interval=(4, 4))
+    with load_campaign(path) as c:
+        assert c.contact_interval.tolist() == [[0, 10], [4, 4]]
+
+
+def test_an_encoded_recording_of_another_length_and_extra_fields_not_declared_are_refused(
+        tmp_path):
+    path = tmp_path / "c.h5"
+    enc = encode_recording(REC, grid_shape=(2, 2), n_samples=T, length=10)
+    with _writer(path, extra_fields={"force": "<f4"}) as w:
+        with pytest.raises(ValueError) as info:
+            w.append(enc, **LABELS, length=9, extra={"force": 1.0})
+        assert str(info.value) == (f"{path}: recording 0: length 9 differs from the encoded "
+                                   f"recording's 10")
+        for extra in ({}, {"force": 1.0, "speed": 2.0}, {"speed": 2.0}):
+            with pytest.raises(ValueError) as info:
+                w.append(enc, **LABELS, extra=extra)
+            assert str(info.value) == (f"{path}: recording 0: extra fields {sorted(extra)} do "
+                                       f"not match the declared extra_fields ['force']")
+        assert w.append(enc, **LABELS, length=10, extra={"force": 1.5}) == 0
+    with load_campaign(path) as c:
+        assert c.lengths.tolist() == [10] and c.extras["force"].tolist() == [1.5]
+
+
+def test_a_closed_writer_refuses_appends_and_closes_once(tmp_path):
+    w = _writer(tmp_path / "c.h5")
+    w.append(REC, **LABELS)
+    w.close()
+    w.close()  # nothing more to do
+    with pytest.raises(ValueError) as info:
+        w.append(REC, **LABELS)
+    assert str(info.value) == f"{tmp_path / 'c.h5'}: writer is closed"
+    with load_campaign(tmp_path / "c.h5") as c:
+        assert len(c) == 1
