@@ -73,3 +73,15 @@ def test_signals_not_of_the_grid_are_refused_by_the_encoder(shape):
         encode_recording(np.zeros(shape, np.int16), grid_shape=(4, 4), n_samples=T)
     assert str(info.value) == (f"recording: signals must have shape (4, 4, length), got "
                                f"{shape}")
+
+
+def test_wider_integers_at_the_ends_of_int16_are_taken_as_int16():
+    x = np.zeros((4, 4, 10), np.int32)
+    x[0, 0, 0], x[3, 3, 9] = -32768, 32767
+    for wide in (x, x.astype(np.int64)):
+        enc = encode_recording(wide, grid_shape=(4, 4), n_samples=T)
+        assert enc == encode_recording(x.astype(np.int16), grid_shape=(4, 4), n_samples=T)
+    for v in (-32769, 32768):
+        x[1, 1, 1] = v
+        with pytest.raises(ValueError, match="values outside the int16 range"):
+            encode_recording(x, grid_shape=(4, 4), n_samples=T)
