@@ -135,3 +135,17 @@ def test_a_closed_writer_refuses_appends_and_closes_once(tmp_path):
     assert str(info.value) == f"{tmp_path / 'c.h5'}: writer is closed"
     with load_campaign(tmp_path / "c.h5") as c:
         assert len(c) == 1
+
+
+def test_an_existing_file_is_never_overwritten_unless_asked(tmp_path):
+    path = tmp_path / "c.h5"
+    path.write_bytes(b"recorded data")
+    with pytest.raises(FileExistsError) as info:
+        _writer(path)
+    assert str(info.value) == (f"{path}: file exists; refusing to overwrite recorded data (pass "
+                               f"overwrite=True, or --force on the command line)")
+    assert path.read_bytes() == b"recorded data"
+    with _writer(path, overwrite=True) as w:
+        w.append(REC, **LABELS)
+    with load_campaign(path) as c:
+        assert len(c) == 1
