@@ -202,6 +202,11 @@ def test_the_search_estimate_matches_the_compiled_model(campaign):
     # 1800 bytes of header and sections), never less
     assert est["ram"] == real.ram_total
     assert 0 <= est["flash"] - real.flash_total < 256
+    # each machine term is a u32 support-vector index and a float32 coefficient in the file
+    # (docs/model-format.md): one machine more is 8 bytes per support vector more
+    more = estimate_model(budget, (4, 4), 20, tuple(cm.alpha_store), cm.n_support, 4, False,
+                          model.window_config, campaign.sample_rate_hz)
+    assert more["flash"] - est["flash"] == cm.n_support * (4 + 4)
     with pytest.raises(ValueError, match="--budget ram=lots: not a number"):
         parse_budget("ram=lots")
     with pytest.raises(ValueError, match="expected flash=..,ram=..,instr=.."):
