@@ -149,3 +149,20 @@ def test_an_existing_file_is_never_overwritten_unless_asked(tmp_path):
         w.append(REC, **LABELS)
     with load_campaign(path) as c:
         assert len(c) == 1
+
+
+@pytest.mark.parametrize("durable, syncs", [(None, 2), (True, 2), (False, 0)])
+def test_each_append_reaches_the_disk_unless_durability_is_turned_off(tmp_path, monkeypatch,
+                                                                      durable, syncs):
+    import os
+
+    kw = {} if durable is None else {"durable": durable}
+    w = _writer(tmp_path / "c.h5", **kw)
+    calls = []
+    real = os.fdatasync
+    monkeypatch.setattr(os, "fdatasync", lambda fd: (calls.append(fd), real(fd)))
+    w.append(REC, **LABELS)
+    w.append(REC, **LABELS)
+    assert len(calls) == syncs
+    monkeypatch.undo()
+    w.close()
