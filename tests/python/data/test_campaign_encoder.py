@@ -52,8 +52,9 @@ def test_a_recording_of_length_zero_is_encoded_and_stored_empty(tmp_path):
             encode_recording(x, grid_shape=(4, 4), n_samples=T, length=bad)
 
 
-@pytest.mark.parametrize("grid, n_samples, level", [((2, 8), T, 1), ((4, 4), T + 1, 1),
-                                                    ((4, 4), T, 2), ((4, 4), T, None)])
+@pytest.mark.parametrize("grid, n_samples, level", [
+    ((2, 8), T, 1), ((8, 2), T, 1), ((4, 4), T + 1, 1), ((4, 4), T - 1, 1), ((4, 4), T, 0),
+    ((4, 4), T, 2), ((4, 4), T, None)])
 def test_the_writer_refuses_a_recording_encoded_for_another_grid_length_or_level(
         tmp_path, grid, n_samples, level):
     x = np.ones((*grid, 10), np.int16)
@@ -85,3 +86,13 @@ def test_wider_integers_at_the_ends_of_int16_are_taken_as_int16():
         x[1, 1, 1] = v
         with pytest.raises(ValueError, match="values outside the int16 range"):
             encode_recording(x, grid_shape=(4, 4), n_samples=T)
+
+
+def test_a_long_recording_encoded_for_its_writer_is_taken(tmp_path):
+    """T = 1000: counts past the integers Python keeps as single objects."""
+    x = np.ones((4, 4, 1000), np.int16)
+    with _writer(tmp_path / "w.h5", n_samples=1000) as w:
+        enc = encode_recording(x, grid_shape=(4, 4), n_samples=1000)
+        assert w.append(enc, modality=0, participant=1, direction=0, run=1) == 0
+    with load_campaign(tmp_path / "w.h5") as c:
+        np.testing.assert_array_equal(c.recording(0), x)

@@ -9,7 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eskin.data.campaign import CampaignWriter, encode_recording, load_campaign
+from eskin.data.campaign import (
+    CampaignFormatError,
+    CampaignWriter,
+    encode_recording,
+    load_campaign,
+)
 
 T = 16
 REC = np.ones((2, 2, T), np.int16)
@@ -166,3 +171,14 @@ def test_each_append_reaches_the_disk_unless_durability_is_turned_off(tmp_path, 
     assert len(calls) == syncs
     monkeypatch.undo()
     w.close()
+
+
+def test_a_grid_past_the_limits_is_refused_before_anything_is_written(tmp_path):
+    from eskin.data import limits
+
+    side = limits.MAX_GRID_SIDE + 1
+    with pytest.raises(CampaignFormatError) as info:
+        _writer(tmp_path / "c.h5", grid_shape=(side, 1))
+    assert str(info.value).startswith(f"{tmp_path / 'c.h5'}: /recordings/signals: shape "
+                                      f"(0, {side}, 1, {T}): ")
+    assert list(tmp_path.iterdir()) == []
