@@ -1171,7 +1171,7 @@ class _RecordCheck:
         self.extra_shapes: dict[str, tuple[int, ...]] = {}
         self.where = where
 
-    def problem(self, index: int, rec: Any, verify_data: bool = True) -> str:
+    def problem(self, index: int, rec: Any, verify_data: bool) -> str:
         """What is wrong with record ``index`` ("" when nothing), naming the field;
         ``verify_data``: also inflate its chunk to check its size."""
         arrays = {k: [rec.meta.get(k)] for k in _LABEL_FIELDS}
@@ -1205,7 +1205,7 @@ class _RecordCheck:
         return ""
 
 
-def _build_from_journal(contents: Any, out: Path, verify_data: bool = True
+def _build_from_journal(contents: Any, out: Path, verify_data: bool
                         ) -> tuple[int, list[str]]:
     """Write the campaign file ``out`` from a journal's settings and its records that pass the
     loader's checks; return the number of recordings written and, for each record skipped,
