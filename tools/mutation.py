@@ -68,7 +68,8 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_campaign_attrs.py", "tests/python/data/test_campaign_memory.py",
         "tests/python/data/test_campaign_writer.py",
         # the campaign built from a journal: recovery's checks and placing the file
-        "tests/python/data/test_campaign_recovery.py", "tests/python/data/test_recover_checks.py"],
+        "tests/python/data/test_campaign_recovery.py", "tests/python/data/test_recover_checks.py",
+        "tests/python/data/test_campaign_recover.py"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`

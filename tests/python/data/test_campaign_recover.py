@@ -1,0 +1,64 @@
+"""Recovery in-process (eskin.data.campaign.recover_campaign): each journal record checked as
+the loader checks a campaign, its extra fields held to the first record's type and shape, the
+skipped ones named by index, and the campaign built from the rest."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eskin.data.campaign import CampaignWriter, encode_recording, load_campaign, recover_campaign
+
+T = 20
+META = {"length": T, "modality": 0, "participant": 5, "direction": 0, "run": 1}
+
+
+def _journal(path: Path, records: list[dict]) -> None:
+    """A writer's journal with one valid recording, then ``records`` (extra values given as
+    (array, dtype) pairs, written as a buggy writer would), then one valid recording more."""
+    w = CampaignWriter(path, grid_shape=(2, 2), n_samples=T, sample_rate_hz=1000.0,
+                       volts_per_count=1.0, modalities=["a"], source="recorded",
+                       extra_fields={"xy": "<f4"})
+    w.append(np.ones((2, 2, T), np.int16), **{k: META[k] for k in META if k != "length"},
+             extra={"xy": np.array([1.0, 2.0], np.float32)})
+    chunk = encode_recording(np.zeros((2, 2, T), np.int16), grid_shape=(2, 2), n_samples=T).chunk
+    for extras in records:
+        w._journal.append(META, extras, chunk)
+    w.append(np.full((2, 2, T), 3, np.int16), **{k: META[k] for k in META if k != "length"},
+             extra={"xy": np.array([5.0, 6.0], np.float32)})
+    w._journal.release()
+
+
+def test_a_record_whose_extra_field_differs_from_the_first_is_skipped_by_name(tmp_path):
+    path = tmp_path / "c.h5"
+    _journal(path, [
+        {"xy": (np.zeros(3, np.float32), np.dtype("<f4"))},  # another shape
+        {"xy": (np.zeros(2), np.dtype("<f8"))},  # another type
+        {"xy": (np.zeros((2, 1), np.float32), np.dtype("<f4"))},  # another number of axes
+        {"xy": (np.array([7.0, 8.0], np.float32), np.dtype("<f4"))},  # as the first: kept
+    ])
+    rec = recover_campaign(path)
+    assert rec.recordings == 3
+    assert rec.skipped == (
+        "record 1: /recordings/extra/xy: float32 (3,), expected float32 (2,)",
+        "record 2: /recordings/extra/xy: float64 (2,), expected float32 (2,)",
+        "record 3: /recordings/extra/xy: float32 (2, 1), expected float32 (2,)")
+    with load_campaign(path) as c:
+        assert c.extras["xy"].tolist() == [[1.0, 2.0], [7.0, 8.0], [5.0, 6.0]]
+        assert (c.recording(2) == 3).all()
+
+
+def test_recovery_never_replaces_a_campaign_unless_asked(tmp_path):
+    path = tmp_path / "c.h5"
+    _journal(path, [])
+    other = tmp_path / "other.h5"
+    other.write_bytes(b"recorded data")
+    with pytest.raises(FileExistsError):
+        recover_campaign(path, other)
+    assert other.read_bytes() == b"recorded data"
+    rec = recover_campaign(path, other, overwrite=True)
+    assert rec.recordings == 2 and rec.output == other
+    with load_campaign(other) as c:
+        assert len(c) == 2
