@@ -37,6 +37,7 @@ def test_a_record_whose_extra_field_differs_from_the_first_is_skipped_by_name(tm
         {"xy": (np.zeros(3, np.float32), np.dtype("<f4"))},  # another shape
         {"xy": (np.zeros(2), np.dtype("<f8"))},  # another type
         {"xy": (np.zeros((2, 1), np.float32), np.dtype("<f4"))},  # another number of axes
+        {"xy": (np.zeros(1, np.float32), np.dtype("<f4"))},  # fewer values
         {"xy": (np.array([7.0, 8.0], np.float32), np.dtype("<f4"))},  # as the first: kept
     ])
     rec = recover_campaign(path)
@@ -44,7 +45,8 @@ def test_a_record_whose_extra_field_differs_from_the_first_is_skipped_by_name(tm
     assert rec.skipped == (
         "record 1: /recordings/extra/xy: float32 (3,), expected float32 (2,)",
         "record 2: /recordings/extra/xy: float64 (2,), expected float32 (2,)",
-        "record 3: /recordings/extra/xy: float32 (2, 1), expected float32 (2,)")
+        "record 3: /recordings/extra/xy: float32 (2, 1), expected float32 (2,)",
+        "record 4: /recordings/extra/xy: float32 (1,), expected float32 (2,)")
     with load_campaign(path) as c:
         assert c.extras["xy"].tolist() == [[1.0, 2.0], [7.0, 8.0], [5.0, 6.0]]
         assert (c.recording(2) == 3).all()
@@ -62,3 +64,24 @@ def test_recovery_never_replaces_a_campaign_unless_asked(tmp_path):
     assert rec.recordings == 2 and rec.output == other
     with load_campaign(other) as c:
         assert len(c) == 2
+
+
+def test_a_chunk_of_another_size_is_skipped_with_the_bytes_it_holds(tmp_path):
+    """A recording's chunk inflates to exactly rows x cols x T int16: more (read up to one
+    byte past) or less is a damaged record."""
+    path = tmp_path / "c.h5"
+    w = CampaignWriter(path, grid_shape=(2, 2), n_samples=T, sample_rate_hz=1000.0,
+                       volts_per_count=1.0, modalities=["a"], source="recorded")
+    w.append(np.ones((2, 2, T), np.int16), modality=0, participant=1, direction=0, run=1)
+    for t in (T + 10, T - 1):
+        big = encode_recording(np.zeros((2, 2, t), np.int16), grid_shape=(2, 2), n_samples=t)
+        w._journal.append(META, {}, big.chunk)
+    w._journal.release()
+    rec = recover_campaign(path)
+    size = 2 * 2 * T * 2
+    assert rec.recordings == 1
+    assert rec.skipped == (
+        f"record 1: /recordings/signals: the chunk holds {size + 1} bytes, not the {size} of a "
+        f"2x2x{T} int16 recording",
+        f"record 2: /recordings/signals: the chunk holds {size - 8} bytes, not the {size} of a "
+        f"2x2x{T} int16 recording")
