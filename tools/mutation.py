@@ -69,7 +69,9 @@ PYTHON_MODULES: dict[str, list[str]] = {
         "tests/python/data/test_campaign_writer.py",
         # the campaign built from a journal: recovery's checks and placing the file
         "tests/python/data/test_campaign_recovery.py", "tests/python/data/test_recover_checks.py",
-        "tests/python/data/test_campaign_recover.py"],
+        "tests/python/data/test_campaign_recover.py",
+        "tests/python/data/test_io_errors.py::test_the_writer_loses_nothing_that_returned_when_a_call_fails",
+        "tests/python/data/test_io_errors.py::test_recovery_keeps_the_journal_until_the_campaign_is_in_place"],
     "python/eskin/learn/evaluation.py": [
         # its scores, folds, bootstrap and a small evaluation end to end (seconds); the tests of
         # the command on a simulated campaign and on Dask clusters are left to `make test`

@@ -85,3 +85,15 @@ def test_a_chunk_of_another_size_is_skipped_with_the_bytes_it_holds(tmp_path):
         f"2x2x{T} int16 recording",
         f"record 2: /recordings/signals: the chunk holds {size - 8} bytes, not the {size} of a "
         f"2x2x{T} int16 recording")
+
+
+def test_the_recovery_message_says_what_was_kept_skipped_and_dropped():
+    from eskin.data.campaign import Recovery
+
+    out, kept = Path("c.h5"), Path(".c.h5.rejected")
+    assert Recovery(out, 4, 0, "").message() == "recovered 4 complete recordings into c.h5"
+    full = Recovery(out, 4, 37, "a torn record header", ("record 2: x", "record 5: y"), kept)
+    assert full.message() == (
+        "recovered 4 complete recordings into c.h5; skipped 2 invalid records (record 2: x; "
+        "record 5: y); dropped the last 37 bytes of the journal (a torn record header); the "
+        "journal is kept as .c.h5.rejected")
