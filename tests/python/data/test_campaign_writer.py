@@ -237,3 +237,49 @@ def test_abort_and_keep_inside_the_block_end_the_writer(tmp_path):
     assert text.startswith(f"{tmp_path / 'k.h5'}: the 1 recordings whose append returned")
     assert "whose append failed" not in text
     assert _left(tmp_path) == [w.journal.name]  # kept for `eskin recover`, nothing built
+
+
+def _whole(path: Path, n: int = 3, **kw):
+    from eskin.data.campaign import write_campaign
+
+    args = {"modality": [0] * n, "participant": list(range(n)), "direction": [0] * n,
+            "run": [1] * n, "modalities": ["a"], "sample_rate_hz": 1000.0,
+            "volts_per_count": 1.0, "source": "recorded"}
+    return write_campaign(path, kw.pop("signals", np.ones((n, 2, 2, T), np.int16)),
+                          **{**args, **kw})
+
+
+@pytest.mark.parametrize("name", ["modality", "participant", "direction", "run", "lengths"])
+@pytest.mark.parametrize("count", [2, 4])
+def test_a_whole_campaign_needs_one_label_per_recording(tmp_path, name, count):
+    value = ([T] if name == "lengths" else [0]) * count
+    with pytest.raises(ValueError) as info:
+        _whole(tmp_path / "c.h5", **{name: value})
+    got = f"got shape ({count},)" if name != "lengths" else f"got ({count},)"
+    assert str(info.value) == f"{name} must have one entry per recording (3), {got}"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"contact_interval": [[0, 1]] * 2}, "contact_interval must have shape (3, 2), got (2, 2)"),
+    ({"contact_interval": [[0, 1, 2]] * 3}, "contact_interval must have shape (3, 2), got (3, 3)"),
+    ({"extras": {"f": np.zeros(4)}}, "extras['f'] must have one entry per recording (3), got "
+                                     "shape (4,)"),
+    ({"extras": {"f": np.float32(1)}}, "extras['f'] must have one entry per recording (3), got "
+                                       "shape ()"),
+    ({"signals": np.ones((3, 4, T), np.int16)}, f"signals must be (n, rows, cols, T), got shape "
+                                                f"(3, 4, {T})"),
+])
+def test_a_whole_campaign_of_mismatched_parts_is_refused(tmp_path, kw, message):
+    with pytest.raises(ValueError) as info:
+        _whole(tmp_path / "c.h5", **kw)
+    assert str(info.value) == message
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_recordings_of_different_lengths_are_padded_to_the_longest(tmp_path):
+    recs = [np.full((2, 2, 5), 1, np.int16), np.full((2, 2, 9), 2, np.int16)]
+    path = _whole(tmp_path / "c.h5", n=2, signals=recs)
+    with load_campaign(path) as c:
+        assert c.signals.shape == (2, 2, 2, 9) and c.lengths.tolist() == [5, 9]
+        assert c.recording(0).shape == (2, 2, 5) and (c.recording(1) == 2).all()
