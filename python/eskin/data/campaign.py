@@ -423,7 +423,7 @@ class Campaign:
                 raise ValueError(
                     f"boolean mask has shape {idx.shape}, expected ({len(self)},)")
             idx = np.flatnonzero(idx)
-        idx = idx.astype(np.int64).reshape(-1)
+        idx = idx.astype(np.int64).ravel()
         if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
             raise IndexError(f"subset indices out of range for {len(self)} recordings")
         idx = np.where(idx < 0, idx + len(self), idx)
@@ -1433,13 +1433,13 @@ def write_campaign(
         grid = tuple(recs_list[0].shape[:2])
         t = max(r.shape[-1] for r in recs_list)
         recs = recs_list
-    labels = {k: np.asarray(v).reshape(-1) for k, v in (
+    labels = {k: np.asarray(v).ravel() for k, v in (
         ("modality", modality), ("participant", participant), ("direction", direction),
         ("run", run))}
     for k, v in labels.items():
         if v.shape != (n,):
             raise ValueError(f"{k} must have one entry per recording ({n}), got shape {v.shape}")
-    lens = None if lengths is None else np.asarray(lengths).reshape(-1)
+    lens = None if lengths is None else np.asarray(lengths).ravel()
     if lens is not None and lens.shape != (n,):
         raise ValueError(f"lengths must have one entry per recording ({n}), got {lens.shape}")
     ci = None if contact_interval is None else np.asarray(contact_interval)
