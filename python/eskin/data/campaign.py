@@ -1333,8 +1333,9 @@ def _finish_journal(journal: Path, output: Path, overwrite: bool,
         reason = exc.strerror or str(exc).split("(")[0].strip() or type(exc).__name__
         keep = ("the journal is kept" if journal.exists()
                 else "the campaign file is in place")
-        raise OSError(exc.errno, f"{output}: cannot write the campaign file ({reason}); "
-                      f"{keep}: {journal}") from exc
+        message = f"{output}: cannot write the campaign file ({reason}); {keep}: {journal}"
+        # without an errno, OSError(None, text) would print "[Errno None] text"
+        raise (OSError(message) if exc.errno is None else OSError(exc.errno, message)) from exc
     finally:
         if held is not None:
             held.release()

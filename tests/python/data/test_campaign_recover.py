@@ -97,3 +97,70 @@ def test_the_recovery_message_says_what_was_kept_skipped_and_dropped():
         "recovered 4 complete recordings into c.h5; skipped 2 invalid records (record 2: x; "
         "record 5: y); dropped the last 37 bytes of the journal (a torn record header); the "
         "journal is kept as .c.h5.rejected")
+
+
+def test_a_recovery_result_cannot_be_changed():
+    import dataclasses
+
+    from eskin.data.campaign import Recovery
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        Recovery(Path("c.h5"), 4, 0, "").recordings = 5
+
+
+def test_a_campaign_placed_where_hard_links_are_not_supported_is_renamed_in(tmp_path,
+                                                                           monkeypatch):
+    """A memory card's FAT has no hard links: the exclusive link becomes check-then-rename."""
+    import errno
+    import os
+
+    def no_links(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    path = tmp_path / "c.h5"
+    _journal(path, [])
+    monkeypatch.setattr(os, "link", no_links)
+    rec = recover_campaign(path, tmp_path / "out.h5")
+    assert rec.recordings == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["out.h5"]
+    with load_campaign(tmp_path / "out.h5") as c:
+        assert len(c) == 2
+
+
+def test_an_unexpected_link_error_is_one_line_and_the_journal_stays(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from eskin.data.journal import journal_path
+
+    def broken(src, dst):
+        raise OSError(errno.EIO, "Input/output error")
+
+    path = tmp_path / "c.h5"
+    _journal(path, [])
+    monkeypatch.setattr(os, "link", broken)
+    with pytest.raises(OSError) as info:
+        recover_campaign(path)
+    assert str(info.value) == (f"[Errno 5] {path}: cannot write the campaign file (Input/output "
+                               f"error); the journal is kept: {journal_path(path)}")
+    assert journal_path(path).exists() and not path.exists()
+
+
+@pytest.mark.parametrize("exc, reason", [
+    (OSError("the card went away (it was pulled)"), "the card went away"),
+    (OSError(), "OSError")])
+def test_an_error_without_a_system_message_is_named_by_its_text_or_type(tmp_path, monkeypatch,
+                                                                       exc, reason):
+    import os
+
+    from eskin.data.journal import journal_path
+
+    def broken(src, dst):
+        raise exc
+
+    path = tmp_path / "c.h5"
+    _journal(path, [])
+    monkeypatch.setattr(os, "link", broken)
+    with pytest.raises(OSError) as info:
+        recover_campaign(path)
+    assert str(info.value) == (f"{path}: cannot write the campaign file ({reason}); the journal "
+                               f"is kept: {journal_path(path)}")

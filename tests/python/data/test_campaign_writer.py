@@ -269,6 +269,8 @@ def test_a_whole_campaign_needs_one_label_per_recording(tmp_path, name, count):
                                        "shape ()"),
     ({"signals": np.ones((3, 4, T), np.int16)}, f"signals must be (n, rows, cols, T), got shape "
                                                 f"(3, 4, {T})"),
+    ({"signals": np.ones((3, 1, 2, 2, T), np.int16)},
+     f"signals must be (n, rows, cols, T), got shape (3, 1, 2, 2, {T})"),
 ])
 def test_a_whole_campaign_of_mismatched_parts_is_refused(tmp_path, kw, message):
     with pytest.raises(ValueError) as info:
@@ -283,3 +285,32 @@ def test_recordings_of_different_lengths_are_padded_to_the_longest(tmp_path):
     with load_campaign(path) as c:
         assert c.signals.shape == (2, 2, 2, 9) and c.lengths.tolist() == [5, 9]
         assert c.recording(0).shape == (2, 2, 5) and (c.recording(1) == 2).all()
+
+
+@pytest.mark.parametrize("t", [0, 1])
+def test_recordings_of_no_or_one_sample_make_a_campaign_of_one_sample(tmp_path, t):
+    path = _whole(tmp_path / "c.h5", signals=np.ones((3, 2, 2, t), np.int16))
+    with load_campaign(path) as c:
+        assert c.signals.shape == (3, 2, 2, 1) and c.lengths.tolist() == [t] * 3
+
+
+def test_a_list_of_recordings_takes_its_grid_from_the_first(tmp_path):
+    recs = [np.ones((2, 2, 5), np.int16), np.ones((3, 2, 5), np.int16)]
+    with pytest.raises(ValueError) as info:
+        _whole(tmp_path / "c.h5", n=2, signals=recs)
+    assert str(info.value) == (f"{tmp_path / 'c.h5'}: recording 1: signals must have shape "
+                               f"(2, 2, length), got (3, 2, 5)")
+
+
+def test_saving_a_campaign_never_replaces_a_file_unless_asked(tmp_path):
+    from eskin.data.campaign import save_campaign
+
+    with load_campaign(_whole(tmp_path / "c.h5")) as c:
+        target = tmp_path / "copy.h5"
+        target.write_bytes(b"recorded data")
+        with pytest.raises(FileExistsError):
+            save_campaign(c.subset([0, 2]), target)
+        assert target.read_bytes() == b"recorded data"
+        save_campaign(c.subset([0, 2]), target, overwrite=True)
+    with load_campaign(target) as copy:
+        assert copy.participant.tolist() == [0, 2]
