@@ -145,7 +145,7 @@ def decode_attr(value: Any) -> Any:
         return value
     if "npy" in value:
         arr = _npy_value(base64.b64decode(value["npy"]))
-        return arr[()] if arr.ndim == 0 else arr
+        return arr[()]  # a 0-d array as its scalar, any other as itself
     import h5py
 
     return np.array(value["strings"], dtype=h5py.string_dtype()).reshape(value["shape"])
@@ -181,6 +181,9 @@ class JournalWriter:
             )
             os.fsync(self._fd)
             fsync_dir(self.path.parent)
+        except FileExistsError:  # locked by another process the moment it was made
+            self.discard()
+            raise
         except OSError as exc:
             self.discard()
             raise OSError(exc.errno, f"{self.path}: cannot write the recording journal "

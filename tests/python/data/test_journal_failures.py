@@ -138,3 +138,28 @@ def test_an_append_without_durability_writes_the_same_record(tmp_path):
         w.release()
         paths.append(w.path)
     assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_a_journal_locked_by_another_writer_the_moment_it_is_made_is_left_to_it(
+        tmp_path, monkeypatch):
+    """Another process took the lock between our exclusive create and our lock (a writer of
+    the same file started at the same instant): ours gives up and removes what it made."""
+    import fcntl
+
+    def held(fd, op):
+        raise BlockingIOError(errno.EWOULDBLOCK, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(fcntl, "flock", held)
+    target = tmp_path / "c.h5"
+    with pytest.raises(FileExistsError) as info:
+        jr.JournalWriter(target, SETTINGS)
+    assert str(info.value) == (f"{target}: another writer is recording to this file right now "
+                               f"(its journal .c.h5.partial is locked)")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_attributes_round_trip_through_the_header_as_scalars_or_arrays():
+    for value in (np.float32(2.5), np.int64(-3), np.arange(6, dtype=np.uint16).reshape(2, 3)):
+        back = jr.decode_attr(jr.encode_attr(value))
+        assert type(back) is type(value) and np.array_equal(back, value)
+        assert np.asarray(back).dtype == np.asarray(value).dtype
