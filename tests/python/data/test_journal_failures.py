@@ -163,3 +163,12 @@ def test_attributes_round_trip_through_the_header_as_scalars_or_arrays():
         back = jr.decode_attr(jr.encode_attr(value))
         assert type(back) is type(value) and np.array_equal(back, value)
         assert np.asarray(back).dtype == np.asarray(value).dtype
+
+
+def test_an_object_value_is_never_pickled_into_the_journal(tmp_path):
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS)
+    size = w.path.stat().st_size
+    with pytest.raises(ValueError, match="allow_pickle=False"):
+        w.append(META, {"note": (np.array([{"a": 1}], dtype=object), np.dtype(object))}, b"x")
+    assert (w.n, w.path.stat().st_size) == (0, size)
+    w.discard()
