@@ -524,9 +524,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "checked them (the same checks, strict dtypes), so the same campaign"),
     ],
     "python/eskin/data/journal.py": [
-        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "return arr[()] if arr.ndim == 0 "
-                   "else arr", "return arr[()] if arr.ndim <= 0 else arr",
-                   "an array's number of axes is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", "while pos < self.size:",
+                   "while pos != self.size:",
+                   "each record is read within the bytes left (a longer one is torn and ends "
+                   "the walk), so the position reaches the journal's size and never passes it"),
         Equivalent("core/NumberReplacer", "self._fd = -1", "self._fd = - 2",
                    "the released writer's descriptor: only ever tested for >= 0"),
         *(Equivalent("core/NumberReplacer",
