@@ -168,6 +168,12 @@ _LABELS = ("a binary machine's two target labels: any two, the machine's class t
            "(binary_targets maps them to -1 and +1 in that order)")
 _PATCH = 'if column.shape != (n,) or column.dtype.kind != "u":'
 _EXIT = 'elif self._n == 0 or self.on_error == "discard":'
+_HEAD = ("if len(head) < len(HEADER_MAGIC) + 4 or head[: len(HEADER_MAGIC)] != "
+         "HEADER_MAGIC:")
+_HEAD_WHY = "the head is a read of the magic and the size, 12 bytes: never more (12 is one object)"
+_TEXT = "if len(text) < n or len(crc) < 4 or _CRC.unpack(crc)[0] != zlib.crc32(text):"
+_TEXT_WHY = ("the text is a read of n bytes, never more; fewer means the file ended, and then the "
+             "CRC's read is short too and refused by the next test")
 _READS = ("which of two read paths takes a run of recordings: one slice of the file or one read "
           "per recording (sorted unique rows either way: a difference of 1 is the least there is), "
           "the same rows")
@@ -524,6 +530,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "checked them (the same checks, strict dtypes), so the same campaign"),
     ],
     "python/eskin/data/journal.py": [
+        Equivalent("core/ReplaceComparisonOperator_Lt_IsNot", _HEAD,
+                   _HEAD.replace("len(head) <", "len(head) is not"), _HEAD_WHY),
+        Equivalent("core/ReplaceComparisonOperator_Lt_Gt", _TEXT,
+                   _TEXT.replace("len(text) <", "len(text) >"), _TEXT_WHY),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", _TEXT,
+                   _TEXT.replace("len(text) <", "len(text) !="), _TEXT_WHY),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", _TEXT,
+                   _TEXT.replace("len(crc) <", "len(crc) !="),
+                   "the CRC is a read of 4 bytes: never more"),
         Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", "while pos < self.size:",
                    "while pos != self.size:",
                    "each record is read within the bytes left (a longer one is torn and ends "

@@ -100,7 +100,8 @@ def test_a_torn_last_record_is_dropped_and_measured(tmp_path):
     ("key", "value"),
     [("grid_shape", [2]), ("grid_shape", [2, "2"]), ("n_samples", 1.5),
      ("compression_level", "9"), ("contact_interval", 1), ("extra_fields", [["force"]]),
-     ("extra_fields", [["force", 4]]), ("attrs", [[1, 2]]), ("attrs", "x")],
+     ("extra_fields", [["force", 4]]), ("extra_fields", [["force", "<f4", "x"]]),
+     ("grid_shape", [2, 2, 2]), ("attrs", [[1, 2]]), ("attrs", "x")],
 )
 def test_a_malformed_header_setting_is_named(tmp_path, key, value):
     path = write(tmp_path, 0, settings={**SETTINGS, key: value})
@@ -347,10 +348,11 @@ def test_a_record_with_a_damaged_magic_is_not_read(tmp_path):
 def test_a_file_without_the_journal_magic_is_named_as_such(tmp_path):
     path = write(tmp_path, 1)
     data = bytearray(path.read_bytes())
-    data[0:8] = b"ESKJRNL0"
-    path.write_bytes(bytes(data))
-    with pytest.raises(JournalError, match="not a recording journal"):
-        read(path)
+    for magic in (b"ESKJRNL0", b"\x00" * 8, b"\xff" * 8):  # sorting before and after ours
+        data[0:8] = magic
+        path.write_bytes(bytes(data))
+        with pytest.raises(JournalError, match="not a recording journal"):
+            read(path)
 
 
 def test_the_journal_file_mode_and_scalar_attributes(tmp_path):
