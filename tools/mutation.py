@@ -174,6 +174,7 @@ _HEAD_WHY = "the head is a read of the magic and the size, 12 bytes: never more 
 _TEXT = "if len(text) < n or len(crc) < 4 or _CRC.unpack(crc)[0] != zlib.crc32(text):"
 _TEXT_WHY = ("the text is a read of n bytes, never more; fewer means the file ended, and then the "
              "CRC's read is short too and refused by the next test")
+_RHEAD_WHY = "a record's head is a read of its 20 bytes: never more (20 is one object)"
 _READS = ("which of two read paths takes a run of recordings: one slice of the file or one read "
           "per recording (sorted unique rows either way: a difference of 1 is the least there is), "
           "the same rows")
@@ -539,6 +540,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", _TEXT,
                    _TEXT.replace("len(crc) <", "len(crc) !="),
                    "the CRC is a read of 4 bytes: never more"),
+        Equivalent("core/ReplaceComparisonOperator_Lt_IsNot", "if len(head) < _RECORD_HEAD.size:",
+                   "if len(head) is not _RECORD_HEAD.size:", _RHEAD_WHY),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", "if len(head) < _RECORD_HEAD.size:",
+                   "if len(head) != _RECORD_HEAD.size:", _RHEAD_WHY),
         Equivalent("core/ReplaceComparisonOperator_Lt_NotEq", "while pos < self.size:",
                    "while pos != self.size:",
                    "each record is read within the bytes left (a longer one is torn and ends "

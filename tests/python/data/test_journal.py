@@ -337,12 +337,26 @@ def test_the_writer_knows_where_its_journal_ends_after_every_append(tmp_path):
 def test_a_record_with_a_damaged_magic_is_not_read(tmp_path):
     """The CRC covers a record from its index on: its magic is checked on its own."""
     path = write(tmp_path, 2)
-    data = bytearray(path.read_bytes())
-    second = data.rindex(jr.RECORD_MAGIC)
-    data[second : second + 4] = b"ABC1"  # sorts before REC1
-    path.write_bytes(bytes(data))
-    contents, records = read(path)
-    assert len(records) == 1 and "no record 1 where expected" in contents.dropped_reason
+    clean = path.read_bytes()
+    second = clean.rindex(jr.RECORD_MAGIC)
+    for magic in (b"ABC1", b"ZZZ1"):  # sorting before and after REC1
+        data = bytearray(clean)
+        data[second : second + 4] = magic
+        path.write_bytes(bytes(data))
+        contents, records = read(path)
+        assert len(records) == 1 and "no record 1 where expected" in contents.dropped_reason
+
+
+def test_three_hundred_records_are_read_back_in_order(tmp_path):
+    """Indices past the integers Python keeps as single objects."""
+    w = jr.JournalWriter(tmp_path / "c.h5", SETTINGS, durable=False)
+    for k in range(300):
+        w.append({**META, "participant": k}, {"force": (np.float32(k), np.dtype("<f4"))},
+                 bytes(8))
+    w.release()
+    contents, records = read(w.path)
+    assert [r.meta["participant"] for r in records] == list(range(300))
+    assert [r.index for r in records] == list(range(300)) and contents.dropped_bytes == 0
 
 
 def test_a_file_without_the_journal_magic_is_named_as_such(tmp_path):
