@@ -408,6 +408,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                          "values")),
     ],
     "python/eskin/deploy/export.py": [
+        Equivalent("core/ReplaceAndWithOr",
+                   'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
+                   'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',
+                   "a window configuration is an eskin.WindowConfig (both methods) or a plain "
+                   "mapping (neither)"),
         *(Equivalent("core/NumberReplacer", "chunk: int = 32) -> list[dict[str, Any]]:",
                      f"chunk: int = {n}) -> list[dict[str, Any]]:",
                      "how many recordings predict_recordings reads at a time: each is decided on "

@@ -545,7 +545,10 @@ def spec_from_estimator(
         ]
         rule = "one_vs_all"
     else:
-        cls = [int(c) for c in np.asarray(getattr(est, "classes_", [0, 1]))]
+        if not hasattr(est, "classes_"):
+            raise ModelFormatError("binary estimator without classes_: not fitted, nothing to "
+                                   "export")
+        cls = [int(c) for c in np.asarray(est.classes_)]
         if len(classes) != 2 or sorted(cls) != [0, 1]:
             raise ModelFormatError(
                 f"binary estimator classes_ {cls} must be [0, 1] for the classes {classes}"

@@ -577,3 +577,95 @@ def test_a_one_vs_all_estimator_of_other_class_ids_than_0_to_k_is_not_exported(i
     with pytest.raises(ModelFormatError) as info:
         spec_from_estimator(est, ["a", "b", "c"], D=4, grid_shape=(2, 3))
     assert str(info.value) == f"one-vs-all classes_ {ids} must be 0..2"
+
+
+def test_a_machine_of_one_support_vector_is_written_and_of_none_refused():
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    m = spec.machines[0]
+    m.support_vectors, m.dual_coef = m.support_vectors[:1], m.dual_coef[:1]
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    assert cm.classify_tensors(m.support_vectors).labels.shape == (1,)
+    m.support_vectors, m.dual_coef = m.support_vectors[:0], m.dual_coef[:0]
+    with pytest.raises(ModelFormatError) as info:
+        model_to_bytes(spec, "float64")
+    assert str(info.value) == ("machine 0: support_vectors shape (0, 2, 3, 4), expected (n>=1, "
+                               "2, 3, 4)")
+
+
+def test_a_model_file_does_not_depend_on_the_order_of_its_metadata():
+    from eskin.deploy.export import model_to_bytes
+
+    one, two = _binary_spec(), _binary_spec()
+    one.meta = {"trained_on": "c.h5", "alpha": [2, 2, 2], "seed": 3}
+    two.meta = {"seed": 3, "alpha": [2, 2, 2], "trained_on": "c.h5"}
+    assert model_to_bytes(one, "float64") == model_to_bytes(two, "float64")
+
+
+def test_patterns_classified_directly_report_no_window_and_a_touch_found():
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    out = cm.classify_tensors(np.random.default_rng(5).normal(size=(3, 2, 3, 4)))
+    assert out.windows.tolist() == [[0, 0]] * 3 and out.window_found.tolist() == [True] * 3
+
+
+@pytest.mark.parametrize("ids", [[-1, 1], [0, 2], [1, 1]])
+def test_a_binary_estimator_of_other_class_ids_than_0_and_1_is_not_exported(ids):
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import TensorSVC
+
+    rng = np.random.default_rng(4)
+    est = TensorSVC().fit(rng.normal(size=(8, 2, 3, 4)), np.array([0, 1] * 4))
+    est.classes_ = np.array(ids)
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == (f"binary estimator classes_ {ids} must be [0, 1] for the classes "
+                               f"['a', 'b']")
+
+
+@pytest.mark.parametrize("shape", [(2, 1, 3, 10), (2, 2, 4, 10), (2, 3, 2, 10), (3, 3, 10),
+                                   (1, 2, 3, 10, 1), (2, 3)])
+def test_signals_not_of_the_models_grid_are_refused_with_the_shape_expected(shape):
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    with pytest.raises(ValueError) as info:
+        cm.classify(np.zeros(shape, np.int16))
+    assert str(info.value) == (f"signals: expected shape (n, 2, 3, T) or (2, 3, T), got "
+                               f"{shape}")
+
+
+def test_the_bounded_window_field_is_written_only_in_the_version_that_has_it():
+    """Versions 1 and 2 have no window_samples field (their bytes are as they always were);
+    version 3 writes it with its value."""
+    import dataclasses
+
+    from eskin.deploy.export import format_version, model_to_bytes
+
+    unbounded = _binary_spec()
+    unbounded.window_config = dataclasses.replace(unbounded.window_config, window_samples=0)
+    assert format_version(unbounded) == 1
+
+    def prep(b: bytes) -> bytes:
+        return b[_section(b, b"PREP"):_section(b, b"CLAS")]
+
+    assert b"window_samples" not in prep(model_to_bytes(unbounded, "float64"))
+    unbounded.machines[0].amplitude_width = 0.5
+    assert format_version(unbounded) == 2
+    assert b"window_samples" not in prep(model_to_bytes(unbounded, "float64"))
+    bounded = _binary_spec()
+    bounded.window_config = dataclasses.replace(bounded.window_config, window_samples=400)
+    assert format_version(bounded) == 3
+    p = prep(model_to_bytes(bounded, "float64"))
+    assert struct.unpack_from("<d", p, p.index(b"window_samples") + 32)[0] == 400.0
+
+
+def test_an_estimator_never_fitted_is_not_exported():
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import TensorSVC
+
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(TensorSVC(), ["a", "b"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == "binary estimator without classes_: not fitted, nothing to export"
