@@ -157,6 +157,10 @@ def test_the_instruction_model_reproduces_the_qemu_counts():
     assert decision_instructions((4, 4), 100, (1, 1, 1), 36) > base
     assert decision_instructions((4, 4), 50, (1, 1, 1), 36, True) > base
     assert decision_instructions((8, 8), 50, (1, 1, 1), 36) > base
+    # by default the window of today's detector, bounded (WindowConfig's window_samples > 0)
+    assert eskin.WindowConfig().window_samples > 0
+    assert base == decision_instructions((4, 4), 50, (1, 1, 1), 36, False, True)
+    assert base != decision_instructions((4, 4), 50, (1, 1, 1), 36, False, False)
 
 
 def test_the_margin_bounds_every_recorded_decision():
@@ -543,3 +547,11 @@ def test_a_model_filling_the_flash_exactly_fits_and_one_byte_less_does_not():
     assert device_budget(cm, exact).advice == []
     short = replace(exact, flash_bytes=exact.flash_bytes - 1)
     assert device_budget(cm, short).advice[0].startswith("the bases take ")
+
+
+def test_a_budget_describes_itself_in_bytes_and_millions_of_instructions():
+    from eskin.deploy.target import Budget
+
+    b = Budget(TARGETS["cortex-m4"], 524288, 65536, 2.5e6)
+    assert b.describe() == (f"{TARGETS['cortex-m4'].name}: flash 524288 B, RAM 65536 B, 2.5 M "
+                            f"instructions per decision")
