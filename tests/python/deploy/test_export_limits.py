@@ -669,3 +669,49 @@ def test_an_estimator_never_fitted_is_not_exported():
     with pytest.raises(ModelFormatError) as info:
         spec_from_estimator(TensorSVC(), ["a", "b"], D=4, grid_shape=(2, 3))
     assert str(info.value) == "binary estimator without classes_: not fitted, nothing to export"
+
+
+@pytest.mark.parametrize("short, code", [("interpolate", 0), ("error", 1)])
+def test_the_short_window_policy_is_written_with_its_documented_code(short, code):
+    """docs/model-format.md, PREP: short_policy 0 interpolate, 1 error."""
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    spec.short = short
+    b = model_to_bytes(spec, "float64")
+    assert struct.unpack_from("<6I", b, _section(b, b"PREP"))[5] == code
+
+
+def test_support_vectors_of_another_grid_and_coefficients_of_another_count_are_refused():
+    from eskin.deploy.export import model_to_bytes
+
+    for shape in ((3, 2, 2, 4), (3, 2, 4, 4), (3, 2, 3, 3), (3, 2, 3, 5)):
+        spec = _binary_spec()
+        spec.machines[0].support_vectors = np.zeros(shape)
+        with pytest.raises(ModelFormatError) as info:
+            model_to_bytes(spec, "float64")
+        assert str(info.value) == (f"machine 0: support_vectors shape {shape}, expected "
+                                   f"(n>=1, 2, 3, 4)")
+    for n in (2, 4):
+        spec = _binary_spec()
+        spec.machines[0].dual_coef = np.ones(n)
+        with pytest.raises(ModelFormatError) as info:
+            model_to_bytes(spec, "float64")
+        assert str(info.value) == f"machine 0: {n} dual coefficients for 3 support vectors"
+
+
+@pytest.mark.parametrize("z", [0, 1, 2])
+def test_each_modes_alpha_and_sigma_are_checked(z):
+    from eskin.deploy.export import model_to_bytes
+
+    q = (2, 3, 4)[z]  # min(mode size, the product of the others) on a 2x3 grid, D=4
+    spec = _binary_spec()
+    spec.machines[0].alphas = tuple(q + 1 if i == z else 1 for i in range(3))
+    with pytest.raises(ModelFormatError) as info:
+        model_to_bytes(spec, "float64")
+    assert str(info.value) == f"machine 0: alpha[{z}]={q + 1} out of range [1, Q={q}]"
+    spec = _binary_spec()
+    spec.machines[0].sigmas = tuple(0.0 if i == z else 1.0 for i in range(3))
+    with pytest.raises(ModelFormatError) as info:
+        model_to_bytes(spec, "float64")
+    assert str(info.value) == f"machine 0: sigma[{z}]=0.0 must be > 0"
