@@ -408,6 +408,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                          "values")),
     ],
     "python/eskin/deploy/export.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   'real = np.dtype("<f8") if dtype == "float64" else np.dtype("<f4")',
+                   'real = np.dtype("<f8") if dtype >= "float64" else np.dtype("<f4")',
+                   "dtype is 'float32' or 'float64' (checked just above): only 'float64' sorts "
+                   "at or after 'float64'"),
         Equivalent("core/ReplaceAndWithOr",
                    'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
                    'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',

@@ -715,3 +715,19 @@ def test_each_modes_alpha_and_sigma_are_checked(z):
     with pytest.raises(ModelFormatError) as info:
         model_to_bytes(spec, "float64")
     assert str(info.value) == f"machine 0: sigma[{z}]=0.0 must be > 0"
+
+
+def test_the_metadata_names_the_amplitude_factor_only_when_a_machine_has_it():
+    import json
+
+    from eskin.deploy.export import model_to_bytes
+
+    def meta(spec) -> dict:
+        b = model_to_bytes(spec, "float32")
+        return json.JSONDecoder().raw_decode(b[b.index(b'{"'):].decode("latin-1"))[0]
+
+    plain = _binary_spec()
+    assert meta(plain) == {"dtype": "float32", "format": "eskin-model"}
+    plain.machines[0].amplitude_width = 0.5
+    assert meta(plain) == {"amplitude": True, "amplitude_widths": [0.5], "dtype": "float32",
+                           "format": "eskin-model"}
