@@ -127,9 +127,14 @@ def test_the_writer_refuses_a_calibration_the_loader_would_refuse(model):
     from dataclasses import replace
 
     spec = spec_from_model(model)
-    spec.calibration = replace(model.calibration, threshold=1.2)
-    with pytest.raises(ModelFormatError, match="calibration: threshold=1.2"):
-        model_to_bytes(spec, "float64")
+    for t in (1.2, -0.1):
+        spec.calibration = replace(model.calibration, threshold=t)
+        with pytest.raises(ModelFormatError) as info:
+            model_to_bytes(spec, "float64")
+        assert str(info.value) == f"calibration: threshold={t!r} must be within [0, 1]"
+    for t in (0.0, 1.0):  # the ends are thresholds
+        spec.calibration = replace(model.calibration, threshold=t)
+        assert CompiledModel(model_to_bytes(spec, "float64")).calibration().threshold == t
     spec.calibration = replace(model.calibration, slopes=model.calibration.slopes[:2])
     with pytest.raises(ModelFormatError, match="2 slopes and 3 offsets for 3 machines"):
         model_to_bytes(spec, "float64")
