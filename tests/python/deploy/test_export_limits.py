@@ -245,6 +245,12 @@ def test_the_c_header_names_the_rows_and_columns_of_a_grid(tmp_path):
     text = write_c_header(_binary_spec(grid=(2, 3)), tmp_path / "m.h", name="m").read_text()
     assert "#define M_ROWS 2\n" in text and "#define M_COLS 3\n" in text
     assert "#define M_N_CLASSES 2\n" in text
+    # its comment gives the file's size and its CRC-32, the one the file ends with
+    from eskin.deploy.export import model_to_bytes
+
+    data = model_to_bytes(_binary_spec(grid=(2, 3)), "float32")
+    crc = struct.unpack("<I", data[-4:])[0]
+    assert f" {len(data)} bytes, CRC-32 0x{crc:08x}\n" in text
 
 
 def test_one_pattern_classifies_as_the_first_of_a_batch_and_machines_keep_their_shape():
