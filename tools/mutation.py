@@ -408,6 +408,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                          "values")),
     ],
     "python/eskin/deploy/export.py": [
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
+                   "if x.ndim != 4 or x.shape[1:3] != self.grid_shape:",
+                   "if x.ndim > 4 or x.shape[1:3] != self.grid_shape:",
+                   "signals of three axes were made four just above; of one or two, their shape "
+                   "after the first axis is not the grid, and the same message refuses them"),
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
                    'real = np.dtype("<f8") if dtype == "float64" else np.dtype("<f4")',
                    'real = np.dtype("<f8") if dtype >= "float64" else np.dtype("<f4")',
