@@ -126,30 +126,14 @@ def test_a_campaign_placed_where_hard_links_are_not_supported_is_renamed_in(tmp_
         assert len(c) == 2
 
 
-def test_an_unexpected_link_error_is_one_line_and_the_journal_stays(tmp_path, monkeypatch):
-    import errno
-    import os
-
-    from eskin.data.journal import journal_path
-
-    def broken(src, dst):
-        raise OSError(errno.EIO, "Input/output error")
-
-    path = tmp_path / "c.h5"
-    _journal(path, [])
-    monkeypatch.setattr(os, "link", broken)
-    with pytest.raises(OSError) as info:
-        recover_campaign(path)
-    assert str(info.value) == (f"[Errno 5] {path}: cannot write the campaign file (Input/output "
-                               f"error); the journal is kept: {journal_path(path)}")
-    assert journal_path(path).exists() and not path.exists()
-
-
-@pytest.mark.parametrize("exc, reason", [
-    (OSError("the card went away (it was pulled)"), "the card went away"),
-    (OSError(), "OSError")])
-def test_an_error_without_a_system_message_is_named_by_its_text_or_type(tmp_path, monkeypatch,
-                                                                       exc, reason):
+@pytest.mark.parametrize("exc, prefix, reason", [
+    (OSError(5, "Input/output error"), "[Errno 5] ", "Input/output error"),
+    (OSError("the card went away (it was pulled)"), "", "the card went away"),
+    (OSError(), "", "OSError")])
+def test_an_error_placing_the_campaign_is_one_line_and_the_journal_stays(tmp_path, monkeypatch,
+                                                                        exc, prefix, reason):
+    """An unexpected error of the exclusive link, named by the system's message, else by its
+    text up to the first parenthesis, else by its type."""
     import os
 
     from eskin.data.journal import journal_path
@@ -162,5 +146,6 @@ def test_an_error_without_a_system_message_is_named_by_its_text_or_type(tmp_path
     monkeypatch.setattr(os, "link", broken)
     with pytest.raises(OSError) as info:
         recover_campaign(path)
-    assert str(info.value) == (f"{path}: cannot write the campaign file ({reason}); the journal "
-                               f"is kept: {journal_path(path)}")
+    assert str(info.value) == (f"{prefix}{path}: cannot write the campaign file ({reason}); the "
+                               f"journal is kept: {journal_path(path)}")
+    assert journal_path(path).exists() and not path.exists()
