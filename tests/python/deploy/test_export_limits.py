@@ -522,7 +522,8 @@ def test_a_machine_without_support_vectors_is_not_exported():
     X = rng.normal(size=(8, 2, 3, 4))
     est = TensorSVC().fit(X, np.array([0, 1] * 4))
     assert est.support_vectors_.shape[0] > 0
-    spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))  # as fitted: exported
+    spec = spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))  # as fitted: exported
+    assert (spec.grid_shape, spec.D, spec.class_names) == ((2, 3), 4, ["a", "b"])
     est.support_vectors_ = est.support_vectors_[:0]
     est.dual_coef_ = np.asarray(est.dual_coef_).reshape(-1)[:0]
     with pytest.raises(ModelFormatError) as info:
