@@ -33,9 +33,6 @@ def main() -> None:
     ap.add_argument("--mutants", type=int, default=12)
     ap.add_argument("--seed", type=int, default=5)
     args = ap.parse_args()
-    from cosmic_ray.mutating import mutate_code
-    from cosmic_ray.plugins import get_operator
-
     tests = mutation.PYTHON_MODULES[args.module]
     base_tree, runner_tree = (mutation.OUT / "bench" / side for side in ("baseline", "runner"))
     for tree in (base_tree, runner_tree):
@@ -49,11 +46,9 @@ def main() -> None:
     source = (base_tree / args.module).read_text()
     mutants = []
     for w in chosen:
-        m = w.mutations[0]
-        code = mutate_code(source, get_operator(m.operator_name)(**(m.operator_args or {})),
-                           m.occurrence)
-        if code is not None:
-            mutants.append((m.start_pos[0], code))
+        code = mutation.python_mutant_source(source, w.mutations[0])
+        if code is not None:  # could not be applied: not a mutant
+            mutants.append((w.mutations[0].start_pos[0], code))
 
     t0 = time.perf_counter()
     baseline = []

@@ -791,13 +791,18 @@ def is_equivalent(module: str, operator: str, line: str, mutated) -> bool:
     return bool(entries) and mutated().strip() in {e.mutant for e in entries}
 
 
-def python_mutant_line(source: str, mutation) -> str:
-    """The line of ``source`` that a cosmic-ray mutation changes, as the mutant has it."""
+def python_mutant_source(source: str, mutation) -> str | None:
+    """``source`` with a cosmic-ray mutation applied (None: it cannot be applied)."""
     from cosmic_ray.mutating import mutate_code
     from cosmic_ray.plugins import get_operator
 
     operator = get_operator(mutation.operator_name)(**(mutation.operator_args or {}))
-    code = mutate_code(source, operator, mutation.occurrence)
+    return mutate_code(source, operator, mutation.occurrence)
+
+
+def python_mutant_line(source: str, mutation) -> str:
+    """The line of ``source`` that a cosmic-ray mutation changes, as the mutant has it."""
+    code = python_mutant_source(source, mutation)
     return "" if code is None else code.splitlines()[mutation.start_pos[0] - 1]
 
 
@@ -847,9 +852,6 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                jobs: int = 1) -> float | None:
     """Runs the module's mutants (those on ``lines`` only, when given) with ``jobs`` workers
     (tools/mutant_runner.py); its score."""
-    from cosmic_ray.mutating import mutate_code
-    from cosmic_ray.plugins import get_operator
-
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from mutant_runner import run_mutants
 
@@ -881,10 +883,6 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     timeout = 3 * (time.monotonic() - t0) + 30
     source = (works[0] / module).read_text()
 
-    def mutated(m) -> str | None:  # None: the mutation cannot be applied (not counted)
-        op = get_operator(m.operator_name)(**(m.operator_args or {}))
-        return mutate_code(source, op, m.occurrence)
-
     mutants = [(w.mutations[0], w.mutations[0].start_pos[0]) for w in chosen]
     rows = source.splitlines()
 
@@ -898,7 +896,8 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                              f"{rows[line - 1].strip()}")
             print(f"  {survivors[-1]}: survived", file=sys.stderr, flush=True)
 
-    verdicts = run_mutants([(line, lambda m=m: mutated(m)) for m, line in mutants], module, works,
+    verdicts = run_mutants([(line, lambda m=m: python_mutant_source(source, m))
+                            for m, line in mutants], module, works,
                            PYTHON, env, tests, timeout, nice(),
                            progress=module if len(mutants) > 50 else "", verdict=verdict)
     ran = [k for k in verdicts if k is not None]
