@@ -122,8 +122,7 @@ class DataFrame:
         return (
             (self.first_sample, self.timestamp_us, self.seq, self.flags)
             == (other.first_sample, other.timestamp_us, other.seq, other.flags)
-            and self.samples.shape == other.samples.shape
-            and bool(np.array_equal(self.samples, other.samples))
+            and bool(np.array_equal(self.samples, other.samples))  # shapes included
         )
 
     __hash__ = None  # type: ignore[assignment]
