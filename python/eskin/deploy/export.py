@@ -30,6 +30,7 @@ import numpy as np
 
 from eskin.errors import ModelFormatError
 from eskin.learn.kernel import pattern_log_energy
+from eskin.learn.training_set import true_label_names
 
 __all__ = [
     "CompiledDecisions",
@@ -876,8 +877,7 @@ class CompiledModel:
         n_total = len(data) if is_campaign else int(np.shape(data)[0])
         idx = np.arange(n_total) if indices is None else np.asarray(indices, np.int64)
         lengths = np.asarray(data.lengths) if is_campaign else None
-        names = [str(m) for m in (getattr(data, "modalities", None) or [])]
-        modality = np.asarray(getattr(data, "modality", np.full(n_total, -1)))
+        truth = true_label_names(data, idx)
         out: list[dict[str, Any]] = []
         for c0 in range(0, len(idx), chunk):
             sel = idx[c0 : c0 + chunk]
@@ -901,9 +901,8 @@ class CompiledModel:
                                    else None),
                     "window": [int(d.windows[j, 0]), int(d.windows[j, 1])],
                 }
-                m = int(modality[i]) if i < len(modality) else -1
-                if names and 0 <= m < len(names):
-                    item["true_label"] = names[m]
+                if truth[c0 + j] is not None:
+                    item["true_label"] = truth[c0 + j]
                 out.append(item)
         return out
 

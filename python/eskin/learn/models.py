@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from eskin.errors import ModelFormatError, TrainingError
-from eskin.learn.training_set import ArrayRecordings, preprocess_campaign
+from eskin.learn.training_set import ArrayRecordings, preprocess_campaign, true_label_names
 
 MODEL_FORMAT = "eskin.touch-model"
 MODEL_FORMAT_VERSION = 1
@@ -176,8 +176,7 @@ class TouchModel:
         idx = np.arange(len(rec)) if indices is None else np.asarray(indices, np.int64)
         X = self.preprocess(rec, idx)
         pred, F, dk, conf = self.decide(X)
-        names = list(getattr(rec, "modalities", []) or [])
-        mod = np.asarray(getattr(rec, "modality", np.full(len(rec), -1)))
+        truth = true_label_names(rec, idx)
         out = []
         for j, i in enumerate(idx):
             item: dict[str, Any] = {
@@ -187,9 +186,8 @@ class TouchModel:
                 "dont_know": bool(dk[j]),
                 "confidence": float(conf[j]) if np.isfinite(conf[j]) else None,
             }
-            m = int(mod[i]) if i < len(mod) else -1
-            if names and 0 <= m < len(names):
-                item["true_label"] = str(names[m])
+            if truth[j] is not None:
+                item["true_label"] = truth[j]
             out.append(item)
         return out
 

@@ -249,6 +249,17 @@ MIN_CLASS_RECORDINGS = 5
 GROUP_FIELDS: tuple[str, ...] = ("participant", "run", "direction")
 
 
+def true_label_names(data: Any, indices: Sequence[int] | np.ndarray) -> list[str | None]:
+    """The class each of the recordings ``indices`` of ``data`` was recorded as: a campaign's
+    modality names indexed by its modality ids (its loader refuses an id the names do not
+    cover); None for every recording of data without names (in-memory arrays)."""
+    names = [str(m) for m in (getattr(data, "modalities", None) or [])]
+    if not names:
+        return [None] * len(indices)
+    modality = np.asarray(data.modality)
+    return [names[int(modality[i])] for i in indices]
+
+
 def group_labels(campaign: Any, name: str) -> np.ndarray:
     """The per-recording integer label ``name`` of a campaign: participant, run, direction, or
     an integer extra field (``/recordings/extra/<name>``)."""

@@ -11,6 +11,7 @@ from eskin.learn.training_set import (
     fillable_D,
     preprocess_campaign,
     touch_window_lengths,
+    true_label_names,
 )
 
 
@@ -59,3 +60,15 @@ def test_at_10_hz_the_windows_and_the_D_they_fill_follow_the_touches():
     prep = preprocess_campaign(rec, np.arange(6), [(10, "even")])
     np.testing.assert_array_equal(prep.windows[:, 1] - prep.windows[:, 0], lengths)
     assert any("warmup_s = 0.1 s at 10 Hz" in n for n in prep.notes)
+
+
+def test_the_true_label_of_a_recording_is_its_modality_name_and_none_without_names(tmp_path):
+    from eskin.data.campaign import load_campaign
+
+    camp = load_campaign(small_simulated(tmp_path), in_memory=True)
+    names = list(camp.modalities)
+    idx = [len(camp) - 1, 0, 4]
+    assert true_label_names(camp, idx) == [names[int(camp.modality[i])] for i in idx]
+    assert len(set(true_label_names(camp, range(len(camp))))) == len(names)
+    assert true_label_names(ArrayRecordings(np.ones((3, 2, 2, 40))), [2, 0]) == [None, None]
+    assert true_label_names(np.ones((3, 2, 2, 40)), [1]) == [None]
