@@ -731,9 +731,7 @@ _STATUS = {
     -3: "it holds NaN or Inf values",
     -4: "its window is shorter than D (the model's short policy is error)",
     -5: "the basis computation failed",
-    -6: "null data",
-    -7: "it holds more than 4096 separate touches",
-}
+}  # the core's other statuses (a null pointer, the reserved overflow) never come from here
 
 
 class CompiledModel:

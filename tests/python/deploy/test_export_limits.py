@@ -738,3 +738,37 @@ def test_the_metadata_names_the_amplitude_factor_only_when_a_machine_has_it():
     plain.machines[0].amplitude_width = 0.5
     assert meta(plain) == {"amplitude": True, "amplitude_widths": [0.5], "dtype": "float32",
                            "format": "eskin-model"}
+
+
+def test_a_touch_still_on_at_the_end_is_decided_by_the_flush_stream_does_by_default():
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    rec = (np.random.default_rng(5).normal(size=(2, 3, 300)) * 50).astype(np.float64)
+    rec[:, :, 220:] += 400 * np.sin(np.linspace(0, 20, 80))  # the touch lasts to the last sample
+    unflushed = [e for e in cm.stream(rec, flush=False) if e["status_name"] == "decision"]
+    flushed = [e for e in cm.stream(rec) if e["status_name"] == "decision"]
+    assert unflushed == []
+    assert len(flushed) == 1 and flushed[0]["sample"] == 300
+    assert flushed[0]["label"] in ("a", "b")
+
+
+@pytest.mark.parametrize("status, why", [
+    (-1, "its shape does not fit the model"),
+    (-2, "no touch was detected (the model's detector has fallback = error)"),
+    (-3, "it holds NaN or Inf values"),
+    (-4, "its window is shorter than D (the model's short policy is error)"),
+    (-5, "the basis computation failed"),
+    (-6, "status -6"),  # a null pointer: never passed from Python
+    (-7, "status -7"),  # reserved by the core (it keeps the 4096 most energetic touches)
+])
+def test_each_status_of_the_core_is_named_in_the_error(status, why):
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    n = 3
+    st = np.array([0, status, status], np.int32)
+    with pytest.raises(ValueError) as err:
+        cm._decisions(np.zeros(n, np.int32), np.zeros((n, 1)), np.zeros(n, bool), st,
+                      np.zeros((n, 2), np.int64), np.ones(n, bool), np.zeros(n))
+    assert str(err.value) == f"recording 1 cannot be classified: {why} (2 recording(s) failed)"
