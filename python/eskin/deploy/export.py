@@ -146,11 +146,7 @@ def _validate_spec(spec: ModelSpec) -> None:
         raise ModelFormatError(f"subsample={spec.subsample!r}: expected 'algorithm2' or 'even'")
     if spec.short not in _SHORT:
         raise ModelFormatError(f"short={spec.short!r}: expected 'interpolate' or 'error'")
-    if not (np.isfinite(spec.sample_rate_hz) and spec.sample_rate_hz > 0):
-        raise ModelFormatError(f"sample_rate_hz={spec.sample_rate_hz!r}: must be finite and > 0")
     nc = len(spec.class_names)
-    if len(set(spec.class_names)) != nc:
-        raise ModelFormatError(f"class_names {spec.class_names!r}: repeated names")
     if spec.rule == "binary":
         if nc != 2 or len(spec.machines) != 1:
             raise ModelFormatError(

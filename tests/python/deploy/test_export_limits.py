@@ -232,11 +232,12 @@ def test_a_rule_read_from_text_is_compared_by_its_value():
     assert cm.rule == "binary"
 
 
-def test_the_format_version_is_the_newest_and_the_loaders():
+def test_the_format_versions_run_from_one_to_the_newest_the_loader_reads():
     from eskin import _core
     from eskin.deploy.export import FORMAT_VERSION, FORMAT_VERSIONS
 
-    assert FORMAT_VERSION == max(FORMAT_VERSIONS) == _core.MODEL_FORMAT_VERSION
+    assert FORMAT_VERSION == _core.MODEL_FORMAT_VERSION
+    assert FORMAT_VERSIONS == tuple(range(1, FORMAT_VERSION + 1))  # each one a file is written in
 
 
 def test_the_c_header_names_the_rows_and_columns_of_a_grid(tmp_path):
@@ -772,3 +773,31 @@ def test_each_status_of_the_core_is_named_in_the_error(status, why):
         cm._decisions(np.zeros(n, np.int32), np.zeros((n, 1)), np.zeros(n, bool), st,
                       np.zeros((n, 2), np.int64), np.ones(n, bool), np.zeros(n))
     assert str(err.value) == f"recording 1 cannot be classified: {why} (2 recording(s) failed)"
+
+
+@pytest.mark.parametrize("rate, shown", [(0.0, "0"), (-5.0, "-5"), (np.nan, "nan"),
+                                         (np.inf, "inf"), (2e7, "20000000")])
+def test_a_sample_rate_outside_the_loaders_range_is_refused_naming_it(rate, shown):
+    """The loader's one rule: a rate in (0, 1e7] Hz; the ends are written and load."""
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    spec.sample_rate_hz = rate
+    with pytest.raises(ModelFormatError, match=rf"section PREP: sample_rate_hz={shown} must be in \(0, 1e7\]"):
+        model_to_bytes(spec, "float64")
+    from dataclasses import replace
+
+    spec.window_config = replace(spec.window_config, max_window_s=1.0)  # 1e7 samples at 1e7 Hz
+    for ok in (1e7, 100.0):
+        spec.sample_rate_hz = ok
+        assert CompiledModel(model_to_bytes(spec, "float64")).sample_rate_hz == ok
+
+
+def test_a_repeated_class_name_is_refused_naming_it():
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec(names=("tap", "tap"))
+    with pytest.raises(ModelFormatError, match=r"section CLAS: class name 'tap' repeated"):
+        model_to_bytes(spec, "float64")
+    spec = _binary_spec(names=("tap", "Tap"))
+    assert CompiledModel(model_to_bytes(spec, "float64")).class_names == ["tap", "Tap"]
