@@ -408,6 +408,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                          "values")),
     ],
     "python/eskin/deploy/export.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", 'if spec.rule == "binary":',
+                   'if spec.rule <= "binary":',
+                   "the rule is 'binary' or 'one_vs_all' (checked just above): only 'binary' "
+                   "sorts at or before 'binary'"),
+        Equivalent("core/NumberReplacer", "m = spec.machines[0]", "m = spec.machines[ -1]",
+                   "a binary model has exactly one machine (checked just above)"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
                    "if x.ndim != 4 or x.shape[1:3] != self.grid_shape:",
                    "if x.ndim > 4 or x.shape[1:3] != self.grid_shape:",

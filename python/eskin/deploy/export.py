@@ -171,16 +171,16 @@ def _validate_spec(spec: ModelSpec) -> None:
     shape = (rows, cols, D)
     for k, m in enumerate(spec.machines):
         sv = np.asarray(m.support_vectors)
-        if sv.ndim != 4 or sv.shape[1:] != shape or sv.shape[0] < 1:
+        if sv.shape[1:] != shape or sv.shape[0] < 1:  # (and so four axes)
             raise ModelFormatError(
                 f"machine {k}: support_vectors shape {sv.shape}, expected (n>=1, {rows}, {cols}, {D})"
             )
         if not np.all(np.isfinite(sv)):
             raise ModelFormatError(f"machine {k}: support_vectors contain NaN or Inf")
-        coef = np.asarray(m.dual_coef, dtype=np.float64).reshape(-1)
-        if coef.shape[0] != sv.shape[0]:
+        coef = np.asarray(m.dual_coef, dtype=np.float64).ravel()
+        if len(coef) != len(sv):
             raise ModelFormatError(
-                f"machine {k}: {coef.shape[0]} dual coefficients for {sv.shape[0]} support vectors"
+                f"machine {k}: {len(coef)} dual coefficients for {len(sv)} support vectors"
             )
         if not np.all(np.isfinite(coef)) or not np.isfinite(m.intercept):
             raise ModelFormatError(f"machine {k}: dual_coef or intercept not finite")

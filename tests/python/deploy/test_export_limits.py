@@ -693,7 +693,8 @@ def test_the_short_window_policy_is_written_with_its_documented_code(short, code
 def test_support_vectors_of_another_grid_and_coefficients_of_another_count_are_refused():
     from eskin.deploy.export import model_to_bytes
 
-    for shape in ((3, 2, 2, 4), (3, 2, 4, 4), (3, 2, 3, 3), (3, 2, 3, 5)):
+    for shape in ((3, 2, 2, 4), (3, 2, 4, 4), (3, 2, 3, 3), (3, 2, 3, 5), (3, 2, 3), (3, 2, 3, 4, 1),
+                  (2, 3, 4), ()):
         spec = _binary_spec()
         spec.machines[0].support_vectors = np.zeros(shape)
         with pytest.raises(ModelFormatError) as info:
@@ -706,6 +707,16 @@ def test_support_vectors_of_another_grid_and_coefficients_of_another_count_are_r
         with pytest.raises(ModelFormatError) as info:
             model_to_bytes(spec, "float64")
         assert str(info.value) == f"machine 0: {n} dual coefficients for 3 support vectors"
+    spec = _binary_spec()
+    spec.machines[0].dual_coef = np.ones((1, 3))  # scikit-learn's (1, n) row: its values
+    assert CompiledModel(model_to_bytes(spec, "float64")).n_support == 3
+    rng = np.random.default_rng(9)
+    spec.machines[0].support_vectors = rng.normal(size=(300, 2, 3, 4))
+    spec.machines[0].dual_coef = rng.normal(size=300)
+    assert CompiledModel(model_to_bytes(spec, "float64")).n_support == 300
+    spec.machines[0].dual_coef = rng.normal(size=299)
+    with pytest.raises(ModelFormatError, match="^machine 0: 299 dual coefficients for 300 support"):
+        model_to_bytes(spec, "float64")
 
 
 @pytest.mark.parametrize("z", [0, 1, 2])
@@ -801,3 +812,49 @@ def test_a_repeated_class_name_is_refused_naming_it():
         model_to_bytes(spec, "float64")
     spec = _binary_spec(names=("tap", "Tap"))
     assert CompiledModel(model_to_bytes(spec, "float64")).class_names == ["tap", "Tap"]
+
+
+def _machines_spec(rule, n_classes, pairs):
+    """A spec of ``n_classes`` classes and one machine per (positive, negative) pair."""
+    from dataclasses import replace
+
+    spec = _binary_spec(names=[f"c{i}" for i in range(n_classes)], rule=rule)
+    spec.machines = [replace(spec.machines[0], positive=p, negative=n) for p, n in pairs]
+    return spec
+
+
+@pytest.mark.parametrize("rule, n_classes, pairs, message", [
+    ("binary", 3, [(1, 0)], "binary model: needs 2 classes and 1 machine, got 3 and 1"),
+    ("binary", 2, [(1, 0), (0, 1)], "binary model: needs 2 classes and 1 machine, got 2 and 2"),
+    ("binary", 2, [(1, 2)], r"binary machine classes \(1, 2\) must be \(1, 0\) or \(0, 1\)"),
+    ("binary", 2, [(1, 1)], r"binary machine classes \(1, 1\) must be \(1, 0\) or \(0, 1\)"),
+    ("one_vs_all", 3, [(0, -1), (1, -1)],
+     r"one_vs_all model: needs one machine per class \(3\), got 2"),
+    ("one_vs_all", 2, [(0, -1), (1, -1), (2, -1)],
+     r"one_vs_all model: needs one machine per class \(2\), got 3"),
+    ("one_vs_all", 1, [(0, -1)], r"one_vs_all model: needs one machine per class \(1\), got 1"),
+    ("one_vs_all", 3, [(0, -1), (2, -1), (1, -1)],
+     r"one_vs_all machine 1: positive/negative = \(2, -1\), expected \(1, -1\)"),
+    ("one_vs_all", 3, [(0, -1), (1, -1), (2, 0)],
+     r"one_vs_all machine 2: positive/negative = \(2, 0\), expected \(2, -1\)"),
+    ("one_vs_all", 2, [(0, -2), (1, -1)],
+     r"one_vs_all machine 0: positive/negative = \(0, -2\), expected \(0, -1\)"),
+])
+def test_machines_that_do_not_fit_the_rule_are_refused_by_the_exporter(rule, n_classes, pairs,
+                                                                       message):
+    """The exporter names the rule's machines and classes before the loader's check (which
+    says the same of a file: cpp/src/model_format.cpp)."""
+    from eskin.deploy.export import model_to_bytes
+
+    with pytest.raises(ModelFormatError, match=f"^{message}$"):
+        model_to_bytes(_machines_spec(rule, n_classes, pairs), "float64")
+
+
+@pytest.mark.parametrize("rule, n_classes, pairs", [
+    ("binary", 2, [(0, 1)]), ("one_vs_all", 2, [(0, -1), (1, -1)]),
+    ("one_vs_all", 4, [(0, -1), (1, -1), (2, -1), (3, -1)])])
+def test_machines_that_fit_the_rule_are_written(rule, n_classes, pairs):
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_machines_spec(rule, n_classes, pairs), "float64"))
+    assert cm.rule == rule and len(cm.class_names) == n_classes
