@@ -858,3 +858,28 @@ def test_machines_that_fit_the_rule_are_written(rule, n_classes, pairs):
 
     cm = CompiledModel(model_to_bytes(_machines_spec(rule, n_classes, pairs), "float64"))
     assert cm.rule == rule and len(cm.class_names) == n_classes
+
+
+@pytest.mark.parametrize("field, value", [
+    ("dual_coef", np.array([1.0, np.nan, 1.0])), ("dual_coef", np.array([np.inf, 1.0, 1.0])),
+    ("intercept", np.nan), ("intercept", -np.inf)])
+def test_a_coefficient_or_intercept_not_finite_is_refused(field, value):
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    setattr(spec.machines[0], field, value)
+    with pytest.raises(ModelFormatError, match=r"^machine 0: dual_coef or intercept not finite$"):
+        model_to_bytes(spec, "float64")
+
+
+@pytest.mark.parametrize("alphas, sigmas", [
+    ((2, 2), (1.0, 1.0, 1.0)), ((2, 2, 2, 2), (1.0, 1.0, 1.0)),
+    ((2, 2, 2), (1.0, 1.0)), ((2, 2, 2), (1.0, 1.0, 1.0, 1.0))])
+def test_alphas_and_sigmas_need_one_value_per_mode(alphas, sigmas):
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec()
+    spec.machines[0].alphas, spec.machines[0].sigmas = alphas, sigmas
+    with pytest.raises(ModelFormatError,
+                       match=r"^machine 0: alphas/sigmas need one value per mode \(3\)$"):
+        model_to_bytes(spec, "float64")
