@@ -82,7 +82,8 @@ PYTHON_MODULES: dict[str, list[str]] = {
     "python/eskin/deploy/export.py": [
         # all but the two that train on a campaign first (90 s of the 2 min)
         "tests/python/deploy/test_export.py", "tests/python/deploy/test_export_limits.py",
-        "tests/python/deploy/test_export_calibration.py", "-k",
+        "tests/python/deploy/test_export_calibration.py", "tests/python/deploy/test_amplitude.py",
+        "-k",
         "not train_export_classify_matches and not cli_export_writes_model_and_header"],
     # the recipe `eskin train` chooses and what fits a controller's budget
     "python/eskin/learn/recipes.py": ["tests/python/learn/test_recipes.py"],

@@ -187,8 +187,8 @@ def test_version_2_layout_meta_and_loaded_fields(campaign):
         (lambda s: setattr(s.machines[1], "amplitude_width", -1.0),
          "machine 1: amplitude_width=-1.0 must be 0 (no amplitude factor) or within [1e-06, 1e+06]"),
         (lambda s: setattr(s.machines[1], "amplitude_width", 1e-7), "machine 1: amplitude_width=1e-07"),
-        (lambda s: setattr(s.machines[0], "amplitude_width", float("nan")), "amplitude_width=nan"),
-        (lambda s: setattr(s.machines[0], "amplitude_width", 2e6), "amplitude_width=2000000.0"),
+        (lambda s: setattr(s.machines[0], "amplitude_width", float("nan")), "machine 0: amplitude_width=nan"),
+        (lambda s: setattr(s.machines[0], "amplitude_width", 2e6), "machine 0: amplitude_width=2000000.0"),
         (lambda s: setattr(s.machines[2], "sv_log_energy", np.zeros(3)),
          "machine 2: sv_log_energy shape (3,), expected (8,)"),
         (lambda s: setattr(s.machines[2], "sv_log_energy", np.full(8, np.inf)),
@@ -202,7 +202,15 @@ def test_bad_widths_and_energies_are_refused_before_writing(campaign, edit, mess
     edit(spec)
     with pytest.raises(ModelFormatError) as info:
         model_to_bytes(spec)
-    assert message in str(info.value)
+    assert str(info.value).startswith(message)  # the exporter's own message, not the loader's
+
+
+@pytest.mark.parametrize("width", [1e-6, 1e6, 0.0])
+def test_widths_at_the_ends_of_the_range_and_none_are_written(campaign, width):
+    spec, _ = _spec(campaign, 20, [0.7, width, 1.5])
+    b = model_to_bytes(spec, "float64")
+    assert CompiledModel(b).format_version == 2
+    assert json.loads(dict(_sections(b))[b"meta"])["amplitude_widths"] == [0.7, width, 1.5]
 
 
 def test_the_same_support_vector_has_one_energy(campaign):

@@ -734,6 +734,34 @@ def test_each_modes_alpha_and_sigma_are_checked(z):
     with pytest.raises(ModelFormatError) as info:
         model_to_bytes(spec, "float64")
     assert str(info.value) == f"machine 0: sigma[{z}]=0.0 must be > 0"
+    spec.machines[0].sigmas = tuple(-2.0 if i == z else 1.0 for i in range(3))
+    with pytest.raises(ModelFormatError, match=rf"^machine 0: sigma\[{z}\]=-2.0 must be > 0$"):
+        model_to_bytes(spec, "float64")
+
+
+def test_a_modes_rank_is_bounded_by_the_product_of_the_other_modes():
+    """On a 1x2 grid with D=4 the time mode's unfolding is 4 x 2: its rank is at most 2."""
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec(grid=(1, 2), D=4)
+    spec.machines[0].alphas = (1, 1, 3)
+    with pytest.raises(ModelFormatError, match=r"^machine 0: alpha\[2\]=3 out of range \[1, Q=2\]$"):
+        model_to_bytes(spec, "float64")
+    spec.machines[0].alphas = (1, 1, 2)
+    assert CompiledModel(model_to_bytes(spec, "float64")).n_support == 3
+
+
+def test_the_first_log_energy_out_of_range_is_named():
+    from dataclasses import replace
+
+    from eskin.deploy.export import model_to_bytes
+
+    plain = _binary_spec()
+    m = plain.machines[0]
+    spec = replace(plain, machines=[replace(m, amplitude_width=0.5,
+                                            sv_log_energy=np.array([0.0, 2e4, -3e4]))])
+    with pytest.raises(ModelFormatError, match=r"^machine 0: sv_log_energy\[1\]=20000.0 is not"):
+        model_to_bytes(spec, "float64")
 
 
 def test_the_metadata_names_the_amplitude_factor_only_when_a_machine_has_it():
