@@ -911,3 +911,24 @@ def test_alphas_and_sigmas_need_one_value_per_mode(alphas, sigmas):
     with pytest.raises(ModelFormatError,
                        match=r"^machine 0: alphas/sigmas need one value per mode \(3\)$"):
         model_to_bytes(spec, "float64")
+
+
+@pytest.mark.parametrize("window_samples, version", [(None, 1), (0.0, 1), (64.0, 3), (-5.0, None)])
+def test_a_window_mapping_without_the_bounded_field_is_an_unbounded_window(window_samples, version):
+    """A plain mapping of the detector's settings may predate ``window_samples``: it means 0
+    (every sample up to max_window_s); a negative value is written, and refused by the loader."""
+    from eskin.deploy.export import _window_fields, format_version, model_to_bytes
+
+    spec = _binary_spec()
+    fields = _window_fields(spec.window_config)
+    del fields["window_samples"]
+    if window_samples is not None:
+        fields["window_samples"] = window_samples
+    spec.window_config = fields
+    if version is None:
+        with pytest.raises(ModelFormatError, match=r"WindowConfig.window_samples = -5: must be 0"):
+            model_to_bytes(spec, "float64")
+        return
+    assert format_version(spec) == version
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    assert cm.format_version == version and cm.window_config["window_samples"] == (window_samples or 0)
