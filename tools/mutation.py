@@ -425,6 +425,14 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    'real = np.dtype("<f8") if dtype >= "float64" else np.dtype("<f4")',
                    "dtype is 'float32' or 'float64' (checked just above): only 'float64' sorts "
                    "at or after 'float64'"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   'flags = FLAG_FLOAT64 if dtype == "float64" else 0',
+                   'flags = FLAG_FLOAT64 if dtype >= "float64" else 0',
+                   "dtype is 'float32' or 'float64' (checked at the start): only 'float64' "
+                   "sorts at or after 'float64'"),
+        Equivalent("core/NumberReplacer", "owner = np.full(len(unique), -1)",
+                   "owner = np.full(len(unique), - 2)",
+                   "'no machine gave it yet' is any negative owner: it is only compared with 0"),
         Equivalent("core/ReplaceAndWithOr",
                    'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
                    'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',

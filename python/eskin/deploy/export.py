@@ -233,7 +233,7 @@ def format_version(spec: ModelSpec) -> int:
 
 
 def _has_amplitude(spec: ModelSpec) -> bool:
-    return any(float(m.amplitude_width) > 0 for m in spec.machines)
+    return any(float(m.amplitude_width) for m in spec.machines)  # each 0 or > 0 (validated)
 
 
 def _window_fields(cfg: Any) -> dict[str, float]:
@@ -343,7 +343,7 @@ def _unique_support_vectors(spec: ModelSpec) -> tuple[list[np.ndarray], list[dic
     for m in spec.machines:
         terms: dict[int, float] = {}
         sv = np.ascontiguousarray(m.support_vectors, dtype=np.float64)
-        for x, c in zip(sv, np.asarray(m.dual_coef, dtype=np.float64).reshape(-1)):
+        for x, c in zip(sv, np.asarray(m.dual_coef, dtype=np.float64).ravel()):
             key = x.tobytes()
             idx = table.get(key)
             if idx is None:
@@ -401,7 +401,7 @@ def _calb_section(spec: ModelSpec) -> bytes:
     cal = spec.calibration
     a = [float(v) for v in cal.slopes]
     b = [float(v) for v in cal.offsets]
-    if len(a) != len(spec.machines) or len(b) != len(spec.machines):
+    if (len(a), len(b)) != (len(spec.machines),) * 2:
         raise ModelFormatError(
             f"calibration: {len(a)} slopes and {len(b)} offsets for {len(spec.machines)} machines"
         )

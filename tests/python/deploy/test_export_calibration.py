@@ -135,9 +135,13 @@ def test_the_writer_refuses_a_calibration_the_loader_would_refuse(model):
     for t in (0.0, 1.0):  # the ends are thresholds
         spec.calibration = replace(model.calibration, threshold=t)
         assert CompiledModel(model_to_bytes(spec, "float64")).calibration().threshold == t
-    spec.calibration = replace(model.calibration, slopes=model.calibration.slopes[:2])
-    with pytest.raises(ModelFormatError, match="2 slopes and 3 offsets for 3 machines"):
-        model_to_bytes(spec, "float64")
+    a, b = list(model.calibration.slopes), list(model.calibration.offsets)
+    for slopes, offsets in ((a[:2], b), (a + [1.0], b), (a, b[:2]), (a, b + [0.0])):
+        spec.calibration = replace(model.calibration, slopes=slopes, offsets=offsets)
+        with pytest.raises(ModelFormatError) as info:
+            model_to_bytes(spec, "float64")
+        assert str(info.value) == (f"calibration: {len(slopes)} slopes and {len(offsets)} "
+                                   f"offsets for 3 machines")
     # the ends of the ranges, the writer's as the loader's: slopes in [0, 1e6], offsets in
     # [-1e6, 1e6]; just outside, refused naming the machine
     k = len(model.calibration.slopes)

@@ -932,3 +932,52 @@ def test_a_window_mapping_without_the_bounded_field_is_an_unbounded_window(windo
     assert format_version(spec) == version
     cm = CompiledModel(model_to_bytes(spec, "float64"))
     assert cm.format_version == version and cm.window_config["window_samples"] == (window_samples or 0)
+
+
+def _energy_spec(energies):
+    """Three one-vs-all machines on the same two support vectors, each giving the log energies
+    ``energies[k]`` (None: none given, computed from the pattern)."""
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec
+
+    rng = np.random.default_rng(8)
+    pool = rng.normal(size=(2, 2, 3, 4))
+    machines = [MachineSpec(k, -1, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=2),
+                            amplitude_width=0.5,
+                            sv_log_energy=None if e is None else np.array(e, dtype=np.float64))
+                for k, e in enumerate(energies)]
+    return ModelSpec(["a", "b", "c"], "one_vs_all", machines, 4, (2, 3), window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+
+
+def test_the_energies_given_by_a_later_machine_are_written_and_compared():
+    """A first machine that gives no energies leaves them to the next that does; the energies
+    two later machines give are compared with each other (1e-9 relative, the end allowed) and
+    the first given is the one written."""
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_energy_spec([None, [5.0, -7.0], [5.0, -7.0]]), "float64"))
+    assert cm.sv_log_energy.tolist() == [5.0, -7.0]  # not the patterns' own (about 0)
+    for tie in (0.5e-9, 1e-9):  # within rounding of 0: machine 1's value is kept
+        b = model_to_bytes(_energy_spec([None, [0.0, 1.0], [tie, 1.0]]), "float64")
+        assert CompiledModel(b).sv_log_energy.tolist() == [0.0, 1.0]
+    with pytest.raises(ModelFormatError, match=r"^machine 2: sv_log_energy\[0\]=1.5e-09, but the "
+                                               r"same support vector has 0.0 in machine 1 "):
+        model_to_bytes(_energy_spec([None, [0.0, 1.0], [1.5e-9, 1.0]]), "float64")
+
+
+def test_a_computed_log_energy_out_of_range_names_the_first_support_vector():
+    """Patterns whose mean square overflows have e(x) = inf: refused, naming the first."""
+    import eskin
+    from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
+
+    rng = np.random.default_rng(10)
+    pool = rng.normal(size=(3, 2, 3, 4))
+    pool[1:] *= 1e160
+    m = MachineSpec(1, 0, 0.0, (2, 2, 2), (1.0, 1.0, 1.0), pool, rng.normal(size=3),
+                    amplitude_width=0.5)
+    spec = ModelSpec(["a", "b"], "binary", [m], 4, (2, 3), window="none",
+                     sample_rate_hz=1000.0, window_config=eskin.WindowConfig())
+    with pytest.raises(ModelFormatError, match=r"^support vector 1: log energy inf is not finite "
+                                               r"or outside \[-10000, 10000\]$"):
+        model_to_bytes(spec, "float64")
