@@ -484,7 +484,7 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
         if not hasattr(est, attr):
             raise ModelFormatError(f"{where}: the estimator has no fitted attribute {attr!r}")
     sv = np.asarray(est.support_vectors_, dtype=np.float64)
-    coef = np.asarray(est.dual_coef_, dtype=np.float64).reshape(-1)
+    coef = np.asarray(est.dual_coef_, dtype=np.float64).ravel()
     if sv.shape[0] == 0:
         raise ModelFormatError(f"{where}: the machine has no support vectors; nothing to export")
     width = float(getattr(est, "amplitude_width_", 0.0) or 0.0)
@@ -502,7 +502,7 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
         support_vectors=sv,
         dual_coef=coef,
         amplitude_width=width,
-        sv_log_energy=None if energy is None else np.asarray(energy, dtype=np.float64).reshape(-1),
+        sv_log_energy=None if energy is None else np.asarray(energy, dtype=np.float64).ravel(),
     )
 
 

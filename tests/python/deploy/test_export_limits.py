@@ -981,3 +981,84 @@ def test_a_computed_log_energy_out_of_range_names_the_first_support_vector():
     with pytest.raises(ModelFormatError, match=r"^support vector 1: log energy inf is not finite "
                                                r"or outside \[-10000, 10000\]$"):
         model_to_bytes(spec, "float64")
+
+
+def _fitted_svc(seed=4, **kw):
+    from eskin.learn.estimators import TensorSVC
+
+    rng = np.random.default_rng(seed)
+    return TensorSVC(**kw).fit(rng.normal(size=(8, 2, 3, 4)) * np.arange(1, 9)[:, None, None, None],
+                               np.array([0, 1] * 4))
+
+
+def test_an_estimator_pickled_before_the_amplitude_factor_is_exported_without_it():
+    """No ``amplitude_width_`` and no ``sv_log_energy_``: the paper's kernel, format version 1."""
+    from eskin.deploy.export import format_version, spec_from_estimator
+
+    est = _fitted_svc()
+    del est.amplitude_width_, est.sv_log_energy_
+    spec = spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3), window="none",
+                               window_config={})
+    m = spec.machines[0]
+    assert m.amplitude_width == 0.0 and m.sv_log_energy is None and format_version(spec) == 1
+
+
+def test_an_amplitude_factor_needs_the_energies_it_was_fitted_with():
+    from eskin.deploy.export import model_to_bytes, spec_from_estimator
+
+    est = _fitted_svc(amplitude=1.0)
+    assert est.amplitude_width_ > 0
+    given = np.linspace(-1.0, 1.0, len(est.sv_log_energy_))  # not the patterns' own e(x)
+    est.sv_log_energy_ = given[:, None]
+    spec = spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
+    assert spec.machines[0].sv_log_energy.tolist() == given.tolist()
+    del est.sv_log_energy_
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == (f"binary machine: amplitude_width_={est.amplitude_width_!r} but no "
+                               f"fitted attribute 'sv_log_energy_'")
+    est.amplitude_width_ = -0.5  # a damaged width: refused by the range, not as missing energies
+    with pytest.raises(ModelFormatError, match=r"^machine 0: amplitude_width=-0.5 must be 0"):
+        model_to_bytes(spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3)), "float64")
+
+
+def test_a_spec_made_without_a_rate_is_at_the_papers_3_khz():
+    from eskin.deploy.export import spec_from_estimator
+
+    spec = spec_from_estimator(_fitted_svc(), ["a", "b"], D=4, grid_shape=(2, 3))
+    assert spec.sample_rate_hz == 3000.0
+
+
+@pytest.mark.parametrize("names", [["a"], ["a", "b", "c"]])
+def test_a_binary_estimator_needs_two_class_names(names):
+    from eskin.deploy.export import spec_from_estimator
+
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(_fitted_svc(), names, D=4, grid_shape=(2, 3))
+    assert str(info.value) == f"binary estimator classes_ [0, 1] must be [0, 1] for the classes {names}"
+
+
+@pytest.mark.parametrize("n_names", [2, 4])
+def test_a_one_vs_all_estimator_needs_a_name_per_machine(n_names):
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS
+
+    rng = np.random.default_rng(6)
+    est = OneVsAllTouchClassifier(TensorRLS()).fit(rng.normal(size=(9, 2, 3, 4)), np.arange(9) % 3)
+    names = [f"c{i}" for i in range(n_names)]
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, names, D=4, grid_shape=(2, 3))
+    assert str(info.value) == f"one-vs-all estimator has 3 machines for {n_names} classes"
+
+
+def test_three_hundred_one_vs_all_machines_make_a_spec_of_three_hundred():
+    """Counts past the integers Python keeps one object of (256) compare by value."""
+    from eskin.deploy.export import spec_from_estimator
+    from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS
+
+    rng = np.random.default_rng(6)
+    est = OneVsAllTouchClassifier(TensorRLS()).fit(rng.normal(size=(9, 2, 3, 4)), np.arange(9) % 3)
+    est.estimators_ = est.estimators_[:1] * 300
+    est.classes_ = np.arange(300)
+    spec = spec_from_estimator(est, [f"c{i}" for i in range(300)], D=4, grid_shape=(2, 3))
+    assert [(m.positive, m.negative) for m in spec.machines] == [(k, -1) for k in range(300)]
