@@ -254,6 +254,20 @@ def test_the_c_header_names_the_rows_and_columns_of_a_grid(tmp_path):
     assert f" {len(data)} bytes, CRC-32 0x{crc:08x}\n" in text
 
 
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_the_c_headers_comment_describes_the_model(tmp_path, dtype):
+    from eskin.deploy.export import model_to_bytes, write_c_header
+
+    data = model_to_bytes(_binary_spec(names=("tap", "press"), grid=(2, 3), D=5), dtype)
+    text = write_c_header(data, tmp_path / "m.h", name="m").read_text()
+    crc = struct.unpack("<I", data[-4:])[0]
+    assert text.splitlines()[:4] == [
+        "/* m: an eskin model (.eskin format version 3, docs/model-format.md)",  # bounded window
+        " * classes: tap, press (binary)",
+        " * grid 2x3, D = 5, window none, subsample algorithm2, 1000 Hz",
+        f" * 3 support vectors, {dtype}, {len(data)} bytes, CRC-32 0x{crc:08x}"]
+
+
 def test_one_pattern_classifies_as_the_first_of_a_batch_and_machines_keep_their_shape():
     from eskin.deploy.export import _CompiledMachines, model_to_bytes
 
