@@ -433,6 +433,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/NumberReplacer", "owner = np.full(len(unique), -1)",
                    "owner = np.full(len(unique), - 2)",
                    "'no machine gave it yet' is any negative owner: it is only compared with 0"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", 'self.rule == "binary")',
+                   'self.rule <= "binary")',
+                   "a loaded model's rule is 'binary' or 'one_vs_all': only 'binary' sorts at "
+                   "or before 'binary'"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "x = x[None] if x.ndim == 3 else x  # one recording: a batch of one",
+                   "x = x[None] if x.ndim <= 3 else x  # one recording: a batch of one",
+                   "signals of fewer than three axes are refused just below either way, with "
+                   "the same message (it shows the shape given)"),
         Equivalent("core/ReplaceAndWithOr",
                    'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
                    'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',

@@ -806,8 +806,7 @@ class CompiledModel:
     # -- decisions
     def _signals(self, signals: Any) -> np.ndarray:
         x = np.asarray(signals)
-        if x.ndim == 3:
-            x = x[None]
+        x = x[None] if x.ndim == 3 else x  # one recording: a batch of one
         if x.ndim != 4 or x.shape[1:3] != self.grid_shape:
             raise ValueError(
                 f"signals: expected shape (n, {self.grid_shape[0]}, {self.grid_shape[1]}, T) or "

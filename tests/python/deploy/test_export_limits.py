@@ -1076,3 +1076,35 @@ def test_three_hundred_one_vs_all_machines_make_a_spec_of_three_hundred():
     est.classes_ = np.arange(300)
     spec = spec_from_estimator(est, [f"c{i}" for i in range(300)], D=4, grid_shape=(2, 3))
     assert [(m.positive, m.negative) for m in spec.machines] == [(k, -1) for k in range(300)]
+
+
+@pytest.mark.parametrize("rule", ["binary", "one_vs_all"])
+def test_a_files_calibrated_rule_reads_back_as_written(rule):
+    from eskin.deploy.export import model_to_bytes
+    from eskin.learn.calibration import Calibration
+
+    pairs = [(1, 0)] if rule == "binary" else [(0, -1), (1, -1)]
+    spec = _machines_spec(rule, 2, pairs)
+    k = len(pairs)
+    spec.calibration = Calibration((2.0,) * k, (-0.5,) * k, 0.75, 0.1, rule == "binary")
+    got = CompiledModel(model_to_bytes(spec, "float64")).calibration()
+    assert (got.slopes, got.offsets, got.threshold, got.binary) == (
+        (2.0,) * k, (-0.5,) * k, 0.75, rule == "binary")
+    assert np.isnan(got.reject)  # a file holds the threshold, not the fraction it came from
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_a_compiled_models_decisions_are_frozen_and_its_repr_names_it(dtype):
+    import dataclasses
+
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(names=("tap", "press")), dtype))
+    assert repr(cm) == f"CompiledModel(classes=['tap', 'press'], rule='binary', D=4, n_support=3, {dtype})"
+    x = np.random.default_rng(3).normal(size=(3, 2, 3, 40))
+    d = cm.classify(x)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        d.labels = d.labels[:1]
+    one = cm.classify(x[1])  # one recording (rows, cols, T) is a batch of one
+    assert one.decision_values.tolist() == d.decision_values[1:2].tolist()
+    assert one.windows.tolist() == d.windows[1:2].tolist()
