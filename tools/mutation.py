@@ -442,6 +442,21 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "x = x[None] if x.ndim <= 3 else x  # one recording: a batch of one",
                    "signals of fewer than three axes are refused just below either way, with "
                    "the same message (it shows the shape given)"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "X = X[None] if X.ndim == 3 else X  # one pattern: a batch of one",
+                   "X = X[None] if X.ndim <= 3 else X  # one pattern: a batch of one",
+                   "patterns of fewer than three axes are refused by the core either way, with "
+                   "the same message (the shape it expects)"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Lt",
+                   "bad = np.flatnonzero(np.asarray(status) != 0)",
+                   "bad = np.flatnonzero(np.asarray(status) < 0)",
+                   "the batch classifiers return 0 or a negative status (kDecision, 1, is the "
+                   "stream's alone)"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   'return v.ravel() if self.rule == "binary" else v',
+                   'return v.ravel() if self.rule <= "binary" else v',
+                   "a loaded model's rule is 'binary' or 'one_vs_all': only 'binary' sorts at "
+                   "or before 'binary'"),
         Equivalent("core/ReplaceAndWithOr",
                    'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
                    'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',

@@ -812,9 +812,7 @@ class CompiledModel:
                 f"signals: expected shape (n, {self.grid_shape[0]}, {self.grid_shape[1]}, T) or "
                 f"({self.grid_shape[0]}, {self.grid_shape[1]}, T), got {np.shape(signals)}"
             )
-        if x.dtype not in (np.int16, np.float32, np.float64):
-            x = x.astype(np.float64)
-        return np.ascontiguousarray(x)
+        return x  # int16, float32 and float64 as they are; the core casts any other to float64
 
     def classify(self, signals: Any, lengths: Any = None) -> CompiledDecisions:
         """Classify raw recordings (n, rows, cols, T) (or one (rows, cols, T)), int16 or float,
@@ -829,8 +827,7 @@ class CompiledModel:
     def classify_tensors(self, X: Any) -> CompiledDecisions:
         """Classify already preprocessed patterns (n, rows, cols, D) (the machines only)."""
         X = np.asarray(X, dtype=np.float64)
-        if X.ndim == 3:
-            X = X[None]
+        X = X[None] if X.ndim == 3 else X  # one pattern: a batch of one
         lab, val, dk, status, conf = self._clf.classify_tensors(np.ascontiguousarray(X))
         n = len(lab)
         return self._decisions(
@@ -853,8 +850,11 @@ class CompiledModel:
 
     def decision_function(self, signals: Any, lengths: Any = None) -> np.ndarray:
         """Decision values of raw recordings: (n,) for a binary model, (n, n_classes) otherwise."""
-        v = self.classify(signals, lengths).decision_values
-        return v[:, 0] if self.rule == "binary" else v
+        return self._estimator_values(self.classify(signals, lengths).decision_values)
+
+    def _estimator_values(self, v: np.ndarray) -> np.ndarray:
+        """Decision values shaped as the Python estimators give them: (n,) for a binary model."""
+        return v.ravel() if self.rule == "binary" else v
 
     def predict(self, signals: Any, lengths: Any = None) -> np.ndarray:
         """Class names of raw recordings."""
@@ -877,9 +877,9 @@ class CompiledModel:
             if is_campaign:
                 recs = [np.asarray(data.recording(int(i))) for i in sel]
                 lens = np.array([min(r.shape[-1], int(lengths[i])) for r, i in zip(recs, sel)])
-                block = np.zeros((len(recs), *recs[0].shape[:2], int(lens.max())), recs[0].dtype)
-                for j, r in enumerate(recs):
-                    block[j, :, :, : lens[j]] = r[..., : lens[j]]
+                width = int(lens.max())  # each recording's valid samples, then zeros
+                block = np.stack([np.pad(r[..., :n], ((0, 0), (0, 0), (0, width - n)))
+                                  for r, n in zip(recs, lens)])
             else:
                 block = np.asarray(data)[sel]
                 lens = None
@@ -892,7 +892,7 @@ class CompiledModel:
                     "dont_know": bool(d.dont_know[j]),
                     "confidence": (float(d.confidence[j]) if np.isfinite(d.confidence[j])
                                    else None),
-                    "window": [int(d.windows[j, 0]), int(d.windows[j, 1])],
+                    "window": [int(v) for v in d.windows[j]],
                 }
                 if truth[c0 + j] is not None:
                     item["true_label"] = truth[c0 + j]
@@ -935,8 +935,7 @@ class _CompiledMachines:
         self._dont_know = np.zeros(0, bool)
 
     def decision_function(self, X: np.ndarray) -> np.ndarray:
-        v = self.compiled.classify_tensors(X).decision_values
-        return v[:, 0] if self.compiled.rule == "binary" else v
+        return self.compiled._estimator_values(self.compiled.classify_tensors(X).decision_values)
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         d = self.compiled.classify_tensors(X)

@@ -309,6 +309,9 @@ def test_per_recording_decisions_cover_every_recording_and_name_the_true_class(t
         assert [it["index"] for it in items] == [0, 1, 2, 3, 4]
         assert [it["true_label"] for it in items] == ["tap", "press", "press", "tap", "press"]
         assert [it["index"] for it in cm.predict_recordings(camp, [3, 1])] == [3, 1]
+        d = cm.classify(sig, camp.lengths)
+        assert [it["window"] for it in items] == d.windows.tolist()
+        assert [it["decision_values"] for it in items] == d.decision_values.tolist()
     raw = cm.predict_recordings(sig.astype(np.float64))
     assert [it["index"] for it in raw] == [0, 1, 2, 3, 4]
     assert all("true_label" not in it for it in raw)
@@ -1108,3 +1111,19 @@ def test_a_compiled_models_decisions_are_frozen_and_its_repr_names_it(dtype):
     one = cm.classify(x[1])  # one recording (rows, cols, T) is a batch of one
     assert one.decision_values.tolist() == d.decision_values[1:2].tolist()
     assert one.windows.tolist() == d.windows[1:2].tolist()
+
+
+def test_signals_of_any_numeric_type_or_layout_classify_as_their_float64_values():
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    x = np.round(np.random.default_rng(1).normal(size=(2, 2, 3, 80)) * 100)
+    want = cm.classify(x).decision_values
+    for other in (x.astype(np.int16), x.astype(np.int32), x.astype(np.int64), x.astype(np.float32),
+                  np.asfortranarray(x), x.tolist()):
+        assert cm.classify(other).decision_values.tolist() == want.tolist()
+    every_other = x[:, :, :, ::2]  # a strided view
+    assert cm.classify(every_other).decision_values.tolist() == \
+        cm.classify(every_other.copy()).decision_values.tolist()
+    with pytest.raises(ValueError, match="could not convert string to float"):
+        cm.classify(np.full((1, 2, 3, 40), "a", dtype=object))
