@@ -1127,3 +1127,12 @@ def test_signals_of_any_numeric_type_or_layout_classify_as_their_float64_values(
         cm.classify(every_other.copy()).decision_values.tolist()
     with pytest.raises(ValueError, match="could not convert string to float"):
         cm.classify(np.full((1, 2, 3, 40), "a", dtype=object))
+
+
+@pytest.mark.parametrize("shape", [(1, 2, 3, 40), (3, 40), (240,), (40, 5)])
+def test_stream_takes_samples_or_one_recording_and_refuses_other_shapes(shape):
+    from eskin.deploy.export import model_to_bytes
+
+    cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
+    with pytest.raises(ValueError, match=r"^samples: expected shape \(n, 6\)$"):
+        cm.stream(np.zeros(shape))
