@@ -457,6 +457,9 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    'return v.ravel() if self.rule <= "binary" else v',
                    "a loaded model's rule is 'binary' or 'one_vs_all': only 'binary' sorts at "
                    "or before 'binary'"),
+        Equivalent("core/NumberReplacer", "x = x.reshape(-1, x.shape[-1]).T",
+                   "x = x.reshape(- 2, x.shape[-1]).T",
+                   "numpy infers the size given as any negative number (-2 as -1)"),
         Equivalent("core/ReplaceAndWithOr",
                    'if hasattr(cfg, "to_array") and hasattr(cfg, "field_names"):',
                    'if hasattr(cfg, "to_array") or hasattr(cfg, "field_names"):',

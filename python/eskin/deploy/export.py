@@ -485,7 +485,7 @@ def _machine_spec(est: Any, positive: int, negative: int, where: str) -> Machine
             raise ModelFormatError(f"{where}: the estimator has no fitted attribute {attr!r}")
     sv = np.asarray(est.support_vectors_, dtype=np.float64)
     coef = np.asarray(est.dual_coef_, dtype=np.float64).ravel()
-    if sv.shape[0] == 0:
+    if not len(sv):
         raise ModelFormatError(f"{where}: the machine has no support vectors; nothing to export")
     width = float(getattr(est, "amplitude_width_", 0.0) or 0.0)
     energy = getattr(est, "sv_log_energy_", None)

@@ -1136,3 +1136,56 @@ def test_stream_takes_samples_or_one_recording_and_refuses_other_shapes(shape):
     cm = CompiledModel(model_to_bytes(_binary_spec(), "float64"))
     with pytest.raises(ValueError, match=r"^samples: expected shape \(n, 6\)$"):
         cm.stream(np.zeros(shape))
+
+
+def test_a_spec_is_at_the_papers_3_khz_unless_told():
+    from eskin.deploy.export import MachineSpec, ModelSpec
+
+    m = _binary_spec().machines[0]
+    assert ModelSpec(["a", "b"], "binary", [m], 4, (2, 3)).sample_rate_hz == 3000.0
+    assert isinstance(m, MachineSpec)
+
+
+@pytest.mark.parametrize("name, ok", [("x" * 31, True), ("é" * 15 + "x", True), ("x" * 32, False),
+                                      ("é" * 16, False), ("", False), ("a\x00b", False)])
+def test_a_class_name_is_one_to_31_utf8_bytes_without_nul(name, ok):
+    from eskin.deploy.export import model_to_bytes
+
+    spec = _binary_spec(names=("a", name))
+    if ok:
+        assert CompiledModel(model_to_bytes(spec, "float64")).class_names == ["a", name]
+        return
+    with pytest.raises(ModelFormatError) as info:
+        model_to_bytes(spec, "float64")
+    assert str(info.value) == (f"class name {name!r}: must be a non-empty name of at most 31 "
+                               f"UTF-8 bytes")
+
+
+@pytest.mark.parametrize("attr", ["support_vectors_", "dual_coef_", "intercept_", "alphas_",
+                                  "sigmas_"])
+def test_an_estimator_missing_a_fitted_attribute_is_named(attr):
+    from eskin.deploy.export import spec_from_estimator
+
+    est = _fitted_svc()
+    delattr(est, attr)
+    with pytest.raises(ModelFormatError) as info:
+        spec_from_estimator(est, ["a", "b"], D=4, grid_shape=(2, 3))
+    assert str(info.value) == f"binary machine: the estimator has no fitted attribute {attr!r}"
+
+
+def test_a_calibrated_model_streams_its_confidences_and_the_papers_none():
+    from eskin.deploy.export import _CompiledMachines, model_to_bytes
+    from eskin.learn.calibration import Calibration
+
+    rec = (np.random.default_rng(4).normal(size=(2, 3, 300)) * 50).astype(np.float64)
+    rec[:, :, 100:180] += 400 * np.sin(np.linspace(0, 20, 80))
+    spec = _binary_spec()
+    paper = [e for e in CompiledModel(model_to_bytes(spec, "float64")).stream(rec)
+             if e["status_name"] == "decision"]
+    spec.calibration = Calibration((2.0,), (-0.5,), 0.6, 0.1, True)
+    cm = CompiledModel(model_to_bytes(spec, "float64"))
+    calibrated = [e for e in cm.stream(rec) if e["status_name"] == "decision"]
+    assert len(paper) == len(calibrated) >= 1
+    assert all(e["confidence"] is None for e in paper)
+    assert all(0.5 <= e["confidence"] <= 1.0 for e in calibrated)
+    assert _CompiledMachines(cm).dont_know_.shape == (0,)  # nothing decided yet
