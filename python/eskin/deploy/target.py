@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import json
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -39,13 +39,13 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Target:
-    """A controller class: its memories and clock, and the program around the model."""
+    """A controller class: its memories, and the program around the model (its clock is in the
+    description: a decision's budget is counted in instructions)."""
 
     name: str
     description: str
     flash_bytes: int
     ram_bytes: int
-    clock_hz: float
     program_flash_bytes: int  # code and constants of the program without its model
     program_ram_bytes: int  # statics and the reserved stack
 
@@ -69,7 +69,6 @@ TARGETS: dict[str, Target] = {
         description="Cortex-M4F, STM32F4 class: 1 MB flash, 128 KB RAM, 168 MHz",
         flash_bytes=1 << 20,
         ram_bytes=128 << 10,
-        clock_hz=168e6,
         # the `make mcu` program without its model (core, newlib-nano with printf, semihosting),
         # from its linked image; statics and the stack reserve
         program_flash_bytes=int(_PROGRAM["program_flash_bytes"]),
@@ -420,8 +419,7 @@ def parse_budget(text: str | None, target: str | None = None) -> Budget:
         given.add(key)
         values[key] = _size(value, key, decimal=key == "instr")
     name = base.name if text is None else f"{base.name} (budget {text})"
-    t = Target(name, base.description, int(values["flash"]), int(values["ram"]), base.clock_hz,
-               base.program_flash_bytes, base.program_ram_bytes)
+    t = replace(base, name=name, flash_bytes=int(values["flash"]), ram_bytes=int(values["ram"]))
     return Budget(t, int(values["flash"]), int(values["ram"]), float(values["instr"]))
 
 

@@ -83,7 +83,7 @@ def test_a_model_too_large_gets_advice(campaign):
     assert any("--window-samples" in a and "max_window_s 7 s" in a for a in big.advice)
     bounded = device_budget(CompiledModel.from_model(_model(campaign, 20, 7.0)))
     assert bounded.fits and bounded.ram["detector samples"] == (150 + 31 * 30 + 1024) * 16 * 2
-    tiny = Target("tiny", "a 64 KB part", 64 << 10, 256 << 10, 48e6, 40 << 10, 4 << 10)
+    tiny = Target("tiny", "a 64 KB part", 64 << 10, 256 << 10, 40 << 10, 4 << 10)
     small_flash = device_budget(CompiledModel.from_model(_model(campaign, 50, 0.5)), tiny)
     assert not small_flash.fits and any("smaller D" in a for a in small_flash.advice)
     with pytest.raises(ValueError, match="unknown target 'cortex-m7'"):
@@ -544,9 +544,31 @@ def test_a_model_filling_the_flash_exactly_fits_and_one_byte_less_does_not():
     cm = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
     roomy = replace(TARGETS["cortex-m4"], ram_bytes=1 << 30)
     exact = replace(roomy, flash_bytes=device_budget(cm, roomy).flash_total)
-    assert device_budget(cm, exact).advice == []
+    assert device_budget(cm, exact).advice == [] and device_budget(cm, exact).fits
     short = replace(exact, flash_bytes=exact.flash_bytes - 1)
     assert device_budget(cm, short).advice[0].startswith("the bases take ")
+    assert not device_budget(cm, short).fits
+    roomy = replace(TARGETS["cortex-m4"], flash_bytes=1 << 30)
+    exact = replace(roomy, ram_bytes=device_budget(cm, roomy).ram_total)
+    assert device_budget(cm, exact).fits
+    assert not device_budget(cm, replace(exact, ram_bytes=exact.ram_bytes - 1)).fits
+
+
+def test_targets_and_budgets_are_frozen_and_the_program_ram_is_its_statics_and_stack():
+    import dataclasses
+
+    from eskin.deploy.target import program_image
+
+    t = TARGETS["cortex-m4"]
+    image = program_image("cortex-m4")
+    assert t.program_ram_bytes == image["program_statics_bytes"] + image["stack_bytes"]
+    assert t.program_flash_bytes == image["program_flash_bytes"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.ram_bytes = 1
+    budget = device_budget(CompiledModel((TESTS / "data" / "model_projection_float64.eskin")
+                                         .read_bytes()), t)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        budget.advice = []
 
 
 def test_a_budget_describes_itself_in_bytes_and_millions_of_instructions():
