@@ -164,7 +164,7 @@ def device_budget(model: Any, target: str | Target = "cortex-m4") -> DeviceBudge
             np.array([cm.window_config[k] for k in _core.WINDOW_CONFIG_FIELDS]), cm.sample_rate_hz
         )
         per = taxels * 2 * cm.sample_rate_hz / 10
-        ws = int(cm.window_config.get("window_samples", 0))
+        ws = int(cm.window_config["window_samples"])  # 0 in files before version 3
         advice += [
             (
                 f"the detector keeps lookback_s + pad_before_s of raw samples and a window "

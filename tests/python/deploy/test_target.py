@@ -577,3 +577,62 @@ def test_a_budget_describes_itself_in_bytes_and_millions_of_instructions():
     b = Budget(TARGETS["cortex-m4"], 524288, 65536, 2.5e6)
     assert b.describe() == (f"{TARGETS['cortex-m4'].name}: flash 524288 B, RAM 65536 B, 2.5 M "
                             f"instructions per decision")
+
+
+def _svbs_bases_bytes(data: bytes) -> int:
+    """The bytes of the support vectors' bases in a .eskin file (docs/model-format.md: SVBS is
+    its order, count, grid and D, alpha_store, the ranks padded to 8 bytes, then the bases)."""
+    import struct
+
+    pos = 32
+    while True:
+        tag, n = struct.unpack_from("<4sI", data, pos)
+        if tag == b"SVBS":
+            n_sv = struct.unpack_from("<I", data, pos + 12)[0]
+            return n - 32 - (12 * n_sv + 7) // 8 * 8
+        pos += 8 + (n + 7) // 8 * 8
+
+
+@pytest.mark.parametrize("name, dtype_advice", [
+    ("model_uneven_float64.eskin", "float32 instead of float64"),
+    ("model_projection_float32.eskin", "float16 bases would halve them (not in the model format)")])
+def test_the_flash_advice_gives_the_bases_bytes_the_file_holds(name, dtype_advice):
+    data = (TESTS / "data" / name).read_bytes()
+    cm = CompiledModel(data)
+    real = 8 if cm.is_float64 else 4
+    rows, cols = cm.grid_shape
+    no_flash = Target("no flash", "none", 1, 1 << 30, 0, 0)
+    advice = device_budget(cm, no_flash).advice
+    assert advice == [
+        f"the bases take {_svbs_bases_bytes(data)} bytes (n_sv x sum_z N_z alpha_z x {real}): a "
+        f"smaller D shrinks the (rows) and (cols) modes, N = {cols * cm.D} and {rows * cm.D}",
+        f"a smaller alpha (alpha_store {tuple(cm.alpha_store)})",
+        "fewer support vectors (a tensor-SVM keeps only its support vectors, tensor-RLS every "
+        f"training pattern: {cm.n_support} here)",
+        dtype_advice]
+
+
+def test_a_model_filling_the_ram_exactly_gets_no_advice():
+    from dataclasses import replace
+
+    cm = CompiledModel((TESTS / "data" / "model_uneven_float64.eskin").read_bytes())
+    roomy = replace(TARGETS["cortex-m4"], ram_bytes=1 << 30)
+    exact = replace(roomy, ram_bytes=device_budget(cm, roomy).ram_total)
+    assert device_budget(cm, exact).advice == []
+    advice = device_budget(cm, replace(exact, ram_bytes=exact.ram_bytes - 1)).advice
+    assert len(advice) == 1 and advice[0].startswith("the detector keeps lookback_s")
+    assert "bound the window with --window-samples (max_window_s" in advice[0]  # a version 1 file
+
+
+@pytest.mark.parametrize("n, alpha, tiles", [
+    (16, 1, [1]), (16, 3, [3]), (16, 4, [4]), (16, 5, [4, 1]), (16, 8, [4, 4]), (16, 11, [4, 4, 3]),
+    (16, 15, [4, 4, 4, 3]), (16, 16, []), (16, 17, []), (80, 16, [4, 4, 4, 4])])
+def test_the_overlap_counts_the_devices_4x4_tiles_and_nothing_at_full_rank(n, alpha, tiles):
+    """cpp/src/model_overlap.cpp: blocks of 4 basis columns, then the 1-3 left, on each side;
+    a tile of kb x lb dot products costs kb + lb loads, kb * lb multiply-adds and 2 per entry."""
+    from eskin.deploy.target import overlap_instructions
+
+    want = sum(n * (kb + lb + kb * lb + 2) for kb in tiles for lb in tiles)
+    assert overlap_instructions(n, alpha) == want
+    if alpha == 4:
+        assert want == 16 * 26  # 26 instructions per entry for 16 multiply-adds
