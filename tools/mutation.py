@@ -198,6 +198,9 @@ _WS_LINES = (
     "norms_.assign(q, Real(0));",
     "col_.assign(n, Real(0));",
 )
+_FULL_RANK = ("a mode's alpha is at most q = min(m, N) (the stored alphas are within it): "
+              "alpha >= N only when alpha = N <= m, so m > N and m != N, alpha >= N and "
+              "alpha == N agree (and `is` on such small integers is ==)")
 _S = 'const bool converted = name.size() > 2 && (name.compare(name.size() - 2, 2, "_s") == 0 ||'
 _HZ = 'name.compare(name.size() - 3, 3, "_hz") == 0);'
 _SUFFIX = ("which window fields count as seconds or hertz, by the end of the name: "
@@ -325,6 +328,14 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
+        *(Equivalent(op, "if not (m > n and a >= n):", mutant, _FULL_RANK)
+          for op, mutant in (
+              ("core/ReplaceComparisonOperator_Gt_NotEq", "if not (m != n and a >= n):"),
+              ("core/ReplaceComparisonOperator_Gt_IsNot", "if not (m is not n and a >= n):"),
+              ("core/ReplaceComparisonOperator_GtE_Eq", "if not (m > n and a == n):"),
+              ("core/ReplaceComparisonOperator_GtE_Is", "if not (m > n and a is n):"))),
+        Equivalent("core/NumberReplacer", "w = 1.0 / y", "w = 2.0 / y",
+                   "weights scaled by a constant have the same least-squares solution"),
         Equivalent("core/ReplaceComparisonOperator_Eq_Is",
                    "if g_est == g_est:  # fitted without the grid (not nan)",
                    "if g_est is g_est:  # fitted without the grid (not nan)",
@@ -344,11 +355,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "each leaving at least 12 counts for the 11 coefficients, so >, != and is "
                      "not are true wherever >= is")
           for op, sym in (("Gt", ">"), ("NotEq", "!="), ("IsNot", "is not"))),
-        Equivalent("core/NumberReplacer",
-                   'ws = int(cm.window_config.get("window_samples", 0))',
-                   'ws = int(cm.window_config.get("window_samples", -1))',
-                   "the default is never used: every window field, window_samples among them, "
-                   "was indexed before this line (a mapping without it raised KeyError there)"),
         *(Equivalent("core/ReplaceComparisonOperator_Gt_NotEq", f"return {v} > 0",
                      f"return {v} != 0",
                      "window_samples is 0 or a positive count: a negative one is refused by "

@@ -636,3 +636,24 @@ def test_the_overlap_counts_the_devices_4x4_tiles_and_nothing_at_full_rank(n, al
     assert overlap_instructions(n, alpha) == want
     if alpha == 4:
         assert want == 16 * 26  # 26 instructions per entry for 16 multiply-adds
+
+
+def test_the_cost_model_is_the_least_squares_fit_of_the_relative_error():
+    """The coefficients minimise the sum of squared relative errors over the counts: as small
+    a sum as SciPy's least squares on the rows divided by their counts, and smaller than a fit
+    of the absolute errors."""
+    import scipy.linalg
+
+    from eskin.deploy import target
+
+    counts = [c for c in target.instruction_counts() if c["terms"] is not None]
+    A = np.array([target._features_of(c) for c in counts])
+    y = np.array([float(c["instr_median"]) for c in counts])
+
+    def relative(coef):
+        return float(np.sum(((y - A @ coef) / y) ** 2))
+
+    best = scipy.linalg.lstsq(A / y[:, None], np.ones(len(y)))[0]
+    absolute = scipy.linalg.lstsq(A, y)[0]
+    assert relative(target._COEF) == pytest.approx(relative(best), rel=1e-9)
+    assert relative(target._COEF) < relative(absolute)
