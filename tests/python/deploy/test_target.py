@@ -657,3 +657,13 @@ def test_the_cost_model_is_the_least_squares_fit_of_the_relative_error():
     absolute = scipy.linalg.lstsq(A, y)[0]
     assert relative(target._COEF) == pytest.approx(relative(best), rel=1e-9)
     assert relative(target._COEF) < relative(absolute)
+
+
+def test_the_default_window_is_bounded_and_a_mapping_without_the_field_is_not():
+    from eskin.deploy.target import _bounded
+
+    assert _bounded(None) is True and eskin.WindowConfig().window_samples > 0
+    assert _bounded(eskin.WindowConfig(window_samples=0)) is False
+    assert _bounded({}) is False  # the fields of a file before version 3
+    assert _bounded({"window_samples": 64.0}) is True
+    assert _bounded({"window_samples": 0.0}) is False
