@@ -336,12 +336,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
               ("core/ReplaceComparisonOperator_GtE_Is", "if not (m > n and a is n):"))),
         Equivalent("core/NumberReplacer", "w = 1.0 / y", "w = 2.0 / y",
                    "weights scaled by a constant have the same least-squares solution"),
-        Equivalent("core/ReplaceComparisonOperator_Eq_Is",
-                   "if g_est == g_est:  # fitted without the grid (not nan)",
-                   "if g_est is g_est:  # fitted without the grid (not nan)",
-                   "the not-nan test of a leave-one-grid-out estimate: every grid of the "
-                   "shipped counts leaves at least 12 counts for 11 coefficients, so no "
-                   "estimate is nan"),
         *(Equivalent("core/NumberReplacer",
                      'if getattr(cfg, "window_samples", 0):  # a bounded window: fewer kept '
                      'samples per taxel',
@@ -361,11 +355,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "the core's window_config_resolve before the estimate (_ram_terms) and by "
                      "the loader of a compiled model, the two callers of _bounded")
           for v in ('float(window_config.get("window_samples", 0))',
-                    'float(getattr(window_config, "window_samples", 0))')),
+                    'float(window_config.window_samples)')),
         *(Equivalent("core/NumberReplacer", f"return {v} > 0", f"return {v} > 1",
                      "window_samples is 0 or an even count of at least 2 (the core refuses 1)")
           for v in ('float(window_config.get("window_samples", 0))',
-                    'float(getattr(window_config, "window_samples", 0))')),
+                    'float(window_config.window_samples)')),
         *(Equivalent("core/NumberReplacer", f"{d}[g] = max({d}.get(g, 0.0), abs({e} - y) / y)",
                      f"{d}[g] = max({d}.get(g, -1.0), abs({e} - y) / y)",
                      "the first error of a grid against -1 instead of 0: relative errors are "

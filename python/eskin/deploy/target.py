@@ -304,7 +304,7 @@ def _bounded(window_config: Any) -> bool:
         return True
     if isinstance(window_config, dict):
         return float(window_config.get("window_samples", 0)) > 0
-    return float(getattr(window_config, "window_samples", 0)) > 0
+    return float(window_config.window_samples) > 0
 
 
 def _observed(c: dict[str, Any]) -> float:
@@ -348,10 +348,10 @@ def instruction_model_error() -> dict[str, Any]:
         loo.append(abs(est - y) / y)
         g = "x".join(str(v) for v in c["grid"])
         per_grid[g] = max(per_grid.get(g, 0.0), abs(est - y) / y)
-        if g_est == g_est:  # fitted without the grid (not nan)
-            grid_out[g] = max(grid_out.get(g, 0.0), abs(g_est - y) / y)
-        else:
+        if np.isnan(g_est):  # too few counts of the other grids to fit without this one
             grid_out.setdefault(g, None)
+        else:
+            grid_out[g] = max(grid_out.get(g, 0.0), abs(g_est - y) / y)
     return {"max_fit": max(fit_err), "max_leave_one_out": max(loo), "points": len(_COUNTS),
             "leave_one_out_by_grid": per_grid, "leave_grid_out": grid_out,
             "margin": instruction_margin()}

@@ -572,11 +572,27 @@ def test_targets_and_budgets_are_frozen_and_the_program_ram_is_its_statics_and_s
 
 
 def test_a_budget_describes_itself_in_bytes_and_millions_of_instructions():
+    import dataclasses
+    from dataclasses import replace
+
     from eskin.deploy.target import Budget
 
     b = Budget(TARGETS["cortex-m4"], 524288, 65536, 2.5e6)
     assert b.describe() == (f"{TARGETS['cortex-m4'].name}: flash 524288 B, RAM 65536 B, 2.5 M "
                             f"instructions per decision")
+    # six significant digits of millions, rounded at the sixth
+    for instructions, shown in ((1234565.6, "1.23457"), (1234564.4, "1.23456")):
+        assert replace(b, instructions=instructions).describe().endswith(
+            f" {shown} M instructions per decision")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        b.instructions = 1.0
+
+
+def test_the_default_budget_is_the_documented_one_and_a_half_million_instructions():
+    from eskin.deploy.target import parse_budget
+
+    assert parse_budget(None).instructions == 1.5e6
+    assert "<= 1.5 M instructions per decision" in (TESTS.parent / "docs" / "mcu.md").read_text()
 
 
 def _svbs_bases_bytes(data: bytes) -> int:
@@ -667,3 +683,26 @@ def test_the_default_window_is_bounded_and_a_mapping_without_the_field_is_not():
     assert _bounded({}) is False  # the fields of a file before version 3
     assert _bounded({"window_samples": 64.0}) is True
     assert _bounded({"window_samples": 0.0}) is False
+
+
+def test_each_left_out_estimate_is_the_fit_without_that_count():
+    """The leave-one-out estimates and the margin, recomputed with SciPy's least squares of the
+    relative error on the other counts."""
+    import scipy.linalg
+
+    from eskin.deploy import target
+
+    counts = [c for c in target.instruction_counts() if c["terms"] is not None]
+    left_out = target._left_out()
+    ratios = []
+    for i in (0, 1, len(counts) // 2, len(counts) - 1):
+        rest = counts[:i] + counts[i + 1:]
+        A = np.array([target._features_of(c) for c in rest])
+        y = np.array([float(c["instr_median"]) for c in rest])
+        coef = scipy.linalg.lstsq(A / y[:, None], np.ones(len(y)))[0]
+        assert left_out[i][0] == pytest.approx(float(target._features_of(counts[i]) @ coef),
+                                               rel=1e-6)
+    for c, (est, _) in zip(counts, left_out):
+        ratios.append(float(c["instr_max"] or c["instr_median"]) / est - 1.0)
+    assert target.instruction_margin() == max(ratios) and 0 < max(ratios) < 1
+    assert all(v is not None for v in target.instruction_model_error()["leave_grid_out"].values())
