@@ -404,7 +404,7 @@ def parse_budget(text: str | None, target: str | None = None) -> Budget:
         raise ValueError(f"--target {target}: unknown target (known: {', '.join(TARGETS)})")
     base = TARGETS[target or "cortex-m4"]
     values = {"flash": float(base.flash_bytes), "ram": float(base.ram_bytes),
-              "instr": TARGET_INSTRUCTIONS.get(base.name, 1.5e6)}
+              "instr": TARGET_INSTRUCTIONS[base.name]}
     if text is not None and not any(t.strip() for t in text.split(",")):
         raise ValueError(f"--budget {text!r} is empty: give flash=..,ram=..,instr=.. (or "
                          f"leave --budget out for the target's own budget)")

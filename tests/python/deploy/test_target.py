@@ -706,3 +706,52 @@ def test_each_left_out_estimate_is_the_fit_without_that_count():
         ratios.append(float(c["instr_max"] or c["instr_median"]) / est - 1.0)
     assert target.instruction_margin() == max(ratios) and 0 < max(ratios) < 1
     assert all(v is not None for v in target.instruction_model_error()["leave_grid_out"].values())
+
+
+@pytest.mark.parametrize("text, value", [
+    ("flash=0", None), ("ram=-1K", None), ("instr=inf", None), ("instr=nanM", None),
+    ("instr=0.5M", 500000.0), ("flash=0.5K", 512.0), ("ram=1", 1.0)])
+def test_a_budgets_sizes_are_positive_and_finite(text, value):
+    from eskin.deploy.target import parse_budget
+
+    key = text.split("=")[0]
+    if value is None:
+        with pytest.raises(ValueError) as info:
+            parse_budget(text)
+        assert str(info.value) == f"--budget {text}: must be positive"
+        return
+    b = parse_budget(text)
+    got = {"flash": b.flash_bytes, "ram": b.ram_bytes, "instr": b.instructions}[key]
+    assert got == int(value) if key != "instr" else got == value
+
+
+def test_a_budget_is_named_after_its_target_and_the_text_it_was_given():
+    from eskin.deploy.target import parse_budget
+
+    assert parse_budget(None).target.name == "cortex-m4"
+    assert parse_budget(None, "cortex-m4").target == TARGETS["cortex-m4"]
+    b = parse_budget("ram=64K")
+    assert b.target.name == "cortex-m4 (budget ram=64K)" and b.target.ram_bytes == 64 << 10
+    assert b.target.program_ram_bytes == TARGETS["cortex-m4"].program_ram_bytes
+
+
+def test_a_detector_without_lookback_keeps_one_frame_of_it():
+    """The device allocates max(1, lookback_frames) frames (cpp/src/preprocess.cpp)."""
+    from eskin import _core
+    from eskin.deploy.target import _ram_terms
+
+    cfg = eskin.WindowConfig(lookback_s=0.0)
+    p = _core.window_config_resolve(np.asarray(cfg.to_array(), dtype=float), 3000.0)
+    assert p["lookback_frames"] == 0
+    ram = _ram_terms(4, 4, 20, (1, 1, 1), 10, 30, 1, False, 4, cfg, 3000.0, TARGETS["cortex-m4"])
+    assert ram["detector state"] == 2 * (2 * p["noise_frames"] + 1 + 2 * 16) * 8
+
+
+def test_the_window_for_a_budget_takes_no_settings_or_their_fields_as_the_settings():
+    from eskin.deploy.target import parse_budget, window_for_budget
+
+    budget = parse_budget("ram=80K")
+    want = window_for_budget(budget, (4, 4), 3000.0, eskin.WindowConfig())
+    assert want[1] is not None  # lowered: the default does not fit 80 KB
+    assert window_for_budget(budget, (4, 4), 3000.0, None) == want
+    assert window_for_budget(budget, (4, 4), 3000.0, eskin.WindowConfig().to_dict()) == want
