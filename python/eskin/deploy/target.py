@@ -516,7 +516,7 @@ def window_for_budget(
     if getattr(cfg, "window_samples", 0):  # a bounded window: fewer kept samples per taxel
         while new.window_samples > 128 and ram(new) > budget.ram_bytes:
             new = replace(new, window_samples=int(new.window_samples) // 2)
-        what = f"window_samples {cfg.window_samples} -> {new.window_samples}"
+        what = f"window_samples {int(cfg.window_samples)} -> {int(new.window_samples)}"
     else:  # the whole window is kept: a shorter longest window
         step = 0.01
         floor = cfg.pad_before_s + cfg.lookback_s + 2 * cfg.frame_s
