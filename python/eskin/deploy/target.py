@@ -492,7 +492,8 @@ def window_for_budget(
     n_support: int = 100,
 ) -> tuple[Any, str | None]:
     """The detector settings whose raw-sample buffers leave room for a model in the budget's
-    RAM: ``window_config`` itself when it does, else with ``max_window_s`` lowered (in 0.01 s
+    RAM: ``window_config`` itself when it does, else with a bounded window's ``window_samples``
+    halved (to even counts, down to 128) or a whole window's ``max_window_s`` lowered (in 0.01 s
     steps, not below what pad_before_s and lookback_s need) until the detector and the smallest
     model the search may choose (D ``D_min``, alpha 1, ``n_support`` support vectors) fit; the
     search then keeps only the models that fit beside it. (settings, a note on what was
@@ -515,7 +516,8 @@ def window_for_budget(
     new = cfg
     if getattr(cfg, "window_samples", 0):  # a bounded window: fewer kept samples per taxel
         while new.window_samples > 128 and ram(new) > budget.ram_bytes:
-            new = replace(new, window_samples=int(new.window_samples) // 2)
+            half = int(new.window_samples) // 4 * 2  # an even count, as the detector needs
+            new = replace(new, window_samples=max(128, half))
         what = f"window_samples {int(cfg.window_samples)} -> {int(new.window_samples)}"
     else:  # the whole window is kept: a shorter longest window
         step = 0.01

@@ -757,21 +757,25 @@ def test_the_window_for_a_budget_takes_no_settings_or_their_fields_as_the_settin
     assert window_for_budget(budget, (4, 4), 3000.0, eskin.WindowConfig().to_dict()) == want
 
 
-def test_the_bounded_window_is_lowered_to_128_samples_and_no_further():
-    """Halving window_samples stops at 128 per taxel: a RAM budget that only 64 would fit is
-    refused, one that 128 fits gets 128."""
+@pytest.mark.parametrize("start, steps", [(1024, (512, 256, 128)), (1000, (500, 250, 128)),
+                                         (260, (130, 128)), (130, (128,))])
+def test_the_bounded_window_is_halved_to_even_counts_down_to_128_and_no_further(start, steps):
+    """Halving window_samples keeps it even (the detector refuses an odd count) and stops at
+    128 per taxel: each step's RAM gets that step, a budget only a smaller window would fit is
+    refused."""
     from dataclasses import replace
 
     from eskin.deploy.target import _ram_terms, _stored_alphas, parse_budget, window_for_budget
 
-    cfg = eskin.WindowConfig(window_samples=1024)
+    cfg = eskin.WindowConfig(window_samples=start)
 
     def need(ws):
         return sum(_ram_terms(4, 4, 20, _stored_alphas((4, 4), 20, "1"), 100, 300, 1, True, 4,
                               replace(cfg, window_samples=ws), 3000.0,
                               parse_budget(None).target).values())
 
-    lowered, note = window_for_budget(parse_budget(f"ram={need(128)}"), (4, 4), 3000.0, cfg)
-    assert lowered.window_samples == 128 and "window_samples 1024 -> 128" in note
+    for ws in steps:
+        lowered, note = window_for_budget(parse_budget(f"ram={need(ws)}"), (4, 4), 3000.0, cfg)
+        assert lowered.window_samples == ws and f"window_samples {start} -> {ws} to fit" in note
     with pytest.raises(ValueError, match=r"the detector's buffers alone exceed the RAM budget"):
-        window_for_budget(parse_budget(f"ram={need(64)}"), (4, 4), 3000.0, cfg)
+        window_for_budget(parse_budget(f"ram={need(126)}"), (4, 4), 3000.0, cfg)
