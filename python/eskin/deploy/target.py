@@ -521,8 +521,9 @@ def window_for_budget(
         what = f"window_samples {int(cfg.window_samples)} -> {int(new.window_samples)}"
     else:  # the whole window is kept: a shorter longest window
         step = 0.01
-        floor = cfg.pad_before_s + cfg.lookback_s + 2 * cfg.frame_s
-        while new.max_window_s - step >= floor and ram(new) > budget.ram_bytes:
+        # (to the microsecond: 0.1 + 0.2 + 2 * 0.01 is 0.32000000000000006 in binary)
+        floor = round(cfg.pad_before_s + cfg.lookback_s + 2 * cfg.frame_s, 6)
+        while round(new.max_window_s - step, 6) >= floor and ram(new) > budget.ram_bytes:
             new = replace(new, max_window_s=round(new.max_window_s - step, 6))
         what = f"max_window_s {cfg.max_window_s:g} s -> {new.max_window_s:g} s"
     if ram(new) > budget.ram_bytes:

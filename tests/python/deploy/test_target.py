@@ -779,3 +779,25 @@ def test_the_bounded_window_is_halved_to_even_counts_down_to_128_and_no_further(
         assert lowered.window_samples == ws and f"window_samples {start} -> {ws} to fit" in note
     with pytest.raises(ValueError, match=r"the detector's buffers alone exceed the RAM budget"):
         window_for_budget(parse_budget(f"ram={need(126)}"), (4, 4), 3000.0, cfg)
+
+
+def test_a_whole_window_is_lowered_no_further_than_its_pad_lookback_and_two_frames():
+    """max_window_s is lowered in 0.01 s steps down to pad_before_s + lookback_s + 2 frame_s
+    (0.1 + 0.2 + 0.02 here, the least the detector takes): a budget that fits there gets it,
+    one that needs less is refused."""
+    from dataclasses import replace
+
+    from eskin.deploy.target import _ram_terms, _stored_alphas, parse_budget, window_for_budget
+
+    whole = eskin.WindowConfig(max_window_s=0.6, window_samples=0, pad_before_s=0.1,
+                               lookback_s=0.2, frame_s=0.01)
+
+    def need(s):
+        return sum(_ram_terms(4, 4, 20, _stored_alphas((4, 4), 20, "1"), 100, 300, 1, True, 4,
+                              replace(whole, max_window_s=s), 3000.0,
+                              parse_budget(None).target).values())
+
+    lowered, note = window_for_budget(parse_budget(f"ram={need(0.32)}"), (4, 4), 3000.0, whole)
+    assert lowered.max_window_s == 0.32 and "max_window_s 0.6 s -> 0.32 s" in note
+    with pytest.raises(ValueError, match=r"the detector's buffers alone exceed the RAM budget"):
+        window_for_budget(parse_budget(f"ram={need(0.32) - 1}"), (4, 4), 3000.0, whole)
