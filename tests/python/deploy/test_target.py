@@ -801,3 +801,24 @@ def test_a_whole_window_is_lowered_no_further_than_its_pad_lookback_and_two_fram
     assert lowered.max_window_s == 0.32 and "max_window_s 0.6 s -> 0.32 s" in note
     with pytest.raises(ValueError, match=r"the detector's buffers alone exceed the RAM budget"):
         window_for_budget(parse_budget(f"ram={need(0.32) - 1}"), (4, 4), 3000.0, whole)
+
+
+def test_a_two_class_problem_is_one_machine_and_k_classes_k_machines(campaign):
+    """The kernel terms a candidate is estimated with: one machine for two classes (the binary
+    rule), one per class otherwise, each holding every support vector at most."""
+    from eskin.deploy.target import INSTRUCTION_MARGIN, candidate_budget, decision_instructions
+    from eskin.deploy.target import parse_budget
+    from eskin.learn.recipes import Candidate, Recipe
+
+    wc = _model(campaign, 20, 0.5).window_config
+    q50 = Candidate(Recipe("svm", 50, "algorithm2", "all"), 0.1, 1.0, "Q", 1.0)
+    budget = parse_budget("flash=64M,ram=64M", "cortex-m4")  # only the instructions bind
+    for n_classes, machines in ((2, 1), (3, 3), (4, 4), (6, 6)):
+        most = candidate_budget(budget, (4, 4), campaign.sample_rate_hz, wc, n_classes
+                                ).largest(q50, 2000)
+
+        def bound(n):
+            return decision_instructions((4, 4), 50, (4, 4, 16), n, True, True,
+                                         n * machines) * (1 + INSTRUCTION_MARGIN)
+
+        assert bound(most) <= 1.5e6 < bound(most + 1), (n_classes, most)
