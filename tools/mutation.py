@@ -328,6 +328,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "samples, and the reset branch (<) is not taken either way"),
     ],
     "python/eskin/deploy/target.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "machines = 1 if n_classes == 2 else n_classes",
+                   "machines = 1 if n_classes <= 2 else n_classes",
+                   "a model has at least two classes (the training data is refused otherwise)"),
+        Equivalent("core/ReplaceComparisonOperator_Gt_NotEq", "while hi - lo > 1:",
+                   "while hi - lo != 1:",
+                   "the bisection keeps lo < hi, so hi - lo is at least 1"),
         *(Equivalent(op, "if not (m > n and a >= n):", mutant, _FULL_RANK)
           for op, mutant in (
               ("core/ReplaceComparisonOperator_Gt_NotEq", "if not (m != n and a >= n):"),
