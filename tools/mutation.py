@@ -642,6 +642,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "flattens as reshape(-1) does"),
     ],
     "python/eskin/learn/recipes.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   "return np.where(y == 1, 1.0, -1.0)[:, None]",
+                   "return np.where(y >= 1, 1.0, -1.0)[:, None]",
+                   "two classes are labelled 0 and 1 (the class indices of the training set)"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_LtE",
                    "if row._expected[0] != len(row.support):",
                    "if row._expected[0] <= len(row.support):",

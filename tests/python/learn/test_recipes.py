@@ -168,6 +168,7 @@ def test_corrected_paired_t_by_hand():
     t_neg, p_neg = corrected_paired_t([-x for x in d], 0.3)
     assert t_neg == pytest.approx(-t_hand) and p_neg == pytest.approx(1 - p, rel=1e-12)
     assert corrected_paired_t([0.05] * 5, 0.3) == (np.inf, 0.0)
+    assert corrected_paired_t([-0.05] * 5, 0.3) == (-np.inf, 1.0)  # a constant loss
     assert corrected_paired_t([0.0] * 5, 0.3) == (0.0, 0.5)
     with pytest.raises(TrainingError, match="at least two splits"):
         corrected_paired_t([0.1], 0.3)
