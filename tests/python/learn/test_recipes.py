@@ -326,6 +326,8 @@ def test_under_a_budget_the_preference_leaves_D_out(data):
     lowest = min(e["error"] for e in s.ranking_)
     assert s.best_error_ <= lowest + s.tolerance_ + 1e-12
     assert s.report()["preference"]["within_one_pattern"] is True
+    # within one held-out pattern no test is made: t = 0 and p = 1 are the record's
+    assert (s.report()["preference"]["t"], s.report()["preference"]["p"]) == (0.0, 1.0)
     # without the budget the larger D is kept unless significantly worse
     assert free.best_.recipe.D == 50
 
@@ -758,3 +760,19 @@ def test_a_spread_of_exactly_the_tolerance_is_not_a_collapse():
     narrow = wide.copy()
     narrow[:2, 1] = [np.nextafter(COLLAPSE_TOLERANCE, 0), -np.nextafter(COLLAPSE_TOLERANCE, 0)]
     assert collapsed(narrow, b)
+
+
+def test_the_kernel_reach_is_the_largest_held_out_row_sum_over_the_machines():
+    """_kernel_reach: per machine's training set (each array object once) the largest sum of a
+    held-out pattern's kernel row, inf for a machine with no held-out pattern; and how many
+    training patterns the machines use together."""
+    import math
+
+    from eskin.learn.recipes import _kernel_reach
+
+    a, b = np.array([0, 1, 2]), np.array([2, 3])
+    K_a = np.array([[0.125, 0.25, 0.5], [0.75, 0.0, 0.0]])  # row sums 0.875 and 0.75
+    K_b = np.array([[0.25, 0.25]])
+    assert _kernel_reach([(a, None, K_a), (b, None, K_b)]) == (0.875, 4)
+    assert _kernel_reach([(a, None, K_a), (a, None, np.full((2, 3), 9.0))]) == (0.875, 3)
+    assert _kernel_reach([(a, None, np.zeros((0, 3))), (b, None, K_b)]) == (math.inf, 4)
