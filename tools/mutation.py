@@ -392,6 +392,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
     ],
     "python/eskin/data/replay.py": [
         Equivalent("core/NumberReplacer",
+                   "self.noise = 0.0 if noise_counts is None else float(noise_counts)",
+                   "self.noise = 1.0 if noise_counts is None else float(noise_counts)",
+                   "without noise_counts each taxel's own quiet level is used (self.levels): "
+                   "self.noise is read only when noise_counts was given"),
+        Equivalent("core/NumberReplacer",
                    "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0])))"
                    ".shape[:2])",
                    "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[ -1])))"

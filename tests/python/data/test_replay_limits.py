@@ -271,3 +271,20 @@ def test_a_stream_past_the_file_size_limit_is_refused_before_a_byte_is_written(t
     assert (info.value.errno, info.value.filename) == (errno.EFBIG, str(p))
     assert written == 0
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("level, code", [(-40000.0, -32768), (40000.0, 32767), (-32768.0, -32768),
+                                         (32767.0, 32767)])
+def test_quiet_gaps_beyond_the_adc_codes_are_clipped_to_int16(tmp_path, level, code):
+    rf = write_replay_arrays(tmp_path / "c.eskr", _recs(), labels=[0, 1], class_names=["a", "b"],
+                             gap_s=0.01, noise_counts=0.0, baseline=np.full((2, 3), level))
+    first = int(rf.segments[0]["start"])
+    assert (np.asarray(rf.samples[:first]) == code).all()
+
+
+@pytest.mark.parametrize("vpc", [0.0, -1.0, float("inf"), float("nan")])
+def test_a_volts_per_count_not_a_finite_number_above_zero_is_refused_by_the_writer(tmp_path, vpc):
+    with pytest.raises(ValueError) as info:
+        write_replay_arrays(tmp_path / "v.eskr", _recs(), labels=[0, 1], class_names=["a", "b"],
+                            gap_s=0.01, volts_per_count=vpc)
+    assert str(info.value) == f"volts_per_count must be finite and > 0, got {vpc}"
