@@ -389,7 +389,7 @@ def _plain(v: Any) -> Any:
         return {str(k): _plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple, np.ndarray)):
         return [_plain(x) for x in v]
-    if isinstance(v, (np.integer,)) and not isinstance(v, bool):
+    if isinstance(v, np.integer):  # (a bool, numpy's or Python's, is not one)
         return int(v)
     if isinstance(v, (np.floating, float)):
         return None if np.isnan(v) else float(v)
@@ -436,9 +436,8 @@ def plan_folds(
     local = make_folds(labels[idx], y, n_folds, seed)
     folds = [(idx[tr], idx[te]) for tr, te in local]
     for k, (tr, _) in enumerate(folds):
-        missing = [
-            c for j, c in enumerate(names) if not np.any(_class_ids(campaign, tr, names) == j)
-        ]
+        present = set(_class_ids(campaign, tr, names).tolist())
+        missing = [c for j, c in enumerate(names) if j not in present]
         if missing:
             raise EvaluationError(
                 f"fold {k + 1}: no training recording of class(es) {missing} once its test "
@@ -560,15 +559,14 @@ def _run_folds(
 
 def _without_predictions(record: dict[str, Any]) -> dict[str, Any]:
     """A copy of a fold record less its per-recording predictions (its own and its baselines')."""
-    out = {k: v for k, v in record.items()
-           if k not in ("y_true", "y_pred", "dont_know", "confidence")}
+    def without(d: Mapping[str, Any], *keys: str) -> dict[str, Any]:
+        return {k: v for k, v in d.items() if k not in keys}
+
+    out = without(record, "y_true", "y_pred", "dont_know", "confidence")
     if "live" in record:
-        out["live"] = {k: v for k, v in record["live"].items() if k != "per_recording"}
+        out["live"] = without(record["live"], "per_recording")
     if "baselines" in record:
-        out["baselines"] = {
-            name: {k: v for k, v in b.items() if k != "y_pred"}
-            for name, b in record["baselines"].items()
-        }
+        out["baselines"] = {name: without(b, "y_pred") for name, b in record["baselines"].items()}
     return out
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -453,6 +454,29 @@ def test_scheduler_address_errors_are_one_line(sim_campaign, tmp_path):
     assert "--scheduler 'local:x': expected local:N" in r.output
 
 
+def test_a_middle_class_recorded_by_one_group_only_is_named(tmp_path):
+    """The class of one group only is named whichever its place among the classes."""
+    from eskin.data.campaign import write_campaign
+
+    rng = np.random.default_rng(0)
+    recs = [(rng.standard_normal((2, 2, 50)) * 100).astype(np.int16) for _ in range(12)]
+    path = write_campaign(tmp_path / "c.h5", recs, modality=[0, 2] * 5 + [1, 1],
+                          participant=[0, 0, 1, 1, 2, 2, 0, 0, 1, 1, 2, 2], direction=[255] * 12,
+                          run=[1] * 12, modalities=["a", "b", "c"], sample_rate_hz=100.0,
+                          volts_per_count=1e-3, source="recorded")
+    r = _run(["evaluate", str(path), "--out", str(tmp_path / "ev"), "--quick"])
+    assert r.exit_code == 2
+    assert re.search(r"fold \d: no training recording of class\(es\) \['b'\] once", r.output)
+
+
+def test_plain_values_are_python_numbers_lists_and_none_for_nan():
+    from eskin.learn.evaluation import _plain
+
+    got = _plain({"a": np.int64(3), 2: [np.float32(0.5), np.nan], "f": (True, np.bool_(False))})
+    assert got == {"a": 3, "2": [0.5, None], "f": [True, np.bool_(False)]}
+    assert type(got["a"]) is int and type(got["2"][0]) is float and got["f"][0] is True
+
+
 def test_a_class_recorded_by_one_group_only_is_a_clear_error(tmp_path):
     from eskin.data.campaign import write_campaign
 
@@ -814,7 +838,7 @@ def test_a_fold_record_without_predictions_keeps_its_other_live_scores():
     record = {"fold": 0, "accuracy": 0.5, "y_true": [0], "y_pred": [1], "dont_know": [False],
               "confidence": [0.3],
               "live": {"accuracy": 0.25, "touches": 4, "per_recording": [1, 0]},
-              "baselines": {"nearest": {"accuracy": 0.75, "y_pred": [0]}}}
+              "baselines": {"nearest": {"accuracy": 0.75, "y_pred": [0], "z_score": 1.0}}}
     assert _without_predictions(record) == {
         "fold": 0, "accuracy": 0.5, "live": {"accuracy": 0.25, "touches": 4},
-        "baselines": {"nearest": {"accuracy": 0.75}}}
+        "baselines": {"nearest": {"accuracy": 0.75, "z_score": 1.0}}}  # (z sorts after y)
