@@ -105,3 +105,38 @@ def test_decisions_host_counts_each_decision_of_the_host_model(tmp_path):
     host = [e for e in events if getattr(e, "source", None) == "host"]
     assert len(host) == 2
     assert (s.decisions_host, s.decisions_controller) == (2, 0)
+
+
+def test_nothing_received_is_nothing_lost():
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    assert listener.stats.lost_samples == 0 and listener.activity() is None
+    listener.close()
+
+
+def test_an_info_frame_of_a_larger_grid_than_the_data_before_it_restarts_the_stream():
+    """DATA before any INFO gives a provisional grid; an INFO frame of another grid, larger or
+    smaller, replaces it: the stream restarts at the INFO's grid."""
+    rng = np.random.default_rng(2)
+    for before, after in (((2, 2), (4, 4)), ((4, 4), (2, 2))):
+        listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+        x0 = rng.integers(-50, 50, size=(40, *before)).astype(np.int16)
+        listener.feed(DELIMITER + _data(x0))
+        assert listener.activity().shape == before
+        info = encode_frame(InfoFrame(*after, 3000.0, volts_per_count=1e-4, has_model=False,
+                                      class_names=(), seq=5))
+        x1 = rng.integers(-50, 50, size=(3000, *after)).astype(np.int16)
+        listener.feed(info + _data(x1, first_seq=6))
+        assert listener.activity().shape == after
+        listener.close()
+
+
+def test_the_activity_history_is_at_most_256_mib_of_samples():
+    """history_s seconds of samples, but never more than MAX_HISTORY_BYTES of int16 taxels."""
+    from eskin.link.receiver import MAX_HISTORY_BYTES
+
+    for history_s in (2.0, 1e6):  # 6,000 samples; 256 MiB / (16 taxels x 2 bytes)
+        listener = LinkListener("/dev/null-not-opened", stats_interval=None, history_s=history_s)
+        listener.feed(DELIMITER + _info() + _data(np.zeros((10, 4, 4), np.int16)))
+        want = min(int(np.ceil(history_s * 3000)), MAX_HISTORY_BYTES // (4 * 4 * 2))
+        assert listener.receiver._stream.history.capacity == want
+        listener.close()
