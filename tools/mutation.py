@@ -379,6 +379,9 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "trk = np.intersect1d(tr, subsets[k], assume_unique=False)",
                    "a fold's indices and a machine's subset are sets (sklearn's folds, "
                    "one_vs_all_indices): the same intersection"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE", _TARGETS,
+                   _TARGETS.replace("y == 1", "y >= 1"),
+                   "a binary model's class indices are 0 and 1: y >= 1 is y == 1"),
         *(Equivalent("core/NumberReplacer", _TARGETS, _TARGETS.replace("1, 1, -1", t), _LABELS)
           for t in ("1, 2, -1", "1, 0, -1", "1, 1, - 2", "1, 1, - 0")),
         *(Equivalent("core/NumberReplacer", _CAL, _CAL.replace("0.0", t),

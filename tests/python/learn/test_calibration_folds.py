@@ -70,3 +70,11 @@ def test_grouped_folds_that_leave_a_class_out_of_a_training_part_give_way_to_str
     assert notes == ["calibration: grouped folds left a class out of a training part; "
                      "stratified folds instead"]
     assert n_folds == 5
+
+
+def test_by_default_the_values_come_from_five_folds():
+    """Without groups and enough patterns of each class: five stratified folds (the calibration
+    report's ``folds``)."""
+    X, y = _data(60)
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y)
+    assert n_folds == 5 and F.shape == (60, 1)
