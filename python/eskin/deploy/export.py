@@ -884,7 +884,7 @@ class CompiledModel:
                 block = np.asarray(data)[sel]
                 lens = None
             d = self.classify(block, lens)
-            for j, i in enumerate(sel):
+            for j, (i, true_label) in enumerate(zip(sel, truth[c0 : c0 + chunk])):
                 item: dict[str, Any] = {
                     "index": int(i),
                     "label": str(d.labels[j]),
@@ -894,8 +894,8 @@ class CompiledModel:
                                    else None),
                     "window": [int(v) for v in d.windows[j]],
                 }
-                if truth[c0 + j] is not None:
-                    item["true_label"] = truth[c0 + j]
+                if true_label is not None:
+                    item["true_label"] = true_label
                 out.append(item)
         return out
 
