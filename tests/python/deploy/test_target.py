@@ -797,8 +797,9 @@ def test_a_whole_window_is_lowered_no_further_than_its_pad_lookback_and_two_fram
                               replace(whole, max_window_s=s), 3000.0,
                               parse_budget(None).target).values())
 
-    lowered, note = window_for_budget(parse_budget(f"ram={need(0.32)}"), (4, 4), 3000.0, whole)
-    assert lowered.max_window_s == 0.32 and "max_window_s 0.6 s -> 0.32 s" in note
+    for s in (0.45, 0.32):  # a budget of exactly a step's RAM stops there
+        lowered, note = window_for_budget(parse_budget(f"ram={need(s)}"), (4, 4), 3000.0, whole)
+        assert lowered.max_window_s == s and f"max_window_s 0.6 s -> {s:g} s" in note
     with pytest.raises(ValueError, match=r"the detector's buffers alone exceed the RAM budget"):
         window_for_budget(parse_budget(f"ram={need(0.32) - 1}"), (4, 4), 3000.0, whole)
 
