@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 
 import eskin
@@ -31,3 +33,14 @@ def fit_machine(campaign, D, machine, n_classes, **params):
             else TensorRLS(lam=0.1, sigma=0.5, **params))
     est = base if n_classes == 2 else OneVsAllTouchClassifier(base)
     return est.fit(X[train], y[train]), X
+
+
+def model_sections(data: bytes) -> list[tuple[bytes, bytes]]:
+    """The sections of a ``.eskin`` file, in order: [(tag, payload)] (docs/model-format.md: a
+    32-byte header, then tag, length and payload padded to 8 bytes; a CRC-32 ends the file)."""
+    pos, out = 32, []
+    while pos < len(data) - 4:
+        tag, n = struct.unpack_from("<4sI", data, pos)
+        out.append((tag, bytes(data[pos + 8 : pos + 8 + n])))
+        pos += 8 + (n + 7) // 8 * 8
+    return out

@@ -401,9 +401,10 @@ def _calb_section(spec: ModelSpec) -> bytes:
     cal = spec.calibration
     a = [float(v) for v in cal.slopes]
     b = [float(v) for v in cal.offsets]
-    if (len(a), len(b)) != (len(spec.machines),) * 2:
+    n = len(spec.machines)
+    if (len(a), len(b)) != (n, n):
         raise ModelFormatError(
-            f"calibration: {len(a)} slopes and {len(b)} offsets for {len(spec.machines)} machines"
+            f"calibration: {len(a)} slopes and {len(b)} offsets for {n} machines"
         )
     t = float(cal.threshold)
     if not 0.0 <= t <= 1.0:

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import eskin
-from deploy_data import fit_machine
+from deploy_data import fit_machine, model_sections
 from eskin.deploy import device_budget
 from eskin.deploy.export import (
     CompiledModel,
@@ -122,7 +122,7 @@ def _committed_bases(path):
     The fixture's bases came from LAPACK's QR, whose last bits differ between numpy builds; the
     test is about the writer, so it takes the bases as the file holds them (the float32 fixture
     holds the same values rounded)."""
-    svbs = dict(_sections(path.read_bytes()))[b"SVBS"]
+    svbs = dict(model_sections(path.read_bytes()))[b"SVBS"]
     _, n_sv, rows, cols, D, *alphas = struct.unpack_from("<8I", svbs, 0)
     pos = 32
     ranks = np.frombuffer(svbs, "<u4", n_sv * 3, pos).reshape(n_sv, 3)
@@ -141,23 +141,13 @@ def _committed_bases(path):
     return bases_fn
 
 
-def _sections(data):
-    """The sections of a file, in order: [(tag, payload)]."""
-    pos, out = 32, []
-    while pos < len(data) - 4:
-        tag, n = struct.unpack_from("<4sI", data, pos)
-        out.append((tag, bytes(data[pos + 8 : pos + 8 + n])))
-        pos += 8 + (n + 7) // 8 * 8
-    return out
-
-
 def test_version_2_layout_meta_and_loaded_fields(campaign):
     spec, _ = _spec(campaign, 20, [0.7, 0.0, 1.5])
     data = model_to_bytes(spec, "float64")
     version, _, _, size, n_sections = struct.unpack_from("<HHIII", data, 8)
     assert (version, size, n_sections) == (2, len(data), 6)
     assert struct.unpack("<I", data[-4:])[0] == zlib.crc32(data[:-4])
-    sections = _sections(data)
+    sections = model_sections(data)
     assert [t for t, _ in sections] == [b"PREP", b"CLAS", b"SVBS", b"MACH", b"AMPL", b"meta"]
     ampl, meta = sections[4][1], json.loads(sections[5][1])
     n_sv, n_m = struct.unpack_from("<II", ampl)
@@ -178,7 +168,7 @@ def test_version_2_layout_meta_and_loaded_fields(campaign):
     # without any factor: version 1, and its meta does not mention amplitude
     v1 = model_to_bytes(_spec(campaign, 20, [0.0, 0.0, 0.0])[0])
     assert struct.unpack_from("<H", v1, 8)[0] == 1
-    assert "amplitude" not in json.loads(dict(_sections(v1))[b"meta"])
+    assert "amplitude" not in json.loads(dict(model_sections(v1))[b"meta"])
 
 
 @pytest.mark.parametrize(
@@ -213,7 +203,7 @@ def test_widths_at_the_ends_of_the_range_and_none_are_written(campaign, width):
     spec, _ = _spec(campaign, 20, [0.7, width, 1.5])
     b = model_to_bytes(spec, "float64")
     assert CompiledModel(b).format_version == 2
-    assert json.loads(dict(_sections(b))[b"meta"])["amplitude_widths"] == [0.7, width, 1.5]
+    assert json.loads(dict(model_sections(b))[b"meta"])["amplitude_widths"] == [0.7, width, 1.5]
 
 
 def test_the_same_support_vector_has_one_energy(campaign):

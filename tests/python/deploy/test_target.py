@@ -600,13 +600,11 @@ def _svbs_bases_bytes(data: bytes) -> int:
     its order, count, grid and D, alpha_store, the ranks padded to 8 bytes, then the bases)."""
     import struct
 
-    pos = 32
-    while True:
-        tag, n = struct.unpack_from("<4sI", data, pos)
-        if tag == b"SVBS":
-            n_sv = struct.unpack_from("<I", data, pos + 12)[0]
-            return n - 32 - (12 * n_sv + 7) // 8 * 8
-        pos += 8 + (n + 7) // 8 * 8
+    from deploy_data import model_sections
+
+    svbs = dict(model_sections(data))[b"SVBS"]
+    n_sv = struct.unpack_from("<I", svbs, 4)[0]
+    return len(svbs) - 32 - (12 * n_sv + 7) // 8 * 8
 
 
 @pytest.mark.parametrize("name, dtype_advice", [
