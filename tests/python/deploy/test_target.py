@@ -756,7 +756,8 @@ def test_the_window_for_a_budget_takes_no_settings_or_their_fields_as_the_settin
 
 
 @pytest.mark.parametrize("start, steps", [(1024, (512, 256, 128)), (1000, (500, 250, 128)),
-                                         (260, (130, 128)), (130, (128,))])
+                                         (260, (130, 128)), (130, (128,)),
+                                         (518, (258, 128)), (258, (128,))])  # halves 259, 129
 def test_the_bounded_window_is_halved_to_even_counts_down_to_128_and_no_further(start, steps):
     """Halving window_samples keeps it even (the detector refuses an odd count) and stops at
     128 per taxel: each step's RAM gets that step, a budget only a smaller window would fit is
