@@ -683,6 +683,23 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "candidate's error, support vectors and collapse come from its own kernel's "
                      "blocks only, and each lands under its own (candidate, split) key")
           for t in ("kv[0][ 0] or 0)):", "kv[0][1] or 1)):", "kv[0][1] or -1)):")),
+        *(Equivalent("core/NumberReplacer",
+                     'smallest = distance_plan(dims, alphas, 8, 8)["pack_bytes"]  # a row and a '
+                     'column block of 8',
+                     f'smallest = distance_plan(dims, alphas, {a}, {b})["pack_bytes"]  # a row and '
+                     'a column block of 8',
+                     "a plan's block holds the larger of its two counts of patterns: 7 against "
+                     "8 is planned as 8 against 8, the same bytes")
+          for a, b in (("7", "8"), ("8", "7"))),
+        Equivalent("core/NumberReplacer",
+                   'smallest = distance_plan(dims, alphas, 8, 8, max_bytes=smallest - 1)'
+                   '["pack_bytes"]',
+                   'smallest = distance_plan(dims, alphas, 8, 8, max_bytes=smallest - 2)'
+                   '["pack_bytes"]',
+                   "a plan packs whole doubles: its bytes are a multiple of 8, and none lies "
+                   "between smallest - 2 and smallest - 1"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if F.shape[0] == 0:",
+                   "if F.shape[0] <= 0:", "an array's length is never negative"),
     ],
 }
 

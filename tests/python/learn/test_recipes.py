@@ -26,6 +26,7 @@ from eskin.learn.recipes import (
     budget_preference,
     corrected_paired_t,
     distance_memory,
+    distance_scratch,
     one_vs_all_indices,
     recipe_preference,
     recipe_space,
@@ -57,6 +58,20 @@ def test_recipe_space_caps_D_by_the_longest_recording():
     assert len(full) == 24 and len(set(full)) == 24
     with pytest.raises(TrainingError, match="machine must be"):
         Recipe("knn", 20, "even", "all")
+
+
+def test_a_recipe_names_each_bad_field_and_takes_any_D_from_1():
+    assert Recipe("rls", 1, "algorithm2", "balanced").D == 1
+    for D in (0, -4):
+        with pytest.raises(TrainingError) as bad:
+            Recipe("svm", D, "even", "all")
+        assert str(bad.value) == f"D must be >= 1, got {D}"
+    with pytest.raises(TrainingError) as bad:
+        Recipe("svm", 20, "odd", "all")
+    assert str(bad.value) == "subsample must be one of ('algorithm2', 'even'), got 'odd'"
+    with pytest.raises(TrainingError) as bad:
+        Recipe("svm", 20, "even", "some")
+    assert str(bad.value) == "negatives must be 'all' or 'balanced', got 'some'"
 
 
 def test_recipe_space_caps_D_by_what_the_touch_windows_fill():
@@ -392,6 +407,24 @@ def test_the_search_on_a_local_pool_matches_the_serial_run(sim_path):
     np.testing.assert_array_equal(serial.decision_function(X), pooled.decision_function(X))
 
 
+def test_the_default_memory_limit_is_half_a_gib_on_the_command_line_and_in_the_search():
+    """--memory-limit's default (GiB, on eskin train and eskin evaluate) is the search's own
+    default, 0.5 GiB as docs/learning.md states: a model trained with it records no memory
+    option; any other value is recorded in bytes."""
+    import inspect
+
+    from eskin.cli.evaluate import evaluate
+    from eskin.cli.learn import memory_options, train
+    from eskin.learn.recipes import DEFAULT_MEMORY_LIMIT
+
+    for command in (train, evaluate):
+        assert inspect.signature(command).parameters["memory_limit"].default.default == 0.5
+    assert DEFAULT_MEMORY_LIMIT == 2**29
+    assert memory_options(0.5) == {}
+    assert memory_options(0.25) == {"memory_limit": 2**28}
+    assert "default 0.5 GiB" in (Path(__file__).parents[3] / "docs" / "learning.md").read_text()
+
+
 def test_the_search_is_under_the_host_budget_by_default(sim_path):
     """By default the search runs under the host budget of HOST_DECISION_US (its description
     in the report, the same as eskin train's default); decision_us=None lifts it; a budget too
@@ -688,6 +721,42 @@ def test_the_smallest_distance_plan_is_the_least_memory_blocks_of_8_can_take(sha
     with pytest.raises(ValueError):
         distance_plan(list(shape), alphas, 8, 8, max_bytes=smallest - 1)
     assert smallest < distance_plan(list(shape), alphas, 8, 8)["pack_bytes"]
+
+
+@pytest.mark.parametrize("shape,alpha", [((4, 4, 20), "full"), ((4, 4, 20), 1),
+                                         ((3, 5, 12), "half")])
+def test_the_smallest_distance_plan_when_no_mode_packs_smaller_is_the_first(shape, alpha):
+    """On these shapes no projection mode's bases pack smaller than the mode itself: the
+    smallest scratch is the plain plan of a row and a column block of 8 patterns, which fits in
+    it and not in one byte less."""
+    from eskin.learn.kernel import distance_plan
+
+    alphas = resolve_alphas(shape, alpha)
+    _, smallest = distance_memory((100, *shape), alphas)
+    assert smallest == distance_plan(list(shape), alphas, 8, 8)["pack_bytes"]
+    with pytest.raises(ValueError):
+        distance_plan(list(shape), alphas, 8, 8, max_bytes=smallest - 1)
+
+
+def test_the_scratch_left_to_the_kernel_and_the_refusal_at_one_byte_short():
+    """200 patterns of a 19 x 27 grid at D = 18, alpha Q: bases of 3 x 9234 values a pattern
+    (44,323,200 bytes) and four n x n distance matrices (1,280,000): the scratch left is the
+    limit less those, down to the smallest plan's (limit exactly bases + distances + plan);
+    a byte less is refused with the patterns, D, alpha and both figures in MiB."""
+    shape, alphas = (200, 19, 27, 18), resolve_alphas((19, 27, 18), "full")
+    fixed, smallest = distance_memory(shape, alphas)
+    assert fixed == 44_323_200 + 1_280_000
+    assert distance_scratch(shape, alphas, fixed + smallest, "x") == smallest
+    assert distance_scratch(shape, alphas, 2**30, "x") == 2**30 - fixed
+    assert 47 * 2**20 < fixed + smallest <= 48 * 2**20  # the need, rounded to 48 MiB
+    with pytest.raises(TrainingError) as refused:
+        distance_scratch(shape, alphas, fixed + smallest - 1, "D = 18, alpha Q")
+    assert str(refused.value) == (
+        "the distances of 200 patterns at D = 18, alpha Q need at least 48 MiB, more than the "
+        "memory limit of 48 MiB: give a smaller D or alpha, or raise --memory-limit")
+    with pytest.raises(TrainingError) as refused:
+        distance_scratch(shape, alphas, 40 * 2**20, "D = 18, alpha Q")
+    assert "need at least 48 MiB, more than the memory limit of 40 MiB: " in str(refused.value)
 
 
 @pytest.mark.parametrize("shape,alpha", [((4, 4, 20), "full"), ((3, 5, 12), "half")])
