@@ -700,6 +700,14 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "between smallest - 2 and smallest - 1"),
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if F.shape[0] == 0:",
                    "if F.shape[0] <= 0:", "an array's length is never negative"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if se == 0.0:", "if se <= 0.0:",
+                   "a square root is never negative"),
+        *(Equivalent("core/ReplaceComparisonOperator_Eq_LtE", f"if n_classes == 2:  # {c}",
+                     f"if n_classes <= 2:  # {c}",
+                     "RecipeSearch.fit refuses fewer than two classes: n_classes is never "
+                     "below 2")
+          for c in ("one machine, on every pattern", "its target +1 is class 1",
+                    "the sign of the one machine")),
     ],
 }
 

@@ -295,7 +295,7 @@ def one_vs_all_indices(
 
 def _machine_subsets(y: np.ndarray, n_classes: int, negatives: str, seed: int) -> list[np.ndarray]:
     """Sorted training indices of each machine (as eskin.train_model draws them)."""
-    if n_classes == 2:
+    if n_classes == 2:  # one machine, on every pattern
         return [np.arange(len(y))]
     return one_vs_all_indices(y, n_classes, negatives, seed)
 
@@ -303,7 +303,7 @@ def _machine_subsets(y: np.ndarray, n_classes: int, negatives: str, seed: int) -
 def _binary_targets(y: np.ndarray, n_classes: int) -> np.ndarray:
     """(n, machines) -1/+1 targets: one column for two classes (+1 = class 1), else one per
     class."""
-    if n_classes == 2:
+    if n_classes == 2:  # its target +1 is class 1
         return np.where(y == 1, 1.0, -1.0)[:, None]
     return np.stack([np.where(y == k, 1.0, -1.0) for k in range(n_classes)], axis=1)
 
@@ -311,7 +311,7 @@ def _binary_targets(y: np.ndarray, n_classes: int) -> np.ndarray:
 def _predict(F: np.ndarray, n_classes: int) -> np.ndarray:
     from eskin.learn.estimators import one_vs_all_rule
 
-    if n_classes == 2:
+    if n_classes == 2:  # the sign of the one machine
         return (F[:, 0] > 0).astype(np.int64)
     return one_vs_all_rule(F)[0]
 
@@ -778,7 +778,10 @@ class RecipeSearch:
 
         t0 = time.perf_counter()
         y = np.asarray(y, np.int64)
-        n_classes = int(y.max()) + 1
+        n_classes = int(y.max()) + 1 if len(y) else 0
+        if n_classes < 2 or np.unique(y).tolist() != list(range(n_classes)):
+            raise TrainingError(f"y must hold the class indices 0..k-1 of k >= 2 classes, each "
+                                f"at least once: got {np.unique(y).tolist()}")
         missing = {r.variant for r in self.recipes} - set(patterns)
         if missing:
             raise TrainingError(f"no patterns for the variants {sorted(missing)}")

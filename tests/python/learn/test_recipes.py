@@ -60,6 +60,46 @@ def test_recipe_space_caps_D_by_the_longest_recording():
         Recipe("knn", 20, "even", "all")
 
 
+def test_recipe_space_caps_at_the_exact_length_and_never_below_2():
+    """A D equal to the longest recording or to the windows' fill is kept, without a note; a
+    cap below 2 gives D = 2 (a tensor needs two samples of time), the notes saying so."""
+    recipes, notes = recipe_space(["svm"], [20, 50], ["even"], ["all"], longest=50, fill=20)
+    assert [r.D for r in recipes] == [20] and notes == [
+        "the median training touch window is 20 samples long: D = 20 instead of 50"]
+    recipes, notes = recipe_space(["svm"], [20], ["even"], ["all"], longest=1)
+    assert [r.D for r in recipes] == [2] and notes == [
+        "the training recordings are at most 1 samples long: D = 2 instead of 20"]
+    recipes, notes = recipe_space(["svm"], [20], ["even"], ["all"], fill=1)
+    assert [r.D for r in recipes] == [2] and notes == [
+        "the median training touch window is 1 samples long: D = 2 instead of 20"]
+    recipes, notes = recipe_space(["svm"], [20, 50], ["even"], ["all"], longest=3, fill=1)
+    assert [r.D for r in recipes] == [2] and notes == [
+        "the training recordings are at most 3 samples long: D = 3 instead of 20",
+        "the median training touch window is 1 samples long: D = 2 instead of 3",
+        "the training recordings are at most 3 samples long: D = 3 instead of 50",
+        "the median training touch window is 1 samples long: D = 2 instead of 3"]
+
+
+def test_one_vs_all_indices_draw_balanced_negatives_only_where_there_are_more():
+    """Each machine's indices: its class's patterns and, "balanced", as many distinct patterns
+    of the other classes, drawn by numpy's generator of the seed in class order, by the machines
+    whose other classes outnumber their own only (a tie draws nothing: every one is taken)."""
+    y = np.array([0] * 5 + [1] * 10 + [2] * 3 + [3] * 2)  # 20: class 1 ties its others
+    every = [np.arange(20)] * 4
+    for got, want in zip(one_vs_all_indices(y, 4, "all", 7), every):
+        np.testing.assert_array_equal(got, want)
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        for k, got in enumerate(one_vs_all_indices(y, 4, "balanced", seed)):
+            pos, neg = np.flatnonzero(y == k), np.flatnonzero(y != k)
+            if k != 1:
+                neg = np.sort(rng.choice(neg, size=len(pos), replace=False))
+            np.testing.assert_array_equal(got, np.union1d(pos, neg))
+            assert len(np.unique(got)) == len(got) == 2 * len(pos)
+    more = np.array([0] * 3 + [1] * 12)  # class 1 outnumbers the rest: all of them
+    np.testing.assert_array_equal(one_vs_all_indices(more, 2, "balanced", 0)[1], np.arange(15))
+
+
 def test_a_recipe_names_each_bad_field_and_takes_any_D_from_1():
     assert Recipe("rls", 1, "algorithm2", "balanced").D == 1
     for D in (0, -4):
@@ -98,6 +138,17 @@ def test_the_distances_within_a_memory_limit_are_those_without(data):
         refused._distances(X, "Q")
 
 
+def test_the_search_needs_every_class_index_of_two_or_more_classes(data):
+    X, y, groups = data
+    search = RecipeSearch([Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
+    for bad, got in ((np.zeros_like(y), "[0]"), (np.where(y == 1, 2, y), "[0, 2]"),
+                     (y[:0], "[]")):
+        with pytest.raises(TrainingError) as refused:
+            search.fit({(20, "even"): X[(20, "even")][: len(bad)]}, bad, groups[: len(bad)])
+        assert str(refused.value) == ("y must hold the class indices 0..k-1 of k >= 2 classes, "
+                                      f"each at least once: got {got}")
+
+
 @pytest.mark.parametrize("machine,negatives", [("svm", "all"), ("svm", "balanced"),
                                                ("rls", "all"), ("rls", "balanced")])
 def test_split_scores_are_those_of_the_one_vs_all_classifier(data, machine, negatives):
@@ -122,6 +173,28 @@ def test_split_scores_are_those_of_the_one_vs_all_classifier(data, machine, nega
     entry = search0.ranking_[0]
     assert entry["splits"] == 2
     assert entry["error"] == pytest.approx(np.mean(err), abs=1e-12)
+
+
+@pytest.mark.parametrize("machine", ["svm", "rls"])
+def test_two_class_split_scores_are_those_of_one_machine_on_the_sign(data, machine):
+    """Two classes: the search's error on each split is that of one machine trained on every
+    training pattern, +1 for class 1, predicting class 1 where its decision value is above 0."""
+    X, y, groups = data
+    keep = np.flatnonzero(y < 2)
+    Xr, y2, g2 = X[(20, "algorithm2")][keep], y[keep], groups[keep]
+    search = RecipeSearch([Recipe(machine, 20, "algorithm2", "all")], [0.1], [1.0], ["Q/2"],
+                          [None], n_splits=2, first_share=1.0, seed=4).fit(
+        {(20, "algorithm2"): Xr}, y2, g2)
+    err, at = [], {-1: [], 1: []}  # the errors at 0 and, to show they differ, at -1 and +1
+    for tr, te in search.splits_:
+        est = (TensorSVC(C=10.0, sigma=1.0, alpha="half") if machine == "svm"
+               else TensorRLS(lam=0.1, sigma=1.0, alpha="half"))
+        f = est.fit(Xr[tr], np.where(y2[tr] == 1, 1, -1)).decision_function(Xr[te])
+        err.append(np.mean((f > 0).astype(int) != y2[te]))
+        for t in at:
+            at[t].append(np.mean((f > t).astype(int) != y2[te]))
+    assert np.mean(at[-1]) != np.mean(err) != np.mean(at[1])
+    assert search.ranking_[0]["error"] == pytest.approx(np.mean(err), abs=1e-12)
 
 
 def test_successive_halving_keeps_a_third_per_round_on_twice_the_splits(data):
