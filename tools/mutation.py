@@ -708,6 +708,28 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "below 2")
           for c in ("one machine, on every pattern", "its target +1 is class 1",
                     "the sign of the one machine")),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Eq_{op}", 'if neg == "all":',
+                     f'if neg {sym} "all":',
+                     "every negative by the other branch: each machine's subset is every "
+                     "pattern, cut to the split's training part, the same indices as separate "
+                     "arrays (only the sharing of their Gram blocks is lost)")
+          for op, sym in (("Lt", "<"), ("LtE", "<="))),
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   "mine = [c for c in cands if c.recipe == recipe]",
+                   "mine = [c for c in cands if c.recipe >= recipe]",
+                   "the recipes are taken in sorted order: a candidate of a larger recipe, "
+                   "scored first with a smaller one's machines, is scored again in its own "
+                   "recipe's turn, which overwrites the result"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_Is",
+                   "mine = [c for c in cands if c.recipe == recipe]",
+                   "mine = [c for c in cands if c.recipe is recipe]",
+                   "every candidate of a recipe holds the one Recipe object of the search's "
+                   "(deduplicated) recipes, and a task's candidates travel to it in one pickle, "
+                   "which keeps that identity"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
+                   "the Gaussians of a sigma recomputed when an equal sigma is another float "
+                   "object: the same values, only the time differs"),
     ],
 }
 

@@ -705,7 +705,7 @@ class RecipeSearch:
                 or not 0 < float(first_share) <= 1):
             raise TrainingError("n_splits must be >= 1, eta and growth >= 2 and first_share "
                                 "in (0, 1]")
-        self.recipes = list(recipes)
+        self.recipes = list(dict.fromkeys(recipes))  # each once, in the order given
         self.grid = [(float(la), float(s), str(a), am) for la in lambdas for s in sigmas
                      for a in alphas for am in amplitudes]
         if not self.grid:

@@ -138,6 +138,13 @@ def test_the_distances_within_a_memory_limit_are_those_without(data):
         refused._distances(X, "Q")
 
 
+def test_a_recipe_given_twice_is_searched_once():
+    a, b = Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "all")
+    search = RecipeSearch([a, b, Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
+    assert search.recipes == [a, b] and search.recipes[0] is a
+    assert len(search._first_candidates()) == 2
+
+
 def test_the_search_needs_every_class_index_of_two_or_more_classes(data):
     X, y, groups = data
     search = RecipeSearch([Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])

@@ -131,12 +131,10 @@ def test_an_info_frame_of_a_larger_grid_than_the_data_before_it_restarts_the_str
 
 
 def test_the_activity_history_is_at_most_256_mib_of_samples():
-    """history_s seconds of samples, but never more than MAX_HISTORY_BYTES of int16 taxels."""
-    from eskin.link.receiver import MAX_HISTORY_BYTES
-
-    for history_s in (2.0, 1e6):  # 6,000 samples; 256 MiB / (16 taxels x 2 bytes)
+    """history_s seconds of samples, but never more than 256 MiB of int16 taxels."""
+    # 6,000 samples; 8,388,608 = 256 MiB / (16 taxels x 2 bytes) of the 3e9 asked for
+    for history_s, want in ((2.0, 6000), (1e6, 8_388_608)):
         listener = LinkListener("/dev/null-not-opened", stats_interval=None, history_s=history_s)
         listener.feed(DELIMITER + _info() + _data(np.zeros((10, 4, 4), np.int16)))
-        want = min(int(np.ceil(history_s * 3000)), MAX_HISTORY_BYTES // (4 * 4 * 2))
         assert listener.receiver._stream.history.capacity == want
         listener.close()
