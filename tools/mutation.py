@@ -488,6 +488,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for n in (31, 33)),
     ],
     "python/eskin/link/receiver.py": [
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   "return status.state != StreamState.STREAMING and 1 <= status.connections "
+                   "<= 1 + reconnects",
+                   "return status.state is not StreamState.STREAMING and 1 <= status.connections "
+                   "<= 1 + reconnects",
+                   "a decoded STATUS's state is a StreamState member (the decoder makes it one), "
+                   "and an enumeration's members are singletons"),
         Equivalent("core/ReplaceComparisonOperator_Gt_GtE",
                    "and st.next is not None and s.next_sample > st.next and not self._tail):",
                    "and st.next is not None and s.next_sample >= st.next and not self._tail):",
@@ -726,6 +733,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "every candidate of a recipe holds the one Recipe object of the search's "
                    "(deduplicated) recipes, and a task's candidates travel to it in one pickle, "
                    "which keeps that identity"),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Eq_{op}",
+                     'if recipe.machine == "rls" and recipe.negatives == "all":',
+                     f'if recipe.machine {sym} "rls" and recipe.negatives == "all":',
+                     "tensor-RLS with every negative by the other branch: its machines fitted one "
+                     "by one instead of through one shared factorisation, the same machines")
+          for op, sym in (("Lt", "<"), ("LtE", "<="))),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

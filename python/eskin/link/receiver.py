@@ -62,8 +62,7 @@ def unreceived_samples(status: StatusFrame, received: int, reconnects: int,
     the ones after the last frame that arrived (which no hole in the sample indices reveals).
     This holds when every sample it sent went to this host: when its ``connections`` are at
     most the host's connections (0: an older controller that does not say)."""
-    sessions = 1 + reconnects
-    if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
+    if not _follows_everything_sent(status, reconnects):
         return known
     return max(known, status.samples_sent - received)
 
@@ -76,10 +75,15 @@ def unreceived_decisions(status: StatusFrame, received: int, reconnects: int,
     every frame it sent before it, when every frame went to this host. ``received``: the
     controller's decisions the host took before this STATUS. The decisions the controller
     could not send at all are its own count, ``decisions_dropped``."""
-    sessions = 1 + reconnects
-    if status.state == StreamState.STREAMING or not 1 <= status.connections <= sessions:
+    if not _follows_everything_sent(status, reconnects):
         return known
     return max(known, status.decisions_sent - received)
+
+
+def _follows_everything_sent(status: StatusFrame, reconnects: int) -> bool:
+    """Whether ``status`` follows every frame the controller sent and all of them went to this
+    host: it is not streaming, and it counts 1 to 1 + ``reconnects`` connections."""
+    return status.state != StreamState.STREAMING and 1 <= status.connections <= 1 + reconnects
 
 
 class StreamReceiver:

@@ -358,6 +358,11 @@ def test_what_never_arrived_counts_only_from_a_status_that_follows_everything_se
     assert fn(status(stopped, 2), 30, 0, known=4) == 4  # another host had a connection
     assert fn(status(stopped, 0), 30, 0, known=4) == 4  # an older controller: it does not say
     assert fn(status(streaming, 1), 30, 0, known=4) == 4  # more frames may follow
+    assert fn(status(StreamState.FINISHED, 1), 30, 0, known=4) == 20  # its replay ended
+    assert fn(status(stopped, 3), 30, 2, known=4) == 20  # three connections, two reconnects
+    assert fn(status(stopped, 1), 30, 0) == 20 and fn(status(stopped, 1), 50, 0) == 0
+    assert fn(status(stopped, 1), 60, 0) == 0  # more arrived than it says: nothing lost
+    assert fn(status(streaming, 1), 30, 0) == 0
 
 
 def test_activity_is_each_taxels_rms_deviation_from_its_mean_over_the_last_second():
