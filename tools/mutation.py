@@ -739,6 +739,29 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "tensor-RLS with every negative by the other branch: its machines fitted one "
                      "by one instead of through one shared factorisation, the same machines")
           for op, sym in (("Lt", "<"), ("LtE", "<="))),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Eq_{op}",
+                     'if recipe.machine == "rls" and recipe.negatives == "all":',
+                     f'if recipe.machine == "rls" and recipe.negatives {sym} "all":',
+                     "tensor-RLS with every negative by the other branch: its machines fitted one "
+                     "by one instead of through one shared factorisation, the same machines")
+          for op, sym in (("Lt", "<"), ("LtE", "<="))),
+        Equivalent("core/NumberReplacer", "_, Ktr, Kte = blocks[0]", "_, Ktr, Kte = blocks[ -1]",
+                   "with every negative the machines' blocks are one shared tuple: the last is "
+                   "the first"),
+        Equivalent("core/ReplaceTrueWithFalse",
+                   "B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=False),",
+                   "B = linalg.cho_solve(linalg.cho_factor(A, lower=False, check_finite=False),",
+                   "the upper Cholesky factor instead of the lower: the same solve (cho_solve "
+                   "reads which one it is given), equal to rounding"),
+        Equivalent("core/ReplaceFalseWithTrue",
+                   "B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=False),",
+                   "B = linalg.cho_solve(linalg.cho_factor(A, lower=True, check_finite=True),",
+                   "SciPy's check for infinities and NaN on a Gram matrix of finite kernel "
+                   "values: only the time differs"),
+        Equivalent("core/ReplaceFalseWithTrue", "Y[tr], check_finite=False)",
+                   "Y[tr], check_finite=True)",
+                   "SciPy's check for infinities and NaN on -1/+1 targets: only the time "
+                   "differs"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "
