@@ -762,6 +762,26 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "Y[tr], check_finite=True)",
                    "SciPy's check for infinities and NaN on -1/+1 targets: only the time "
                    "differs"),
+        *(Equivalent("core/NumberReplacer",
+                     "results[i] = (1.0, trained, True)  # collapsed whatever the fit: none is made",
+                     f"results[i] = ( {v}, trained, True)  # collapsed whatever the fit: none is "
+                     "made",
+                     "a collapsed split's error is set to 1.0 where the scores are recorded "
+                     "(_record_scores), whatever the task returned for it")
+          for v in ("2.0", "0.0")),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", 'if recipe.machine == "rls":',
+                   'if recipe.machine <= "rls":',
+                   'a machine is "rls" or "svm", and "svm" sorts after "rls"'),
+        Equivalent("core/ReplaceComparisonOperator_Lt_Gt",
+                   "if len(support) and np.max(np.abs(beta[support])) < 1.0 / c.lam:",
+                   "if len(support) and np.max(np.abs(beta[support])) > 1.0 / c.lam:",
+                   "no coefficient exceeds its bound C: no fit is kept for the larger C's, each "
+                   "is fitted, to the same solution (only the time differs)"),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
+                   "if len(support) and np.max(np.abs(beta[support])) < 1.0 / c.lam:",
+                   "if len(support) and np.max(np.abs(beta[support])) != 1.0 / c.lam:",
+                   "no coefficient exceeds its bound C (the solver keeps them in [0, C]): "
+                   "below it is not equal to it"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

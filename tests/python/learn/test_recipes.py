@@ -187,15 +187,44 @@ def test_split_scores_are_those_of_the_one_vs_all_classifier(data, machine, nega
     assert entry["error"] == pytest.approx(np.mean(err), abs=1e-12)
 
 
-@pytest.mark.parametrize("machine", ["svm", "rls"])
-def test_two_class_split_scores_are_those_of_one_machine_on_the_sign(data, machine):
+@pytest.mark.parametrize("negatives", ["all", "balanced"])
+def test_every_C_of_the_grid_is_scored_as_a_machine_fitted_at_that_C(data, negatives):
+    """sigma 2, C = 1/lambda from 0.1 (coefficients at their bound) to 100: each candidate's error is
+    that of the one-vs-all classifier fitted at its own C, though the search reuses a machine
+    none of whose coefficients reached its bound for the larger C's."""
+    X, y, groups = data
+    Xr = X[(20, "algorithm2")]
+    lams = [10.0, 1.0, 0.1, 0.01]
+    search = RecipeSearch([Recipe("svm", 20, "algorithm2", negatives)], lams, [2.0], ["Q/2"],
+                          [None], n_splits=1, first_share=1.0, significance=None,
+                          seed=4).fit(X, y, groups)
+    [(tr, te)] = search.splits_
+    ix = [np.intersect1d(tr, m) for m in one_vs_all_indices(y, 3, negatives, 4)]
+    sub = np.unique(np.concatenate(ix))
+    pos = {int(i): j for j, i in enumerate(sub)}
+    local = [np.array([pos[int(i)] for i in m]) for m in ix]
+    got = {e["candidate"].lam: e["error"] for e in search.ranking_}
+    want, bounded = {}, []
+    for lam in lams:
+        ova = OneVsAllTouchClassifier(TensorSVC(C=1.0 / lam, sigma=2.0, alpha="half")).fit(
+            Xr[sub], y[sub], machine_indices=local)
+        want[lam] = np.mean(ova.predict(Xr[te]) != y[te])
+        bounded.append(any(np.max(np.abs(e.dual_coef_)) >= 1.0 / lam * (1 - 1e-9)
+                           for e in ova.estimators_))
+    assert bounded[0] and not bounded[-1] and len(set(want.values())) > 1
+    assert got == pytest.approx(want, abs=1e-12)
+
+
+@pytest.mark.parametrize("machine,negatives", [("svm", "all"), ("rls", "all"),
+                                               ("rls", "balanced")])
+def test_two_class_split_scores_are_those_of_one_machine_on_the_sign(data, machine, negatives):
     """Two classes: the search's error on each split is that of one machine trained on every
     training pattern, +1 for class 1, predicting class 1 where its decision value is above 0."""
     X, y, groups = data
     keep = np.flatnonzero(y < 2)
     Xr, y2, g2 = X[(20, "algorithm2")][keep], y[keep], groups[keep]
-    search = RecipeSearch([Recipe(machine, 20, "algorithm2", "all")], [0.1], [1.0], ["Q/2"],
-                          [None], n_splits=2, first_share=1.0, seed=4).fit(
+    search = RecipeSearch([Recipe(machine, 20, "algorithm2", negatives)], [0.1], [1.0],
+                          ["Q/2"], [None], n_splits=2, first_share=1.0, seed=4).fit(
         {(20, "algorithm2"): Xr}, y2, g2)
     err, at = [], {-1: [], 1: []}  # the errors at 0 and, to show they differ, at -1 and +1
     for tr, te in search.splits_:
