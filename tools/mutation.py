@@ -488,6 +488,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for n in (31, 33)),
     ],
     "python/eskin/link/receiver.py": [
+        Equivalent("core/NumberReplacer",
+                   'd["lost_samples"] = max((st.lost_samples if st else 0) + self._tail, '
+                   'self._unseen)',
+                   'd["lost_samples"] = max((st.lost_samples if st else -1) + self._tail, '
+                   'self._unseen)',
+                   "without a stream the tail is 0 (finish sets it only with one) and the "
+                   "unseen count is at least 0: max(-1, that) is max(0, that)"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "return status.state != StreamState.STREAMING and 1 <= status.connections "
                    "<= 1 + reconnects",

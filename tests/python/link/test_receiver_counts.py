@@ -109,7 +109,9 @@ def test_decisions_host_counts_each_decision_of_the_host_model(tmp_path):
 
 def test_nothing_received_is_nothing_lost():
     listener = LinkListener("/dev/null-not-opened", stats_interval=None)
-    assert listener.stats.lost_samples == 0 and listener.activity() is None
+    s = listener.stats
+    assert (s.lost_samples, s.lost_decisions, s.sample_index_resets, s.recordings) == (0, 0, 0, 0)
+    assert listener.activity() is None
     listener.close()
 
 
