@@ -507,11 +507,12 @@ def _score_split(blocks, Y, y, n_classes, recipe, cands, split, svm_train, linal
 
 def _solve_pos(K: np.ndarray, lam: float, y: np.ndarray, linalg: Any) -> np.ndarray:
     """(K + lam I)^-1 y by LAPACK's Cholesky solver (posv), K symmetric positive
-    semi-definite; scipy.linalg.solve's error when K + lam I is not positive definite."""
+    semi-definite; numpy's LinAlgError when K + lam I is not positive definite."""
     A = K + lam * np.eye(len(K))
     _, x, info = linalg.lapack.dposv(A, y, lower=False, overwrite_a=True)
     if info != 0:
-        return linalg.solve(K + lam * np.eye(len(K)), y, assume_a="pos", check_finite=False)
+        raise np.linalg.LinAlgError(f"K + lambda I is not positive definite (lambda = {lam:g}: "
+                                    f"the leading minor of order {info} is not)")
     return x
 
 

@@ -780,8 +780,13 @@ def test_a_regularised_kernel_that_is_not_positive_definite_is_an_error_not_a_so
                                [2 / 3, -2 / 3], rtol=1e-12)
     bad = np.array([[-5.0, 0.0], [0.0, 1.0]])
     assert linalg.lapack.dposv(bad + 0.1 * np.eye(2), np.ones(2), lower=False)[2] == 1
-    with pytest.raises(np.linalg.LinAlgError):
+    with pytest.raises(np.linalg.LinAlgError) as refused:
         _solve_pos(bad, 0.1, np.ones(2), linalg)
+    assert str(refused.value) == ("K + lambda I is not positive definite (lambda = 0.1: the "
+                                  "leading minor of order 1 is not)")
+    second = np.array([[1.0, 2.0], [2.0, 1.0]])  # its 2 x 2 minor: 1.1^2 - 4 < 0
+    with pytest.raises(np.linalg.LinAlgError, match="minor of order 2 is not"):
+        _solve_pos(second, 0.1, np.ones(2), linalg)
 
 
 def test_the_binary_targets_are_plus_one_for_class_1_and_minus_one_else():
