@@ -488,6 +488,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for n in (31, 33)),
     ],
     "python/eskin/link/receiver.py": [
+        Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
+                   "if self.info is not None and self.info.volts_per_count > 0:",
+                   "if self.info is not None and self.info.volts_per_count != 0:",
+                   "an INFO frame whose volts_per_count is negative is refused (FrameChecks): "
+                   "the one kept is at least 0"),
         Equivalent("core/NumberReplacer",
                    'd["lost_samples"] = max((st.lost_samples if st else 0) + self._tail, '
                    'self._unseen)',
@@ -789,6 +794,18 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if len(support) and np.max(np.abs(beta[support])) != 1.0 / c.lam:",
                    "no coefficient exceeds its bound C (the solver keeps them in [0, C]): "
                    "below it is not equal to it"),
+        Equivalent("core/ReplaceFalseWithTrue",
+                   "_, x, info = linalg.lapack.dposv(A, y, lower=False, overwrite_a=True)",
+                   "_, x, info = linalg.lapack.dposv(A, y, lower=True, overwrite_a=True)",
+                   "K + lambda I is symmetric: the Cholesky factor of its lower triangle is the "
+                   "transpose of its upper one's, the same solve to rounding"),
+        Equivalent("core/ReplaceTrueWithFalse",
+                   "_, x, info = linalg.lapack.dposv(A, y, lower=False, overwrite_a=True)",
+                   "_, x, info = linalg.lapack.dposv(A, y, lower=False, overwrite_a=False)",
+                   "A is a temporary the solver may overwrite or copy: only the memory differs"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt", "if info != 0:", "if info > 0:",
+                   "LAPACK's negative info names an illegal argument, and the arguments are "
+                   "always legal (a square matrix and a vector of its size)"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

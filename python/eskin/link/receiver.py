@@ -148,9 +148,9 @@ class StreamReceiver:
     def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
         taxel's deviation from its mean over the last second (ADC counts); None before data."""
-        h = self._stream.history if self._stream is not None else None
-        if h is None or h.end == h.begin:
+        if self._stream is None:  # a stream holds the samples of one DATA frame at least
             return None
+        h = self._stream.history
         rate = self.rate()
         ref, _ = h.get(h.end - int(rate), h.end)
         recent, _ = h.get(h.end - max(1, int(window_s * rate)), h.end)

@@ -382,6 +382,7 @@ def test_activity_is_each_taxels_rms_deviation_from_its_mean_over_the_last_secon
         dev = x[-last:].astype(np.float64) - ref
         np.testing.assert_allclose(listener.activity(window_s), np.sqrt((dev * dev).mean(axis=0)),
                                    rtol=1e-12)
+    np.testing.assert_array_equal(listener.activity(), listener.activity(0.2))  # the default
     listener.close()
 
 

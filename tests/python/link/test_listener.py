@@ -407,6 +407,7 @@ def test_record_segments_reads_back_equal_to_the_source(pty, tmp_path):
     assert list(camp.modality) == [2, 0, 1]
     assert np.array_equal(camp.contact_interval, [[10, 600], [0, 450], [100, 200]])
     assert camp.attrs["record_policy"] == "segment"
+    assert camp.volts_per_count == 1e-4 != rf.volts_per_count  # the INFO frame's, not the file's
     for k, r in enumerate(recs):
         assert np.array_equal(camp.recording(k), r)
 
