@@ -140,3 +140,22 @@ def test_the_activity_history_is_at_most_256_mib_of_samples():
         listener.feed(DELIMITER + _info() + _data(np.zeros((10, 4, 4), np.int16)))
         assert listener.receiver._stream.history.capacity == want
         listener.close()
+
+
+def test_a_recording_takes_the_info_frames_volts_per_count_and_1_when_it_says_0(tmp_path):
+    """The volts per count of a recorded stream: the INFO frame's when it gives one (> 0), else
+    the replay file's (none here), else 1 (the samples kept as counts)."""
+    from eskin.data.campaign import load_campaign
+
+    x = _touch_stream()
+    for vpc, want in ((2.5e-4, 2.5e-4), (0.0, 1.0)):
+        out = tmp_path / f"vpc{vpc}.h5"
+        info = encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=vpc, has_model=False,
+                                      class_names=(), seq=0))
+        listener = LinkListener("/dev/null-not-opened", record=out, record_policy="touch",
+                                stats_interval=None)
+        events = listener.feed(DELIMITER + info + _data(x)) + listener.finish()
+        listener.close()
+        assert sum(isinstance(e, Recorded) for e in events) == 1
+        with load_campaign(out) as camp:
+            assert camp.volts_per_count == want
