@@ -673,12 +673,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "return np.where(y == 1, 1.0, -1.0)[:, None]",
                    "return np.where(y >= 1, 1.0, -1.0)[:, None]",
                    "two classes are labelled 0 and 1 (the class indices of the training set)"),
-        Equivalent("core/ReplaceComparisonOperator_NotEq_LtE",
-                   "if row._expected[0] != len(row.support):",
-                   "if row._expected[0] <= len(row.support):",
-                   "the cache of a row's expected support vectors: its count of splits is never "
-                   "above the row's (splits are only added), so <= recomputes it every time, "
-                   "to the same value"),
         Equivalent("core/ReplaceComparisonOperator_LtE_Lt",
                    "if gap <= tolerance + 1e-12 or p >= significance:",
                    "if gap < tolerance + 1e-12 or p >= significance:",
@@ -806,6 +800,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/ReplaceComparisonOperator_NotEq_Gt", "if info != 0:", "if info > 0:",
                    "LAPACK's negative info names an illegal argument, and the arguments are "
                    "always legal (a square matrix and a vector of its size)"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "made[id(trk)] = math.inf if Kte.shape[0] == 0 else "
+                   "float(Kte.sum(axis=1).max())",
+                   "made[id(trk)] = math.inf if Kte.shape[0] <= 0 else "
+                   "float(Kte.sum(axis=1).max())",
+                   "an array's length is never negative"),
+        Equivalent("core/ReplaceTrueWithFalse", "fits: bool = True", "fits: bool = False",
+                   "a row's fits is read under a budget only, and _check_budget sets it when "
+                   "the row is scored, before any read"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

@@ -568,16 +568,10 @@ class _Row:
     fits: bool = True
     bound: int | None = None  # support vectors the model is bounded to under the budget
     collapsed: set[int] = field(default_factory=set)  # splits where a machine's kernel collapsed
-    #: (splits scored, mean error) and (splits scored, expected support vectors) when last
-    #: computed: the errors only grow by splits, and the ranking asks for them many times
-    _mean: tuple[int, float] = (0, math.nan)
-    _expected: tuple[int, int] = (0, 0)
 
     @property
     def mean(self) -> float:
-        if self._mean[0] != len(self.errors):
-            self._mean = (len(self.errors), float(np.mean(list(self.errors.values()))))
-        return self._mean[1]
+        return float(np.mean(list(self.errors.values())))
 
 
 def _record_scores(rows: Mapping[Candidate, _Row],
@@ -875,11 +869,8 @@ class RecipeSearch:
     def _expected_support(self, row: _Row, n: int) -> int:
         """Support vectors of the model trained on all ``n`` patterns, from the splits' counts
         (scaled by the share of patterns the splits trained on)."""
-        if row._expected[0] != len(row.support):
-            share = np.mean([len(self.splits_[s][0]) for s in row.support]) / n
-            row._expected = (len(row.support),
-                             int(math.ceil(np.mean(list(row.support.values())) / share)))
-        return row._expected[1]
+        share = np.mean([len(self.splits_[s][0]) for s in row.support]) / n
+        return int(math.ceil(np.mean(list(row.support.values())) / share))
 
     def _finish(self, rows: dict[Candidate, _Row], final: list[Candidate], n: int) -> None:
         # equally good: less than one held-out pattern apart over all the splits together

@@ -138,6 +138,57 @@ def test_the_distances_within_a_memory_limit_are_those_without(data):
         refused._distances(X, "Q")
 
 
+def test_a_candidate_over_the_budget_is_kept_bounded_to_at_least_half_its_support():
+    """Under a budget with ``largest``, a candidate expected to need more support vectors than
+    fit is kept, bounded to the most that fit, when those are at least half of what it needs
+    (rounded up, and at least 1); else it does not fit."""
+    from eskin.learn.recipes import _check_budget, _Row
+
+    budget = CandidateBudget(fits=lambda c, n: n <= 10, largest=lambda c, n: min(n, 10))
+    assert budget.keep_share == 0.5
+    c = Candidate(Recipe("svm", 20, "even", "all"), 0.1, 1.0, "1", None)
+    for expected, fits, bound in ((5, True, None), (10, True, None), (20, True, 10),
+                                  (21, False, None)):
+        row = _Row(c)
+        _check_budget(budget, row, expected)
+        assert (row.fits, row.bound) == (fits, bound), expected
+    none_fit = CandidateBudget(fits=lambda c, n: n <= 0, largest=lambda c, n: 0)
+    for expected in (1, 2):
+        row = _Row(c)
+        _check_budget(none_fit, row, expected)
+        assert (row.fits, row.bound) == (False, None)
+    strict = CandidateBudget(fits=lambda c, n: n <= 10, largest=lambda c, n: min(n, 10),
+                             keep_share=0.9)
+    for expected, fits in ((11, True), (12, False)):  # 10 of 11 is 0.91, 10 of 12 is 0.83
+        row = _Row(c)
+        _check_budget(strict, row, expected)
+        assert row.fits == fits
+    alone = CandidateBudget(fits=lambda c, n: n <= 10)  # no largest: fits as it is or not
+    row = _Row(c)
+    _check_budget(alone, row, 11)
+    assert (row.fits, row.bound) == (False, None)
+
+
+def test_the_second_round_keeps_the_third_of_lowest_error_on_the_first_split(data):
+    """Successive halving's cut: the candidates scored on two splits are a third (rounded up)
+    of those scored on the first, none of them worse on it than any candidate cut."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "even", "all")]
+    grid = ([0.01, 0.1, 1.0, 10.0], [0.5, 2.0, 8.0], ["1", "Q/2"], [None])
+    one = RecipeSearch(recipes, *grid, n_splits=1, first_share=1.0, significance=None,
+                       seed=5).fit(X, y, groups)
+    two = RecipeSearch(recipes, *grid, n_splits=2, first_share=1.0, significance=None,
+                       seed=5).fit(X, y, groups)
+    for a, b in zip(one.splits_[0], two.splits_[0]):
+        np.testing.assert_array_equal(a, b)
+    first = {e["candidate"]: e["split_errors"][0] for e in one.ranking_}
+    kept = {e["candidate"] for e in two.ranking_}
+    assert len(first) == 48 and len(kept) == 16 and kept < set(first)
+    assert len({first[c] for c in first}) > 2  # the first split tells them apart
+    assert max(first[c] for c in kept) <= min(first[c] for c in set(first) - kept)
+    assert all(e["split_errors"][0] == first[e["candidate"]] for e in two.ranking_)
+
+
 def test_a_recipe_given_twice_is_searched_once():
     a, b = Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "all")
     search = RecipeSearch([a, b, Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
@@ -959,7 +1010,8 @@ def test_the_kernel_reach_is_the_largest_held_out_row_sum_over_the_machines():
     from eskin.learn.recipes import _kernel_reach
 
     a, b = np.array([0, 1, 2]), np.array([2, 3])
-    K_a = np.array([[0.125, 0.25, 0.5], [0.75, 0.0, 0.0]])  # row sums 0.875 and 0.75
+    # row sums 0.875, 0.75 and 0.625; column sums (a training pattern's) up to 1.75
+    K_a = np.array([[0.125, 0.25, 0.5], [0.0, 0.0, 0.75], [0.0, 0.125, 0.5]])
     K_b = np.array([[0.25, 0.25]])
     assert _kernel_reach([(a, None, K_a), (b, None, K_b)]) == (0.875, 4)
     assert _kernel_reach([(a, None, K_a), (a, None, np.full((2, 3), 9.0))]) == (0.875, 3)
