@@ -488,6 +488,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for n in (31, 33)),
     ],
     "python/eskin/link/receiver.py": [
+        *(Equivalent("core/NumberReplacer",
+                     "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
+                     f"if data_run and data_run[0].samples.shape[ {a}:] != f.samples.shape[1:]:",
+                     "a shape of another length is never equal: every DATA frame its own run, "
+                     "and runs cut finer are fed the same, frame by frame in order")
+          for a in ("2", "0")),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    "if self.info is not None and self.info.volts_per_count > 0:",
                    "if self.info is not None and self.info.volts_per_count != 0:",

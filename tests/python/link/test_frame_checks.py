@@ -296,16 +296,20 @@ def _version1_status(seq: int) -> bytes:
     return cobs_encode(raw + zlib.crc32(raw).to_bytes(4, "little")) + DELIMITER
 
 
-@pytest.mark.parametrize("version", [1, 99])
-def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_path, version):
+@pytest.mark.parametrize("version,fields", [(1, {}), (99, {}), (3, {"sample_rate_hz": 0.0}),
+                                            (1, {"rows": 0})])
+def test_an_info_of_another_protocol_version_ends_the_stream_with_one_line(tmp_path, version,
+                                                                          fields):
     """An older controller (version 1, whose STATUS is shorter) or a newer one: its STATUS is
-    refused as malformed, never read by this version's layout, and its INFO ends the stream."""
+    refused as malformed, never read by this version's layout, and its INFO ends the stream,
+    whatever its other fields say (read by this version's rules, a rate of 0 or a grid of no
+    rows would be refused as absurd)."""
     import dataclasses
 
     from eskin.link.protocol import PROTOCOL_VERSION
 
     assert PROTOCOL_VERSION == 2
-    foreign = dataclasses.replace(_info(), protocol_version=version)
+    foreign = dataclasses.replace(_info(), protocol_version=version, **fields)
     frames = [_info(), *[_data(k) for k in range(0, 50, 10)]]
     wire = (DELIMITER + b"".join(encode_frame(f) for f in frames) + _version1_status(6)
             + encode_frame(foreign) + b"".join(encode_frame(_data(k)) for k in range(50, 100, 10)))
