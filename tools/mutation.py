@@ -494,6 +494,16 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "a shape of another length is never equal: every DATA frame its own run, "
                      "and runs cut finer are fed the same, frame by frame in order")
           for a in ("2", "0")),
+        Equivalent("core/NumberReplacer",
+                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
+                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[ 2:]:",
+                   "a shape of another length is never equal: every DATA frame its own run, "
+                   "and runs cut finer are fed the same, frame by frame in order"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
+                   "if data_run and data_run[0].samples.shape[1:] is not f.samples.shape[1:]:",
+                   "two frames' shapes are never the same tuple object: every DATA frame its "
+                   "own run, and runs cut finer are fed the same, frame by frame in order"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    "if self.info is not None and self.info.volts_per_count > 0:",
                    "if self.info is not None and self.info.volts_per_count != 0:",

@@ -162,22 +162,26 @@ def test_a_recording_takes_the_info_frames_volts_per_count_and_1_when_it_says_0(
             assert camp.volts_per_count == want
 
 
-def test_a_grid_of_as_many_columns_voted_in_within_one_read_restarts_the_stream():
-    """No INFO: 4x4 frames, then 2x4 ones (the same columns) in the same read. The third 2x4
-    frame in a row wins the vote; from there the stream is 2x4, its samples in 2x4 blocks."""
+def test_grids_of_as_many_columns_voted_in_within_one_read_restart_the_stream():
+    """No INFO: 4x4 frames, then 2x4 ones (the same columns), then 4x4 again, all in the same
+    read. The third frame of the other grid in a row wins the vote; from there the stream has
+    that grid, its samples in blocks of it."""
     rng = np.random.default_rng(3)
     a = rng.integers(-50, 50, size=(50, 4, 4)).astype(np.int16)
     b = rng.integers(-50, 50, size=(60, 2, 4)).astype(np.int16)
-    wire = b"".join(encode_frame(DataFrame(k, k * 333, a[k:k + SPF], k // SPF + 1))
-                    for k in range(0, 50, SPF))
-    wire += b"".join(encode_frame(DataFrame(k, k * 333, b[k:k + SPF], 6 + k // SPF))
-                     for k in range(0, 60, SPF))
+    c = rng.integers(-50, 50, size=(40, 4, 4)).astype(np.int16)
+    wire, seq = b"", 1
+    for x in (a, b, c):
+        for k in range(0, len(x), SPF):
+            wire += encode_frame(DataFrame(k, k * 333, x[k:k + SPF], seq))
+            seq += 1
     listener = LinkListener("/dev/null-not-opened", stats_interval=None)
     events = listener.feed(DELIMITER + wire)
     s = listener.stats
     listener.close()
     blocks = [e for e in events if isinstance(e, DataBlock)]
-    assert [blk.samples.shape[1:] for blk in blocks] == [(4, 4)] * 5 + [(2, 4)] * 4
-    np.testing.assert_array_equal(np.concatenate([blk.samples for blk in blocks[5:]]), b[20:])
-    assert s.samples == 110 and s.absurd_frames == 2  # the first two 2x4 frames refused
-    assert listener.receiver._stream.grid == (2, 4)
+    assert [blk.samples.shape[1:] for blk in blocks] == [(4, 4)] * 5 + [(2, 4)] * 4 + [(4, 4)] * 2
+    np.testing.assert_array_equal(np.concatenate([blk.samples for blk in blocks[5:9]]), b[20:])
+    np.testing.assert_array_equal(np.concatenate([blk.samples for blk in blocks[9:]]), c[20:])
+    assert s.samples == 150 and s.absurd_frames == 4  # the first two of each new grid refused
+    assert listener.receiver._stream.grid == (4, 4)
