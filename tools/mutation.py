@@ -825,6 +825,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/ReplaceTrueWithFalse", "fits: bool = True", "fits: bool = False",
                    "a row's fits is read under a budget only, and _check_budget sets it when "
                    "the row is scored, before any read"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
+                   'return (f"{n} candidate{\'s\' if n != 1 el'
+                   'se \'\'} had a collapsed kernel on {splits} "',
+                   'return (f"{n} candidate{\'s\' if n > 1 els'
+                   'e \'\'} had a collapsed kernel on {splits} "',
+                   "the note is made for one candidate at least (None for none): n is never 0"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "
