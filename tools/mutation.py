@@ -831,6 +831,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    'return (f"{n} candidate{\'s\' if n > 1 els'
                    'e \'\'} had a collapsed kernel on {splits} "',
                    "the note is made for one candidate at least (None for none): n is never 0"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
+                   'f"split{\'s\' if splits != 1 else \'\'} (a machi'
+                   'ne\'s held-out decision values all within "',
+                   'f"split{\'s\' if splits > 1 else \'\'} (a machi'
+                   'ne\'s held-out decision values all within "',
+                   "a candidate in the note collapsed on one split at least: the count of "
+                   "splits is never 0"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "
