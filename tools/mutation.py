@@ -689,12 +689,7 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "return np.where(y == 1, 1.0, -1.0)[:, None]",
                    "return np.where(y >= 1, 1.0, -1.0)[:, None]",
                    "two classes are labelled 0 and 1 (the class indices of the training set)"),
-        Equivalent("core/ReplaceComparisonOperator_LtE_Lt",
-                   "if gap <= tolerance + 1e-12 or p >= significance:",
-                   "if gap < tolerance + 1e-12 or p >= significance:",
-                   "at gap = tolerance + 1e-12 the line above has set p = 1.0, and significance "
-                   "is below 1 (checked), so p >= significance holds either way"),
-        *(Equivalent("core/NumberReplacer",
+      *(Equivalent("core/NumberReplacer",
                      'reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else '
                      '(math.inf, 0)',
                      'reach, trained = _kernel_reach(blocks) if recipe.machine == "svm" else '

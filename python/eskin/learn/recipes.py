@@ -622,11 +622,12 @@ def _preferred_recipe(
         recipe = own.recipe
         diffs = [rows[own].errors[s] - rows[lowest].errors[s] for s in ids]
         gap = float(np.mean(diffs))
-        t, p = (0.0, 1.0) if gap <= tolerance + 1e-12 else corrected_paired_t(diffs, share)
-        if gap <= tolerance + 1e-12 or p >= significance:
+        within = gap <= tolerance + 1e-12  # less than one held-out pattern worse: kept (p = 1)
+        t, p = (0.0, 1.0) if within else corrected_paired_t(diffs, share)
+        if p >= significance:
             return recipe, {
                 "recipe": recipe.label(), "lowest": lowest.recipe.label(),
-                "gap": round(gap, 6), "within_one_pattern": bool(gap <= tolerance + 1e-12),
+                "gap": round(gap, 6), "within_one_pattern": within,
                 "t": round(float(t), 4) if math.isfinite(t) else None,
                 "p": round(float(p), 6), "significance": significance,
             }

@@ -163,6 +163,14 @@ def test_a_candidate_over_the_budget_is_kept_bounded_to_at_least_half_its_suppor
         row = _Row(c)
         _check_budget(strict, row, expected)
         assert row.fits == fits
+    one = CandidateBudget(fits=lambda c, n: n <= 1, largest=lambda c, n: min(n, 1))
+    row = _Row(c)
+    _check_budget(one, row, 2)  # half of 2 is 1: kept with its one support vector
+    assert (row.fits, row.bound) == (True, 1)
+    never_none = CandidateBudget(fits=lambda c, n: n <= 0, largest=lambda c, n: 0, keep_share=0.0)
+    row = _Row(c)
+    _check_budget(never_none, row, 3)  # no share asks for none: a model keeps one at least
+    assert (row.fits, row.bound) == (False, None)
     alone = CandidateBudget(fits=lambda c, n: n <= 10)  # no largest: fits as it is or not
     row = _Row(c)
     _check_budget(alone, row, 11)
@@ -802,6 +810,35 @@ def test_a_p_value_exactly_at_the_level_is_not_significantly_worse():
     assert rec["within_one_pattern"] is False and rec["gap"] == round(np.mean(diffs), 6)
     other, _ = _preferred_recipe(rows, [low, pref], splits, 1e-3, float(np.nextafter(p, 1)))
     assert other == low.recipe
+
+
+def test_each_family_is_tested_with_its_own_best_candidate():
+    """Three families by preference: the most preferred (D = 100) significantly worse than the
+    lowest-error candidate (constantly 0.1 more), the next (D = 50) worse on the mean but not
+    significantly (one bad split), the lowest (rls, D = 20) last: the D = 50 recipe is chosen,
+    tested with its own candidate though the D = 100 one comes before it by error."""
+    from eskin.learn.recipes import _preferred_recipe, _Row
+
+    a = Candidate(Recipe("svm", 100, "algorithm2", "all"), 0.1, 1.0, "1", None)
+    b = Candidate(Recipe("svm", 50, "algorithm2", "all"), 0.1, 1.0, "1", None)
+    low = Candidate(Recipe("rls", 20, "even", "all"), 0.1, 1.0, "1", None)
+    g = 0.123456789
+    rows = {low: _Row(low, errors=dict.fromkeys(range(4), 0.1)),
+            a: _Row(a, errors=dict.fromkeys(range(4), 0.2)),
+            b: _Row(b, errors={0: 0.1, 1: 0.1, 2: 0.1, 3: 0.1 + 4 * g})}
+    splits = [(np.arange(7), np.arange(7, 10))] * 4
+    chosen, rec = _preferred_recipe(rows, [low, a, b], splits, 1e-3, 0.05)
+    assert chosen == b.recipe
+    t, p = corrected_paired_t([0.0, 0.0, 0.0, 4 * g], 0.3)
+    assert rec == {"recipe": b.recipe.label(), "lowest": low.recipe.label(), "gap": 0.123457,
+                   "within_one_pattern": False, "t": round(t, 4), "p": round(p, 6),
+                   "significance": 0.05}
+    # a constant excess within one held-out pattern (the tolerance) keeps the preferred recipe,
+    # whatever the test would say (a zero variance: p = 0)
+    for excess, kept in ((1e-3, True), (1e-3 + 5e-13, True), (1e-3 + 1e-9, False)):
+        rows[a] = _Row(a, errors=dict.fromkeys(range(4), 0.1 + excess))
+        chosen, rec = _preferred_recipe(rows, [low, a, b], splits, 1e-3, 0.05)
+        assert (chosen == a.recipe) is kept and rec["within_one_pattern"] is kept, excess
 
 
 def test_equal_errors_rank_the_simpler_candidate_first():
