@@ -833,6 +833,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    'ne\'s held-out decision values all within "',
                    "a candidate in the note collapsed on one split at least: the count of "
                    "splits is never 0"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "family = [c for c in alive if key(c.recipe) == top]",
+                   "family = [c for c in alive if key(c.recipe) <= top]",
+                   "top is the smallest key of the candidates: none is below it"),
+        Equivalent("core/NumberReplacer", "n_jobs: int | None = 1,", "n_jobs: int | None = 2,",
+                   "two joblib workers by default instead of one: the results are the same for "
+                   "any n_jobs (tests/python/learn/test_parallel.py), only the time differs"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

@@ -197,6 +197,19 @@ def test_the_second_round_keeps_the_third_of_lowest_error_on_the_first_split(dat
     assert all(e["split_errors"][0] == first[e["candidate"]] for e in two.ranking_)
 
 
+def test_the_search_is_seeded_with_0_by_default(data):
+    X, y, groups = data
+    args = ([Recipe("svm", 20, "algorithm2", "all")], [0.1, 1.0], [0.5, 2.0], ["Q/2"], [None])
+    plain = RecipeSearch(*args, n_splits=2, first_share=1.0).fit(X, y, groups)
+    zero = RecipeSearch(*args, n_splits=2, first_share=1.0, seed=0).fit(X, y, groups)
+    one = RecipeSearch(*args, n_splits=2, first_share=1.0, seed=1).fit(X, y, groups)
+    for (a, b), (c, d) in zip(plain.splits_, zero.splits_):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, d)
+    assert plain.ranking_ == zero.ranking_
+    assert any(not np.array_equal(a[1], c[1]) for a, c in zip(plain.splits_, one.splits_))
+
+
 def test_a_recipe_given_twice_is_searched_once():
     a, b = Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "all")
     search = RecipeSearch([a, b, Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
@@ -316,8 +329,8 @@ def test_successive_halving_keeps_a_third_per_round_on_twice_the_splits(data):
     tripled = RecipeSearch(recipes, lams, sigmas, ["1", "Q/2"], [None, 1.0], n_splits=9,
                            growth=3, first_share=0.5, significance=None, seed=1)
     assert tripled._schedule() == [1, 3, 9]
-    assert RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], n_splits=10)._schedule() == [
-        1, 2, 4, 10]
+    # by default (docs/learning.md): one split, two, four, then all ten
+    assert RecipeSearch(recipes, [1.0], [1.0], ["1"], [None])._schedule() == [1, 2, 4, 10]
     with pytest.raises(TrainingError, match="growth >= 2"):
         RecipeSearch(recipes, [1.0], [1.0], ["1"], [None], growth=1)
     # the choice is within one held-out pattern (over all splits) of the best final error
