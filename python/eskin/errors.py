@@ -12,6 +12,7 @@ import os
 __all__ = [
     "BaselineUnavailable",
     "CampaignFormatError",
+    "ClassLeftOut",
     "DemoError",
     "EvaluationError",
     "ExperimentError",
@@ -77,6 +78,11 @@ class OverwriteError(FileExistsError):
 
 class TrainingError(ValueError):
     """Training data or options that cannot make a model (unknown class, one class, ...)."""
+
+
+class ClassLeftOut(TrainingError):
+    """A cross-validation split whose training part lacks a class (too few groups record it):
+    ``eskin train`` then splits by class instead of by group."""
 
 
 class ModelFormatError(ValueError):

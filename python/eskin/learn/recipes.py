@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin.errors import TrainingError
+from eskin.errors import ClassLeftOut, TrainingError
 
 __all__ = [
     "Candidate",
@@ -737,12 +737,12 @@ class RecipeSearch:
                 sp = ShuffleSplit(self.n_splits, test_size=self.test_size,
                                   random_state=self.seed)
                 splits = list(sp.split(idx, y))
-        for tr, _ in splits:
+        for i, (tr, _) in enumerate(splits):
             if np.unique(y[tr]).size < np.unique(y).size:
-                raise ValueError(
-                    "a cross-validation split left one class only in its training part; "
-                    "use more groups, a smaller test_size or another random_state"
-                )
+                lacking = sorted(set(np.unique(y).tolist()) - set(np.unique(y[tr]).tolist()))
+                raise ClassLeftOut(
+                    f"cross-validation split {i} left class {lacking[0]} out of its training "
+                    "part; use more groups, a smaller test_size or another random_state")
         return [(np.sort(tr), np.sort(te)) for tr, te in splits]
 
     def _schedule(self) -> list[int]:

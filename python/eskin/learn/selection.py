@@ -38,6 +38,8 @@ from sklearn.model_selection import GroupShuffleSplit, ParameterGrid, Stratified
 from sklearn.utils.validation import check_is_fitted, check_random_state, validate_data
 from threadpoolctl import ThreadpoolController
 
+from eskin.errors import ClassLeftOut
+
 from .estimators import (
     KMEANS_METHODS,
     TensorRLS,
@@ -982,12 +984,11 @@ class CrossValidationSearch(_SearchBase):
             splitter = StratifiedShuffleSplit(self.n_splits, test_size=self.test_size,
                                               random_state=split_seed)
             splits = list(splitter.split(idx, y_pm))
-        for tr, _ in splits:
+        for i, (tr, _) in enumerate(splits):
             if np.unique(y_pm[tr]).size < 2:
-                raise ValueError(
-                    "a cross-validation split left one class only in its training part; "
-                    "use more groups, a smaller test_size or another random_state"
-                )
+                raise ClassLeftOut(
+                    f"cross-validation split {i} left one class only in its training part; "
+                    "use more groups, a smaller test_size or another random_state")
         self.splits_ = splits
         blocks = _blocks(configs)
         with _single_threaded_blas():  # see MaximalDiscrepancySearch.fit

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from eskin.data.limits import MAX_D, MIN_D
-from eskin.errors import TrainingError
+from eskin.errors import ClassLeftOut, TrainingError
 
 
 @dataclass
@@ -381,8 +381,8 @@ def fit_grouped(
     part (too few groups for a class), ``fit(None)`` (stratified splits) with a note."""
     try:
         return fit(groups), groups is not None
-    except ValueError as exc:
-        if groups is None or "left one class only" not in str(exc):
+    except ClassLeftOut:
+        if groups is None:
             raise
     notes.append(
         f"grouped cross-validation left a class out of a training part (too few {group_by} "

@@ -12,7 +12,7 @@ from learn_data import small_simulated
 from typer.testing import CliRunner
 
 from eskin.cli import app
-from eskin.errors import TrainingError
+from eskin.errors import ClassLeftOut, TrainingError
 from eskin.learn.estimators import OneVsAllTouchClassifier, TensorRLS, TensorSVC
 from eskin.learn.kernel import resolve_alphas
 from eskin.learn.models import load_model
@@ -208,6 +208,35 @@ def test_the_search_is_seeded_with_0_by_default(data):
         np.testing.assert_array_equal(b, d)
     assert plain.ranking_ == zero.ranking_
     assert any(not np.array_equal(a[1], c[1]) for a, c in zip(plain.splits_, one.splits_))
+
+
+def test_the_search_refuses_settings_at_their_bounds_and_takes_a_first_share_of_1():
+    r = [Recipe("svm", 20, "even", "all")]
+    message = "n_splits must be >= 1, eta and growth >= 2 and first_share in (0, 1]"
+    for bad in ({"first_share": 0.0}, {"first_share": -0.5}, {"first_share": 1.0000001},
+                {"n_splits": 0}, {"eta": 1}, {"growth": 1}):
+        with pytest.raises(TrainingError) as refused:
+            RecipeSearch(r, [1.0], [1.0], ["1"], [None], **bad)
+        assert str(refused.value) == message, bad
+    for good in ({"first_share": 1.0}, {"first_share": 1e-6}, {"n_splits": 1}, {"eta": 2},
+                 {"growth": 2}):
+        RecipeSearch(r, [1.0], [1.0], ["1"], [None], **good)
+
+
+def test_a_split_whose_training_part_lacks_a_class_is_refused(data):
+    """Class 2 recorded by one participant only: a grouped split holding that participant out
+    trains on two classes, which the search refuses (eskin train then splits by class)."""
+    X, y, groups = data
+    g = groups.copy()
+    g[y == 2] = g[np.flatnonzero(y == 2)[0]]
+    search = RecipeSearch([Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None],
+                          n_splits=6, test_size=0.5, first_share=1.0, seed=1)
+    with pytest.raises(ClassLeftOut) as refused:
+        search.fit(X, y, g)
+    assert str(refused.value) == (
+        "cross-validation split 1 left class 2 out of its training part; use more groups, "
+        "a smaller test_size or another random_state")
+    assert len(search.fit(X, y, None).splits_) == 6  # stratified by class instead: all fine
 
 
 def test_a_recipe_given_twice_is_searched_once():
