@@ -840,6 +840,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/NumberReplacer", "n_jobs: int | None = 1,", "n_jobs: int | None = 2,",
                    "two joblib workers by default instead of one: the results are the same for "
                    "any n_jobs (tests/python/learn/test_parallel.py), only the time differs"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "if r == 0 and self.significance is not None and alive:",
+                   "if r <= 0 and self.significance is not None and alive:",
+                   "r counts the rounds from 0 (enumerate): never below it"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "
