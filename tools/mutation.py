@@ -844,6 +844,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if r == 0 and self.significance is not None and alive:",
                    "if r <= 0 and self.significance is not None and alive:",
                    "r counts the rounds from 0 (enumerate): never below it"),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Lt_{op}", "if r < len(schedule) - 1:",
+                     f"if r {sym} len(schedule) - 1:",
+                     "r runs from 0 to len(schedule) - 1: below the last is not the last")
+          for op, sym in (("NotEq", "!="), ("IsNot", "is not"))),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

@@ -239,6 +239,25 @@ def test_a_split_whose_training_part_lacks_a_class_is_refused(data):
     assert len(search.fit(X, y, None).splits_) == 6  # stratified by class instead: all fine
 
 
+def test_a_round_of_two_or_three_keeps_one_and_of_four_keeps_two():
+    """The best ceil(n / eta) of n ranked candidates (eta 3), at least one."""
+    r = Recipe("svm", 20, "even", "all")
+    ranked = [Candidate(r, la, 1.0, "1", None) for la in (1.0, 2.0, 3.0, 4.0)]
+    s = RecipeSearch([r], [1.0], [1.0], ["1"], [None], eta=3, significance=None)
+    assert [s._survivors(ranked[:n]) for n in (1, 2, 3, 4)] == [
+        ranked[:1], ranked[:1], ranked[:1], ranked[:2]]
+
+
+def test_the_search_times_itself(data):
+    import time
+
+    X, y, groups = data
+    t0 = time.perf_counter()
+    s = RecipeSearch([Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None],
+                     n_splits=2, first_share=1.0).fit(X, y, groups)
+    assert 0 < s.seconds_ <= time.perf_counter() - t0
+
+
 def test_a_recipe_given_twice_is_searched_once():
     a, b = Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "all")
     search = RecipeSearch([a, b, Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
