@@ -848,6 +848,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      f"if r {sym} len(schedule) - 1:",
                      "r runs from 0 to len(schedule) - 1: below the last is not the last")
           for op, sym in (("NotEq", "!="), ("IsNot", "is not"))),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   "mine = [c for c in ranked if key(c.recipe) == top]",
+                   "mine = [c for c in ranked if key(c.recipe) <= top]",
+                   "top is the smallest key of the ranked candidates: none is below it"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

@@ -246,6 +246,12 @@ def test_a_round_of_two_or_three_keeps_one_and_of_four_keeps_two():
     s = RecipeSearch([r], [1.0], [1.0], ["1"], [None], eta=3, significance=None)
     assert [s._survivors(ranked[:n]) for n in (1, 2, 3, 4)] == [
         ranked[:1], ranked[:1], ranked[:1], ranked[:2]]
+    # beside them, the best ceil(m / eta) of the preferred recipe's own m, at least one
+    pref = Recipe("svm", 50, "algorithm2", "all")
+    own = [Candidate(pref, la, 1.0, "1", None) for la in (1.0, 2.0, 3.0, 4.0)]
+    s = RecipeSearch([r, pref], [1.0], [1.0], ["1"], [None], eta=3)
+    for m, best, kept in ((1, 2, 1), (2, 2, 1), (3, 3, 1), (4, 3, 2)):  # best: of 4 + m
+        assert s._survivors(ranked + own[:m]) == ranked[:best] + own[:kept], m
 
 
 def test_the_search_times_itself(data):
