@@ -852,6 +852,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "mine = [c for c in ranked if key(c.recipe) == top]",
                    "mine = [c for c in ranked if key(c.recipe) <= top]",
                    "top is the smallest key of the ranked candidates: none is below it"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_Is",
+                   "mine = [c for c in final if c.recipe == recipe]",
+                   "mine = [c for c in final if c.recipe is recipe]",
+                   "every candidate of a recipe holds the one Recipe object of the search's "
+                   "(deduplicated) recipes, which _preferred_recipe returns"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

@@ -264,6 +264,17 @@ def test_the_search_times_itself(data):
     assert 0 < s.seconds_ <= time.perf_counter() - t0
 
 
+def test_the_paired_test_needs_two_splits(data):
+    """With a significance level the choice is the paired test's from two splits on; on one
+    split there is no test (no record): the lowest error's recipe."""
+    X, y, groups = data
+    recipes = [Recipe("svm", 20, "algorithm2", "all"), Recipe("rls", 20, "even", "all")]
+    for n_splits, tested in ((1, False), (2, True)):
+        s = RecipeSearch(recipes, [0.1], [1.0], ["Q/2"], [None], n_splits=n_splits,
+                         first_share=1.0, seed=3).fit(X, y, groups)
+        assert (s.preference_ is not None) is tested, n_splits
+
+
 def test_a_recipe_given_twice_is_searched_once():
     a, b = Recipe("svm", 20, "even", "all"), Recipe("rls", 20, "even", "all")
     search = RecipeSearch([a, b, Recipe("svm", 20, "even", "all")], [0.1], [1.0], ["Q"], [None])
