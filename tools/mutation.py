@@ -857,6 +857,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "mine = [c for c in final if c.recipe is recipe]",
                    "every candidate of a recipe holds the one Recipe object of the search's "
                    "(deduplicated) recipes, which _preferred_recipe returns"),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
+                   "if np.unique(y[tr]).size < np.unique(y).size:",
+                   "if np.unique(y[tr]).size != np.unique(y).size:",
+                   "a training part's classes are a subset of all: never more of them"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if sigma != self._exp_sigma:", "if sigma is not self._exp_sigma:",
                    "the Gaussians of a sigma recomputed when an equal sigma is another float "

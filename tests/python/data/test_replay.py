@@ -281,3 +281,12 @@ def test_default_gap_noise_ramps_between_the_recordings_noise(tmp_path):
                                noise_counts=5.0)
     y = np.asarray(flat.samples, dtype=float)
     assert 4.0 < noise(gap, gap + 100, y) < 6.0 and 4.0 < noise(gap + 1900, gap + 2000, y) < 6.0
+
+
+def test_a_grid_of_unequal_sides_reads_back_rows_by_columns(tmp_path):
+    rng = np.random.default_rng(2)
+    recs = [rng.integers(-500, 500, size=(2, 5, n)).astype(np.int16) for n in (60, 40)]
+    rf = write_replay_arrays(tmp_path / "g.eskr", recs, gap_s=0.0, baseline=np.zeros((2, 5)))
+    assert rf.grid_shape == (2, 5) and rf.samples.shape[1:] == (2, 5)
+    for k, r in enumerate(recs):
+        np.testing.assert_array_equal(rf.recording(k), r)
