@@ -1090,6 +1090,27 @@ def python_mutants(module: str, work: Path, env: dict, command: list[str],
     return [w for w, eq in zip(kept, equivalent) if not eq], len(kept), sum(equivalent)
 
 
+_HELD: list = []  # the open lock files of the modules this process runs (held until it exits)
+
+
+def hold_copies(module: str) -> None:
+    """Locks the module's copies of the tree (build/mutation/py/<module>*) for this process: a
+    second invocation on the same module, which would copy the tree again under the first one's
+    mutants and make them all fail, stops with a message instead."""
+    import fcntl
+
+    lock = OUT / "py" / (module.replace("/", "_") + ".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(lock, "w")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.close()
+        sys.exit(f"mutation: another run of {module} is using its copies under {lock.parent}; "
+                 "wait for it to end")
+    _HELD.append(fh)
+
+
 def run_python(module: str, tests: list[str], sample: int | None, seed: int,
                survivors: list[str], lines: set[int] | None = None,
                jobs: int = 1) -> float | None:
@@ -1099,8 +1120,9 @@ def run_python(module: str, tests: list[str], sample: int | None, seed: int,
     from mutant_runner import run_mutants
 
     # each module its own copies of the tree, session and configuration: runs of two modules
-    # (two invocations) never touch each other's files
+    # (two invocations) never touch each other's files; two runs of one module are refused
     name = module.replace("/", "_")
+    hold_copies(module)
     works = [OUT / "py" / name] + [OUT / "py" / f"{name}.{i}" for i in range(1, jobs)]
     for work in works:
         copy_tree(work)

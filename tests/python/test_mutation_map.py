@@ -229,3 +229,32 @@ def test_a_bare_star_or_slash_in_parameters_is_not_an_operator_to_mutate():
     assert not marker(3, "/", 1)  # x / y: the lambda's body
     assert not marker(4, "/")  # an operator at the end of a line
     assert marker(6, "*") and not marker(6, "*", 1)
+
+
+def test_a_second_run_of_a_module_is_refused_while_the_first_holds_its_copies(tmp_path,
+                                                                               monkeypatch):
+    """Two invocations on one module would share its copies of the tree (the second copying it
+    again under the first one's mutants): the second stops with a message; another module is
+    free."""
+    monkeypatch.setattr(mutation, "OUT", tmp_path)
+    monkeypatch.setattr(mutation, "_HELD", [])
+    mutation.hold_copies("python/eskin/data/replay.py")
+
+    def other(module: str) -> subprocess.CompletedProcess:
+        code = ("import importlib.util, pathlib, sys; "
+                "spec = importlib.util.spec_from_file_location('m', sys.argv[1]); "
+                "m = importlib.util.module_from_spec(spec); sys.modules['m'] = m; "
+                "spec.loader.exec_module(m); m.OUT = pathlib.Path(sys.argv[2]); "
+                "m.hold_copies(sys.argv[3]); print('held')")
+        return subprocess.run([sys.executable, "-c", code, str(REPO / "tools" / "mutation.py"),
+                               str(tmp_path), module], capture_output=True, text=True)
+
+    second = other("python/eskin/data/replay.py")
+    assert second.returncode == 1 and "held" not in second.stdout
+    assert second.stderr.strip() == (
+        f"mutation: another run of python/eskin/data/replay.py is using its copies under "
+        f"{tmp_path / 'py'}; wait for it to end")
+    free = other("python/eskin/data/journal.py")
+    assert free.returncode == 0 and free.stdout == "held\n"
+    for fh in mutation._HELD:
+        fh.close()
