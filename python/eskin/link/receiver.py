@@ -145,7 +145,7 @@ class StreamReceiver:
         d.update(elapsed_s=elapsed_s, disconnects=disconnects, reconnects=self.reconnects)
         return LinkStats(**d, **self._counts)
 
-    def activity(self, window_s: float = 0.2) -> Optional[np.ndarray]:
+    def activity(self, window_s: float) -> Optional[np.ndarray]:
         """Recent energy per taxel, (rows, cols): RMS over the last ``window_s`` seconds of each
         taxel's deviation from its mean over the last second (ADC counts); None before data."""
         if self._stream is None:  # a stream holds the samples of one DATA frame at least

@@ -185,3 +185,24 @@ def test_grids_of_as_many_columns_voted_in_within_one_read_restart_the_stream():
     np.testing.assert_array_equal(np.concatenate([blk.samples for blk in blocks[9:]]), c[20:])
     assert s.samples == 150 and s.absurd_frames == 4  # the first two of each new grid refused
     assert listener.receiver._stream.grid == (4, 4)
+
+
+def test_a_controller_label_is_named_by_the_info_frame_and_without_one_kept_as_an_index():
+    """A DECISION's label names an INFO class (one past them is refused as absurd); before any
+    INFO frame it has no name, only its index."""
+    from eskin.link.events import Decision
+    from eskin.link.protocol import DecisionFrame
+
+    info = encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=1e-4, has_model=True,
+                                  class_names=("brush", "finger"), seq=3))
+
+    def decision(label: int, seq: int) -> bytes:
+        return encode_frame(DecisionFrame(10, 90, label, (0.5, -0.5), seq=seq))
+
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    events = listener.feed(DELIMITER + decision(0, 0) + decision(1, 1) + decision(-1, 2) + info
+                           + decision(1, 4) + decision(2, 5) + decision(-1, 6))
+    listener.close()
+    got = [(d.label, d.label_index) for d in events if isinstance(d, Decision)]
+    assert got == [(None, 0), (None, 1), (None, -1), ("finger", 1), (None, -1)]
+    assert listener.stats.absurd_frames == 1  # label 2 of two classes
