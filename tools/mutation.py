@@ -488,6 +488,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
           for n in (31, 33)),
     ],
     "python/eskin/link/receiver.py": [
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   "if (s is not None and s.state == StreamState.FINISHED and st is not None",
+                   "if (s is not None and s.state >= StreamState.FINISHED and st is not None",
+                   "FINISHED is the last of the three states, and a STATUS of another state "
+                   "is refused by the decoder"),
         *(Equivalent("core/NumberReplacer",
                      "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
                      f"if data_run and data_run[0].samples.shape[ {a}:] != f.samples.shape[1:]:",
