@@ -25,9 +25,10 @@ SPF = 10
 TESTS = Path(__file__).resolve().parents[2]
 
 
-def _info(seq: int = 0, rate: float = 3000.0) -> bytes:
-    return encode_frame(InfoFrame(4, 4, rate, volts_per_count=1e-4, has_model=False,
-                                  class_names=(), seq=seq))
+def _info(seq: int = 0, rate: float = 3000.0, volts_per_count: float = 1e-4,
+          class_names: tuple[str, ...] = ()) -> bytes:
+    return encode_frame(InfoFrame(4, 4, rate, volts_per_count=volts_per_count,
+                                  has_model=bool(class_names), class_names=class_names, seq=seq))
 
 
 def _data(x: np.ndarray, first_seq: int = 1, overrun: frozenset[int] = frozenset()) -> bytes:
@@ -151,8 +152,7 @@ def test_a_recording_takes_the_info_frames_volts_per_count_and_1_when_it_says_0(
     x = _touch_stream()
     for vpc, want in ((2.5e-4, 2.5e-4), (0.0, 1.0)):
         out = tmp_path / f"vpc{vpc}.h5"
-        info = encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=vpc, has_model=False,
-                                      class_names=(), seq=0))
+        info = _info(volts_per_count=vpc)
         listener = LinkListener("/dev/null-not-opened", record=out, record_policy="touch",
                                 stats_interval=None)
         events = listener.feed(DELIMITER + info + _data(x)) + listener.finish()
@@ -193,8 +193,7 @@ def test_a_controller_label_is_named_by_the_info_frame_and_without_one_kept_as_a
     from eskin.link.events import Decision
     from eskin.link.protocol import DecisionFrame
 
-    info = encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=1e-4, has_model=True,
-                                  class_names=("brush", "finger"), seq=3))
+    info = _info(seq=3, class_names=("brush", "finger"))
 
     def decision(label: int, seq: int) -> bytes:
         return encode_frame(DecisionFrame(10, 90, label, (0.5, -0.5), seq=seq))
