@@ -30,8 +30,10 @@ Two steps:
 Why ``-icount`` by default: the board's clock then counts the processor's instructions (2^N ns
 each; shift 3 is a Cortex-M4 at 125 M instructions per second, slower than the 168 MHz part),
 so the sampling timer and the firmware's work share one clock and whether the firmware keeps up
-does not depend on how busy the host is; the host receives the same stream, only at the pace
-QEMU manages (about 2.5x the stream's duration on a 2-core machine). In real time
+with its work does not depend on how busy the host is; the host receives the same stream, only
+at the pace QEMU manages (about 2.5x the stream's duration on a 2-core machine). While the
+board idles (WFI), though, QEMU's clock follows the host's: a host that keeps QEMU off the
+processor for longer than the sample ring lasts still makes samples due at once and lost. In real time
 (``--realtime``) the board's clock is the host's: a host that deschedules QEMU for longer than
 the sample ring lasts (256 samples, 85 ms at 3 kSps) makes samples due that the firmware never
 had the processor for, and they are lost in its ring although the firmware is fast enough.
