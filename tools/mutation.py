@@ -862,6 +862,24 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "mine = [c for c in final if c.recipe is recipe]",
                    "every candidate of a recipe holds the one Recipe object of the search's "
                    "(deduplicated) recipes, which _preferred_recipe returns"),
+        Equivalent("core/ReplaceComparisonOperator_LtE_Lt",
+                   "tied = [c for c in mine if rows[c].mean <= best_err + tolerance + 1e-12]",
+                   "tied = [c for c in mine if rows[c].mean < best_err + tolerance + 1e-12]",
+                   "`<` differs only for a mean error equal to the lowest plus the tolerance plus "
+                   "1e-12 to the bit; a mean exactly one held-out pattern above is tied either "
+                   "way (tested)"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   "self.ranking_ = [entry(best)] + [entry(c) for c in final if c != best]",
+                   "self.ranking_ = [entry(best)] + [entry(c) for c in final if c is not best]",
+                   "best is one of the objects of final (picked from it), and final holds each "
+                   "candidate once"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
+                   'others = [e for e in self.recipe_table_ if e["candidate"].recipe != '
+                   'self.best_.recipe]',
+                   'others = [e for e in self.recipe_table_ if e["candidate"].recipe is not '
+                   'self.best_.recipe]',
+                   "every candidate of a recipe holds the one Recipe object of the search's "
+                   "(deduplicated) recipes"),
         Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
                    "if np.unique(y[tr]).size < np.unique(y).size:",
                    "if np.unique(y[tr]).size != np.unique(y).size:",

@@ -912,7 +912,7 @@ class RecipeSearch:
     # -- reports ---------------------------------------------------------------------------
     def collapse_note(self) -> str | None:
         """What the search says when some candidate's kernel collapsed, else None."""
-        return _collapse_note(getattr(self, "collapsed_", []))
+        return _collapse_note(self.collapsed_)
 
     def report(self, runners_up: int = 3) -> dict[str, Any]:
         """JSON-friendly record: the choice, its estimate, the runners-up (the best candidate of
@@ -943,7 +943,7 @@ class RecipeSearch:
             "evaluations": int(self.n_evaluations_),
             "tie_tolerance": round(float(self.tolerance_), 6),
             "budget": None if self.budget is None else self.budget.description,
-            "preference": getattr(self, "preference_", None),
+            "preference": self.preference_,
             "collapsed": self.collapse_note(),
-            "seconds": round(float(getattr(self, "seconds_", 0.0)), 3),
+            "seconds": round(float(self.seconds_), 3),
         }

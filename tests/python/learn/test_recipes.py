@@ -1131,3 +1131,70 @@ def test_the_kernel_reach_is_the_largest_held_out_row_sum_over_the_machines():
     assert _kernel_reach([(a, None, K_a), (b, None, K_b)]) == (0.875, 4)
     assert _kernel_reach([(a, None, K_a), (a, None, np.full((2, 3), 9.0))]) == (0.875, 3)
     assert _kernel_reach([(a, None, np.zeros((0, 3))), (b, None, K_b)]) == (math.inf, 4)
+
+
+def _finished(rows: dict, final: list, significance=None, seconds: float = 0.0) -> RecipeSearch:
+    """A search finished on the given rows: two splits of 10 training and 4 held-out patterns
+    each (one held-out pattern over both: 1/8), n = 20 patterns in all."""
+    recipes = sorted({c.recipe for c in rows}, key=recipe_preference)
+    s = RecipeSearch(recipes, [0.1], [1.0], ["1"], [None], n_splits=2, significance=significance)
+    s.splits_ = [(np.arange(10), np.arange(10, 14)), (np.arange(4, 14), np.arange(14, 18))]
+    s.rounds_, s.n_evaluations_, s.seconds_, s.collapsed_ = [], 0, seconds, []
+    s._finish(rows, final, 20)
+    return s
+
+
+def test_within_one_held_out_pattern_the_chosen_recipe_keeps_its_smallest_machine():
+    """Among the chosen recipe's candidates, those less than one held-out pattern above its
+    lowest error (over all the splits together: 1/8 here, exactly at it included) count as
+    equally good, and of them the one expected to need the fewest support vectors wins; a
+    candidate of another recipe, however small, does not."""
+    from eskin.learn.recipes import _Row
+
+    r = Recipe("svm", 20, "even", "all")
+    other, lesser = Recipe("svm", 50, "even", "all"), Recipe("svm", 10, "even", "all")
+    assert lesser < r < other  # (by D)
+
+    def row(c, err, support):
+        return _Row(c, errors={0: err, 1: err}, support={0: support, 1: support})
+
+    low, at, above = (Candidate(r, lam, 1.0, "1", None) for lam in (0.1, 1.0, 10.0))
+    small, smaller = Candidate(other, 0.1, 1.0, "1", None), Candidate(lesser, 0.1, 1.0, "1", None)
+    rows = {low: row(low, 0.125, 10), at: row(at, 0.25, 5), above: row(above, 0.375, 1),
+            small: row(small, 0.25, 1), smaller: row(smaller, 0.25, 1)}
+    final = [low, at, small, smaller, above]  # by error
+    s = _finished(rows, final)
+    assert s.tolerance_ == 1 / 8
+    assert s.best_ == at and s.best_error_ == 0.25
+    # the expected support: the splits' mean over the share they trained on (10 of 20)
+    assert [e["support_vectors"] for e in s.ranking_] == [10, 20, 2, 2, 2]
+    assert [e["candidate"] for e in s.ranking_] == [at, low, small, smaller, above]
+    # just above the tolerance: the lowest error's candidate
+    rows[at] = row(at, 0.25 + 1e-9, 5)
+    assert _finished(rows, final).best_ == low
+
+
+def test_the_report_rounds_errors_and_the_tolerance_to_6_places_and_time_to_milliseconds():
+    """The report's figures as a reader gets them: errors, their spread and the tie tolerance to
+    6 decimal places, the seconds to 3; the runners-up are the other recipes' best, of any
+    order."""
+    from eskin.learn.recipes import _Row
+
+    a, b, c = (Recipe("svm", 20, "even", "all"), Recipe("svm", 50, "even", "all"),
+               Recipe("svm", 100, "even", "all"))
+    cands = [Candidate(rec, 0.1, 1.0, "1", None) for rec in (b, a, c)]
+    rows = {x: _Row(x, errors={0: e0, 1: e1}, support={0: 3, 1: 3})
+            for x, (e0, e1) in zip(cands, ((1 / 3, 1 / 7), (0.5, 1 / 6), (0.5, 0.5)))}
+    s = _finished(rows, cands, seconds=1.23456789)
+    s.tolerance_ = 1 / 12
+    rep = s.report()
+    errs = [(1 / 3 + 1 / 7) / 2, (0.5 + 1 / 6) / 2, 0.5]
+    stds = [(1 / 3 - 1 / 7) / 2, (0.5 - 1 / 6) / 2, 0.0]
+    assert rep["chosen"]["cv_error"] == round(errs[0], 6) == 0.238095
+    assert rep["chosen"]["cv_std"] == round(stds[0], 6) == 0.095238
+    assert [e["cv_error"] for e in rep["recipes"]] == [round(e, 6) for e in errs]
+    assert [e["cv_std"] for e in rep["recipes"]] == [round(e, 6) for e in stds]
+    assert rep["tie_tolerance"] == 0.083333 and rep["seconds"] == 1.235
+    # b (chosen) orders after a and before c: both of the others are runners-up
+    assert a < b and c > b
+    assert [e["D"] for e in rep["runners_up"]] == [20, 100]
