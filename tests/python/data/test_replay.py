@@ -290,3 +290,76 @@ def test_a_grid_of_unequal_sides_reads_back_rows_by_columns(tmp_path):
     assert rf.grid_shape == (2, 5) and rf.samples.shape[1:] == (2, 5)
     for k, r in enumerate(recs):
         np.testing.assert_array_equal(rf.recording(k), r)
+
+
+def test_the_header_and_segments_sit_at_the_offsets_the_format_documents(tmp_path):
+    """docs/wire-protocol.md, "Replay file": each field at its offset, in its type, little-endian;
+    the reserved field 0; the names then zeros up to data_offset; the CRC over [0, data_offset)
+    with its own field taken as 0."""
+    import struct
+    import zlib
+
+    rng = np.random.default_rng(5)
+    recs = [rng.integers(-9, 9, size=(2, 3, n)).astype(np.int16) for n in (7, 5)]
+    write_replay_arrays(tmp_path / "f.eskr", recs, labels=[1, -1], class_names=["a", "bc"],
+                        sample_rate_hz=2000.0, volts_per_count=0.25, gap_s=0.002,
+                        contact_intervals=[[1, 6], [-1, -1]], recording_indices=[9, 4],
+                        noise_counts=0.0, baseline=np.zeros((2, 3)))
+    raw = (tmp_path / "f.eskr").read_bytes()
+    assert raw[:8] == b"ESKREPLY"
+    (version, data_offset, n_samples, rows, cols, n_seg, rate, vpc, names_len,
+     crc) = struct.unpack_from("<IIQHHIddII", raw, 8)
+    assert (version, n_samples, rows, cols, n_seg) == (1, 4 + 7 + 4 + 5 + 4, 2, 3, 2)
+    assert (rate, vpc, names_len) == (2000.0, 0.25, 4)
+    assert data_offset == (56 + 2 * 48 + 4 + 7) // 8 * 8 == 160
+    segs = [struct.unpack_from("<QQqqiIQ", raw, 56 + 48 * k) for k in range(2)]
+    assert segs == [(4, 7, 1, 6, 1, 9, 0), (15, 5, -1, -1, -1, 4, 0)]
+    assert raw[152:156] == b"a\nbc" and raw[156:160] == b"\0" * 4
+    assert crc == zlib.crc32(raw[:52] + b"\0" * 4 + raw[56:160])
+    assert len(raw) == 160 + 2 * n_samples * 6
+
+
+def test_a_replay_is_read_only_once_read(tmp_path):
+    import dataclasses
+
+    rf = write_replay_arrays(tmp_path / "r.eskr", [np.zeros((1, 1, 3), np.int16)], gap_s=0.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rf.sample_rate_hz = 1.0  # type: ignore[misc]
+
+
+def test_the_default_gap_is_half_a_second_and_made_in_missing_folders(tmp_path):
+    from eskin.data.replay import write_raw_stream
+
+    rf = write_replay_arrays(tmp_path / "new" / "dir" / "r.eskr",
+                             [np.zeros((1, 1, 3), np.int16)] * 2, sample_rate_hz=100.0)
+    assert list(rf.segments["start"]) == [50, 103] and rf.n_samples == 156
+    camp, _ = _campaign_of_arrays(tmp_path / "c.h5", [30, 30])
+    assert write_raw_stream(camp, None, tmp_path / "s.raw") == (3 * 500 + 60, 4, 4)  # 1 kHz
+    assert (tmp_path / "s.raw").stat().st_size == 2 * 16 * (3 * 500 + 60)
+
+
+def test_each_gap_meets_the_recordings_it_joins(tmp_path):
+    """Without noise, the gap before the first recording is flat at the median of its first
+    10 ms, the gap after the last flat at the median of its last 10 ms, and a gap between two
+    ramps linearly from the one's last 10 ms to the other's first (30 samples at 3 kSps)."""
+    head = np.full((1, 2, 60), 100, np.int16)
+    head[:, :, 30:] = 400  # the first recording ends at 400
+    head[0, 1, :30] = 200  # taxel 1 starts at 200
+    tail = np.full((1, 2, 60), -300, np.int16)
+    tail[:, :, 30:] = -50  # the second ends at -50
+    rf = write_replay_arrays(tmp_path / "e.eskr", [head, tail], gap_s=0.01, noise_counts=0.0)
+    x = np.asarray(rf.samples, dtype=np.int64)[:, 0, :]  # (time, taxel)
+    assert (x[:30] == [100, 200]).all()
+    assert (x[-30:] == [-50, -50]).all()
+    ramp = np.rint(400 + (-300 - 400) * np.linspace(0, 1, 30))
+    assert (x[90:120] == ramp[:, None]).all()
+
+
+def test_the_first_gap_has_the_first_recordings_noise_and_the_last_the_lasts(tmp_path):
+    rng = np.random.default_rng(8)
+    recs = [np.rint(rng.normal(0, s, (2, 2, 3000))).astype(np.int16) for s in (3.0, 60.0)]
+    rf = write_replay_arrays(tmp_path / "n.eskr", recs, gap_s=1.0, sample_rate_hz=1000.0,
+                             seed=2)
+    x = np.asarray(rf.samples, dtype=float)
+    first, last = x[:1000].std(axis=0).mean(), x[-1000:].std(axis=0).mean()
+    assert 2.5 < first < 3.5 and 50.0 < last < 70.0

@@ -253,24 +253,31 @@ def _bytes_written() -> int:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/io"), reason="needs Linux's /proc/self/io")
-def test_a_stream_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp_path):
-    """A 3 MB stream under a 2 MiB file size limit: EFBIG naming the file, nothing written."""
+@pytest.mark.parametrize("raw", [False, True])
+def test_a_stream_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp_path, raw):
+    """A 3 MB stream under a file size limit one byte short of it: EFBIG naming the file,
+    nothing written; under a limit of exactly its size it is written (the header, 104 bytes
+    with one segment, only in a replay file)."""
     rec = [np.zeros((16, 16, 6000), np.int16)]  # 6000 samples x 512 bytes: 3.07 MB
+    size = (0 if raw else 104) + 6000 * 512
     p = tmp_path / "big.eskr"
     old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG
     soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (2 << 20, hard))
     try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 1, hard))
         before = _bytes_written()
         with pytest.raises(OSError) as info:
-            write_replay_arrays(p, rec, gap_s=0.0)
+            write_replay_arrays(p, rec, gap_s=0.0, _raw=raw)
         written = _bytes_written() - before
+        assert list(tmp_path.iterdir()) == []
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
+        write_replay_arrays(p, rec, gap_s=0.0, _raw=raw)
     finally:
         resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
         signal.signal(signal.SIGXFSZ, old_handler)
     assert (info.value.errno, info.value.filename) == (errno.EFBIG, str(p))
     assert written == 0
-    assert list(tmp_path.iterdir()) == []
+    assert p.stat().st_size == size
 
 
 @pytest.mark.parametrize("level, code", [(-40000.0, -32768), (40000.0, 32767), (-32768.0, -32768),
@@ -288,3 +295,22 @@ def test_a_volts_per_count_not_a_finite_number_above_zero_is_refused_by_the_writ
         write_replay_arrays(tmp_path / "v.eskr", _recs(), labels=[0, 1], class_names=["a", "b"],
                             gap_s=0.01, volts_per_count=vpc)
     assert str(info.value) == f"volts_per_count must be finite and > 0, got {vpc}"
+
+
+def test_a_gap_of_0_to_an_hour_is_written_and_one_outside_refused(tmp_path):
+    for gap_s, n in ((0.0, 2 * 20), (3600.0, 3 * 360 + 2 * 20)):
+        rf = write_replay_arrays(tmp_path / "g.eskr", _recs(), gap_s=gap_s, sample_rate_hz=0.1)
+        assert rf.n_samples == n
+    for gap_s in (np.nextafter(3600.0, np.inf), -0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError) as refused:
+            write_replay_arrays(tmp_path / "b.eskr", _recs(), gap_s=gap_s)
+        assert str(refused.value) == f"gap_s must be a number of seconds in [0, 3600], got {gap_s:g}"
+
+
+@pytest.mark.parametrize("rate", [0.1, 1e6])
+def test_the_sample_rates_at_the_limits_are_written(tmp_path, rate):
+    rf = write_replay_arrays(tmp_path / "r.eskr", _recs(), gap_s=0.0, sample_rate_hz=rate)
+    assert rf.sample_rate_hz == rate
+    for bad in (np.nextafter(0.1, 0.0), np.nextafter(1e6, np.inf)):
+        with pytest.raises(ValueError, match="sample_rate_hz must be 0.1 to 1e[+]06 Hz"):
+            write_replay_arrays(tmp_path / "b.eskr", _recs(), gap_s=0.0, sample_rate_hz=bad)
