@@ -155,14 +155,13 @@ def write_replay_arrays(
 def _stream_chunks(recs: list[np.ndarray], gaps: _QuietGaps, gap: int) -> Iterator[bytes]:
     """The stream's bytes in order (int16 little-endian, one sample of every taxel after
     another): a quiet gap, then each recording followed by its gap."""
-    n = len(recs)
     yield gaps.quiet(gap, None, gaps.edge_level(recs[0], True), None, 0).tobytes()
-    for i, r in enumerate(recs):
+    following: list[Optional[int]] = [*range(1, len(recs)), None]
+    for i, (r, j) in enumerate(zip(recs, following)):
         clipped = np.clip(r, -32768, 32767).astype("<i2")
         yield np.ascontiguousarray(np.moveaxis(clipped, -1, 0)).tobytes()
-        nxt = gaps.edge_level(recs[i + 1], True) if i + 1 < n else None
-        yield gaps.quiet(gap, gaps.edge_level(r, False), nxt, i,
-                         i + 1 if i + 1 < n else None).tobytes()
+        nxt = None if j is None else gaps.edge_level(recs[j], True)
+        yield gaps.quiet(gap, gaps.edge_level(r, False), nxt, i, j).tobytes()
 
 
 def _check_recordings(recs: list[np.ndarray]) -> tuple[int, int]:

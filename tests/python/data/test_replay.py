@@ -76,8 +76,11 @@ def test_argument_errors(tmp_path):
     ok = np.zeros((4, 4, 10), np.int16)
     with pytest.raises(ValueError, match="at least one"):
         write_replay_arrays(tmp_path / "e.eskr", [])
-    with pytest.raises(ValueError, match="recording 1"):
-        write_replay_arrays(tmp_path / "e.eskr", [ok, np.zeros((3, 4, 10), np.int16)])
+    for bad in ((3, 4, 10), (5, 4, 10), (4, 3, 10), (4, 5, 10), (4, 4), (4, 4, 10, 1)):
+        with pytest.raises(ValueError) as refused:
+            write_replay_arrays(tmp_path / "e.eskr", [ok, np.zeros(bad, np.int16)])
+        assert str(refused.value) == (f"recording 1 has shape {bad}; expected (rows, cols, "
+                                      "length) with grid (4, 4)")
     with pytest.raises(ValueError, match="integer"):
         write_replay_arrays(tmp_path / "e.eskr", [ok.astype(float)])
     with pytest.raises(ValueError, match="labels"):
@@ -346,13 +349,16 @@ def test_each_gap_meets_the_recordings_it_joins(tmp_path):
     head[:, :, 30:] = 400  # the first recording ends at 400
     head[0, 1, :30] = 200  # taxel 1 starts at 200
     tail = np.full((1, 2, 60), -300, np.int16)
-    tail[:, :, 30:] = -50  # the second ends at -50
-    rf = write_replay_arrays(tmp_path / "e.eskr", [head, tail], gap_s=0.01, noise_counts=0.0)
+    tail[:, :, 30:] = -50  # the last ends at -50
+    middle = np.full((1, 2, 60), 1000, np.int16)
+    rf = write_replay_arrays(tmp_path / "e.eskr", [head, middle, tail], gap_s=0.01,
+                             noise_counts=0.0)
     x = np.asarray(rf.samples, dtype=np.int64)[:, 0, :]  # (time, taxel)
     assert (x[:30] == [100, 200]).all()
     assert (x[-30:] == [-50, -50]).all()
-    ramp = np.rint(400 + (-300 - 400) * np.linspace(0, 1, 30))
-    assert (x[90:120] == ramp[:, None]).all()
+    for at, a, b in ((90, 400, 1000), (180, 1000, -300)):
+        ramp = np.rint(a + (b - a) * np.linspace(0, 1, 30))
+        assert (x[at:at + 30] == ramp[:, None]).all()
 
 
 def test_the_first_gap_has_the_first_recordings_noise_and_the_last_the_lasts(tmp_path):
@@ -363,3 +369,21 @@ def test_the_first_gap_has_the_first_recordings_noise_and_the_last_the_lasts(tmp
     x = np.asarray(rf.samples, dtype=float)
     first, last = x[:1000].std(axis=0).mean(), x[-1000:].std(axis=0).mean()
     assert 2.5 < first < 3.5 and 50.0 < last < 70.0
+
+
+def test_recordings_beyond_the_adc_codes_are_clipped_to_int16(tmp_path):
+    codes = [-40000, -32769, -32768, -32767, 0, 32766, 32767, 32768, 40000]
+    rec = np.asarray(codes, np.int32).reshape(1, 1, -1)
+    rf = write_replay_arrays(tmp_path / "c.eskr", [rec], gap_s=0.0)
+    assert rf.recording(0).ravel().tolist() == [-32768, -32768, -32768, -32767, 0, 32766, 32767,
+                                                32767, 32767]
+
+
+def test_more_recordings_than_small_integers_are_joined_each_to_the_next(tmp_path):
+    """300 one-sample recordings (beyond the integers Python keeps as one object): each gap
+    ramps from the one before to the one after it."""
+    recs = [np.full((1, 1, 1), 4 * k, np.int16) for k in range(300)]
+    rf = write_replay_arrays(tmp_path / "m.eskr", recs, gap_s=0.001, noise_counts=0.0)
+    x = np.asarray(rf.samples).ravel()  # gaps of 3 samples at 3 kSps
+    assert x.tolist() == [0, 0, 0] + sum(([4 * k, 4 * k, 4 * k + 2, 4 * k + 4] for k in
+                                          range(299)), []) + [1196] * 4
