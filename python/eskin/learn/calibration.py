@@ -223,8 +223,10 @@ def out_of_fold_values(
     y = np.asarray(y, dtype=np.int64)
     machines = list(getattr(estimator, "estimators_", [estimator]))
     binary = not hasattr(estimator, "estimators_")
-    targets = (np.where(y == 1, 1, -1)[:, None] if binary else
-               np.stack([np.where(y == k, 1, -1) for k in range(len(machines))], axis=1))
+    # 1 where machine k's class is (the binary machine's: class 1), 0 elsewhere: each
+    # machine's classes_[1] is then 1, its f > 0 side
+    targets = ((y == 1)[:, None] if binary else
+               y[:, None] == np.arange(len(machines))[None, :]).astype(np.int64)
     subsets = ([np.arange(len(y))] * len(machines) if machine_indices is None
                else [np.asarray(ix, dtype=np.intp) for ix in machine_indices])
     folds = _folds(y, groups, n_folds, seed, [] if notes is None else notes)

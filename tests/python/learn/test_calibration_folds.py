@@ -78,3 +78,25 @@ def test_by_default_the_values_come_from_five_folds():
     X, y = _data(60)
     F, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y)
     assert n_folds == 5 and F.shape == (60, 1)
+
+
+def test_kernel_machines_of_one_alpha_share_the_distances_of_every_pattern():
+    """The per-mode distances are computed once for all folds and machines only when every
+    machine is a tensor kernel machine of the same alpha (each then slices them); machines of
+    two alphas, or any other estimator, compute their own. The shared ones are those of the
+    first machine's alpha over all patterns."""
+    from eskin.learn.calibration import _shared
+    from eskin.learn.estimators import TensorRLS, TensorSVC
+    from eskin.learn.kernel import mode_distances, pattern_log_energy
+
+    rng = np.random.default_rng(2)
+    X = rng.standard_normal((12, 4, 4, 5))
+    y = np.tile([0, 1], 6)
+    half, one = (TensorSVC(alpha="half").fit(X, y), TensorRLS(alpha="half").fit(X, y)), \
+        TensorSVC(alpha=1).fit(X, y)
+    d, e = _shared(list(half), X)
+    np.testing.assert_array_equal(d, mode_distances(X, alpha=half[0].alphas_))
+    np.testing.assert_array_equal(e, pattern_log_energy(X))
+    assert half[0].alphas_ != one.alphas_
+    assert _shared([*half, one], X) is None
+    assert _shared([half[0], LogisticRegression()], X) is None
