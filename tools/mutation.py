@@ -164,9 +164,7 @@ _ROUTE = ("another route to the same distance: the cached projections' inner pro
 _XR = "int xr[3] = {0, 0, 0};"
 _XR_WHY = ("the input's ranks: every one written by the basis computation before any read "
            "(a failed computation returns first)")
-_TARGETS = "targets = (np.where(y == 1, 1, -1)[:, None] if binary else"
-_LABELS = ("a binary machine's two target labels: any two, the machine's class the larger "
-           "(binary_targets maps them to -1 and +1 in that order)")
+_TARGETS = "targets = ((y == 1)[:, None] if binary else"
 _PATCH = 'if column.shape != (n,) or column.dtype.kind != "u":'
 _EXIT = 'elif self._n == 0 or self.on_error == "discard":'
 _HEAD = ("if len(head) < len(HEADER_MAGIC) + 4 or head[: len(HEADER_MAGIC)] != "
@@ -382,8 +380,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE", _TARGETS,
                    _TARGETS.replace("y == 1", "y >= 1"),
                    "a binary model's class indices are 0 and 1: y >= 1 is y == 1"),
-        *(Equivalent("core/NumberReplacer", _TARGETS, _TARGETS.replace("1, 1, -1", t), _LABELS)
-          for t in ("1, 2, -1", "1, 0, -1", "1, 1, - 2", "1, 1, - 0")),
         *(Equivalent("core/NumberReplacer", _CAL, _CAL.replace("0.0", t),
                      "the threshold only sets the flags, which this call discards")
           for t in ("1.0", "-1.0")),

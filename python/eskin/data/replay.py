@@ -200,7 +200,7 @@ def _segment_fields(
             raise ValueError(f"class name {c!r} contains a newline")
     if len(names) > 255:
         raise ValueError(f"at most 255 class names, got {len(names)}")
-    if labels_a.min() < -1 or (names and labels_a.max() >= len(names)):
+    if labels_a.min() < -1 or labels_a.max() >= len(names):  # the reader's rule
         raise ValueError(f"labels must be -1 or index class_names ({len(names)} names)")
     if contact_intervals is None:
         contacts = np.full((n, 2), -1, dtype=np.int64)

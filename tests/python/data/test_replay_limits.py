@@ -74,6 +74,13 @@ def test_a_label_is_a_class_index_exactly_below_the_number_of_names(tmp_path):
     with pytest.raises(ValueError, match=r"labels must be -1 or index class_names"):
         write_replay_arrays(tmp_path / "w.eskr", _recs(), labels=[-2, 0],
                             class_names=["a", "b", "c"], gap_s=0.01)
+    # without class names only -1: the reader refuses any other label (the writer wrote such
+    # a file and its own reader refused it)
+    with pytest.raises(ValueError) as refused:
+        write_replay_arrays(tmp_path / "w.eskr", _recs(), labels=[-1, 0], gap_s=0.01)
+    assert str(refused.value) == "labels must be -1 or index class_names (0 names)"
+    assert not (tmp_path / "w.eskr").exists()
+    assert write_replay_arrays(p, _recs(), labels=[-1, -1]).segments["label"].tolist() == [-1] * 2
 
 
 @pytest.mark.parametrize("grid", [(1, 1), (255, 1), (1, 255)])
@@ -314,3 +321,25 @@ def test_the_sample_rates_at_the_limits_are_written(tmp_path, rate):
     for bad in (np.nextafter(0.1, 0.0), np.nextafter(1e6, np.inf)):
         with pytest.raises(ValueError, match="sample_rate_hz must be 0.1 to 1e[+]06 Hz"):
             write_replay_arrays(tmp_path / "b.eskr", _recs(), gap_s=0.0, sample_rate_hz=bad)
+
+
+def test_unknown_labels_and_contacts_are_minus_one_and_recordings_numbered_in_order(tmp_path):
+    rf = write_replay_arrays(tmp_path / "u.eskr", _recs(3), gap_s=0.0)
+    seg = rf.segments
+    assert seg["label"].tolist() == [-1] * 3 and rf.class_names == ()
+    assert seg["contact_onset"].tolist() == seg["contact_offset"].tolist() == [-1] * 3
+    assert seg["recording"].tolist() == [0, 1, 2]
+
+
+@pytest.mark.parametrize("shape", [(2, 3), (3, 2), (2, 1), (2,), (1, 2, 2)])
+def test_contact_intervals_are_one_pair_per_recording(tmp_path, shape):
+    with pytest.raises(ValueError) as refused:
+        write_replay_arrays(tmp_path / "c.eskr", _recs(2), contact_intervals=np.zeros(shape))
+    assert str(refused.value) == f"contact_intervals must be (2, 2), got {shape}"
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_recording_indices_are_one_per_recording(tmp_path, n):
+    with pytest.raises(ValueError) as refused:
+        write_replay_arrays(tmp_path / "i.eskr", _recs(2), recording_indices=list(range(n)))
+    assert str(refused.value) == f"recording_indices must have 2 entries, got ({n},)"
