@@ -387,3 +387,41 @@ def test_more_recordings_than_small_integers_are_joined_each_to_the_next(tmp_pat
     x = np.asarray(rf.samples).ravel()  # gaps of 3 samples at 3 kSps
     assert x.tolist() == [0, 0, 0] + sum(([4 * k, 4 * k, 4 * k + 2, 4 * k + 4] for k in
                                           range(299)), []) + [1196] * 4
+
+
+def test_below_100_hz_a_gap_meets_the_single_sample_at_each_edge(tmp_path):
+    """The edge level is the median of 10 ms, at least one sample: at 40 Hz (0.4 samples) the
+    recording's first and last samples themselves."""
+    rec = np.asarray([[[7, 50, 60, 70, -9]]], np.int16)
+    rf = write_replay_arrays(tmp_path / "l.eskr", [rec], gap_s=0.1, sample_rate_hz=40.0,
+                             noise_counts=0.0)
+    assert np.asarray(rf.samples).ravel().tolist() == [7] * 4 + [7, 50, 60, 70, -9] + [-9] * 4
+
+
+def test_a_recording_shorter_than_10_ms_gives_its_whole_median(tmp_path):
+    rec = np.zeros((1, 2, 5), np.int16)
+    rec[0, :, :] = [[1], [2]] * np.asarray([10, 10, 40, 90, 90])  # 5 samples: 1.7 ms
+    rf = write_replay_arrays(tmp_path / "s.eskr", [rec], gap_s=0.01, noise_counts=0.0)
+    x = np.asarray(rf.samples)[:, 0, :]
+    assert (x[:30] == [40, 80]).all() and (x[-30:] == [40, 80]).all()
+
+
+def test_a_gap_beside_a_recording_without_noise_starts_at_a_tenth_of_a_count(tmp_path):
+    """A recording without noise (constant) has quiet noise 0: the gap's noise ramps from 0.1
+    count instead (a geometric ramp needs two levels above 0), so its first samples, rounded,
+    are the level's, and its middle has the geometric mean of 0.1 and the next's noise."""
+    rng = np.random.default_rng(6)
+    quiet = np.zeros((4, 4, 2000), np.int16)
+    loud = np.rint(rng.normal(0, 40.0, (4, 4, 2000))).astype(np.int16)
+    rf = write_replay_arrays(tmp_path / "z.eskr", [quiet, loud, quiet], gap_s=1.0,
+                             sample_rate_hz=1000.0, seed=3)
+    t = np.linspace(0.0, 1.0, 1000)[:, None, None]
+    gap = np.asarray(rf.samples[3000:4000], dtype=float)  # quiet -> loud
+    level = np.median(loud[:, :, :10], axis=2)  # the ramp's end
+    resid = gap - level[None] * t  # the level ramps from 0 to the loud one's start
+    assert (np.abs(resid[:10]) < 1.0).all()  # noise of 0.1 and the rounding's 0.5
+    mid = resid[450:550].std()  # sqrt(0.1 * 40) = 2
+    assert 1.5 < mid < 2.6, mid
+    back = np.asarray(rf.samples[6000:7000], dtype=float)  # loud -> quiet
+    resid = back - np.median(loud[:, :, -10:], axis=2)[None] * (1.0 - t)
+    assert (np.abs(resid[-10:]) < 1.0).all() and 1.5 < resid[450:550].std() < 2.6
