@@ -343,3 +343,25 @@ def test_recording_indices_are_one_per_recording(tmp_path, n):
     with pytest.raises(ValueError) as refused:
         write_replay_arrays(tmp_path / "i.eskr", _recs(2), recording_indices=list(range(n)))
     assert str(refused.value) == f"recording_indices must have 2 entries, got ({n},)"
+
+
+@pytest.mark.parametrize("n, q", [(15, 2), (25, 2), (1000, 100), (1009, 100), (2990, 299),
+                                  (4000, 300)])
+def test_a_recordings_quiet_noise_is_the_spread_about_a_line_of_a_tenth_at_each_end(n, q):
+    """Per taxel: the least-squares line through the first (and the last) tenth of the
+    recording, at least 2 and at most 300 samples, removed, and the smaller standard deviation
+    of what is left: computed here with numpy's polyfit."""
+    from eskin.data.replay import _taxel_noise
+
+    rng = np.random.default_rng(n)
+    t = np.arange(n)
+    r = np.rint(rng.normal(0, 1, (2, 2, n)) * [[[3.0], [9.0]], [[1.0], [20.0]]]
+                + 40.0 - 0.2 * t).astype(np.int16)
+
+    def spread(part):
+        u = np.arange(part.size)
+        return np.std(part - np.polyval(np.polyfit(u, part, 1), u))
+
+    want = np.array([[min(spread(r[i, j, :q].astype(float)), spread(r[i, j, -q:].astype(float)))
+                      for j in range(2)] for i in range(2)])
+    np.testing.assert_allclose(_taxel_noise(r), want, rtol=1e-9, atol=1e-9)
