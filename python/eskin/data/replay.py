@@ -285,7 +285,7 @@ def _taxel_noise(r: np.ndarray) -> np.ndarray:
     for part in (r[..., :q], r[..., -q:]):
         x = np.asarray(part, np.float64)
         t = np.arange(x.shape[-1]) - (x.shape[-1] - 1) / 2
-        slope = (x * t).sum(axis=-1, keepdims=True) / (t * t).sum()  # q >= 2: > 0
+        slope = (x * t).sum(axis=-1, keepdims=True) / max(float((t * t).sum()), 1e-12)
         out.append(np.std(x - slope * t, axis=-1))
     return np.minimum(out[0], out[1])
 

@@ -345,6 +345,12 @@ def test_recording_indices_are_one_per_recording(tmp_path, n):
     assert str(refused.value) == f"recording_indices must have 2 entries, got ({n},)"
 
 
+def test_a_recording_of_one_sample_has_no_quiet_noise():
+    from eskin.data.replay import _taxel_noise
+
+    assert _taxel_noise(np.full((2, 1, 1), 7, np.int16)).tolist() == [[0.0], [0.0]]
+
+
 @pytest.mark.parametrize("n, q", [(15, 2), (25, 2), (1000, 100), (1009, 100), (2990, 299),
                                   (4000, 300)])
 def test_a_recordings_quiet_noise_is_the_spread_about_a_line_of_a_tenth_at_each_end(n, q):
