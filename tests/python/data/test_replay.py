@@ -295,31 +295,36 @@ def test_a_grid_of_unequal_sides_reads_back_rows_by_columns(tmp_path):
         np.testing.assert_array_equal(rf.recording(k), r)
 
 
-def test_the_header_and_segments_sit_at_the_offsets_the_format_documents(tmp_path):
+@pytest.mark.parametrize("names, data_offset", [(["a", "bc"], 160), (["abc", "defg"], 160),
+                                                (["abc", "defgh"], 168)])
+def test_the_header_and_segments_sit_at_the_offsets_the_format_documents(tmp_path, names,
+                                                                         data_offset):
     """docs/wire-protocol.md, "Replay file": each field at its offset, in its type, little-endian;
-    the reserved field 0; the names then zeros up to data_offset; the CRC over [0, data_offset)
-    with its own field taken as 0."""
+    the reserved field 0; the names then zeros up to data_offset, the next multiple of 8 at or
+    after them (56 + 2 x 48 bytes of segments + 4, 8 or 9 of names); the CRC over
+    [0, data_offset) with its own field taken as 0."""
     import struct
     import zlib
 
     rng = np.random.default_rng(5)
     recs = [rng.integers(-9, 9, size=(2, 3, n)).astype(np.int16) for n in (7, 5)]
-    write_replay_arrays(tmp_path / "f.eskr", recs, labels=[1, -1], class_names=["a", "bc"],
+    write_replay_arrays(tmp_path / "f.eskr", recs, labels=[1, -1], class_names=names,
                         sample_rate_hz=2000.0, volts_per_count=0.25, gap_s=0.002,
                         contact_intervals=[[1, 6], [-1, -1]], recording_indices=[9, 4],
                         noise_counts=0.0, baseline=np.zeros((2, 3)))
     raw = (tmp_path / "f.eskr").read_bytes()
     assert raw[:8] == b"ESKREPLY"
-    (version, data_offset, n_samples, rows, cols, n_seg, rate, vpc, names_len,
+    (version, offset, n_samples, rows, cols, n_seg, rate, vpc, names_len,
      crc) = struct.unpack_from("<IIQHHIddII", raw, 8)
+    text = "\n".join(names).encode()
     assert (version, n_samples, rows, cols, n_seg) == (1, 4 + 7 + 4 + 5 + 4, 2, 3, 2)
-    assert (rate, vpc, names_len) == (2000.0, 0.25, 4)
-    assert data_offset == (56 + 2 * 48 + 4 + 7) // 8 * 8 == 160
+    assert (rate, vpc, names_len, offset) == (2000.0, 0.25, len(text), data_offset)
     segs = [struct.unpack_from("<QQqqiIQ", raw, 56 + 48 * k) for k in range(2)]
     assert segs == [(4, 7, 1, 6, 1, 9, 0), (15, 5, -1, -1, -1, 4, 0)]
-    assert raw[152:156] == b"a\nbc" and raw[156:160] == b"\0" * 4
-    assert crc == zlib.crc32(raw[:52] + b"\0" * 4 + raw[56:160])
-    assert len(raw) == 160 + 2 * n_samples * 6
+    end = 152 + len(text)
+    assert raw[152:end] == text and raw[end:data_offset] == b"\0" * (data_offset - end)
+    assert crc == zlib.crc32(raw[:52] + b"\0" * 4 + raw[56:data_offset])
+    assert len(raw) == data_offset + 2 * n_samples * 6
 
 
 def test_a_replay_is_read_only_once_read(tmp_path):
@@ -339,6 +344,16 @@ def test_the_default_gap_is_half_a_second_and_made_in_missing_folders(tmp_path):
     camp, _ = _campaign_of_arrays(tmp_path / "c.h5", [30, 30])
     assert write_raw_stream(camp, None, tmp_path / "s.raw") == (3 * 500 + 60, 4, 4)  # 1 kHz
     assert (tmp_path / "s.raw").stat().st_size == 2 * 16 * (3 * 500 + 60)
+    # seeded with 0 by default: the same stream as seed 0, another than seed 1's
+    rf = write_replay_file(camp, None, tmp_path / "d.eskr")
+    assert list(rf.segments["start"]) == [500, 1030]
+    raw = (tmp_path / "s.raw").read_bytes()
+    assert np.asarray(rf.samples).tobytes() == raw
+    for seed, same in ((0, True), (1, False)):
+        other = write_replay_file(camp, None, tmp_path / f"{seed}.eskr", seed=seed)
+        assert np.array_equal(other.samples, rf.samples) is same
+        write_raw_stream(camp, None, tmp_path / f"{seed}.raw", seed=seed)
+        assert ((tmp_path / f"{seed}.raw").read_bytes() == raw) is same
 
 
 def test_each_gap_meets_the_recordings_it_joins(tmp_path):
