@@ -149,7 +149,8 @@ def write_replay_arrays(
             f.write(head)
         for chunk in _stream_chunks(recs, gaps, gap):
             f.write(chunk)
-    return None if _raw else read_replay_file(path)  # type: ignore[return-value]
+    # the raw stream's (samples, rows, cols): write_raw_stream's answer
+    return (start, rows, cols) if _raw else read_replay_file(path)  # type: ignore[return-value]
 
 
 def _stream_chunks(recs: list[np.ndarray], gaps: _QuietGaps, gap: int) -> Iterator[bytes]:
@@ -344,13 +345,8 @@ def write_raw_stream(
     samples alone: int16 little-endian, one sample of every taxel (row by row) after another,
     no header. This is what a controller loop reads sample by sample (the README's
     ``classify_stream.cpp`` on its standard input). Returns (samples, rows, cols)."""
-    fields = _campaign_stream(campaign, indices)
-    write_replay_arrays(path, **fields, gap_s=gap_s, noise_counts=noise_counts, seed=seed,
-                        _raw=True)
-    recs = fields["recordings"]
-    gap = int(round(gap_s * fields["sample_rate_hz"]))
-    n = sum(r.shape[2] for r in recs) + gap * (len(recs) + 1)
-    return n, int(recs[0].shape[0]), int(recs[0].shape[1])
+    return write_replay_arrays(path, **_campaign_stream(campaign, indices), gap_s=gap_s,  # type: ignore[return-value]
+                               noise_counts=noise_counts, seed=seed, _raw=True)
 
 
 def _campaign_stream(campaign: Any, indices: Optional[Sequence[int]]) -> dict[str, Any]:
@@ -365,8 +361,8 @@ def _campaign_stream(campaign: Any, indices: Optional[Sequence[int]]) -> dict[st
         recordings=recs,
         labels=labels,
         class_names=list(getattr(campaign, "modalities", ()) or ()),
-        sample_rate_hz=float(getattr(campaign, "sample_rate_hz", 3000.0)),
-        volts_per_count=float(getattr(campaign, "volts_per_count", 1.0)),
+        sample_rate_hz=float(campaign.sample_rate_hz),
+        volts_per_count=float(campaign.volts_per_count),
         contact_intervals=contacts,
         recording_indices=idx,
     )
@@ -382,7 +378,7 @@ _RAW_RECORD = struct.Struct("<4sHHII")  # magic, rows, cols, T, reserved
 
 def _chosen(campaign: Any, indices: Optional[Sequence[int]]) -> np.ndarray:
     idx = np.arange(len(campaign)) if indices is None else np.asarray(indices, dtype=np.int64)
-    if idx.size == 0:
+    if not idx.size:
         raise ValueError("no recordings to write")
     return idx
 

@@ -440,3 +440,39 @@ def test_a_gap_beside_a_recording_without_noise_starts_at_a_tenth_of_a_count(tmp
     back = np.asarray(rf.samples[6000:7000], dtype=float)  # loud -> quiet
     resid = back - np.median(loud[:, :, -10:], axis=2)[None] * (1.0 - t)
     assert (np.abs(resid[-10:]) < 1.0).all() and 1.5 < resid[450:550].std() < 2.6
+
+
+def test_the_quiet_gaps_are_seeded_with_0_by_default(tmp_path):
+    recs = [np.zeros((2, 2, 50), np.int16)] * 2
+    rf = write_replay_arrays(tmp_path / "d.eskr", recs, noise_counts=3.0, sample_rate_hz=100.0)
+    for seed, same in ((0, True), (1, False)):
+        other = write_replay_arrays(tmp_path / f"{seed}.eskr", recs, noise_counts=3.0,
+                                    sample_rate_hz=100.0, seed=seed)
+        assert np.array_equal(other.samples, rf.samples) is same
+
+
+def test_a_raw_stream_of_a_grid_of_unequal_sides_says_rows_then_columns(tmp_path):
+    from eskin.data.campaign import load_campaign, write_campaign
+    from eskin.data.replay import write_raw_stream
+
+    sig = np.arange(2 * 2 * 5 * 40, dtype=np.int16).reshape(2, 2, 5, 40) % 300
+    write_campaign(tmp_path / "g.h5", sig, lengths=np.asarray([40, 30]), modality=np.asarray([0, 1]),
+                   participant=np.asarray([1, 1]), direction=np.zeros(2, int), run=np.full(2, 2),
+                   modalities=["tap", "slide"], sample_rate_hz=1000.0, volts_per_count=1e-3,
+                   source="recorded")
+    camp = load_campaign(tmp_path / "g.h5")
+    assert write_raw_stream(camp, [1], tmp_path / "g.raw", gap_s=0.002) == (2 + 30 + 2, 2, 5)
+    assert (tmp_path / "g.raw").stat().st_size == 2 * 10 * 34
+
+
+def test_batch_files_take_one_recording_and_refuse_none(tmp_path):
+    from eskin.data.replay import write_raw_records, write_recordings_npy
+
+    camp, sig = _campaign_of_arrays(tmp_path / "c.h5", [50, 50])
+    assert write_recordings_npy(camp, [1], tmp_path / "one.npy") == (1, 4, 4, 50)
+    assert write_raw_records(camp, [1], tmp_path / "one.rec") == 1
+    for write, name in ((write_recordings_npy, "none.npy"), (write_raw_records, "none.rec")):
+        with pytest.raises(ValueError) as refused:
+            write(camp, [], tmp_path / name)
+        assert str(refused.value) == "no recordings to write"
+        assert not (tmp_path / name).exists()
