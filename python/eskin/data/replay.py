@@ -397,19 +397,15 @@ def write_recordings_npy(
             f"{lengths.max()} samples) and a .npy array holds one length; write raw records "
             f"instead (eskin replay --format records)"
         )
-    rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0]))).shape[:2])
-    shape = (idx.size, rows, cols, int(lengths[0]))
+    rows, cols = campaign.grid_shape
+    shape = (idx.size, int(rows), int(cols), int(lengths.max()))
     header = {"descr": "<i2", "fortran_order": False, "shape": shape}
     # ordinary buffered writes, not a memory map: a full disk is an OSError, not a SIGBUS
     with whole_file(path) as tmp, open(tmp, "wb") as f:
         np.lib.format.write_array_header_1_0(f, header)
         reserve_space(f, f.tell() + 2 * math.prod(shape))
-        for i in idx:
-            r = np.ascontiguousarray(campaign.recording(int(i)), dtype="<i2")
-            if r.shape != shape[1:]:
-                raise ValueError(f"{path}: recording {int(i)} has shape {r.shape}, expected "
-                                 f"{shape[1:]}")
-            f.write(r.tobytes())
+        for i in idx:  # each (rows, cols, its length): a campaign's
+            f.write(np.ascontiguousarray(campaign.recording(int(i)), dtype="<i2").tobytes())
     return shape
 
 

@@ -452,15 +452,9 @@ def test_the_quiet_gaps_are_seeded_with_0_by_default(tmp_path):
 
 
 def test_a_raw_stream_of_a_grid_of_unequal_sides_says_rows_then_columns(tmp_path):
-    from eskin.data.campaign import load_campaign, write_campaign
     from eskin.data.replay import write_raw_stream
 
-    sig = np.arange(2 * 2 * 5 * 40, dtype=np.int16).reshape(2, 2, 5, 40) % 300
-    write_campaign(tmp_path / "g.h5", sig, lengths=np.asarray([40, 30]), modality=np.asarray([0, 1]),
-                   participant=np.asarray([1, 1]), direction=np.zeros(2, int), run=np.full(2, 2),
-                   modalities=["tap", "slide"], sample_rate_hz=1000.0, volts_per_count=1e-3,
-                   source="recorded")
-    camp = load_campaign(tmp_path / "g.h5")
+    camp, _ = _unequal_grid_campaign(tmp_path / "g.h5", [40, 30])
     assert write_raw_stream(camp, [1], tmp_path / "g.raw", gap_s=0.002) == (2 + 30 + 2, 2, 5)
     assert (tmp_path / "g.raw").stat().st_size == 2 * 10 * 34
 
@@ -476,3 +470,26 @@ def test_batch_files_take_one_recording_and_refuse_none(tmp_path):
             write(camp, [], tmp_path / name)
         assert str(refused.value) == "no recordings to write"
         assert not (tmp_path / name).exists()
+
+
+def _unequal_grid_campaign(path, lengths):
+    from eskin.data.campaign import load_campaign, write_campaign
+
+    n = len(lengths)
+    sig = (np.arange(n * 2 * 5 * max(lengths), dtype=np.int64) % 300).astype(np.int16)
+    sig = sig.reshape(n, 2, 5, max(lengths))
+    write_campaign(path, sig, lengths=np.asarray(lengths), modality=np.arange(n) % 2,
+                   participant=np.ones(n, int), direction=np.zeros(n, int), run=np.full(n, 2),
+                   modalities=["tap", "slide"], sample_rate_hz=1000.0, volts_per_count=1e-3,
+                   source="recorded")
+    return load_campaign(path), sig
+
+
+def test_an_npy_of_a_grid_of_unequal_sides_is_recordings_by_rows_by_columns(tmp_path):
+    from eskin.data.replay import write_recordings_npy
+
+    camp, sig = _unequal_grid_campaign(tmp_path / "g.h5", [30, 40, 30])
+    assert write_recordings_npy(camp, [2, 0], tmp_path / "g.npy") == (2, 2, 5, 30)
+    np.testing.assert_array_equal(np.load(tmp_path / "g.npy"), sig[[2, 0], ..., :30])
+    header = 128  # numpy's format 1.0 header, padded to 64 bytes (here 128)
+    assert (tmp_path / "g.npy").stat().st_size == header + 2 * 2 * 10 * 30

@@ -371,3 +371,41 @@ def test_a_recordings_quiet_noise_is_the_spread_about_a_line_of_a_tenth_at_each_
     want = np.array([[min(spread(r[i, j, :q].astype(float)), spread(r[i, j, -q:].astype(float)))
                       for j in range(2)] for i in range(2)])
     np.testing.assert_allclose(_taxel_noise(r), want, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/io"), reason="needs Linux's /proc/self/io")
+def test_an_npy_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp_path):
+    """Recordings as one .npy array (128 bytes of header, 2 x 16 x 3000 samples) under a file
+    size limit one byte short of it: EFBIG before a byte is written; at exactly its size it is
+    written."""
+    from eskin.data.campaign import load_campaign, write_campaign
+    from eskin.data.replay import write_recordings_npy
+
+    n, length = 2, 3000
+    write_campaign(tmp_path / "c.h5", np.zeros((n, 4, 4, length), np.int16),
+                   lengths=np.full(n, length), modality=np.arange(n) % 2,
+                   participant=np.ones(n, int), direction=np.zeros(n, int), run=np.full(n, 2),
+                   modalities=["a", "b"], sample_rate_hz=1000.0, volts_per_count=1e-3,
+                   source="recorded")
+    camp = load_campaign(tmp_path / "c.h5")
+    size = 128 + 2 * n * 16 * length
+    out = tmp_path / "out"
+    out.mkdir()
+    p = out / "r.npy"
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 1, hard))
+        before = _bytes_written()
+        with pytest.raises(OSError) as info:
+            write_recordings_npy(camp, None, p)
+        written = _bytes_written() - before
+        assert list(out.iterdir()) == []
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
+        write_recordings_npy(camp, None, p)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old_handler)
+    assert info.value.errno == errno.EFBIG
+    assert written <= 128  # the header, before the space for the samples is reserved
+    assert p.stat().st_size == size
