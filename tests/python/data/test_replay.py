@@ -493,3 +493,24 @@ def test_an_npy_of_a_grid_of_unequal_sides_is_recordings_by_rows_by_columns(tmp_
     np.testing.assert_array_equal(np.load(tmp_path / "g.npy"), sig[[2, 0], ..., :30])
     header = 128  # numpy's format 1.0 header, padded to 64 bytes (here 128)
     assert (tmp_path / "g.npy").stat().st_size == header + 2 * 2 * 10 * 30
+
+
+def test_raw_records_of_a_grid_of_unequal_sides_say_rows_then_columns(tmp_path):
+    from eskin.data.replay import write_raw_records
+
+    camp, sig = _unequal_grid_campaign(tmp_path / "g.h5", [30, 40])
+    assert write_raw_records(camp, [1], tmp_path / "g.rec") == 1
+    raw = (tmp_path / "g.rec").read_bytes()
+    assert raw[:16] == b"ESKR" + np.asarray([2, 5], "<u2").tobytes() + np.asarray(
+        [40, 0], "<u4").tobytes()
+    np.testing.assert_array_equal(np.frombuffer(raw, "<i2", offset=16).reshape(2, 5, 40), sig[1])
+
+
+@pytest.mark.parametrize("size", [8, 30, 55])
+def test_a_file_shorter_than_the_header_is_not_a_replay_file(tmp_path, size):
+    """The magic followed by less than the 56-byte header."""
+    p = tmp_path / "short.eskr"
+    p.write_bytes((b"ESKREPLY" + bytes(range(48)))[:size])
+    with pytest.raises(ReplayFormatError) as refused:
+        read_replay_file(p)
+    assert str(refused.value) == f"{p}: not an eskin replay file (bad magic)"
