@@ -514,3 +514,13 @@ def test_a_file_shorter_than_the_header_is_not_a_replay_file(tmp_path, size):
     with pytest.raises(ReplayFormatError) as refused:
         read_replay_file(p)
     assert str(refused.value) == f"{p}: not an eskin replay file (bad magic)"
+
+
+@pytest.mark.parametrize("magic", [b"ESKREPLX", b"ESKREPLZ", b"eskreply", b"\0" * 8])
+def test_a_file_of_another_magic_is_not_a_replay_file(tmp_path, magic):
+    write_replay_arrays(tmp_path / "r.eskr", [np.zeros((1, 1, 4), np.int16)], gap_s=0.0)
+    p = tmp_path / "r.eskr"
+    p.write_bytes(magic + p.read_bytes()[8:])
+    with pytest.raises(ReplayFormatError) as refused:
+        read_replay_file(p)
+    assert str(refused.value) == f"{p}: not an eskin replay file (bad magic)"
