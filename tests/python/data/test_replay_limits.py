@@ -409,3 +409,28 @@ def test_an_npy_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp
     assert info.value.errno == errno.EFBIG
     assert written <= 128  # the header, before the space for the samples is reserved
     assert p.stat().st_size == size
+
+
+@pytest.mark.parametrize("version", [0, 2, 2**32 - 1])
+def test_a_version_other_than_1_is_refused(tmp_path, version):
+    p = tmp_path / "v.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    _rewrite(p, lambda b: struct.pack_into("<I", b, 8, version))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: replay version {version}, expected 1"
+
+
+@pytest.mark.parametrize("offset, message", [
+    (164, "bad data offset 164"),  # not a multiple of 8
+    (1728, "bad data offset 1728"),  # past the end of the file (1720 bytes)
+    (1720, "size 1720 bytes, expected 3280"),  # at its end: the samples are then missing
+])
+def test_a_data_offset_off_the_grid_of_8_or_past_the_file_is_refused(tmp_path, offset, message):
+    p = tmp_path / "o.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    assert p.stat().st_size == 160 + 2 * 6 * (3 * 30 + 2 * 20) == 1720
+    _rewrite(p, lambda b: struct.pack_into("<I", b, 12, offset))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: {message}"
