@@ -480,7 +480,7 @@ def _check_segments(path: Path, seg: np.ndarray, total: int, n_names: int) -> No
     unknown_contact = (on == -1) & (off == -1)
     problems = (
         (length == 0, lambda i: f"length {int(length[i])} is 0"),
-        ((start > total) | (length > total - np.minimum(start, total)),
+        (length > total - np.minimum(start, total),  # a start past the end leaves room for 0
          lambda i: f"start {int(start[i])} + length {int(length[i])} runs past the end of the "
                    f"stream ({total} samples)"),
         ((label < -1) | (label >= n_names),

@@ -146,6 +146,13 @@ BAD_REPLAYS = {
     "rate 1e-300": ([(32, "<d", 1e-300)], "sample_rate_hz: 1e-300 is not a rate of 0.1 to "
                     "1e+06 Hz"),
     "volts NaN": ([(40, "<d", float("nan"))], "volts_per_count: nan is not a finite number > 0"),
+    "volts inf": ([(40, "<d", float("inf"))], "volts_per_count: inf is not a finite number > 0"),
+    "start at the end": ([(SEG1, "<Q", 190)], "segment 1: start 190 + length 60 runs past the "
+                         "end of the stream (190 samples)"),
+    "start past the end": ([(SEG1, "<Q", 191)], "segment 1: start 191 + length 60 runs past "
+                           "the end of the stream (190 samples)"),
+    "ends after the end": ([(SEG1, "<Q", 131)], "segment 1: start 131 + length 60 runs past the "
+                           "end of the stream (190 samples)"),
     "grid 4096": ([(24, "<H", 4096)], "grid: 4096x3 is not within 1..255 x 1..255"),
     "segment past the end": ([(SEG1, "<Q", 2**63)], "segment 1: start 9223372036854775808 + "
                              "length 60 runs past the end of the stream"),
