@@ -434,3 +434,16 @@ def test_a_data_offset_off_the_grid_of_8_or_past_the_file_is_refused(tmp_path, o
     with pytest.raises(ReplayFormatError) as info:
         read_replay_file(p)
     assert str(info.value) == f"{p}: {message}"
+
+
+@pytest.mark.parametrize("delta", [1, -1])
+def test_a_checksum_above_or_below_the_headers_is_refused(tmp_path, delta):
+    p = tmp_path / "c.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    raw = bytearray(p.read_bytes())
+    crc = struct.unpack_from("<I", raw, 52)[0]
+    struct.pack_into("<I", raw, 52, (crc + delta) % 2**32)
+    p.write_bytes(bytes(raw))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    assert str(info.value) == f"{p}: header checksum mismatch"
