@@ -160,6 +160,11 @@ BAD_REPLAYS = {
                     "18446744073709551615 runs past the end"),
     "empty segment": ([(SEG1 + 8, "<Q", 0)], "segment 1: length 0 is 0"),
     "label 7": ([(SEG1 + 32, "<i", 7)], "segment 1: label 7 is neither -1 nor a class index (< 2)"),
+    "label 2": ([(SEG1 + 32, "<i", 2)], "segment 1: label 2 is neither -1 nor a class index (< 2) "
+                "(1 bad segments)"),
+    "label -2": ([(SEG1 + 32, "<i", -2)], "segment 1: label -2 is neither -1 nor a class index"),
+    "two labels": ([(56 + 32, "<i", 5), (SEG1 + 32, "<i", 2)], "segment 0: label 5 is neither "
+                   "-1 nor a class index (< 2) (2 bad segments)"),
     "contact past length": ([(SEG1 + 24, "<q", 61)], "segment 1: contact interval [0, 61) is "
                             "neither -1/-1 nor within [0, length 60]"),
     "names not UTF-8": ([(56 + 2 * 48, "<B", 0xFF)], "class names: not valid UTF-8"),
