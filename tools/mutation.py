@@ -395,13 +395,27 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "self.noise = 1.0 if noise_counts is None else float(noise_counts)",
                    "without noise_counts each taxel's own quiet level is used (self.levels): "
                    "self.noise is read only when noise_counts was given"),
-        Equivalent("core/NumberReplacer",
-                   "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[0])))"
-                   ".shape[:2])",
-                   "rows, cols = (int(d) for d in np.asarray(campaign.recording(int(idx[ -1])))"
-                   ".shape[:2])",
-                   "a campaign's recordings share one grid: the first and last chosen have the "
-                   "same rows and columns"),
+        Equivalent("core/NumberReplacer", "q = max(2, min(300, r.shape[-1] // 10))",
+                   "q = max( 1, min(300, r.shape[-1] // 10))",
+                   "a line through one or two samples leaves nothing: a quiet noise of 0 "
+                   "either way"),
+        Equivalent("core/ReplaceBinaryOperator_Add_Sub",
+                   "z = level + noise * self.rng.standard_normal((length, rows, cols))",
+                   "z = level - noise * self.rng.standard_normal((length, rows, cols))",
+                   "minus a standard normal draw is a standard normal draw: the gap's noise "
+                   "has the same distribution, as from another seed"),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Lt", "if lengths.min() != lengths.max():",
+                   "if lengths.min() < lengths.max():",
+                   "a minimum is never above the maximum"),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Lt_{op}",
+                     "if len(raw) < _HEADER.size or raw[:8] != REPLAY_MAGIC:",
+                     f"if len(raw) {sym} _HEADER.size or raw[:8] != REPLAY_MAGIC:",
+                     "raw is a read of at most the header's 56 bytes: never more")
+          for op, sym in (("NotEq", "!="), ("IsNot", "is not"))),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
+                   '(length == 0, lambda i: f"length {int(length[i])} is 0"),',
+                   '(length <= 0, lambda i: f"length {int(length[i])} is 0"),',
+                   "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
