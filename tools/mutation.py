@@ -412,6 +412,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      f"if len(raw) {sym} _HEADER.size or raw[:8] != REPLAY_MAGIC:",
                      "raw is a read of at most the header's 56 bytes: never more")
           for op, sym in (("NotEq", "!="), ("IsNot", "is not"))),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot", "if version != REPLAY_VERSION:",
+                   "if version is not REPLAY_VERSION:",
+                   "the version read is a Python int: 1 is one object (small integers are "
+                   "cached), any other version is another object"),
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE",
                    '(length == 0, lambda i: f"length {int(length[i])} is 0"),',
                    '(length <= 0, lambda i: f"length {int(length[i])} is 0"),',
