@@ -85,3 +85,31 @@ def test_the_rule_of_a_calibration_is_named_not_positional():
     with pytest.raises(TypeError):
         fit_calibration(F, y, 0.0, True)
     assert fit_calibration(F, y, 0.0, binary=True).binary
+
+
+@pytest.mark.parametrize("shift, offset", [(0.0, None), (1.0, -1e6), (-1.0, 1e6)])
+def test_a_steeper_sigmoid_is_held_at_the_model_formats_bound(shift, offset):
+    """Held-out values a millionth apart whose class follows a slope of 2e6: the slope is held
+    at the model format's bound of 1e6 (docs/model-format.md, CALB), and so is an offset beyond
+    it either way (values shifted by 1 or -1: the fitted offset is about -+2e6)."""
+    from eskin.learn.calibration import fit_sigmoid
+
+    rng = np.random.default_rng(0)
+    f = rng.normal(0.0, 1e-6, 400)
+    y = rng.random(400) < 1.0 / (1.0 + np.exp(-2e6 * f))
+    a, b = fit_sigmoid(f + shift, y)
+    assert a == 1e6
+    if offset is None:
+        assert abs(b) < 1.0
+    else:
+        assert b == offset
+
+
+def test_a_fitted_calibration_cannot_be_changed():
+    import dataclasses
+
+    from eskin.learn.calibration import Calibration
+
+    cal = Calibration((1.0,), (0.0,), 0.5, 0.1, True)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cal.threshold = 0.0  # type: ignore[misc]
