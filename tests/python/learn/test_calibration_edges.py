@@ -59,6 +59,10 @@ def test_a_calibration_whose_sizes_disagree_is_refused():
         calibrated_decision(F, (1.0, 1.0), (0.0,), 0.5, binary=False)
     with pytest.raises(ValueError, match="decision values for 2 machines, calibration of 1"):
         calibrated_decision(F, (1.0,), (0.0,), 0.5, binary=False)
+    with pytest.raises(ValueError, match="decision values for 2 machines, calibration of 3"):
+        calibrated_decision(F, (1.0,) * 3, (0.0,) * 3, 0.5, binary=False)
+    with pytest.raises(ValueError, match="2 slopes and 3 offsets"):
+        calibrated_decision(F, (1.0, 1.0), (0.0,) * 3, 0.5, binary=False)
     with pytest.raises(ValueError, match="binary calibration has one machine, not 2"):
         calibrated_decision(F, (1.0, 1.0), (0.0, 0.0), 0.5, binary=True)
 
