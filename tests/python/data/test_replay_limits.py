@@ -31,6 +31,36 @@ def _rewrite(path, edit) -> None:
     path.write_bytes(bytes(raw))
 
 
+def _refusal(tmp_path, offset: int, fmt: str, value) -> str:
+    """The reader's message on the two-recording file with one header field set to value."""
+    p = tmp_path / "f.eskr"
+    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
+    _rewrite(p, lambda raw: struct.pack_into(fmt, raw, offset, value))
+    with pytest.raises(ReplayFormatError) as info:
+        read_replay_file(p)
+    return str(info.value).removeprefix(f"{p}: ")
+
+
+def _under_file_size_limit(write, size: int, folder) -> tuple[OSError, int]:
+    """write() under a file size limit of size - 1 bytes (the error, and the bytes this
+    process wrote meanwhile; nothing may be left in folder), then under one of size."""
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 1, hard))
+        before = _bytes_written()
+        with pytest.raises(OSError) as info:
+            write()
+        written = _bytes_written() - before
+        assert list(folder.iterdir()) == []
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
+        write()
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old_handler)
+    return info.value, written
+
+
 def test_255_class_names_are_written_and_read_back_exactly(tmp_path):
     names = [f"c{k}" for k in range(255)]
     p = tmp_path / "255.eskr"
@@ -140,12 +170,8 @@ def test_a_contact_half_unknown_reversed_or_past_its_recording_is_refused(tmp_pa
 
 @pytest.mark.parametrize("vpc", [0.0, -0.5, -2.0])
 def test_a_volts_per_count_not_above_zero_is_refused_by_the_reader(tmp_path, vpc):
-    p = tmp_path / "v.eskr"
-    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
-    _rewrite(p, lambda raw: struct.pack_into("<d", raw, 40, vpc))
-    with pytest.raises(ReplayFormatError) as info:
-        read_replay_file(p)
-    assert str(info.value) == f"{p}: volts_per_count: {vpc!r} is not a finite number > 0"
+    assert _refusal(tmp_path, 40, "<d", vpc) == (f"volts_per_count: {vpc!r} is not a finite "
+                                                 "number > 0")
 
 
 @pytest.mark.parametrize("n_labels", [1, 3])
@@ -268,21 +294,9 @@ def test_a_stream_past_the_file_size_limit_is_refused_before_a_byte_is_written(t
     rec = [np.zeros((16, 16, 6000), np.int16)]  # 6000 samples x 512 bytes: 3.07 MB
     size = (0 if raw else 104) + 6000 * 512
     p = tmp_path / "big.eskr"
-    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG
-    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
-    try:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 1, hard))
-        before = _bytes_written()
-        with pytest.raises(OSError) as info:
-            write_replay_arrays(p, rec, gap_s=0.0, _raw=raw)
-        written = _bytes_written() - before
-        assert list(tmp_path.iterdir()) == []
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
-        write_replay_arrays(p, rec, gap_s=0.0, _raw=raw)
-    finally:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
-        signal.signal(signal.SIGXFSZ, old_handler)
-    assert (info.value.errno, info.value.filename) == (errno.EFBIG, str(p))
+    error, written = _under_file_size_limit(
+        lambda: write_replay_arrays(p, rec, gap_s=0.0, _raw=raw), size, tmp_path)
+    assert (error.errno, error.filename) == (errno.EFBIG, str(p))
     assert written == 0
     assert p.stat().st_size == size
 
@@ -392,33 +406,16 @@ def test_an_npy_past_the_file_size_limit_is_refused_before_a_byte_is_written(tmp
     out = tmp_path / "out"
     out.mkdir()
     p = out / "r.npy"
-    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
-    try:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 1, hard))
-        before = _bytes_written()
-        with pytest.raises(OSError) as info:
-            write_recordings_npy(camp, None, p)
-        written = _bytes_written() - before
-        assert list(out.iterdir()) == []
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
-        write_recordings_npy(camp, None, p)
-    finally:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
-        signal.signal(signal.SIGXFSZ, old_handler)
-    assert info.value.errno == errno.EFBIG
+    error, written = _under_file_size_limit(lambda: write_recordings_npy(camp, None, p), size,
+                                            out)
+    assert error.errno == errno.EFBIG
     assert written <= 128  # the header, before the space for the samples is reserved
     assert p.stat().st_size == size
 
 
 @pytest.mark.parametrize("version", [0, 2, 2**32 - 1])
 def test_a_version_other_than_1_is_refused(tmp_path, version):
-    p = tmp_path / "v.eskr"
-    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
-    _rewrite(p, lambda b: struct.pack_into("<I", b, 8, version))
-    with pytest.raises(ReplayFormatError) as info:
-        read_replay_file(p)
-    assert str(info.value) == f"{p}: replay version {version}, expected 1"
+    assert _refusal(tmp_path, 8, "<I", version) == f"replay version {version}, expected 1"
 
 
 @pytest.mark.parametrize("offset, message", [
@@ -427,13 +424,8 @@ def test_a_version_other_than_1_is_refused(tmp_path, version):
     (1720, "size 1720 bytes, expected 3280"),  # at its end: the samples are then missing
 ])
 def test_a_data_offset_off_the_grid_of_8_or_past_the_file_is_refused(tmp_path, offset, message):
-    p = tmp_path / "o.eskr"
-    write_replay_arrays(p, _recs(), labels=[0, 1], class_names=["a", "b"], gap_s=0.01)
-    assert p.stat().st_size == 160 + 2 * 6 * (3 * 30 + 2 * 20) == 1720
-    _rewrite(p, lambda b: struct.pack_into("<I", b, 12, offset))
-    with pytest.raises(ReplayFormatError) as info:
-        read_replay_file(p)
-    assert str(info.value) == f"{p}: {message}"
+    assert _refusal(tmp_path, 12, "<I", offset) == message
+    assert (tmp_path / "f.eskr").stat().st_size == 160 + 2 * 6 * (3 * 30 + 2 * 20) == 1720
 
 
 @pytest.mark.parametrize("delta", [1, -1])
