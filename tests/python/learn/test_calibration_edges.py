@@ -65,6 +65,8 @@ def test_a_calibration_whose_sizes_disagree_is_refused():
         calibrated_decision(F, (1.0, 1.0), (0.0,) * 3, 0.5, binary=False)
     with pytest.raises(ValueError, match="binary calibration has one machine, not 2"):
         calibrated_decision(F, (1.0, 1.0), (0.0, 0.0), 0.5, binary=True)
+    with pytest.raises(ValueError, match="binary calibration has one machine, not 0"):
+        calibrated_decision(np.zeros((3, 0)), (), (), 0.5, binary=True)
 
 
 def test_no_confidences_give_the_threshold_zero():
