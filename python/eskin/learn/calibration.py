@@ -130,7 +130,7 @@ def fit_sigmoid(values: np.ndarray, positive: np.ndarray) -> tuple[float, float]
         raise TrainingError("a machine's calibration needs patterns of its class and of others")
     A, B = _sigmoid_calibration(f, y.astype(np.int64))  # sklearn: p = 1 / (1 + exp(A f + B))
     a, b = float(-A), float(-B)
-    if not (math.isfinite(a) and math.isfinite(b)):
+    if not np.isfinite([a, b]).all():
         raise TrainingError(f"the calibration sigmoid did not converge (a={a}, b={b})")
     if a < 0:  # held-out values pointing the wrong way say nothing: the class's share
         share = float(y.mean())  # in (0, 1): both sides are present (above)

@@ -3,6 +3,7 @@ formula, and what it does on trained models (fixed seeds, the small simulated ca
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,24 @@ def test_values_pointing_the_wrong_way_give_a_flat_sigmoid_at_the_class_share():
     assert 1.0 / (1.0 + np.exp(-b)) == pytest.approx(y.mean())
 
 
+def test_a_weak_slope_is_kept_and_a_weak_wrong_one_gives_the_class_share():
+    """Slopes between -1 and 1: a weakly increasing one (0.23) is the fitted sigmoid's; a weakly
+    decreasing one (-0.16) is flat at the class's share, as a strongly decreasing one is."""
+    from sklearn.calibration import _sigmoid_calibration
+
+    rng = np.random.default_rng(1)
+    y = rng.random(300) < 0.25
+    for sign in (1.0, -1.0):
+        f = sign * np.where(y, 0.5, -0.5) + 2.0 * rng.standard_normal(300)
+        A, B = _sigmoid_calibration(f, y.astype(np.int64))  # p = 1 / (1 + exp(A f + B))
+        a, b = fit_sigmoid(f, y)
+        if sign > 0:
+            assert 0 < -A < 1 and (a, b) == (-A, -B)
+        else:
+            assert -1 < -A < 0 and a == 0.0
+            assert b == pytest.approx(math.log(y.mean() / (1 - y.mean())), rel=1e-12)
+
+
 def test_a_machine_without_both_sides_cannot_be_calibrated():
     with pytest.raises(TrainingError, match="its class and of others"):
         fit_sigmoid(np.zeros(5), np.ones(5, bool))
@@ -77,8 +96,10 @@ def test_threshold_flags_the_requested_fraction(reject):
 def test_reject_zero_flags_nothing_and_reject_one_is_refused():
     conf = np.random.default_rng(3).uniform(0.5, 1, 50)
     assert choose_threshold(conf, 0.0) == 0.0
-    with pytest.raises(TrainingError, match="reject must be in"):
-        choose_threshold(conf, 1.0)
+    for bad in (1.0, 1.5, -0.1, float("nan")):
+        with pytest.raises(TrainingError) as refused:
+            choose_threshold(conf, bad)
+        assert str(refused.value) == f"reject must be in [0, 1), got {bad}"
 
 
 def test_log_domain_rule_equals_the_plain_formula():

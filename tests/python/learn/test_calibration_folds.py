@@ -100,3 +100,15 @@ def test_kernel_machines_of_one_alpha_share_the_distances_of_every_pattern():
     assert half[0].alphas_ != one.alphas_
     assert _shared([*half, one], X) is None
     assert _shared([half[0], LogisticRegression()], X) is None
+
+
+def test_groups_of_one_value_give_stratified_folds():
+    """One group cannot be split group-disjointly: the folds are then the stratified ones, as
+    without groups (and nothing is noted: grouped folds were not tried)."""
+    X, y = _data()
+    notes: list[str] = []
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y, np.full(len(y), 4),
+                                    n_folds=3, seed=2, notes=notes)
+    G, _ = out_of_fold_values(LogisticRegression().fit(X, y), X, y, None, n_folds=3, seed=2)
+    assert n_folds == 3 and notes == []
+    np.testing.assert_array_equal(F, G)
