@@ -6,6 +6,7 @@ with ``decision_function`` (exact values, seconds instead of minutes)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from sklearn.linear_model import LogisticRegression
 from sklearn.model_selection import StratifiedKFold
 
@@ -112,3 +113,18 @@ def test_groups_of_one_value_give_stratified_folds():
     G, _ = out_of_fold_values(LogisticRegression().fit(X, y), X, y, None, n_folds=3, seed=2)
     assert n_folds == 3 and notes == []
     np.testing.assert_array_equal(F, G)
+
+
+def test_a_class_of_two_patterns_gives_two_folds_and_one_of_one_none():
+    from eskin.errors import TrainingError
+
+    X, y = _data()
+    y = y.copy()
+    y[y == 1] = 0
+    y[[5, 9]] = 1  # class 1: two patterns
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X, y), X, y, n_folds=5)
+    assert n_folds == 2 and np.isfinite(F).all()
+    y[9] = 0  # one
+    with pytest.raises(TrainingError) as refused:
+        out_of_fold_values(LogisticRegression().fit(X, y), X, y, n_folds=5)
+    assert str(refused.value) == "too few patterns per class for out-of-fold calibration"
