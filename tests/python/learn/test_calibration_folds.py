@@ -128,3 +128,23 @@ def test_a_class_of_two_patterns_gives_two_folds_and_one_of_one_none():
     with pytest.raises(TrainingError) as refused:
         out_of_fold_values(LogisticRegression().fit(X, y), X, y, n_folds=5)
     assert str(refused.value) == "too few patterns per class for out-of-fold calibration"
+
+
+def test_a_folds_share_of_the_subset_lacking_a_side_gives_way_to_the_whole_training_part():
+    """The machine was trained on a subset holding one pattern of its class: in the folds whose
+    training part leaves that pattern out, the machine is retrained on the whole training part;
+    in the others on the fold's share of the subset."""
+    X, y = _data()
+    one = int(np.flatnonzero(y == 1)[0])
+    subset = np.sort(np.r_[np.flatnonzero(y == 0)[:12], one])
+    F, n_folds = out_of_fold_values(LogisticRegression().fit(X[subset], y[subset]), X, y,
+                                    machine_indices=[subset], n_folds=4, seed=5)
+    want, whole = np.empty(len(y)), 0
+    for tr, te in StratifiedKFold(4, shuffle=True, random_state=5).split(y, y):
+        trk = np.intersect1d(tr, subset)
+        if one not in trk:
+            trk, whole = tr, whole + 1
+        m = LogisticRegression().fit(X[trk], y[trk])
+        want[te] = m.decision_function(X[te])
+    assert n_folds == 4 and whole == 1
+    np.testing.assert_array_equal(F[:, 0], want)
