@@ -842,3 +842,33 @@ def test_a_fold_record_without_predictions_keeps_its_other_live_scores():
     assert _without_predictions(record) == {
         "fold": 0, "accuracy": 0.5, "live": {"accuracy": 0.25, "touches": 4},
         "baselines": {"nearest": {"accuracy": 0.75, "z_score": 1.0}}}  # (z sorts after y)
+
+
+def test_a_stratified_split_with_an_empty_fold_gives_way_to_dealt_groups():
+    """Four groups in four folds, where scikit-learn's StratifiedGroupKFold (seed 1) leaves a
+    fold empty: the groups are dealt instead, one per fold."""
+    from sklearn.model_selection import StratifiedGroupKFold
+
+    from eskin.learn.evaluation import _dealt_folds
+
+    groups = np.array([0, 0, 1, 2, 2, 2, 3, 3, 3])
+    y = np.array([0, 0, 1, 1, 1, 1, 1, 0, 1])
+    import warnings
+
+    with warnings.catch_warnings():  # "the least populated class has only 3 members"
+        warnings.simplefilter("ignore", UserWarning)
+        split = list(StratifiedGroupKFold(4, shuffle=True, random_state=1).split(y, y, groups))
+    assert sorted(len(te) for _, te in split) == [0, 3, 3, 3]
+    plan = [te.tolist() for _, te in make_folds(groups, y, 4, seed=1)]
+    assert plan == [te.tolist() for te in _dealt_folds(groups, 4, 1)]
+    assert sorted(len(te) for te in plan) == [1, 2, 3, 3]
+
+
+def test_the_fold_count_runs_from_2_to_the_number_of_groups():
+    groups, y = np.array([0, 1, 2, 0, 1, 2]), np.array([0, 1, 0, 1, 0, 1])
+    for n in (2, 3):
+        assert len(make_folds(groups, y, n)) == n
+    for n in (1, 4):
+        with pytest.raises(EvaluationError) as refused:
+            make_folds(groups, y, n)
+        assert str(refused.value) == f"--folds {n}: must be in [2, 3] (the number of groups)"
