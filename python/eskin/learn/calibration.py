@@ -190,7 +190,7 @@ def _fold_values(machines: list[Any], X: np.ndarray, targets: np.ndarray,
             fitted = clone(m)._fit(X[trk], targets[trk, k], d[:, trk][:, :, trk], e[trk])
             sv = trk[fitted.support_]
             values = fitted._decision_from(d[:, te][:, :, sv], e[te])
-        out[:, k] = np.asarray(values, dtype=np.float64).reshape(-1)
+        out[:, k] = np.asarray(values, dtype=np.float64).ravel()
     return out
 
 
