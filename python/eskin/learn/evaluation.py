@@ -114,11 +114,11 @@ def scores_from_confusion(cm: np.ndarray) -> tuple[float, float, np.ndarray]:
     others)."""
     cm = np.asarray(cm, dtype=np.float64)
     support = cm.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        recall = np.where(support > 0, np.diag(cm) / support, np.nan)
+    with np.errstate(invalid="ignore"):  # 0 / 0 (nan): a class without test recordings
+        recall = np.diag(cm) / support
     total = cm.sum()
     acc = float(np.trace(cm) / total) if total else float("nan")
-    present = support > 0
+    present = ~np.isnan(recall)
     bal = float(np.mean(recall[present])) if present.any() else float("nan")
     return acc, bal, recall
 

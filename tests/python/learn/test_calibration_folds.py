@@ -148,3 +148,11 @@ def test_a_folds_share_of_the_subset_lacking_a_side_gives_way_to_the_whole_train
         want[te] = m.decision_function(X[te])
     assert n_folds == 4 and whole == 1
     np.testing.assert_array_equal(F[:, 0], want)
+
+
+def test_the_folds_are_seeded_with_0_by_default():
+    X, y = _data()
+    machine = LogisticRegression().fit(X, y)
+    F, _ = out_of_fold_values(machine, X, y)
+    for seed, same in ((0, True), (1, False)):
+        assert np.array_equal(out_of_fold_values(machine, X, y, seed=seed)[0], F) is same
