@@ -132,7 +132,7 @@ def fit_sigmoid(values: np.ndarray, positive: np.ndarray) -> tuple[float, float]
     a, b = float(-A), float(-B)
     if not np.isfinite([a, b]).all():
         raise TrainingError(f"the calibration sigmoid did not converge (a={a}, b={b})")
-    if a < 0:  # held-out values pointing the wrong way say nothing: the class's share
+    if a <= 0:  # held-out values that do not rise with the class say nothing: its share
         share = float(y.mean())  # in (0, 1): both sides are present (above)
         a, b = 0.0, math.log(share / (1 - share))
     return min(a, MAX_CALIBRATION), float(np.clip(b, -MAX_CALIBRATION, MAX_CALIBRATION))

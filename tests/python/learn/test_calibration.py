@@ -81,6 +81,14 @@ def test_a_weak_slope_is_kept_and_a_weak_wrong_one_gives_the_class_share():
             assert b == pytest.approx(math.log(y.mean() / (1 - y.mean())), rel=1e-12)
 
 
+def test_held_out_values_all_equal_give_a_flat_sigmoid_at_the_class_share():
+    """Platt's fit of values that carry nothing has a slope of exactly 0 (and its smoothed
+    share as offset); the rule's flat sigmoid is at the class's own share, as for values that
+    point the wrong way."""
+    y = np.r_[np.ones(10), np.zeros(30)].astype(bool)
+    assert fit_sigmoid(np.zeros(40), y) == (0.0, math.log(0.25 / 0.75))
+
+
 def test_a_machine_without_both_sides_cannot_be_calibrated():
     with pytest.raises(TrainingError, match="its class and of others"):
         fit_sigmoid(np.zeros(5), np.ones(5, bool))
