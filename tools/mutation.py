@@ -377,6 +377,32 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "trk = np.intersect1d(tr, subsets[k], assume_unique=False)",
                    "a fold's indices and a machine's subset are sets (sklearn's folds, "
                    "one_vs_all_indices): the same intersection"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if F.ndim == 1:", "if F.ndim <= 1:",
+                   "decision values of no dimension fail at the next index either way (an "
+                   "IndexError): there is no machine's column to read"),
+        *(Equivalent(f"core/ReplaceComparisonOperator_Eq_{op}",
+                     "if all(np.unique(y[tr]).size == n_classes for tr, _ in folds):",
+                     f"if all(np.unique(y[tr]).size {sym} n_classes for tr, _ in folds):",
+                     "a training part's classes are a subset of all (never more), counted in "
+                     "Python ints: equal small counts are one object")
+          for op, sym in (("GtE", ">="), ("Is", "is"))),
+        Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
+                   "if len({tuple(m.alphas_) for m in machines}) != 1:",
+                   "if len({tuple(m.alphas_) for m in machines}) > 1:",
+                   "a classifier has at least one machine: the set of its alphas is never empty"),
+        Equivalent("core/NumberReplacer", "return _shared_distances(machines[0], X)",
+                   "return _shared_distances(machines[ -1], X)",
+                   "every machine has the same alpha (checked just above) and the classifier's "
+                   "tensor shape: the first and the last give the same distances"),
+        Equivalent("core/NumberReplacer",
+                   "seed: int = 0, n_jobs: int | None = 1, notes: list[str] | None = None,",
+                   "seed: int = 0, n_jobs: int | None = 2, notes: list[str] | None = None,",
+                   "the folds' values are the same computed one or two at a time "
+                   "(eskin.learn.parallel.run_calls keeps the order); only the time differs"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
+                   "positive = [(y == 1) if binary else (y == k) for k in range(F.shape[1])]",
+                   "positive = [(y >= 1) if binary else (y == k) for k in range(F.shape[1])]",
+                   "a binary model's class indices are 0 and 1: y >= 1 is y == 1"),
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE", _TARGETS,
                    _TARGETS.replace("y == 1", "y >= 1"),
                    "a binary model's class indices are 0 and 1: y >= 1 is y == 1"),
