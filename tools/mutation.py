@@ -448,10 +448,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
-        Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
-                   "recall = np.where(support > 0, np.diag(cm) / support, np.nan)",
-                   "recall = np.where(support != 0, np.diag(cm) / support, np.nan)",
-                   "a class's support is a count of recordings, never negative: != 0 is > 0"),
         *(Equivalent("core/NumberReplacer",
                      "out[key] = values[0] if all(v == values[0] for v in values) else values",
                      mutant,
