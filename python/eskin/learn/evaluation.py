@@ -153,12 +153,12 @@ def group_bootstrap_ci(
     draws = rng.integers(0, G, size=(int(n_boot), G))
     weights = np.zeros((int(n_boot), G))
     np.add.at(weights, (np.repeat(np.arange(int(n_boot)), G), draws.ravel()), 1.0)
-    cms = (weights @ per_group).reshape(-1, k, k)
+    cms = (weights @ per_group).reshape(int(n_boot), k, k)
     diag = np.einsum("bii->bi", cms)
     support = cms.sum(axis=2)
     acc = diag.sum(axis=1) / cms.sum(axis=(1, 2))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rec = np.where(support > 0, diag / np.maximum(support, 1), np.nan)
+    with np.errstate(invalid="ignore"):  # 0 / 0 (nan): a class no drawn group holds
+        rec = diag / support
     bal = np.nanmean(rec, axis=1)
     point_acc, point_bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, k))
     q = [(1 - level) / 2 * 100, (1 + level) / 2 * 100]

@@ -140,13 +140,17 @@ def test_one_group_resampled_is_the_data_itself():
     assert ci["balanced_accuracy"] == pytest.approx([bal, bal])
 
 
-def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_time():
+@pytest.mark.parametrize("sizes, rare", [([4, 6, 3, 5, 7], False), ([1] * 9, True)])
+def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_time(sizes, rare):
     """The intervals against the resampling its docstring describes, redone with a loop over
     the resamples (each pools the recordings of the groups drawn, with repeats), numpy's
-    percentiles and the widening to the point estimate."""
+    percentiles and the widening to the point estimate. Also with groups of one recording and
+    a class of one recording (a recall of one test recording, or none, in many resamples)."""
     rng = np.random.default_rng(8)
-    groups = np.repeat(np.array([30, 10, 20, 50, 40]), [4, 6, 3, 5, 7])
-    y_true = rng.integers(0, 3, len(groups))
+    groups = np.repeat(np.array([30, 10, 20, 50, 40, 60, 70, 80, 90][:len(sizes)]), sizes)
+    y_true = rng.integers(0, 2 if rare else 3, len(groups))
+    if rare:
+        y_true[4] = 2
     y_pred = np.where(rng.random(len(groups)) < 0.6, y_true, rng.integers(0, 3, len(groups)))
     n_boot, seed = 40, 11
     uniq = np.unique(groups)
