@@ -590,6 +590,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "good = c is self.classifier and t.label_index >= 0 and not t.dont_know")),
     ],
     "python/eskin/link/protocol.py": [
+        Equivalent("core/ReplaceFalseWithTrue", "@dataclass(frozen=True, eq=False)",
+                   "@dataclass(frozen=True, eq=True)",
+                   "DataFrame defines its own __eq__, which the dataclass keeps either way; "
+                   "eq=True only adds a hash of its fields, unhashable too (a numpy array), "
+                   "where __hash__ = None says so first"),
         *(Equivalent("core/ReplaceComparisonOperator_Eq_Is", f"{w} t == FrameType.{n}:",
                      f"{w} t is FrameType.{n}:",
                      "t is an enum member (FrameType(...) or _TYPE_OF's value): equal members "

@@ -445,3 +445,20 @@ def test_after_reset_the_tail_of_a_frame_is_skipped_not_counted_as_corrupted():
     assert [f.seq for f in frames] == [2, 0, 1, 2]  # the tail of frame 1 is skipped
     st = dec.stats
     assert st.crc_errors == st.malformed == 0 and st.skipped_bytes > 0
+
+
+def test_data_frames_are_equal_by_value_and_cannot_be_changed():
+    """DATA frames of equal fields and samples (of one shape) are equal, whatever the arrays'
+    identity; a frame is read-only and not hashable (it holds an array)."""
+    import dataclasses
+
+    s = np.arange(32, dtype=np.int16).reshape(2, 4, 4)
+    a = DataFrame(3, 9, s)
+    assert a == DataFrame(3, 9, s.copy())
+    for other in (DataFrame(3, 9, s.reshape(4, 2, 4)), DataFrame(4, 9, s), DataFrame(3, 8, s),
+                  DataFrame(3, 9, s, seq=1), DataFrame(3, 9, s, flags=1), DataFrame(3, 9, s + 1)):
+        assert a != other
+    with pytest.raises(TypeError, match="unhashable"):
+        hash(a)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.seq = 1  # type: ignore[misc]
