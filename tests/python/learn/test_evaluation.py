@@ -140,14 +140,17 @@ def test_one_group_resampled_is_the_data_itself():
     assert ci["balanced_accuracy"] == pytest.approx([bal, bal])
 
 
-@pytest.mark.parametrize("sizes, rare", [([4, 6, 3, 5, 7], False), ([1] * 9, True)])
-def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_time(sizes, rare):
+@pytest.mark.parametrize("sizes, rare, level", [
+    ([4, 6, 3, 5, 7], False, 0.8), ([1] * 9, True, 0.8),
+    ([1, 2, 3, 4, 5, 6] * 5, False, 0.9)])  # 30 groups: resamples of distinct scores
+def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_time(sizes, rare,
+                                                                                 level):
     """The intervals against the resampling its docstring describes, redone with a loop over
     the resamples (each pools the recordings of the groups drawn, with repeats), numpy's
     percentiles and the widening to the point estimate. Also with groups of one recording and
     a class of one recording (a recall of one test recording, or none, in many resamples)."""
     rng = np.random.default_rng(8)
-    groups = np.repeat(np.array([30, 10, 20, 50, 40, 60, 70, 80, 90][:len(sizes)]), sizes)
+    groups = np.repeat(10 * (1 + rng.permutation(len(sizes))), sizes)
     y_true = rng.integers(0, 2 if rare else 3, len(groups))
     if rare:
         y_true[4] = 2
@@ -162,10 +165,10 @@ def test_the_bootstrap_is_the_documented_resampling_redone_one_resample_at_a_tim
         t, p = y_true[idx], y_pred[idx]
         accs.append(np.mean(t == p))
         bals.append(np.mean([np.mean(p[t == c] == c) for c in range(3) if np.any(t == c)]))
-    ci = group_bootstrap_ci(y_true, y_pred, groups, 3, n_boot=n_boot, level=0.8, seed=seed)
+    ci = group_bootstrap_ci(y_true, y_pred, groups, 3, n_boot=n_boot, level=level, seed=seed)
     acc, bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, 3))
     for name, values, point in (("accuracy", accs, acc), ("balanced_accuracy", bals, bal)):
-        low, high = np.percentile(values, [10, 90])
+        low, high = np.percentile(values, [50 - 50 * level, 50 + 50 * level])
         assert ci[name] == pytest.approx([min(low, point), max(high, point)], abs=1e-12)
 
 
