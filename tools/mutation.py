@@ -386,6 +386,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "a training part's classes are a subset of all (never more), counted in "
                      "Python ints: equal small counts are one object")
           for op, sym in (("GtE", ">="), ("Is", "is"))),
+        Equivalent("core/ReplaceComparisonOperator_Lt_NotEq",
+                   "if np.unique(targets[trk, k]).size < 2:  # a small balanced subset: the "
+                   "fold's whole part",
+                   "if np.unique(targets[trk, k]).size != 2:  # a small balanced subset: the "
+                   "fold's whole part",
+                   "a machine's targets take two values (1 and 0): never more than 2 distinct"),
         Equivalent("core/ReplaceComparisonOperator_NotEq_Gt",
                    "if len({tuple(m.alphas_) for m in machines}) != 1:",
                    "if len({tuple(m.alphas_) for m in machines}) > 1:",
