@@ -126,6 +126,13 @@ def test_recall_of_an_asymmetric_confusion_is_per_true_class_and_named():
     assert s["per_class_recall"] == pytest.approx({"a": 1 / 3, "b": 1.0, "c": 0.25})
     assert s["confusion"] == cm.tolist()
     assert (s["accuracy"], s["balanced_accuracy"]) == pytest.approx((acc, bal))
+    # the intervals: the bootstrap's with seed 0 by default, another with seed 1
+    assert summarise(y_true, y_pred, np.arange(9), ["a", "b", "c"]) == s
+    ci = group_bootstrap_ci(y_true, y_pred, np.arange(9), 3, seed=0)
+    assert (s["ci95"], s["ci95_balanced_accuracy"]) == (ci["accuracy"], ci["balanced_accuracy"])
+    other = summarise(y_true, y_pred, np.arange(9), ["a", "b", "c"], seed=1)
+    assert (other["ci95"], other["ci95_balanced_accuracy"]) != (s["ci95"],
+                                                                s["ci95_balanced_accuracy"])
 
 
 def test_one_group_resampled_is_the_data_itself():

@@ -462,3 +462,12 @@ def test_data_frames_are_equal_by_value_and_cannot_be_changed():
         hash(a)
     with pytest.raises(dataclasses.FrozenInstanceError):
         a.seq = 1  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("flags, overrun", [(0, False), (Flags.OVERRUN, True),
+                                            (Flags.SYNC | Flags.LOOP, False),
+                                            (Flags.SYNC | Flags.OVERRUN, True)])
+def test_overrun_is_the_flags_overrun_bit_alone(flags, overrun):
+    s = np.zeros((1, 2, 2), np.int16)
+    assert StatusFrame(flags=int(flags)).overrun is overrun
+    assert DataFrame(0, 0, s, flags=int(flags)).overrun is overrun
