@@ -241,22 +241,17 @@ _TYPE_OF: dict[type, FrameType] = {
 }
 
 
+_CLASS_OF: dict[FrameType, type] = {t: cls for cls, t in _TYPE_OF.items()}
+
+
 def _from_dict(d: dict[str, Any]) -> Frame:
+    """A frame of the core decoder's dict (its type, then its fields); the types without a
+    class of their own are commands."""
     t = FrameType(d.pop("type"))
-    if t == FrameType.DATA:
-        return DataFrame(**d)
-    if t == FrameType.DECISION:
-        return DecisionFrame(**d)
-    if t == FrameType.STATUS:
+    if "state" in d:  # STATUS
         d["state"] = StreamState(d["state"])
-        return StatusFrame(**d)
-    if t == FrameType.INFO:
-        return InfoFrame(**d)
-    if t == FrameType.PING:
-        return PingFrame(**d)
-    if t == FrameType.PONG:
-        return PongFrame(**d)
-    return CommandFrame(command=t, **d)
+    cls = _CLASS_OF.get(t)
+    return CommandFrame(command=t, **d) if cls is None else cls(**d)
 
 
 def encode_frame(frame: Frame) -> bytes:

@@ -471,3 +471,12 @@ def test_overrun_is_the_flags_overrun_bit_alone(flags, overrun):
     s = np.zeros((1, 2, 2), np.int16)
     assert StatusFrame(flags=int(flags)).overrun is overrun
     assert DataFrame(0, 0, s, flags=int(flags)).overrun is overrun
+
+
+def test_a_command_carries_no_flags_and_sequence_0_unless_given():
+    """A command made with its type alone has sequence 0 and flags 0, and reads back so."""
+    for command in (FrameType.START, FrameType.STOP, FrameType.INFO_REQUEST):
+        frame = CommandFrame(command)
+        assert (frame.seq, frame.flags) == (0, 0)
+        (back,) = FrameDecoder().feed(DELIMITER + encode_frame(frame))
+        assert back == frame
