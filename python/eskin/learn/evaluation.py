@@ -268,7 +268,7 @@ def _from_parts(meta: _Parts, arrays: Mapping[str, Any]) -> Any:
 def _opened(source: Any, arrays: Mapping[str, Any] | None = None) -> Iterator[Any]:
     """The campaign of a path (closed afterwards), of settings and arrays, or the given one."""
     if isinstance(source, _Parts):
-        yield _from_parts(source, arrays or {})
+        yield _from_parts(source, arrays)  # type: ignore[arg-type]
     elif isinstance(source, (str, Path)):
         from eskin.data.campaign import load_campaign
 

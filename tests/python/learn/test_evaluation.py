@@ -886,3 +886,23 @@ def test_the_fold_count_runs_from_2_to_the_number_of_groups():
         with pytest.raises(EvaluationError) as refused:
             make_folds(groups, y, n)
         assert str(refused.value) == f"--folds {n}: must be in [2, 3] (the number of groups)"
+
+
+def test_a_campaigns_parts_rebuild_its_recordings_for_a_worker(sim_campaign):
+    """What a fold sends to a cluster worker (settings and arrays of the recordings it uses)
+    opens there as the same recordings, labels, groups and settings."""
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import _opened, _parts
+
+    used = np.array([5, 0, 7])
+    with load_campaign(sim_campaign) as camp:
+        want = camp.subset(used).load()
+        meta, arrays = _parts(camp, used)
+    with _opened(meta, arrays) as got:
+        assert len(got) == 3 and got.path == want.path
+        for k in ("signals", "lengths", "modality", "participant", "direction", "run"):
+            np.testing.assert_array_equal(np.asarray(getattr(got, k)), np.asarray(getattr(want, k)))
+        np.testing.assert_array_equal(got.contact_interval, want.contact_interval)
+        assert (got.modalities, got.sample_rate_hz, got.volts_per_count, got.source) == (
+            want.modalities, want.sample_rate_hz, want.volts_per_count, want.source)
+        assert got.attrs == want.attrs and got.extras.keys() == want.extras.keys()
