@@ -268,8 +268,8 @@ def encode_frame(frame: Frame) -> bytes:
         raise TypeError(f"encode_frame takes an eskin.protocol frame, got {type(frame).__name__}")
     d = {f.name: getattr(frame, f.name) for f in dataclasses.fields(frame)}
     d["type"] = int(t)
-    if t == FrameType.DATA:
-        samples = np.asarray(frame.samples)  # type: ignore[union-attr]
+    if isinstance(frame, DataFrame):
+        samples = np.asarray(frame.samples)
         if samples.ndim != 3:
             raise ValueError(
                 f"DataFrame.samples must be (n_samples, rows, cols), got shape {samples.shape}"
@@ -279,9 +279,9 @@ def encode_frame(frame: Frame) -> bytes:
         if samples.size and (samples.min() < -32768 or samples.max() > 32767):
             raise ValueError("DataFrame.samples must fit int16")
         d["samples"] = samples
-    elif t == FrameType.STATUS:
+    elif isinstance(frame, StatusFrame):
         d["state"] = int(d["state"])
-    elif t == FrameType.INFO:
+    elif isinstance(frame, InfoFrame):
         d["class_names"] = [str(n) for n in d["class_names"]]
         for i, name in enumerate(d["class_names"]):
             try:

@@ -224,8 +224,11 @@ def test_oversize_blocks_are_dropped_with_bounded_memory():
 
 
 def test_encode_frame_rejects_bad_frames():
-    with pytest.raises(ValueError, match="shape"):
-        encode_frame(DataFrame(0, 0, np.zeros((10, 16), np.int16)))
+    for shape in ((10, 16), (10, 4, 4, 1)):
+        with pytest.raises(ValueError) as refused:
+            encode_frame(DataFrame(0, 0, np.zeros(shape, np.int16)))
+        assert str(refused.value) == ("DataFrame.samples must be (n_samples, rows, cols), got "
+                                      f"shape {shape}")
     with pytest.raises(ValueError, match="int16"):
         encode_frame(DataFrame(0, 0, np.full((1, 1, 1), 40000, np.int32)))
     with pytest.raises(ValueError, match="at most"):
