@@ -906,3 +906,17 @@ def test_a_campaigns_parts_rebuild_its_recordings_for_a_worker(sim_campaign):
         assert (got.modalities, got.sample_rate_hz, got.volts_per_count, got.source) == (
             want.modalities, want.sample_rate_hz, want.volts_per_count, want.source)
         assert got.attrs == want.attrs and got.extras.keys() == want.extras.keys()
+
+
+def test_class_ids_follow_the_given_classes_and_mark_others_minus_one(sim_campaign):
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import _class_ids
+
+    with load_campaign(sim_campaign) as camp:
+        names = [str(m) for m in camp.modalities]
+        modality = np.asarray(camp.modality)
+        classes = tuple(reversed(names[1:]))  # the first class left out
+        idx = np.arange(len(camp))
+        want = [len(names) - 1 - int(m) if m > 0 else -1 for m in modality]
+        assert _class_ids(camp, idx, classes).tolist() == want
+        assert -1 in want and 0 in want
