@@ -188,6 +188,11 @@ def test_a_fold_task_cannot_be_changed_once_made():
                     (), 0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         task.seed = 1  # type: ignore[misc]
+    from eskin.learn.evaluation import _Parts
+
+    parts = _Parts(("a", "b"), 1000.0, 1e-3, "simulated", {}, None)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        parts.sample_rate_hz = 1.0  # type: ignore[misc]
 
 
 def test_the_bootstrap_seed_changes_the_resamples():
