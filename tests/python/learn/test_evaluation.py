@@ -590,6 +590,9 @@ def test_a_small_evaluation_pools_its_folds_and_scores_each_baseline_on_its_own_
     assert res["accuracy"] == acc and res["balanced_accuracy"] == bal
     assert res["per_class_recall"] == dict(zip(classes, recall.tolist()))
     assert res["classes"] == classes and res["n_recordings"] == len(idx)
+    # the calibrated rule's confidences: one finite number per recording, 1/3 to 1
+    conf = pred["confidence"]
+    assert len(conf) == len(idx) and all(1 / 3 <= c <= 1 for c in conf)
     assert res["n_groups"] == 4 and res["groups"] == "participant"
     assert res["scheme"] == "2 grouped folds" and res["seed"] == 4
     assert res["campaign"] == str(path)
