@@ -454,6 +454,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
+        Equivalent("core/NumberReplacer",
+                   'for key in records[0]["trained_with"] if records else ():',
+                   'for key in records[ -1]["trained_with"] if records else ():',
+                   "every fold record's trained_with has the same keys (trained_with() makes "
+                   "one fixed dict): the first's are the last's"),
         *(Equivalent("core/NumberReplacer",
                      "out[key] = values[0] if all(v == values[0] for v in values) else values",
                      mutant,

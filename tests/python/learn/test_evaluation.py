@@ -606,6 +606,7 @@ def test_a_small_evaluation_pools_its_folds_and_scores_each_baseline_on_its_own_
         assert f["test_groups"] == sorted(set(part[idx[a:b]].tolist()))
         assert not set(f["train_groups"]) & set(f["test_groups"])
         assert f["n_train"] + f["n_test"] == len(idx)
+        assert 0 < f["seconds"] <= elapsed  # the fold's own duration
         assert "y_true" not in f and "y_pred" not in f and "y_pred" not in f["baselines"]["vector"]
         assert f["trained_with"]["D"] == 5 and f["trained_with"]["window"] == "none"
         vector_right += f["baselines"]["vector"]["accuracy"] * f["n_test"]
