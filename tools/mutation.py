@@ -606,12 +606,6 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "DataFrame defines its own __eq__, which the dataclass keeps either way; "
                    "eq=True only adds a hash of its fields, unhashable too (a numpy array), "
                    "where __hash__ = None says so first"),
-        *(Equivalent("core/ReplaceComparisonOperator_Eq_Is", f"{w} t == FrameType.{n}:",
-                     f"{w} t is FrameType.{n}:",
-                     "t is an enum member (FrameType(...) or _TYPE_OF's value): equal members "
-                     "are the same object")
-          for w, n in [("if", n) for n in ("DECISION", "STATUS", "INFO", "PING", "PONG")]
-          + [("elif", n) for n in ("STATUS", "INFO")]),
     ],
     "python/eskin/data/campaign.py": [
         Equivalent("core/ReplaceComparisonOperator_Eq_LtE", "if value.ndim == 0:",
