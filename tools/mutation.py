@@ -406,8 +406,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "the folds' values are the same computed one or two at a time "
                    "(eskin.learn.parallel.run_calls keeps the order); only the time differs"),
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
-                   "positive = [(y == 1) if binary else (y == k) for k in range(F.shape[1])]",
-                   "positive = [(y >= 1) if binary else (y == k) for k in range(F.shape[1])]",
+                   "ab = [fit_sigmoid(F[:, k], (y == 1) if binary else (y == k)) for k in "
+                   "range(F.shape[1])]",
+                   "ab = [fit_sigmoid(F[:, k], (y >= 1) if binary else (y == k)) for k in "
+                   "range(F.shape[1])]",
                    "a binary model's class indices are 0 and 1: y >= 1 is y == 1"),
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE", _TARGETS,
                    _TARGETS.replace("y == 1", "y >= 1"),

@@ -244,8 +244,7 @@ def fit_calibration(F: np.ndarray, y: np.ndarray, reject: float, *, binary: bool
     class indices ``y``, with the threshold that flags ``reject`` of these patterns."""
     F = np.asarray(F, dtype=np.float64)
     y = np.asarray(y, dtype=np.int64)
-    positive = [(y == 1) if binary else (y == k) for k in range(F.shape[1])]
-    ab = [fit_sigmoid(F[:, k], positive[k]) for k in range(F.shape[1])]
+    ab = [fit_sigmoid(F[:, k], (y == 1) if binary else (y == k)) for k in range(F.shape[1])]
     slopes = tuple(a for a, _ in ab)
     offsets = tuple(b for _, b in ab)
     index, conf, _ = calibrated_decision(F, slopes, offsets, 0.0, binary)

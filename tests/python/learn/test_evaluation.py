@@ -929,3 +929,22 @@ def test_class_ids_follow_the_given_classes_and_mark_others_minus_one(sim_campai
         want = [len(names) - 1 - int(m) if m > 0 else -1 for m in modality]
         assert _class_ids(camp, idx, classes).tolist() == want
         assert -1 in want and 0 in want
+
+
+def test_an_evaluation_needs_two_distinct_classes_and_its_folds_are_seeded_with_0(sim_campaign):
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import plan_folds
+
+    with load_campaign(sim_campaign) as camp:
+        names = [str(m) for m in camp.modalities]
+        for chosen in ([names[0]], [names[0], names[0]]):
+            with pytest.raises(EvaluationError) as refused:
+                plan_folds(camp, classes=chosen)
+            assert str(refused.value) == f"at least 2 classes are needed, got {chosen}"
+        folds, got, _ = plan_folds(camp, classes=names[:2], n_folds=2)
+        assert got == names[:2] and len(folds) == 2
+
+        def plan(**seed):
+            return [te.tolist() for _, te in plan_folds(camp, n_folds=2, **seed)[0]]
+
+        assert plan() == plan(seed=0) != plan(seed=1)
