@@ -948,3 +948,20 @@ def test_an_evaluation_needs_two_distinct_classes_and_its_folds_are_seeded_with_
             return [te.tolist() for _, te in plan_folds(camp, n_folds=2, **seed)[0]]
 
         assert plan() == plan(seed=0) != plan(seed=1)
+
+
+def test_an_evaluation_of_a_loaded_campaign_is_that_of_its_path_with_seed_0(tmp_path):
+    """evaluate_recipe takes a loaded campaign as well as its path, and its seed is 0 unless
+    given: the same folds, predictions and scores."""
+    from learn_data import user_campaign
+
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import evaluate_recipe
+
+    path = user_campaign(tmp_path)
+    recipe = {"quick": True, "D": 5, "window": "none", "seed": 99}
+    by_path = evaluate_recipe(str(path), recipe=recipe, n_folds=2, seed=0)
+    with load_campaign(path) as camp:
+        loaded = evaluate_recipe(camp, recipe=recipe, n_folds=2)
+    assert loaded["predictions"] == by_path["predictions"] and loaded["seed"] == 0
+    assert (loaded["accuracy"], loaded["ci95"]) == (by_path["accuracy"], by_path["ci95"])
