@@ -456,6 +456,15 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
+        *(Equivalent("core/NumberReplacer", f"{name}: int = 1,", f"{name}: int = 2,",
+                     "the folds, and the training within each, give the same results one or two "
+                     "at a time (joblib keeps the order); only the time differs")
+          for name in ("n_jobs", "inner_jobs")),
+        Equivalent("core/ReplaceTrueWithFalse",
+                   'extras=arrays["extras"], path=meta.path, _validated=True,',
+                   'extras=arrays["extras"], path=meta.path, _validated=False,',
+                   "the arrays are a validated campaign's, read from it: validating them again "
+                   "passes (only the time differs)"),
         Equivalent("core/NumberReplacer",
                    'for key in records[0]["trained_with"] if records else ():',
                    'for key in records[ -1]["trained_with"] if records else ():',

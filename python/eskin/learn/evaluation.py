@@ -213,7 +213,7 @@ class FoldTask:
     group_name: str
     baselines: tuple[str, ...]
     seed: int
-    n_jobs: int = 1
+    n_jobs: int
     #: the live figure, when asked for: an object with ``fold(model, test campaign, classes,
     #: seed) -> dict`` (eskin.link.live_scores.LiveScoring; this layer never imports it)
     live: Any = None

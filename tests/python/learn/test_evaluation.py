@@ -185,7 +185,7 @@ def test_a_fold_task_cannot_be_changed_once_made():
     from eskin.learn.evaluation import FoldTask
 
     task = FoldTask(1, "c.h5", np.arange(3), np.arange(3, 5), ("a", "b"), {}, "participant",
-                    (), 0)
+                    (), 0, 1)
     with pytest.raises(dataclasses.FrozenInstanceError):
         task.seed = 1  # type: ignore[misc]
     from eskin.learn.evaluation import _Parts
