@@ -456,6 +456,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
+        Equivalent("core/ReplaceTrueWithFalse",
+                   "run_fold, [((t,), shared) for t in tasks], n_jobs=n_jobs, unordered=True",
+                   "run_fold, [((t,), shared) for t in tasks], n_jobs=n_jobs, unordered=False",
+                   "the pooled result sorts the records by fold: the order they finish in only "
+                   "changes when on_fold hears of each (and one at a time it is the same)"),
         *(Equivalent("core/NumberReplacer", f"{name}: int = 1,", f"{name}: int = 2,",
                      "the folds, and the training within each, give the same results one or two "
                      "at a time (joblib keeps the order); only the time differs")

@@ -764,6 +764,9 @@ def test_risk_coverage_decides_the_most_confident_first():
     # ties keep the recordings' order; the full coverage is the overall error
     flat = risk_coverage(y_true, y_pred, np.ones(10), points=5)
     assert flat["error"] == [0.0, 0.0, 0.0, 0.0, 0.2]
+    # 20 points unless told: coverages of 1/20 to 1 (at least one recording each)
+    rc = risk_coverage(y_true, y_pred, informative)
+    assert rc["coverage"] == [max(1, round(10 * k / 20)) / 10 for k in range(1, 21)]
 
 
 def test_pooled_confidences_give_a_risk_coverage_curve_and_its_report():
