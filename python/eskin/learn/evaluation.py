@@ -76,7 +76,7 @@ def make_folds(
                 tests = [te for _, te in splitter.split(y, y, groups)]
         except ValueError:
             tests = []
-        if len(tests) != int(n_folds) or any(len(te) == 0 for te in tests):
+        if not tests or not all(len(te) for te in tests):  # failed, or a fold empty
             tests = _dealt_folds(groups, int(n_folds), seed)
     everything = np.arange(len(y))
     return [(np.setdiff1d(everything, te), np.sort(te)) for te in tests]
