@@ -128,8 +128,10 @@ def test_an_info_frame_of_a_larger_grid_than_the_data_before_it_restarts_the_str
         assert listener.activity().shape == before
         info = encode_frame(InfoFrame(*after, 3000.0, volts_per_count=1e-4, has_model=False,
                                       class_names=(), seq=5))
+        listener.feed(info)
+        assert listener.activity() is None  # restarted at the INFO frame, before any new DATA
         x1 = rng.integers(-50, 50, size=(3000, *after)).astype(np.int16)
-        listener.feed(info + _data(x1, first_seq=6))
+        listener.feed(_data(x1, first_seq=6))
         assert listener.activity().shape == after
         listener.close()
 
@@ -140,6 +142,13 @@ def test_the_activity_history_is_at_most_256_mib_of_samples():
     for history_s, want in ((2.0, 6000), (1e6, 8_388_608)):
         listener = LinkListener("/dev/null-not-opened", stats_interval=None, history_s=history_s)
         listener.feed(DELIMITER + _info() + _data(np.zeros((10, 4, 4), np.int16)))
+        assert listener.receiver._stream.history.capacity == want
+        listener.close()
+    # a grid of 2 x 8 (DATA before any INFO, at 3000 samples/s): 256 MiB / 32 bytes as well,
+    # and of 2 x 3: 256 MiB / 12 bytes
+    for grid, want in (((2, 8), 8_388_608), ((2, 3), 22_369_621)):
+        listener = LinkListener("/dev/null-not-opened", stats_interval=None, history_s=1e6)
+        listener.feed(DELIMITER + _data(np.zeros((10, *grid), np.int16)))
         assert listener.receiver._stream.history.capacity == want
         listener.close()
 
