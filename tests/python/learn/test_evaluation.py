@@ -968,3 +968,15 @@ def test_an_evaluation_of_a_loaded_campaign_is_that_of_its_path_with_seed_0(tmp_
         loaded = evaluate_recipe(camp, recipe=recipe, n_folds=2)
     assert loaded["predictions"] == by_path["predictions"] and loaded["seed"] == 0
     assert (loaded["accuracy"], loaded["ci95"]) == (by_path["accuracy"], by_path["ci95"])
+
+
+def test_dont_know_scores_count_errors_both_ways_and_nothing_of_no_recordings():
+    from eskin.learn.evaluation import dont_know_scores
+
+    y_true, y_pred = np.array([0, 1, 2, 1, 0]), np.array([0, 2, 1, 1, 0])  # wrong up and down
+    s = dont_know_scores(y_true, y_pred, np.array([False, False, True, False, True]))
+    assert s == {"flagged": 0.4, "n_flagged": 2, "accuracy_decided": 2 / 3,
+                 "accuracy_flagged": 0.5}
+    empty = np.array([], np.int64)
+    assert dont_know_scores(empty, empty, np.array([], bool)) == {
+        "flagged": 0.0, "n_flagged": 0, "accuracy_decided": None, "accuracy_flagged": None}
