@@ -456,6 +456,18 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "a segment's length is an unsigned 64-bit field: never below 0"),
     ],
     "python/eskin/learn/evaluation.py": [
+        Equivalent("core/NumberReplacer",
+                   "np.add.at(per_group, (inv, y_true * k + y_pred), 1.0)",
+                   "np.add.at(per_group, (inv, y_true * k + y_pred), 2.0)",
+                   "every count of every group doubled: accuracy and recall are ratios of "
+                   "counts, unchanged"),
+        Equivalent("core/NumberReplacer",
+                   "np.add.at(weights, (np.repeat(np.arange(int(n_boot)), G), draws.ravel()), "
+                   "1.0)",
+                   "np.add.at(weights, (np.repeat(np.arange(int(n_boot)), G), draws.ravel()), "
+                   "2.0)",
+                   "every draw counted twice: each resample's confusion doubled, its ratios "
+                   "unchanged"),
         Equivalent("core/ReplaceTrueWithFalse",
                    "run_fold, [((t,), shared) for t in tasks], n_jobs=n_jobs, unordered=True",
                    "run_fold, [((t,), shared) for t in tasks], n_jobs=n_jobs, unordered=False",
