@@ -429,6 +429,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "self.noise = 1.0 if noise_counts is None else float(noise_counts)",
                    "without noise_counts each taxel's own quiet level is used (self.levels): "
                    "self.noise is read only when noise_counts was given"),
+        Equivalent("core/NumberReplacer", "contacts = np.full((n, 2), -1, dtype=np.int64)",
+                   "contacts = np.full((n, 3), -1, dtype=np.int64)",
+                   "only a recording's first two columns (onset, offset) are read: a third "
+                   "column of -1 is never seen"),
         Equivalent("core/NumberReplacer", "q = max(2, min(300, r.shape[-1] // 10))",
                    "q = max( 1, min(300, r.shape[-1] // 10))",
                    "a line through one or two samples leaves nothing: a quiet noise of 0 "
