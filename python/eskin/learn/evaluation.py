@@ -112,14 +112,21 @@ def scores_from_confusion(cm: np.ndarray) -> tuple[float, float, np.ndarray]:
     """(accuracy, balanced accuracy, per-class recall) of a confusion matrix; the balanced
     accuracy averages the recall of the classes that have test recordings (nan recall for the
     others)."""
-    cm = np.asarray(cm, dtype=np.float64)
-    support = cm.sum(axis=1)
-    with np.errstate(invalid="ignore"):  # 0 / 0 (nan): a class without test recordings
-        recall = np.diag(cm) / support
-    total = cm.sum()
-    acc = float(np.trace(cm) / total) if total else float("nan")
-    present = ~np.isnan(recall)
-    bal = float(np.mean(recall[present])) if present.any() else float("nan")
+    acc, bal, recall = _scores(cm)
+    return float(acc), float(bal), recall
+
+
+def _scores(cms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(accuracy, balanced accuracy, per-class recall) of confusion matrices (..., k, k): one,
+    or a bootstrap's resamples at once. A recall is 0/0 (nan) for a class without recordings
+    and left out of the balance; no recordings at all give nan."""
+    cms = np.asarray(cms, dtype=np.float64)
+    diag = np.einsum("...ii->...i", cms)
+    with np.errstate(invalid="ignore"):  # 0 / 0: nan
+        recall = diag / cms.sum(axis=-1)
+        acc = diag.sum(axis=-1) / cms.sum(axis=(-2, -1))
+        present = ~np.isnan(recall)
+        bal = np.where(present, recall, 0.0).sum(axis=-1) / present.sum(axis=-1)
     return acc, bal, recall
 
 
@@ -153,13 +160,7 @@ def group_bootstrap_ci(
     draws = rng.integers(0, G, size=(int(n_boot), G))
     weights = np.zeros((int(n_boot), G))
     np.add.at(weights, (np.repeat(np.arange(int(n_boot)), G), draws.ravel()), 1.0)
-    cms = (weights @ per_group).reshape(int(n_boot), k, k)
-    diag = np.einsum("bii->bi", cms)
-    support = cms.sum(axis=2)
-    acc = diag.sum(axis=1) / cms.sum(axis=(1, 2))
-    with np.errstate(invalid="ignore"):  # 0 / 0 (nan): a class no drawn group holds
-        rec = diag / support
-    bal = np.nanmean(rec, axis=1)
+    acc, bal, _ = _scores((weights @ per_group).reshape(int(n_boot), k, k))
     point_acc, point_bal, _ = scores_from_confusion(confusion_matrix(y_true, y_pred, k))
     q = [(1 - level) / 2 * 100, (1 + level) / 2 * 100]
     out = {}
