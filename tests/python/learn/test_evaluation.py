@@ -920,6 +920,38 @@ def test_a_campaigns_parts_rebuild_its_recordings_for_a_worker(sim_campaign):
         assert got.attrs == want.attrs and got.extras.keys() == want.extras.keys()
 
 
+def test_a_campaigns_parts_are_refused_when_they_would_not_fit_in_memory(sim_campaign,
+                                                                          monkeypatch):
+    """Before a fold's recordings are read to be sent to a cluster, their bytes (int16
+    samples: recordings x rows x cols x padded length x 2) are checked against the memory
+    available: exactly that many fit, one byte less is refused, naming the campaign's file
+    (or "campaign" for one in memory)."""
+    import dataclasses
+
+    from eskin.data import limits
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import _from_parts, _parts
+
+    used = np.array([5, 0, 7])
+
+    def check(camp, name):
+        _, rows, cols, t = camp.signals.shape
+        need = len(used) * rows * cols * t * 2
+        monkeypatch.setattr(limits, "available_memory", lambda: need)
+        assert len(_parts(camp, used)[1]["signals"]) == 3
+        monkeypatch.setattr(limits, "available_memory", lambda: need - 1)
+        with pytest.raises(EvaluationError) as refused:
+            _parts(camp, used)
+        assert str(refused.value).startswith(f"{name}: sending the recordings to the cluster "
+                                             "would take ")
+
+    with load_campaign(sim_campaign) as camp:
+        check(camp, str(sim_campaign))
+        monkeypatch.undo()
+        meta, arrays = _parts(camp, np.arange(len(camp)))
+    check(_from_parts(dataclasses.replace(meta, path=None), arrays), "campaign")
+
+
 def test_class_ids_follow_the_given_classes_and_mark_others_minus_one(sim_campaign):
     from eskin.data.campaign import load_campaign
     from eskin.learn.evaluation import _class_ids
@@ -968,6 +1000,26 @@ def test_an_evaluation_of_a_loaded_campaign_is_that_of_its_path_with_seed_0(tmp_
         loaded = evaluate_recipe(camp, recipe=recipe, n_folds=2)
     assert loaded["predictions"] == by_path["predictions"] and loaded["seed"] == 0
     assert (loaded["accuracy"], loaded["ci95"]) == (by_path["accuracy"], by_path["ci95"])
+
+
+def test_without_a_cluster_the_folds_never_read_all_their_recordings_into_memory_first(
+        tmp_path, monkeypatch):
+    """Only recordings sent to a Dask cluster are read into memory first (and checked against
+    the memory available); without a cluster the folds read them from the file as they go, so
+    an evaluation runs with less memory available than its recordings take."""
+    from learn_data import user_campaign
+
+    from eskin.data import limits
+    from eskin.data.campaign import load_campaign
+    from eskin.learn.evaluation import evaluate_recipe
+
+    path = user_campaign(tmp_path)
+    with load_campaign(path) as camp:
+        need = int(np.prod(camp.signals.shape)) * 2
+    monkeypatch.setattr(limits, "available_memory", lambda: need - 1)
+    res = evaluate_recipe(str(path), recipe={"quick": True, "D": 5, "window": "none"},
+                          n_folds=2)
+    assert len(res["predictions"]) > 0
 
 
 def test_dont_know_scores_count_errors_both_ways_and_nothing_of_no_recordings():

@@ -214,3 +214,31 @@ def test_a_controller_label_is_named_by_the_info_frame_and_without_one_kept_as_a
     got = [(d.label, d.label_index) for d in events if isinstance(d, Decision)]
     assert got == [(None, 0), (None, 1), (None, -1), ("finger", 1), (None, -1)]
     assert listener.stats.absurd_frames == 1  # label 2 of two classes
+
+
+def test_a_bare_detector_as_host_classifier_decides_no_class_and_records_unknown(tmp_path):
+    """A StreamReceiver given a detector without classes (label -1, never "don't know") as its
+    host classifier: each touch is a host decision of no class, and is recorded as "unknown",
+    never under a class the detector does not have."""
+    from eskin.link.events import Decision
+    from eskin.link.host_classifier import HostClassifier, max_touch_s
+    from eskin.link.receiver import StreamReceiver
+    from eskin.link.recorder import StreamRecorder
+
+    clf = HostClassifier((4, 4), 3000.0)
+    out = tmp_path / "touches.h5"
+    rec = StreamRecorder(out, policy="touch", replay=None, replay_offset=0, context_s=0.5,
+                         overwrite=False, source="recorded", attrs={}, port="test", host_names=[],
+                         max_touch_s=max_touch_s(clf))
+    rx = StreamReceiver(classifier=clf, recorder=rec, record_policy="touch", replay=None,
+                        max_fill_s=0.1, history_s=2.0)
+    x = np.concatenate([_touch_stream(), _touch_stream()])  # two touches apart
+    events = rx.feed(DELIMITER + _info() + _data(x)) + rx.finish()
+    rec.close()
+    host = [e for e in events if isinstance(e, Decision)]
+    assert [(d.source, d.label, d.label_index, d.dont_know) for d in host] == \
+        [("host", None, -1, False)] * 2
+    assert len([e for e in events if isinstance(e, Recorded)]) == 2
+    with load_campaign(out) as camp:
+        names = list(camp.modalities)
+        assert [names[int(m)] for m in np.asarray(camp.modality)] == ["unknown"] * 2
