@@ -578,11 +578,22 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "a shape of another length is never equal: every DATA frame its own run, "
                      "and runs cut finer are fed the same, frame by frame in order")
           for a in ("2", "0")),
-        Equivalent("core/NumberReplacer",
-                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
-                   "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[ 2:]:",
-                   "a shape of another length is never equal: every DATA frame its own run, "
-                   "and runs cut finer are fed the same, frame by frame in order"),
+        *(Equivalent("core/NumberReplacer",
+                     "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
+                     f"if data_run and data_run[0].samples.shape[1:] != f.samples.shape[ {a}:]:",
+                     "a shape of another length is never equal: every DATA frame its own run, "
+                     "and runs cut finer are fed the same, frame by frame in order")
+          for a in ("2", "0")),
+        *(Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot", line, mutant,
+                     "the decoded version is a Python int; two different values are never one "
+                     "object, and CPython keeps one object for each int up to 256, the version "
+                     "this host speaks among them: `is not` is `!=`")
+          for line, mutant in (
+              ("foreign = isinstance(f, InfoFrame) and f.protocol_version != PROTOCOL_VERSION",
+               "foreign = isinstance(f, InfoFrame) and f.protocol_version is not "
+               "PROTOCOL_VERSION"),
+              ("if f.protocol_version != PROTOCOL_VERSION:",
+               "if f.protocol_version is not PROTOCOL_VERSION:"))),
         Equivalent("core/ReplaceComparisonOperator_NotEq_IsNot",
                    "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
                    "if data_run and data_run[0].samples.shape[1:] is not f.samples.shape[1:]:",

@@ -242,3 +242,21 @@ def test_a_bare_detector_as_host_classifier_decides_no_class_and_records_unknown
     with load_campaign(out) as camp:
         names = list(camp.modalities)
         assert [names[int(m)] for m in np.asarray(camp.modality)] == ["unknown"] * 2
+
+
+def test_pong_frames_and_nonfinite_decisions_are_counted_one_by_one():
+    """Three PONG frames are 3 ``pong_frames``; of three controller decisions (one with a NaN,
+    one with an infinite value, one finite) two are ``nonfinite_decisions``."""
+    from eskin.link.protocol import DecisionFrame, PongFrame
+
+    nan, inf = float("nan"), float("inf")
+    frames = [PongFrame(token=k, timestamp_us=10 * k, seq=k) for k in range(3)]
+    frames += [DecisionFrame(0, 10, 0, values, decided_sample=10, seq=3 + k)
+               for k, values in enumerate(((0.5, nan, -1.0), (0.5, -0.5, -1.0),
+                                           (-inf, 0.2, 0.1)))]
+    listener = LinkListener("/dev/null-not-opened", stats_interval=None)
+    listener.feed(DELIMITER + _info(class_names=("a", "b", "c"))
+                  + b"".join(encode_frame(f) for f in frames))
+    s = listener.stats
+    listener.close()
+    assert (s.pong_frames, s.nonfinite_decisions, s.decisions_controller) == (3, 2, 3)

@@ -14,17 +14,20 @@ from eskin.link.recorder import Recorded
 SPF = 10
 
 
-def _stream(n_quiet: int = 4500, n_touch: int = 2000) -> np.ndarray:
-    """Quiet noise, then a strong burst on four taxels that the stream ends in: (n, 4, 4)."""
+def _stream(n_quiet: int = 4500, n_touch: int = 2000,
+            grid: tuple[int, int] = (4, 4)) -> np.ndarray:
+    """Quiet noise, then a strong burst on (up to) four taxels that the stream ends in:
+    (n, rows, cols)."""
     rng = np.random.default_rng(11)
-    x = rng.normal(0, 5, size=(n_quiet + n_touch, 4, 4))
+    x = rng.normal(0, 5, size=(n_quiet + n_touch, *grid))
     t = np.arange(n_touch) / 3000.0
     x[n_quiet:, 1:3, 1:3] += (800 * np.sin(2 * np.pi * 40 * t))[:, None, None]
     return np.rint(x).astype(np.int16)
 
 
 def _wire(stream: np.ndarray) -> bytes:
-    frames = [encode_frame(InfoFrame(4, 4, 3000.0, volts_per_count=1e-4, has_model=False,
+    rows, cols = stream.shape[1:]
+    frames = [encode_frame(InfoFrame(rows, cols, 3000.0, volts_per_count=1e-4, has_model=False,
                                      class_names=(), seq=0))]
     for k, first in enumerate(range(0, len(stream), SPF)):
         frames.append(encode_frame(DataFrame(first, first * 333, stream[first:first + SPF],
@@ -68,17 +71,19 @@ def test_an_info_grid_other_than_the_models_names_both_grids_rows_first(tmp_path
         assert str(info.value) == f"INFO frame: grid = {rows}x{cols}: the host model expects 2x3"
 
 
-@pytest.mark.parametrize("rows,cols", [(3, 2), (8, 8), (4, 5)])
-def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tmp_path, rows,
-                                                                              cols):
-    """Once a 4x4 recording is in the campaign file, an INFO frame of another grid (smaller or
-    larger) stops the stream with one line naming the file and both grids (the file keeps what
-    it has)."""
+@pytest.mark.parametrize("kept,rows,cols", [((4, 4), 3, 2), ((4, 4), 8, 8), ((4, 4), 4, 5),
+                                             ((2, 3), 3, 2)])
+def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tmp_path, kept,
+                                                                              rows, cols):
+    """Once a recording is in the campaign file, an INFO frame of another grid (smaller,
+    larger, the same taxels turned) stops the stream with one line naming the file and both
+    grids (the file keeps what it has)."""
 
     from eskin.data.campaign import load_campaign
     from eskin.errors import LinkStreamError
 
-    stream = np.concatenate([_stream(), _stream(n_touch=0)[:4500]])  # the touch ends, quiet
+    stream = np.concatenate([_stream(grid=kept),
+                             _stream(n_touch=0, grid=kept)[:4500]])  # the touch ends, quiet
     out = tmp_path / "touches.h5"
     listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
     recorded = [e for e in listener.feed(_wire(stream)) if isinstance(e, Recorded)]
@@ -88,7 +93,25 @@ def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tm
                                                          has_model=False, class_names=(),
                                                          seq=1)))
     listener.close()
-    assert str(info.value) == f"INFO frame: grid = {rows}x{cols}: {out} is being recorded with 4x4"
+    assert str(info.value) == (f"INFO frame: grid = {rows}x{cols}: {out} is being recorded "
+                               f"with {kept[0]}x{kept[1]}")
+    assert len(load_campaign(out)) == 1
+
+
+def test_an_info_frame_of_the_recordings_own_grid_sent_again_goes_on_recording(tmp_path):
+    """A controller sends its INFO again (an INFO_REQUEST answered, a reconnect) while a
+    campaign file is being written: the same grid, so the stream and the recording go on."""
+    from eskin.data.campaign import load_campaign
+
+    stream = np.concatenate([_stream(), _stream(n_touch=0)[:4500]])  # the touch ends, quiet
+    out = tmp_path / "touches.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+    events = listener.feed(_wire(stream))
+    assert len([e for e in events if isinstance(e, Recorded)]) == 1
+    again = listener.feed(DELIMITER + encode_frame(InfoFrame(
+        4, 4, 3000.0, volts_per_count=1e-4, has_model=False, class_names=(), seq=1)))
+    assert [type(e).__name__ for e in again] == ["InfoEvent"]
+    listener.close()
     assert len(load_campaign(out)) == 1
 
 
