@@ -599,6 +599,11 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if data_run and data_run[0].samples.shape[1:] is not f.samples.shape[1:]:",
                    "two frames' shapes are never the same tuple object: every DATA frame its "
                    "own run, and runs cut finer are fed the same, frame by frame in order"),
+        Equivalent("core/NumberReplacer",
+                   "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
+                   "grid = (int(frames[ -1].samples.shape[1]), int(frames[0].samples.shape[2]))",
+                   "the frames of a run are all of one grid (feed cuts the run where the grid "
+                   "changes): the first and the last have the same rows"),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    "if self.info is not None and self.info.volts_per_count > 0:",
                    "if self.info is not None and self.info.volts_per_count != 0:",

@@ -25,14 +25,19 @@ def _stream(n_quiet: int = 4500, n_touch: int = 2000,
     return np.rint(x).astype(np.int16)
 
 
-def _wire(stream: np.ndarray) -> bytes:
+def _frames(stream: np.ndarray) -> list[bytes]:
+    """The encoded INFO frame of the stream's grid, then its DATA frames of SPF samples."""
     rows, cols = stream.shape[1:]
     frames = [encode_frame(InfoFrame(rows, cols, 3000.0, volts_per_count=1e-4, has_model=False,
                                      class_names=(), seq=0))]
     for k, first in enumerate(range(0, len(stream), SPF)):
         frames.append(encode_frame(DataFrame(first, first * 333, stream[first:first + SPF],
                                              (k + 1) % 65536, 0)))
-    return DELIMITER + b"".join(frames)
+    return frames
+
+
+def _wire(stream: np.ndarray) -> bytes:
+    return DELIMITER + b"".join(_frames(stream))
 
 
 def test_a_touch_in_progress_at_the_end_is_recorded_up_to_the_last_sample(tmp_path):
@@ -100,20 +105,32 @@ def test_an_info_grid_other_than_the_recordings_names_the_file_and_both_grids(tm
 
 def test_an_info_frame_of_the_recordings_own_grid_sent_again_goes_on_recording(tmp_path):
     """A controller sends its INFO again (an INFO_REQUEST answered, a reconnect) while a
-    campaign file is being written: the same grid, so the stream and the recording go on."""
+    campaign file is being written, in the middle of a touch and after the touch is in the
+    file: the same grid, so the stream goes on and the touch is recorded exactly as without
+    those frames."""
     from eskin.data.campaign import load_campaign
 
     stream = np.concatenate([_stream(), _stream(n_touch=0)[:4500]])  # the touch ends, quiet
-    out = tmp_path / "touches.h5"
-    listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
-    events = listener.feed(_wire(stream))
-    assert len([e for e in events if isinstance(e, Recorded)]) == 1
-    again = listener.feed(DELIMITER + encode_frame(InfoFrame(
-        4, 4, 3000.0, volts_per_count=1e-4, has_model=False, class_names=(), seq=1)))
-    assert [type(e).__name__ for e in again] == ["InfoEvent"]
-    listener.close()
-    assert len(load_campaign(out)) == 1
+    frames = _frames(stream)
+    # the INFO frame, then the DATA up to sample 5500 (the touch: 4500-6500), and up to 10800
+    cut, late = 1 + 5500 // SPF, 1 + 10800 // SPF
 
+    def run(data: bytes, name: str):
+        out = tmp_path / name
+        listener = LinkListener("/dev/null-not-opened", record=out, stats_interval=None)
+        events = listener.feed(data) + listener.finish()
+        listener.close()
+        with load_campaign(out) as camp:
+            return ([(e.start, e.stop, e.lost_samples) for e in events
+                     if isinstance(e, Recorded)],
+                    [np.asarray(camp.recording(i)) for i in range(len(camp))])
+
+    plain, plain_recs = run(DELIMITER + b"".join(frames), "plain.h5")
+    resent, resent_recs = run(DELIMITER + b"".join(
+        frames[:cut] + frames[:1] + frames[cut:late] + frames[:1] + frames[late:]), "again.h5")
+    assert len(plain) == 1 and plain[0][0] < 5500 < plain[0][1]
+    assert resent == plain
+    np.testing.assert_array_equal(resent_recs[0], plain_recs[0])
 
 def test_an_info_without_volts_per_count_records_one_volt_per_count(tmp_path):
     """volts_per_count = 0 in the INFO frame means the controller does not say: the recording
