@@ -57,6 +57,11 @@ class HostClassifier:
     def reset(self) -> None:
         self._det.reset()
 
+    def label(self, t: Touch) -> str | None:
+        """The class a touch was decided as: one of ``class_names``, None for label -1 (a
+        bare detector's touches, which have no class)."""
+        return self.class_names[t.label_index] if t.label_index >= 0 else None
+
 
 class _PythonModelClassifier(HostClassifier):
     """eskin.preprocess.TouchDetector + a TouchModel's Python machines."""

@@ -40,10 +40,8 @@ def live_decisions(classifier: Any, samples: np.ndarray) -> list[Any]:
         block = np.asarray(samples[a : a + _BLOCK])
         touches += classifier.push(block.reshape(block.shape[0], -1))
     touches += classifier.flush()
-    names = classifier.class_names
-    return [Decision("host", t.start, t.stop,
-                     names[t.label_index] if 0 <= t.label_index < len(names) else None,
-                     t.label_index, t.values, t.dont_know, t.stop)
+    return [Decision("host", t.start, t.stop, classifier.label(t), t.label_index, t.values,
+                     t.dont_know, t.stop)
             for t in touches]
 
 

@@ -301,16 +301,15 @@ class StreamReceiver:
                   received: Optional[float]) -> None:
         assert self._stream is not None
         if c is self.classifier:
-            names = c.class_names  # the host model's classes, not the controller's
-            label = names[t.label_index] if 0 <= t.label_index < len(names) else None
-            d = Decision("host", start, stop, label, t.label_index, t.values, t.dont_know,
+            # the host model's classes, not the controller's
+            d = Decision("host", start, stop, c.label(t), t.label_index, t.values, t.dont_know,
                          self._stream.next or stop, self._stream.latency_us(received),
                          self._stream.lost_in(start, stop))
             self._counts["decisions_host"] += 1
             self._decision(d)
         if self.recorder is not None and self.record_policy == "touch":
-            good = c is self.classifier and t.label_index >= 0 and not t.dont_know
-            self.recorder.touch(start, stop, c.class_names[t.label_index] if good else "unknown")
+            name = c.label(t) if c is self.classifier and not t.dont_know else None
+            self.recorder.touch(start, stop, "unknown" if name is None else name)
 
     def _on_restart(self) -> None:
         if self.record_policy == "touch":

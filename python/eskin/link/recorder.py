@@ -76,7 +76,12 @@ class StreamRecorder:
         return None
 
     def touch(self, start: int, stop: int, label: str) -> None:
-        """A touch to record (policy "touch") once ``context_s`` after it has arrived."""
+        """A touch to record once ``context_s`` after it has arrived (policy "touch" only: the
+        "segment" policy records the replay file's segments, and a touch given to it would
+        wait for ever)."""
+        if self.policy != "touch":
+            raise ValueError(f"StreamRecorder.touch: the {self.policy!r} policy records no "
+                             f"touches")
         self._pending.append((start, stop, label))
 
     def ready(self, h: SampleHistory, rate: float, volts_per_count: float,
