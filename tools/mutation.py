@@ -599,11 +599,19 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if data_run and data_run[0].samples.shape[1:] is not f.samples.shape[1:]:",
                    "two frames' shapes are never the same tuple object: every DATA frame its "
                    "own run, and runs cut finer are fed the same, frame by frame in order"),
-        Equivalent("core/NumberReplacer",
-                   "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
-                   "grid = (int(frames[ -1].samples.shape[1]), int(frames[0].samples.shape[2]))",
-                   "the frames of a run are all of one grid (feed cuts the run where the grid "
-                   "changes): the first and the last have the same rows"),
+        Equivalent("core/ReplaceComparisonOperator_Eq_Is",
+                   "if (s is not None and s.state == StreamState.FINISHED and st is not None",
+                   "if (s is not None and s.state is StreamState.FINISHED and st is not None",
+                   "a decoded STATUS's state is a StreamState member, and each member is one "
+                   "object"),
+        *(Equivalent("core/ReplaceComparisonOperator_Eq_GtE", line,
+                     line.replace('record_policy == "touch"', 'record_policy >= "touch"'),
+                     'the policy is "touch" or "segment" (the listener refuses any other), and '
+                     '"segment" sorts before "touch": `>=` is `==` for both')
+          for line in ('if self.recorder is not None and self.record_policy == "touch" and not '
+                       'classifiers:',
+                       'if self.recorder is not None and self.record_policy == "touch":',
+                       'if self.record_policy == "touch":')),
         Equivalent("core/ReplaceComparisonOperator_Gt_NotEq",
                    "if self.info is not None and self.info.volts_per_count > 0:",
                    "if self.info is not None and self.info.volts_per_count != 0:",
@@ -627,10 +635,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "and st.next is not None and s.next_sample > st.next and not self._tail):",
                    "and st.next is not None and s.next_sample >= st.next and not self._tail):",
                    "at equality the tail is 0 samples, and self._tail is 0 there already"),
-        Equivalent("core/NumberReplacer",
-                   "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
-                   "grid = (int(frames[0].samples.shape[1]), int(frames[ -1].samples.shape[2]))",
-                   "the frames of one call are of one grid (feed cuts its runs where it changes)"),
+        *(Equivalent("core/NumberReplacer",
+                     "grid = (int(frames[0].samples.shape[1]), int(frames[0].samples.shape[2]))",
+                     mutant, "the frames of one call are of one grid (feed cuts its runs where "
+                     "it changes): the first and the last have the same rows and columns")
+          for mutant in (
+              "grid = (int(frames[ -1].samples.shape[1]), int(frames[0].samples.shape[2]))",
+              "grid = (int(frames[0].samples.shape[1]), int(frames[ -1].samples.shape[2]))")),
         Equivalent("core/NumberReplacer",
                    "if data_run and data_run[0].samples.shape[1:] != f.samples.shape[1:]:",
                    "if data_run and data_run[ -1].samples.shape[1:] != f.samples.shape[1:]:",
@@ -646,7 +657,7 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                      "HostClassifier defines no __eq__: == between two of them (or one and None) "
                      "is identity")
           for ln in ("if c is self.classifier:",
-                     "good = c is self.classifier and t.label_index >= 0 and not t.dont_know")),
+                     "name = c.label(t) if c is self.classifier and not t.dont_know else None")),
     ],
     "python/eskin/link/protocol.py": [
         Equivalent("core/ReplaceFalseWithTrue", "@dataclass(frozen=True, eq=False)",

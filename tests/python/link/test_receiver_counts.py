@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from eskin.data.campaign import load_campaign
 from eskin.link.events import DataBlock
@@ -260,3 +261,105 @@ def test_pong_frames_and_nonfinite_decisions_are_counted_one_by_one():
     s = listener.stats
     listener.close()
     assert (s.pong_frames, s.nonfinite_decisions, s.decisions_controller) == (3, 2, 3)
+
+
+def test_a_data_frames_grid_that_cannot_be_recorded_is_named_in_the_error(tmp_path, monkeypatch):
+    """No INFO frame yet: a stream whose recordings would not fit in the memory available
+    ends at its first DATA frame with the error naming that frame's grid, before any campaign
+    is written."""
+    from eskin.data import limits
+    from eskin.errors import LinkStreamError
+
+    monkeypatch.setattr(limits, "available_memory", lambda: 1000)  # not one recording
+    listener = LinkListener("/dev/null-not-opened", record=tmp_path / "live.h5",
+                            stats_interval=None)
+    with pytest.raises(LinkStreamError) as refused:
+        listener.feed(DELIMITER + _data(np.zeros((20, 2, 3), dtype=np.int16)))
+    listener.close()
+    assert str(refused.value).startswith("DATA frame: grid = 2x3: cannot record this stream (")
+    assert "one recording would take" in str(refused.value)
+    assert not (tmp_path / "live.h5").exists()
+
+
+def test_a_host_decision_is_made_at_the_end_of_the_frame_that_ends_its_touch():
+    """A host decision's ``decided_sample`` is the stream's next sample when the touch was
+    decided: past the touch's window, at the end of the DATA frame that ended it when frames
+    arrive one by one, at the end of a second's piece of a read of many seconds (the host
+    feeds its classifier at most a second at a time)."""
+    from eskin.deploy.export import CompiledModel
+
+    model = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
+    x = np.concatenate([_touch_stream(), _touch_stream()])  # two touches apart
+    frames = [encode_frame(DataFrame(k, k * 333, x[k:k + SPF], (1 + k // SPF) % 65536))
+              for k in range(0, len(x), SPF)]
+    for reads, piece in (([_data(x)], 3000), (frames, SPF)):
+        listener = LinkListener("/dev/null-not-opened", model=model, stats_interval=None)
+        events = listener.feed(DELIMITER + _info())
+        for r in reads:
+            events += listener.feed(r)
+        events += listener.finish()
+        listener.close()
+        host = [e for e in events if getattr(e, "source", None) == "host"]
+        assert len(host) == 2
+        for d in host:
+            assert d.decided_sample % piece == 0
+            assert d.offset_sample < d.decided_sample < d.offset_sample + 3000 + piece
+
+def _segment_replay(tmp_path: Path, recs: list[np.ndarray], rate: float, gap_s: float):
+    """A replay file of ``recs`` ((rows, cols, n) each) labelled 1, 0, 1, ... at ``rate``,
+    and its stream as (n, rows, cols)."""
+    from eskin.data.replay import write_replay_arrays
+
+    rf = write_replay_arrays(tmp_path / "r.eskr", recs, labels=[(k + 1) % 2 for k in
+                                                                range(len(recs))],
+                             class_names=["brush", "finger"], sample_rate_hz=rate, gap_s=gap_s)
+    return rf, np.asarray(rf.samples).reshape(rf.n_samples, *recs[0].shape[:2]).astype(np.int16)
+
+
+def test_segments_are_recorded_at_a_rate_the_touch_detector_cannot_take(tmp_path):
+    """The "segment" policy records the replay file's segments and runs no touch detector:
+    a stream at 1 Hz (a rate a campaign may have, far below the detector's 5 Hz DC cutoff)
+    is recorded segment by segment, equal to the source."""
+    rng = np.random.default_rng(3)
+    recs = [rng.integers(-500, 500, size=(2, 2, n)).astype(np.int16) for n in (30, 20, 40)]
+    rf, x = _segment_replay(tmp_path, recs, 1.0, 10.0)
+    out = tmp_path / "live.h5"
+    listener = LinkListener("/dev/null-not-opened", record=out, replay=rf, stats_interval=None)
+    info = encode_frame(InfoFrame(2, 2, 1.0, volts_per_count=1e-4, has_model=False,
+                                  class_names=(), seq=0))
+    events = listener.feed(DELIMITER + info + _data(x)) + listener.finish()
+    listener.close()
+    assert [e.index for e in events if isinstance(e, Recorded)] == [0, 1, 2]
+    with load_campaign(out) as camp:
+        assert camp.sample_rate_hz == 1.0 and list(camp.modality) == [1, 0, 1]
+        for k, r in enumerate(recs):
+            assert np.array_equal(camp.recording(k), r)
+
+
+def test_a_host_models_touches_are_not_recorded_by_segments(tmp_path):
+    """With a host model and the "segment" policy, the host decides each touch and the file
+    gets the replay file's segments only; a recorder of segments refuses a touch outright."""
+    from eskin.deploy.export import CompiledModel
+    from eskin.link.events import Decision
+    from eskin.link.recorder import StreamRecorder
+
+    recs = [np.moveaxis(_touch_stream(n_quiet=1500), 0, -1)] * 2  # a touch in each
+    rf, x = _segment_replay(tmp_path, recs, 3000.0, 0.5)
+    model = CompiledModel((TESTS / "data" / "model_projection_float64.eskin").read_bytes())
+    out = tmp_path / "live.h5"
+    listener = LinkListener("/dev/null-not-opened", model=model, record=out, replay=rf,
+                            stats_interval=None)
+    events = listener.feed(DELIMITER + _info() + _data(x)) + listener.finish()
+    listener.close()
+    assert len([e for e in events if isinstance(e, Decision)]) == 2
+    assert [e.index for e in events if isinstance(e, Recorded)] == [0, 1]
+    with load_campaign(out) as camp:
+        assert list(camp.modality) == [1, 0]
+        for k, r in enumerate(recs):
+            assert np.array_equal(camp.recording(k), r)
+    rec = StreamRecorder(tmp_path / "other.h5", policy="segment", replay=rf, replay_offset=0,
+                         context_s=0.5, overwrite=False, source="recorded", attrs={},
+                         port="test", host_names=[], max_touch_s=7.0)
+    with pytest.raises(ValueError, match="the 'segment' policy records no touches"):
+        rec.touch(0, 10, "unknown")
+    rec.close()
