@@ -356,8 +356,7 @@ std::size_t FrameDecoderBase::feed(const std::uint8_t* data, std::size_t size) {
     if (discarding_) continue;
     if (fill_ == max_block_) {
       ++stats_.oversize;
-      discarding_ = true;
-      fill_ = 0;
+      discarding_ = true;  // up to the next delimiter, which empties the block
       continue;
     }
     block_[fill_++] = b;
@@ -505,7 +504,7 @@ bool FrameDecoderBase::parse(std::size_t len) {
     case FrameType::info_request:
       return payload == 0;
   }
-  return false;
+  return false;  // every known type has returned above
 }
 
 std::ptrdiff_t pack_class_names(const std::string* names, std::size_t n, char* out,
