@@ -320,6 +320,21 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "if (false && (code == 0)) return -1;",
                    "a zero code makes the run (code - 1) wrap to SIZE_MAX, which the next "
                    "check refuses with the same -1"),
+        Equivalent("swap>>=", ": (max_frame_size > capacity ? capacity : max_frame_size)),",
+                   ": (max_frame_size >= capacity ? capacity : max_frame_size)),",
+                   "at equality both branches give the same value"),
+        *(Equivalent(op, "if (len < 0) {", mutant,
+                     "a block that decodes to 0 bytes is then counted malformed here instead of "
+                     "by the next check (fewer bytes than a header and a CRC): the same count")
+          for op, mutant in (("swap<<=", "if (len <= 0) {"), ("constant+1", "if (len < 1) {"))),
+        Equivalent("swap<<=", "for (std::size_t i = 0; i < n; ++i) samples_[i] = r.i16();",
+                   "for (std::size_t i = 0; i <= n; ++i) samples_[i] = r.i16();",
+                   "the one more sample read is the CRC's first two bytes, inside the raw buffer, "
+                   "written to samples_[n], inside the samples buffer (it holds capacity / 2 "
+                   "values, more than any frame's n); the frame's view holds n samples"),
+        Equivalent("return true", "return false;  // every known type has returned above",
+                   "return true;  // every known type has returned above",
+                   "unreachable: parse refused unknown types first, and each case returns"),
         Equivalent("swap>>=", "if (d.first_sample > next_sample_) {",
                    "if (d.first_sample >= next_sample_) {",
                    "a DATA frame that starts exactly where the last ended then adds 0 lost "
@@ -1361,8 +1376,10 @@ def run_cpp(mod: CppModule, sample: int | None, seed: int, survivors: list[str],
     build = OUT / "cpp-build"
     copy_tree(src)  # file times kept: the build redoes only what changed
     # libstdc++'s assertions: an index past a std::array or std::vector (a loop bound moved by
-    # one) aborts the test instead of reading or writing a neighbour unnoticed
-    flags = "-D_GLIBCXX_ASSERTIONS"
+    # one) aborts the test instead of reading or writing a neighbour unnoticed; AddressSanitizer:
+    # so does a read or write past a heap block through a pointer (a check deleted that kept a
+    # decoder's reads inside a test's exactly sized buffers)
+    flags = "-D_GLIBCXX_ASSERTIONS -fsanitize=address -fno-omit-frame-pointer"
     cache = build / "CMakeCache.txt"
     if not (build / "build.ninja").exists() or flags not in (
             cache.read_text() if cache.exists() else ""):

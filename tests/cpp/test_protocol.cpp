@@ -890,3 +890,123 @@ TEST(Encoder, AnOutputOfExactlyTheEncodedBoundIsEnough) {
   EXPECT_EQ(enc.status(), p::EncodeStatus::buffer_too_small);
   EXPECT_EQ(small, Bytes(bound, 0xAB));
 }
+
+// serialize_frame writes a frame of exactly kMaxFrameSize bytes and refuses one a byte larger
+// (an INFO frame whose names fill it); into a buffer of exactly the frame's size, and not one
+// a byte smaller.
+TEST(Encoder, AFrameOfExactlyTheMaximumSizeFitsAndOneByteMoreIsInvalid) {
+  const std::string names(p::kMaxFrameSize - p::kHeaderSize - p::kCrcSize - p::kInfoFixedSize,
+                          'n');
+  p::Frame f;
+  f.type = p::FrameType::info;
+  f.info.rows = f.info.cols = 1;
+  f.info.class_names = names.data();
+  Bytes raw(p::kMaxFrameSize + 1);
+  for (const std::size_t len : {names.size(), names.size() + 1}) {
+    f.info.names_len = static_cast<std::uint16_t>(len);
+    p::EncodeStatus st = p::EncodeStatus::ok;
+    const std::size_t n = p::serialize_frame(f, raw.data(), raw.size(), &st);
+    if (len == names.size()) {
+      EXPECT_EQ(n, p::kMaxFrameSize);
+      EXPECT_EQ(st, p::EncodeStatus::ok);
+    } else {
+      EXPECT_EQ(n, 0U);
+      EXPECT_EQ(st, p::EncodeStatus::invalid_frame);
+    }
+  }
+  p::Frame ping;
+  ping.type = p::FrameType::ping;
+  const std::size_t size = p::kHeaderSize + p::kPingSize + p::kCrcSize;
+  p::EncodeStatus st = p::EncodeStatus::invalid_frame;
+  EXPECT_EQ(p::serialize_frame(ping, raw.data(), size, &st), size);
+  EXPECT_EQ(st, p::EncodeStatus::ok);
+  EXPECT_EQ(p::serialize_frame(ping, raw.data(), size - 1, &st), 0U);
+  EXPECT_EQ(st, p::EncodeStatus::buffer_too_small);
+}
+
+// DATA frames that follow each other are no index reset; one that starts before the end of the
+// last is one, and one that starts after it counts the samples between as lost.
+TEST(Decoder, ContiguousDataIsNoIndexResetAndAStepBackIsOne) {
+  const std::vector<std::int16_t> samples(10, 7);
+  Bytes data{0};
+  for (const std::uint64_t first : {0U, 10U, 20U, 15U, 25U, 40U}) {
+    p::Frame f;
+    f.type = p::FrameType::data;
+    f.flags = p::flags::kSync;
+    f.data.first_sample = first;
+    f.data.rows = f.data.cols = 1;
+    f.data.n_samples = 10;
+    f.data.samples = samples.data();
+    const Bytes e = encode(f);
+    data.insert(data.end(), e.begin(), e.end());
+  }
+  p::FrameDecoder dec;
+  decode_chunks(dec, data, {});
+  EXPECT_EQ(dec.stats().data_frames, 6U);
+  EXPECT_EQ(dec.stats().sample_index_resets, 1U);  // 15 after 20..29
+  EXPECT_EQ(dec.stats().lost_samples, 5U);         // 35..39
+}
+
+// A STATUS payload one byte longer than the fixed STATUS size is malformed, not read.
+TEST(DecoderChecks, AStatusOneByteLongerIsMalformed) {
+  p::Frame f;
+  f.type = p::FrameType::status;
+  f.status.state = p::StreamState::streaming;
+  const Bytes raw = serialize(f);
+  EXPECT_EQ(decode_raw(raw), std::make_pair(1, std::uint64_t{0}));
+  Bytes longer = raw;
+  longer.insert(longer.end() - 4, 0);
+  EXPECT_EQ(decode_raw(rechecked(longer)), std::make_pair(0, std::uint64_t{1}));
+}
+
+// One name exactly fills its output (no separator before the first name); a name list given as
+// a null pointer, or a null output, is refused for one name as for many.
+TEST(ClassNames, OneNameFillsExactlyAndNullPointersAreRefused) {
+  using eskin::protocol::pack_class_names;
+  const std::vector<std::string> one = {"brush"};
+  char out[8];
+  EXPECT_EQ(pack_class_names(one.data(), 1, out, 5), 5);
+  EXPECT_EQ(std::string(out, 5), "brush");
+  EXPECT_EQ(pack_class_names(one.data(), 1, out, 4), -1);
+  EXPECT_EQ(pack_class_names(nullptr, 1, out, sizeof out), -1);
+  EXPECT_EQ(pack_class_names(one.data(), 1, nullptr, sizeof out), -1);
+}
+
+namespace {
+
+// A decoder whose buffers are heap blocks of exactly the sizes FrameDecoderBase documents, so
+// that the sanitizer build (make test) sees any read or write past them.
+struct HeapDecoder : p::FrameDecoderBase {
+  explicit HeapDecoder(std::size_t capacity, std::vector<std::uint8_t> block,
+                       std::vector<std::uint8_t> raw, std::vector<std::int16_t> samples)
+      : p::FrameDecoderBase(block.data(), raw.data(), samples.data(), capacity, capacity, false),
+        block_(std::move(block)), raw_(std::move(raw)), samples_(std::move(samples)) {}
+  static HeapDecoder of(std::size_t capacity) {
+    return HeapDecoder(capacity, std::vector<std::uint8_t>(p::max_encoded_size(capacity) - 1),
+                       std::vector<std::uint8_t>(capacity),
+                       std::vector<std::int16_t>(capacity / 2));
+  }
+  // moved vectors keep their heap blocks, which the base points into
+  std::vector<std::uint8_t> block_, raw_;
+  std::vector<std::int16_t> samples_;
+};
+
+}  // namespace
+
+// A frame shorter than its type's fixed fields is refused before they are read: in a decoder of
+// the smallest capacity (header and CRC), a DATA, DECISION, STATUS or INFO frame of no payload
+// would be read far past its raw buffer (a heap block of 8 bytes here) otherwise.
+TEST(DecoderChecks, AShortFrameIsRefusedBeforeItsFixedFieldsAreRead) {
+  for (const auto t : {p::FrameType::data, p::FrameType::decision, p::FrameType::status,
+                       p::FrameType::info}) {
+    Bytes raw = {static_cast<std::uint8_t>(t), 0, 0, 0, 0, 0, 0, 0};
+    raw = rechecked(raw);
+    Bytes e = cobs(raw);
+    e.push_back(0);
+    HeapDecoder dec = HeapDecoder::of(p::kHeaderSize + p::kCrcSize);
+    int n = 0;
+    dec.feed_all(e.data(), e.size(), [&](const p::Frame&) { ++n; });
+    EXPECT_EQ(n, 0) << int(t);
+    EXPECT_EQ(dec.stats().malformed, 1U) << int(t);
+  }
+}
