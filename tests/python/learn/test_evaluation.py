@@ -1002,7 +1002,7 @@ def test_an_evaluation_of_a_loaded_campaign_is_that_of_its_path_with_seed_0(tmp_
     assert (loaded["accuracy"], loaded["ci95"]) == (by_path["accuracy"], by_path["ci95"])
 
 
-def test_without_a_cluster_the_folds_never_read_all_their_recordings_into_memory_first(
+def test_local_folds_never_read_all_their_recordings_into_memory_first(
         tmp_path, monkeypatch):
     """Only recordings sent to a Dask cluster are read into memory first (and checked against
     the memory available); without a cluster the folds read them from the file as they go, so
