@@ -206,6 +206,12 @@ _SUFFIX = ("which window fields count as seconds or hertz, by the end of the nam
            "one past the end compares the same suffix; and every name reaching the test is one "
            "of the known fields (an unknown one is refused just before), none of them 3 "
            "characters or fewer")
+_JAC = ("if (!(std::fabs(g) > eps * std::sqrt(a * c)) || !(std::fabs(g) > tiny)) continue;")
+_ZERO = ("if (amax == Real(0)) return fail(bases, ranks, KernelStatus::ok);  "
+         "// rank 0 everywhere")
+_PROOF = ("return std::isfinite(t2) && r2 * t2 * Real(4096) * rank_tolerance<Real>() < "
+          "Real(1);")
+
 EQUIVALENT: dict[str, list[Equivalent]] = {
     "cpp/src/model.cpp": [
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
@@ -264,6 +270,75 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "while (r < q && smax >= 0 && sv_[order_[r]] > tau * smax) ++r;",
                    "the squared singular values are >= 0: at smax = 0 every one is 0, and "
                    "0 > tau * 0 is false, so the rank is 0 either way (NaN fails both)"),
+        Equivalent("constant+1", "for (std::size_t i = 0; i < n * n; ++i) w[i] = Real(0);",
+                   "for (std::size_t i = 1; i < n * n; ++i) w[i] = Real(0);",
+                   "w[0] is the identity's first entry, set to 1 by the next loop"),
+        *(Equivalent(op, "for (int sweep = 0; sweep < 60; ++sweep) {", mutant,
+                     "the cap of 60 sweeps is never reached: cyclic Jacobi converges "
+                     "quadratically (the tests' worst is 9 sweeps, 20 random 16 x 16 in float), "
+                     "so 61 are never needed either")
+          for op, mutant in (("swap<<=", "for (int sweep = 0; sweep <= 60; ++sweep) {"),
+                             ("constant+1", "for (int sweep = 0; sweep < 61; ++sweep) {"))),
+        *(Equivalent("swap>>=", _JAC, mutant,
+                     "differs only where |g| equals its rounding-level threshold to the last bit: "
+                     "a pair orthogonal to within rounding, rotated or not")
+          for mutant in (_JAC.replace("> eps", ">= eps"), _JAC.replace("> tiny", ">= tiny"))),
+        Equivalent("constant+1", "return -1;", "return -2;",
+                   "non-convergence, never reached (see the cap of 60 sweeps); its one caller "
+                   "tests < 0"),
+        *(Equivalent("constant+1", "std::size_t q = 1, n = 1;", mutant,
+                     "the start of the largest q and n over the modes, each at least 1: starting "
+                     "at 2 only makes a workspace one larger where every mode has 1")
+          for mutant in ("std::size_t q = 2, n = 1;", "std::size_t q = 1, n = 2;")),
+        Equivalent("delete check", _ZERO, f"if (false && (amax == Real(0))) {_ZERO[21:]}",
+                   "a zero pattern then goes on with 0 * (1 / 0) = NaN entries: every squared "
+                   "singular value is NaN, no comparison with it holds, the rank is 0 and the "
+                   "bases the zeros written beyond the rank, with status ok: the same outputs"),
+        Equivalent("constant+1", "const Real inv = Real(1) / amax;",
+                   "const Real inv = Real(2) / amax;",
+                   "a power of two: the scaled pattern is exactly twice the other and every "
+                   "step after it is scale-free (relative thresholds, unit vectors): the same "
+                   "bases bit for bit (ScalarBases.APatternsBasesDoNotDependOnItsScale...)"),
+        Equivalent("constant+1", "tau_[c] = 0;", "tau_[c] = 1;",
+                   "the reflector of a zero column: X[c.., c] is zero, so applying it with any "
+                   "tau changes nothing"),
+        Equivalent("swap>>=", "const Real a = col[c] > 0 ? -nrm : nrm;",
+                   "const Real a = col[c] >= 0 ? -nrm : nrm;",
+                   "at a diagonal entry of exactly 0 both reflectors are exact and mirror each "
+                   "other (v' = D v, D flipping that entry's sign), so R changes by signs only "
+                   "and the bases' sign rule makes them equal"),
+        Equivalent("swap>>=", "if (m > n && alpha >= n && spans_all(n, X, L)) {",
+                   "if (m >= n && alpha >= n && spans_all(n, X, L)) {",
+                   "a square unfolding of full rank then gets the identity basis instead of its "
+                   "singular vectors: the same subspace (all of R^n) and rank, and a pattern's "
+                   "bases are only ever used as subspaces (the kernel's V_a^T V_b)"),
+        Equivalent("constant+1", "std::fill(out + n * n, out + alpha * n, Out(0));",
+                   "std::fill(out + n * n, out + alpha * n, Out(1));",
+                   "here alpha >= n and alpha <= Q = n (m > n): the range is empty"),
+        *(Equivalent(op, "if (one_sided_jacobi(q, B, W, norms_.data()) < 0) return false;", mutant,
+                     "one_sided_jacobi returns at least 1 when it converges and -1 when it does "
+                     "not, which no input reaches (see the cap of 60 sweeps)")
+          for op, mutant in (
+              ("swap<<=", "if (one_sided_jacobi(q, B, W, norms_.data()) <= 0) return false;"),
+              ("constant+1", "if (one_sided_jacobi(q, B, W, norms_.data()) < 1) return false;"),
+              ("return true", "if (one_sided_jacobi(q, B, W, norms_.data()) < 0) return true;"))),
+        Equivalent("swap<<=", "const Real sign = col[big] < 0 ? Real(-1) : Real(1);",
+                   "const Real sign = col[big] <= 0 ? Real(-1) : Real(1);",
+                   "col[big] is 0 only for a zero column, and the columns within the rank are "
+                   "unit vectors"),
+        Equivalent("delete check", "if (!(diag_[c] != Real(0))) return false;",
+                   "if (false && (!(diag_[c] != Real(0)))) return false;",
+                   "as its return true above: 1 / 0 makes t2 infinite, which isfinite refuses"),
+        Equivalent("swap<<=", _PROOF, _PROOF.replace("< Real(1)", "<= Real(1)"),
+                   "differs only for a product equal to the bound to the last bit"),
+        Equivalent("constant+1", "std::size_t r = 0;", "std::size_t r = 1;",
+                   "a pattern that is not all zero (which returns before) has a largest squared "
+                   "singular value above 0 in every mode (each unfolding holds all its entries), "
+                   "and that one is always counted"),
+        Equivalent("swap>>=", "while (r < q && smax > 0 && sv_[order_[r]] > tau * smax) ++r;",
+                   "while (r < q && smax > 0 && sv_[order_[r]] >= tau * smax) ++r;",
+                   "differs only for a squared singular value equal to the tolerance to the "
+                   "last bit"),
         Equivalent("constant+1", "order_.assign(q, 0);", "order_.assign(q, 1);", _WS),
         Equivalent("swap<<=", "for (std::size_t j = 0; j + 1 < n; ++j)",
                    "for (std::size_t j = 0; j + 1 <= n; ++j)",

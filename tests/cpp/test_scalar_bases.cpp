@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <cstdlib>
 #include <new>
 #include <random>
@@ -505,14 +506,16 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
   const BasisLayout layout({4, 4, 20}, {2, 2, 16});
   eskin::detail::ScalarBases<float> sb(layout);
   // And two more: 0.012 % inside (15 / d^2 + 15 d^2 + 226 = the bound times 1 - 1.2e-4), the
-  // identity still; 1.5 times the bound, the sweeps.
+  // identity still; 1.5 times the bound, the sweeps. The same negated (R's diagonal then +1
+  // and +d, not -1 and -d): the same bases.
   const double bound = 1.0 / (4096.0 * eskin::detail::rank_tolerance<float>());
   const double d_edge = std::sqrt(15.0 / (bound * (1.0 - 1.2e-4) - 226.0));
   const double d_over = std::sqrt(15.0 / (bound * 1.5 - 226.0));
+  for (const double sign : {1.0, -1.0})
   for (const double d : {4.8e-4, d_edge, d_over, 2.5e-4}) {
     const bool inside = d >= d_edge;
     std::vector<double> x(layout.tensor_size(), 0.0);
-    for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = k == 0 ? d : 1.0;
+    for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = sign * (k == 0 ? d : 1.0);
     std::vector<float> b(layout.bases_size());
     int r[3];
     ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
@@ -521,7 +524,7 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundAndNotBeyond) {
       const std::size_t at = inside ? c : (c + 1) % 16;
       for (std::size_t i = 0; i < 16; ++i)
         ASSERT_NEAR(b[layout.offset(2) + c * 16 + i], i == at ? 1.0f : 0.0f, 1e-6f)
-            << "d " << d << " column " << c << " entry " << i;
+            << "sign " << sign << " d " << d << " column " << c << " entry " << i;
     }
   }
 }
@@ -608,4 +611,138 @@ TEST(ScalarBases, TheRankCountsSquaredSingularValuesAboveTheTolerance) {
     EXPECT_EQ(r[1], rank) << d2;
     EXPECT_EQ(r[2], rank) << d2;
   }
+}
+
+// The rounding-noise threshold on a pair's product is eps^2 times the whole matrix's squared
+// norm (the first entry's included): two columns of norm about eps whose product is 1.4 eps^2
+// (beside a unit column) are rotated, at 0.7 eps^2 left as they are.
+TEST(ScalarBases, OneSidedJacobiLeavesPairsBelowEpsSquaredTimesTheNormAlone) {
+  const double eps = std::numeric_limits<double>::epsilon();
+  for (const auto& [share, rotated] : {std::pair<double, bool>{1.4, true}, {0.7, false}}) {
+    const double s = std::sqrt(share) * eps;
+    const std::vector<double> b0 = {1, 0, 0, 0, s, 0, 0, s, s};  // columns e1, s e2, s (e2 + e3)
+    std::vector<double> b = b0, w(9), norms(3);
+    const int sweeps = eskin::detail::one_sided_jacobi<double>(3, b.data(), w.data(),
+                                                               norms.data());
+    EXPECT_EQ(sweeps > 1, rotated) << share;
+    EXPECT_EQ(b != b0, rotated) << share;
+  }
+}
+
+// Orthogonality is judged relative to the two columns' own norms: the same pair at scale 1 and
+// at 2^-10 (exact in binary) takes the same sweeps and rotations, its product of 1e-13 of
+// their norms is rotated at both scales.
+TEST(ScalarBases, OneSidedJacobiIsTheSameAtAnyScale) {
+  const std::vector<double> b1 = {1, 0, 1e-13, 1};
+  std::vector<double> ref = b1, w1(4), n1(2);
+  const int sweeps = eskin::detail::one_sided_jacobi<double>(2, ref.data(), w1.data(), n1.data());
+  EXPECT_GT(sweeps, 1);
+  const double scale = std::ldexp(1.0, -10);
+  std::vector<double> b(4), w(4), norms(2);
+  for (std::size_t i = 0; i < 4; ++i) b[i] = b1[i] * scale;
+  EXPECT_EQ(eskin::detail::one_sided_jacobi<double>(2, b.data(), w.data(), norms.data()), sweeps);
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(b[i], ref[i] * scale) << i;
+    EXPECT_EQ(w[i], w1[i]) << i;
+  }
+}
+
+// The rank tolerance on squared singular values is max(1e-12, (16 eps)^2): 1e-12 in double,
+// (16 eps)^2 in float (the controller's), whose 16 eps is above 1e-6.
+TEST(ScalarBases, TheRankToleranceIsSixteenEpsilonSquaredInFloatAndOneEMinus12InDouble) {
+  const float e16 = 16.0f * std::numeric_limits<float>::epsilon();
+  EXPECT_EQ(eskin::detail::rank_tolerance<float>(), e16 * e16);
+  EXPECT_EQ(eskin::detail::rank_tolerance<double>(), 1e-12);
+}
+
+// A pattern's bases and ranks do not depend on its scale, even where its squares would
+// underflow: x 2^-600 in double and x 2^-100 in float give the bases of x bit for bit (the
+// pattern is divided by its largest magnitude first).
+template <class Real>
+void expect_scale_free(int exponent) {
+  const BasisLayout layout({4, 4, 20}, {2, 2, 8});
+  eskin::detail::ScalarBases<Real> sb(layout);
+  const std::vector<double> x = random_tensor(layout.tensor_size(), 17);
+  std::vector<Real> one(x.size()), small(x.size());
+  for (std::size_t i = 0; i < x.size(); ++i) {
+    one[i] = static_cast<Real>(x[i]);
+    small[i] = std::ldexp(one[i], exponent);
+  }
+  std::vector<Real> b1(layout.bases_size()), b2(layout.bases_size());
+  int r1[3], r2[3];
+  ASSERT_EQ(sb.compute(one.data(), b1.data(), r1), KernelStatus::ok);
+  ASSERT_EQ(sb.compute(small.data(), b2.data(), r2), KernelStatus::ok);
+  for (int z = 0; z < 3; ++z) EXPECT_EQ(r1[z], r2[z]) << z;
+  EXPECT_EQ(r1[2], 8);
+  EXPECT_EQ(b1, b2);
+}
+
+TEST(ScalarBases, APatternsBasesDoNotDependOnItsScaleEvenWhereItsSquaresUnderflow) {
+  expect_scale_free<double>(-600);
+  expect_scale_free<float>(-100);
+}
+
+// One taxel dominates: value 1 at its sample, the fifteen others e = 1e-6 at theirs. R is
+// diagonal (1, e, ..., e) with its large entry first: ||R||_F^2 ||R^-1||_F^2 = (1 + 15 e^2)
+// (1 + 15 / e^2), far past the quick proof's bound, and the sweeps find the numerical rank
+// (e^2 is below the tolerance): 1, the dominant taxel.
+TEST(ScalarBases, TheQuickProofOfFullRankCountsTheFirstDiagonalEntryOfR) {
+  const BasisLayout layout({4, 4, 20}, {2, 2, 16});
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t k = 0; k < 16; ++k) x[k * 20 + k] = k == 0 ? 1.0 : 1e-6;
+  std::vector<float> b(layout.bases_size());
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  EXPECT_EQ(r[2], 1);
+  for (std::size_t i = 0; i < 16; ++i)
+    EXPECT_EQ(b[layout.offset(2) + i], i == 0 ? 1.0f : 0.0f) << i;
+}
+
+// The same proof on long windows (D = 2000), 0.001 % inside its bound: each taxel a block of 125
+// samples of its value (1, or d for taxel 0), so R = sqrt(125) diag(d, 1, ..., 1): the product
+// is the same as for one sample each, but ||R^-1||_F^2 is 125 times smaller, and counting it
+// one too large (2.8e-5 of the bound) would move the pattern outside (the sweeps' order).
+TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundOnLongWindows) {
+  const std::size_t D = 2000, w = 125;
+  const BasisLayout layout({4, 4, D}, {2, 2, 16});
+  eskin::detail::ScalarBases<float> sb(layout);
+  const double bound = 1.0 / (4096.0 * eskin::detail::rank_tolerance<float>());
+  const double d = std::sqrt(15.0 / (bound * (1.0 - 1e-5) - 226.0));
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t k = 0; k < 16; ++k)
+    for (std::size_t t = k * w; t < (k + 1) * w; ++t) x[k * D + t] = k == 0 ? d : 1.0;
+  std::vector<float> b(layout.bases_size());
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  EXPECT_EQ(r[2], 16);
+  for (std::size_t c = 0; c < 16; ++c)
+    for (std::size_t i = 0; i < 16; ++i)
+      ASSERT_EQ(b[layout.offset(2) + c * 16 + i], i == c ? 1.0f : 0.0f) << c << " " << i;
+}
+
+// R^-1 is formed from every entry of R next to the diagonal: R = I with -2 just above the
+// diagonal (a time unfolding already upper bidiagonal) has R^-1 = 2^(j - i) above it, so
+// ||R||_F ||R^-1||_F is about 1e9, past the proof's bound; the sweeps decide (rank 16: s_16^2 /
+// s_1^2 about 1e-10 is above the tolerance) and their singular vectors mix the taxels. Had the
+// proof missed the entries next to the diagonal, R^-1 would have looked like I: the identity.
+TEST(ScalarBases, TheQuickProofOfFullRankReadsTheEntriesNextToTheDiagonalOfR) {
+  const std::size_t D = 20;
+  const BasisLayout layout({4, 4, D}, {2, 2, 16});
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t k = 0; k < 16; ++k) {
+    x[k * D + k] = 1.0;
+    if (k > 0) x[k * D + k - 1] = -2.0;
+  }
+  eskin::detail::ScalarBases<float> sb(layout);
+  std::vector<float> b(layout.bases_size());
+  int r[3];
+  ASSERT_EQ(sb.compute(x.data(), b.data(), r), KernelStatus::ok);
+  EXPECT_EQ(r[2], 16);
+  const std::size_t off = layout.offset(2);
+  float off_diagonal = 0.0f;
+  for (std::size_t c = 0; c < 16; ++c)
+    for (std::size_t j = 0; j < 16; ++j)
+      if (c != j) off_diagonal = std::max(off_diagonal, std::fabs(b[off + c * 16 + j]));
+  EXPECT_GT(off_diagonal, 0.1f);
 }
