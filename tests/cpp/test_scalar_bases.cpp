@@ -560,9 +560,17 @@ TEST(ScalarBases, TheQuickProofOfFullRankReadsEveryEntryOfR) {
 
 namespace {
 
-// The time mode of a 4 x 4 x D pattern in float: rank 16, and bases that are the sweeps'
+// A time unfolding R already upper triangular (D = 20): 1 on the diagonal and, in column k > 0,
+// `value` at row above(k). Its time mode in float: rank 16, and bases that are the sweeps'
 // singular vectors, mixing the taxels (not the identity the quick proof of full rank gives).
-void expect_rank_16_from_the_sweeps(const BasisLayout& layout, const std::vector<double>& x) {
+void expect_rank_16_from_the_sweeps(std::size_t (*above)(std::size_t), double value) {
+  const std::size_t D = 20;
+  const BasisLayout layout({4, 4, D}, {2, 2, 16});
+  std::vector<double> x(layout.tensor_size(), 0.0);
+  for (std::size_t k = 0; k < 16; ++k) {
+    x[k * D + k] = 1.0;
+    if (k > 0) x[k * D + above(k)] = value;
+  }
   eskin::detail::ScalarBases<float> sb(layout);
   std::vector<float> b(layout.bases_size());
   int r[3];
@@ -583,14 +591,7 @@ TEST(ScalarBases, TheQuickProofOfFullRankReadsTheFirstRowOfR) {
   // ||R^-1||_F beyond its diagonal is in row 0. ||R||_F^2 ||R^-1||_F^2 = (16 + 15e4)^2 = 2.3e10,
   // past the proof's bound (6.7e7 in float): the sweeps decide (rank 16, s_16^2 / s_1^2 about
   // 4e-11, above the tolerance), and their singular vectors mix the taxels: not the identity.
-  const std::size_t D = 20;
-  const BasisLayout layout({4, 4, D}, {2, 2, 16});
-  std::vector<double> x(layout.tensor_size(), 0.0);
-  for (std::size_t i = 0; i < 16; ++i) {
-    x[i * D + i] = 1.0;
-    if (i > 0) x[i * D] = -100.0;
-  }
-  expect_rank_16_from_the_sweeps(layout, x);
+  expect_rank_16_from_the_sweeps([](std::size_t) -> std::size_t { return 0; }, -100.0);
 }
 
 TEST(ScalarBases, AZeroPatternHasRankZeroAndZeroBases) {
@@ -737,12 +738,5 @@ TEST(ScalarBases, TheQuickProofOfFullRankHoldsJustInsideItsBoundOnLongWindows) {
 // s_1^2 about 1e-10 is above the tolerance) and their singular vectors mix the taxels. Had the
 // proof missed the entries next to the diagonal, R^-1 would have looked like I: the identity.
 TEST(ScalarBases, TheQuickProofOfFullRankReadsTheEntriesNextToTheDiagonalOfR) {
-  const std::size_t D = 20;
-  const BasisLayout layout({4, 4, D}, {2, 2, 16});
-  std::vector<double> x(layout.tensor_size(), 0.0);
-  for (std::size_t k = 0; k < 16; ++k) {
-    x[k * D + k] = 1.0;
-    if (k > 0) x[k * D + k - 1] = -2.0;
-  }
-  expect_rank_16_from_the_sweeps(layout, x);
+  expect_rank_16_from_the_sweeps([](std::size_t k) { return k - 1; }, -2.0);
 }
