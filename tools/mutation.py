@@ -355,10 +355,10 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         *(Equivalent("constant+1", _S, mutant, _SUFFIX)
           for mutant in (_S.replace("> 2", "> 3"), _S.replace(", 2, ", ", 3, "))),
         Equivalent("constant+1", _HZ, _HZ.replace(", 3, ", ", 4, "), _SUFFIX),
-        *(Equivalent("constant+1", f"std::uint{w}_t v = 0;", f"std::uint{w}_t v = 1;",
+        *(Equivalent("constant+1", f"std::uint{w}_t {v} = 0;", f"std::uint{w}_t {v} = 1;",
                      f"the start of a {w}-bit little-endian read: each of its {w // 8} steps "
-                     "shifts v left by 8 bits, so the start's bits are all shifted out before "
-                     "v is used") for w in (32, 64)),
+                     f"shifts {v} left by 8 bits, so the start's bits are all shifted out before "
+                     f"{v} is used") for w in (32, 64) for v in "vu"),
         Equivalent("constant+1", "for (auto i : mm.sv_index) used[i] = 1;",
                    "for (auto i : mm.sv_index) used[i] = 2;",
                    "a support vector's mark of use: only tested for zero (!used[i])"),

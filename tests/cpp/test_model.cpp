@@ -785,8 +785,9 @@ TEST(ModelAmplitude, BadAmplSectionsAreRefusedNamingFieldAndValue) {
 
 namespace {
 
-// The decision values of a float64 model, by hand from its stored bases: the input's bases by
-// BasisWorkspace, each overlap ||V_i^T V_x||_F^2 summed entry by entry, the docs' formula.
+// The decision values of a model, by hand from its stored bases (float64 or float32, read as
+// stored): the input's bases by BasisWorkspace, each overlap ||V_i^T V_x||_F^2 summed entry by
+// entry in double, the docs' formula.
 std::vector<double> hand_decision(const Model& m, const std::vector<double>& x) {
   const std::size_t A[3] = {static_cast<std::size_t>(m.alpha_store(0)),
                             static_cast<std::size_t>(m.alpha_store(1)),
@@ -810,13 +811,18 @@ std::vector<double> hand_decision(const Model& m, const std::vector<double>& x) 
       for (int z = 0; z < 3; ++z) {
         const std::size_t N = static_cast<std::size_t>(m.basis_rows(z));
         const std::size_t a = static_cast<std::size_t>(mm.alpha[static_cast<std::size_t>(z)]);
-        const double* vi = m.bases_f64(z) + i * A[z] * N;
+        const double* vi64 = m.bases_f64(z);
+        const float* vi32 = m.bases_f32(z);
+        const std::size_t vi = i * A[z] * N;
         const double* vx = xb.data() + layout.offset(static_cast<std::size_t>(z));
         double ov = 0;
         for (std::size_t k = 0; k < a; ++k)
           for (std::size_t l = 0; l < a; ++l) {
             double dot = 0;
-            for (std::size_t n = 0; n < N; ++n) dot += vi[k * N + n] * vx[l * N + n];
+            for (std::size_t n = 0; n < N; ++n) {
+              const std::size_t at = vi + k * N + n;
+              dot += (vi64 != nullptr ? vi64[at] : double(vi32[at])) * vx[l * N + n];
+            }
             ov += dot * dot;
           }
         const int ri = std::min(m.rank(static_cast<int>(i), z), static_cast<int>(a));
@@ -2026,6 +2032,41 @@ TEST(ModelClassify, AWindowShorterThanDIsTooShortUnderTheErrorPolicy) {
   }
 }
 
+// The stream classifier under a model whose short policy is "error": touch windows cut to at
+// most 6 samples (max_window_s; frames of 2 samples, no lookback, no padding), shorter than
+// D = 8, are reported too short, not decided; under "interpolate" the same touches are decided.
+TEST(ModelStream, ATouchShorterThanDIsTooShortUnderTheErrorPolicy) {
+  const Bytes good = fixture("float64");
+  const std::size_t prep = section_offset(good, "PREP");
+  for (const std::uint32_t policy : {0u, 1u}) {
+    Bytes b = good;
+    put_u32(b, prep + 20, policy);
+    put_f64(b, window_field_offset(b, "frame_s"), 2.0 / 3000.0);
+    put_f64(b, window_field_offset(b, "max_window_s"), 6.0 / 3000.0);
+    for (const char* name : {"pad_before_s", "pad_after_s", "min_duration_s", "lookback_s"})
+      put_f64(b, window_field_offset(b, name), 0.0);
+    fix_crc(b);
+    const Model m = Model::from_bytes(b.data(), b.size());
+    ASSERT_EQ(m.D(), 8);
+    eskin::StreamClassifier sc(m);
+    std::mt19937 rng(3);
+    std::normal_distribution<double> g(0.0, 5.0);
+    std::vector<eskin::ClassifyStatus> seen;
+    double sample[16];
+    for (int t = 0; t < 9000; ++t) {
+      for (double& v : sample) v = g(rng);
+      if (t >= 3000 && t < 4000) sample[5] += 1e3 * std::sin(t / 3.0);
+      const eskin::ClassifyStatus st = sc.push(sample);
+      if (st != eskin::ClassifyStatus::kOk) seen.push_back(st);
+    }
+    ASSERT_FALSE(seen.empty()) << policy;
+    for (const auto st : seen)
+      EXPECT_EQ(st, policy == 1 ? eskin::ClassifyStatus::kTooShort
+                                : eskin::ClassifyStatus::kDecision) << policy;
+    if (policy == 0) EXPECT_LE(sc.decision().window_stop - sc.decision().window_start, 6);
+  }
+}
+
 // A touch whose tensor the kernel cannot take (a burst of 1e150: the pattern's energy
 // overflows) is reported as not finite, not as a decision; the same burst at 1e3 is decided.
 TEST(ModelStream, ATouchTheKernelCannotTakeIsReportedNotFiniteNotDecided) {
@@ -2053,9 +2094,13 @@ TEST(ModelStream, ATouchTheKernelCannotTakeIsReportedNotFiniteNotDecided) {
 // A pattern at distance 0 from a support vector in every mode: the fixture's support vector 1
 // (full rank in each mode) given the bases of a random tensor, which is then classified. Its
 // term is its coefficient times exp(0), as the hand computation has it; every mode here takes
-// the overlap route (N >= alpha^2), whose rounding can leave a distance just below 0.
-TEST(ModelDecision, APatternWithASupportVectorsBasesIsAtDistanceZeroFromIt) {
-  Bytes b = fixture("float64");
+// the overlap route (N >= alpha^2), whose rounding can leave a distance just below 0. In a
+// float32 model the bases are stored rounded to float (the hand computation reads the same
+// stored values), and the overlaps are summed in float.
+namespace {
+void expect_a_support_vectors_bases_at_distance_zero(const char* dtype, double tol) {
+  Bytes b = fixture(dtype);
+  const bool f64 = std::string(dtype) == "float64";
   const std::size_t A[3] = {2, 2, 4};
   std::vector<double> x, xb;
   int rx[3];
@@ -2075,10 +2120,21 @@ TEST(ModelDecision, APatternWithASupportVectorsBasesIsAtDistanceZeroFromIt) {
       ASSERT_EQ(rx[z], static_cast<int>(A[z]));
       const std::size_t N = static_cast<std::size_t>(view.basis_rows(z));
       // support vector 1's bases of mode z, in the file's bytes (view_bytes reads in place)
-      const std::size_t at = static_cast<std::size_t>(
-          reinterpret_cast<const std::uint8_t*>(view.bases_f64(z) + A[z] * N) - b.data());
-      for (std::size_t k = 0; k < A[z] * N; ++k)
-        put_f64(b, at + 8 * k, xb[layout.offset(static_cast<std::size_t>(z)) + k]);
+      const std::uint8_t* sv1 =
+          f64 ? reinterpret_cast<const std::uint8_t*>(view.bases_f64(z) + A[z] * N)
+              : reinterpret_cast<const std::uint8_t*>(view.bases_f32(z) + A[z] * N);
+      const std::size_t at = static_cast<std::size_t>(sv1 - b.data());
+      for (std::size_t k = 0; k < A[z] * N; ++k) {
+        const double v = xb[layout.offset(static_cast<std::size_t>(z)) + k];
+        if (f64) {
+          put_f64(b, at + 8 * k, v);
+        } else {
+          const float f = static_cast<float>(v);
+          std::uint32_t u;
+          std::memcpy(&u, &f, sizeof u);
+          put_u32(b, at + 4 * k, u);
+        }
+      }
     }
   }
   fix_crc(b);
@@ -2089,11 +2145,20 @@ TEST(ModelDecision, APatternWithASupportVectorsBasesIsAtDistanceZeroFromIt) {
   ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
   int with_sv1 = 0;
   for (std::size_t k = 0; k < m.machines().size(); ++k) {
-    EXPECT_NEAR(d.values[k], want[k], 1e-12) << "machine " << k;
+    EXPECT_NEAR(d.values[k], want[k], tol) << dtype << " machine " << k;
     const auto& idx = m.machines()[k].sv_index;
     with_sv1 += std::find(idx.begin(), idx.end(), 1u) != idx.end();
   }
   EXPECT_GT(with_sv1, 0);  // some machine has the term
+}
+}  // namespace
+
+TEST(ModelDecision, APatternWithASupportVectorsBasesIsAtDistanceZeroFromIt) {
+  expect_a_support_vectors_bases_at_distance_zero("float64", 1e-12);
+}
+
+TEST(ModelDecision, APatternWithASupportVectorsFloatBasesIsAtDistanceZeroFromIt) {
+  expect_a_support_vectors_bases_at_distance_zero("float32", 1e-4);
 }
 
 // ---- the loader on the edges of its layout: a machine of one term, an empty ancillary section
