@@ -2032,6 +2032,26 @@ TEST(ModelClassify, AWindowShorterThanDIsTooShortUnderTheErrorPolicy) {
   }
 }
 
+namespace {
+
+// The statuses other than kOk that a stream classifier reports for 3 s of noise (sd 5) at
+// 3 kHz with a 1 s burst of `amplitude` on taxel 5 from t = 1 s.
+std::vector<eskin::ClassifyStatus> burst_statuses(eskin::StreamClassifier& sc, double amplitude) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0.0, 5.0);
+  std::vector<eskin::ClassifyStatus> seen;
+  double sample[16];
+  for (int t = 0; t < 9000; ++t) {
+    for (double& v : sample) v = g(rng);
+    if (t >= 3000 && t < 4000) sample[5] += amplitude * std::sin(t / 3.0);
+    const eskin::ClassifyStatus st = sc.push(sample);
+    if (st != eskin::ClassifyStatus::kOk) seen.push_back(st);
+  }
+  return seen;
+}
+
+}  // namespace
+
 // The stream classifier under a model whose short policy is "error": touch windows cut to at
 // most 6 samples (max_window_s; frames of 2 samples, no lookback, no padding), shorter than
 // D = 8, are reported too short, not decided; under "interpolate" the same touches are decided.
@@ -2049,16 +2069,7 @@ TEST(ModelStream, ATouchShorterThanDIsTooShortUnderTheErrorPolicy) {
     const Model m = Model::from_bytes(b.data(), b.size());
     ASSERT_EQ(m.D(), 8);
     eskin::StreamClassifier sc(m);
-    std::mt19937 rng(3);
-    std::normal_distribution<double> g(0.0, 5.0);
-    std::vector<eskin::ClassifyStatus> seen;
-    double sample[16];
-    for (int t = 0; t < 9000; ++t) {
-      for (double& v : sample) v = g(rng);
-      if (t >= 3000 && t < 4000) sample[5] += 1e3 * std::sin(t / 3.0);
-      const eskin::ClassifyStatus st = sc.push(sample);
-      if (st != eskin::ClassifyStatus::kOk) seen.push_back(st);
-    }
+    const std::vector<eskin::ClassifyStatus> seen = burst_statuses(sc, 1e3);
     ASSERT_FALSE(seen.empty()) << policy;
     for (const auto st : seen)
       EXPECT_EQ(st, policy == 1 ? eskin::ClassifyStatus::kTooShort
@@ -2074,16 +2085,7 @@ TEST(ModelStream, ATouchTheKernelCannotTakeIsReportedNotFiniteNotDecided) {
   const Model m = Model::from_bytes(b.data(), b.size());
   for (const double amplitude : {1e3, 1e150}) {
     eskin::StreamClassifier sc(m);
-    std::mt19937 rng(3);
-    std::normal_distribution<double> g(0.0, 5.0);
-    std::vector<eskin::ClassifyStatus> seen;
-    double sample[16];
-    for (int t = 0; t < 9000; ++t) {
-      for (double& v : sample) v = g(rng);
-      if (t >= 3000 && t < 4000) sample[5] += amplitude * std::sin(t / 3.0);
-      const eskin::ClassifyStatus st = sc.push(sample);
-      if (st != eskin::ClassifyStatus::kOk) seen.push_back(st);
-    }
+    const std::vector<eskin::ClassifyStatus> seen = burst_statuses(sc, amplitude);
     ASSERT_FALSE(seen.empty()) << amplitude;
     EXPECT_EQ(seen.front(), amplitude < 1e100 ? eskin::ClassifyStatus::kDecision
                                               : eskin::ClassifyStatus::kNotFinite)
