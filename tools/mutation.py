@@ -217,6 +217,30 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
         Equivalent("swap<<=", _PROJ, _PROJ.replace("N < a", "N <= a"), _ROUTE),
         Equivalent("swap<=<", _PROJ, _PROJ.replace("N <= 64", "N < 64"), _ROUTE),
         Equivalent("constant+1", _PROJ, _PROJ.replace("64", "65"), _ROUTE),
+        Equivalent("swap&&||", _PROJ, _PROJ.replace("kProjectionCache &&", "kProjectionCache ||"),
+                   _ROUTE),
+        Equivalent("swap&&||", _PROJ, _PROJ.replace("N <= 64 &&", "N <= 64 ||"), _ROUTE),
+        Equivalent("constant+1", "for (int z = 0; z < 3; ++z) {",
+                   "for (int z = 1; z < 3; ++z) {",
+                   "the projection route's choice skipping the row mode, which then takes the "
+                   "overlap route: " + _ROUTE),
+        Equivalent("swap&&||", "wide = kWideTables && m.is_float64();",
+                   "wide = kWideTables || m.is_float64();",
+                   "a float32 model's distance tables in double on the host: the same distances "
+                   "to float rounding (the decisions are compared with the hand computation at "
+                   "1e-4 in float32)"),
+        *(Equivalent(op, "if (!proj && !f64 && a < N) {", mutant,
+                     "the host's batched float32 overlaps (OverlapsF32) or the one-by-one route "
+                     "the controller takes: the same distances to float rounding; at a = N the "
+                     "one-by-one route's spans() gives |ri - rx|, which the batched sum gives "
+                     "to rounding")
+          for op, mutant in (("swap<<=", "if (!proj && !f64 && a <= N) {"),
+                             ("delete check", "if (false && (!proj && !f64 && a < N)) {"))),
+        Equivalent("delete check", "if (ks != KernelStatus::ok) return ClassifyStatus::kKernel;",
+                   "if (false && (ks != KernelStatus::ok)) return ClassifyStatus::kKernel;",
+                   "the basis computation's other failures cannot happen here: bad_argument "
+                   "(its pointers are the classifier's own buffers) and no_convergence (the "
+                   "Jacobi sweeps' cap is never reached)"),
         Equivalent("delete check", "if (spans(ri, rx, N)) {",
                    "if (false && (spans(ri, rx, N))) {",
                    "another route to the same distance: when one subspace is all of R^N the "

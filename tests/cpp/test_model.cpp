@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
@@ -2556,5 +2557,32 @@ TEST(ModelChecks, ASecondsOrHertzWindowFieldBeyondAMillionIsRefused) {
     put_f64(b, window_field_offset(b, name), -2e6);
     EXPECT_EQ(refused(b), std::string("model: section PREP: window field '") + name +
                               "' = -2000000 is outside [-1e6, 1e6]");
+  }
+}
+
+// A 4x5 grid at D = 3, every mode at its full alpha (tests/data/model_wide_rows_float64.eskin):
+// the row and column modes take the projection route, and the row mode's projection (15 x 15)
+// is the larger one, which the input's projection buffer must hold (the sanitizer build sees a
+// buffer sized for another mode's). The decision values are the hand computation's.
+TEST(ModelDecision, TheInputsProjectionHoldsTheLargestModesProjection) {
+  const Bytes b = read_file(std::string(ESKIN_TEST_DATA_DIR) + "/model_wide_rows_float64.eskin");
+  const Model m = Model::from_bytes(b.data(), b.size());
+  ASSERT_EQ(m.rows(), 4);
+  ASSERT_EQ(m.cols(), 5);
+  ASSERT_EQ(m.D(), 3);
+  // the projection route: N <= 64 and N < alpha^2 (15 < 16, 12 < 25; not the time mode's 20)
+  ASSERT_EQ(m.basis_rows(0), 15);
+  ASSERT_EQ(m.basis_rows(1), 12);
+  ASSERT_EQ(m.basis_rows(2), 20);
+  for (const auto& mm : m.machines())
+    ASSERT_EQ(mm.alpha, (std::array<int, eskin::model_format::kModes>{4, 5, 3}));
+  eskin::Classifier clf(m);
+  for (const unsigned seed : {3u, 4u}) {
+    const std::vector<double> x = random_tensor(m, 1.0, seed);
+    const std::vector<double> want = hand_decision(m, x);
+    eskin::Decision d;
+    ASSERT_EQ(clf.classify_tensor(x.data(), &d), eskin::ClassifyStatus::kOk);
+    for (std::size_t k = 0; k < want.size(); ++k)
+      EXPECT_NEAR(d.values[k], want[k], 1e-12) << "seed " << seed << " machine " << k;
   }
 }

@@ -1,7 +1,9 @@
 """Write tests/data/model_small_*.eskin (a small valid 3-class model),
 tests/data/model_binary_float64.eskin (a two-class model, binary rule) and
 tests/data/model_projection_*.eskin (two machines of different alpha, a time mode cut wider than
-4: the projection route) for the C++ loader and decision tests.
+4: the projection route), tests/data/model_uneven_float64.eskin (a 3x5 grid, a different alpha
+per mode) and tests/data/model_wide_rows_float64.eskin (a 4x5 grid at D = 3 whose row mode has
+the largest projection) for the C++ loader and decision tests.
 
 Its bases are random orthonormal columns (QR), not bases of real patterns: the loader and fuzz
 tests check the format, not the classifier. Regenerate it when the format or eskin::WindowConfig
@@ -135,6 +137,32 @@ def uneven_spec() -> ModelSpec:
     )
 
 
+def wide_rows_spec() -> ModelSpec:
+    """Two machines on a 4x5 grid at D = 3, every mode at its full alpha (4, 5, 3): the row and
+    column modes take the projection route (N = 15 < 4^2 and 12 < 5^2), the row mode's
+    projection (15 x 15) the larger one."""
+    rng = np.random.default_rng(11)
+    D = 3
+    pool = rng.standard_normal((4, 4, 5, D))
+    machines = [
+        MachineSpec(0, -1, 0.1, (4, 5, 3), (1.0, 0.75, 1.5), pool[[0, 1, 2]],
+                    rng.standard_normal(3)),
+        MachineSpec(1, -1, -0.2, (4, 5, 3), (0.5, 1.25, 2.0), pool[[1, 3]],
+                    rng.standard_normal(2)),
+    ]
+    return ModelSpec(
+        class_names=["pinch", "stroke"],
+        rule="one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=(4, 5),
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=3000.0,
+        window_config=WindowConfig(window_samples=0),
+    )
+
+
 def main() -> None:
     spec = fixture_spec()
     for dtype in ("float32", "float64"):
@@ -150,6 +178,9 @@ def main() -> None:
         print(out, out.stat().st_size)
     out = Path(__file__).with_name("model_uneven_float64.eskin")
     out.write_bytes(model_to_bytes(uneven_spec(), "float64", bases_fn=qr_bases))
+    print(out, out.stat().st_size)
+    out = Path(__file__).with_name("model_wide_rows_float64.eskin")
+    out.write_bytes(model_to_bytes(wide_rows_spec(), "float64", bases_fn=qr_bases))
     print(out, out.stat().st_size)
 
 
