@@ -241,6 +241,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "the basis computation's other failures cannot happen here: bad_argument "
                    "(its pointers are the classifier's own buffers) and no_convergence (the "
                    "Jacobi sweeps' cap is never reached)"),
+        Equivalent("constant+1", "for (std::int64_t t = 0; t < length; ++t)",
+                   "for (std::int64_t t = 1; t < length; ++t)",
+                   "a NaN at a taxel's sample 0 then reaches the tensor: both subsampling "
+                   "methods (Algorithm 2's first index and the even spread's) and the "
+                   "interpolation of a short window read sample 0, and the basis computation "
+                   "reports it not finite: the same kNotFinite"),
         Equivalent("delete check", "if (spans(ri, rx, N)) {",
                    "if (false && (spans(ri, rx, N))) {",
                    "another route to the same distance: when one subspace is all of R^N the "
@@ -909,6 +915,13 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "flattens as reshape(-1) does"),
     ],
     "python/eskin/learn/recipes.py": [
+        *(Equivalent("core/NumberReplacer",
+                     "rng = np.random.default_rng(np.random.SeedSequence([self.seed, 22]))",
+                     f"rng = np.random.default_rng(np.random.SeedSequence([self.seed, {k}]))",
+                     "the key only keeps the first candidates' draw apart from the seed's other "
+                     "uses (the splits); another constant does the same: another sample, as "
+                     "random and as reproducible, which no test can prefer without fixing the "
+                     "draw itself") for k in (21, 23)),
         Equivalent("core/ReplaceComparisonOperator_Eq_GtE",
                    "return np.where(y == 1, 1.0, -1.0)[:, None]",
                    "return np.where(y >= 1, 1.0, -1.0)[:, None]",

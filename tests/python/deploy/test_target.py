@@ -822,3 +822,30 @@ def test_a_two_class_problem_is_one_machine_and_k_classes_k_machines(campaign):
                                          n * machines) * (1 + INSTRUCTION_MARGIN)
 
         assert bound(most) <= 1.5e6 < bound(most + 1), (n_classes, most)
+
+
+def test_a_whole_windows_steps_are_taken_to_the_microsecond(campaign):
+    """window_for_budget lowers a whole window's max_window_s in 0.01 s steps, each step and
+    the floor (pad_before_s + lookback_s + two frames) to the microsecond: from 4 us less than
+    a step above the floor no step is taken (it would cross the floor by 4 us, and the budget
+    that needs it is refused); from 0.4 us less, the step lands on the floor (binary noise
+    below the microsecond is not a crossing) and fits."""
+    from dataclasses import replace
+
+    from eskin.deploy.target import _ram_terms, _stored_alphas, parse_budget, window_for_budget
+
+    rate = campaign.sample_rate_hz
+    whole = eskin.WindowConfig(window_samples=0)
+    floor = round(whole.pad_before_s + whole.lookback_s + 2 * whole.frame_s, 6)
+
+    def need(max_window_s: float) -> int:
+        return sum(_ram_terms(4, 4, 20, _stored_alphas((4, 4), 20, "1"), 100, 300, 1, True, 4,
+                              replace(whole, max_window_s=max_window_s), rate,
+                              parse_budget(None).target).values())
+
+    over = replace(whole, max_window_s=round(floor + 0.01 - 4e-6, 6))
+    with pytest.raises(ValueError, match="the detector's buffers alone exceed the RAM budget"):
+        window_for_budget(parse_budget(f"ram={need(round(floor - 4e-6, 6))}"), (4, 4), rate, over)
+    near = replace(whole, max_window_s=floor + 0.01 - 4e-7)
+    lowered, note = window_for_budget(parse_budget(f"ram={need(floor)}"), (4, 4), rate, near)
+    assert lowered.max_window_s == floor and note is not None
