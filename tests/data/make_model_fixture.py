@@ -21,6 +21,22 @@ from eskin.deploy.export import MachineSpec, ModelSpec, model_to_bytes
 from eskin.signal.preprocess import WindowConfig
 
 
+def _one_vs_all(class_names: list[str], machines: list[MachineSpec], D: int,
+                grid_shape: tuple[int, int]) -> ModelSpec:
+    """A one-vs-all model of the energy detector (whole windows) and Algorithm 2 at 3 kHz."""
+    return ModelSpec(
+        class_names=class_names,
+        rule="one_vs_all",
+        machines=machines,
+        D=D,
+        grid_shape=grid_shape,
+        window="energy",
+        subsample="algorithm2",
+        sample_rate_hz=3000.0,
+        window_config=WindowConfig(window_samples=0),
+    )
+
+
 def qr_bases(tensors, alphas):
     rng = np.random.default_rng(1)
     n = tensors.shape[0]
@@ -99,17 +115,7 @@ def projection_spec() -> ModelSpec:
         MachineSpec(1, -1, -0.1, (3, 2, 6), (0.5, 1.0, 2.0), pool[[1, 3, 4, 5]],
                     rng.standard_normal(4)),
     ]
-    return ModelSpec(
-        class_names=["slide", "roll"],
-        rule="one_vs_all",
-        machines=machines,
-        D=D,
-        grid_shape=(4, 4),
-        window="energy",
-        subsample="algorithm2",
-        sample_rate_hz=3000.0,
-        window_config=WindowConfig(window_samples=0),
-    )
+    return _one_vs_all(["slide", "roll"], machines, D, (4, 4))
 
 
 def uneven_spec() -> ModelSpec:
@@ -124,17 +130,7 @@ def uneven_spec() -> ModelSpec:
         MachineSpec(1, -1, -0.2, (1, 4, 3), (0.5, 1.25, 2.0), pool[[1, 2, 4]],
                     rng.standard_normal(3)),
     ]
-    return ModelSpec(
-        class_names=["pinch", "stroke"],
-        rule="one_vs_all",
-        machines=machines,
-        D=D,
-        grid_shape=(3, 5),
-        window="energy",
-        subsample="algorithm2",
-        sample_rate_hz=3000.0,
-        window_config=WindowConfig(window_samples=0),
-    )
+    return _one_vs_all(["pinch", "stroke"], machines, D, (3, 5))
 
 
 def wide_rows_spec() -> ModelSpec:
@@ -150,17 +146,7 @@ def wide_rows_spec() -> ModelSpec:
         MachineSpec(1, -1, -0.2, (4, 5, 3), (0.5, 1.25, 2.0), pool[[1, 3]],
                     rng.standard_normal(2)),
     ]
-    return ModelSpec(
-        class_names=["pinch", "stroke"],
-        rule="one_vs_all",
-        machines=machines,
-        D=D,
-        grid_shape=(4, 5),
-        window="energy",
-        subsample="algorithm2",
-        sample_rate_hz=3000.0,
-        window_config=WindowConfig(window_samples=0),
-    )
+    return _one_vs_all(["pinch", "stroke"], machines, D, (4, 5))
 
 
 def main() -> None:
