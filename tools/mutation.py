@@ -398,6 +398,12 @@ EQUIVALENT: dict[str, list[Equivalent]] = {
                    "already set and sticky, so the parser's next read of the section (the next "
                    "field of the machine, or the padding after its coefficients) fails and it "
                    "returns false with that first message; the value read is never kept"),
+        Equivalent("return true",
+                   'if (!r.u32("n_modes", Z) || !r.u32("n_sv", n_sv)) return false;',
+                   'if (!r.u32("n_modes", Z) || !r.u32("n_sv", n_sv)) return true;',
+                   "SVBS too short for its two counts, taken as read: the reader's error is "
+                   "already set and sticky, and Z (0, or a count read) fails the next check or "
+                   "the next read fails: the parser returns false with that first message"),
         Equivalent("return true", "if (!need(model_format::kNameBytes, field)) return false;",
                    "if (!need(model_format::kNameBytes, field)) return true;",
                    "a name that runs past its section, taken as read (and left empty): a class "

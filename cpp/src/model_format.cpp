@@ -394,7 +394,7 @@ bool ModelParser::parse_svbs(Reader& r, Model& m, ParseError& err) {
 bool ModelParser::read_svbs_shape(Reader& r, Model& m, ParseError& err,
                                   std::array<std::uint32_t, 3>& astore, std::uint32_t& n_sv) {
   const std::string& w = r.what();
-  std::uint32_t Z;
+  std::uint32_t Z = 0;
   if (!r.u32("n_modes", Z) || !r.u32("n_sv", n_sv)) return false;
   if (Z != 3) return err.set(ModelError::kValue, w + ": n_modes=" + std::to_string(Z) + ", expected 3 (rows, cols, D)");
   std::array<std::uint32_t, 3> dims{};

@@ -421,6 +421,18 @@ TEST(ModelLimits, TensorSizeIsBounded) {
     put_u32(b, prep + 8, 100);
   });
   EXPECT_NE(m.find("rows*cols*D = 256*256*100 = 6553600 exceeds the limit 1048576"), std::string::npos) << m;
+  // at the bound exactly (4*4*65536 = 2^20) PREP is accepted, and the file is refused later
+  // (its SVBS dims are the fixture's); one sample more is over it
+  const std::string at = edited_message("float32", [](Bytes& b) {
+    put_u32(b, section_offset(b, "PREP") + 8, 65536);
+  });
+  EXPECT_EQ(at.find("rows*cols*D"), std::string::npos) << at;
+  EXPECT_NE(at.find("SVBS"), std::string::npos) << at;
+  const std::string over = edited_message("float32", [](Bytes& b) {
+    put_u32(b, section_offset(b, "PREP") + 8, 65537);
+  });
+  EXPECT_NE(over.find("rows*cols*D = 4*4*65537 = 1048592 exceeds the limit 1048576"),
+            std::string::npos) << over;
 }
 
 // Class names are UTF-8 (the Python side decodes them): malformed sequences are refused.
