@@ -2598,3 +2598,21 @@ TEST(ModelDecision, TheInputsProjectionHoldsTheLargestModesProjection) {
       EXPECT_NEAR(d.values[k], want[k], 1e-12) << "seed " << seed << " machine " << k;
   }
 }
+
+// An SVBS section 8 bytes short of the ranks (padded to 8 bytes) and bases its counts imply is
+// refused by the size check before anything is read, with the count and the bytes it needs.
+TEST(ModelChecks, AnSvbsSectionShortOfItsRanksAndBasesNamesTheBytesItNeeds) {
+  for (const char* dtype : {"float32", "float64"}) {
+    Bytes b = fixture(dtype);
+    const std::size_t s = section_offset(b, "SVBS");
+    const std::uint32_t len = get_u32(b, s - 4);
+    b.erase(b.begin() + static_cast<std::ptrdiff_t>(s + len - 8),
+            b.begin() + static_cast<std::ptrdiff_t>(s + len));
+    put_u32(b, s - 4, len - 8);
+    put_u32(b, 16, static_cast<std::uint32_t>(b.size()));
+    fix_crc(b);
+    const std::string m = refused(b);
+    EXPECT_NE(m.find("section SVBS: n_sv="), std::string::npos) << dtype << ": " << m;
+    EXPECT_NE(m.find(" needs "), std::string::npos) << dtype << ": " << m;
+  }
+}
