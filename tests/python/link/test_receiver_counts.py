@@ -27,9 +27,18 @@ TESTS = Path(__file__).resolve().parents[2]
 
 
 def _info(seq: int = 0, rate: float = 3000.0, volts_per_count: float = 1e-4,
-          class_names: tuple[str, ...] = ()) -> bytes:
-    return encode_frame(InfoFrame(4, 4, rate, volts_per_count=volts_per_count,
+          class_names: tuple[str, ...] = (), grid: tuple[int, int] = (4, 4)) -> bytes:
+    return encode_frame(InfoFrame(*grid, rate, volts_per_count=volts_per_count,
                                   has_model=bool(class_names), class_names=class_names, seq=seq))
+
+
+def _recorder(path: Path, policy: str, replay=None, max_touch_s: float = 7.0):
+    """A campaign-file recorder of the stream, as the listener makes one (0.5 s of context)."""
+    from eskin.link.recorder import StreamRecorder
+
+    return StreamRecorder(path, policy=policy, replay=replay, replay_offset=0, context_s=0.5,
+                          overwrite=False, source="recorded", attrs={}, port="test",
+                          host_names=[], max_touch_s=max_touch_s)
 
 
 def _data(x: np.ndarray, first_seq: int = 1, overrun: frozenset[int] = frozenset()) -> bytes:
@@ -127,9 +136,7 @@ def test_an_info_frame_of_a_larger_grid_than_the_data_before_it_restarts_the_str
         x0 = rng.integers(-50, 50, size=(40, *before)).astype(np.int16)
         listener.feed(DELIMITER + _data(x0))
         assert listener.activity().shape == before
-        info = encode_frame(InfoFrame(*after, 3000.0, volts_per_count=1e-4, has_model=False,
-                                      class_names=(), seq=5))
-        listener.feed(info)
+        listener.feed(_info(seq=5, grid=after))
         assert listener.activity() is None  # restarted at the INFO frame, before any new DATA
         x1 = rng.integers(-50, 50, size=(3000, *after)).astype(np.int16)
         listener.feed(_data(x1, first_seq=6))
@@ -224,13 +231,10 @@ def test_a_bare_detector_as_host_classifier_decides_no_class_and_records_unknown
     from eskin.link.events import Decision
     from eskin.link.host_classifier import HostClassifier, max_touch_s
     from eskin.link.receiver import StreamReceiver
-    from eskin.link.recorder import StreamRecorder
 
     clf = HostClassifier((4, 4), 3000.0)
     out = tmp_path / "touches.h5"
-    rec = StreamRecorder(out, policy="touch", replay=None, replay_offset=0, context_s=0.5,
-                         overwrite=False, source="recorded", attrs={}, port="test", host_names=[],
-                         max_touch_s=max_touch_s(clf))
+    rec = _recorder(out, "touch", max_touch_s=max_touch_s(clf))
     rx = StreamReceiver(classifier=clf, recorder=rec, record_policy="touch", replay=None,
                         max_fill_s=0.1, history_s=2.0)
     x = np.concatenate([_touch_stream(), _touch_stream()])  # two touches apart
@@ -325,9 +329,7 @@ def test_segments_are_recorded_at_a_rate_the_touch_detector_cannot_take(tmp_path
     rf, x = _segment_replay(tmp_path, recs, 1.0, 10.0)
     out = tmp_path / "live.h5"
     listener = LinkListener("/dev/null-not-opened", record=out, replay=rf, stats_interval=None)
-    info = encode_frame(InfoFrame(2, 2, 1.0, volts_per_count=1e-4, has_model=False,
-                                  class_names=(), seq=0))
-    events = listener.feed(DELIMITER + info + _data(x)) + listener.finish()
+    events = listener.feed(DELIMITER + _info(rate=1.0, grid=(2, 2)) + _data(x)) + listener.finish()
     listener.close()
     assert [e.index for e in events if isinstance(e, Recorded)] == [0, 1, 2]
     with load_campaign(out) as camp:
@@ -341,7 +343,6 @@ def test_a_host_models_touches_are_not_recorded_by_segments(tmp_path):
     gets the replay file's segments only; a recorder of segments refuses a touch outright."""
     from eskin.deploy.export import CompiledModel
     from eskin.link.events import Decision
-    from eskin.link.recorder import StreamRecorder
 
     recs = [np.moveaxis(_touch_stream(n_quiet=1500), 0, -1)] * 2  # a touch in each
     rf, x = _segment_replay(tmp_path, recs, 3000.0, 0.5)
@@ -357,9 +358,7 @@ def test_a_host_models_touches_are_not_recorded_by_segments(tmp_path):
         assert list(camp.modality) == [1, 0]
         for k, r in enumerate(recs):
             assert np.array_equal(camp.recording(k), r)
-    rec = StreamRecorder(tmp_path / "other.h5", policy="segment", replay=rf, replay_offset=0,
-                         context_s=0.5, overwrite=False, source="recorded", attrs={},
-                         port="test", host_names=[], max_touch_s=7.0)
+    rec = _recorder(tmp_path / "other.h5", "segment", replay=rf)
     with pytest.raises(ValueError, match="the 'segment' policy records no touches"):
         rec.touch(0, 10, "unknown")
     rec.close()
